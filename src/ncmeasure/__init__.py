@@ -1,0 +1,53 @@
+"""ncmeasure: measure the friction of machine-tool feed axes with the machine's own drives.
+
+The pipeline, one folder per stage, data flowing one way:
+
+1. ``config``   a machine file (TOML) -> validated :class:`MachineConfig`
+2. ``plan``     config -> :class:`Schedule`: velocity steps, positions, windows, timing
+3. ``program``  schedule -> NC main program and one subprogram per axis, per
+                controller dialect (Jinja templates), and a reader that checks them
+4. ``cli``      the ``ncmeasure`` command: init, schema, plan, generate, check
+
+The public API is re-exported here::
+
+    from ncmeasure import load_machine, plan_machine, generate_programs
+    config = load_machine("machine.toml")
+    output = generate_programs(config)
+    output.write("out/")
+"""
+
+from __future__ import annotations
+
+__version__ = "0.1.0"
+
+from ncmeasure.config import MachineConfig, config_hash, load_machine
+from ncmeasure.errors import (
+    ConfigError,
+    DialectError,
+    NcMeasureError,
+    OutputError,
+    PlanError,
+    ProgramCheckError,
+    ProgramError,
+)
+from ncmeasure.plan import Schedule, plan_machine
+from ncmeasure.program import GeneratedPrograms, check_programs, generate_programs
+
+__all__ = [
+    "ConfigError",
+    "DialectError",
+    "GeneratedPrograms",
+    "MachineConfig",
+    "NcMeasureError",
+    "OutputError",
+    "PlanError",
+    "ProgramCheckError",
+    "ProgramError",
+    "Schedule",
+    "__version__",
+    "check_programs",
+    "config_hash",
+    "generate_programs",
+    "load_machine",
+    "plan_machine",
+]

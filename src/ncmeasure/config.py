@@ -1,0 +1,489 @@
+"""The machine file: pydantic models of a machine, its axes and the measurement.
+
+A machine file is TOML with three parts: ``[machine]`` (name, controller
+dialect, program name), one ``[[axes]]`` table per feed axis (limits, park
+position, drive data), and ``[measurement]`` (positions, velocity steps,
+windows). An axis may override parts of the measurement in its own
+``[axes.measurement]`` table. Every model forbids unknown keys, so a typo is
+an error, not a silently ignored setting.
+
+:func:`load_machine` reads and validates a file; every problem comes back as
+one ``location: message`` line inside a :class:`~ncmeasure.errors.ConfigError`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import tomllib
+from collections.abc import Iterable, Iterator, Mapping
+from pathlib import Path
+from typing import Annotated, Any, Literal, Self
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+from pydantic_core import PydanticCustomError
+
+from ncmeasure.errors import ConfigError
+
+__all__ = [
+    "AxisConfig",
+    "MachineConfig",
+    "MachineSection",
+    "Measurement",
+    "MeasurementOverride",
+    "config_hash",
+    "format_validation_error",
+    "load_machine",
+    "parse_machine",
+]
+
+# Characters that would break out of a comment or a program name in one of
+# the dialects, or reach into the file system.
+_FORBIDDEN_TEXT = re.compile(r"[\x00-\x1f\x7f;()%$/\\*\"'{}\[\]]|\.\.")
+AXIS_NAME_PATTERN = r"^[A-Z][A-Z0-9]{0,7}$"
+PROGRAM_NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]{0,23}$"
+
+
+def _safe_text(value: str) -> str:
+    match = _FORBIDDEN_TEXT.search(value)
+    if match:
+        shown = repr(match.group(0))
+        raise PydanticCustomError(
+            "unsafe_text",
+            "must not contain {char}: it would break the NC program or a file path",
+            {"char": shown},
+        )
+    return value
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+class MachineSection(_Model):
+    """The ``[machine]`` table: which machine, which controller, which program."""
+
+    name: Annotated[str, Field(min_length=1, max_length=64)] = Field(
+        description="Machine name and serial number, written into every program header.",
+        examples=["HMX-400 #17"],
+    )
+    controller: str = Field(
+        description="Controller dialect, one of `ncmeasure controllers` "
+        "(e.g. sinumerik-840d, fanuc, heidenhain-iso, twincat, linuxcnc).",
+    )
+    program: Annotated[str, Field(pattern=PROGRAM_NAME_PATTERN)] = Field(
+        default="FRICTION",
+        description="Name of the main program; subprograms are named <program>_<axis>. "
+        "Letters, digits and underscores, starting with a letter; the dialect may restrict "
+        "it further.",
+    )
+    program_number: Annotated[int, Field(ge=1, le=99_999_999)] = Field(
+        default=1000,
+        description="Program number for dialects with numbered programs (Fanuc O-number); "
+        "subprograms take the following numbers.",
+    )
+    park_order: list[str] | None = Field(
+        default=None,
+        description="Order in which the main program parks the axes, one axis at a time. "
+        "Default: vertical axes first (retract), then the others in file order.",
+    )
+    measure_order: list[str] | None = Field(
+        default=None,
+        description="Order in which the axes are measured. Default: file order.",
+    )
+
+    controller_options: dict[str, Annotated[int, Field(ge=0, le=99_999)] | bool] = Field(
+        default_factory=dict,
+        description="Machine-specific settings of the controller dialect, e.g. which "
+        "parameter or M function carries the marker (see `ncmeasure controllers --details`).",
+    )
+
+    _check_name = field_validator("name")(classmethod(lambda cls, v: _safe_text(v)))
+
+
+class Measurement(_Model):
+    """The ``[measurement]`` table: what to measure on every axis."""
+
+    positions: int | list[float] = Field(
+        default=3,
+        description="Measuring positions: a count, spread evenly over the usable travel "
+        "(3: next to the fixed bearing, middle, next to the loose bearing), or a list in mm.",
+    )
+    velocity_steps: Annotated[int, Field(ge=1, le=500)] = Field(
+        default=50, description="Number of constant-velocity steps per direction."
+    )
+    min_velocity_mm_min: Annotated[float, Field(gt=0)] = Field(
+        default=10.0, description="Lowest measured velocity in mm/min."
+    )
+    max_velocity_mm_min: Annotated[float, Field(gt=0)] | None = Field(
+        default=None,
+        description="Highest measured velocity in mm/min. "
+        "Default: max_velocity_fraction × the axis' maximum velocity.",
+    )
+    max_velocity_fraction: Annotated[float, Field(gt=0, le=1)] = Field(
+        default=0.5,
+        description="Fraction of the axis maximum velocity used when max_velocity_mm_min "
+        "is not given.",
+    )
+    spacing: Literal["geometric", "linear"] = Field(
+        default="geometric",
+        description="Velocity step spacing: geometric puts more steps at low speed, where "
+        "friction is nonlinear (Stribeck region); linear spaces them evenly.",
+    )
+    window_s: Annotated[float, Field(gt=0, le=600)] | None = Field(
+        default=None,
+        description="Minimum duration of constant velocity per window in s. "
+        "Default: window_samples × sample_period_ms.",
+    )
+    window_samples: Annotated[int, Field(ge=1, le=1_000_000)] = Field(
+        default=100, description="Samples per window when window_s is not given."
+    )
+    sample_period_ms: Annotated[float, Field(gt=0, le=1000)] = Field(
+        default=4.0,
+        description="Sample period of the recording in ms (e.g. the interpolation cycle).",
+    )
+    settle_s: Annotated[float, Field(ge=0, le=10)] = Field(
+        default=0.1,
+        description="Time at constant velocity before the marker goes on, for the servo "
+        "loop to settle after the run-up.",
+    )
+    dynamics_safety: Annotated[float, Field(ge=1, le=10)] = Field(
+        default=1.2,
+        description="Factor on the jerk-limited run-up and stopping distances, covering "
+        "controllers that ramp more gently than the axis limits allow.",
+    )
+    margin_mm: Annotated[float, Field(ge=0)] = Field(
+        default=5.0,
+        description="Distance kept from both soft limits by every move of the measurement.",
+    )
+    warmup_strokes: Annotated[int, Field(ge=0, le=100)] = Field(
+        default=2,
+        description="Back-and-forth strokes over the usable travel before measuring, so "
+        "the lubrication film forms and the first window is not an outlier.",
+    )
+    warmup_velocity_mm_min: Annotated[float, Field(gt=0)] | None = Field(
+        default=None,
+        description="Feed of the warm-up strokes in mm/min. Default: the highest "
+        "measured velocity.",
+    )
+    repetitions: Annotated[int, Field(ge=1, le=100)] = Field(
+        default=1, description="How often the whole measurement of an axis is repeated."
+    )
+    both_directions: bool = Field(
+        default=True,
+        description="Measure in positive and negative direction (Stribeck curve for v > 0 "
+        "and v < 0).",
+    )
+    dwell_s: Annotated[float, Field(ge=0, le=60)] = Field(
+        default=0.0, description="Dwell at standstill before each window, in s."
+    )
+    unfit_steps: Literal["error", "drop"] = Field(
+        default="error",
+        description="A velocity step whose run-up, window and stop do not fit in the usable "
+        "travel: 'error' stops with the numbers, 'drop' leaves the step out with a warning.",
+    )
+
+    @field_validator("positions")
+    @classmethod
+    def _check_positions(cls, value: int | list[float]) -> int | list[float]:
+        if isinstance(value, int):
+            if not 1 <= value <= 50:
+                raise PydanticCustomError("positions", "a count must be between 1 and 50")
+            return value
+        if not value:
+            raise PydanticCustomError("positions", "the list of positions is empty")
+        if len(set(value)) != len(value):
+            raise PydanticCustomError("positions", "the list repeats a position")
+        return sorted(value)
+
+    @model_validator(mode="after")
+    def _check_window(self) -> Self:
+        if "window_s" in self.model_fields_set and "window_samples" in self.model_fields_set:
+            raise PydanticCustomError(
+                "window", "set either window_s or window_samples × sample_period_ms, not both"
+            )
+        return self
+
+    @property
+    def window_duration_s(self) -> float:
+        """Minimum duration of each constant-velocity window in seconds."""
+        if self.window_s is not None:
+            return self.window_s
+        return self.window_samples * self.sample_period_ms / 1000.0
+
+
+class MeasurementOverride(_Model):
+    """Per-axis ``[axes.measurement]`` table: any measurement field, replacing the global one.
+
+    The merged result is validated as a whole :class:`Measurement`.
+    """
+
+    positions: int | list[float] | None = None
+    velocity_steps: int | None = None
+    min_velocity_mm_min: float | None = None
+    max_velocity_mm_min: float | None = None
+    max_velocity_fraction: float | None = None
+    spacing: Literal["geometric", "linear"] | None = None
+    window_s: float | None = None
+    window_samples: int | None = None
+    sample_period_ms: float | None = None
+    settle_s: float | None = None
+    dynamics_safety: float | None = None
+    margin_mm: float | None = None
+    warmup_strokes: int | None = None
+    warmup_velocity_mm_min: float | None = None
+    repetitions: int | None = None
+    both_directions: bool | None = None
+    dwell_s: float | None = None
+    unfit_steps: Literal["error", "drop"] | None = None
+
+
+class AxisConfig(_Model):
+    """One ``[[axes]]`` table: a feed axis, its limits and its drive."""
+
+    name: Annotated[str, Field(pattern=AXIS_NAME_PATTERN)] = Field(
+        description="Axis address as the controller writes it (X, Y, Z, Z1, ...). "
+        "The dialect decides which names it allows.",
+    )
+    travel_mm: tuple[float, float] = Field(
+        description="Soft limits [min, max] in mm. No program position ever leaves them."
+    )
+    park_mm: float = Field(
+        description="Where the axis waits while the other axes are measured, in mm."
+    )
+    max_velocity_mm_min: Annotated[float, Field(gt=0, le=1_000_000)] = Field(
+        description="Maximum axis velocity in mm/min. No feed exceeds it."
+    )
+    rapid_velocity_mm_min: Annotated[float, Field(gt=0, le=1_000_000)] | None = Field(
+        default=None,
+        description="Rapid traverse velocity in mm/min, for the duration estimate. "
+        "Default: max_velocity_mm_min.",
+    )
+    max_acceleration_m_s2: Annotated[float, Field(gt=0, le=200)] = Field(
+        description="Maximum axis acceleration in m/s²."
+    )
+    max_jerk_m_s3: Annotated[float, Field(gt=0, le=100_000)] = Field(
+        description="Maximum axis jerk in m/s³."
+    )
+    fixed_bearing_end: Literal["min", "max"] = Field(
+        default="min", description="Which end of the travel carries the screw's fixed bearing."
+    )
+    vertical: bool = Field(
+        default=False, description="A vertical axis (gravity acts on the motor torque)."
+    )
+    torque_constant_nm_per_a: Annotated[float, Field(gt=0)] | None = Field(
+        default=None, description="Motor torque constant k_T in Nm/A (for the analysis)."
+    )
+    rated_current_a: Annotated[float, Field(gt=0)] | None = Field(
+        default=None, description="Motor rated current in A (drives report current in ‰ of it)."
+    )
+    screw_lead_mm: Annotated[float, Field(gt=0)] | None = Field(
+        default=None, description="Ball-screw lead in mm per revolution."
+    )
+    measurement: MeasurementOverride | None = Field(
+        default=None, description="Per-axis replacement of [measurement] fields."
+    )
+
+    @model_validator(mode="after")
+    def _check_limits(self) -> Self:
+        low, high = self.travel_mm
+        if not low < high:
+            raise PydanticCustomError(
+                "travel",
+                "travel_mm min ({low}) must be below max ({high})",
+                {"low": low, "high": high},
+            )
+        if not low <= self.park_mm <= high:
+            raise PydanticCustomError(
+                "park",
+                "park_mm {park} is outside the travel [{low}, {high}]",
+                {"park": self.park_mm, "low": low, "high": high},
+            )
+        return self
+
+    @property
+    def rapid_mm_min(self) -> float:
+        """Rapid traverse velocity used for duration estimates."""
+        return self.rapid_velocity_mm_min or self.max_velocity_mm_min
+
+
+class MachineConfig(_Model):
+    """A whole machine file."""
+
+    machine: MachineSection
+    axes: Annotated[list[AxisConfig], Field(min_length=1, max_length=32)]
+    measurement: Measurement = Field(default_factory=Measurement)
+
+    @model_validator(mode="after")
+    def _check_axes(self) -> Self:
+        names = [axis.name for axis in self.axes]
+        for name in names:
+            if names.count(name) > 1:
+                raise PydanticCustomError("axes", "axis {name} appears twice", {"name": name})
+        for key in ("park_order", "measure_order"):
+            order = getattr(self.machine, key)
+            if order is not None and sorted(order) != sorted(names):
+                raise PydanticCustomError(
+                    "order",
+                    "machine.{key} must list every axis exactly once ({names})",
+                    {"key": key, "names": ", ".join(names)},
+                )
+        return self
+
+    def axis(self, name: str) -> AxisConfig:
+        """Return the axis called ``name``."""
+        for axis in self.axes:
+            if axis.name == name:
+                return axis
+        raise KeyError(name)
+
+    def park_sequence(self) -> list[AxisConfig]:
+        """Axes in the order the main program parks them (vertical axes first)."""
+        if self.machine.park_order is not None:
+            return [self.axis(name) for name in self.machine.park_order]
+        return sorted(self.axes, key=lambda axis: not axis.vertical)
+
+    def measure_sequence(self) -> list[AxisConfig]:
+        """Axes in the order they are measured."""
+        if self.machine.measure_order is not None:
+            return [self.axis(name) for name in self.machine.measure_order]
+        return list(self.axes)
+
+    def measurement_for(self, axis: AxisConfig) -> Measurement:
+        """The measurement of ``axis``: the global table with the axis' overrides applied."""
+        if axis.measurement is None:
+            return self.measurement
+        merged = self.measurement.model_dump(exclude_unset=True)
+        merged.update(axis.measurement.model_dump(exclude_none=True))
+        return Measurement.model_validate(merged)
+
+
+def _loc_text(loc: Iterable[int | str]) -> str:
+    text = ""
+    for part in loc:
+        if isinstance(part, int):
+            text += f"[{part}]"
+        elif re.fullmatch(r"[a-z_][a-z0-9_]*", part) and part not in {"int", "float", "list"}:
+            text += f".{part}" if text else part
+        # union branch tags such as 'list[float]' or 'function-after[...]' add nothing
+    return text or "(file)"
+
+
+def format_validation_error(exc: ValidationError, prefix: str = "") -> list[str]:
+    """Turn a pydantic error into ``location: message`` lines, one per problem."""
+    lines: list[str] = []
+    for error in exc.errors(include_url=False):
+        loc = _loc_text(error["loc"])
+        if prefix:
+            loc = prefix if loc == "(file)" else f"{prefix}.{loc}"
+        message = error["msg"]
+        if error["type"] == "extra_forbidden":
+            message = "unknown key (check the spelling; see `ncmeasure schema machine`)"
+        elif error["type"] == "missing":
+            message = "required key is missing"
+        line = f"{loc}: {message}"
+        if line not in lines:
+            lines.append(line)
+    return lines
+
+
+def _check_measurements(config: MachineConfig) -> Iterator[str]:
+    """Cross-checks of the merged measurement of every axis against that axis' limits."""
+    for index, axis in enumerate(config.axes):
+        where = f"axes[{index}].measurement" if axis.measurement else "measurement"
+        try:
+            meas = config.measurement_for(axis)
+        except ValidationError as exc:
+            yield from format_validation_error(exc, f"axes[{index}].measurement")
+            continue
+        top = meas.max_velocity_mm_min
+        if top is not None and top > axis.max_velocity_mm_min:
+            yield (
+                f"{where}.max_velocity_mm_min: {top:g} mm/min exceeds the maximum velocity "
+                f"of axis {axis.name} ({axis.max_velocity_mm_min:g} mm/min)"
+            )
+        top = top if top is not None else meas.max_velocity_fraction * axis.max_velocity_mm_min
+        if meas.min_velocity_mm_min >= top:
+            yield (
+                f"{where}.min_velocity_mm_min: {meas.min_velocity_mm_min:g} mm/min must be "
+                f"below the highest measured velocity ({top:g} mm/min) on axis {axis.name}"
+            )
+        warm = meas.warmup_velocity_mm_min
+        if warm is not None and warm > axis.max_velocity_mm_min:
+            yield (
+                f"{where}.warmup_velocity_mm_min: {warm:g} mm/min exceeds the maximum "
+                f"velocity of axis {axis.name} ({axis.max_velocity_mm_min:g} mm/min)"
+            )
+        low, high = axis.travel_mm
+        if 2 * meas.margin_mm >= high - low:
+            yield (
+                f"{where}.margin_mm: {meas.margin_mm:g} mm from both ends leaves no usable "
+                f"travel on axis {axis.name} (travel {high - low:g} mm)"
+            )
+        if isinstance(meas.positions, list):
+            for number, position in enumerate(meas.positions):
+                if not low + meas.margin_mm <= position <= high - meas.margin_mm:
+                    yield (
+                        f"{where}.positions[{number}]: {position:g} mm is outside the usable "
+                        f"travel of axis {axis.name} [{low + meas.margin_mm:g}, "
+                        f"{high - meas.margin_mm:g}] mm"
+                    )
+
+
+def parse_machine(data: Mapping[str, Any], source: str = "machine file") -> MachineConfig:
+    """Validate a machine description already parsed from TOML.
+
+    Raises:
+        ConfigError: with one ``location: message`` line per problem.
+    """
+    try:
+        config = MachineConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(f"{source} is not valid", format_validation_error(exc)) from exc
+    problems = list(_check_measurements(config))
+    if problems:
+        raise ConfigError(f"{source} is not valid", problems)
+    return config
+
+
+def load_machine(path: str | Path) -> MachineConfig:
+    """Read and validate a machine file.
+
+    Raises:
+        ConfigError: the file is missing, is not TOML, or does not describe a valid machine.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError as exc:
+        raise ConfigError(f"{path}: no such file") from exc
+    except IsADirectoryError as exc:
+        raise ConfigError(f"{path}: is a directory, expected a machine file (.toml)") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not a text file (UTF-8 expected)") from exc
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot be read ({exc.strerror})") from exc
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML: {exc}") from exc
+    return parse_machine(data, str(path))
+
+
+def config_hash(config: MachineConfig) -> str:
+    """A short, stable fingerprint of a validated machine description.
+
+    Two files that describe the same machine and measurement get the same
+    hash whatever their layout or comments, so programs, schedules and
+    recordings can be matched.
+    """
+    canonical = json.dumps(config.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(canonical.encode("utf-8")).hexdigest()[:16]

@@ -1,0 +1,78 @@
+"""The example machine that ``ncmeasure init`` prints: a commented, valid machine file."""
+
+from __future__ import annotations
+
+__all__ = ["EXAMPLE_TEMPLATE", "example_machine"]
+
+EXAMPLE_TEMPLATE = """\
+# ncmeasure machine file: one file per machine type; generate the program once
+# and use it for every machine of the type, at delivery and over its life.
+# Reference of every key: `ncmeasure schema machine`, or the README.
+
+[machine]
+name = "HMX-400 #17"            # machine and serial number, written into the programs
+controller = "{controller}"     # see `ncmeasure controllers`
+program = "FRICTION"            # main program name; subprograms are FRICTION_<axis>
+# program_number = 1000         # numbered dialects (Fanuc): O1000, subprograms O1001...
+# park_order = ["Z", "X", "Y"]  # default: vertical axes first, then file order
+# measure_order = ["X", "Y", "Z"]
+
+# One [[axes]] table per feed axis. Limits are those of the controller's
+# machine data; no block of the program ever leaves them.
+[[axes]]
+name = "X"
+travel_mm = [0.0, 750.0]          # soft limits [min, max]
+park_mm = 375.0                   # where X waits while the other axes are measured
+max_velocity_mm_min = 30000
+max_acceleration_m_s2 = 2.0
+max_jerk_m_s3 = 40.0
+fixed_bearing_end = "min"         # which end carries the screw's fixed bearing
+vertical = false
+torque_constant_nm_per_a = 2.1    # drive data for the analysis (optional)
+rated_current_a = 17.7
+screw_lead_mm = 20.0
+
+[[axes]]
+name = "Y"
+travel_mm = [0.0, 600.0]
+park_mm = 300.0
+max_velocity_mm_min = 30000
+max_acceleration_m_s2 = 2.0
+max_jerk_m_s3 = 40.0
+fixed_bearing_end = "min"
+torque_constant_nm_per_a = 2.1
+rated_current_a = 17.7
+screw_lead_mm = 20.0
+
+[[axes]]
+name = "Z"
+travel_mm = [-500.0, 0.0]
+park_mm = -5.0                    # retracted: parked first, before X and Y move
+max_velocity_mm_min = 24000
+max_acceleration_m_s2 = 2.0
+max_jerk_m_s3 = 40.0
+fixed_bearing_end = "max"
+vertical = true
+torque_constant_nm_per_a = 2.1
+rated_current_a = 17.7
+screw_lead_mm = 20.0
+# [axes.measurement]              # per-axis overrides of [measurement]
+# max_velocity_mm_min = 10000
+
+[measurement]
+positions = 3                     # or a list in mm, e.g. [50.0, 375.0, 700.0]
+velocity_steps = 50               # per direction; geometric spacing: fine at low speed
+min_velocity_mm_min = 10
+max_velocity_mm_min = 15000       # default: half the axis maximum
+window_samples = 100              # window = 100 samples x 4 ms = 0.4 s of constant velocity
+sample_period_ms = 4.0
+margin_mm = 5.0                   # kept from both soft limits
+warmup_strokes = 2                # back-and-forth strokes before measuring
+repetitions = 1
+both_directions = true
+"""
+
+
+def example_machine(controller: str) -> str:
+    """The example machine file for ``controller``."""
+    return EXAMPLE_TEMPLATE.format(controller=controller)

@@ -1,0 +1,548 @@
+"""The measurement planner: machine config -> schedule. Pure, no I/O.
+
+For every axis the planner chooses the velocity steps and measuring
+positions, and for every (repetition, step, position, direction) a *run*:
+the axis starts at rest, accelerates over the run-up, holds the velocity
+through a settle time and the measuring *window*, and stops over the run-out.
+Run-up and run-out are the distances of a jerk-limited profile
+(:mod:`ncmeasure.profile`) times a safety factor, so the controller reaches
+the velocity before the window and can stop after it, inside the usable
+travel (soft limits minus the margin).
+
+All positions are planned in integer micrometres and all feeds are rounded
+down to 0.001 mm/min, so what the templates print is exactly what was
+checked: no rounding can push a block over a limit.
+
+The runs are ordered to keep rapids short: at each velocity the axis sweeps
+the positions forward in positive direction and back in negative direction.
+The result is a :class:`Schedule`: the moves each subprogram makes
+(:class:`Rapid`, :class:`Feed`, :class:`Run`, :class:`Dwell`) and the windows the analysis
+will cut out of the recording, with their expected times.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict
+
+from ncmeasure import __version__
+from ncmeasure.config import AxisConfig, MachineConfig, Measurement, config_hash
+from ncmeasure.errors import PlanError
+from ncmeasure.profile import move_time_s, ramp
+
+__all__ = [
+    "AxisPlan",
+    "Comment",
+    "Dwell",
+    "Feed",
+    "Move",
+    "Rapid",
+    "Run",
+    "Schedule",
+    "Window",
+    "plan_axis",
+    "plan_machine",
+    "velocity_steps",
+]
+
+log = logging.getLogger(__name__)
+
+SCHEDULE_FORMAT = "ncmeasure-schedule"
+SCHEDULE_FORMAT_VERSION = 1
+
+
+def _um(value_mm: float) -> int:
+    return round(value_mm * 1000.0)
+
+
+def _ceil_um(value_mm: float) -> int:
+    # A tiny tolerance keeps exact values (e.g. 2.5 mm) from rounding up by float noise.
+    return math.ceil(value_mm * 1000.0 - 1e-6)
+
+
+def _floor_um(value_mm: float) -> int:
+    return math.floor(value_mm * 1000.0 + 1e-6)
+
+
+def _mm(value_um: int) -> float:
+    return value_um / 1000.0
+
+
+def _floor_feed(value_mm_min: float) -> float:
+    return math.floor(value_mm_min * 1000.0 + 1e-6) / 1000.0
+
+
+@dataclass(frozen=True)
+class Rapid:
+    """Rapid traverse (G0) of one axis to ``target_mm``."""
+
+    axis: str
+    target_mm: float
+    kind: Literal["rapid"] = "rapid"
+
+
+@dataclass(frozen=True)
+class Feed:
+    """Linear feed (G1) of one axis to ``target_mm`` at ``feed_mm_min`` (warm-up)."""
+
+    axis: str
+    target_mm: float
+    feed_mm_min: float
+    kind: Literal["feed"] = "feed"
+
+
+@dataclass(frozen=True)
+class Run:
+    """One measuring run, from rest at the current position to rest at ``stop_mm``.
+
+    Three collinear feed blocks at the same feed: run-up to ``window_start_mm``,
+    the window to ``window_end_mm`` (marker = ``window_id``), run-out to
+    ``stop_mm`` (marker back to 0). How the marker is written is the dialect's
+    business.
+    """
+
+    axis: str
+    start_mm: float
+    window_start_mm: float
+    window_end_mm: float
+    stop_mm: float
+    feed_mm_min: float
+    window_id: int
+    kind: Literal["run"] = "run"
+
+
+@dataclass(frozen=True)
+class Dwell:
+    """Standstill for ``seconds``."""
+
+    seconds: float
+    kind: Literal["dwell"] = "dwell"
+
+
+@dataclass(frozen=True)
+class Comment:
+    """A comment line in the program (dialects without comments drop it)."""
+
+    text: str
+    kind: Literal["comment"] = "comment"
+
+
+Move = Rapid | Feed | Run | Dwell | Comment
+
+
+class Window(BaseModel):
+    """One constant-velocity measuring window, as schedule.json lists it."""
+
+    model_config = ConfigDict(frozen=True)
+
+    id: int
+    """Window number within the axis, starting at 1; the marker value."""
+    axis: str
+    repetition: int
+    step: int
+    """Velocity step index, 0 = slowest."""
+    velocity_mm_min: float
+    """Signed velocity: negative in negative direction."""
+    direction: Literal[1, -1]
+    position_index: int
+    nominal_position_mm: float
+    position_mm: float
+    """Window centre; differs from the nominal position where the run-up did not fit."""
+    start_mm: float
+    """Where the run starts, at rest."""
+    window_start_mm: float
+    window_end_mm: float
+    stop_mm: float
+    """Where the run stops, at rest."""
+    t_start_s: float
+    t_window_start_s: float
+    t_window_end_s: float
+    t_stop_s: float
+    """Expected times from the start of the main program."""
+
+
+class AxisSummary(BaseModel):
+    """Per-axis part of a schedule."""
+
+    model_config = ConfigDict(frozen=True)
+
+    name: str
+    travel_mm: tuple[float, float]
+    usable_mm: tuple[float, float]
+    park_mm: float
+    max_velocity_mm_min: float
+    vertical: bool
+    fixed_bearing_end: Literal["min", "max"]
+    torque_constant_nm_per_a: float | None
+    rated_current_a: float | None
+    screw_lead_mm: float | None
+    nominal_positions_mm: list[float]
+    velocities_mm_min: list[float]
+    dropped_velocities_mm_min: list[float]
+    runup_at_max_velocity_mm: float
+    window_s: float
+    settle_s: float
+    sample_period_ms: float
+    warmup_strokes: int
+    repetitions: int
+    both_directions: bool
+    t_start_s: float
+    duration_s: float
+    full_travel_duration_s: float
+    windows: list[Window]
+
+
+class Schedule(BaseModel):
+    """What the programs do and when: the velocity file the analysis reads."""
+
+    model_config = ConfigDict(frozen=True)
+
+    format: str = SCHEDULE_FORMAT
+    format_version: int = SCHEDULE_FORMAT_VERSION
+    ncmeasure_version: str = __version__
+    config_hash: str
+    machine: str
+    controller: str
+    program: str
+    duration_s: float
+    """Estimated duration of the whole program (parking, warm-up, runs, rapids)."""
+    full_travel_duration_s: float
+    """The same measurement driving the full usable travel at every step."""
+    warnings: list[str]
+    main_program: str = ""
+    """File name of the main program (set when programs are generated)."""
+    marker_scope: Literal["window", "run", "none"] = "window"
+    """What the marker brackets in the generated programs (see the dialect)."""
+    marker_values: Literal["window_id", "flag"] = "window_id"
+    axes: list[AxisSummary]
+
+
+@dataclass
+class AxisPlan:
+    """Everything planned for one axis: moves for the template, windows for the schedule."""
+
+    axis: AxisConfig
+    measurement: Measurement
+    moves: list[Move]
+    summary: AxisSummary
+    warnings: list[str] = field(default_factory=list)
+
+
+def velocity_steps(meas: Measurement, axis: AxisConfig) -> list[float]:
+    """The measured velocities of ``axis`` in mm/min, ascending, rounded down to 0.001."""
+    top = meas.max_velocity_mm_min
+    if top is None:
+        top = meas.max_velocity_fraction * axis.max_velocity_mm_min
+    top = min(top, axis.max_velocity_mm_min)
+    low, count = meas.min_velocity_mm_min, meas.velocity_steps
+    if count == 1:
+        values = [top]
+    elif meas.spacing == "geometric":
+        ratio = top / low
+        values = [low * ratio ** (k / (count - 1)) for k in range(count)]
+    else:
+        values = [low + (top - low) * k / (count - 1) for k in range(count)]
+    steps = sorted({_floor_feed(v) for v in values})
+    if len(steps) < len(values):
+        log.warning("axis %s: velocity steps closer than 0.001 mm/min merged", axis.name)
+    return steps
+
+
+def nominal_positions_um(meas: Measurement, low_um: int, high_um: int) -> list[int]:
+    """Measuring positions in µm: explicit ones, or a count spread over [low, high]."""
+    if isinstance(meas.positions, list):
+        return [_um(p) for p in meas.positions]
+    count = meas.positions
+    if count == 1:
+        return [(low_um + high_um) // 2]
+    return [low_um + round((high_um - low_um) * i / (count - 1)) for i in range(count)]
+
+
+@dataclass(frozen=True)
+class _RunGeometry:
+    """Lengths of one run at one velocity, in µm."""
+
+    runup_um: int  # rest to window start: ramp × safety + settle distance
+    window_um: int
+    runout_um: int  # window end to rest: ramp × safety
+    ramp_time_s: float
+
+
+def _geometry(v_mm_min: float, axis: AxisConfig, meas: Measurement) -> _RunGeometry:
+    r = ramp(v_mm_min, axis.max_acceleration_m_s2, axis.max_jerk_m_s3)
+    v_mm_s = v_mm_min / 60.0
+    runout = _ceil_um(r.distance_mm * meas.dynamics_safety)
+    runup = runout + _ceil_um(v_mm_s * meas.settle_s)
+    window = _ceil_um(v_mm_s * meas.window_duration_s)
+    window += window % 2  # even, so the window centres exactly on its position
+    return _RunGeometry(runup, window, runout, r.time_s)
+
+
+def _run_time_s(
+    geo: _RunGeometry, v_mm_min: float, axis: AxisConfig, meas: Measurement
+) -> tuple[float, float, float]:
+    """Times from the start of a run to window start, window end and stop."""
+    # The whole run is one rest-to-rest move at feed v: the ramp takes ramp_time_s,
+    # the rest of the run-up and run-out is covered at constant velocity.
+    v_mm_s = v_mm_min / 60.0
+    ramp_mm = ramp(v_mm_min, axis.max_acceleration_m_s2, axis.max_jerk_m_s3).distance_mm
+    t_window_start = geo.ramp_time_s + (_mm(geo.runup_um) - ramp_mm) / v_mm_s
+    t_window_end = t_window_start + _mm(geo.window_um) / v_mm_s
+    t_stop = t_window_end + (_mm(geo.runout_um) - ramp_mm) / v_mm_s + geo.ramp_time_s
+    return t_window_start, t_window_end, t_stop
+
+
+class _Clock:
+    """Accumulates the expected program time while moves are appended."""
+
+    def __init__(self, axis: AxisConfig, start_s: float, position_mm: float) -> None:
+        self.axis = axis
+        self.t_s = start_s
+        self.position_mm = position_mm
+        self.moves: list[Move] = []
+
+    def rapid(self, target_um: int) -> None:
+        target = _mm(target_um)
+        if target == self.position_mm:
+            return
+        self.t_s += move_time_s(
+            target - self.position_mm,
+            self.axis.rapid_mm_min,
+            self.axis.max_acceleration_m_s2,
+            self.axis.max_jerk_m_s3,
+        )
+        self.position_mm = target
+        self.moves.append(Rapid(self.axis.name, target))
+
+    def feed(self, target_um: int, feed_mm_min: float) -> None:
+        target = _mm(target_um)
+        self.t_s += move_time_s(
+            target - self.position_mm,
+            feed_mm_min,
+            self.axis.max_acceleration_m_s2,
+            self.axis.max_jerk_m_s3,
+        )
+        self.position_mm = target
+        self.moves.append(Feed(self.axis.name, target, feed_mm_min))
+
+    def dwell(self, seconds: float) -> None:
+        if seconds > 0:
+            self.t_s += seconds
+            self.moves.append(Dwell(seconds))
+
+
+def _full_travel_time_s(
+    axis: AxisConfig, meas: Measurement, velocities: Sequence[float], low_um: int, high_um: int
+) -> float:
+    """Duration of the same measurement driving the whole usable travel at every step."""
+    length = _mm(high_um - low_um)
+    a, j = axis.max_acceleration_m_s2, axis.max_jerk_m_s3
+    total = 0.0
+    for v in velocities:
+        feed = move_time_s(length, v, a, j)
+        back = feed if meas.both_directions else move_time_s(length, axis.rapid_mm_min, a, j)
+        total += feed + back + 2 * meas.dwell_s
+    return total * meas.repetitions
+
+
+def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> AxisPlan:
+    """Plan the subprogram of one axis, starting at its park position at time ``start_s``.
+
+    Raises:
+        PlanError: a velocity step cannot fit in the usable travel and
+            ``unfit_steps`` is ``"error"``.
+    """
+    meas = config.measurement_for(axis)
+    warnings: list[str] = []
+    low_um = _ceil_um(axis.travel_mm[0] + meas.margin_mm)
+    high_um = _floor_um(axis.travel_mm[1] - meas.margin_mm)
+    available_um = high_um - low_um
+    nominal = nominal_positions_um(meas, low_um, high_um)
+    directions: tuple[Literal[1, -1], ...] = (1, -1) if meas.both_directions else (1,)
+
+    velocities: list[float] = []
+    dropped: list[float] = []
+    geometry: dict[float, _RunGeometry] = {}
+    for v in velocity_steps(meas, axis):
+        geo = _geometry(v, axis, meas)
+        needed = geo.window_um + (
+            2 * geo.runup_um if meas.both_directions else geo.runup_um + geo.runout_um
+        )
+        if needed > available_um:
+            message = (
+                f"axis {axis.name}: the step at {v:g} mm/min needs {_mm(needed):g} mm "
+                f"(run-up {_mm(geo.runup_um):g} mm, window {_mm(geo.window_um):g} mm, "
+                f"stop {_mm(geo.runout_um):g} mm) but only {_mm(available_um):g} mm of travel "
+                f"are usable"
+            )
+            if meas.unfit_steps == "error":
+                raise PlanError(
+                    message,
+                    [
+                        "lower the highest velocity (measurement.max_velocity_mm_min), "
+                        "shorten the window (measurement.window_s / window_samples), or set "
+                        'measurement.unfit_steps = "drop"'
+                    ],
+                )
+            warnings.append(message + "; step dropped")
+            dropped.append(v)
+            continue
+        velocities.append(v)
+        geometry[v] = geo
+    if not velocities:
+        raise PlanError(f"axis {axis.name}: no velocity step fits in the usable travel")
+
+    clock = _Clock(axis, start_s, axis.park_mm)
+    clock.moves.append(Comment(f"measurement of axis {axis.name}"))
+    warm_feed = _floor_feed(
+        min(meas.warmup_velocity_mm_min or velocities[-1], axis.max_velocity_mm_min)
+    )
+    if meas.warmup_strokes:
+        clock.moves.append(Comment(f"warm-up: {meas.warmup_strokes} strokes"))
+        clock.rapid(low_um)
+        for _ in range(meas.warmup_strokes):
+            clock.feed(high_um, warm_feed)
+            clock.feed(low_um, warm_feed)
+
+    windows: list[Window] = []
+    shifted: set[int] = set()
+    for repetition in range(meas.repetitions):
+        for step, v in enumerate(velocities):
+            geo = geometry[v]
+            half = geo.window_um // 2
+            reach = geo.runup_um if meas.both_directions else max(geo.runup_um, geo.runout_um)
+            c_min = low_um + half + reach
+            c_max = high_um - half - (geo.runup_um if meas.both_directions else geo.runout_um)
+            clock.moves.append(
+                Comment(f"repetition {repetition + 1}, step {step + 1}: {v:g} mm/min")
+            )
+            for direction in directions:
+                order = range(len(nominal)) if direction > 0 else reversed(range(len(nominal)))
+                for index in order:
+                    centre = min(max(nominal[index], c_min), c_max)
+                    if centre != nominal[index]:
+                        shifted.add(index)
+                    w_start = centre - direction * half
+                    w_end = centre + direction * half
+                    start = w_start - direction * geo.runup_um
+                    stop = w_end + direction * geo.runout_um
+                    clock.rapid(start)
+                    clock.dwell(meas.dwell_s)
+                    t0 = clock.t_s
+                    t_ws, t_we, t_stop = _run_time_s(geo, v, axis, meas)
+                    number = len(windows) + 1
+                    clock.moves.append(
+                        Run(axis.name, _mm(start), _mm(w_start), _mm(w_end), _mm(stop), v, number)
+                    )
+                    clock.position_mm = _mm(stop)
+                    clock.t_s = t0 + t_stop
+                    windows.append(
+                        Window(
+                            id=number,
+                            axis=axis.name,
+                            repetition=repetition,
+                            step=step,
+                            velocity_mm_min=direction * v,
+                            direction=direction,
+                            position_index=index,
+                            nominal_position_mm=_mm(nominal[index]),
+                            position_mm=_mm(centre),
+                            start_mm=_mm(start),
+                            window_start_mm=_mm(w_start),
+                            window_end_mm=_mm(w_end),
+                            stop_mm=_mm(stop),
+                            t_start_s=round(t0, 4),
+                            t_window_start_s=round(t0 + t_ws, 4),
+                            t_window_end_s=round(t0 + t_we, 4),
+                            t_stop_s=round(t0 + t_stop, 4),
+                        )
+                    )
+    clock.moves.append(Comment(f"axis {axis.name} back to its park position"))
+    clock.rapid(_um(axis.park_mm))
+    for index in sorted(shifted):
+        warnings.append(
+            f"axis {axis.name}: position {_mm(nominal[index]):g} mm shifted inward at high "
+            "velocities so the run-up fits"
+        )
+
+    a, j = axis.max_acceleration_m_s2, axis.max_jerk_m_s3
+    warmup_s = meas.warmup_strokes * 2 * move_time_s(_mm(available_um), warm_feed, a, j)
+    rapids_s = 2 * move_time_s(
+        max(abs(axis.park_mm - _mm(low_um)), abs(axis.park_mm - _mm(high_um))),
+        axis.rapid_mm_min,
+        a,
+        j,
+    )
+    full_s = warmup_s + rapids_s + _full_travel_time_s(axis, meas, velocities, low_um, high_um)
+    top = velocities[-1]
+    summary = AxisSummary(
+        name=axis.name,
+        travel_mm=axis.travel_mm,
+        usable_mm=(_mm(low_um), _mm(high_um)),
+        park_mm=axis.park_mm,
+        max_velocity_mm_min=axis.max_velocity_mm_min,
+        vertical=axis.vertical,
+        fixed_bearing_end=axis.fixed_bearing_end,
+        torque_constant_nm_per_a=axis.torque_constant_nm_per_a,
+        rated_current_a=axis.rated_current_a,
+        screw_lead_mm=axis.screw_lead_mm,
+        nominal_positions_mm=[_mm(p) for p in nominal],
+        velocities_mm_min=velocities,
+        dropped_velocities_mm_min=dropped,
+        runup_at_max_velocity_mm=_mm(geometry[top].runup_um),
+        window_s=meas.window_duration_s,
+        settle_s=meas.settle_s,
+        sample_period_ms=meas.sample_period_ms,
+        warmup_strokes=meas.warmup_strokes,
+        repetitions=meas.repetitions,
+        both_directions=meas.both_directions,
+        t_start_s=round(start_s, 4),
+        duration_s=round(clock.t_s - start_s, 3),
+        full_travel_duration_s=round(full_s, 3),
+        windows=windows,
+    )
+    return AxisPlan(
+        axis=axis, measurement=meas, moves=clock.moves, summary=summary, warnings=warnings
+    )
+
+
+def park_time_s(axis: AxisConfig) -> float:
+    """Upper bound of the time to park an axis from anywhere in its travel."""
+    distance = max(axis.park_mm - axis.travel_mm[0], axis.travel_mm[1] - axis.park_mm)
+    return move_time_s(distance, axis.rapid_mm_min, axis.max_acceleration_m_s2, axis.max_jerk_m_s3)
+
+
+def plan_machine(config: MachineConfig) -> tuple[Schedule, list[AxisPlan]]:
+    """Plan the whole measurement program of a machine.
+
+    Returns:
+        The schedule (what schedule.json holds) and the per-axis plans the
+        program renderer turns into subprograms.
+
+    Raises:
+        PlanError: a step does not fit, with the axis, velocity and lengths.
+    """
+    t_s = sum(park_time_s(axis) for axis in config.park_sequence())
+    plans: list[AxisPlan] = []
+    for axis in config.measure_sequence():
+        plan = plan_axis(config, axis, start_s=t_s)
+        t_s += plan.summary.duration_s
+        plans.append(plan)
+    park_s = sum(park_time_s(axis) for axis in config.park_sequence())
+    full_s = park_s + sum(p.summary.full_travel_duration_s for p in plans)
+    schedule = Schedule(
+        config_hash=config_hash(config),
+        machine=config.machine.name,
+        controller=config.machine.controller,
+        program=config.machine.program,
+        duration_s=round(t_s, 3),
+        full_travel_duration_s=round(full_s, 3),
+        warnings=[w for p in plans for w in p.warnings],
+        axes=[p.summary for p in plans],
+    )
+    return schedule, plans

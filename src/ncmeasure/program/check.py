@@ -1,0 +1,212 @@
+"""The program checker: re-read generated programs and hold them against limits and schedule.
+
+``check_programs`` reads ``schedule.json`` in a program folder, reads the
+programs with :mod:`ncmeasure.program.reader` (which knows nothing of the
+templates), and verifies that
+
+* the main program parks every axis, one at a time, before anything else;
+* every move targets one axis only and stays inside that axis' soft limits;
+* every feed is at most the axis' maximum velocity;
+* every window of the schedule is driven, in order, from its start to its end
+  at its velocity, and the marker is on exactly where the dialect says;
+* the program ends with every axis back at its park position.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from ncmeasure.config import format_validation_error
+from ncmeasure.errors import ProgramCheckError, ProgramError
+from ncmeasure.plan import AxisSummary, Schedule
+from ncmeasure.program.dialect import load_dialect
+from ncmeasure.program.reader import Motion, ProgramTrace, read_programs
+from ncmeasure.program.render import SCHEDULE_FILE
+
+__all__ = ["CheckReport", "check_programs", "check_trace", "load_schedule"]
+
+_TOL_MM = 0.0005
+_TOL_FEED = 0.0005
+_MAX_LISTED = 20
+
+
+@dataclass
+class CheckReport:
+    """What the checker read and what it found."""
+
+    directory: Path
+    controller: str
+    motions: int = 0
+    feeds: int = 0
+    windows_expected: int = 0
+    windows_found: int = 0
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        """True when no problem was found."""
+        return not self.problems
+
+
+def load_schedule(path: str | Path) -> Schedule:
+    """Read a schedule.json.
+
+    Raises:
+        ProgramError: missing, not JSON, or not a schedule.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as exc:
+        raise ProgramError(f"{path}: no schedule here (generate writes {SCHEDULE_FILE})") from exc
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ProgramError(f"{path}: not a readable schedule: {exc}") from exc
+    try:
+        return Schedule.model_validate(data)
+    except ValidationError as exc:
+        raise ProgramError(f"{path}: not a valid schedule", format_validation_error(exc)) from exc
+
+
+def _where(motion: Motion) -> str:
+    return f"{motion.program}:{motion.line}"
+
+
+def _check_window_markers(
+    schedule: Schedule, axis: AxisSummary, feeds: list[Motion], report: CheckReport
+) -> None:
+    windows = axis.windows
+    report.windows_expected += len(windows)
+    scope = schedule.marker_scope
+    expected_marker = [0.0] * len(feeds)
+    next_feed = 0
+    for window in windows:
+        speed = abs(window.velocity_mm_min)
+        found = None
+        for index in range(next_feed, len(feeds)):
+            motion = feeds[index]
+            start = motion.start[axis.name]
+            if (
+                start is not None
+                and abs(start - window.window_start_mm) <= _TOL_MM
+                and abs(motion.target[axis.name] - window.window_end_mm) <= _TOL_MM
+                and motion.feed_mm_min is not None
+                and abs(motion.feed_mm_min - speed) <= _TOL_FEED
+            ):
+                found = index
+                break
+        if found is None:
+            report.problems.append(
+                f"axis {axis.name}: window {window.id} ({window.window_start_mm:g} -> "
+                f"{window.window_end_mm:g} mm at {speed:g} mm/min) is not driven in order"
+            )
+            return
+        report.windows_found += 1
+        value = float(window.id if schedule.marker_values == "window_id" else 1)
+        expected_marker[found] = value
+        if scope == "run":
+            for index in (found - 1, found + 1):
+                if 0 <= index < len(feeds):
+                    expected_marker[index] = value
+        next_feed = found + 1
+    if scope == "none":
+        return
+    for motion, expected in zip(feeds, expected_marker, strict=True):
+        if motion.marker != expected:
+            report.problems.append(
+                f"{_where(motion)}: marker is {motion.marker:g} during this feed, "
+                f"expected {expected:g}"
+            )
+
+
+def check_trace(schedule: Schedule, trace: ProgramTrace, report: CheckReport) -> None:
+    """Hold a read program against its schedule; append problems to ``report``."""
+    axes = {axis.name: axis for axis in schedule.axes}
+    report.motions = len(trace.motions)
+    problems = report.problems
+    if not trace.ended:
+        problems.append("the main program never reaches its end (M30/M2)")
+    parking = trace.motions[: len(axes)]
+    parked = {
+        axis
+        for motion in parking
+        if motion.kind == "rapid" and len(motion.target) == 1
+        for axis, target in motion.target.items()
+        if axis in axes and abs(target - axes[axis].park_mm) <= _TOL_MM
+    }
+    if parked != set(axes):
+        missing = ", ".join(sorted(set(axes) - parked)) or "?"
+        problems.append(
+            f"the program does not start by parking every axis alone (not parked first: {missing})"
+        )
+    if any(m.calls > 0 for m in parking):
+        problems.append("a subprogram is called before every axis is parked")
+    feeds_by_axis: dict[str, list[Motion]] = {name: [] for name in axes}
+    for motion in trace.motions:
+        if len(motion.target) != 1:
+            problems.append(f"{_where(motion)}: moves several axes at once")
+        for name, target in motion.target.items():
+            axis = axes.get(name)
+            if axis is None:
+                problems.append(f"{_where(motion)}: moves axis {name}, which the schedule lacks")
+                continue
+            low, high = axis.travel_mm
+            if not low - 1e-9 <= target <= high + 1e-9:
+                problems.append(
+                    f"{_where(motion)}: axis {name} to {target:g} mm, outside the soft limits "
+                    f"[{low:g}, {high:g}]"
+                )
+            if motion.kind == "feed":
+                assert motion.feed_mm_min is not None
+                if motion.feed_mm_min > axis.max_velocity_mm_min + 1e-9:
+                    problems.append(
+                        f"{_where(motion)}: feed {motion.feed_mm_min:g} mm/min exceeds the "
+                        f"maximum of axis {name} ({axis.max_velocity_mm_min:g} mm/min)"
+                    )
+                feeds_by_axis[name].append(motion)
+            elif motion.marker != 0 and schedule.marker_scope != "none":
+                problems.append(f"{_where(motion)}: marker on during a rapid move")
+    report.feeds = sum(len(f) for f in feeds_by_axis.values())
+    for name, axis in axes.items():
+        _check_window_markers(schedule, axis, feeds_by_axis[name], report)
+    final: dict[str, float] = {}
+    for motion in trace.motions:
+        final.update(motion.target)
+    for name, axis in axes.items():
+        if name in final and abs(final[name] - axis.park_mm) > _TOL_MM:
+            problems.append(
+                f"axis {name} ends at {final[name]:g} mm, not at its park position "
+                f"{axis.park_mm:g} mm"
+            )
+
+
+def check_programs(directory: str | Path, controllers_dirs: tuple[Path, ...] = ()) -> CheckReport:
+    """Check the generated programs in ``directory`` against their schedule.json.
+
+    Returns:
+        The report; its ``problems`` list is empty when everything holds.
+
+    Raises:
+        ProgramError: the folder holds no readable schedule or program.
+        ProgramCheckError: a program leaves its limits or its schedule.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise ProgramError(f"{directory}: not a directory of generated programs")
+    schedule = load_schedule(directory / SCHEDULE_FILE)
+    dialect = load_dialect(schedule.controller, controllers_dirs)
+    trace = read_programs(
+        dialect, directory, schedule.main_program, {axis.name for axis in schedule.axes}
+    )
+    report = CheckReport(directory=directory, controller=dialect.name)
+    check_trace(schedule, trace, report)
+    if report.problems:
+        listed = report.problems[:_MAX_LISTED]
+        more = len(report.problems) - len(listed)
+        if more:
+            listed.append(f"... and {more} more")
+        raise ProgramCheckError(f"{directory}: {len(report.problems)} problem(s) found", listed)
+    return report

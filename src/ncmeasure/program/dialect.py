@@ -1,0 +1,278 @@
+"""Controller dialects: the facts of one NC language, read from ``controllers/<name>.toml``.
+
+A dialect file says how programs are named and stored, how numbers, words,
+comments and block numbers are written, which marker mechanism the programs
+use, which machine-specific options a machine file may set, and how
+ncmeasure's own program reader recognises calls, returns and markers. The
+G-code shapes themselves live in the dialect's templates.
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from ncmeasure.config import MachineConfig, format_validation_error
+from ncmeasure.errors import ConfigError, DialectError
+from ncmeasure.resources import builtin_dir
+
+__all__ = [
+    "Dialect",
+    "available_dialects",
+    "dialect_warnings",
+    "load_dialect",
+    "validate_for_dialect",
+]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _regex(value: str) -> str:
+    try:
+        re.compile(value)
+    except re.error as exc:
+        raise ValueError(f"invalid regular expression {value!r}: {exc}") from exc
+    return value
+
+
+class Names(_Strict):
+    """How programs and their files are named."""
+
+    numbered: bool = False
+    """Programs are numbers (Fanuc O-numbers): name = number_format."""
+    number_format: str = "O{number:04d}"
+    max_number: int = 9999
+    main: str = "{program}"
+    sub: str = "{program}_{axis}"
+    case: Literal["upper", "lower", "keep"] = "upper"
+    pattern: str = r"^[A-Z][A-Z0-9_]*$"
+    max_length: int = 24
+    main_file: str = "{name}.nc"
+    sub_file: str = "{name}.nc"
+    axis_pattern: str = r"^[XYZ]$"
+    axis_word: str = "{axis}{value}"
+    """How an axis word is written; multi-letter axes may need '{axis}={value}'."""
+
+    _check = field_validator("pattern", "axis_pattern")(classmethod(lambda cls, v: _regex(v)))
+
+
+class Numbers(_Strict):
+    """How numbers are written."""
+
+    decimals: int = Field(3, ge=0, le=6)
+    plus_sign: bool = False
+    feed_decimals: int = Field(3, ge=0, le=6)
+    feed_trailing_point: bool = False
+    """Write 'F1000.' rather than 'F1000' for whole feeds."""
+
+
+class Blocks(_Strict):
+    """Block numbers added after rendering."""
+
+    numbered: bool = False
+    start: int = 10
+    step: int = 10
+    skip: str = r"^(%|N)"
+    """Lines that get no block number (regular expression)."""
+
+
+class Comments(_Strict):
+    """Comment syntax, or none."""
+
+    supported: bool = True
+    open: str = "("
+    close: str = ")"
+    forbidden: str = "()"
+    """Characters removed from comment text."""
+    upper: bool = False
+
+
+class Marker(_Strict):
+    """How the programs mark a measuring window."""
+
+    scope: Literal["window", "run", "none"]
+    """'window': the marker is on exactly during the window block; 'run': it is
+    written at standstill before and after the whole run (run-up to stop);
+    'none': the dialect has no usable marker, windows come from positions."""
+    values: Literal["window_id", "flag"] = "window_id"
+    mechanism: str
+    """What the marker is and why it is synchronous with motion."""
+
+
+class Reader(_Strict):
+    """Patterns ncmeasure's program reader uses for this dialect (case-insensitive)."""
+
+    comments: Sequence[str] = (r"\(.*?\)", r";.*$")
+    ignore: Sequence[str] = ()
+    """Whole lines to skip (program headers and the like)."""
+    program_start: str | None = None
+    """Splits a file into programs; group 'key' names the program."""
+    program_key: Literal["stem", "file"] = "stem"
+    call: str | None = None
+    """A subprogram call; group 'key' names the called program."""
+    ret: str | None = None
+    end: str = r"^M(30|0?2)$"
+    marker: Sequence[str] = ()
+    """Set the marker; optional group 'value' (default 1)."""
+    marker_off: Sequence[str] = ()
+    dwell_word: str = "P"
+    dwell_scale: float = 1.0
+    """Seconds per unit of the dwell word."""
+    integer_unit_mm: float = 1.0
+    """Value of an axis word written without decimal point (Fanuc: 0.001 mm)."""
+    block_end: str | None = None
+    accepted: Sequence[str] = ()
+    """G and M words (e.g. 'G64', 'M30') that are accepted and do not move an axis."""
+    parameter_words: str = "PQEHRDLST"
+    """Address letters that are parameters of another word in the same block."""
+
+
+class Dialect(_Strict):
+    """One controller dialect."""
+
+    name: str
+    title: str
+    description: str
+    sources: Sequence[str]
+    """Manual pages and documents the dialect was verified against."""
+    left_out: Sequence[str] = ()
+    """Constructs that could not be verified and are therefore not used."""
+    subprograms: bool = True
+    """False: the main program holds every axis' measurement inline."""
+    dwell: bool = True
+    names: Names = Names()
+    numbers: Numbers = Numbers()
+    blocks: Blocks = Blocks()
+    comments: Comments = Comments()
+    marker: Marker
+    options: dict[str, int | bool] = Field(default_factory=dict)
+    """Machine-specific settings with their defaults; a machine file may override them
+    in [machine.controller_options]."""
+    option_help: dict[str, str] = Field(default_factory=dict)
+    option_warnings: dict[str, str] = Field(default_factory=dict)
+    """Warning shown when an option is left at 0 / false."""
+    reader: Reader = Reader()
+
+    def program_name(self, template: str, program: str, axis: str = "", number: int = 0) -> str:
+        """A program name in the dialect's spelling."""
+        if self.names.numbered:
+            return self.names.number_format.format(number=number)
+        name = template.format(program=program, axis=axis)
+        if self.names.case == "upper":
+            return name.upper()
+        if self.names.case == "lower":
+            return name.lower()
+        return name
+
+
+def _search_path(user_dirs: Iterable[Path]) -> list[Path]:
+    return [*user_dirs, builtin_dir("controllers")]
+
+
+def available_dialects(user_dirs: Iterable[Path] = ()) -> dict[str, Path]:
+    """Dialect names and their files; user folders hide built-ins of the same name."""
+    found: dict[str, Path] = {}
+    for folder in reversed(_search_path(user_dirs)):
+        if folder.is_dir():
+            for path in sorted(folder.glob("*.toml")):
+                found[path.stem] = path
+    return dict(sorted(found.items()))
+
+
+def load_dialect(name: str, user_dirs: Iterable[Path] = ()) -> Dialect:
+    """Read and validate the dialect called ``name``.
+
+    Raises:
+        DialectError: unknown dialect, or a broken dialect file.
+    """
+    dialects = available_dialects(user_dirs)
+    if name not in dialects:
+        known = ", ".join(dialects) or "none"
+        raise DialectError(f"unknown controller {name!r}; known controllers: {known}")
+    path = dialects[name]
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise DialectError(f"{path}: cannot be read: {exc}") from exc
+    try:
+        dialect = Dialect.model_validate(data)
+    except ValidationError as exc:
+        raise DialectError(
+            f"{path} is not a valid controller definition", format_validation_error(exc)
+        ) from exc
+    if dialect.name != name:
+        raise DialectError(f"{path}: name = {dialect.name!r} does not match the file name")
+    return dialect
+
+
+def validate_for_dialect(config: MachineConfig, dialect: Dialect) -> dict[str, int | bool]:
+    """Check what only the dialect can judge; return the effective controller options.
+
+    Raises:
+        ConfigError: with a ``location: message`` line per problem.
+    """
+    problems: list[str] = []
+    names = dialect.names
+    for index, axis in enumerate(config.axes):
+        if not re.fullmatch(names.axis_pattern, axis.name):
+            problems.append(
+                f"axes[{index}].name: {axis.name!r} is not an axis name {dialect.title} allows "
+                f"(pattern {names.axis_pattern})"
+            )
+    if names.numbered:
+        last = config.machine.program_number + len(config.axes)
+        if last > names.max_number:
+            problems.append(
+                f"machine.program_number: {config.machine.program_number} leaves no room for "
+                f"{len(config.axes)} subprograms below {names.max_number}"
+            )
+    else:
+        candidates = [("machine.program", dialect.program_name(names.main, config.machine.program))]
+        if dialect.subprograms:
+            candidates += [
+                (f"axes[{i}].name", dialect.program_name(names.sub, config.machine.program, a.name))
+                for i, a in enumerate(config.axes)
+            ]
+        for where, program in candidates:
+            if len(program) > names.max_length or not re.fullmatch(names.pattern, program):
+                problems.append(
+                    f"{where}: program name {program!r} breaks the {dialect.title} naming rule "
+                    f"(at most {names.max_length} characters matching {names.pattern})"
+                )
+    options = dict(dialect.options)
+    for key, value in config.machine.controller_options.items():
+        where = f"machine.controller_options.{key}"
+        if key not in options:
+            known = ", ".join(options) or "none"
+            problems.append(f"{where}: unknown option for {dialect.name} (options: {known})")
+        elif type(value) is not type(options[key]):
+            problems.append(f"{where}: expected {type(options[key]).__name__}, got {value!r}")
+        else:
+            options[key] = value
+    if not dialect.dwell and any(config.measurement_for(axis).dwell_s > 0 for axis in config.axes):
+        problems.append(
+            f"measurement.dwell_s: {dialect.title} programs use no dwell (not verified for this "
+            "dialect); set dwell_s = 0"
+        )
+    for key, value in options.items():
+        if isinstance(value, int) and not isinstance(value, bool) and value < 0:
+            problems.append(f"machine.controller_options.{key}: must not be negative")
+    if problems:
+        raise ConfigError(f"the machine does not fit controller {dialect.name}", problems)
+    return options
+
+
+def dialect_warnings(dialect: Dialect, options: dict[str, int | bool]) -> list[str]:
+    """Warnings that the chosen options deserve (e.g. a marker left unsynchronised)."""
+    return [
+        f"{dialect.name}: {message}"
+        for key, message in dialect.option_warnings.items()
+        if not options.get(key)
+    ]

@@ -1,0 +1,281 @@
+"""ncmeasure's own small G-code reader, independent of the templates.
+
+It reads the files of a generated program the way a controller would:
+starting at the main program, following subprogram calls and returns,
+tracking the modal motion (G0/G1), the feed, every axis position (absolute
+only) and the marker. Everything else it meets must be a word the dialect
+declares harmless; anything unknown is an error, so a template that starts
+writing something new cannot slip past the checker unread.
+
+The result is the list of motions the program would command, which
+:mod:`ncmeasure.program.check` compares with the limits and the schedule.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from ncmeasure.errors import ProgramError
+from ncmeasure.program.dialect import Dialect
+
+__all__ = ["Motion", "ProgramTrace", "read_programs"]
+
+_NUMBER = r"[+-]?(?:\d+\.?\d*|\.\d+)"
+_WORD = re.compile(
+    rf"\s*(?:(?P<long>[A-Z]+\d+)\s*=\s*(?P<lval>{_NUMBER})|(?P<addr>[A-Z])\s*(?P<val>{_NUMBER}))"
+)
+_MAX_STEPS = 5_000_000
+
+
+@dataclass(frozen=True)
+class Motion:
+    """One commanded straight move."""
+
+    kind: Literal["rapid", "feed"]
+    program: str
+    line: int
+    start: dict[str, float | None]
+    """Positions of the moved axes before the move (None: not yet known)."""
+    target: dict[str, float]
+    feed_mm_min: float | None
+    marker: float
+    calls: int
+    """How many subprogram calls had been made when the move started."""
+
+
+@dataclass
+class ProgramTrace:
+    """What a program commands, in order."""
+
+    motions: list[Motion] = field(default_factory=list)
+    dwells_s: list[float] = field(default_factory=list)
+    calls: list[str] = field(default_factory=list)
+    ended: bool = False
+
+
+@dataclass
+class _Program:
+    key: str
+    file: str
+    lines: list[tuple[int, str]]
+
+
+def _split_programs(dialect: Dialect, path: Path) -> list[_Program]:
+    reader = dialect.reader
+    try:
+        raw = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ProgramError(f"{path}: cannot be read ({exc})") from exc
+    default_key = path.stem if reader.program_key == "stem" else path.name
+    programs = [_Program(default_key.upper(), path.name, [])]
+    start = re.compile(reader.program_start, re.I) if reader.program_start else None
+    for number, line in enumerate(raw, start=1):
+        match = start.search(line.strip()) if start else None
+        if match:
+            programs.append(_Program(match.group("key").upper(), path.name, []))
+            continue
+        programs[-1].lines.append((number, line))
+    if start:
+        programs = list(programs[1:]) or programs
+    return programs
+
+
+class _Interpreter:
+    def __init__(self, dialect: Dialect, programs: dict[str, _Program], axes: set[str]) -> None:
+        self.dialect = dialect
+        self.reader = dialect.reader
+        self.programs = programs
+        self.axes = axes
+        flags = re.I
+        r = self.reader
+        self.comments = [re.compile(p, flags) for p in r.comments]
+        self.ignore = [re.compile(p, flags) for p in r.ignore]
+        self.call = re.compile(r.call, flags) if r.call else None
+        self.ret = re.compile(r.ret, flags) if r.ret else None
+        self.end = re.compile(r.end, flags)
+        self.marker = [re.compile(p, flags) for p in r.marker]
+        self.marker_off = [re.compile(p, flags) for p in r.marker_off]
+        self.block_end = re.compile(r.block_end + r"\s*$") if r.block_end else None
+        self.accepted = {w.upper() for w in r.accepted}
+        self.position: dict[str, float | None] = dict.fromkeys(axes)
+        self.mode: Literal["rapid", "feed"] | None = None
+        self.feed: float | None = None
+        self.marker_value = 0.0
+        self.trace = ProgramTrace()
+
+    def _error(self, program: _Program, line: int, message: str) -> ProgramError:
+        return ProgramError(f"{program.file}:{line}: {message}")
+
+    def run(self, main_key: str) -> ProgramTrace:
+        stack: list[tuple[_Program, int]] = [(self.programs[main_key], 0)]
+        steps = 0
+        while stack:
+            program, index = stack.pop()
+            if index >= len(program.lines):
+                if len(stack) == 0:
+                    break  # main program ran off its end
+                continue  # a subprogram without explicit return
+            steps += 1
+            if steps > _MAX_STEPS:
+                raise ProgramError(f"{program.file}: more than {_MAX_STEPS} blocks; endless loop?")
+            number, raw = program.lines[index]
+            stack.append((program, index + 1))
+            text = self._clean(raw)
+            if not text or any(p.search(text) for p in self.ignore):
+                continue
+            if self.call and (match := self.call.search(text)):
+                key = match.group("key").upper()
+                if key not in self.programs:
+                    raise self._error(program, number, f"calls {key}, which is not among the files")
+                if len(stack) > 16:
+                    raise self._error(program, number, "subprograms nested deeper than 16")
+                self.trace.calls.append(key)
+                stack.append((self.programs[key], 0))
+                continue
+            if self.ret and self.ret.search(text):
+                stack.pop()
+                if not stack:
+                    raise self._error(program, number, "return from the main program")
+                continue
+            if self.end.search(text):
+                if len(stack) > 1:
+                    raise self._error(program, number, "program end inside a subprogram")
+                self.trace.ended = True
+                break
+            self._block(program, number, text)
+        return self.trace
+
+    def _clean(self, raw: str) -> str:
+        text = raw.strip()
+        for pattern in self.comments:
+            text = pattern.sub(" ", text)
+        text = text.strip()
+        if self.block_end:
+            text = self.block_end.sub("", text)
+        text = re.sub(r"^N\d+\s*", "", text, flags=re.I)
+        return text.strip().upper()
+
+    def _block(self, program: _Program, number: int, text: str) -> None:
+        for pattern in self.marker_off:
+            if pattern.search(text):
+                self.marker_value = 0.0
+                text = pattern.sub(" ", text).strip()
+        for pattern in self.marker:
+            match = pattern.search(text)
+            if match:
+                value = match.groupdict().get("value")
+                self.marker_value = float(value) if value is not None else 1.0
+                text = pattern.sub(" ", text).strip()
+        if not text:
+            return
+        targets: dict[str, float] = {}
+        dwell = False
+        dwell_s: float | None = None
+        position = 0
+        while position < len(text):
+            match = _WORD.match(text, position)
+            if not match:
+                raise self._error(program, number, f"cannot read {text[position:].strip()!r}")
+            position = match.end()
+            if match.group("long"):
+                address, value_text = match.group("long"), match.group("lval")
+            else:
+                address, value_text = match.group("addr"), match.group("val")
+            value = float(value_text)
+            code = f"{address}{value_text}"
+            if dwell and address == self.reader.dwell_word.upper():
+                dwell_s = value * self.reader.dwell_scale
+            elif address in self.axes:
+                if "." not in value_text:
+                    value *= self.reader.integer_unit_mm
+                if address in targets:
+                    raise self._error(program, number, f"axis {address} twice in one block")
+                targets[address] = value
+            elif address == "F":
+                self.feed = value
+            elif address == "G" and value in (0.0, 1.0) and "." not in value_text.lstrip("0"):
+                self.mode = "rapid" if value == 0 else "feed"
+            elif address == "G" and value == 4.0:
+                dwell = True
+            elif address == "G" and value == 91.0:
+                raise self._error(program, number, "incremental positioning (G91) is not read")
+            elif (
+                (address == "G" and value == 90.0)
+                or self._accepted(address, value_text)
+                or address in self.reader.parameter_words.upper()
+            ):
+                pass
+            else:
+                raise self._error(program, number, f"unexpected word {code}")
+        if dwell:
+            if targets or dwell_s is None:
+                raise self._error(program, number, "a dwell needs its time and no axis words")
+            self.trace.dwells_s.append(dwell_s)
+            return
+        if not targets:
+            return
+        if self.mode is None:
+            raise self._error(program, number, "axis move before any G0/G1")
+        if self.mode == "feed" and not self.feed:
+            raise self._error(program, number, "feed move without a feed (F)")
+        start = {axis: self.position[axis] for axis in targets}
+        self.trace.motions.append(
+            Motion(
+                kind=self.mode,
+                program=program.key,
+                line=number,
+                start=start,
+                target=targets,
+                feed_mm_min=self.feed if self.mode == "feed" else None,
+                marker=self.marker_value,
+                calls=len(self.trace.calls),
+            )
+        )
+        self.position.update(targets)
+
+    def _accepted(self, address: str, value_text: str) -> bool:
+        if address not in "GM":
+            return False
+        value = value_text.lstrip("+")
+        candidates = {f"{address}{value}"}
+        if "." not in value:
+            candidates.add(f"{address}{int(value)}")
+            candidates.add(f"{address}{int(value):02d}")
+        return bool(candidates & self.accepted)
+
+
+def read_programs(
+    dialect: Dialect, directory: str | Path, main_file: str, axes: set[str]
+) -> ProgramTrace:
+    """Read the program whose main file is ``main_file`` in ``directory``.
+
+    Args:
+        dialect: The dialect the programs are written in.
+        directory: Folder holding the main program and its subprograms.
+        main_file: File name of the main program.
+        axes: Axis names the programs may move.
+
+    Raises:
+        ProgramError: a file is missing or a block cannot be read.
+    """
+    directory = Path(directory)
+    main_path = directory / main_file
+    if not main_path.is_file():
+        raise ProgramError(f"{main_path}: main program not found")
+    extensions = {
+        Path(dialect.names.main_file).suffix.lower(),
+        Path(dialect.names.sub_file).suffix.lower(),
+    }
+    programs: dict[str, _Program] = {}
+    main_key = ""
+    for path in sorted(directory.iterdir()):
+        if path.is_file() and path.suffix.lower() in extensions:
+            found = _split_programs(dialect, path)
+            for program in found:
+                programs[program.key] = program
+            if path.name == main_file:
+                main_key = found[0].key
+    return _Interpreter(dialect, programs, axes).run(main_key)
