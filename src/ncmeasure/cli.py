@@ -206,6 +206,13 @@ def _print_plan(schedule: Schedule) -> None:
         f"total {_duration(schedule.duration_s)} (full travel at every step: "
         f"{_duration(schedule.full_travel_duration_s)}, saving {saving:.0%})"
     )
+    for axis in schedule.axes:
+        if axis.shifted_positions_mm:
+            shifted = ", ".join(f"{p:g}" for p in axis.shifted_positions_mm)
+            console.print(
+                f"note: axis {axis.name}: windows at {shifted} mm move inward at high velocities, "
+                "where the run-up would not fit (schedule.json has each window's position)"
+            )
     for warning in schedule.warnings:
         err_console.print(f"[yellow]warning:[/] {warning}", soft_wrap=True)
 

@@ -19,7 +19,7 @@ import re
 import tomllib
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import Annotated, Any, Literal, Self
+from typing import Annotated, Any, Literal
 
 from pydantic import (
     BaseModel,
@@ -27,7 +27,6 @@ from pydantic import (
     Field,
     ValidationError,
     field_validator,
-    model_validator,
 )
 from pydantic_core import PydanticCustomError
 
@@ -204,14 +203,6 @@ class Measurement(_Model):
             raise PydanticCustomError("positions", "the list repeats a position")
         return sorted(value)
 
-    @model_validator(mode="after")
-    def _check_window(self) -> Self:
-        if "window_s" in self.model_fields_set and "window_samples" in self.model_fields_set:
-            raise PydanticCustomError(
-                "window", "set either window_s or window_samples × sample_period_ms, not both"
-            )
-        return self
-
     @property
     def window_duration_s(self) -> float:
         """Minimum duration of each constant-velocity window in seconds."""
@@ -292,23 +283,6 @@ class AxisConfig(_Model):
         default=None, description="Per-axis replacement of [measurement] fields."
     )
 
-    @model_validator(mode="after")
-    def _check_limits(self) -> Self:
-        low, high = self.travel_mm
-        if not low < high:
-            raise PydanticCustomError(
-                "travel",
-                "travel_mm min ({low}) must be below max ({high})",
-                {"low": low, "high": high},
-            )
-        if not low <= self.park_mm <= high:
-            raise PydanticCustomError(
-                "park",
-                "park_mm {park} is outside the travel [{low}, {high}]",
-                {"park": self.park_mm, "low": low, "high": high},
-            )
-        return self
-
     @property
     def rapid_mm_min(self) -> float:
         """Rapid traverse velocity used for duration estimates."""
@@ -321,22 +295,6 @@ class MachineConfig(_Model):
     machine: MachineSection
     axes: Annotated[list[AxisConfig], Field(min_length=1, max_length=32)]
     measurement: Measurement = Field(default_factory=Measurement)
-
-    @model_validator(mode="after")
-    def _check_axes(self) -> Self:
-        names = [axis.name for axis in self.axes]
-        for name in names:
-            if names.count(name) > 1:
-                raise PydanticCustomError("axes", "axis {name} appears twice", {"name": name})
-        for key in ("park_order", "measure_order"):
-            order = getattr(self.machine, key)
-            if order is not None and sorted(order) != sorted(names):
-                raise PydanticCustomError(
-                    "order",
-                    "machine.{key} must list every axis exactly once ({names})",
-                    {"key": key, "names": ", ".join(names)},
-                )
-        return self
 
     def axis(self, name: str) -> AxisConfig:
         """Return the axis called ``name``."""
@@ -362,7 +320,13 @@ class MachineConfig(_Model):
         if axis.measurement is None:
             return self.measurement
         merged = self.measurement.model_dump(exclude_unset=True)
-        merged.update(axis.measurement.model_dump(exclude_none=True))
+        override = axis.measurement.model_dump(exclude_none=True)
+        # A window given one way on the axis replaces a window given the other way globally.
+        if "window_s" in override:
+            merged.pop("window_samples", None)
+        if "window_samples" in override:
+            merged.pop("window_s", None)
+        merged.update(override)
         return Measurement.model_validate(merged)
 
 
@@ -395,15 +359,39 @@ def format_validation_error(exc: ValidationError, prefix: str = "") -> list[str]
     return lines
 
 
-def _check_measurements(config: MachineConfig) -> Iterator[str]:
-    """Cross-checks of the merged measurement of every axis against that axis' limits."""
+def _cross_checks(config: MachineConfig) -> Iterator[str]:
+    """Checks across fields, each as a ``location: message`` line."""
+    names = [axis.name for axis in config.axes]
+    for index, name in enumerate(names):
+        if name in names[:index]:
+            yield f"axes[{index}].name: axis {name} appears twice"
+    for key in ("park_order", "measure_order"):
+        order = getattr(config.machine, key)
+        if order is not None and sorted(order) != sorted(names):
+            yield f"machine.{key}: must list every axis exactly once ({', '.join(names)})"
     for index, axis in enumerate(config.axes):
+        low, high = axis.travel_mm
+        if not low < high:
+            yield f"axes[{index}].travel_mm: min ({low:g}) must be below max ({high:g})"
+        elif not low <= axis.park_mm <= high:
+            yield (
+                f"axes[{index}].park_mm: {axis.park_mm:g} mm is outside the travel "
+                f"[{low:g}, {high:g}] mm"
+            )
+    for index, axis in enumerate(config.axes):
+        if not axis.travel_mm[0] < axis.travel_mm[1]:
+            continue
         where = f"axes[{index}].measurement" if axis.measurement else "measurement"
         try:
             meas = config.measurement_for(axis)
         except ValidationError as exc:
             yield from format_validation_error(exc, f"axes[{index}].measurement")
             continue
+        if "window_s" in meas.model_fields_set and "window_samples" in meas.model_fields_set:
+            yield (
+                f"{where}.window_s: set either window_s or window_samples × sample_period_ms, "
+                "not both"
+            )
         top = meas.max_velocity_mm_min
         if top is not None and top > axis.max_velocity_mm_min:
             yield (
@@ -448,7 +436,7 @@ def parse_machine(data: Mapping[str, Any], source: str = "machine file") -> Mach
         config = MachineConfig.model_validate(data)
     except ValidationError as exc:
         raise ConfigError(f"{source} is not valid", format_validation_error(exc)) from exc
-    problems = list(_check_measurements(config))
+    problems = list(_cross_checks(config))
     if problems:
         raise ConfigError(f"{source} is not valid", problems)
     return config

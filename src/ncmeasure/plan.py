@@ -182,6 +182,9 @@ class AxisSummary(BaseModel):
     rated_current_a: float | None
     screw_lead_mm: float | None
     nominal_positions_mm: list[float]
+    shifted_positions_mm: list[float]
+    """Nominal positions whose windows move inward at high velocities, where the
+    run-up would not fit; each window's own position_mm says where it is."""
     velocities_mm_min: list[float]
     dropped_velocities_mm_min: list[float]
     runup_at_max_velocity_mm: float
@@ -219,6 +222,8 @@ class Schedule(BaseModel):
     marker_scope: Literal["window", "run", "none"] = "window"
     """What the marker brackets in the generated programs (see the dialect)."""
     marker_values: Literal["window_id", "flag"] = "window_id"
+    controller_options: dict[str, int | bool] = {}
+    """The dialect options the programs were written with."""
     axes: list[AxisSummary]
 
 
@@ -374,11 +379,19 @@ def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> 
             2 * geo.runup_um if meas.both_directions else geo.runup_um + geo.runout_um
         )
         if needed > available_um:
+            if meas.both_directions:
+                parts = (
+                    f"window {_mm(geo.window_um):g} mm plus {_mm(geo.runup_um):g} mm of run-up "
+                    "on both sides, as both directions are measured"
+                )
+            else:
+                parts = (
+                    f"run-up {_mm(geo.runup_um):g} mm, window {_mm(geo.window_um):g} mm, "
+                    f"stop {_mm(geo.runout_um):g} mm"
+                )
             message = (
                 f"axis {axis.name}: the step at {v:g} mm/min needs {_mm(needed):g} mm "
-                f"(run-up {_mm(geo.runup_um):g} mm, window {_mm(geo.window_um):g} mm, "
-                f"stop {_mm(geo.runout_um):g} mm) but only {_mm(available_um):g} mm of travel "
-                f"are usable"
+                f"({parts}) but only {_mm(available_um):g} mm of travel are usable"
             )
             if meas.unfit_steps == "error":
                 raise PlanError(
@@ -464,11 +477,6 @@ def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> 
                     )
     clock.moves.append(Comment(f"axis {axis.name} back to its park position"))
     clock.rapid(_um(axis.park_mm))
-    for index in sorted(shifted):
-        warnings.append(
-            f"axis {axis.name}: position {_mm(nominal[index]):g} mm shifted inward at high "
-            "velocities so the run-up fits"
-        )
 
     a, j = axis.max_acceleration_m_s2, axis.max_jerk_m_s3
     warmup_s = meas.warmup_strokes * 2 * move_time_s(_mm(available_um), warm_feed, a, j)
@@ -492,6 +500,7 @@ def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> 
         rated_current_a=axis.rated_current_a,
         screw_lead_mm=axis.screw_lead_mm,
         nominal_positions_mm=[_mm(p) for p in nominal],
+        shifted_positions_mm=[_mm(nominal[i]) for i in sorted(shifted)],
         velocities_mm_min=velocities,
         dropped_velocities_mm_min=dropped,
         runup_at_max_velocity_mm=_mm(geometry[top].runup_um),

@@ -199,7 +199,11 @@ def check_programs(directory: str | Path, controllers_dirs: tuple[Path, ...] = (
     schedule = load_schedule(directory / SCHEDULE_FILE)
     dialect = load_dialect(schedule.controller, controllers_dirs)
     trace = read_programs(
-        dialect, directory, schedule.main_program, {axis.name for axis in schedule.axes}
+        dialect,
+        directory,
+        schedule.main_program,
+        {axis.name for axis in schedule.axes},
+        schedule.controller_options,
     )
     report = CheckReport(directory=directory, controller=dialect.name)
     check_trace(schedule, trace, report)

@@ -26,6 +26,7 @@ __all__ = [
     "available_dialects",
     "dialect_warnings",
     "load_dialect",
+    "marker_scope",
     "validate_for_dialect",
 ]
 
@@ -58,7 +59,9 @@ class Names(_Strict):
     sub_file: str = "{name}.nc"
     axis_pattern: str = r"^[XYZ]$"
     axis_word: str = "{axis}{value}"
-    """How an axis word is written; multi-letter axes may need '{axis}={value}'."""
+    """How an axis word is written."""
+    long_axis_word: str = "{axis}={value}"
+    """How the word of an axis whose name has more than one character is written."""
 
     _check = field_validator("pattern", "axis_pattern")(classmethod(lambda cls, v: _regex(v)))
 
@@ -102,12 +105,18 @@ class Marker(_Strict):
     written at standstill before and after the whole run (run-up to stop);
     'none': the dialect has no usable marker, windows come from positions."""
     values: Literal["window_id", "flag"] = "window_id"
+    requires_option: str | None = None
+    """The marker exists only when this option is set (non-zero); else the scope is 'none'."""
     mechanism: str
     """What the marker is and why it is synchronous with motion."""
 
 
 class Reader(_Strict):
-    """Patterns ncmeasure's program reader uses for this dialect (case-insensitive)."""
+    """Patterns ncmeasure's program reader uses for this dialect (case-insensitive).
+
+    ``<<option>>`` in a pattern stands for the value of a controller option; a
+    pattern whose option is 0 or false is not used.
+    """
 
     comments: Sequence[str] = (r"\(.*?\)", r";.*$")
     ignore: Sequence[str] = ()
@@ -122,6 +131,8 @@ class Reader(_Strict):
     marker: Sequence[str] = ()
     """Set the marker; optional group 'value' (default 1)."""
     marker_off: Sequence[str] = ()
+    dwell: str | None = None
+    """A dwell block written without G4 (e.g. '#TIME 1.5'); group 'seconds'."""
     dwell_word: str = "P"
     dwell_scale: float = 1.0
     """Seconds per unit of the dwell word."""
@@ -267,6 +278,14 @@ def validate_for_dialect(config: MachineConfig, dialect: Dialect) -> dict[str, i
     if problems:
         raise ConfigError(f"the machine does not fit controller {dialect.name}", problems)
     return options
+
+
+def marker_scope(dialect: Dialect, options: dict[str, int | bool]) -> str:
+    """The marker scope the programs really have with these options."""
+    required = dialect.marker.requires_option
+    if required is not None and not options.get(required):
+        return "none"
+    return dialect.marker.scope
 
 
 def dialect_warnings(dialect: Dialect, options: dict[str, int | bool]) -> list[str]:

@@ -14,6 +14,7 @@ The result is the list of motions the program would command, which
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -83,21 +84,47 @@ def _split_programs(dialect: Dialect, path: Path) -> list[_Program]:
     return programs
 
 
+_OPTION = re.compile(r"<<(\w+)>>")
+
+
+def _patterns(patterns: Iterable[str], options: Mapping[str, int | bool]) -> list[re.Pattern[str]]:
+    """Compile patterns, filling in ``<<option>>``; drop those whose option is unset."""
+    compiled = []
+    for pattern in patterns:
+        names = _OPTION.findall(pattern)
+        if any(not options.get(name) for name in names):
+            continue
+        text = _OPTION.sub(lambda m: str(int(options[m.group(1)])), pattern)
+        compiled.append(re.compile(text, re.I))
+    return compiled
+
+
+def _pattern(pattern: str | None, options: Mapping[str, int | bool]) -> re.Pattern[str] | None:
+    found = _patterns([pattern] if pattern else [], options)
+    return found[0] if found else None
+
+
 class _Interpreter:
-    def __init__(self, dialect: Dialect, programs: dict[str, _Program], axes: set[str]) -> None:
+    def __init__(
+        self,
+        dialect: Dialect,
+        programs: dict[str, _Program],
+        axes: set[str],
+        options: Mapping[str, int | bool],
+    ) -> None:
         self.dialect = dialect
         self.reader = dialect.reader
         self.programs = programs
         self.axes = axes
-        flags = re.I
         r = self.reader
-        self.comments = [re.compile(p, flags) for p in r.comments]
-        self.ignore = [re.compile(p, flags) for p in r.ignore]
-        self.call = re.compile(r.call, flags) if r.call else None
-        self.ret = re.compile(r.ret, flags) if r.ret else None
-        self.end = re.compile(r.end, flags)
-        self.marker = [re.compile(p, flags) for p in r.marker]
-        self.marker_off = [re.compile(p, flags) for p in r.marker_off]
+        self.comments = _patterns(r.comments, options)
+        self.ignore = _patterns(r.ignore, options)
+        self.call = _pattern(r.call, options)
+        self.ret = _pattern(r.ret, options)
+        self.end = re.compile(r.end, re.I)
+        self.marker = _patterns(r.marker, options)
+        self.marker_off = _patterns(r.marker_off, options)
+        self.dwell = _pattern(r.dwell, options)
         self.block_end = re.compile(r.block_end + r"\s*$") if r.block_end else None
         self.accepted = {w.upper() for w in r.accepted}
         self.position: dict[str, float | None] = dict.fromkeys(axes)
@@ -170,6 +197,9 @@ class _Interpreter:
                 self.marker_value = float(value) if value is not None else 1.0
                 text = pattern.sub(" ", text).strip()
         if not text:
+            return
+        if self.dwell and (match := self.dwell.search(text)):
+            self.trace.dwells_s.append(float(match.group("seconds")))
             return
         targets: dict[str, float] = {}
         dwell = False
@@ -248,7 +278,11 @@ class _Interpreter:
 
 
 def read_programs(
-    dialect: Dialect, directory: str | Path, main_file: str, axes: set[str]
+    dialect: Dialect,
+    directory: str | Path,
+    main_file: str,
+    axes: set[str],
+    options: Mapping[str, int | bool] | None = None,
 ) -> ProgramTrace:
     """Read the program whose main file is ``main_file`` in ``directory``.
 
@@ -257,6 +291,8 @@ def read_programs(
         directory: Folder holding the main program and its subprograms.
         main_file: File name of the main program.
         axes: Axis names the programs may move.
+        options: Controller options the programs were written with
+            (default: the dialect's defaults).
 
     Raises:
         ProgramError: a file is missing or a block cannot be read.
@@ -278,4 +314,6 @@ def read_programs(
                 programs[program.key] = program
             if path.name == main_file:
                 main_key = found[0].key
-    return _Interpreter(dialect, programs, axes).run(main_key)
+    effective = dict(dialect.options)
+    effective.update(options or {})
+    return _Interpreter(dialect, programs, axes, effective).run(main_key)

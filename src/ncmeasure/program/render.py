@@ -29,6 +29,7 @@ from ncmeasure.program.dialect import (
     Dialect,
     dialect_warnings,
     load_dialect,
+    marker_scope,
     validate_for_dialect,
 )
 from ncmeasure.resources import builtin_dir
@@ -176,9 +177,14 @@ def _environment(dialect: Dialect, template_dirs: Iterable[Path]) -> SandboxedEn
         return f"{value:.3f}".rstrip("0").rstrip(".") or "0"
 
     def word(value: float, axis: str) -> str:
-        return names.axis_word.format(axis=axis, value=coord(value))
+        form = names.axis_word if len(axis) == 1 else names.long_axis_word
+        return form.format(axis=axis, value=coord(value))
 
     def comment(text: str) -> str:
+        if not comments.supported:
+            raise DialectError(
+                f"{dialect.name}: a template writes a comment, but the dialect has none"
+            )
         clean = "".join(c for c in str(text) if c not in comments.forbidden and c.isprintable())
         if comments.upper:
             clean = clean.upper()
@@ -264,14 +270,15 @@ def generate_programs(
         park=tuple(view_of(a.name) for a in config.park_sequence()),
         measure=tuple(view_of(a.name) for a in config.measure_sequence()),
         options=options,
-        marker_scope=dialect.marker.scope,
+        marker_scope=marker_scope(dialect, options),
         marker_values=dialect.marker.values,
     )
     env = _environment(dialect, templates_dirs)
     schedule = schedule.model_copy(
         update={
             "main_program": main.file_name,
-            "marker_scope": dialect.marker.scope,
+            "marker_scope": marker_scope(dialect, options),
+            "controller_options": options,
             "marker_values": dialect.marker.values,
             "warnings": [*schedule.warnings, *dialect_warnings(dialect, options)],
         }
