@@ -61,12 +61,17 @@ def _um(value_mm: float) -> int:
 
 
 def _ceil_um(value_mm: float) -> int:
-    # A tiny tolerance keeps exact values (e.g. 2.5 mm) from rounding up by float noise.
-    return math.ceil(value_mm * 1000.0 - 1e-6)
+    """Smallest micrometre count not below ``value_mm`` (float noise never crosses it)."""
+    # The tolerance keeps exact values (e.g. 2.5 mm) from rounding up by float noise;
+    # the correction step makes sure the result is never below the value.
+    count = math.ceil(value_mm * 1000.0 - 1e-6)
+    return count + 1 if count / 1000.0 < value_mm else count
 
 
 def _floor_um(value_mm: float) -> int:
-    return math.floor(value_mm * 1000.0 + 1e-6)
+    """Largest micrometre count not above ``value_mm``."""
+    count = math.floor(value_mm * 1000.0 + 1e-6)
+    return count - 1 if count / 1000.0 > value_mm else count
 
 
 def _mm(value_um: int) -> float:
@@ -410,13 +415,17 @@ def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> 
     if not velocities:
         raise PlanError(f"axis {axis.name}: no velocity step fits in the usable travel")
 
-    clock = _Clock(axis, start_s, axis.park_mm)
+    park_um = park_position_um(axis)
+    clock = _Clock(axis, start_s, _mm(park_um))
     clock.moves.append(Comment(f"measurement of axis {axis.name}"))
     warm_feed = _floor_feed(
         min(meas.warmup_velocity_mm_min or velocities[-1], axis.max_velocity_mm_min)
     )
     if meas.warmup_strokes:
-        clock.moves.append(Comment(f"warm-up: {meas.warmup_strokes} strokes"))
+        strokes = meas.warmup_strokes
+        clock.moves.append(
+            Comment(f"warm-up: {strokes} stroke{'s' if strokes != 1 else ''} back and forth")
+        )
         clock.rapid(low_um)
         for _ in range(meas.warmup_strokes):
             clock.feed(high_um, warm_feed)
@@ -476,7 +485,7 @@ def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> 
                         )
                     )
     clock.moves.append(Comment(f"axis {axis.name} back to its park position"))
-    clock.rapid(_um(axis.park_mm))
+    clock.rapid(park_um)
 
     a, j = axis.max_acceleration_m_s2, axis.max_jerk_m_s3
     warmup_s = meas.warmup_strokes * 2 * move_time_s(_mm(available_um), warm_feed, a, j)
@@ -492,7 +501,7 @@ def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> 
         name=axis.name,
         travel_mm=axis.travel_mm,
         usable_mm=(_mm(low_um), _mm(high_um)),
-        park_mm=axis.park_mm,
+        park_mm=_mm(park_um),
         max_velocity_mm_min=axis.max_velocity_mm_min,
         vertical=axis.vertical,
         fixed_bearing_end=axis.fixed_bearing_end,
@@ -518,6 +527,12 @@ def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> 
     return AxisPlan(
         axis=axis, measurement=meas, moves=clock.moves, summary=summary, warnings=warnings
     )
+
+
+def park_position_um(axis: AxisConfig) -> int:
+    """The park position on the micrometre grid, never outside the travel."""
+    low, high = _ceil_um(axis.travel_mm[0]), _floor_um(axis.travel_mm[1])
+    return min(max(_um(axis.park_mm), low), high)
 
 
 def park_time_s(axis: AxisConfig) -> float:

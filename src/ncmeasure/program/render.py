@@ -250,7 +250,7 @@ def generate_programs(
         plan = by_name[axis_name]
         return AxisView(
             name=axis_name,
-            park_mm=plan.axis.park_mm,
+            park_mm=plan.summary.park_mm,
             vertical=plan.axis.vertical,
             sub=subs[axis_name],
             moves=tuple(plan.moves),

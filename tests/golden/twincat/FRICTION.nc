@@ -1,0 +1,15 @@
+(ncmeasure friction measurement: main program FRICTION)
+(machine: HMX-400 #17)
+(generated 2026-01-15 08:30 UTC by ncmeasure 0.1.0, config 9eaf21e01f1de7d7)
+G17 G71 G90 G94
+(park every axis, one at a time)
+G00 Z-5.000
+G00 X375.000
+G00 Y300.000
+(axis X: 24 windows)
+L FRICTION_X.nc
+(axis Y: 24 windows)
+L FRICTION_Y.nc
+(axis Z: 24 windows)
+L FRICTION_Z.nc
+M30

@@ -1,0 +1,141 @@
+"""The reader and checker catch what a broken template or a hand edit would do."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from ncmeasure.config import MachineConfig
+from ncmeasure.errors import ProgramCheckError, ProgramError
+from ncmeasure.program import check_programs, generate_programs, load_dialect
+from ncmeasure.program.reader import read_programs
+from tests.conftest import DIALECTS, FIXED_TIME
+
+Make = Callable[..., MachineConfig]
+
+
+def _generate(make_config: Make, dialect: str, folder: Path, **options: int) -> Path:
+    config = make_config(dialect, small=True)
+    if options:
+        data = config.model_dump()
+        data["machine"]["controller_options"] = options
+        config = MachineConfig.model_validate(data)
+    generate_programs(config, generated=FIXED_TIME).write(folder)
+    return folder
+
+
+def _edit(path: Path, pattern: str, replacement: str, count: int = 1) -> None:
+    text = path.read_text(encoding="utf-8")
+    new, n = re.subn(pattern, replacement, text, count=count, flags=re.M)
+    assert n == count, f"pattern {pattern!r} not found in {path.name}"
+    path.write_text(new, encoding="utf-8")
+
+
+# (dialect, file of axis X, a window-end line of window 1, its replacement)
+SUBFILES = {
+    "linuxcnc": "friction_x.ngc",
+    "sinumerik-840d": "FRICTION_X.SPF",
+    "fanuc": "O1001.nc",
+    "twincat": "FRICTION_X.nc",
+    "heidenhain-iso": "FRICTION.I",
+}
+
+
+@pytest.mark.parametrize("dialect", DIALECTS)
+def test_generated_programs_pass_the_check(dialect: str, make_config: Make, tmp_path: Path) -> None:
+    report = check_programs(_generate(make_config, dialect, tmp_path))
+    assert report.ok
+    assert report.windows_found == report.windows_expected == 3 * 4 * 3 * 2
+
+
+@pytest.mark.parametrize("dialect", DIALECTS)
+def test_a_position_beyond_the_soft_limit_is_caught(
+    dialect: str, make_config: Make, tmp_path: Path
+) -> None:
+    folder = _generate(make_config, dialect, tmp_path)
+    # the first warm-up feed of X goes to 745 (usable end); push it past 750
+    _edit(folder / SUBFILES[dialect], r"X\+?745\.000", "X+760.000" if dialect ==
+          "heidenhain-iso" else "X760.000")
+    with pytest.raises(ProgramCheckError, match=r"outside the soft limits \[0, 750\]"):
+        check_programs(folder)
+
+
+@pytest.mark.parametrize("dialect", DIALECTS)
+def test_a_feed_above_the_maximum_is_caught(dialect: str, make_config: Make,
+                                            tmp_path: Path) -> None:
+    folder = _generate(make_config, dialect, tmp_path)
+    _edit(folder / SUBFILES[dialect], r"F15000\b", "F45000")
+    with pytest.raises(ProgramCheckError, match="exceeds the maximum of axis X"):
+        check_programs(folder)
+
+
+@pytest.mark.parametrize("dialect", DIALECTS)
+def test_a_window_that_moves_is_caught(dialect: str, make_config: Make, tmp_path: Path) -> None:
+    folder = _generate(make_config, dialect, tmp_path)
+    # window 1 of X starts at rest near 5 mm; its end is the second run block
+    _edit(folder / SUBFILES[dialect], r"X\+?5\.848", "X+5.600" if dialect == "heidenhain-iso"
+          else "X5.600")
+    with pytest.raises(ProgramCheckError, match="window 1 .* is not driven in order"):
+        check_programs(folder)
+
+
+@pytest.mark.parametrize(
+    ("dialect", "pattern"),
+    [
+        ("linuxcnc", r"^M67 E0 Q2$"),
+        ("sinumerik-840d", r"^WHEN TRUE DO \$R\[1\]=2$"),
+        ("fanuc", r"^#500=2$"),
+        ("twincat", r"^M80=2$"),
+    ],
+)
+def test_a_missing_marker_is_caught(dialect: str, pattern: str, make_config: Make,
+                                    tmp_path: Path) -> None:
+    folder = _generate(make_config, dialect, tmp_path)
+    _edit(folder / SUBFILES[dialect], pattern, "")
+    with pytest.raises(ProgramCheckError, match="marker is .* expected 2"):
+        check_programs(folder)
+
+
+def test_heidenhain_marker_m_functions_when_configured(make_config: Make, tmp_path: Path) -> None:
+    folder = _generate(make_config, "heidenhain-iso", tmp_path, marker_m_on=50, marker_m_off=51)
+    text = (folder / "FRICTION.I").read_text()
+    assert re.search(r"^N\d+ G01 X\+5\.848 M50 \*$", text, re.M)
+    assert check_programs(folder).ok
+    _edit(folder / "FRICTION.I", r" M50 \*$", " *")
+    with pytest.raises(ProgramCheckError, match="marker is 0 during this feed, expected 1"):
+        check_programs(folder)
+
+
+def test_parking_must_come_first(make_config: Make, tmp_path: Path) -> None:
+    folder = _generate(make_config, "linuxcnc", tmp_path)
+    _edit(folder / "friction.ngc", r"^G0 Z-5\.000$", "")
+    with pytest.raises(ProgramCheckError, match="parking every axis"):
+        check_programs(folder)
+
+
+def test_unknown_words_are_not_silently_read(make_config: Make, tmp_path: Path) -> None:
+    folder = _generate(make_config, "sinumerik-840d", tmp_path)
+    _edit(folder / "FRICTION_X.SPF", r"^G64$", "G64\nG91")
+    with pytest.raises(ProgramError, match=r"FRICTION_X.SPF:\d+: incremental positioning"):
+        check_programs(folder)
+    folder = _generate(make_config, "twincat", tmp_path / "t")
+    _edit(folder / "FRICTION_X.nc", r"^G17 G71 G90 G94$", "G17 G71 G90 G94 G41")
+    with pytest.raises(ProgramError, match="unexpected word G41"):
+        check_programs(folder)
+
+
+def test_fanuc_integer_coordinates_are_micrometres(tmp_path: Path) -> None:
+    dialect = load_dialect("fanuc")
+    (tmp_path / "O0001.nc").write_text("%\nO0001\nG90 G00 X100\nG00 X100.\nM30\n%\n")
+    trace = read_programs(dialect, tmp_path, "O0001.nc", {"X"})
+    assert [m.target["X"] for m in trace.motions] == [pytest.approx(0.1), 100.0]
+
+
+def test_missing_schedule_or_folder(tmp_path: Path) -> None:
+    with pytest.raises(ProgramError, match="not a directory"):
+        check_programs(tmp_path / "none")
+    with pytest.raises(ProgramError, match="no schedule here"):
+        check_programs(tmp_path)
