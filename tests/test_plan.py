@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 
 import pytest
@@ -17,7 +18,7 @@ Make = Callable[..., MachineConfig]
 
 def test_windows_fit_with_runup_and_stop(make_config: Make) -> None:
     config = make_config()
-    schedule, plans = plan_machine(config)
+    _schedule, plans = plan_machine(config)
     for plan in plans:
         axis, meas = plan.axis, plan.measurement
         low, high = plan.summary.usable_mm
@@ -43,7 +44,7 @@ def test_velocity_steps_are_geometric_and_fine_at_low_speed(make_config: Make) -
     v = schedule.axes[0].velocities_mm_min
     assert len(v) == 50
     assert v[0] == 10 and v[-1] == pytest.approx(15000, abs=0.001)
-    ratios = [b / a for a, b in zip(v, v[1:], strict=False)]
+    ratios = [b / a for a, b in itertools.pairwise(v)]
     assert max(ratios) == pytest.approx(min(ratios), rel=1e-3)
     linear = plan_machine(make_config(spacing="linear"))[0].axes[0].velocities_mm_min
     assert linear[1] - linear[0] == pytest.approx(linear[-1] - linear[-2], abs=0.002)
@@ -132,7 +133,7 @@ def test_unfit_steps_can_be_dropped_with_a_warning() -> None:
     assert max(plan.summary.velocities_mm_min) < min(plan.summary.dropped_velocities_mm_min)
     assert any("dropped" in w for w in plan.warnings)
     for w in plan.summary.windows:
-        assert 5.0 <= min(w.start_mm, w.stop_mm) and max(w.start_mm, w.stop_mm) <= 115.0
+        assert min(w.start_mm, w.stop_mm) >= 5.0 and max(w.start_mm, w.stop_mm) <= 115.0
 
 
 def test_explicit_positions_are_used() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -57,4 +58,4 @@ def test_move_time_long_and_short_moves() -> None:
     assert 0 < short < 2 * r.time_s
     assert move_time_s(0.0, 6000, 2.0, 40.0) == 0.0
     times = [move_time_s(d, 6000, 2.0, 40.0) for d in np.linspace(0.01, 50, 40)]
-    assert all(b >= a for a, b in zip(times, times[1:], strict=False))
+    assert all(b >= a for a, b in itertools.pairwise(times))

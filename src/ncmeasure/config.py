@@ -78,7 +78,7 @@ class MachineSection(_Model):
         description="Controller dialect, one of `ncmeasure controllers` "
         "(e.g. sinumerik-840d, fanuc, heidenhain-iso, twincat, linuxcnc).",
     )
-    program: Annotated[str, Field(pattern=PROGRAM_NAME_PATTERN)] = Field(
+    program: str = Field(
         default="FRICTION",
         description="Name of the main program; subprograms are named <program>_<axis>. "
         "Letters, digits and underscores, starting with a letter; the dialect may restrict "
@@ -106,6 +106,18 @@ class MachineSection(_Model):
     )
 
     _check_name = field_validator("name")(classmethod(lambda cls, v: _safe_text(v)))
+
+    @field_validator("program")
+    @classmethod
+    def _check_program(cls, value: str) -> str:
+        if not re.fullmatch(PROGRAM_NAME_PATTERN, value):
+            raise PydanticCustomError(
+                "program_name",
+                "{value} is not a program name: use letters, digits and underscores, starting "
+                "with a letter, at most 24 characters",
+                {"value": repr(value)},
+            )
+        return value
 
 
 class Measurement(_Model):
@@ -240,7 +252,7 @@ class MeasurementOverride(_Model):
 class AxisConfig(_Model):
     """One ``[[axes]]`` table: a feed axis, its limits and its drive."""
 
-    name: Annotated[str, Field(pattern=AXIS_NAME_PATTERN)] = Field(
+    name: str = Field(
         description="Axis address as the controller writes it (X, Y, Z, Z1, ...). "
         "The dialect decides which names it allows.",
     )
@@ -282,6 +294,18 @@ class AxisConfig(_Model):
     measurement: MeasurementOverride | None = Field(
         default=None, description="Per-axis replacement of [measurement] fields."
     )
+
+    @field_validator("name")
+    @classmethod
+    def _check_axis_name(cls, value: str) -> str:
+        if not re.fullmatch(AXIS_NAME_PATTERN, value):
+            raise PydanticCustomError(
+                "axis_name",
+                "{value} is not an axis name: an upper-case letter, then up to 7 upper-case "
+                "letters or digits (X, Y, Z, Z1, ...)",
+                {"value": repr(value)},
+            )
+        return value
 
     @property
     def rapid_mm_min(self) -> float:
@@ -436,7 +460,7 @@ def parse_machine(data: Mapping[str, Any], source: str = "machine file") -> Mach
         config = MachineConfig.model_validate(data)
     except ValidationError as exc:
         raise ConfigError(f"{source} is not valid", format_validation_error(exc)) from exc
-    problems = list(_cross_checks(config))
+    problems = list(dict.fromkeys(_cross_checks(config)))  # one line per problem
     if problems:
         raise ConfigError(f"{source} is not valid", problems)
     return config

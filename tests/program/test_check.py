@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from ncmeasure.config import MachineConfig
-from ncmeasure.errors import ProgramCheckError, ProgramError
+from ncmeasure.errors import ConfigError, ProgramCheckError, ProgramError
 from ncmeasure.program import check_programs, generate_programs, load_dialect
 from ncmeasure.program.reader import read_programs
 from tests.conftest import DIALECTS, FIXED_TIME
@@ -57,15 +57,19 @@ def test_a_position_beyond_the_soft_limit_is_caught(
 ) -> None:
     folder = _generate(make_config, dialect, tmp_path)
     # the first warm-up feed of X goes to 745 (usable end); push it past 750
-    _edit(folder / SUBFILES[dialect], r"X\+?745\.000", "X+760.000" if dialect ==
-          "heidenhain-iso" else "X760.000")
+    _edit(
+        folder / SUBFILES[dialect],
+        r"X\+?745\.000",
+        "X+760.000" if dialect == "heidenhain-iso" else "X760.000",
+    )
     with pytest.raises(ProgramCheckError, match=r"outside the soft limits \[0, 750\]"):
         check_programs(folder)
 
 
 @pytest.mark.parametrize("dialect", DIALECTS)
-def test_a_feed_above_the_maximum_is_caught(dialect: str, make_config: Make,
-                                            tmp_path: Path) -> None:
+def test_a_feed_above_the_maximum_is_caught(
+    dialect: str, make_config: Make, tmp_path: Path
+) -> None:
     folder = _generate(make_config, dialect, tmp_path)
     _edit(folder / SUBFILES[dialect], r"F15000\b", "F45000")
     with pytest.raises(ProgramCheckError, match="exceeds the maximum of axis X"):
@@ -76,9 +80,12 @@ def test_a_feed_above_the_maximum_is_caught(dialect: str, make_config: Make,
 def test_a_window_that_moves_is_caught(dialect: str, make_config: Make, tmp_path: Path) -> None:
     folder = _generate(make_config, dialect, tmp_path)
     # window 1 of X starts at rest near 5 mm; its end is the second run block
-    _edit(folder / SUBFILES[dialect], r"X\+?5\.848", "X+5.600" if dialect == "heidenhain-iso"
-          else "X5.600")
-    with pytest.raises(ProgramCheckError, match="window 1 .* is not driven in order"):
+    _edit(
+        folder / SUBFILES[dialect],
+        r"X\+?5\.848",
+        "X+5.600" if dialect == "heidenhain-iso" else "X5.600",
+    )
+    with pytest.raises(ProgramCheckError, match=r"window 1 .* is not driven in order"):
         check_programs(folder)
 
 
@@ -91,11 +98,12 @@ def test_a_window_that_moves_is_caught(dialect: str, make_config: Make, tmp_path
         ("twincat", r"^M80=2$"),
     ],
 )
-def test_a_missing_marker_is_caught(dialect: str, pattern: str, make_config: Make,
-                                    tmp_path: Path) -> None:
+def test_a_missing_marker_is_caught(
+    dialect: str, pattern: str, make_config: Make, tmp_path: Path
+) -> None:
     folder = _generate(make_config, dialect, tmp_path)
     _edit(folder / SUBFILES[dialect], pattern, "")
-    with pytest.raises(ProgramCheckError, match="marker is .* expected 2"):
+    with pytest.raises(ProgramCheckError, match=r"marker is .* expected 2"):
         check_programs(folder)
 
 
@@ -107,6 +115,11 @@ def test_heidenhain_marker_m_functions_when_configured(make_config: Make, tmp_pa
     _edit(folder / "FRICTION.I", r" M50 \*$", " *")
     with pytest.raises(ProgramCheckError, match="marker is 0 during this feed, expected 1"):
         check_programs(folder)
+
+
+def test_heidenhain_marker_needs_both_m_functions(make_config: Make, tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="marker_m_off is not set"):
+        _generate(make_config, "heidenhain-iso", tmp_path, marker_m_on=50)
 
 
 def test_parking_must_come_first(make_config: Make, tmp_path: Path) -> None:

@@ -75,8 +75,13 @@ def test_no_dialect_leaves_the_limits(data: dict[str, Any]) -> None:
     with tempfile.TemporaryDirectory() as folder:
         result.write(folder)
         schedule = result.schedule
-        trace = read_programs(result.dialect, folder, schedule.main_program,
-                              {a.name for a in schedule.axes}, schedule.controller_options)
+        trace = read_programs(
+            result.dialect,
+            folder,
+            schedule.main_program,
+            {a.name for a in schedule.axes},
+            schedule.controller_options,
+        )
     report = CheckReport(directory=folder, controller=result.dialect.name)  # type: ignore[arg-type]
     check_trace(schedule, trace, report)
     assert report.problems == []

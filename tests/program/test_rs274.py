@@ -28,8 +28,10 @@ if RS274 is None and os.environ.get("CI"):
     pytest.fail("rs274 (Debian package linuxcnc-uspace) is required in CI", pytrace=False)
 pytestmark = [
     pytest.mark.rs274,
-    pytest.mark.skipif(RS274 is None, reason="rs274 not installed (apt-get install "
-                       "linuxcnc-uspace); CI installs it"),
+    pytest.mark.skipif(
+        RS274 is None,
+        reason="rs274 not installed (apt-get install linuxcnc-uspace); CI installs it",
+    ),
 ]
 
 AXES = ("X", "Y", "Z")
@@ -49,8 +51,13 @@ def run_rs274(folder: Path, main: str) -> list[Canon]:
     home = folder / "home"
     home.mkdir(exist_ok=True)
     done = subprocess.run(
-        [RS274, "-g", main], cwd=folder, env={**os.environ, "HOME": str(home)},
-        capture_output=True, text=True, timeout=120, check=False,
+        [RS274, "-g", main],
+        cwd=folder,
+        env={**os.environ, "HOME": str(home)},
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
     )
     output = done.stdout + done.stderr
     assert "PROGRAM_END()" in output, output[-2000:]
@@ -108,8 +115,9 @@ def check_against_schedule(moves: list[Canon], schedule: Schedule, markers: bool
         assert found[name] == len(axis.windows)
 
 
-def assert_reader_agrees(moves: list[Canon], folder: Path, result: GeneratedPrograms,
-                         main: str) -> None:
+def assert_reader_agrees(
+    moves: list[Canon], folder: Path, result: GeneratedPrograms, main: str
+) -> None:
     trace = read_programs(result.dialect, folder, main, set(AXES))
     position = dict.fromkeys(AXES, 0.0)
     ours = []
@@ -123,8 +131,9 @@ def assert_reader_agrees(moves: list[Canon], folder: Path, result: GeneratedProg
         assert a[1] == pytest.approx(b[1], abs=1e-4)
 
 
-def test_linuxcnc_output_runs_in_rs274(make_config: Callable[..., MachineConfig],
-                                       tmp_path: Path) -> None:
+def test_linuxcnc_output_runs_in_rs274(
+    make_config: Callable[..., MachineConfig], tmp_path: Path
+) -> None:
     result = generate_programs(make_config("linuxcnc"), generated=FIXED_TIME)
     result.write(tmp_path)
     moves = run_rs274(tmp_path, result.main_file)
@@ -133,8 +142,9 @@ def test_linuxcnc_output_runs_in_rs274(make_config: Callable[..., MachineConfig]
     assert_reader_agrees(moves, tmp_path, result, result.main_file)
 
 
-def test_fanuc_output_runs_in_rs274_fanuc_style(make_config: Callable[..., MachineConfig],
-                                                tmp_path: Path) -> None:
+def test_fanuc_output_runs_in_rs274_fanuc_style(
+    make_config: Callable[..., MachineConfig], tmp_path: Path
+) -> None:
     """LinuxCNC reads FANUC-style O-number programs with M98/M99 from one file."""
     result = generate_programs(make_config("fanuc"), generated=FIXED_TIME)
     result.write(tmp_path)

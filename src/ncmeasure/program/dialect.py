@@ -105,8 +105,9 @@ class Marker(_Strict):
     written at standstill before and after the whole run (run-up to stop);
     'none': the dialect has no usable marker, windows come from positions."""
     values: Literal["window_id", "flag"] = "window_id"
-    requires_option: str | None = None
-    """The marker exists only when this option is set (non-zero); else the scope is 'none'."""
+    requires_options: Sequence[str] = ()
+    """The marker exists only when these options are all set (non-zero); with none of
+    them set the scope is 'none', with only some set the machine file is refused."""
     mechanism: str
     """What the marker is and why it is synchronous with motion."""
 
@@ -272,6 +273,14 @@ def validate_for_dialect(config: MachineConfig, dialect: Dialect) -> dict[str, i
             f"measurement.dwell_s: {dialect.title} programs use no dwell (not verified for this "
             "dialect); set dwell_s = 0"
         )
+    required = dialect.marker.requires_options
+    given = [name for name in required if options.get(name)]
+    if given and len(given) < len(required):
+        missing = ", ".join(name for name in required if name not in given)
+        problems.append(
+            f"machine.controller_options: the marker needs {' and '.join(required)} "
+            f"together; {missing} is not set"
+        )
     for key, value in options.items():
         if isinstance(value, int) and not isinstance(value, bool) and value < 0:
             problems.append(f"machine.controller_options.{key}: must not be negative")
@@ -282,8 +291,7 @@ def validate_for_dialect(config: MachineConfig, dialect: Dialect) -> dict[str, i
 
 def marker_scope(dialect: Dialect, options: dict[str, int | bool]) -> str:
     """The marker scope the programs really have with these options."""
-    required = dialect.marker.requires_option
-    if required is not None and not options.get(required):
+    if not all(options.get(name) for name in dialect.marker.requires_options):
         return "none"
     return dialect.marker.scope
 

@@ -1,0 +1,219 @@
+"""The command line: what a technician types, what comes back, and the exit codes."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from ncmeasure.cli import app
+from ncmeasure.examples import example_machine
+
+runner = CliRunner()
+
+
+def run(*args: str | Path) -> tuple[int, str, str]:
+    result = runner.invoke(app, [str(a) for a in args])
+    return result.exit_code, result.stdout, result.stderr
+
+
+def test_init_generate_check_round_trip(tmp_path: Path) -> None:
+    code, text, _ = run("init", "--controller", "linuxcnc")
+    assert code == 0 and 'controller = "linuxcnc"' in text
+    machine = tmp_path / "m.toml"
+    machine.write_text(text)
+    code, out, _ = run("generate", machine, "-o", tmp_path / "out")
+    assert code == 0, out
+    assert "friction_x.ngc" in out and "next: ncmeasure check" in out
+    names = sorted(p.name for p in (tmp_path / "out").iterdir())
+    assert names == [
+        "friction.ngc",
+        "friction_x.ngc",
+        "friction_y.ngc",
+        "friction_z.ngc",
+        "schedule.json",
+    ]
+    code, out, _ = run("check", tmp_path / "out")
+    assert code == 0 and "900/900 windows" in out
+
+
+def test_plan_json_has_totals_at_the_top(tmp_path: Path) -> None:
+    machine = tmp_path / "m.toml"
+    machine.write_text(example_machine("sinumerik-840d"))
+    code, out, _ = run("plan", machine, "--json")
+    assert code == 0
+    plan = json.loads(out)
+    assert 0 < plan["duration_s"] < plan["full_travel_duration_s"]
+    assert [a["name"] for a in plan["axes"]] == ["X", "Y", "Z"]
+    assert plan["axes"][0]["windows"] == 300
+    code, out, _ = run("plan", machine)
+    assert code == 0 and "saving" in out and "run-up" in out
+
+
+def test_controllers_and_schema() -> None:
+    code, out, _ = run("controllers")
+    assert code == 0
+    for name in ("sinumerik-840d", "fanuc", "heidenhain-iso", "twincat", "linuxcnc"):
+        assert name in out
+    code, out, _ = run("controllers", "--details")
+    assert code == 0 and "MOS_TS" in out and "left out" in out
+    code, out, _ = run("schema", "machine")
+    schema = json.loads(out)
+    assert code == 0 and {"machine", "axes", "measurement"} <= set(schema["properties"])
+    code, out, _ = run("schema", "schedule")
+    assert code == 0 and "windows" in out
+
+
+def test_help_teaches() -> None:
+    code, out, _ = run("--help")
+    assert code == 0 and "generate" in out and "check" in out
+    code, out, _ = run("generate", "--help")
+    assert code == 0 and "schedule.json" in out
+
+
+# --- bad input: a clear message with its place, exit code 2, no traceback, no output ---
+
+BAD_MACHINES: dict[str, tuple[Callable[[str], str], str]] = {
+    "invalid TOML": (
+        lambda t: t.replace('program = "FRICTION"', 'program = "FRICTION'),
+        "invalid TOML",
+    ),
+    "unknown key": (
+        lambda t: t.replace("vertical = false", "vertikal = false"),
+        "axes[0].vertikal: unknown key",
+    ),
+    "wrong unit or range": (
+        lambda t: t.replace("max_velocity_mm_min = 30000\n", "max_velocity_mm_min = -30000\n", 1),
+        "axes[0].max_velocity_mm_min: Input should be greater than 0",
+    ),
+    "wrong type": (
+        lambda t: t.replace("max_acceleration_m_s2 = 2.0", 'max_acceleration_m_s2 = "2 m/s2"', 1),
+        "axes[0].max_acceleration_m_s2",
+    ),
+    "min >= max": (
+        lambda t: t.replace("travel_mm = [0.0, 750.0]", "travel_mm = [750.0, 0.0]"),
+        "axes[0].travel_mm: min (750) must be below max (0)",
+    ),
+    "velocity min >= max": (
+        lambda t: t.replace("min_velocity_mm_min = 10", "min_velocity_mm_min = 20000"),
+        "measurement.min_velocity_mm_min",
+    ),
+    "park outside travel": (
+        lambda t: t.replace("park_mm = 375.0", "park_mm = 800.0"),
+        "axes[0].park_mm: 800 mm is outside the travel [0, 750] mm",
+    ),
+    "axis name the dialect refuses": (
+        lambda t: t.replace('name = "Z"', 'name = "Z1"'),
+        "axes[2].name: 'Z1' is not an axis name LinuxCNC allows",
+    ),
+    "newline in a name": (lambda t: t.replace('"HMX-400 #17"', '"HMX\\nM30"'), "machine.name"),
+    "semicolon in a name": (lambda t: t.replace('"HMX-400 #17"', '"HMX;M30"'), "machine.name"),
+    "parenthesis in a name": (lambda t: t.replace('"HMX-400 #17"', '"HMX (x)"'), "machine.name"),
+    "percent in a name": (lambda t: t.replace('"HMX-400 #17"', '"HMX%"'), "machine.name"),
+    "dollar in a name": (lambda t: t.replace('"HMX-400 #17"', '"$R1"'), "machine.name"),
+    "slash in a program": (
+        lambda t: t.replace('program = "FRICTION"', 'program = "A/B"'),
+        "machine.program",
+    ),
+    "dot-dot in a program": (
+        lambda t: t.replace('program = "FRICTION"', 'program = "..X"'),
+        "machine.program",
+    ),
+    "injection in an axis name": (
+        lambda t: t.replace('name = "X"', 'name = "X\\nM2"'),
+        "axes[0].name",
+    ),
+    "unknown controller": (
+        lambda t: t.replace('"linuxcnc"', '"heidenhain"'),
+        "unknown controller 'heidenhain'",
+    ),
+    "unknown controller option": (
+        lambda t: t.replace(
+            'program = "FRICTION"', 'program = "FRICTION"\ncontroller_options = {bit = 3}'
+        ),
+        "machine.controller_options.bit: unknown option for linuxcnc",
+    ),
+    "step does not fit": (
+        lambda t: t.replace("travel_mm = [0.0, 750.0]", "travel_mm = [0.0, 150.0]").replace(
+            "park_mm = 375.0", "park_mm = 75.0"
+        ),
+        "axis X: the step at",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_MACHINES))
+def test_bad_machine_files(case: str, tmp_path: Path) -> None:
+    mutate, expected = BAD_MACHINES[case]
+    text = example_machine("linuxcnc")
+    bad = mutate(text)
+    assert bad != text, "the mutation did not apply"
+    machine = tmp_path / "m.toml"
+    machine.write_text(bad)
+    out = tmp_path / "out"
+    code, stdout, stderr = run("generate", machine, "-o", out)
+    assert code == 2, stdout + stderr
+    assert expected in stderr, stderr
+    assert "Traceback" not in stdout + stderr
+    assert not out.exists(), "nothing may be written for a bad machine file"
+
+
+def test_output_directory_that_is_a_file(tmp_path: Path) -> None:
+    machine = tmp_path / "m.toml"
+    machine.write_text(example_machine("linuxcnc"))
+    target = tmp_path / "out"
+    target.write_text("precious")
+    code, _, stderr = run("generate", machine, "-o", target)
+    assert code == 2 and "exists and is not a directory" in stderr
+    assert target.read_text() == "precious"
+
+
+def test_existing_programs_survive_a_failed_generate(tmp_path: Path) -> None:
+    machine = tmp_path / "m.toml"
+    machine.write_text(example_machine("linuxcnc"))
+    out = tmp_path / "out"
+    assert run("generate", machine, "-o", out)[0] == 0
+    before = {p.name: p.read_text() for p in out.iterdir()}
+    machine.write_text(example_machine("linuxcnc").replace("park_mm = 375.0", "park_mm = 900.0"))
+    assert run("generate", machine, "-o", out)[0] == 2
+    assert {p.name: p.read_text() for p in out.iterdir()} == before
+
+
+def test_missing_machine_file_and_check_of_nothing(tmp_path: Path) -> None:
+    code, _, stderr = run("generate", tmp_path / "none.toml", "-o", tmp_path / "o")
+    assert code == 2 and "none.toml: no such file" in stderr
+    code, _, stderr = run("check", tmp_path / "nowhere")
+    assert code == 2 and "not a directory" in stderr
+
+
+def test_check_failure_exits_1(tmp_path: Path) -> None:
+    machine = tmp_path / "m.toml"
+    machine.write_text(example_machine("linuxcnc"))
+    out = tmp_path / "out"
+    run("generate", machine, "-o", out)
+    sub = out / "friction_y.ngc"
+    sub.write_text(sub.read_text().replace("G1 Y595.000 F15000", "G1 Y650.000 F15000", 1))
+    code, _, stderr = run("check", out)
+    assert code == 1
+    assert "friction_y" in stderr.lower() and "outside the soft limits [0, 600]" in stderr
+
+
+def test_console_script_shows_no_traceback(tmp_path: Path) -> None:
+    machine = tmp_path / "m.toml"
+    machine.write_text("[machine]\nname = 'x'\ncontroller = 'linuxcnc'\n")
+    done = subprocess.run(
+        [sys.executable, "-m", "ncmeasure", "generate", str(machine), "-o", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
+        check=False,
+        env={**os.environ, "COLUMNS": "200"},
+    )
+    assert done.returncode == 2
+    assert "axes: required key is missing" in done.stderr
+    assert "Traceback" not in done.stderr
