@@ -175,16 +175,18 @@ def controllers(
 
 
 def _print_plan(schedule: Schedule) -> None:
-    table = Table(
+    table = Table(box=None, header_style="bold")
+    for column in (
         "axis",
-        "positions [mm]",
+        "positions mm",
         "steps",
-        "velocities [mm/min]",
-        "run-up at top",
+        "mm/min",
+        "run-up",
         "windows",
-        "duration",
+        "time",
         "full travel",
-    )
+    ):
+        table.add_column(column, no_wrap=True)
     for axis in schedule.axes:
         velocities = axis.velocities_mm_min
         table.add_row(
@@ -192,7 +194,7 @@ def _print_plan(schedule: Schedule) -> None:
             ", ".join(f"{p:g}" for p in axis.nominal_positions_mm),
             str(len(velocities)),
             f"{velocities[0]:g} … {velocities[-1]:g}",
-            f"{axis.runup_at_max_velocity_mm:g} mm",
+            f"{axis.runup_at_max_velocity_mm:g}mm",
             str(len(axis.windows)),
             _duration(axis.duration_s),
             _duration(axis.full_travel_duration_s),
@@ -219,7 +221,10 @@ def _print_plan(schedule: Schedule) -> None:
 
 def _duration(seconds: float) -> str:
     minutes, rest = divmod(round(seconds), 60)
-    return f"{minutes} min {rest:02d} s" if minutes else f"{seconds:.1f} s"
+    hours, minutes = divmod(minutes, 60)
+    if hours:
+        return f"{hours}h{minutes:02d}m"
+    return f"{minutes}m{rest:02d}s" if minutes else f"{seconds:.1f}s"
 
 
 @app.command()
