@@ -194,6 +194,21 @@ def _environment(dialect: Dialect, template_dirs: Iterable[Path]) -> SandboxedEn
     return env
 
 
+def _template_place(exc: jinja2.TemplateError, dialect: Dialect) -> str:
+    """'file:line' of the template a rendering error comes from."""
+    filename = getattr(exc, "filename", None)
+    line = getattr(exc, "lineno", None)
+    # Jinja rewrites tracebacks so that template frames carry the template's file and line.
+    frame = exc.__traceback__
+    while frame is not None:
+        code = frame.tb_frame.f_code
+        if code.co_filename.endswith(".j2"):
+            filename, line = code.co_filename, frame.tb_lineno
+        frame = frame.tb_next
+    place = filename or dialect.name
+    return f"{place}:{line}" if line else place
+
+
 def _number_blocks(text: str, dialect: Dialect) -> str:
     blocks = dialect.blocks
     if not blocks.numbered:
@@ -298,8 +313,5 @@ def generate_programs(
                     sub_template.render(v=view, axis=axis_view), dialect
                 )
     except jinja2.TemplateError as exc:
-        where = getattr(exc, "filename", None) or getattr(exc, "name", None) or dialect.name
-        line = getattr(exc, "lineno", None)
-        place = f"{where}:{line}" if line else str(where)
-        raise DialectError(f"template {place}: {exc}") from exc
+        raise DialectError(f"template {_template_place(exc, dialect)}: {exc}") from exc
     return result
