@@ -63,6 +63,14 @@ def _safe_text(value: str) -> str:
     return value
 
 
+def _check_pattern(value: str, pattern: str, rule: str) -> str:
+    if not re.fullmatch(pattern, value):
+        raise PydanticCustomError(
+            "name", "{value} is not {rule}", {"value": repr(value), "rule": rule}
+        )
+    return value
+
+
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
 
@@ -110,14 +118,12 @@ class MachineSection(_Model):
     @field_validator("program")
     @classmethod
     def _check_program(cls, value: str) -> str:
-        if not re.fullmatch(PROGRAM_NAME_PATTERN, value):
-            raise PydanticCustomError(
-                "program_name",
-                "{value} is not a program name: use letters, digits and underscores, starting "
-                "with a letter, at most 24 characters",
-                {"value": repr(value)},
-            )
-        return value
+        return _check_pattern(
+            value,
+            PROGRAM_NAME_PATTERN,
+            "a program name: use letters, digits and underscores, starting with a letter, "
+            "at most 24 characters",
+        )
 
 
 class Measurement(_Model):
@@ -298,14 +304,12 @@ class AxisConfig(_Model):
     @field_validator("name")
     @classmethod
     def _check_axis_name(cls, value: str) -> str:
-        if not re.fullmatch(AXIS_NAME_PATTERN, value):
-            raise PydanticCustomError(
-                "axis_name",
-                "{value} is not an axis name: an upper-case letter, then up to 7 upper-case "
-                "letters or digits (X, Y, Z, Z1, ...)",
-                {"value": repr(value)},
-            )
-        return value
+        return _check_pattern(
+            value,
+            AXIS_NAME_PATTERN,
+            "an axis name: an upper-case letter, then up to 7 upper-case letters or digits "
+            "(X, Y, Z, Z1, ...)",
+        )
 
     @property
     def rapid_mm_min(self) -> float:

@@ -293,9 +293,7 @@ def _geometry(v_mm_min: float, axis: AxisConfig, meas: Measurement) -> _RunGeome
     return _RunGeometry(runup, window, runout, r.time_s)
 
 
-def _run_time_s(
-    geo: _RunGeometry, v_mm_min: float, axis: AxisConfig, meas: Measurement
-) -> tuple[float, float, float]:
+def _run_time_s(geo: _RunGeometry, v_mm_min: float, axis: AxisConfig) -> tuple[float, float, float]:
     """Times from the start of a run to window start, window end and stop."""
     # The whole run is one rest-to-rest move at feed v: the ramp takes ramp_time_s,
     # the rest of the run-up and run-out is covered at constant velocity.
@@ -456,7 +454,7 @@ def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> 
                     clock.rapid(start)
                     clock.dwell(meas.dwell_s)
                     t0 = clock.t_s
-                    t_ws, t_we, t_stop = _run_time_s(geo, v, axis, meas)
+                    t_ws, t_we, t_stop = _run_time_s(geo, v, axis)
                     number = len(windows) + 1
                     clock.moves.append(
                         Run(axis.name, _mm(start), _mm(w_start), _mm(w_end), _mm(stop), v, number)
