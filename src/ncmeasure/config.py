@@ -300,6 +300,11 @@ class AxisConfig(_Model):
     measurement: MeasurementOverride | None = Field(
         default=None, description="Per-axis replacement of [measurement] fields."
     )
+    link: dict[str, Any] = Field(
+        default_factory=dict,
+        description="Per-axis settings of the drive link, e.g. { node_id = 1 } for CANopen "
+        "or { unit_id = 1 } for Modbus; checked by the link (see the README).",
+    )
 
     @field_validator("name")
     @classmethod
@@ -323,6 +328,11 @@ class MachineConfig(_Model):
     machine: MachineSection
     axes: Annotated[list[AxisConfig], Field(min_length=1, max_length=32)]
     measurement: Measurement = Field(default_factory=Measurement)
+    link: dict[str, Any] | None = Field(
+        default=None,
+        description="The drive link: type = 'canopen' | 'modbus' | 'replay' and its settings; "
+        "checked by the link when recording (see the README).",
+    )
 
     def axis(self, name: str) -> AxisConfig:
         """Return the axis called ``name``."""
@@ -501,5 +511,7 @@ def config_hash(config: MachineConfig) -> str:
     hash whatever their layout or comments, so programs, schedules and
     recordings can be matched.
     """
-    canonical = json.dumps(config.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+    # The link settings say how to record, not what the program does: they stay out.
+    data = config.model_dump(mode="json", exclude={"link": True, "axes": {"__all__": {"link"}}})
+    canonical = json.dumps(data, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(canonical.encode("utf-8")).hexdigest()[:16]

@@ -10,7 +10,11 @@ either::
     ├── DialectError (ValueError)        a controller definition or template is broken
     ├── ProgramError (ValueError)        an NC program cannot be read
     │   └── ProgramCheckError            a program leaves its limits or its schedule
-    └── OutputError (OSError)            results cannot be written
+    ├── OutputError (OSError)            results cannot be written
+    ├── RecordingError (OSError)         a recording cannot be written or read
+    ├── DependencyError (ImportError)    an optional package is missing (names the extra)
+    └── LinkError (ConnectionError)      a drive link failed (bus, network, drive)
+        └── LinkTimeoutError (TimeoutError)  a drive did not answer in time
 
 Third-party exceptions are wrapped at the boundary (``raise ... from exc``).
 The command line is the only place that turns these into exit codes.
@@ -22,12 +26,16 @@ from collections.abc import Iterable, Sequence
 
 __all__ = [
     "ConfigError",
+    "DependencyError",
     "DialectError",
+    "LinkError",
+    "LinkTimeoutError",
     "NcMeasureError",
     "OutputError",
     "PlanError",
     "ProgramCheckError",
     "ProgramError",
+    "RecordingError",
 ]
 
 
@@ -72,3 +80,19 @@ class ProgramCheckError(ProgramError):
 
 class OutputError(NcMeasureError, OSError):
     """Output files or directories cannot be written."""
+
+
+class RecordingError(NcMeasureError, OSError):
+    """A recording cannot be written, or is not a readable recording."""
+
+
+class DependencyError(NcMeasureError, ImportError):
+    """An optional package is missing; the message names the extra to install."""
+
+
+class LinkError(NcMeasureError, ConnectionError):
+    """A drive link failed: bus or network error, a drive refusing or not answering."""
+
+
+class LinkTimeoutError(LinkError, TimeoutError):
+    """A drive or the bus did not answer in time."""

@@ -1,0 +1,332 @@
+"""The drive-link contract: what every link (CANopen, Modbus, replay, third-party) offers.
+
+Modelled on python-can's ``BusABC``: the public methods live here and do the
+shared work (state checks, argument checks, idempotent close, context
+manager); a backend implements the underscore hooks ``_open``, ``_read`` and
+``_close``.
+
+A link reads the drive signals of several axes and hands them out as
+:class:`SampleBlock` objects: rows of samples, one timestamp per row, one
+column per :class:`Channel` (``X_current_a``, ``X_velocity_mm_min``, ...), all
+in ncmeasure's units (A, mm/min, mm). Things that happen on the way (missing
+cycles, drive faults, reboots, reconnects) are :class:`LinkEvent` objects,
+collected with :meth:`DriveLink.events`.
+
+Settings: every backend declares a pydantic model for the link-wide settings
+(:attr:`DriveLink.settings_model`, the ``[link]`` table of the machine file)
+and one for the per-axis settings (:attr:`DriveLink.axis_settings_model`, the
+``link`` table of an ``[[axes]]`` entry, e.g. a node id).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from types import TracebackType
+from typing import Any, ClassVar, Literal, Self
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from ncmeasure.config import AxisConfig, format_validation_error
+from ncmeasure.errors import ConfigError, LinkError
+
+__all__ = [
+    "SIGNAL_UNITS",
+    "AxisBinding",
+    "AxisLinkSettings",
+    "Channel",
+    "DriveLink",
+    "LinkEvent",
+    "LinkSettings",
+    "SampleBlock",
+    "channels_for",
+]
+
+log = logging.getLogger(__name__)
+
+Signal = Literal["current_a", "velocity_mm_min", "position_mm", "velocity_cmd_mm_min", "marker"]
+
+#: The signals a link may deliver per axis, with their units. The first three
+#: are what the friction analysis needs; the others are read where available.
+SIGNAL_UNITS: Mapping[str, str] = {
+    "current_a": "A",
+    "velocity_mm_min": "mm/min",
+    "position_mm": "mm",
+    "velocity_cmd_mm_min": "mm/min",
+    "marker": "1",
+}
+REQUIRED_SIGNALS: tuple[str, ...] = ("current_a", "velocity_mm_min", "position_mm")
+
+
+@dataclass(frozen=True)
+class Channel:
+    """One recorded column: an axis' signal in its unit."""
+
+    axis: str
+    signal: str
+    unit: str
+
+    @property
+    def name(self) -> str:
+        """Column name, e.g. ``X_current_a``."""
+        return f"{self.axis}_{self.signal}"
+
+
+def channels_for(axes: Sequence[str], signals: Sequence[str] = REQUIRED_SIGNALS) -> tuple[
+    Channel, ...
+]:
+    """Channels for ``signals`` of every axis, axis by axis."""
+    return tuple(Channel(a, s, SIGNAL_UNITS[s]) for a in axes for s in signals)
+
+
+@dataclass(frozen=True)
+class SampleBlock:
+    """Rows of samples: ``time_s`` (n,) and ``values`` (n, channels), float64.
+
+    ``time_s`` is seconds since the link was opened, on the link's clock
+    (SYNC count × period for CANopen, response time for Modbus, recorded time
+    for replay); it increases strictly within a block.
+    """
+
+    time_s: NDArray[np.float64]
+    values: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        if self.time_s.ndim != 1 or self.values.ndim != 2:
+            raise ValueError("time_s must be 1-D and values 2-D")
+        if self.values.shape[0] != self.time_s.shape[0]:
+            raise ValueError("time_s and values differ in length")
+
+    def __len__(self) -> int:
+        return int(self.time_s.shape[0])
+
+    @classmethod
+    def from_rows(cls, time_s: Sequence[float], rows: Sequence[Sequence[float]],
+                  channels: int) -> SampleBlock:
+        """Build a block from Python lists (an empty block when there are no rows)."""
+        values = np.asarray(rows, dtype=np.float64).reshape(len(time_s), channels)
+        return cls(np.asarray(time_s, dtype=np.float64), values)
+
+
+EventKind = Literal["gap", "fault", "emcy", "reboot", "reconnect", "info"]
+
+
+@dataclass(frozen=True)
+class LinkEvent:
+    """Something that happened on the link, in link time."""
+
+    time_s: float
+    kind: EventKind
+    message: str
+    axis: str | None = None
+    lost_samples: int = 0
+    """Samples (rows) that are missing because of this event, where known."""
+    details: Mapping[str, Any] = field(default_factory=dict)
+
+
+class LinkSettings(BaseModel):
+    """Base of a link's ``[link]`` settings; ``type`` names the link."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    type: str
+
+
+class AxisLinkSettings(BaseModel):
+    """Base of a link's per-axis settings (``[axes.link]``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+@dataclass(frozen=True)
+class AxisBinding:
+    """An axis of the machine file with the link's settings for it."""
+
+    axis: AxisConfig
+    settings: AxisLinkSettings
+
+    @property
+    def name(self) -> str:
+        """The axis name."""
+        return self.axis.name
+
+
+class DriveLink(ABC):
+    """A connection to the drives of several axes that yields sample blocks.
+
+    Use it as a context manager::
+
+        with make_link(config) as link:
+            while (block := link.read(timeout_s=1.0)) is not None: ...
+
+    Subclasses set :attr:`name`, :attr:`settings_model`,
+    :attr:`axis_settings_model` and implement ``_open``, ``_read`` and
+    ``_close``; ``_read`` returns an empty block when nothing arrived within
+    the timeout and ``None`` at the end of the data (replay).
+    """
+
+    name: ClassVar[str] = ""
+    settings_model: ClassVar[type[LinkSettings]] = LinkSettings
+    axis_settings_model: ClassVar[type[AxisLinkSettings]] = AxisLinkSettings
+
+    def __init__(self, settings: LinkSettings, axes: Sequence[AxisBinding]) -> None:
+        if not axes:
+            raise ConfigError("a drive link needs at least one axis")
+        self.settings = settings
+        self.axes = tuple(axes)
+        self._state: Literal["new", "open", "closed"] = "new"
+        self._events: list[LinkEvent] = []
+        self._events_lock = threading.Lock()
+
+    # --- construction from the machine file ------------------------------------------
+
+    @classmethod
+    def from_tables(
+        cls,
+        link_table: Mapping[str, Any],
+        axes: Sequence[tuple[AxisConfig, Mapping[str, Any]]],
+    ) -> Self:
+        """Validate the ``[link]`` table and the per-axis tables, then build the link.
+
+        Raises:
+            ConfigError: one ``location: message`` line per problem, located in
+                the machine file (``link.bitrate``, ``axes[1].link.node_id``).
+        """
+        problems: list[str] = []
+        settings: LinkSettings | None = None
+        try:
+            settings = cls.settings_model.model_validate({"type": cls.name, **link_table})
+        except ValidationError as exc:
+            problems += format_validation_error(exc, "link")
+        bindings: list[AxisBinding] = []
+        for index, (axis, table) in enumerate(axes):
+            try:
+                bindings.append(AxisBinding(axis, cls.axis_settings_model.model_validate(table)))
+            except ValidationError as exc:
+                problems += format_validation_error(exc, f"axes[{index}].link")
+        if problems or settings is None:
+            raise ConfigError(f"the settings of the {cls.name} link are not valid", problems)
+        return cls(settings, bindings)
+
+    # --- what a backend provides ------------------------------------------------------
+
+    @property
+    @abstractmethod
+    def channels(self) -> tuple[Channel, ...]:
+        """The columns of every block this link yields, in order."""
+
+    @property
+    @abstractmethod
+    def nominal_period_s(self) -> float:
+        """The intended time between two rows (SYNC period, poll period, ...)."""
+
+    def describe(self) -> dict[str, Any]:
+        """Link settings and scale factors for a recording's metadata."""
+        return {
+            "link": self.settings.model_dump(mode="json"),
+            "axes": {b.name: b.settings.model_dump(mode="json") for b in self.axes},
+        }
+
+    @abstractmethod
+    def _open(self) -> None:
+        """Connect, configure the drives, start streaming."""
+
+    @abstractmethod
+    def _read(self, timeout_s: float) -> SampleBlock | None:
+        """Return the rows that arrived, waiting at most ``timeout_s`` for the first."""
+
+    @abstractmethod
+    def _close(self) -> None:
+        """Stop streaming and release the bus, socket or port. Must not raise."""
+
+    # --- the public methods -----------------------------------------------------------
+
+    @property
+    def is_open(self) -> bool:
+        """True between a successful :meth:`open` and :meth:`close`."""
+        return self._state == "open"
+
+    def open(self) -> None:
+        """Connect and start streaming.
+
+        Raises:
+            LinkError: the bus, host or drives cannot be reached or configured.
+        """
+        if self._state == "open":
+            raise LinkError(f"{self.name} link is already open")
+        if self._state == "closed":
+            raise LinkError(f"{self.name} link was closed; make a new one")
+        try:
+            self._open()
+        except BaseException:
+            self._safe_close()
+            raise
+        self._state = "open"
+        log.debug("%s link open: %d axes, %d channels", self.name, len(self.axes),
+                  len(self.channels))
+
+    def read(self, timeout_s: float = 1.0) -> SampleBlock | None:
+        """The samples that arrived since the last call.
+
+        Args:
+            timeout_s: How long to wait for the first new row.
+
+        Returns:
+            A block (empty when nothing came within the timeout), or ``None``
+            when the source has no more data (end of a replay).
+
+        Raises:
+            LinkError: the link failed and cannot go on.
+        """
+        if self._state != "open":
+            raise LinkError(f"{self.name} link is not open")
+        if timeout_s < 0:
+            raise ValueError("timeout_s must not be negative")
+        return self._read(timeout_s)
+
+    def events(self) -> list[LinkEvent]:
+        """Events since the last call (gaps, faults, reboots, reconnects)."""
+        with self._events_lock:
+            events, self._events = self._events, []
+        return events
+
+    def close(self) -> None:
+        """Stop and release everything. Safe to call more than once."""
+        if self._state == "closed":
+            return
+        self._safe_close()
+
+    def _safe_close(self) -> None:
+        self._state = "closed"
+        try:
+            self._close()
+        except Exception:  # closing must never hide the error that led here
+            log.exception("error while closing the %s link", self.name)
+
+    def _event(self, event: LinkEvent) -> None:
+        """Record an event (backends call this, from any thread)."""
+        log.info("%s link: %s%s: %s", self.name, event.kind,
+                 f" ({event.axis})" if event.axis else "", event.message)
+        with self._events_lock:
+            self._events.append(event)
+
+    def empty_block(self) -> SampleBlock:
+        """A block without rows, for a read that timed out."""
+        return SampleBlock(np.empty(0), np.empty((0, len(self.channels))))
+
+    def __enter__(self) -> Self:
+        self.open()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
