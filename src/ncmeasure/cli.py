@@ -9,20 +9,32 @@ from __future__ import annotations
 
 import json
 import logging
+import signal
 import sys
+import threading
+import tomllib
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated, Any, NoReturn
 
 import typer
 from rich.console import Console
+from rich.live import Live
 from rich.table import Table
 
 from ncmeasure import __version__
+from ncmeasure.acquire import Progress, record
 from ncmeasure.config import MachineConfig, load_machine
-from ncmeasure.errors import NcMeasureError, OutputError, ProgramCheckError
+from ncmeasure.errors import ConfigError, LinkError, NcMeasureError, OutputError, ProgramCheckError
 from ncmeasure.examples import example_machine
 from ncmeasure.plan import Schedule
-from ncmeasure.program import available_dialects, check_programs, generate_programs, load_dialect
+from ncmeasure.program import (
+    available_dialects,
+    check_programs,
+    generate_programs,
+    load_dialect,
+    load_schedule,
+)
+from ncmeasure.recording import export_csv, export_mdf4, import_csv, import_mdf4, read_recording
 
 __all__ = ["app", "main"]
 
@@ -313,3 +325,292 @@ def check(
 def main() -> None:
     """Entry point of the console script."""
     app()
+
+
+# --- acquisition -------------------------------------------------------------------------
+
+EXIT_INTERRUPTED = 3
+EXIT_LINK = 4
+
+
+def _pairs(values: list[str], option: str, key: str) -> dict[str, dict[str, Any]]:
+    """``X=1`` options into per-axis settings ``{"X": {key: 1}}``."""
+    result: dict[str, dict[str, Any]] = {}
+    for text in values:
+        axis, sep, value = text.partition("=")
+        if not sep or not axis or not value.strip().isdigit():
+            _fail(ConfigError(f"{option} {text!r}: expected AXIS=NUMBER, e.g. {option} X=1"))
+        result.setdefault(axis.strip(), {})[key] = int(value)
+    return result
+
+
+def _settings(values: list[str]) -> dict[str, Any]:
+    """``--set key=value`` options; values are read as TOML (numbers, true/false, strings)."""
+    result: dict[str, Any] = {}
+    for text in values:
+        key, sep, value = text.partition("=")
+        if not sep or not key.strip():
+            _fail(ConfigError(f"--set {text!r}: expected KEY=VALUE, e.g. --set sync_hz=500"))
+        try:
+            result[key.strip()] = tomllib.loads(f"v = {value}")["v"]
+        except tomllib.TOMLDecodeError:
+            result[key.strip()] = value
+    return result
+
+
+def _progress_table(progress: Progress) -> Table:
+    table = Table(
+        title=f"recording · {progress.elapsed_s:.0f} s · {progress.rows} samples · "
+        f"{progress.rows_per_s:.0f} samples/s",
+        box=None,
+        header_style="bold",
+    )
+    table.add_column("axis")
+    table.add_column("current A", justify="right")
+    table.add_column("velocity mm/min", justify="right")
+    table.add_column("position mm", justify="right")
+    axes = list(dict.fromkeys(name.split("_", 1)[0] for name in progress.latest))
+    for axis in axes:
+        values = [
+            progress.latest.get(f"{axis}_{s}")
+            for s in ("current_a", "velocity_mm_min", "position_mm")
+        ]
+        table.add_row(axis, *("—" if v is None else f"{v:.3f}" for v in values))
+    table.caption = (
+        f"gaps {progress.gaps} ({progress.lost_samples} samples lost) · "
+        f"faults {progress.faults}"
+        + (f" · last: {progress.last_event}" if progress.last_event else "")
+    )
+    return table
+
+
+@app.command("record")
+def record_command(
+    machine: Annotated[
+        Path,
+        typer.Argument(
+            help="Machine file; its [link] table and the axes' link settings are the defaults."
+        ),
+    ],
+    output: Annotated[Path, typer.Option("--output", "-o", help="New recording directory.")],
+    link: Annotated[
+        str | None,
+        typer.Option(help="canopen, modbus, replay, or a registered link (default: [link] type)."),
+    ] = None,
+    interface: Annotated[
+        str | None,
+        typer.Option(
+            help="CANopen: python-can interface (virtual, socketcan, pcan, slcan, ...).",
+            rich_help_panel="CANopen",
+        ),
+    ] = None,
+    channel: Annotated[
+        str | None, typer.Option(help="CANopen: python-can channel.", rich_help_panel="CANopen")
+    ] = None,
+    bitrate: Annotated[
+        int | None, typer.Option(help="CANopen: bit rate in bit/s.", rich_help_panel="CANopen")
+    ] = None,
+    node: Annotated[
+        list[str] | None,
+        typer.Option(help="CANopen: AXIS=NODE_ID, repeat per axis.", rich_help_panel="CANopen"),
+    ] = None,
+    sync_hz: Annotated[
+        float | None, typer.Option(help="CANopen: SYNC rate in Hz.", rich_help_panel="CANopen")
+    ] = None,
+    eds: Annotated[
+        Path | None,
+        typer.Option(help="CANopen: the drives' EDS/DCF file.", rich_help_panel="CANopen"),
+    ] = None,
+    host: Annotated[
+        str | None, typer.Option(help="Modbus TCP: host.", rich_help_panel="Modbus")
+    ] = None,
+    port: Annotated[
+        int | None, typer.Option(help="Modbus TCP: port.", rich_help_panel="Modbus")
+    ] = None,
+    unit: Annotated[
+        list[str] | None,
+        typer.Option(help="Modbus: AXIS=UNIT_ID, repeat per axis.", rich_help_panel="Modbus"),
+    ] = None,
+    register_map: Annotated[
+        str | None,
+        typer.Option(
+            help="Modbus: register map (built-in name or TOML file).", rich_help_panel="Modbus"
+        ),
+    ] = None,
+    poll_hz: Annotated[
+        float | None, typer.Option(help="Modbus: polls per second.", rich_help_panel="Modbus")
+    ] = None,
+    serial_port: Annotated[
+        str | None, typer.Option(help="Modbus RTU: serial port.", rich_help_panel="Modbus")
+    ] = None,
+    source: Annotated[
+        Path | None,
+        typer.Option(help="Replay: the recording to play back.", rich_help_panel="Replay"),
+    ] = None,
+    speed: Annotated[
+        float | None,
+        typer.Option(
+            help="Replay: 1 = recorded speed, 0 = as fast as possible.", rich_help_panel="Replay"
+        ),
+    ] = None,
+    set_: Annotated[
+        list[str] | None, typer.Option("--set", help="Any other link setting, KEY=VALUE.")
+    ] = None,
+    duration: Annotated[float | None, typer.Option(help="Seconds to record.")] = None,
+    schedule: Annotated[
+        Path | None,
+        typer.Option(help="schedule.json of the program: stop after its end plus a margin."),
+    ] = None,
+    raw_log: Annotated[
+        Path | None, typer.Option(help="CANopen: also log every frame (.blf/.asc).")
+    ] = None,
+    notes: Annotated[str, typer.Option(help="Free text stored with the recording.")] = "",
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No live display.")] = False,
+) -> None:
+    """Record motor current, velocity and position from the drives into a recording.
+
+    Stops after --duration, at the end of --schedule, at the end of a replay, or on
+    Ctrl-C/SIGTERM; every way of stopping closes the recording with what was received.
+    Exit code 0: complete; 2: bad input; 3: stopped by Ctrl-C/SIGTERM; 4: the link failed.
+
+    Example: ncmeasure record m.toml --link canopen --interface virtual --channel test
+    --node X=1 --sync-hz 250 --duration 60 -o run1
+    """
+    config = _load(machine)
+    overrides: dict[str, Any] = {
+        key: value
+        for key, value in {
+            "interface": interface,
+            "channel": channel,
+            "bitrate": bitrate,
+            "sync_hz": sync_hz,
+            "eds": eds,
+            "host": host,
+            "port": port,
+            "register_map": register_map,
+            "poll_hz": poll_hz,
+            "serial_port": serial_port,
+            "source": source,
+            "speed": speed,
+            "raw_log": raw_log,
+        }.items()
+        if value is not None
+    }
+    overrides.update(_settings(set_ or []))
+    axis_overrides = _pairs(node or [], "--node", "node_id")
+    for axis, values in _pairs(unit or [], "--unit", "unit_id").items():
+        axis_overrides.setdefault(axis, {}).update(values)
+    unknown = set(axis_overrides) - {a.name for a in config.axes}
+    if unknown:
+        _fail(
+            ConfigError(f"--node/--unit name axes the machine lacks: {', '.join(sorted(unknown))}")
+        )
+    try:
+        plan_schedule = load_schedule(schedule) if schedule else None
+    except NcMeasureError as exc:
+        _fail(exc)
+
+    stop = threading.Event()
+    previous = {
+        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
+    }
+    live: Live | None = None
+
+    def show(progress: Progress) -> None:
+        if live is not None:
+            live.update(_progress_table(progress))
+
+    try:
+        if not quiet:
+            live = Live(console=err_console, refresh_per_second=4, transient=True)
+            live.start()
+        result = record(
+            config,
+            out=output,
+            link=link,
+            link_settings=overrides,
+            axis_settings=axis_overrides,
+            duration_s=duration,
+            schedule=plan_schedule,
+            notes=notes,
+            stop=stop,
+            on_progress=None if quiet else show,
+        )
+    except LinkError as exc:
+        if live is not None:
+            live.stop()
+        err_console.print(f"[bold red]error:[/] {exc.message}", soft_wrap=True)
+        for line in exc.problems:
+            err_console.print(f"  {line}", markup=False, soft_wrap=True)
+        if _state["debug"]:
+            raise
+        raise typer.Exit(EXIT_LINK) from None
+    except NcMeasureError as exc:
+        if live is not None:
+            live.stop()
+        _fail(exc)
+    finally:
+        if live is not None:
+            live.stop()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    lost = sum(e.lost_samples for e in result.events)
+    if not quiet or result.status != "complete":
+        err_console.print(
+            f"{result.status}: {result.rows} samples over {result.link_time_s:.1f} s in "
+            f"{result.directory} ({result.gaps} gaps, {lost} samples lost)"
+            + (f"; {result.error}" if result.error else ""),
+            soft_wrap=True,
+        )
+    if result.status == "interrupted":
+        raise typer.Exit(EXIT_INTERRUPTED)
+    if result.status == "link_lost":
+        raise typer.Exit(EXIT_LINK)
+
+
+_FORMATS = {"csv": ".csv", "mdf4": ".mf4"}
+
+
+@app.command("export")
+def export_command(
+    run: Annotated[Path, typer.Argument(help="Recording directory.")],
+    fmt: Annotated[str, typer.Option("--format", "-f", help="csv or mdf4.")] = "csv",
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="Output file (default: next to RUN).")
+    ] = None,
+) -> None:
+    """Write a recording as one CSV (time_s, then <AXIS>_<signal> columns) or MDF4 file."""
+    if fmt not in _FORMATS:
+        _fail(ConfigError(f"--format {fmt!r}: expected one of {', '.join(_FORMATS)}"))
+    target = output or run.with_suffix(_FORMATS[fmt])
+    try:
+        recording = read_recording(run)
+        for problem in recording.problems:
+            err_console.print(f"[yellow]warning:[/] {problem}", soft_wrap=True)
+        if fmt == "csv":
+            export_csv(recording, target)
+        else:
+            export_mdf4(recording, target)
+    except NcMeasureError as exc:
+        _fail(exc)
+    console.print(f"wrote {target} ({len(recording.time_s)} samples)")
+
+
+@app.command("import")
+def import_command(
+    file: Annotated[Path, typer.Argument(help="File to import.")],
+    output: Annotated[Path, typer.Option("--output", "-o", help="New recording directory.")],
+    fmt: Annotated[
+        str, typer.Option("--format", "-f", help="csv (the layout of `ncmeasure export`) or mdf4.")
+    ] = "csv",
+) -> None:
+    """Turn an exported CSV or MDF4 file back into a recording."""
+    if fmt not in _FORMATS:
+        _fail(ConfigError(f"--format {fmt!r}: expected one of {', '.join(_FORMATS)}"))
+    try:
+        recording = import_csv(file, output) if fmt == "csv" else import_mdf4(file, output)
+    except NcMeasureError as exc:
+        _fail(exc)
+    console.print(
+        f"wrote {output} ({len(recording.time_s)} samples, {len(recording.channels)} channels)"
+    )

@@ -379,8 +379,16 @@ def _loc_text(loc: Iterable[int | str]) -> str:
     return text or "(file)"
 
 
-def format_validation_error(exc: ValidationError, prefix: str = "") -> list[str]:
-    """Turn a pydantic error into ``location: message`` lines, one per problem."""
+def format_validation_error(
+    exc: ValidationError, prefix: str = "", schema_hint: str = ""
+) -> list[str]:
+    """Turn a pydantic error into ``location: message`` lines, one per problem.
+
+    Args:
+        exc: The validation error.
+        prefix: Location the error's locations are relative to (``link``).
+        schema_hint: Where the valid keys are listed, added to unknown-key messages.
+    """
     lines: list[str] = []
     for error in exc.errors(include_url=False):
         loc = _loc_text(error["loc"])
@@ -388,7 +396,9 @@ def format_validation_error(exc: ValidationError, prefix: str = "") -> list[str]
             loc = prefix if loc == "(file)" else f"{prefix}.{loc}"
         message = error["msg"]
         if error["type"] == "extra_forbidden":
-            message = "unknown key (check the spelling; see `ncmeasure schema machine`)"
+            message = "unknown key (check the spelling" + (
+                f"; see {schema_hint})" if schema_hint else ")"
+            )
         elif error["type"] == "missing":
             message = "required key is missing"
         line = f"{loc}: {message}"
@@ -473,7 +483,10 @@ def parse_machine(data: Mapping[str, Any], source: str = "machine file") -> Mach
     try:
         config = MachineConfig.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(f"{source} is not valid", format_validation_error(exc)) from exc
+        raise ConfigError(
+            f"{source} is not valid",
+            format_validation_error(exc, schema_hint="`ncmeasure schema machine`"),
+        ) from exc
     problems = list(dict.fromkeys(_cross_checks(config)))  # one line per problem
     if problems:
         raise ConfigError(f"{source} is not valid", problems)

@@ -1,0 +1,257 @@
+"""The acquisition service: a drive link -> a crash-safe recording, with progress.
+
+:func:`acquire` moves blocks from an open link into a recording writer until
+a duration, the end of the schedule, the end of the source, a stop request
+(Ctrl-C / SIGTERM in the CLI), or a link failure. Every one of these paths
+closes the recording with a status that says how it ended, so nothing
+received is ever lost. :func:`record` is the one-call Python API::
+
+    import ncmeasure
+    result = ncmeasure.record("machine.toml", duration_s=60, out="run1")
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from ncmeasure.config import MachineConfig, load_machine
+from ncmeasure.errors import ConfigError, LinkError
+from ncmeasure.links import DriveLink, make_link
+from ncmeasure.links.base import LinkEvent, SampleBlock
+from ncmeasure.plan import Schedule
+from ncmeasure.recording import RecordingWriter
+
+__all__ = ["AcquisitionResult", "Progress", "acquire", "record"]
+
+log = logging.getLogger(__name__)
+
+Status = Literal["complete", "interrupted", "link_lost"]
+
+#: Recording goes on this long after the schedule's last window, by default.
+SCHEDULE_MARGIN_S = 30.0
+
+
+@dataclass
+class Progress:
+    """What the live display shows; handed to ``on_progress`` about twice a second."""
+
+    elapsed_s: float
+    """Wall-clock time since the link was opened."""
+    link_time_s: float
+    """Time of the newest row on the link's clock."""
+    rows: int
+    rows_per_s: float
+    latest: dict[str, float]
+    """The newest value of every channel, by channel name."""
+    gaps: int
+    lost_samples: int
+    faults: int
+    last_event: str | None = None
+
+
+@dataclass
+class AcquisitionResult:
+    """How a recording ended."""
+
+    directory: Path
+    status: Status
+    rows: int
+    link_time_s: float
+    wall_time_s: float
+    events: list[LinkEvent] = field(default_factory=list)
+    error: str | None = None
+
+    @property
+    def gaps(self) -> int:
+        """Number of gap events."""
+        return sum(1 for e in self.events if e.kind == "gap")
+
+
+def acquire(
+    link: DriveLink,
+    writer: RecordingWriter,
+    *,
+    duration_s: float | None = None,
+    stop: threading.Event | None = None,
+    on_progress: Callable[[Progress], None] | None = None,
+    progress_interval_s: float = 0.5,
+    read_timeout_s: float = 0.2,
+) -> AcquisitionResult:
+    """Record from an open ``link`` into ``writer`` until done, then close the writer.
+
+    Args:
+        link: An open drive link.
+        writer: The recording to append to; closed on return with the status.
+        duration_s: Stop once the link's clock has run this long (None: no limit).
+        stop: Set it (from a signal handler or another thread) to stop early.
+        on_progress: Called with a :class:`Progress` every ``progress_interval_s``.
+        progress_interval_s: Seconds between progress calls.
+        read_timeout_s: Longest wait for data in one read; bounds the reaction
+            time to ``stop``.
+
+    Returns:
+        The result; ``status`` is ``complete`` (duration or end of source),
+        ``interrupted`` (stop was set) or ``link_lost`` (the link failed; the
+        rows received until then are in the recording).
+    """
+    stop = stop or threading.Event()
+    started = time.monotonic()
+    next_progress = started + progress_interval_s
+    rows = 0
+    first_time_s: float | None = None
+    link_time_s = 0.0
+    latest: dict[str, float] = {}
+    events: list[LinkEvent] = []
+    names = [c.name for c in link.channels]
+    status: Status = "interrupted"
+    error: str | None = None
+    rate_window: list[tuple[float, int]] = [(started, 0)]
+
+    def take_events() -> None:
+        for event in link.events():
+            events.append(event)
+            writer.add_event(event)
+
+    reached_end = False
+    try:
+        while not stop.is_set() and not reached_end:
+            block = link.read(timeout_s=read_timeout_s)
+            take_events()
+            if block is None:
+                reached_end = True  # the source has no more data
+                break
+            if len(block) and duration_s is not None:
+                if first_time_s is None:
+                    first_time_s = float(block.time_s[0])
+                end = int(np.searchsorted(block.time_s, first_time_s + duration_s, "left"))
+                if end < len(block):
+                    block = SampleBlock(block.time_s[:end], block.values[:end])
+                    reached_end = True
+            if len(block):
+                writer.append(block)
+                rows += len(block)
+                link_time_s = float(block.time_s[-1])
+                latest = dict(zip(names, block.values[-1].tolist(), strict=True))
+            now = time.monotonic()
+            if on_progress is not None and now >= next_progress:
+                rate_window = [*rate_window, (now, rows)][-6:]
+                (t0, r0), (t1, r1) = rate_window[0], rate_window[-1]
+                on_progress(
+                    Progress(
+                        elapsed_s=now - started,
+                        link_time_s=link_time_s,
+                        rows=rows,
+                        rows_per_s=(r1 - r0) / (t1 - t0) if t1 > t0 else 0.0,
+                        latest=latest,
+                        gaps=sum(1 for e in events if e.kind == "gap"),
+                        lost_samples=sum(e.lost_samples for e in events),
+                        faults=sum(1 for e in events if e.kind in ("fault", "emcy")),
+                        last_event=f"{events[-1].kind}: {events[-1].message}" if events else None,
+                    )
+                )
+                next_progress = now + progress_interval_s
+        status = "complete" if reached_end else "interrupted"
+    except LinkError as exc:
+        status, error = "link_lost", str(exc)
+        log.error("link lost: %s", exc)
+        take_events_safely(link, events, writer)
+    finally:
+        writer.close(status=status)
+    return AcquisitionResult(
+        directory=writer.directory,
+        status=status,
+        rows=rows,
+        link_time_s=link_time_s,
+        wall_time_s=time.monotonic() - started,
+        events=events,
+        error=error,
+    )
+
+
+def take_events_safely(link: DriveLink, events: list[LinkEvent], writer: RecordingWriter) -> None:
+    """Collect the link's last events after a failure; never raises."""
+    try:
+        for event in link.events():
+            events.append(event)
+            writer.add_event(event)
+    except Exception:  # the link already failed; keep what we have
+        log.exception("could not collect the link's last events")
+
+
+def record(
+    machine: MachineConfig | str | Path,
+    *,
+    out: str | Path,
+    link: str | None = None,
+    link_settings: Mapping[str, Any] | None = None,
+    axis_settings: Mapping[str, Mapping[str, Any]] | None = None,
+    duration_s: float | None = None,
+    schedule: Schedule | None = None,
+    schedule_margin_s: float = SCHEDULE_MARGIN_S,
+    notes: str = "",
+    stop: threading.Event | None = None,
+    on_progress: Callable[[Progress], None] | None = None,
+) -> AcquisitionResult:
+    """Record a machine's drives into the recording directory ``out``.
+
+    Args:
+        machine: The machine (file or loaded config); its ``[link]`` table
+            says which link and how, unless ``link``/``link_settings`` say otherwise.
+        out: New recording directory.
+        link: Link type (``canopen``, ``modbus``, ``replay``, or a registered one).
+        link_settings: Link settings overriding the machine file's.
+        axis_settings: Per-axis link settings by axis name (e.g. node ids).
+        duration_s: How long to record, on the link's clock.
+        schedule: The measurement's schedule: recording stops after its
+            estimated duration plus ``schedule_margin_s``, and the recording
+            carries its config hash.
+        schedule_margin_s: Extra time after the schedule's end.
+        notes: Free text stored with the recording.
+        stop: Set it to stop early.
+        on_progress: Progress callback (see :class:`Progress`).
+
+    Raises:
+        ConfigError: bad machine file or link settings.
+        LinkError: the link cannot be opened (nothing is recorded then).
+        RecordingError: the recording cannot be created.
+    """
+    config = machine if isinstance(machine, MachineConfig) else load_machine(machine)
+    drive_link = make_link(config, link, link_settings, axis_settings)
+    if schedule is not None:
+        names = {a.name for a in schedule.axes}
+        unknown = names - {a.name for a in config.axes}
+        if unknown:
+            raise ConfigError(
+                f"the schedule moves axes {', '.join(sorted(unknown))} that the machine lacks"
+            )
+        until = schedule.duration_s + schedule_margin_s
+        duration_s = until if duration_s is None else min(duration_s, until)
+    writer = RecordingWriter.create(
+        out,
+        drive_link.channels,
+        nominal_period_s=drive_link.nominal_period_s,
+        machine=config,
+        link=drive_link.describe(),
+        config_hash=schedule.config_hash if schedule else None,
+        notes=notes,
+        source=drive_link.name,
+        faster_than_real_time=getattr(drive_link.settings, "speed", 1.0) != 1.0,
+    )
+    try:
+        drive_link.open()
+    except BaseException:
+        writer.close(status="failed")
+        raise
+    try:
+        return acquire(drive_link, writer, duration_s=duration_s, stop=stop,
+                       on_progress=on_progress)
+    finally:
+        drive_link.close()

@@ -1,0 +1,184 @@
+"""The acquisition service: every way of stopping closes the recording with what arrived."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from ncmeasure.acquire import Progress, acquire, record
+from ncmeasure.config import MachineConfig, parse_machine
+from ncmeasure.errors import LinkError
+from ncmeasure.links.base import (
+    AxisBinding,
+    AxisLinkSettings,
+    Channel,
+    DriveLink,
+    LinkEvent,
+    LinkSettings,
+    SampleBlock,
+    channels_for,
+)
+from ncmeasure.recording import RecordingWriter, read_recording
+from tests.conftest import example_data
+
+PERIOD_S = 0.004
+
+
+def machine(**link: Any) -> MachineConfig:
+    data = example_data()
+    if link:
+        data["link"] = link
+    return parse_machine(data)
+
+
+class CountingLink(DriveLink):
+    """A link whose rows are a counter: row k at k × 4 ms, values k + column / 100.
+
+    ``fail_after`` rows it raises LinkError, as a link whose bus went away.
+    """
+
+    name = "counting"
+
+    def __init__(self, settings: LinkSettings, axes: Sequence[AxisBinding],
+                 rows_per_read: int = 50, fail_after: int | None = None,
+                 total: int | None = None) -> None:
+        super().__init__(settings, axes)
+        self.rows_per_read = rows_per_read
+        self.fail_after = fail_after
+        self.total = total
+        self.next = 0
+
+    @property
+    def channels(self) -> tuple[Channel, ...]:
+        return channels_for([b.name for b in self.axes])
+
+    @property
+    def nominal_period_s(self) -> float:
+        return PERIOD_S
+
+    def _open(self) -> None:
+        self.next = 0
+
+    def _read(self, timeout_s: float) -> SampleBlock | None:
+        if self.total is not None and self.next >= self.total:
+            return None
+        if self.fail_after is not None and self.next >= self.fail_after:
+            self._event(LinkEvent(self.next * PERIOD_S, "fault", "bus off"))
+            raise LinkError("bus off")
+        k = np.arange(self.next, self.next + self.rows_per_read, dtype=np.float64)
+        if self.total is not None:
+            k = k[k < self.total]
+        self.next += len(k)
+        m = len(self.channels)
+        values = k[:, None] + np.arange(m)[None, :] / 100
+        return SampleBlock(k * PERIOD_S, values)
+
+    def _close(self) -> None:
+        pass
+
+
+def counting_link(config: MachineConfig, **kwargs: Any) -> CountingLink:
+    bindings = [AxisBinding(a, AxisLinkSettings()) for a in config.axes]
+    return CountingLink(LinkSettings(type="counting"), bindings, **kwargs)
+
+
+def writer_for(link: DriveLink, folder: Path, config: MachineConfig) -> RecordingWriter:
+    return RecordingWriter.create(folder, link.channels, nominal_period_s=link.nominal_period_s,
+                                  machine=config, link=link.describe(), source=link.name)
+
+
+def test_duration_stops_on_the_link_clock(tmp_path: Path) -> None:
+    config = machine()
+    link = counting_link(config)
+    with link:
+        result = acquire(link, writer_for(link, tmp_path / "run", config), duration_s=1.0)
+    assert result.status == "complete"
+    recording = read_recording(tmp_path / "run")
+    assert len(recording.time_s) == 250  # 0 .. 0.996 s at 4 ms
+    assert recording.meta.status == "complete"
+    np.testing.assert_array_equal(recording.values[:, 0], np.arange(250))
+    assert recording.problems == []
+
+
+def test_stop_request_closes_as_interrupted(tmp_path: Path) -> None:
+    config = machine()
+    link = counting_link(config)
+    stop = threading.Event()
+    seen: list[Progress] = []
+
+    def on_progress(progress: Progress) -> None:
+        seen.append(progress)
+        if progress.rows > 1000:
+            stop.set()
+
+    with link:
+        result = acquire(link, writer_for(link, tmp_path / "run", config), stop=stop,
+                         on_progress=on_progress, progress_interval_s=0.0)
+    assert result.status == "interrupted"
+    recording = read_recording(tmp_path / "run")
+    assert recording.meta.status == "interrupted"
+    assert len(recording.time_s) == result.rows > 1000
+    assert seen and seen[-1].latest["X_current_a"] == pytest.approx(result.rows - 1)
+
+
+def test_link_failure_keeps_every_sample_before_it(tmp_path: Path) -> None:
+    config = machine()
+    link = counting_link(config, fail_after=500)
+    with link:
+        result = acquire(link, writer_for(link, tmp_path / "run", config))
+    assert result.status == "link_lost" and "bus off" in (result.error or "")
+    recording = read_recording(tmp_path / "run")
+    assert recording.meta.status == "link_lost"
+    np.testing.assert_array_equal(recording.values[:, 0], np.arange(500))
+    assert [e.kind for e in recording.events] == ["fault"]
+
+
+def test_end_of_source_is_complete(tmp_path: Path) -> None:
+    config = machine()
+    link = counting_link(config, total=333)
+    with link:
+        result = acquire(link, writer_for(link, tmp_path / "run", config))
+    assert result.status == "complete" and result.rows == 333
+
+
+def _source_recording(folder: Path, config: MachineConfig, rows: int = 1500) -> Path:
+    link = counting_link(config, total=rows, rows_per_read=97)
+    writer = writer_for(link, folder, config)
+    writer.add_event(LinkEvent(1.0, "gap", "two cycles missing", axis="Y", lost_samples=2))
+    with link:
+        acquire(link, writer)
+    return folder
+
+
+@pytest.mark.parametrize("speed", [0.0, 4.0])
+def test_replay_of_a_recording_records_the_same_samples(tmp_path: Path, speed: float) -> None:
+    config = machine()
+    source = _source_recording(tmp_path / "source", config)
+    result = record(config, out=tmp_path / "replayed", link="replay",
+                    link_settings={"source": str(source), "speed": speed, "block_rows": 64})
+    assert result.status == "complete"
+    original, replayed = read_recording(source), read_recording(tmp_path / "replayed")
+    np.testing.assert_array_equal(original.time_s, replayed.time_s)
+    np.testing.assert_array_equal(original.values, replayed.values)
+    assert [c.name for c in original.channels] == [c.name for c in replayed.channels]
+    assert [(e.time_s, e.kind, e.axis) for e in replayed.events] == [(1.0, "gap", "Y")]
+    assert replayed.meta.source == "replay"
+    assert replayed.meta.faster_than_real_time is True
+
+
+def test_replay_of_a_subset_of_axes(tmp_path: Path) -> None:
+    config = machine()
+    source = _source_recording(tmp_path / "source", config, rows=200)
+    data = example_data()
+    data["axes"] = data["axes"][1:2]  # only Y
+    result = record(parse_machine(data), out=tmp_path / "y", link="replay",
+                    link_settings={"source": str(source), "speed": 0})
+    replayed = read_recording(result.directory)
+    assert [c.name for c in replayed.channels] == ["Y_current_a", "Y_velocity_mm_min",
+                                                   "Y_position_mm"]
+    np.testing.assert_array_equal(replayed.values, read_recording(source).values[:, 3:6])

@@ -1,0 +1,857 @@
+"""The recording format: write, read back, survive crashes and damage, exchange as CSV and MDF4."""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import json
+import os
+import signal
+import struct
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+import zlib
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+
+import ncmeasure
+from ncmeasure import recording as recording_module
+from ncmeasure.config import MachineConfig
+from ncmeasure.errors import DependencyError, LinkError, RecordingError
+from ncmeasure.links.base import SIGNAL_UNITS, Channel, LinkEvent, SampleBlock, channels_for
+from ncmeasure.recording import (
+    EVENTS_FILE,
+    FRAME_HEADER,
+    FRAME_MAGIC,
+    META_FILE,
+    SAMPLES_FILE,
+    Recording,
+    RecordingWriter,
+    axis_metadata,
+    channel_from_name,
+    export_csv,
+    export_mdf4,
+    import_csv,
+    import_mdf4,
+    read_recording,
+)
+
+Make = Callable[..., MachineConfig]
+
+XY = channels_for(["X", "Y"])  # current, velocity, position of X and Y: 6 channels
+ALL_SIGNALS = channels_for(["X", "Y", "Z"], tuple(SIGNAL_UNITS))  # 15 channels
+LINK = {
+    "link": {"type": "canopen", "interface": "virtual", "channel": "0", "bitrate": 1_000_000},
+    "axes": {"X": {"node_id": 1}, "Y": {"node_id": 2}},
+}
+
+
+def rows_for(
+    first: int, count: int, channels: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Row ``k`` has time k ms and values k·(c+1)/7 + c: exact, and different per column."""
+    k = np.arange(first, first + count, dtype=np.float64)
+    time_s = k * 0.001
+    values = k[:, None] * (np.arange(channels) + 1) / 7 + np.arange(channels)
+    return time_s, values
+
+
+def block(first: int, count: int, channels: int = len(XY)) -> SampleBlock:
+    return SampleBlock(*rows_for(first, count, channels))
+
+
+def write_frames(directory: Path, frames: int, rows_per_frame: int) -> None:
+    """A closed recording of ``frames`` frames, each written by an explicit flush."""
+    with RecordingWriter.create(directory, XY, nominal_period_s=0.001) as writer:
+        for index in range(frames):
+            writer.append(block(index * rows_per_frame, rows_per_frame))
+            writer.flush()
+
+
+def frame_offsets(path: Path, columns: int) -> list[int]:
+    """Byte offset of every frame header in a samples file."""
+    data = path.read_bytes()
+    offsets, offset = [], 0
+    while offset < len(data):
+        offsets.append(offset)
+        _, count, _, _ = FRAME_HEADER.unpack_from(data, offset)
+        offset += FRAME_HEADER.size + count * columns * 8
+    return offsets
+
+
+def same_bits(a: NDArray[np.float64], b: NDArray[np.float64]) -> bool:
+    """Equal bit for bit (tells -0.0 from 0.0, and NaN equals itself)."""
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    b = np.ascontiguousarray(b, dtype=np.float64)
+    return a.shape == b.shape and np.array_equal(a.view(np.int64), b.view(np.int64))
+
+
+# --- writing and reading -----------------------------------------------------------------
+
+
+def test_write_close_read_back(tmp_path: Path, make_config: Make) -> None:
+    config = make_config()
+    directory = tmp_path / "runs" / "first"  # parents are created
+    events = [
+        LinkEvent(0.0125, "gap", "3 SYNC cycles without PDO", axis="X", lost_samples=3),
+        LinkEvent(0.05, "fault", "drive fault 0x7500", axis="Y", details={"code": 0x7500}),
+    ]
+    writer = RecordingWriter.create(
+        directory,
+        XY,
+        nominal_period_s=0.001,
+        machine=config,
+        link=LINK,
+        config_hash="0123456789abcdef",
+        notes="before lubrication",
+        source="canopen",
+    )
+    sizes = [1, 7, 250, 42]
+    first = 0
+    for count in sizes:
+        writer.append(block(first, count))
+        first += count
+    writer.append(SampleBlock(np.empty(0), np.empty((0, len(XY)))))  # empty blocks are fine
+    for event in events:
+        writer.add_event(event)
+    writer.close(notes="after lubrication")
+    writer.close()  # idempotent
+    assert writer.rows_written == writer.rows_appended == sum(sizes)
+
+    rec = Recording.open(directory)
+    time_s, values = rows_for(0, sum(sizes), len(XY))
+    assert same_bits(rec.time_s, time_s)
+    assert same_bits(rec.values, values)
+    assert len(rec) == sum(sizes)
+    assert rec.channels == XY
+    assert rec.axes == ("X", "Y")
+    assert same_bits(rec.column("Y_velocity_mm_min"), values[:, 4])
+    assert same_bits(rec.axis_signal("X", "position_mm"), values[:, 2])
+    assert same_bits(rec.column("time_s"), time_s)
+    assert rec.events == events
+    assert rec.problems == []
+
+    meta = rec.meta
+    assert meta.format == "ncmeasure-recording"
+    assert meta.format_version == 1
+    assert meta.ncmeasure_version == ncmeasure.__version__
+    assert meta.machine == config.machine.name
+    assert meta.axes == [axis_metadata(config.axis("X")), axis_metadata(config.axis("Y"))]
+    assert meta.axes[0]["torque_constant_nm_per_a"] == config.axis("X").torque_constant_nm_per_a
+    assert meta.link == LINK
+    assert [(c.name, c.axis, c.signal, c.unit) for c in meta.channels] == [
+        (c.name, c.axis, c.signal, c.unit) for c in XY
+    ]
+    assert meta.nominal_period_s == 0.001
+    assert meta.config_hash == "0123456789abcdef"
+    assert meta.notes == "after lubrication"
+    assert meta.source == "canopen"
+    assert meta.faster_than_real_time is False
+    assert meta.status == "complete"
+    assert meta.samples == sum(sizes)
+    assert meta.end_utc is not None
+    start = dt.datetime.fromisoformat(meta.start_utc)
+    assert start.tzinfo is not None
+    assert start <= dt.datetime.fromisoformat(meta.end_utc)
+    assert read_recording(directory).meta == meta
+    # meta.json is plain JSON with the documented fields
+    on_disk = json.loads((directory / META_FILE).read_text(encoding="utf-8"))
+    assert on_disk["status"] == "complete"
+    assert on_disk["channels"][0] == {"name": "X_current_a", "axis": "X", "signal": "current_a",
+                                      "unit": "A"}  # fmt: skip
+
+
+def test_meta_json_says_recording_until_closed(tmp_path: Path) -> None:
+    writer = RecordingWriter.create(tmp_path / "r", XY, nominal_period_s=0.002)
+    meta = json.loads((tmp_path / "r" / META_FILE).read_text(encoding="utf-8"))
+    assert meta["status"] == "recording"
+    assert meta["samples"] is None and meta["end_utc"] is None
+    writer.close("interrupted")
+    meta = json.loads((tmp_path / "r" / META_FILE).read_text(encoding="utf-8"))
+    assert meta["status"] == "interrupted"
+    assert meta["samples"] == 0
+    assert not (tmp_path / "r" / (META_FILE + ".tmp")).exists()
+
+
+@pytest.mark.parametrize(
+    ("error", "status"),
+    [
+        (None, "complete"),
+        (LinkError("bus off"), "link_lost"),
+        (KeyboardInterrupt(), "interrupted"),
+        (RuntimeError("bug"), "failed"),
+    ],
+)
+def test_context_manager_sets_the_status(
+    tmp_path: Path, error: BaseException | None, status: str
+) -> None:
+    directory = tmp_path / "r"
+    expect = pytest.raises(type(error)) if error else contextlib.nullcontext()
+    with expect, RecordingWriter.create(directory, XY, nominal_period_s=0.001) as writer:
+        writer.append(block(0, 10))
+        if error:
+            raise error
+    rec = Recording.open(directory)
+    assert rec.meta.status == status
+    assert len(rec) == 10  # rows appended before the error are kept
+    assert writer.closed
+
+
+def test_rows_are_flushed_without_an_explicit_flush(tmp_path: Path) -> None:
+    directory = tmp_path / "live"
+    writer = RecordingWriter.create(directory, XY, nominal_period_s=0.001)
+    try:
+        writer.append(block(0, 300))
+        writer.add_event(LinkEvent(0.1, "info", "started"))
+        time.sleep(0.6)
+        live = Recording.open(directory)  # a second handle, while the writer is open
+        assert len(live) == 300
+        assert same_bits(live.values, rows_for(0, 300, len(XY))[1])
+        assert [e.message for e in live.events] == ["started"]
+        assert live.meta.status == "recording"
+        assert any("still being recorded" in p for p in live.problems)
+        assert writer.rows_written == 300
+    finally:
+        writer.close()
+    assert Recording.open(directory).problems == []
+
+
+def test_large_flushes_are_split_into_frames(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(recording_module, "MAX_FRAME_ROWS", 64)
+    with RecordingWriter.create(tmp_path / "r", XY, nominal_period_s=0.001) as writer:
+        writer.append(block(0, 1000))
+    columns = 1 + len(XY)
+    assert len(frame_offsets(tmp_path / "r" / SAMPLES_FILE, columns)) == 16  # 15 × 64 + 40
+    rec = Recording.open(tmp_path / "r")
+    assert same_bits(rec.values, rows_for(0, 1000, len(XY))[1])
+    assert rec.problems == []
+
+
+def test_appends_and_events_from_several_threads(tmp_path: Path) -> None:
+    directory = tmp_path / "r"
+    with RecordingWriter.create(directory, XY, nominal_period_s=0.001) as writer:
+
+        def add_events(name: str) -> None:
+            for number in range(200):
+                writer.add_event(LinkEvent(float(number), "info", f"{name}{number}"))
+
+        threads = [threading.Thread(target=add_events, args=(n,)) for n in "abcd"]
+        for thread in threads:
+            thread.start()
+        for first in range(0, 5000, 50):
+            writer.append(block(first, 50))
+            if first % 1000 == 0:
+                writer.flush()
+        for thread in threads:
+            thread.join()
+    rec = Recording.open(directory)
+    assert same_bits(rec.values, rows_for(0, 5000, len(XY))[1])
+    assert sorted(e.message for e in rec.events) == sorted(
+        f"{n}{i}" for n in "abcd" for i in range(200)
+    )
+
+
+# --- crash safety -------------------------------------------------------------------------
+
+RECORDER = textwrap.dedent(
+    """
+    import sys, time
+    import numpy as np
+    from ncmeasure.links.base import Channel, SampleBlock
+    from ncmeasure.recording import RecordingWriter
+
+    channels = [Channel("X", "current_a", "A"), Channel("X", "position_mm", "mm")]
+    writer = RecordingWriter.create(sys.argv[1], channels, nominal_period_s=0.001)
+    print("ready", flush=True)
+    k = 0
+    due = time.monotonic()
+    while True:  # 1 kHz in blocks of 10 rows, until killed
+        index = np.arange(k, k + 10)
+        values = np.column_stack([index * 0.5 - 3.0, np.sqrt(index)])
+        writer.append(SampleBlock(index * 0.001, values))
+        k += 10
+        print(k, flush=True)
+        due += 0.01
+        time.sleep(max(0.0, due - time.monotonic()))
+    """
+)
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="SIGKILL is POSIX")
+def test_rows_older_than_one_second_survive_kill_9(tmp_path: Path) -> None:
+    script = tmp_path / "recorder.py"
+    script.write_text(RECORDER, encoding="utf-8")
+    directory = tmp_path / "killed"
+    process = subprocess.Popen(
+        [sys.executable, str(script), str(directory)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    progress: list[tuple[float, str]] = []  # (when the line arrived, the line)
+
+    def read_progress() -> None:
+        assert process.stdout is not None
+        for line in process.stdout:
+            progress.append((time.monotonic(), line.strip()))
+
+    reader = threading.Thread(target=read_progress, daemon=True)
+    reader.start()
+    try:
+        deadline = time.monotonic() + 60
+        while not any(line == "ready" for _, line in progress):
+            if process.poll() is not None or time.monotonic() > deadline:
+                assert process.stderr is not None
+                pytest.fail(f"the recorder did not start: {process.stderr.read()}")
+            time.sleep(0.05)
+        time.sleep(2.0)
+        killed_at = time.monotonic()
+        os.kill(process.pid, signal.SIGKILL)
+        process.wait(timeout=10)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait(timeout=10)
+    reader.join(timeout=10)
+    assert process.returncode == -signal.SIGKILL
+
+    counts = [(t, int(line)) for t, line in progress if line.isdigit()]
+    old = max(
+        (k for t, k in counts if t <= killed_at - 1.0), default=0
+    )  # appended over 1 s before the kill
+    appended = max(k for _, k in counts)
+    assert old >= 500  # the recorder really ran for a while
+    rec = Recording.open(directory)
+    assert old <= len(rec) <= appended + 10
+    index = np.arange(len(rec))
+    assert same_bits(rec.time_s, index * 0.001)
+    assert same_bits(rec.values[:, 0], index * 0.5 - 3.0)
+    assert same_bits(rec.values[:, 1], np.sqrt(index))
+    assert rec.meta.status == "recording"
+    assert any(
+        p.startswith("not closed cleanly (status 'recording')") and f"{len(rec)} samples" in p
+        for p in rec.problems
+    )
+
+
+def test_every_cut_reads_as_whole_frames(tmp_path: Path) -> None:
+    """Cut the file at every byte: the reader returns the whole frames before the cut, only."""
+    directory = tmp_path / "r"
+    write_frames(directory, frames=3, rows_per_frame=4)
+    path = directory / SAMPLES_FILE
+    full = path.read_bytes()
+    columns = 1 + len(XY)
+    offsets = [*frame_offsets(path, columns), len(full)]
+    _, values = rows_for(0, 12, len(XY))
+    for cut in range(len(full) + 1):
+        path.write_bytes(full[:cut])
+        rec = Recording.open(directory)
+        whole = sum(1 for end in offsets[1:] if end <= cut)
+        assert same_bits(rec.values, values[: 4 * whole]), cut
+        torn = cut not in offsets
+        assert any(p.startswith("torn tail") for p in rec.problems) == torn, cut
+
+
+@pytest.mark.parametrize("garbage", [b"", b"\x00" * 3, b"NCMF" + b"\xff" * 40, os.urandom(5000)])
+def test_torn_tail_with_garbage_is_ignored(tmp_path: Path, garbage: bytes) -> None:
+    directory = tmp_path / "r"
+    write_frames(directory, frames=5, rows_per_frame=20)
+    path = directory / SAMPLES_FILE
+    offsets = frame_offsets(path, 1 + len(XY))
+    data = path.read_bytes()
+    path.write_bytes(data[: offsets[4] + FRAME_HEADER.size + 100] + garbage)  # cut in frame 4
+    rec = Recording.open(directory)
+    assert same_bits(rec.values, rows_for(0, 80, len(XY))[1])
+    assert same_bits(rec.time_s, rows_for(0, 80, len(XY))[0])
+    assert any("frame 4" in p or "after frame 3" in p for p in rec.problems)
+    assert any("meta.json says 100 samples" in p for p in rec.problems)
+
+
+@pytest.mark.parametrize(
+    ("garbage", "problem"),
+    [
+        (b"\x13" * 12, "torn tail: 12 bytes after frame 1 ignored (incomplete frame)"),
+        (b"\x13" * 40, "torn tail: 40 bytes after frame 1 ignored (no frame header at byte 1152)"),
+    ],
+)
+def test_garbage_after_a_clean_file_is_reported(
+    tmp_path: Path, garbage: bytes, problem: str
+) -> None:
+    directory = tmp_path / "r"
+    write_frames(directory, frames=2, rows_per_frame=10)
+    assert (directory / SAMPLES_FILE).stat().st_size == 2 * (16 + 10 * 7 * 8)
+    with (directory / SAMPLES_FILE).open("ab") as file:
+        file.write(garbage)
+    rec = Recording.open(directory)
+    assert same_bits(rec.values, rows_for(0, 20, len(XY))[1])
+    assert rec.problems == [problem]
+
+
+def test_a_corrupt_frame_stops_the_read_at_the_frame_before(tmp_path: Path) -> None:
+    directory = tmp_path / "r"
+    write_frames(directory, frames=5, rows_per_frame=20)
+    path = directory / SAMPLES_FILE
+    offsets = frame_offsets(path, 1 + len(XY))
+    data = bytearray(path.read_bytes())
+    data[offsets[2] + FRAME_HEADER.size + 333] ^= 0x01  # one bit of one value of frame 2
+    path.write_bytes(bytes(data))
+    rec = Recording.open(directory)
+    assert same_bits(rec.values, rows_for(0, 40, len(XY))[1])
+    assert any(p.startswith("frame 2 fails its checksum") for p in rec.problems)
+
+
+def test_a_frame_out_of_sequence_is_not_read(tmp_path: Path) -> None:
+    directory = tmp_path / "r"
+    write_frames(directory, frames=3, rows_per_frame=5)
+    path = directory / SAMPLES_FILE
+    offsets = frame_offsets(path, 1 + len(XY))
+    data = bytearray(path.read_bytes())
+    # A whole, valid frame that claims to be frame 7: e.g. a block written twice.
+    payload = bytes(data[offsets[1] + FRAME_HEADER.size : offsets[2]])
+    header = FRAME_HEADER.pack(FRAME_MAGIC, 5, zlib.crc32(payload), 7)
+    data[offsets[1] : offsets[1] + FRAME_HEADER.size] = header
+    path.write_bytes(bytes(data))
+    rec = Recording.open(directory)
+    assert len(rec) == 5
+    assert any("sequence number 7" in p for p in rec.problems)
+
+
+def test_a_torn_last_event_line_is_ignored(tmp_path: Path) -> None:
+    directory = tmp_path / "r"
+    with RecordingWriter.create(directory, XY, nominal_period_s=0.001) as writer:
+        writer.append(block(0, 10))
+        writer.add_event(LinkEvent(0.001, "reboot", "drive 2 rebooted", axis="Y"))
+    with (directory / EVENTS_FILE).open("ab") as file:
+        file.write(b'{"time_s": 0.009, "kind": "ga')
+    rec = Recording.open(directory)
+    assert [e.message for e in rec.events] == ["drive 2 rebooted"]
+    assert any("torn last line" in p for p in rec.problems)
+    assert len(rec) == 10
+
+
+def test_problems_are_logged_as_warnings(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    directory = tmp_path / "r"
+    write_frames(directory, frames=1, rows_per_frame=3)
+    with (directory / SAMPLES_FILE).open("ab") as file:
+        file.write(b"NC")
+    with caplog.at_level("WARNING", logger="ncmeasure.recording"):
+        rec = Recording.open(directory)
+    assert rec.problems
+    assert [r.getMessage() for r in caplog.records] == [
+        f"recording {directory}: {p}" for p in rec.problems
+    ]
+
+
+# --- bad input -----------------------------------------------------------------------------
+
+
+def test_append_checks_columns_and_time(tmp_path: Path) -> None:
+    with RecordingWriter.create(tmp_path / "r", XY, nominal_period_s=0.001) as writer:
+        with pytest.raises(RecordingError, match=r"5 value columns .* 6 channels"):
+            writer.append(block(0, 3, channels=5))
+        writer.append(block(10, 3))
+        with pytest.raises(RecordingError, match="goes backwards"):
+            writer.append(block(12, 3))  # starts at the last row's time
+        with pytest.raises(RecordingError, match="does not increase inside the block"):
+            writer.append(SampleBlock(np.array([1.0, 1.0]), np.zeros((2, len(XY)))))
+        with pytest.raises(RecordingError, match="nan"):
+            writer.append(SampleBlock(np.array([2.0, np.nan]), np.zeros((2, len(XY)))))
+        writer.append(block(13, 2))
+    rec = Recording.open(tmp_path / "r")
+    assert same_bits(rec.time_s, rows_for(10, 5, len(XY))[0])  # only the valid blocks
+    with pytest.raises(RecordingError, match="closed"):
+        writer.append(block(20, 1))
+
+
+def test_create_refuses_a_directory_that_is_not_empty(tmp_path: Path) -> None:
+    (tmp_path / "used").mkdir()
+    (tmp_path / "used" / "notes.txt").write_text("keep me", encoding="utf-8")
+    with pytest.raises(RecordingError, match="used: directory is not empty"):
+        RecordingWriter.create(tmp_path / "used", XY, nominal_period_s=0.001)
+    assert (tmp_path / "used" / "notes.txt").read_text(encoding="utf-8") == "keep me"
+    (tmp_path / "file").write_text("", encoding="utf-8")
+    with pytest.raises(RecordingError, match="not a directory"):
+        RecordingWriter.create(tmp_path / "file", XY, nominal_period_s=0.001)
+    (tmp_path / "empty").mkdir()
+    RecordingWriter.create(tmp_path / "empty", XY, nominal_period_s=0.001).close()
+    assert Recording.open(tmp_path / "empty").meta.status == "complete"
+
+
+def test_create_checks_its_arguments(tmp_path: Path, make_config: Make) -> None:
+    with pytest.raises(ValueError, match="flush_interval_s"):
+        RecordingWriter.create(tmp_path / "a", XY, nominal_period_s=0.001, flush_interval_s=1.0)
+    with pytest.raises(ValueError, match="nominal_period_s"):
+        RecordingWriter.create(tmp_path / "b", XY, nominal_period_s=0.0)
+    with pytest.raises(RecordingError, match="axis W is not an axis of machine"):
+        RecordingWriter.create(
+            tmp_path / "c", channels_for(["W"]), nominal_period_s=0.001, machine=make_config()
+        )
+    with pytest.raises(RecordingError, match="channels appear twice: X_current_a"):
+        RecordingWriter.create(tmp_path / "d", [XY[0], XY[0]], nominal_period_s=0.001)
+    assert not any((tmp_path / name).exists() for name in "abcd")
+
+
+def test_close_refuses_bad_metadata_updates(tmp_path: Path) -> None:
+    writer = RecordingWriter.create(tmp_path / "r", XY, nominal_period_s=0.001)
+    writer.append(block(0, 5))
+    with pytest.raises(RecordingError, match="cannot change samples"):
+        writer.close(samples=99)
+    with pytest.raises(RecordingError, match="nominal_period_s"):
+        writer.close(nominal_period_s=-1.0)
+    with pytest.raises(RecordingError, match="colour"):
+        writer.close(colour="red")
+    with pytest.raises(RecordingError, match="status 'recording'"):
+        writer.close("recording")
+    assert not writer.closed  # still usable after a refused close
+    writer.append(block(5, 5))
+    writer.close("complete", nominal_period_s=0.002)
+    assert Recording.open(tmp_path / "r").meta.nominal_period_s == 0.002
+    assert len(Recording.open(tmp_path / "r")) == 10
+
+
+def _write_meta(directory: Path, text: str) -> Path:
+    directory.mkdir()
+    (directory / META_FILE).write_text(text, encoding="utf-8")
+    (directory / SAMPLES_FILE).write_bytes(b"")
+    return directory
+
+
+def _valid_meta() -> dict[str, object]:
+    return {
+        "format": "ncmeasure-recording",
+        "format_version": 1,
+        "channels": [{"name": "X_current_a", "axis": "X", "signal": "current_a", "unit": "A"}],
+        "nominal_period_s": 0.001,
+        "start_utc": "2026-01-15T08:30:00.000+00:00",
+    }
+
+
+@pytest.mark.parametrize(
+    ("meta", "message"),
+    [
+        (None, "not a recording \\(meta.json is missing\\)"),
+        ("{not json", "meta.json: not valid JSON"),
+        ('{"format": "something-else"}', "not an ncmeasure recording"),
+        ('["ncmeasure-recording"]', "not an ncmeasure recording"),
+        ({**_valid_meta(), "format_version": 2}, "format_version 2 is newer"),
+        ({k: v for k, v in _valid_meta().items() if k != "start_utc"}, "start_utc"),
+        ({**_valid_meta(), "colour": "red"}, "colour: unknown key"),
+        ({**_valid_meta(), "status": "done"}, "status"),
+    ],
+)
+def test_reading_something_that_is_not_a_recording(
+    tmp_path: Path, meta: object, message: str
+) -> None:
+    directory = tmp_path / "r"
+    if meta is None:
+        directory.mkdir()
+        (directory / "data.csv").write_text("1,2\n", encoding="utf-8")
+    else:
+        _write_meta(directory, meta if isinstance(meta, str) else json.dumps(meta))
+    with pytest.raises(RecordingError, match=message) as info:
+        Recording.open(directory)
+    assert str(directory) in str(info.value)
+
+
+def test_reading_a_missing_directory_or_a_file(tmp_path: Path) -> None:
+    with pytest.raises(RecordingError, match="no such recording directory"):
+        Recording.open(tmp_path / "nowhere")
+    (tmp_path / "file").write_text("x", encoding="utf-8")
+    with pytest.raises(RecordingError, match="a recording is a directory"):
+        Recording.open(tmp_path / "file")
+    directory = _write_meta(tmp_path / "r", json.dumps(_valid_meta()))
+    (directory / SAMPLES_FILE).unlink()
+    with pytest.raises(RecordingError, match=r"samples.bin is missing"):
+        Recording.open(directory)
+
+
+def test_a_minimal_recording_written_by_hand_reads(tmp_path: Path) -> None:
+    """The format is open: meta.json plus frames packed with struct are a recording."""
+    directory = _write_meta(tmp_path / "r", json.dumps({**_valid_meta(), "status": "complete"}))
+    rows = np.array([[0.0, 1.5], [0.001, -2.25]], dtype="<f8")
+    payload = rows.tobytes()
+    header = struct.pack("<4sIII", b"NCMF", 2, zlib.crc32(payload), 0)
+    (directory / SAMPLES_FILE).write_bytes(header + payload)
+    rec = Recording.open(directory)
+    assert same_bits(rec.column("X_current_a"), np.array([1.5, -2.25]))
+    assert rec.events == []
+    assert rec.problems == ["events.jsonl is missing: no events"]
+
+
+def test_unknown_channel(tmp_path: Path) -> None:
+    write_frames(tmp_path / "r", frames=1, rows_per_frame=2)
+    rec = Recording.open(tmp_path / "r")
+    with pytest.raises(RecordingError, match=r"no channel 'Z_current_a'.*X_current_a"):
+        rec.axis_signal("Z", "current_a")
+
+
+# --- CSV -------------------------------------------------------------------------------------
+
+AWKWARD = [
+    0.1,
+    1e-300,
+    -0.0,
+    0.0,
+    5e-324,  # the smallest subnormal
+    -2.2250738585072014e-308,
+    1.7976931348623157e308,
+    -1e22,
+    1 / 3,
+    2**53 + 1.0,
+    123456789.12345679,
+    np.nan,
+    np.inf,
+    -np.inf,
+    1e16,
+]
+
+
+def awkward_recording(directory: Path, rows: int = 500) -> Recording:
+    rng = np.random.default_rng(7)
+    channels = ALL_SIGNALS
+    time_s = np.cumsum(rng.uniform(0.0009, 0.0011, rows)) + 1e-7
+    values = rng.standard_normal((rows, len(channels))) * 10.0 ** rng.integers(-200, 200, (rows, 1))
+    values[: len(AWKWARD), 0] = AWKWARD
+    values[: len(AWKWARD), -1] = AWKWARD[::-1]
+    with RecordingWriter.create(directory, channels, nominal_period_s=0.001) as writer:
+        writer.append(SampleBlock(time_s[:100], values[:100]))
+        writer.append(SampleBlock(time_s[100:], values[100:]))
+    return Recording.open(directory)
+
+
+def test_csv_round_trip_is_bit_exact(tmp_path: Path, make_config: Make) -> None:
+    original = awkward_recording(tmp_path / "original")
+    csv_path = export_csv(original, tmp_path / "out.csv")
+    lines = csv_path.read_text(encoding="utf-8").splitlines()
+    assert lines[0] == "time_s," + ",".join(c.name for c in ALL_SIGNALS)
+    assert "X_velocity_cmd_mm_min" in lines[0] and "Z_marker" in lines[0]
+    first_column = [line.split(",")[1] for line in lines[1 : 1 + len(AWKWARD)]]
+    assert first_column[:4] == ["0.1", "1e-300", "-0.0", "0.0"]
+    assert len(lines) == 1 + len(original)
+
+    config = make_config()
+    copy = import_csv(csv_path, tmp_path / "copy", machine=config)
+    assert same_bits(copy.time_s, original.time_s)
+    assert same_bits(copy.values, original.values)
+    assert copy.channels == original.channels
+    assert [c.unit for c in copy.channels][:5] == ["A", "mm/min", "mm", "mm/min", "1"]
+    assert copy.meta.source == "import:csv"
+    assert copy.meta.machine == config.machine.name
+    assert [a["name"] for a in copy.meta.axes] == ["X", "Y", "Z"]
+    assert copy.meta.nominal_period_s == float(np.median(np.diff(original.time_s)))
+    assert copy.meta.status == "complete"
+    assert copy.problems == []
+    again = export_csv(copy, tmp_path / "again.csv")  # and the text is stable
+    assert again.read_bytes() == csv_path.read_bytes()
+
+
+def test_csv_import_in_chunks_with_a_given_period(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(recording_module, "_IMPORT_CHUNK_ROWS", 7)
+    original = awkward_recording(tmp_path / "original", rows=100)
+    csv_path = export_csv(tmp_path / "original", tmp_path / "out.csv")  # a directory works too
+    copy = import_csv(csv_path, tmp_path / "copy", nominal_period_s=0.001)
+    assert same_bits(copy.values, original.values)
+    assert copy.meta.nominal_period_s == 0.001
+
+
+def test_csv_with_crlf_bom_and_blank_lines(tmp_path: Path) -> None:
+    path = tmp_path / "excel.csv"
+    path.write_bytes(
+        b"\xef\xbb\xbftime_s,X_current_a,X_position_mm\r\n0,0.5,1\r\n\r\n0.002,-0.25,2\r\n"
+    )
+    rec = import_csv(path, tmp_path / "r")
+    assert same_bits(rec.time_s, np.array([0.0, 0.002]))
+    assert same_bits(rec.values, np.array([[0.5, 1.0], [-0.25, 2.0]]))
+    assert rec.channels == (Channel("X", "current_a", "A"), Channel("X", "position_mm", "mm"))
+    assert rec.meta.nominal_period_s == 0.002
+
+
+@pytest.mark.parametrize(
+    ("text", "where", "message"),
+    [
+        ("", 1, "empty"),
+        ("t,X_current_a\n0,1\n", 1, "first column must be time_s"),
+        ("time_s\n0\n", 1, "no channel columns"),
+        ("time_s,X_torque_nm\n0,1\n", 1, "column 2 'X_torque_nm' is not <AXIS>_<signal>"),
+        ("time_s,x_current_a\n0,1\n", 1, "'x_current_a' is not"),
+        ("time_s,X_current_a,X_current_a\n", 1, "appears twice"),
+        ("time_s,X_current_a\n0,1\n0.001,2\n0.002,abc\n", 4, "column X_current_a: 'abc' is not"),
+        ("time_s,X_current_a\n0,1\n0.001,\n", 3, "column X_current_a: '' is not a number"),
+        ("time_s,X_current_a\n0,1\n0.001,2,3\n", 3, "3 cells, expected 2"),
+        ("time_s,X_current_a\n0,1\n0.001\n", 3, "1 cells, expected 2"),
+        ("time_s,X_current_a\n0,1\n0.002,2\n\n0.001,3\n", 5, "not later than the row before"),
+        ("time_s,X_current_a\n0,1\nnan,2\n", 3, "not a finite number"),
+    ],
+)
+def test_csv_import_errors_name_file_and_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, text: str, where: int, message: str
+) -> None:
+    monkeypatch.setattr(recording_module, "_IMPORT_CHUNK_ROWS", 2)  # errors across chunks too
+    path = tmp_path / "bad.csv"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(RecordingError) as info:
+        import_csv(path, tmp_path / "r", nominal_period_s=0.001)
+    assert str(info.value).startswith(f"{path}:{where}")
+    assert message in str(info.value)
+    assert not (tmp_path / "r").exists()  # a failed import leaves nothing behind
+
+
+def test_csv_import_needs_two_rows_or_a_period(tmp_path: Path) -> None:
+    path = tmp_path / "one.csv"
+    path.write_text("time_s,X_current_a\n0.5,1\n", encoding="utf-8")
+    with pytest.raises(RecordingError, match="pass nominal_period_s"):
+        import_csv(path, tmp_path / "r")
+    rec = import_csv(path, tmp_path / "r", nominal_period_s=0.004)
+    assert len(rec) == 1 and rec.meta.nominal_period_s == 0.004
+    with pytest.raises(RecordingError, match="no such file"):
+        import_csv(tmp_path / "missing.csv", tmp_path / "r2")
+    (tmp_path / "binary.csv").write_bytes(b"time_s,X_current_a\n\xff\xfe\n")
+    with pytest.raises(RecordingError, match="not a text file"):
+        import_csv(tmp_path / "binary.csv", tmp_path / "r3")
+
+
+def test_a_failed_import_keeps_what_was_in_the_directory(tmp_path: Path) -> None:
+    write_frames(tmp_path / "existing", frames=1, rows_per_frame=3)
+    path = tmp_path / "in.csv"
+    path.write_text("time_s,X_current_a\n0,1\n0.001,2\n", encoding="utf-8")
+    with pytest.raises(RecordingError, match="not empty"):
+        import_csv(path, tmp_path / "existing")
+    assert len(Recording.open(tmp_path / "existing")) == 3
+
+
+def test_channel_names() -> None:
+    assert channel_from_name("Z1_velocity_cmd_mm_min") == Channel(
+        "Z1", "velocity_cmd_mm_min", "mm/min"
+    )
+    assert channel_from_name("X_velocity_mm_min") == Channel("X", "velocity_mm_min", "mm/min")
+    assert channel_from_name("X_marker") == Channel("X", "marker", "1")
+    assert channel_from_name("_current_a") is None
+    assert channel_from_name("X_current") is None
+    assert channel_from_name("X Y_current_a") is None
+
+
+# --- MDF4 ------------------------------------------------------------------------------------
+
+
+def test_mdf4_round_trip(tmp_path: Path, make_config: Make) -> None:
+    asammdf = pytest.importorskip("asammdf")
+    config = make_config()
+    directory = tmp_path / "original"
+    rng = np.random.default_rng(3)
+    events = [LinkEvent(0.2, "reconnect", "bus back", details={"tries": 2})]
+    with RecordingWriter.create(
+        directory, ALL_SIGNALS, nominal_period_s=0.001, machine=config, link=LINK,
+        notes="mdf", source="canopen",
+    ) as writer:  # fmt: skip
+        time_s = np.arange(2000) * 0.001
+        writer.append(SampleBlock(time_s, rng.standard_normal((2000, len(ALL_SIGNALS)))))
+        writer.add_event(events[0])
+    original = Recording.open(directory)
+
+    path = export_mdf4(original, tmp_path / "out.mf4")
+    with asammdf.MDF(path) as mdf:
+        names = {c.name: c.unit for g in mdf.groups for c in g.channels}
+        stored = mdf.get("Y_velocity_cmd_mm_min")
+    for channel in ALL_SIGNALS:
+        assert names[channel.name] == channel.unit
+    assert np.array_equal(stored.samples, original.column("Y_velocity_cmd_mm_min"))
+
+    copy = import_mdf4(path, tmp_path / "copy")
+    assert np.array_equal(copy.time_s, original.time_s)
+    assert np.array_equal(copy.values, original.values)
+    assert copy.channels == original.channels
+    assert copy.events == events
+    assert copy.meta.source == "import:mdf4"
+    assert copy.meta.machine == original.meta.machine
+    assert copy.meta.axes == original.meta.axes
+    assert copy.meta.link == LINK
+    assert copy.meta.nominal_period_s == 0.001
+    assert copy.meta.start_utc == original.meta.start_utc
+    assert copy.problems == []
+
+
+def test_mdf4_import_of_a_foreign_file(tmp_path: Path) -> None:
+    asammdf = pytest.importorskip("asammdf")
+    time_s = np.arange(100) * 0.01
+    path = tmp_path / "scope.mf4"
+    mdf = asammdf.MDF(version="4.10")
+    mdf.append(
+        [
+            asammdf.Signal(np.sin(time_s), time_s, name="X_current_a", unit="A"),
+            asammdf.Signal(np.cos(time_s), time_s, name="X_position_mm", unit=""),
+        ],
+        common_timebase=True,
+    )
+    mdf.save(path, overwrite=True)
+    mdf.close()
+    rec = import_mdf4(path, tmp_path / "r")
+    assert np.array_equal(rec.column("X_position_mm"), np.cos(time_s))
+    assert rec.meta.nominal_period_s == pytest.approx(0.01)
+    assert rec.meta.machine is None
+
+    bad = tmp_path / "bad.mf4"
+    mdf = asammdf.MDF(version="4.10")
+    mdf.append([asammdf.Signal(time_s, time_s, name="Engine_speed", unit="rpm")])
+    mdf.save(bad, overwrite=True)
+    mdf.close()
+    with pytest.raises(RecordingError, match=r"'Engine_speed' .* is not <AXIS>_<signal>"):
+        import_mdf4(bad, tmp_path / "r2")
+    assert not (tmp_path / "r2").exists()
+    wrong_unit = tmp_path / "unit.mf4"
+    mdf = asammdf.MDF(version="4.10")
+    mdf.append([asammdf.Signal(time_s, time_s, name="X_current_a", unit="mA")])
+    mdf.save(wrong_unit, overwrite=True)
+    mdf.close()
+    with pytest.raises(RecordingError, match="in 'mA'"):
+        import_mdf4(wrong_unit, tmp_path / "r3")
+    (tmp_path / "text.mf4").write_text("not mdf", encoding="utf-8")
+    with pytest.raises(RecordingError, match="not a readable MDF file"):
+        import_mdf4(tmp_path / "text.mf4", tmp_path / "r4")
+
+
+def test_mdf4_without_asammdf_names_the_extra(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    write_frames(tmp_path / "r", frames=1, rows_per_frame=3)
+    monkeypatch.setitem(sys.modules, "asammdf", None)  # makes `import asammdf` fail
+    with pytest.raises(DependencyError, match=r"pip install 'ncmeasure\[mdf\]'"):
+        export_mdf4(tmp_path / "r", tmp_path / "out.mf4")
+    with pytest.raises(DependencyError, match="ncmeasure\\[mdf\\]"):
+        import_mdf4(tmp_path / "out.mf4", tmp_path / "copy")
+    assert not (tmp_path / "out.mf4").exists()
+
+
+def test_the_numpy_only_reader_of_the_docs(tmp_path: Path) -> None:
+    """docs/recording-format.md shows how to read a recording without ncmeasure: it works."""
+    docs = Path(__file__).parents[1] / "docs" / "recording-format.md"
+    text = docs.read_text(encoding="utf-8")
+    section = text.split("## Reading a recording without ncmeasure", 1)[1]
+    code = section.split("```python\n", 1)[1].split("```", 1)[0]
+    directory = tmp_path / "run"
+    write_frames(directory, frames=3, rows_per_frame=7)
+    with RecordingWriter.create(tmp_path / "other", XY, nominal_period_s=0.001) as writer:
+        writer.add_event(LinkEvent(0.0, "info", "hello"))
+    (directory / EVENTS_FILE).write_bytes((tmp_path / "other" / EVENTS_FILE).read_bytes())
+    with (directory / SAMPLES_FILE).open("ab") as file:
+        file.write(b"NCMF\x05")  # a torn tail
+    namespace: dict[str, object] = {}
+    exec(code.replace('"run-2026-01-15"', repr(str(directory))), namespace)
+    time_s, values = rows_for(0, 21, len(XY))
+    assert same_bits(namespace["time_s"], time_s)  # type: ignore[arg-type]
+    assert same_bits(namespace["values"], values)  # type: ignore[arg-type]
+    assert same_bits(namespace["current_x"], values[:, 0])  # type: ignore[arg-type]
+    assert namespace["events"] == [
+        {"time_s": 0.0, "kind": "info", "message": "hello", "axis": None, "lost_samples": 0,
+         "details": {}}
+    ]  # fmt: skip
