@@ -6,7 +6,11 @@ The pipeline, one folder per stage, data flowing one way:
 2. ``plan``     config -> :class:`Schedule`: velocity steps, positions, windows, timing
 3. ``program``  schedule -> NC main program and one subprogram per axis, per
                 controller dialect (Jinja templates), and a reader that checks them
-4. ``cli``      the ``ncmeasure`` command: init, schema, plan, generate, check
+4. ``links``    drive links (CANopen CiA 402, Modbus TCP/RTU, replay) -> sample blocks
+5. ``recording`` crash-safe recordings on disk: writer, reader, CSV/MDF4 exchange
+6. ``acquire``  the acquisition service: a link -> a recording, until done
+7. ``sim``      simulated drives for tests and demos
+8. ``cli``      the ``ncmeasure`` command: init, plan, generate, check, record, export, import
 
 The public API is re-exported here::
 
@@ -14,12 +18,15 @@ The public API is re-exported here::
     config = load_machine("machine.toml")
     output = generate_programs(config)
     output.write("out/")
+    result = record(config, duration_s=60, out="run1")   # the machine's [link]
+    recording = read_recording("run1")
 """
 
 from __future__ import annotations
 
 __version__ = "0.1.0"
 
+from ncmeasure.acquire import record
 from ncmeasure.config import MachineConfig, config_hash, load_machine
 from ncmeasure.errors import (
     ConfigError,
@@ -32,6 +39,7 @@ from ncmeasure.errors import (
 )
 from ncmeasure.plan import Schedule, plan_machine
 from ncmeasure.program import GeneratedPrograms, check_programs, generate_programs
+from ncmeasure.recording import Recording, read_recording
 
 __all__ = [
     "ConfigError",
@@ -43,6 +51,7 @@ __all__ = [
     "PlanError",
     "ProgramCheckError",
     "ProgramError",
+    "Recording",
     "Schedule",
     "__version__",
     "check_programs",
@@ -50,4 +59,6 @@ __all__ = [
     "generate_programs",
     "load_machine",
     "plan_machine",
+    "read_recording",
+    "record",
 ]

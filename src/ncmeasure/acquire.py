@@ -234,24 +234,22 @@ def record(
             )
         until = schedule.duration_s + schedule_margin_s
         duration_s = until if duration_s is None else min(duration_s, until)
-    writer = RecordingWriter.create(
-        out,
-        drive_link.channels,
-        nominal_period_s=drive_link.nominal_period_s,
-        machine=config,
-        link=drive_link.describe(),
-        config_hash=schedule.config_hash if schedule else None,
-        notes=notes,
-        source=drive_link.name,
-        faster_than_real_time=getattr(drive_link.settings, "speed", 1.0) != 1.0,
-    )
+    # The link opens first: a drive that cannot be reached leaves no empty recording behind.
+    drive_link.open()
     try:
-        drive_link.open()
-    except BaseException:
-        writer.close(status="failed")
-        raise
-    try:
-        return acquire(drive_link, writer, duration_s=duration_s, stop=stop,
-                       on_progress=on_progress)
+        writer = RecordingWriter.create(
+            out,
+            drive_link.channels,
+            nominal_period_s=drive_link.nominal_period_s,
+            machine=config,
+            link=drive_link.describe(),
+            config_hash=schedule.config_hash if schedule else None,
+            notes=notes,
+            source=drive_link.name,
+            faster_than_real_time=getattr(drive_link.settings, "speed", 1.0) != 1.0,
+        )
+        return acquire(
+            drive_link, writer, duration_s=duration_s, stop=stop, on_progress=on_progress
+        )
     finally:
         drive_link.close()
