@@ -1,0 +1,725 @@
+"""The Modbus link against the simulated drive: exact values over TCP and RTU, faults, bad input.
+
+The TCP server runs in another process (``running_server``); the RTU server
+runs in a thread on one end of a pseudo-terminal null modem. The servers are
+deterministic: the n-th answered request of a unit shows the source's state
+at ``n × STEP_S``, so every decoded value is compared exactly with the
+source's state quantised by the register map.
+"""
+
+from __future__ import annotations
+
+import itertools
+import socket
+import struct
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from ncmeasure.config import AxisConfig
+from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
+from ncmeasure.links import link_class
+from ncmeasure.links.base import LinkEvent, SampleBlock
+from ncmeasure.links.modbus import (
+    EXCEPTION_MEANINGS,
+    ModbusLink,
+    builtin_register_maps,
+    decode_words,
+    encode_value,
+    load_register_map,
+)
+from ncmeasure.sim.modbus_drive import (
+    Fault,
+    ServerHandle,
+    SimulatedModbusDrive,
+    SimulatedUnit,
+    pty_null_modem,
+    running_server,
+)
+from ncmeasure.sim.signals import AxisState, PatternSource
+
+STEP_S = 0.01
+SOURCE = PatternSource()
+AXES = ("X", "Y", "Z")
+LEAD_MM = 10.0
+RATED_A = 8.0
+
+# Link settings for fault tests: short timeouts so every test stays bounded.
+FAST = {"timeout_s": 0.2, "retries": 0, "reconnect_delay_s": 0.1, "max_outage_s": 1.0}
+
+
+def axis(name: str, screw_lead_mm: float | None = LEAD_MM) -> AxisConfig:
+    return AxisConfig(
+        name=name,
+        travel_mm=(0.0, 500.0),
+        park_mm=10.0,
+        max_velocity_mm_min=20_000.0,
+        max_acceleration_m_s2=2.0,
+        max_jerk_m_s3=50.0,
+        screw_lead_mm=screw_lead_mm,
+        rated_current_a=RATED_A,
+    )
+
+
+def tcp_link(server: ServerHandle, **settings: Any) -> ModbusLink:
+    table = {"port": server.port, "register_map": "generic", **settings}
+    return ModbusLink.from_tables(
+        table, [(axis(n), {"unit_id": i + 1}) for i, n in enumerate(AXES)]
+    )
+
+
+def f32(value: float) -> float:
+    return float(struct.unpack(">f", struct.pack(">f", value))[0])
+
+
+def quantised(value: float, factor: float) -> float:
+    return round(value / factor) * factor
+
+
+def generic_row(state: AxisState) -> list[float]:
+    """Channels of one axis with the generic map: current, velocity, position, command."""
+    return [
+        f32(state.current_a),
+        quantised(state.velocity_mm_min, 0.01),
+        quantised(state.position_mm, 0.001),
+        quantised(state.velocity_cmd_mm_min, 0.01),
+    ]
+
+
+def read_rows(
+    link: ModbusLink, count: int, limit_s: float = 10.0
+) -> list[tuple[float, list[float]]]:
+    rows: list[tuple[float, list[float]]] = []
+    deadline = time.monotonic() + limit_s
+    while len(rows) < count and time.monotonic() < deadline:
+        block = link.read(timeout_s=0.5)
+        assert block is not None
+        rows += block_rows(block)
+    assert len(rows) >= count, f"only {len(rows)} rows in {limit_s} s"
+    return rows
+
+
+def read_for(link: ModbusLink, seconds: float) -> list[tuple[float, list[float]]]:
+    rows: list[tuple[float, list[float]]] = []
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        block = link.read(timeout_s=0.05)
+        assert block is not None
+        rows += block_rows(block)
+    return rows
+
+
+def block_rows(block: SampleBlock) -> list[tuple[float, list[float]]]:
+    return [
+        (float(t), [float(v) for v in row])
+        for t, row in zip(block.time_s, block.values, strict=True)
+    ]
+
+
+def request_numbers(
+    rows: Sequence[tuple[float, list[float]]],
+    columns: slice,
+    expected: Callable[[int], list[float]],
+    start: int = 0,
+) -> list[int]:
+    """For each row, the request number n whose state the row's columns show exactly."""
+    numbers: list[int] = []
+    n = start
+    for _, values in rows:
+        for candidate in range(n, n + 300):  # the pattern repeats only after 400 steps
+            if values[columns] == expected(candidate):
+                numbers.append(candidate)
+                n = candidate + 1
+                break
+        else:
+            pytest.fail(f"row {values[columns]} is no quantised state after request {n}")
+    return numbers
+
+
+def generic_numbers(
+    rows: Sequence[tuple[float, list[float]]], axis_index: int, start: int = 0
+) -> list[int]:
+    return request_numbers(
+        rows,
+        slice(4 * axis_index, 4 * axis_index + 4),
+        lambda n: generic_row(SOURCE.state(axis_index, n * STEP_S)),
+        start,
+    )
+
+
+def events_of(link: ModbusLink, kind: str, events: list[LinkEvent]) -> list[LinkEvent]:
+    events += link.events()
+    return [e for e in events if e.kind == kind]
+
+
+@pytest.fixture(scope="module")
+def module_server() -> Iterator[ServerHandle]:
+    with running_server(dict(zip(AXES, (1, 2, 3), strict=True)), step_s=STEP_S) as handle:
+        yield handle
+
+
+@pytest.fixture
+def server(module_server: ServerHandle) -> ServerHandle:
+    module_server.reset()
+    return module_server
+
+
+# --- values ------------------------------------------------------------------------------
+
+
+def test_registered_as_modbus() -> None:
+    assert link_class("modbus") is ModbusLink
+
+
+def test_values_arrive_exactly_over_tcp(server: ServerHandle) -> None:
+    link = tcp_link(server)
+    assert [c.name for c in link.channels[:4]] == [
+        "X_current_a",
+        "X_velocity_mm_min",
+        "X_position_mm",
+        "X_velocity_cmd_mm_min",
+    ]
+    assert [c.unit for c in link.channels[:4]] == ["A", "mm/min", "mm", "mm/min"]
+    assert link.nominal_period_s == pytest.approx(0.01)
+    assert link.requests_per_cycle == 3
+    with link:
+        rows = read_rows(link, 40)
+    times = [t for t, _ in rows]
+    assert all(b > a for a, b in itertools.pairwise(times))
+    assert times[0] >= 0
+    for index in range(3):
+        # Request 0 of every unit is the check read of open(); rows start at 1.
+        assert generic_numbers(rows, index) == list(range(1, len(rows) + 1))
+    # The link keeps polling until closed: the server answered at least these requests.
+    assert all(count >= len(rows) + 1 for count in server.stats().values())
+
+
+def test_rtu_values_arrive_exactly_with_the_real_drive_maps() -> None:
+    units = [
+        SimulatedUnit("X", 1, "iai-robo-cylinder", 0),
+        SimulatedUnit("Y", 2, "kinetix3", 1, LEAD_MM, 8192, RATED_A),
+        SimulatedUnit("Z", 3, "ats-rt20", 2, LEAD_MM, 10_000, RATED_A),
+    ]
+    drive = SimulatedModbusDrive(units, step_s=STEP_S)
+    with pty_null_modem() as (server_port, client_port):
+        stop = threading.Event()
+        ready = threading.Event()
+        thread = threading.Thread(
+            target=drive.serve_forever,
+            kwargs={
+                "serial_port": server_port,
+                "baudrate": 115200,
+                "parity": "N",
+                "ready": lambda _: ready.set(),
+                "stop": stop,
+            },
+            daemon=True,
+        )
+        thread.start()
+        try:
+            assert ready.wait(10)
+            link = ModbusLink.from_tables(
+                {
+                    "mode": "rtu",
+                    "serial_port": client_port,
+                    "baudrate": 115200,
+                    "parity": "N",
+                    "register_map": "iai-robo-cylinder",
+                    "poll_hz": 20,
+                    "timeout_s": 0.5,
+                },
+                [
+                    (axis("X"), {"unit_id": 1}),
+                    (axis("Y"), {"unit_id": 2, "register_map": "kinetix3", "counts_per_rev": 8192}),
+                    (
+                        axis("Z"),
+                        {"unit_id": 3, "register_map": "ats-rt20", "counts_per_rev": 10_000},
+                    ),
+                ],
+            )
+            with link:
+                rows = read_rows(link, 12)
+        finally:
+            stop.set()
+            thread.join(timeout=10)
+    names = [c.name for c in link.channels]
+    assert names == [
+        "X_current_a",
+        "X_velocity_mm_min",
+        "X_position_mm",
+        "Y_current_a",
+        "Y_velocity_mm_min",
+        "Y_position_mm",
+        "Y_velocity_cmd_mm_min",
+        "Z_current_a",
+        "Z_velocity_mm_min",
+        "Z_position_mm",
+        "Z_velocity_cmd_mm_min",
+    ]
+
+    def iai(n: int) -> list[float]:  # 1 mA, 0.01 mm/s = 0.6 mm/min, 0.01 mm
+        s = SOURCE.state(0, n * STEP_S)
+        return [
+            quantised(s.current_a, 0.001),
+            quantised(s.velocity_mm_min, 0.01 * 60.0),
+            quantised(s.position_mm, 0.01),
+        ]
+
+    def rotary(axis_index: int, counts: int) -> Callable[[int], list[float]]:
+        def expected(n: int) -> list[float]:  # 0.1 % of rated, rpm × lead, counts / rev × lead
+            s = SOURCE.state(axis_index, n * STEP_S)
+            return [
+                quantised(s.current_a, 0.001 * RATED_A),
+                quantised(s.velocity_mm_min, 1.0 * LEAD_MM),
+                quantised(s.position_mm, 1.0 * (LEAD_MM / counts)),
+                quantised(s.velocity_cmd_mm_min, 1.0 * LEAD_MM),
+            ]
+
+        return expected
+
+    expected_numbers = list(range(1, len(rows) + 1))
+    assert request_numbers(rows, slice(0, 3), iai) == expected_numbers
+    assert request_numbers(rows, slice(3, 7), rotary(1, 8192)) == expected_numbers
+    assert request_numbers(rows, slice(7, 11), rotary(2, 10_000)) == expected_numbers
+
+
+# --- faults ------------------------------------------------------------------------------
+
+
+def test_server_stops_answering_gives_up_after_max_outage(server: ServerHandle) -> None:
+    events: list[LinkEvent] = []
+    with tcp_link(server, **FAST) as link:
+        before = read_rows(link, 20)
+        server.set_fault(Fault(silent=True))
+        rows = list(before)
+        with pytest.raises(LinkTimeoutError) as info:
+            for _ in range(100):  # bounded: gives up after max_outage_s = 1 s
+                block = link.read(timeout_s=0.5)
+                assert block is not None
+                rows += block_rows(block)
+        events_of(link, "gap", events)
+    assert "gave up after 1 s" in str(info.value)
+    assert "no valid answer" in str(info.value)
+    # Every row that arrived before the fault is complete and exact.
+    for index in range(3):
+        assert generic_numbers(rows, index) == list(range(1, len(rows) + 1))
+    gaps = [e for e in events if e.kind == "gap"]
+    assert gaps and sum(e.lost_samples for e in gaps) > 0
+    assert any(e.kind == "fault" and "gave up" in e.message for e in events)
+
+
+def test_silent_drive_that_comes_back_leaves_a_gap(server: ServerHandle) -> None:
+    events: list[LinkEvent] = []
+    with tcp_link(server, **{**FAST, "max_outage_s": 5.0}) as link:
+        before = read_rows(link, 10)
+        server.set_fault(Fault(silent=True, units=frozenset({2})))
+        during = read_for(link, 0.5)
+        server.clear_faults()
+        after = read_rows(link, 10)
+        gaps = events_of(link, "gap", events)
+    assert during == [] or len(during) < 5  # rows only from cycles before the fault
+    assert gaps and gaps[0].lost_samples > 0
+    assert "no valid answer" in gaps[0].message and "axis Y" in gaps[0].message
+    rows = before + during + after
+    for index in range(3):  # exact and in order, before and after the gap
+        numbers = generic_numbers(rows, index)
+        assert numbers[: len(before)] == list(range(1, len(before) + 1))
+
+
+def test_dropped_connection_reconnects_and_data_continues(server: ServerHandle) -> None:
+    events: list[LinkEvent] = []
+    with tcp_link(server, **FAST) as link:
+        before = read_rows(link, 10)
+        server.drop_connections()
+        after = read_for(link, 0.6)
+        events_of(link, "", events)
+    reconnects = [e for e in events if e.kind == "reconnect"]
+    gaps = [e for e in events if e.kind == "gap"]
+    assert len(reconnects) == 1
+    assert f"127.0.0.1:{server.port}" in reconnects[0].message
+    assert gaps and gaps[0].lost_samples > 0  # reconnect_delay_s = 0.1 s is 10 poll periods
+    assert len(after) > 10
+    for index in range(3):
+        numbers = generic_numbers(before + after, index)
+        assert numbers[: len(before)] == list(range(1, len(before) + 1))
+    assert reconnects[0].time_s > before[-1][0]
+
+
+def test_exception_response_is_a_fault_event_with_its_meaning(server: ServerHandle) -> None:
+    events: list[LinkEvent] = []
+    with tcp_link(server, **{**FAST, "max_outage_s": 5.0}) as link:
+        read_rows(link, 5)
+        server.set_fault(Fault(exception_code=6, units=frozenset({2})))
+        read_for(link, 0.3)
+        server.clear_faults()
+        read_rows(link, 5)
+        events_of(link, "", events)
+    faults = [e for e in events if e.kind == "fault"]
+    assert len(faults) == 1  # reported once, not once per cycle
+    assert faults[0].axis == "Y"
+    assert faults[0].details["exception_code"] == 6
+    assert "exception 6 (server device busy" in faults[0].message
+    assert any(e.kind == "info" and "axis Y answers again" in e.message for e in events)
+    assert any(e.kind == "gap" and e.lost_samples > 0 for e in events)
+
+
+def test_persistent_exception_ends_in_a_link_error_with_the_meaning(server: ServerHandle) -> None:
+    with tcp_link(server, **FAST) as link:
+        read_rows(link, 5)
+        server.set_fault(Fault(exception_code=4))
+        with pytest.raises(LinkError) as info:
+            for _ in range(100):
+                link.read(timeout_s=0.5)
+    assert not isinstance(info.value, LinkTimeoutError)
+    assert "exception 4 (server device failure" in str(info.value)
+
+
+@pytest.mark.parametrize("code", [1, 2, 3, 4, 5, 6, 10, 11])
+def test_exception_at_open_says_what_it_means(server: ServerHandle, code: int) -> None:
+    server.set_fault(Fault(exception_code=code, units=frozenset({3})))
+    link = tcp_link(server, **FAST)
+    with pytest.raises(LinkError) as info:
+        link.open()
+    assert not link.is_open
+    text = str(info.value)
+    assert f"exception {code} ({EXCEPTION_MEANINGS[code]})" in text
+    assert "unit 3 (axis Z)" in text
+    assert "Traceback" not in text
+
+
+def test_slow_answers_are_late_cycles_not_errors(server: ServerHandle) -> None:
+    events: list[LinkEvent] = []
+    with tcp_link(server, **FAST) as link:
+        before = read_rows(link, 5)
+        server.set_fault(Fault(delay_s=0.02))  # 3 requests: 60 ms per cycle at 10 ms period
+        slow = read_for(link, 0.5)
+        server.clear_faults()
+        after = read_rows(link, 5)
+        gaps = events_of(link, "gap", events)
+    rows = before + slow + after
+    assert len(slow) >= 2
+    for index in range(3):  # every answer arrived: no request is missing
+        assert generic_numbers(rows, index) == list(range(1, len(rows) + 1))
+    assert gaps and all("slow answers" in e.message for e in gaps)
+    assert sum(e.lost_samples for e in gaps) > len(slow)
+    assert not [e for e in events if e.kind in ("fault", "reconnect")]
+
+
+def test_close_never_raises_even_when_the_server_is_gone() -> None:
+    with running_server({"X": 1}, step_s=STEP_S) as handle:
+        link = ModbusLink.from_tables(
+            {"port": handle.port, "register_map": "generic", **FAST}, [(axis("X"), {"unit_id": 1})]
+        )
+        link.open()
+        read_rows(link, 3)
+    link.close()
+    link.close()
+    assert not link.is_open
+    with pytest.raises(LinkError):
+        link.read()
+
+
+# --- bad input ---------------------------------------------------------------------------
+
+
+def free_closed_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def test_unreachable_host_names_host_port_and_reason() -> None:
+    port = free_closed_port()
+    link = ModbusLink.from_tables(
+        {"port": port, "register_map": "generic", "timeout_s": 0.5}, [(axis("X"), {"unit_id": 1})]
+    )
+    with pytest.raises(LinkError) as info:
+        link.open()
+    text = str(info.value)
+    assert f"127.0.0.1:{port}" in text
+    assert "refused" in text.lower()
+    assert "\n" not in text
+
+
+def test_server_port_in_use_is_a_clear_error() -> None:
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        with pytest.raises(LinkError) as info, running_server({"X": 1}, port=port):
+            pass
+    assert f"127.0.0.1:{port}" in str(info.value)
+    assert "in use" in str(info.value)
+
+
+def link_problems(
+    link_table: dict[str, Any],
+    axis_tables: list[dict[str, Any]],
+    axes: list[AxisConfig] | None = None,
+) -> list[str]:
+    configs = axes or [axis(n) for n in AXES[: len(axis_tables)]]
+    with pytest.raises(ConfigError) as info:
+        ModbusLink.from_tables(link_table, list(zip(configs, axis_tables, strict=True)))
+    return list(info.value.problems)
+
+
+def test_bad_axis_settings_are_located() -> None:
+    problems = link_problems(
+        {"register_map": "generic"},
+        [{"unit_id": 0}, {"node_id": 3, "unit_id": 2}, {}],
+    )
+    assert any(p.startswith("axes[0].link.unit_id: ") for p in problems)
+    assert any(p.startswith("axes[1].link.node_id: unknown key") for p in problems)
+    assert "axes[2].link.unit_id: required key is missing" in problems
+    problems = link_problems({"register_map": "generic"}, [{"unit_id": 248}])
+    assert problems[0].startswith("axes[0].link.unit_id: Input should be less than or equal to 247")
+
+
+def test_bad_link_settings_are_located() -> None:
+    problems = link_problems({"mode": "rtu", "poll_hz": 0}, [{"unit_id": 1}])
+    assert "link.serial_port: required when mode is 'rtu'" in problems
+    assert "link.register_map: required key is missing" in problems
+    assert any(p.startswith("link.poll_hz: ") for p in problems)
+
+
+def test_duplicate_unit_ids_and_missing_axis_data() -> None:
+    problems = link_problems({"register_map": "generic"}, [{"unit_id": 4}, {"unit_id": 4}])
+    assert problems == ["axes[1].link.unit_id: unit 4 is already used by axis X"]
+    problems = link_problems(
+        {"register_map": "kinetix3"}, [{"unit_id": 1}], axes=[axis("X", screw_lead_mm=None)]
+    )
+    assert any(
+        p.startswith("axes[0].screw_lead_mm: the register map gives velocity_mm_min in rpm")
+        for p in problems
+    )
+    problems = link_problems({"register_map": "kinetix3"}, [{"unit_id": 1}])
+    assert any(p.startswith("axes[0].link.counts_per_rev: ") for p in problems)
+
+
+def test_unknown_register_map_lists_the_built_in_ones() -> None:
+    problems = link_problems({"register_map": "nope"}, [{"unit_id": 1}])
+    assert problems[0].startswith("link.register_map: unknown register map 'nope'; built-in maps: ")
+    assert "generic" in problems[0] and "kinetix3" in problems[0]
+    problems = link_problems({"register_map": "generic"}, [{"unit_id": 1, "register_map": "nope"}])
+    assert problems[0].startswith("axes[0].link.register_map: unknown register map 'nope'")
+
+
+def test_rtu_poll_rate_beyond_the_line_is_refused_or_lowered() -> None:
+    table = {"mode": "rtu", "serial_port": "/dev/null", "baudrate": 9600, "register_map": "generic"}
+    problems = link_problems({**table, "poll_hz": 100}, [{"unit_id": 1}])
+    assert problems[0].startswith(
+        "link.poll_hz: 100 Hz is too fast: 1 request(s) per cycle at 9600 baud"
+    )
+    link = ModbusLink.from_tables(
+        table, [(axis(n), {"unit_id": i + 1}) for i, n in enumerate(AXES)]
+    )
+    assert 1 / link.nominal_period_s < 100  # the default was lowered to what the line carries
+    assert link.describe()["poll_hz"] == pytest.approx(1 / link.nominal_period_s)
+
+
+MAP_HEAD = """
+name = "test"
+drive = "test drive"
+[source]
+title = "test document"
+"""
+
+GOOD_SIGNALS = {
+    "current_a": 'address = 0\nfunction = "input"\ntype = "int16"\nscale = 0.01\nunit = "A"',
+    "velocity_mm_min": 'address = 1\nfunction = "input"\ntype = "int32"\nunit = "mm/min"',
+    "position_mm": 'address = 3\nfunction = "input"\ntype = "int32"\nunit = "mm"',
+}
+
+
+FLOAT_AT_END = 'address = 65535\nfunction = "input"\ntype = "float32"\nunit = "mm/min"'
+
+
+def write_map(tmp_path: Path, **changes: str | None) -> Path:
+    signals = {**GOOD_SIGNALS, **changes}
+    text = MAP_HEAD + "".join(
+        f"\n[signals.{name}]\n{body}\n" for name, body in signals.items() if body is not None
+    )
+    path = tmp_path / "drive.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def map_problems(path: Path) -> list[str]:
+    with pytest.raises(ConfigError) as info:
+        load_register_map(path)
+    assert str(path) in info.value.message
+    return [line.removeprefix(f"{path}: ") for line in info.value.problems]
+
+
+def test_a_good_map_file_loads(tmp_path: Path) -> None:
+    reg_map = load_register_map(write_map(tmp_path))
+    assert [name for name, _ in reg_map.ordered_signals()] == [
+        "current_a",
+        "velocity_mm_min",
+        "position_mm",
+    ]
+
+
+def test_map_with_overlapping_registers(tmp_path: Path) -> None:
+    problems = map_problems(
+        write_map(
+            tmp_path, position_mm='address = 2\nfunction = "input"\ntype = "int32"\nunit = "mm"'
+        )
+    )
+    assert problems == [
+        "signals.position_mm: input registers 2..3 overlap signals.velocity_mm_min (1..2)"
+    ]
+
+
+def test_same_address_in_holding_and_input_does_not_overlap(tmp_path: Path) -> None:
+    load_register_map(
+        write_map(
+            tmp_path, position_mm='address = 1\nfunction = "holding"\ntype = "int32"\nunit = "mm"'
+        )
+    )
+
+
+def test_map_with_impossible_entries(tmp_path: Path) -> None:
+    problems = map_problems(
+        write_map(
+            tmp_path,
+            current_a='address = 70000\nfunction = "input"\ntype = "int16"\nunit = "A"',
+            velocity_mm_min=FLOAT_AT_END,
+            position_mm='address = 3\nfunction = "coil"\ntype = "int64"\nunit = "mm"',
+        )
+    )
+    assert any(
+        p.startswith("signals.current_a.address: Input should be less than or equal to 65535")
+        for p in problems
+    )
+    assert any(
+        p.startswith("signals.position_mm.function: Input should be 'holding' or 'input'")
+        for p in problems
+    )
+    assert any(p.startswith("signals.position_mm.type: Input should be 'int16'") for p in problems)
+    problems = map_problems(
+        write_map(
+            tmp_path,
+            velocity_mm_min=FLOAT_AT_END,
+        )
+    )
+    assert (
+        "signals.velocity_mm_min.address: a float32 at 65535 needs registers 65535..65536, "
+        "past the last address 65535"
+    ) in problems
+
+
+def test_map_with_missing_signal_bad_unit_and_wide_span(tmp_path: Path) -> None:
+    problems = map_problems(
+        write_map(
+            tmp_path,
+            current_a=None,
+            velocity_mm_min='address = 200\nfunction = "input"\ntype = "int16"\nunit = "rps"',
+        )
+    )
+    assert "signals.current_a: required signal is missing" in problems
+    assert "signals.velocity_mm_min.unit: 'rps' is not one of 'mm/min', 'mm/s', 'rpm'" in problems
+    assert (
+        "signals: the input registers span 3..200 (198 registers), more than the 125 one "
+        "Modbus request can read"
+    ) in problems
+
+
+def test_map_with_unknown_key_and_zero_scale(tmp_path: Path) -> None:
+    problems = map_problems(
+        write_map(
+            tmp_path,
+            current_a='address = 0\nfunction = "input"\ntype = "int16"\nunit = "A"\n'
+            "scale = 0\nsigned = true",
+        )
+    )
+    assert any(
+        p.startswith("signals.current_a.scale: must be a finite number other than 0")
+        for p in problems
+    )
+    assert any(p.startswith("signals.current_a.signed: unknown key") for p in problems)
+
+
+def test_map_that_is_not_toml(tmp_path: Path) -> None:
+    path = tmp_path / "broken.toml"
+    path.write_text("name = ", encoding="utf-8")
+    with pytest.raises(ConfigError, match="invalid TOML"):
+        load_register_map(path)
+    with pytest.raises(ConfigError, match="no such file"):
+        load_register_map(tmp_path / "missing.toml")
+
+
+@pytest.mark.parametrize("name", builtin_register_maps())
+def test_shipped_maps_are_valid_and_cite_their_source(name: str) -> None:
+    reg_map = load_register_map(name)
+    assert reg_map.name == name
+    assert reg_map.source.title
+    if name != "generic":
+        assert reg_map.source.url.startswith("https://")
+        assert reg_map.source.section
+
+
+def test_shipped_maps() -> None:
+    assert {"generic", "iai-robo-cylinder", "kinetix3", "ats-rt20"} <= set(builtin_register_maps())
+
+
+def test_describe_names_the_maps_their_sources_and_scales(server: ServerHandle) -> None:
+    link = ModbusLink.from_tables(
+        {"port": server.port, "register_map": "generic"},
+        [
+            (axis("X"), {"unit_id": 1}),
+            (
+                axis("Y"),
+                {
+                    "unit_id": 2,
+                    "register_map": "kinetix3",
+                    "counts_per_rev": 4096,
+                    "scales": {"current_a": 0.002},
+                },
+            ),
+        ],
+    )
+    info = link.describe()
+    assert info["link"]["register_map"] == "generic"
+    assert info["axes"]["Y"]["counts_per_rev"] == 4096
+    maps = info["register_maps"]
+    assert maps["X"]["name"] == "generic"
+    assert maps["X"]["signals"]["position_mm"]["scale"] == 0.001
+    assert maps["Y"]["source"]["title"].startswith("Kinetix 3")
+    assert maps["Y"]["signals"]["velocity_mm_min"]["factor"] == LEAD_MM
+    assert maps["Y"]["signals"]["position_mm"]["factor"] == pytest.approx(LEAD_MM / 4096)
+    assert maps["Y"]["signals"]["current_a"]["factor"] == pytest.approx(0.002 * RATED_A)
+    assert "midpoint" in info["time_s"]
+
+
+# --- encoding ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("data_type", "order", "raw", "words"),
+    [
+        ("int16", "big", -2, [0xFFFE]),
+        ("uint16", "big", 65535, [0xFFFF]),
+        ("int32", "big", -2, [0xFFFF, 0xFFFE]),
+        ("int32", "little", 0x12345678, [0x5678, 0x1234]),
+        ("uint32", "big", 0x12345678, [0x1234, 0x5678]),
+        ("float32", "big", 1.5, [0x3FC0, 0x0000]),
+        ("float32", "little", 1.5, [0x0000, 0x3FC0]),
+        ("int16", "big", 40000, [0x7FFF]),  # saturates
+    ],
+)
+def test_encode_and_decode_words(data_type: str, order: str, raw: float, words: list[int]) -> None:
+    assert encode_value(raw, data_type, order) == words
+    expected = min(raw, 32767) if data_type == "int16" else raw
+    assert decode_words(words, data_type, order) == expected
+
+
+@given(st.integers(-(2**31), 2**31 - 1), st.sampled_from(["big", "little"]))
+def test_int32_round_trip(raw: int, order: str) -> None:
+    assert decode_words(encode_value(raw, "int32", order), "int32", order) == raw

@@ -1,0 +1,327 @@
+"""The simulated Modbus drive, read with a bare pymodbus client: registers, time, faults."""
+
+from __future__ import annotations
+
+import os
+import select
+import socket
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any
+
+import pytest
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusIOException
+
+from ncmeasure.errors import ConfigError, LinkError
+from ncmeasure.links.modbus import decode_words
+from ncmeasure.sim.modbus_drive import (
+    DriveFaults,
+    Fault,
+    ServerInfo,
+    SimulatedModbusDrive,
+    SimulatedUnit,
+    main,
+    pty_null_modem,
+    running_server,
+    serve,
+)
+from ncmeasure.sim.signals import AxisState, PatternSource
+
+STEP_S = 0.01
+SOURCE = PatternSource()
+
+
+@contextmanager
+def server_thread(**kwargs: Any) -> Iterator[tuple[ServerInfo, DriveFaults]]:
+    """``serve`` in a thread of this process on a free port."""
+    faults = DriveFaults()
+    stop = threading.Event()
+    ready = threading.Event()
+    infos: list[ServerInfo] = []
+
+    def on_ready(info: ServerInfo) -> None:
+        infos.append(info)
+        ready.set()
+
+    errors: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            serve(faults=faults, ready=on_ready, stop=stop, **{"port": 0, **kwargs})
+        except BaseException as exc:  # reported by the test
+            errors.append(exc)
+            ready.set()
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    try:
+        assert ready.wait(10)
+        if errors:
+            raise errors[0]
+        yield infos[0], faults
+    finally:
+        stop.set()
+        thread.join(timeout=10)
+
+
+@contextmanager
+def tcp_client(info: ServerInfo, timeout_s: float = 0.3) -> Iterator[ModbusTcpClient]:
+    client = ModbusTcpClient(str(info.host), port=int(info.port or 0), timeout=timeout_s, retries=0)
+    assert connect(client)
+    try:
+        yield client
+    finally:
+        close(client)
+
+
+def connect(client: ModbusTcpClient | ModbusSerialClient) -> bool:
+    return bool(client.connect())
+
+
+def close(client: ModbusTcpClient | ModbusSerialClient) -> None:
+    client.close()  # type: ignore[no-untyped-call]
+
+
+def generic_position(words: Sequence[int]) -> float:
+    return decode_words(words[0:2], "int32") * 0.001
+
+
+def test_registers_follow_the_map_and_the_request_count() -> None:
+    with (
+        server_thread(units={"X": 1, "Y": 7}, step_s=STEP_S) as (info, _),
+        tcp_client(info) as client,
+    ):
+        assert info.units == {"X": 1, "Y": 7}
+        for n in range(3):
+            for unit, axis_index in ((1, 0), (7, 1)):
+                response = client.read_input_registers(0, count=8, device_id=unit)
+                assert not response.isError()
+                state = SOURCE.state(axis_index, n * STEP_S)
+                words = response.registers
+                assert decode_words(words[0:2], "int32") == round(state.position_mm / 0.001)
+                assert decode_words(words[2:4], "int32") == round(state.velocity_mm_min / 0.01)
+                assert decode_words(words[4:6], "float32") == pytest.approx(
+                    state.current_a, rel=1e-6
+                )
+                assert decode_words(words[6:8], "int32") == round(state.velocity_cmd_mm_min / 0.01)
+        # No holding registers in the generic map: the drive says so.
+        response = client.read_holding_registers(0, count=2, device_id=1)
+        assert response.isError() and response.exception_code == 2
+        # A range beyond the map's registers is an illegal address too.
+        response = client.read_input_registers(4, count=10, device_id=1)
+        assert response.isError() and response.exception_code == 2
+
+
+def test_unknown_unit_behind_tcp_is_a_gateway_exception() -> None:
+    with server_thread(units={"X": 1}) as (info, _), tcp_client(info) as client:
+        response = client.read_input_registers(0, count=2, device_id=9)
+        assert response.isError() and response.exception_code == 11
+
+
+def test_registers_of_a_real_drive_map() -> None:
+    drive = SimulatedModbusDrive(
+        [
+            SimulatedUnit(
+                "Z", 3, "ats-rt20", 0, screw_lead_mm=5.0, counts_per_rev=10_000, rated_current_a=4.0
+            )
+        ],
+        step_s=STEP_S,
+    )
+    state = AxisState(
+        position_mm=12.3456, velocity_mm_min=-1500.0, current_a=-1.0, velocity_cmd_mm_min=1000.0
+    )
+    words = drive.registers(3, "holding", state)
+    assert words[0x0300] == (-300) & 0xFFFF  # -1500 mm/min / 5 mm = -300 rpm
+    assert (
+        words[0x0301] == 24691 and words[0x0302] == 0
+    )  # low word first: 12.3456 mm = 24691 counts
+    assert words[0x0307] == (-250) & 0xFFFF  # -1 A of 4 A rated = -25.0 % = -250 × 0.1 %
+    assert words[0x030C] == 200
+    assert drive.registers(3, "input", state) == {}
+
+
+def test_time_mode_follows_the_clock() -> None:
+    with server_thread(units={"X": 1}) as (info, _), tcp_client(info) as client:
+        first = generic_position(client.read_input_registers(0, count=8, device_id=1).registers)
+        threading.Event().wait(0.2)
+        second = generic_position(client.read_input_registers(0, count=8, device_id=1).registers)
+    assert first != second
+
+
+def test_faults_silent_exception_delay_and_units() -> None:
+    with (
+        server_thread(units={"X": 1, "Y": 2}, step_s=STEP_S) as (info, faults),
+        tcp_client(info, timeout_s=0.3) as client,
+    ):
+        faults.set(Fault(exception_code=3, units=frozenset({2})))
+        assert not client.read_input_registers(0, count=8, device_id=1).isError()
+        response = client.read_input_registers(0, count=8, device_id=2)
+        assert response.isError() and response.exception_code == 3
+        faults.set(Fault(delay_s=0.05))
+        assert not client.read_input_registers(0, count=8, device_id=2).isError()
+        faults.set(Fault(silent=True, units=frozenset({1})))
+        with pytest.raises(ModbusIOException):
+            client.read_input_registers(0, count=8, device_id=1)
+    with server_thread(units={"X": 1}, step_s=STEP_S) as (info, faults), tcp_client(info) as client:
+        faults.set(Fault(silent=True))
+        with pytest.raises(ModbusIOException):
+            client.read_input_registers(0, count=8, device_id=1)
+    with server_thread(units={"X": 1}, step_s=STEP_S) as (info, faults), tcp_client(info) as client:
+        faults.set(Fault(silent=True))
+        close(client)
+        faults.clear()
+        assert connect(client)
+        # Silent requests were never answered, so they do not count: request 0 comes now.
+        words = client.read_input_registers(0, count=8, device_id=1).registers
+        assert generic_position(words) == round(SOURCE.state(0, 0.0).position_mm / 0.001) * 0.001
+
+
+def test_drop_connections_closes_the_client_socket() -> None:
+    with server_thread(units={"X": 1}) as (info, faults), tcp_client(info) as client:
+        assert not client.read_input_registers(0, count=2, device_id=1).isError()
+        faults.drop_connections()
+        threading.Event().wait(0.2)
+        with pytest.raises(ConnectionException):
+            client.read_input_registers(0, count=2, device_id=1)
+        close(client)
+        assert connect(client)
+        assert not client.read_input_registers(0, count=2, device_id=1).isError()
+
+
+def test_bad_faults_and_units() -> None:
+    with pytest.raises(ValueError, match="exception code 9"):
+        Fault(exception_code=9)
+    with pytest.raises(ValueError):
+        Fault(delay_s=-1)
+    with pytest.raises(ConfigError, match="given twice"):
+        SimulatedModbusDrive([SimulatedUnit("X", 1), SimulatedUnit("Y", 1)])
+    with pytest.raises(ConfigError, match=r"not in 1\.\.247"):
+        SimulatedModbusDrive([SimulatedUnit("X", 0)])
+    with pytest.raises(ConfigError, match="unknown register map"):
+        SimulatedModbusDrive([SimulatedUnit("X", 1, "nope")])
+
+
+def test_port_in_use_is_a_clear_error() -> None:
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        with pytest.raises(LinkError) as info:
+            serve(units={"X": 1}, port=port)
+    assert str(info.value).startswith(
+        f"the simulated Modbus drive cannot listen on 127.0.0.1:{port}"
+    )
+    assert "address already in use" in str(info.value)
+
+
+def test_running_server_in_another_process_is_controllable() -> None:
+    with running_server({"X": 1, "Y": 2}, step_s=STEP_S) as handle:
+        assert handle.process.pid != os.getpid()
+        info = ServerInfo(handle.host, handle.port, None, handle.units)
+        with tcp_client(info) as client:
+            for _ in range(3):
+                client.read_input_registers(0, count=8, device_id=1)
+            assert handle.stats() == {1: 3, 2: 0}
+            handle.set_fault(Fault(exception_code=10))
+            response = client.read_input_registers(0, count=8, device_id=2)
+            assert response.isError() and response.exception_code == 10
+            handle.reset()
+            assert handle.stats() == {1: 0, 2: 0}
+            words = client.read_input_registers(0, count=8, device_id=2).registers
+            assert (
+                generic_position(words) == round(SOURCE.state(1, 0.0).position_mm / 0.001) * 0.001
+            )
+            handle.drop_connections()
+    assert not handle.process.is_alive()
+
+
+def test_rtu_over_a_null_modem() -> None:
+    drive = SimulatedModbusDrive([SimulatedUnit("X", 5, "iai-robo-cylinder")], step_s=STEP_S)
+    with pty_null_modem() as (server_port, client_port):
+        stop = threading.Event()
+        ready = threading.Event()
+        thread = threading.Thread(
+            target=drive.serve_forever,
+            kwargs={
+                "serial_port": server_port,
+                "baudrate": 115200,
+                "parity": "N",
+                "ready": lambda _: ready.set(),
+                "stop": stop,
+            },
+            daemon=True,
+        )
+        thread.start()
+        client = ModbusSerialClient(
+            client_port, baudrate=115200, parity="N", timeout=0.3, retries=0
+        )
+        try:
+            assert ready.wait(10)
+            assert connect(client)
+            words = client.read_holding_registers(0x9000, count=14, device_id=5).registers
+            state = SOURCE.state(0, 0.0)
+            assert decode_words(words[0:2], "int32") == round(state.position_mm / 0.01)
+            assert decode_words(words[10:12], "int32") == round(state.velocity_mm_min / 0.6)
+            assert decode_words(words[12:14], "int32") == round(state.current_a / 0.001)
+            # Nobody answers an unknown unit on a serial line.
+            with pytest.raises(ModbusIOException):
+                client.read_holding_registers(0x9000, count=2, device_id=6)
+        finally:
+            close(client)
+            stop.set()
+            thread.join(timeout=10)
+    assert drive.stats() == {5: 1}
+
+
+def test_bad_serial_port_is_a_link_error() -> None:
+    with (
+        pytest.raises(LinkError, match="/nonexistent/tty"),
+        server_thread(units={"X": 1}, serial_port="/nonexistent/tty"),
+    ):
+        pass
+
+
+def test_command_line_parses_units() -> None:
+    with pytest.raises(SystemExit) as info:
+        main(["--unit", "X1"])
+    assert info.value.code == 2
+
+
+def test_command_line_serves_until_stopped() -> None:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ncmeasure.sim.modbus_drive",
+            "--port",
+            str(port),
+            "--unit",
+            "X=1",
+            "--unit",
+            "Y=2",
+            "--step-s",
+            "0.01",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert process.stdout is not None
+        readable, _, _ = select.select([process.stdout], [], [], 20)
+        assert readable, "the server printed nothing"
+        line = process.stdout.readline()
+        assert line.startswith(f"serving X=1, Y=2 on 127.0.0.1:{port}")
+        info = ServerInfo("127.0.0.1", port, None, {"X": 1, "Y": 2})
+        with tcp_client(info) as client:
+            assert not client.read_input_registers(0, count=8, device_id=2).isError()
+    finally:
+        process.terminate()
+        process.wait(timeout=10)
