@@ -44,9 +44,14 @@ class CountingLink(DriveLink):
 
     name = "counting"
 
-    def __init__(self, settings: LinkSettings, axes: Sequence[AxisBinding],
-                 rows_per_read: int = 50, fail_after: int | None = None,
-                 total: int | None = None) -> None:
+    def __init__(
+        self,
+        settings: LinkSettings,
+        axes: Sequence[AxisBinding],
+        rows_per_read: int = 50,
+        fail_after: int | None = None,
+        total: int | None = None,
+    ) -> None:
         super().__init__(settings, axes)
         self.rows_per_read = rows_per_read
         self.fail_after = fail_after
@@ -88,8 +93,14 @@ def counting_link(config: MachineConfig, **kwargs: Any) -> CountingLink:
 
 
 def writer_for(link: DriveLink, folder: Path, config: MachineConfig) -> RecordingWriter:
-    return RecordingWriter.create(folder, link.channels, nominal_period_s=link.nominal_period_s,
-                                  machine=config, link=link.describe(), source=link.name)
+    return RecordingWriter.create(
+        folder,
+        link.channels,
+        nominal_period_s=link.nominal_period_s,
+        machine=config,
+        link=link.describe(),
+        source=link.name,
+    )
 
 
 def test_duration_stops_on_the_link_clock(tmp_path: Path) -> None:
@@ -117,8 +128,13 @@ def test_stop_request_closes_as_interrupted(tmp_path: Path) -> None:
             stop.set()
 
     with link:
-        result = acquire(link, writer_for(link, tmp_path / "run", config), stop=stop,
-                         on_progress=on_progress, progress_interval_s=0.0)
+        result = acquire(
+            link,
+            writer_for(link, tmp_path / "run", config),
+            stop=stop,
+            on_progress=on_progress,
+            progress_interval_s=0.0,
+        )
     assert result.status == "interrupted"
     recording = read_recording(tmp_path / "run")
     assert recording.meta.status == "interrupted"
@@ -159,8 +175,12 @@ def _source_recording(folder: Path, config: MachineConfig, rows: int = 1500) -> 
 def test_replay_of_a_recording_records_the_same_samples(tmp_path: Path, speed: float) -> None:
     config = machine()
     source = _source_recording(tmp_path / "source", config)
-    result = record(config, out=tmp_path / "replayed", link="replay",
-                    link_settings={"source": str(source), "speed": speed, "block_rows": 64})
+    result = record(
+        config,
+        out=tmp_path / "replayed",
+        link="replay",
+        link_settings={"source": str(source), "speed": speed, "block_rows": 64},
+    )
     assert result.status == "complete"
     original, replayed = read_recording(source), read_recording(tmp_path / "replayed")
     np.testing.assert_array_equal(original.time_s, replayed.time_s)
@@ -176,9 +196,16 @@ def test_replay_of_a_subset_of_axes(tmp_path: Path) -> None:
     source = _source_recording(tmp_path / "source", config, rows=200)
     data = example_data()
     data["axes"] = data["axes"][1:2]  # only Y
-    result = record(parse_machine(data), out=tmp_path / "y", link="replay",
-                    link_settings={"source": str(source), "speed": 0})
+    result = record(
+        parse_machine(data),
+        out=tmp_path / "y",
+        link="replay",
+        link_settings={"source": str(source), "speed": 0},
+    )
     replayed = read_recording(result.directory)
-    assert [c.name for c in replayed.channels] == ["Y_current_a", "Y_velocity_mm_min",
-                                                   "Y_position_mm"]
+    assert [c.name for c in replayed.channels] == [
+        "Y_current_a",
+        "Y_velocity_mm_min",
+        "Y_position_mm",
+    ]
     np.testing.assert_array_equal(replayed.values, read_recording(source).values[:, 3:6])

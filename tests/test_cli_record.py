@@ -26,8 +26,9 @@ def _source(folder: Path, rows: int = 2000) -> Path:
     config = parse_machine(example_data())
     channels = channels_for(["X", "Y", "Z"])
     rng = np.random.default_rng(7)
-    with RecordingWriter.create(folder, channels, nominal_period_s=0.004, machine=config,
-                                source="test") as writer:
+    with RecordingWriter.create(
+        folder, channels, nominal_period_s=0.004, machine=config, source="test"
+    ) as writer:
         time_s = np.arange(rows) * 0.004
         writer.append(SampleBlock(time_s, rng.normal(size=(rows, len(channels)))))
         writer.add_event(LinkEvent(2.0, "emcy", "0x2310 continuous over-current", axis="X"))
@@ -42,18 +43,29 @@ def _machine(tmp_path: Path) -> Path:
 
 def test_record_replay_export_import_round_trip(tmp_path: Path) -> None:
     source = _source(tmp_path / "run1")
-    code, _, err = run("record", _machine(tmp_path), "--link", "replay", "--source", source,
-                       "--speed", "0", "-o", tmp_path / "run2", "--quiet")
+    code, _, err = run(
+        "record",
+        _machine(tmp_path),
+        "--link",
+        "replay",
+        "--source",
+        source,
+        "--speed",
+        "0",
+        "-o",
+        tmp_path / "run2",
+        "--quiet",
+    )
     assert code == 0, err
     original, replayed = read_recording(source), read_recording(tmp_path / "run2")
     np.testing.assert_array_equal(original.values, replayed.values)
     assert [e.message for e in replayed.events] == ["0x2310 continuous over-current"]
 
-    code, out, err = run("export", tmp_path / "run2", "--format", "csv", "-o", tmp_path / "r.csv")
+    code, _out, err = run("export", tmp_path / "run2", "--format", "csv", "-o", tmp_path / "r.csv")
     assert code == 0, err
     header = (tmp_path / "r.csv").read_text().splitlines()[0]
     assert header.startswith("time_s,X_current_a,X_velocity_mm_min,X_position_mm,Y_current_a")
-    code, out, err = run("import", tmp_path / "r.csv", "--format", "csv", "-o", tmp_path / "run3")
+    code, _out, err = run("import", tmp_path / "r.csv", "--format", "csv", "-o", tmp_path / "run3")
     assert code == 0, err
     back = read_recording(tmp_path / "run3")
     np.testing.assert_array_equal(back.values, original.values)
@@ -62,8 +74,20 @@ def test_record_replay_export_import_round_trip(tmp_path: Path) -> None:
 
 def test_record_with_duration_and_progress_display(tmp_path: Path) -> None:
     source = _source(tmp_path / "run1")
-    code, _, err = run("record", _machine(tmp_path), "--link", "replay", "--source", source,
-                       "--set", "speed=0", "--duration", "2", "-o", tmp_path / "run2")
+    code, _, err = run(
+        "record",
+        _machine(tmp_path),
+        "--link",
+        "replay",
+        "--source",
+        source,
+        "--set",
+        "speed=0",
+        "--duration",
+        "2",
+        "-o",
+        tmp_path / "run2",
+    )
     assert code == 0, err
     assert "complete: 500 samples" in err
     assert len(read_recording(tmp_path / "run2").time_s) == 500
@@ -75,13 +99,24 @@ def test_record_bad_input_is_clear(tmp_path: Path) -> None:
     assert code == 2 and "no link given" in err
     code, _, err = run("record", machine, "--link", "profibus", "-o", tmp_path / "r")
     assert code == 2 and "unknown link 'profibus'" in err
-    code, _, err = run("record", machine, "--link", "replay", "--source", tmp_path / "none",
-                       "-o", tmp_path / "r")
+    code, _, err = run(
+        "record", machine, "--link", "replay", "--source", tmp_path / "none", "-o", tmp_path / "r"
+    )
     assert code == 2 and "link.source" in err
     code, _, err = run("record", machine, "--link", "replay", "--node", "X1", "-o", tmp_path / "r")
     assert code == 2 and "expected AXIS=NUMBER" in err
-    code, _, err = run("record", machine, "--link", "replay", "--set", "sped=2",
-                       "--source", _source(tmp_path / "s"), "-o", tmp_path / "r")
+    code, _, err = run(
+        "record",
+        machine,
+        "--link",
+        "replay",
+        "--set",
+        "sped=2",
+        "--source",
+        _source(tmp_path / "s"),
+        "-o",
+        tmp_path / "r",
+    )
     assert code == 2 and "link.sped: unknown key" in err
     assert "Traceback" not in err
     assert not (tmp_path / "r").exists()

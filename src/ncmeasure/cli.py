@@ -614,3 +614,102 @@ def import_command(
     console.print(
         f"wrote {output} ({len(recording.time_s)} samples, {len(recording.channels)} channels)"
     )
+
+
+@app.command("simulate-drive")
+def simulate_drive_command(
+    link: Annotated[str, typer.Option(help="canopen or modbus.")],
+    interface: Annotated[
+        str | None, typer.Option(help="CANopen: python-can interface.", rich_help_panel="CANopen")
+    ] = "virtual",
+    channel: Annotated[
+        str | None, typer.Option(help="CANopen: python-can channel.", rich_help_panel="CANopen")
+    ] = "ncmeasure",
+    node: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="CANopen: AXIS=NODE_ID per simulated drive (default X=1 Y=2 Z=3).",
+            rich_help_panel="CANopen",
+        ),
+    ] = None,
+    eds: Annotated[
+        Path | None,
+        typer.Option(
+            help="CANopen: build the drives' object dictionary from this EDS/DCF.",
+            rich_help_panel="CANopen",
+        ),
+    ] = None,
+    host: Annotated[
+        str, typer.Option(help="Modbus TCP: address to listen on.", rich_help_panel="Modbus")
+    ] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="Modbus TCP: port.", rich_help_panel="Modbus")] = 5020,
+    unit: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="Modbus: AXIS=UNIT_ID per simulated drive (default X=1 Y=2 Z=3).",
+            rich_help_panel="Modbus",
+        ),
+    ] = None,
+    register_map: Annotated[
+        str, typer.Option(help="Modbus: register map served.", rich_help_panel="Modbus")
+    ] = "generic",
+    serial_port: Annotated[
+        str | None,
+        typer.Option(
+            help="Modbus RTU: serve on this serial port instead of TCP.", rich_help_panel="Modbus"
+        ),
+    ] = None,
+    duration: Annotated[
+        float | None, typer.Option(help="Seconds to run (default: until Ctrl-C).")
+    ] = None,
+) -> None:
+    """Run simulated servo drives, for trying `ncmeasure record` without a machine.
+
+    The drives report a smooth test motion of every axis. Example, in two terminals:
+    `ncmeasure simulate-drive --link modbus --port 5020` and
+    `ncmeasure record m.toml --link modbus --host 127.0.0.1 --port 5020 --unit X=1 ...`.
+    """
+    stop = threading.Event()
+    previous = {
+        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
+    }
+    default = {"X": 1, "Y": 2, "Z": 3}
+    if duration is not None:
+        threading.Timer(duration, stop.set).start()
+    try:
+        if link == "modbus":
+            from ncmeasure.sim.modbus_drive import ServerInfo, serve
+
+            units = {a: v["unit_id"] for a, v in _pairs(unit or [], "--unit", "unit_id").items()}
+
+            def ready(info: ServerInfo) -> None:
+                units_text = ", ".join(f"{a}={u}" for a, u in info.units.items())
+                err_console.print(
+                    f"simulated Modbus drives on {info.endpoint}, units {units_text}; Ctrl-C stops",
+                    soft_wrap=True,
+                )
+
+            serve(
+                units=units or default,
+                host=host,
+                port=port,
+                register_map=register_map,
+                serial_port=serial_port,
+                ready=ready,
+                stop=stop,
+            )
+        elif link == "canopen":
+            from ncmeasure.sim.cia402 import serve as serve_canopen
+
+            nodes = {a: v["node_id"] for a, v in _pairs(node or [], "--node", "node_id").items()}
+            ids = list((nodes or default).values())
+            err_console.print(f"simulated CiA 402 drives, nodes {ids}, on {interface}:{channel}")
+            serve_canopen(channel=channel, interface=interface, nodes=ids, eds=eds, stop=stop)
+        else:
+            _fail(ConfigError(f"--link {link!r}: simulated drives exist for canopen and modbus"))
+    except NcMeasureError as exc:
+        _fail(exc)
+    finally:
+        stop.set()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

@@ -77,9 +77,9 @@ class Channel:
         return f"{self.axis}_{self.signal}"
 
 
-def channels_for(axes: Sequence[str], signals: Sequence[str] = REQUIRED_SIGNALS) -> tuple[
-    Channel, ...
-]:
+def channels_for(
+    axes: Sequence[str], signals: Sequence[str] = REQUIRED_SIGNALS
+) -> tuple[Channel, ...]:
     """Channels for ``signals`` of every axis, axis by axis."""
     return tuple(Channel(a, s, SIGNAL_UNITS[s]) for a in axes for s in signals)
 
@@ -106,8 +106,9 @@ class SampleBlock:
         return int(self.time_s.shape[0])
 
     @classmethod
-    def from_rows(cls, time_s: Sequence[float], rows: Sequence[Sequence[float]],
-                  channels: int) -> SampleBlock:
+    def from_rows(
+        cls, time_s: Sequence[float], rows: Sequence[Sequence[float]], channels: int
+    ) -> SampleBlock:
         """Build a block from Python lists (an empty block when there are no rows)."""
         values = np.asarray(rows, dtype=np.float64).reshape(len(time_s), channels)
         return cls(np.asarray(time_s, dtype=np.float64), values)
@@ -267,8 +268,9 @@ class DriveLink(ABC):
             self._safe_close()
             raise
         self._state = "open"
-        log.debug("%s link open: %d axes, %d channels", self.name, len(self.axes),
-                  len(self.channels))
+        log.debug(
+            "%s link open: %d axes, %d channels", self.name, len(self.axes), len(self.channels)
+        )
 
     def read(self, timeout_s: float = 1.0) -> SampleBlock | None:
         """The samples that arrived since the last call.
@@ -310,8 +312,13 @@ class DriveLink(ABC):
 
     def _event(self, event: LinkEvent) -> None:
         """Record an event (backends call this, from any thread)."""
-        log.info("%s link: %s%s: %s", self.name, event.kind,
-                 f" ({event.axis})" if event.axis else "", event.message)
+        log.info(
+            "%s link: %s%s: %s",
+            self.name,
+            event.kind,
+            f" ({event.axis})" if event.axis else "",
+            event.message,
+        )
         with self._events_lock:
             self._events.append(event)
 

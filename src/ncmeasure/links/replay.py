@@ -132,8 +132,9 @@ class ReplayLink(DriveLink):
     def _open(self) -> None:
         assert self._recording is not None
         names = {b.name for b in self.axes}
-        self._source_events = [e for e in self._recording.events
-                               if e.axis is None or e.axis in names]
+        self._source_events = [
+            e for e in self._recording.events if e.axis is None or e.axis in names
+        ]
         self._next_row = 0
         self._next_event = 0
         self._start_wall = time.monotonic()
@@ -169,8 +170,10 @@ class ReplayLink(DriveLink):
         return block
 
     def _emit_events_until(self, time_s: float) -> None:
-        while (self._next_event < len(self._source_events)
-               and self._source_events[self._next_event].time_s <= time_s):
+        while (
+            self._next_event < len(self._source_events)
+            and self._source_events[self._next_event].time_s <= time_s
+        ):
             self._event(self._source_events[self._next_event])
             self._next_event += 1
 
@@ -222,4 +225,3 @@ def replay_can_log(
         raise LinkError(f"cannot replay {path} onto {interface}:{channel}: {exc}") from exc
     log.info("replayed %d frames from %s", sent, path)
     return sent
-

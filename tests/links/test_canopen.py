@@ -1,0 +1,693 @@
+"""The CANopen link against simulated CiA 402 drives on python-can's virtual bus.
+
+Every test has its own virtual channel; every wait is bounded. Expected values
+are computed here from the signal source, quantised the way a drive encodes
+them, independently of the link's and the simulator's scaling code.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+import pytest
+
+from ncmeasure.config import AxisConfig
+from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
+from ncmeasure.links import make_link
+from ncmeasure.links.base import LinkEvent
+from ncmeasure.links.canopen import (
+    CanOpenLink,
+    CycleAssembler,
+    bus_load,
+    emcy_text,
+    frame_bits,
+    load_object_map,
+    sdo_error_text,
+)
+from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
+from ncmeasure.sim.signals import PatternSource
+
+EDS_DIR = Path(__file__).resolve().parents[3] / "shared" / "fixtures" / "eds"
+LEAD_MM = 20.0
+IPR = 10_000
+RATED_A = 10.0
+SCALING = DriveScaling(increments_per_rev=IPR, screw_lead_mm=LEAD_MM, rated_current_a=RATED_A)
+SOURCE = PatternSource()
+TIMEOUT_S = 10.0
+
+
+def needs_fixture(name: str) -> Path:
+    path = EDS_DIR / name
+    if not EDS_DIR.is_dir():
+        pytest.skip(f"EDS fixtures folder {EDS_DIR} is absent")
+    return path
+
+
+@pytest.fixture
+def channel() -> str:
+    # no digits at the end: python-can's BLF writer reads them as a channel number
+    return f"ncm-canopen-{uuid.uuid4().hex}-bus"
+
+
+def axis_config(name: str, **changes: Any) -> AxisConfig:
+    data: dict[str, Any] = {
+        "name": name,
+        "travel_mm": (0.0, 500.0),
+        "park_mm": 10.0,
+        "max_velocity_mm_min": 20_000,
+        "max_acceleration_m_s2": 1.0,
+        "max_jerk_m_s3": 10.0,
+        "screw_lead_mm": LEAD_MM,
+        "rated_current_a": RATED_A,
+    }
+    data.update(changes)
+    return AxisConfig.model_validate(data)
+
+
+def make(
+    channel: str,
+    n_axes: int = 3,
+    axis_table: dict[str, Any] | None = None,
+    axis_changes: dict[str, Any] | None = None,
+    **link: Any,
+) -> CanOpenLink:
+    table = {"channel": channel, "sync_hz": 250, **link}
+    axes = [
+        (
+            axis_config(name, **(axis_changes or {})),
+            {"node_id": i + 1, "increments_per_rev": IPR, **(axis_table or {})},
+        )
+        for i, name in enumerate("XYZ"[:n_axes])
+    ]
+    return CanOpenLink.from_tables(table, axes)
+
+
+@pytest.fixture
+def drives(channel: str) -> Iterator[SimulatedDrives]:
+    with SimulatedDrives.start(channel, {0: 1, 1: 2, 2: 3}, SOURCE, scaling=SCALING) as sim:
+        yield sim
+
+
+def eventually(condition: Callable[[], bool], timeout_s: float = TIMEOUT_S) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.005)
+    return True
+
+
+def quantise(value: float, step: float) -> float:
+    return round(value / step) * step
+
+
+def expected(
+    t: float,
+    axis: int,
+    velocity_cmd: bool = False,
+    current_step_a: float = RATED_A / 1000,
+    velocity_step: float = LEAD_MM / IPR * 60,
+) -> list[float]:
+    """current_a, velocity_mm_min, position_mm (, velocity_cmd_mm_min) as the drive encodes them."""
+    state = SOURCE.state(axis, t)
+    row = [
+        quantise(state.current_a, current_step_a),
+        quantise(state.velocity_mm_min, velocity_step),
+        quantise(state.position_mm, LEAD_MM / IPR),
+    ]
+    if velocity_cmd:
+        row.append(quantise(state.velocity_cmd_mm_min, velocity_step))
+    return row
+
+
+class Recorder:
+    """Reads a link until a condition holds, keeping rows and events; bounded."""
+
+    def __init__(self, link: CanOpenLink) -> None:
+        self.link = link
+        self.times: list[float] = []
+        self.rows: list[np.ndarray] = []
+        self.events: list[LinkEvent] = []
+
+    def until(self, done: Callable[[], bool], timeout_s: float = TIMEOUT_S) -> None:
+        deadline = time.monotonic() + timeout_s
+        while not done():
+            assert time.monotonic() < deadline, "timed out waiting for the link"
+            block = self.link.read(0.05)
+            assert block is not None  # a live link never ends
+            self.events += self.link.events()
+            self.times += block.time_s.tolist()
+            self.rows += list(block.values)
+
+    def rows_at_least(self, n: int) -> None:
+        self.until(lambda: len(self.times) >= n)
+
+    def past_cycle(self, cycle: int) -> None:
+        self.until(lambda: bool(self.times) and self.cycles[-1] > cycle)
+
+    @property
+    def cycles(self) -> np.ndarray:
+        return np.rint(np.asarray(self.times) * self.link.settings.sync_hz).astype(int)
+
+    def kinds(self, kind: str) -> list[LinkEvent]:
+        return [e for e in self.events if e.kind == kind]
+
+
+def assert_exact(rec: Recorder, cmd_axes: tuple[int, ...] = (), **steps: float) -> None:
+    values = np.asarray(rec.rows)
+    for row, t in zip(values, rec.times, strict=True):
+        want: list[float] = []
+        for axis in range(len(rec.link.axes)):
+            want += expected(t, axis, axis in cmd_axes, **steps)
+        np.testing.assert_allclose(row, want, rtol=1e-12, atol=1e-9, err_msg=f"t = {t}")
+
+
+def assert_gaps_match(rec: Recorder, axis: str | None) -> int:
+    """The gap events cover exactly the cycles without a row; returns the lost samples."""
+    cycles = rec.cycles
+    assert np.all(np.diff(cycles) > 0), "rows out of order or repeated"
+    missing = set(range(cycles[0], cycles[-1] + 1)) - set(cycles.tolist())
+    covered: set[int] = set()
+    for gap in rec.kinds("gap"):
+        span = range(gap.details["first_cycle"], gap.details["last_cycle"] + 1)
+        assert gap.lost_samples == len(span)
+        assert gap.axis == axis
+        covered |= set(span)
+    assert covered == missing
+    return len(missing)
+
+
+# --- values -------------------------------------------------------------------------------
+
+
+def test_three_axes_arrive_exact_in_order_without_gaps(
+    channel: str, drives: SimulatedDrives
+) -> None:
+    link = make(channel, axis_table={"read_velocity_demand": True})
+    assert link.nominal_period_s == pytest.approx(0.004)
+    with link:
+        rec = Recorder(link)
+        rec.rows_at_least(300)
+        stats = link.statistics()
+    assert [c.name for c in link.channels[:4]] == [
+        "X_current_a",
+        "X_velocity_mm_min",
+        "X_position_mm",
+        "X_velocity_cmd_mm_min",
+    ]
+    assert [c.unit for c in link.channels[:4]] == ["A", "mm/min", "mm", "mm/min"]
+    assert rec.cycles[0] == 0
+    assert np.array_equal(rec.cycles, np.arange(len(rec.cycles)))
+    assert_exact(rec, cmd_axes=(0, 1, 2))
+    assert rec.kinds("gap") == []
+    assert stats["lost_rows"] == 0
+    assert stats["pdo_frames"] >= 9 * 300  # 3 TPDOs per node on every SYNC
+    for drive in drives.drives:
+        tpdos = {t.number: t for t in drive.tpdos()}
+        assert tpdos[1].valid and tpdos[1].transmission_type == 1
+        assert tpdos[1].mapping == ((0x6064, 0, 32), (0x6041, 0, 16))
+        assert tpdos[2].mapping == ((0x606C, 0, 32), (0x6078, 0, 16))
+        assert tpdos[3].mapping == ((0x606B, 0, 32),)
+        assert drive.value(0x1006) == (4000).to_bytes(4, "little")  # cycle period in µs
+    # close() leaves the nodes pre-operational
+    assert eventually(lambda: all(d.nmt_state == "PRE-OPERATIONAL" for d in drives.drives))
+
+
+def test_describe_gives_the_scale_factors(channel: str, drives: SimulatedDrives) -> None:
+    with make(channel, n_axes=1, axis_table={"gear_ratio": 2.0}) as link:
+        info = link.describe()
+    x = info["scales"]["X"]
+    assert x["position_mm_per_increment"] == pytest.approx(LEAD_MM / (IPR * 2.0))
+    assert x["velocity_mm_min_per_unit"] == pytest.approx(60 * LEAD_MM / (IPR * 2.0))
+    assert x["current_a_per_unit"] == pytest.approx(RATED_A / 1000)
+    assert x["objects"]["current"]["index"] == "0x6078"
+    assert [t["cob_id"] for t in x["tpdos"]] == ["0x181", "0x281"]
+    assert info["mode"] == "pdo"
+    assert info["link"]["sync_hz"] == 250
+
+
+@pytest.mark.parametrize(
+    ("eds", "current_index"),
+    [
+        ("technosoft_ipos.eds", 0x6077),
+        ("elmo_gold.dcf", 0x6078),
+    ],
+)
+def test_real_eds_files_as_drive_and_link_dictionary(
+    channel: str, eds: str, current_index: int
+) -> None:
+    path = needs_fixture(eds)
+    with SimulatedDrives.start(channel, {0: 1, 1: 2}, SOURCE, scaling=SCALING, eds=path) as sim:
+        # no rated current in the machine file: the link reads 0x6075 (mA) over SDO
+        link = make(channel, n_axes=2, eds=str(path), axis_changes={"rated_current_a": None})
+        with link:
+            rec = Recorder(link)
+            rec.rows_at_least(150)
+        for drive in sim.drives:
+            tpdo2 = next(t for t in drive.tpdos() if t.number == 2)
+            assert tpdo2.mapping == ((0x606C, 0, 32), (current_index, 0, 16))
+    assert np.array_equal(rec.cycles, np.arange(len(rec.cycles)))
+    assert_exact(rec)
+    infos = " | ".join(e.message for e in rec.kinds("info"))
+    assert "rated current 10 A read from motor rated current 0x6075" in infos
+    if current_index == 0x6077:  # the technosoft EDS has no 0x6078
+        assert "has no current actual value 0x6078:00: reading torque actual value 0x6077" in infos
+
+
+def test_maxon_map_reads_current_in_ma_and_velocity_in_rpm(channel: str) -> None:
+    scaling = DriveScaling(
+        increments_per_rev=IPR, screw_lead_mm=LEAD_MM, rated_current_a=RATED_A, velocity_unit="rpm"
+    )
+    with SimulatedDrives.start(
+        channel, {0: 5}, SOURCE, scaling=scaling, object_map="maxon_epos4"
+    ) as sim:
+        link = CanOpenLink.from_tables(
+            {"channel": channel, "object_map": "maxon_epos4"},
+            [(axis_config("X"), {"node_id": 5, "increments_per_rev": IPR})],
+        )
+        with link:
+            rec = Recorder(link)
+            rec.rows_at_least(100)
+        tpdo2 = next(t for t in sim.drives[0].tpdos() if t.number == 2)
+    assert tpdo2.mapping == ((0x606C, 0, 32), (0x30D1, 1, 32))
+    assert_exact(rec, current_step_a=0.001, velocity_step=LEAD_MM)  # 1 mA, 1 rpm
+
+
+def test_current_object_missing_on_the_drive_falls_back_to_torque(
+    channel: str, drives: SimulatedDrives
+) -> None:
+    drives[1].abort_sdo(0x6078, 0x06020000)
+    with make(channel) as link:
+        rec = Recorder(link)
+        rec.rows_at_least(100)
+    assert_exact(rec)  # the simulated torque is the same per mille as the current
+    messages = [e.message for e in rec.kinds("info") if e.axis == "Y"]
+    assert any("0x6078" in m and "Object does not exist" in m and "0x6077" in m for m in messages)
+    tpdo2 = next(t for t in drives[1].tpdos() if t.number == 2)
+    assert tpdo2.mapping[1] == (0x6077, 0, 16)
+
+
+def test_make_link_builds_it_from_a_machine(make_config: Callable[..., Any], channel: str) -> None:
+    config = make_config()
+    data = config.model_dump()
+    data["link"] = {"type": "canopen", "channel": channel}
+    for i, axis in enumerate(data["axes"]):
+        axis["link"] = {"node_id": i + 1, "increments_per_rev": IPR}
+    link = make_link(type(config).model_validate(data))
+    assert isinstance(link, CanOpenLink)
+    assert [c.name for c in link.channels][:3] == [
+        "X_current_a",
+        "X_velocity_mm_min",
+        "X_position_mm",
+    ]
+
+
+# --- faults -------------------------------------------------------------------------------
+
+
+def test_drive_that_stops_answering_leaves_a_reported_gap(
+    channel: str, drives: SimulatedDrives
+) -> None:
+    with make(channel) as link:
+        rec = Recorder(link)
+        rec.rows_at_least(50)
+        before = len(rec.times)
+        drives[1].stop_answering()
+        assert drives.wait_for_sync(drives.sync_count + 60, TIMEOUT_S)
+        drives[1].resume()
+        resumed_at = drives.sync_count
+        rec.past_cycle(resumed_at + 50)
+    assert np.array_equal(rec.cycles[:before], np.arange(before))  # complete before the fault
+    lost = assert_gaps_match(rec, axis="Y")
+    assert lost >= 50
+    assert_exact(rec)  # before and after: the link never invents or shifts a row
+    gap = rec.kinds("gap")[0]
+    assert "no PDOs from axis Y (node 2)" in gap.message
+    assert f"{lost} samples dropped" in gap.message
+
+
+def test_rebooted_drive_is_configured_again_and_data_continues(
+    channel: str, drives: SimulatedDrives
+) -> None:
+    with make(channel) as link:
+        rec = Recorder(link)
+        rec.rows_at_least(50)
+        before = len(rec.times)
+        drives[2].reboot(downtime_s=0.05)
+        rec.until(lambda: bool(rec.kinds("reboot")))
+        rebooted_at = drives.sync_count
+        rec.past_cycle(rebooted_at + 50)
+    assert np.array_equal(rec.cycles[:before], np.arange(before))
+    reboot = rec.kinds("reboot")[0]
+    assert reboot.axis == "Z" and "node 3 (axis Z) rebooted" in reboot.message
+    assert any("configured again" in e.message for e in rec.kinds("info"))
+    assert drives[2].boots == 1
+    tpdo1 = next(t for t in drives[2].tpdos() if t.number == 1)
+    assert tpdo1.valid and tpdo1.mapping == ((0x6064, 0, 32), (0x6041, 0, 16))
+    assert assert_gaps_match(rec, axis="Z") > 0
+    assert_exact(rec)
+
+
+def test_emcy_is_reported_with_its_meaning(channel: str, drives: SimulatedDrives) -> None:
+    with make(channel) as link:
+        rec = Recorder(link)
+        rec.rows_at_least(20)
+        drives[0].send_emcy(0x2310, register=0x03, data=b"\x12\x34")
+        drives[1].send_emcy(0x8611)
+        rec.until(lambda: len(rec.kinds("emcy")) >= 2)
+        rec.rows_at_least(len(rec.times) + 10)
+    x, y = sorted(rec.kinds("emcy"), key=lambda e: str(e.axis))
+    assert x.axis == "X" and "0x2310 continuous over-current (motor side)" in x.message
+    assert "error register 0x03, data 12 34" in x.message
+    assert x.details["code"] == 0x2310
+    assert y.axis == "Y" and "following error" in y.message
+    assert rec.kinds("gap") == []
+    assert_exact(rec)
+
+
+def test_fault_bit_of_the_statusword_is_reported(channel: str, drives: SimulatedDrives) -> None:
+    with make(channel) as link:
+        rec = Recorder(link)
+        rec.rows_at_least(20)
+        drives[2].set_fault(True)
+        rec.until(lambda: bool(rec.kinds("fault")))
+        drives[2].set_fault(False)
+        rec.until(lambda: any("fault cleared" in e.message for e in rec.kinds("info")))
+    fault = rec.kinds("fault")[0]
+    assert fault.axis == "Z" and "statusword 0x0238" in fault.message
+
+
+def test_refused_pdo_mapping_falls_back_to_sdo_polling(
+    channel: str, drives: SimulatedDrives
+) -> None:
+    drives[1].abort_sdo(0x1A01, 0x06040041)
+    with make(channel, n_axes=2) as link:
+        rec = Recorder(link)
+        rec.rows_at_least(30)
+        assert link.mode == "sdo_polling"
+        stats = link.statistics()
+    info = next(e for e in rec.kinds("info") if "SDO polling" in e.message)
+    assert "0x06040041 (Object cannot be mapped to the PDO)" in info.message
+    assert info.axis == "Y"
+    assert stats["pdo_frames"] == 0 and stats["sdo_polls"] >= 30
+    assert not any(t.valid for t in drives[0].tpdos()[:1])  # node 1's TPDO1 switched off
+    assert np.all(np.diff(rec.cycles) > 0)
+    # each polled value is the drive's value at a SYNC cycle between the start of its
+    # polling round and the start of the next (the drive may not have seen the first yet)
+    cycles = rec.cycles.tolist()
+    for r, (cycle, row) in enumerate(zip(cycles[:-1], rec.rows, strict=False)):
+        window = range(cycle - 1, cycles[r + 1] + 1)
+        for axis in range(2):
+            candidates = [expected(c / 250, axis) for c in window]
+            for k in range(3):
+                got = row[3 * axis + k]
+                assert any(abs(got - c[k]) < 1e-9 for c in candidates), (cycle, axis, k)
+
+
+def test_abort_on_a_mandatory_object_is_a_link_error(channel: str, drives: SimulatedDrives) -> None:
+    drives[2].abort_sdo(0x6064, 0x06020000)
+    link = make(channel)
+    with pytest.raises(LinkError) as info:
+        link.open()
+    assert (
+        "node 3 (axis Z): reading position actual value 0x6064:00 failed: SDO abort "
+        "0x06020000 (Object does not exist)" in str(info.value)
+    )
+    assert not link.is_open
+    link.close()  # idempotent, never raises
+
+
+def test_drive_that_answers_too_late_times_out(channel: str, drives: SimulatedDrives) -> None:
+    drives[0].slow(1.0)
+    link = make(channel, sdo_timeout_s=0.1)
+    with pytest.raises(LinkTimeoutError, match=r"node 1 \(axis X\).*no SDO answer within 0.1 s"):
+        link.open()
+
+
+def test_missing_node_is_a_timeout_naming_it(channel: str, drives: SimulatedDrives) -> None:
+    link = CanOpenLink.from_tables(
+        {"channel": channel, "sdo_timeout_s": 0.1},
+        [(axis_config("X"), {"node_id": 42, "increments_per_rev": IPR})],
+    )
+    with pytest.raises(LinkTimeoutError, match="node 42"):
+        link.open()
+
+
+def test_external_sync_is_counted_and_missing_sync_reported(channel: str) -> None:
+    period = 0.01
+    skipped = range(50, 53)
+
+    def produce(stop: threading.Event) -> None:
+        # the timestamps are what the link sees; they make the test independent of timing
+        with can.Bus(interface="virtual", channel=channel, preserve_timestamps=True) as bus:
+            for cycle in range(400):
+                if stop.is_set():
+                    return
+                if cycle not in skipped:
+                    bus.send(
+                        can.Message(
+                            arbitration_id=0x80,
+                            data=b"",
+                            is_extended_id=False,
+                            timestamp=1000.0 + cycle * period,
+                        )
+                    )
+                time.sleep(0.003)
+
+    with SimulatedDrives.start(channel, {0: 1}, SOURCE, scaling=SCALING, period_s=period):
+        link = make(channel, n_axes=1, sync_hz=1 / period, sync_producer=False)
+        stop = threading.Event()
+        with link:
+            producer = threading.Thread(target=produce, args=(stop,), daemon=True)
+            producer.start()
+            rec = Recorder(link)
+            try:
+                rec.past_cycle(80)
+            finally:
+                stop.set()
+                producer.join(TIMEOUT_S)
+    cycles = rec.cycles
+    assert np.array_equal(cycles[cycles < 50], np.arange(50))
+    assert set(cycles.tolist()).isdisjoint(skipped)
+    gap = rec.kinds("gap")[0]
+    assert gap.lost_samples == 3 and gap.details["missing_sync"] == 3
+    assert "3 SYNC cycles missing on the bus" in gap.message
+    keep = cycles < 50  # the drive saw no SYNC in the gap: afterwards its clock is behind
+    rec.times = [t for t, k in zip(rec.times, keep, strict=True) if k]
+    rec.rows = [r for r, k in zip(rec.rows, keep, strict=True) if k]
+    assert_exact(rec)
+
+
+def test_raw_log_has_every_frame(channel: str, drives: SimulatedDrives, tmp_path: Path) -> None:
+    log_path = tmp_path / "raw" / "bus.blf"
+    with make(channel, n_axes=1, raw_log=str(log_path)) as link:
+        Recorder(link).rows_at_least(20)
+    ids = [m.arbitration_id for m in can.BLFReader(log_path)]
+    assert ids.count(0x80) >= 20  # own SYNC frames
+    assert ids.count(0x181) >= 20 and ids.count(0x281) >= 20  # TPDOs of node 1
+    assert 0x601 in ids and 0x581 in ids  # SDO configuration
+
+
+def test_a_failing_raw_log_never_stops_the_measurement(tmp_path: Path) -> None:
+    channel = f"ncm-canopen-{uuid.uuid4().hex}-99999999"  # too big for a BLF channel number
+    with (
+        SimulatedDrives.start(channel, {0: 1}, SOURCE, scaling=SCALING),
+        make(channel, n_axes=1, raw_log=str(tmp_path / "bus.blf")) as link,
+    ):
+        rec = Recorder(link)
+        rec.rows_at_least(50)
+    assert np.array_equal(rec.cycles, np.arange(len(rec.cycles)))
+    assert_exact(rec)
+    fault = rec.kinds("fault")[0]
+    assert f"the raw CAN log {tmp_path / 'bus.blf'} stopped" in fault.message
+
+
+# --- bus load -------------------------------------------------------------------------------
+
+
+def test_frame_bits_by_hand() -> None:
+    assert frame_bits(0) == 47 and frame_bits(0, worst_case=True) == 47 + 8
+    assert frame_bits(8) == 111 and frame_bits(8, worst_case=True) == 135
+    assert frame_bits(6) == 95 and frame_bits(6, worst_case=True) == 95 + 20
+    assert frame_bits(4, worst_case=True) == 79 + 16
+    with pytest.raises(ValueError):
+        frame_bits(9)
+
+
+def test_bus_load_by_hand() -> None:
+    one = bus_load([8], 1000, 1_000_000)
+    assert (one.bits_per_cycle, one.worst_bits_per_cycle) == (47 + 111, 55 + 135)
+    assert one.load == pytest.approx(0.158) and one.worst_load == pytest.approx(0.190)
+    # 3 nodes with TPDOs of 6, 6 and 4 bytes: 3 × (95 + 95 + 79) + 47 = 854 bits
+    three = bus_load([6, 6, 4] * 3, 250, 1_000_000)
+    assert three.frames_per_cycle == 10
+    assert three.bits_per_cycle == 854 and three.worst_bits_per_cycle == 1030
+    assert three.load == pytest.approx(0.2135) and three.worst_load == pytest.approx(0.2575)
+    assert three.max_sync_hz(0.9) == pytest.approx(0.9e6 / 1030)
+    no_sync = bus_load([8, 8], 500, 500_000, sync_frame=False)
+    assert no_sync.bits_per_cycle == 222 and no_sync.load == pytest.approx(0.222)
+
+
+def test_open_refuses_a_layout_over_the_bus_load(channel: str) -> None:
+    link = make(channel, sync_hz=1000, axis_table={"read_velocity_demand": True})
+    assert link.planned_bus_load().worst_load == pytest.approx(1.03)
+    with can.Bus(interface="virtual", channel=channel) as watch:
+        with pytest.raises(ConfigError) as info:
+            link.open()
+        assert watch.recv(0.05) is None  # refused before anything was sent
+    text = str(info.value)
+    assert "854 bits (1030 with worst-case bit stuffing) at 1000 Hz" in text
+    assert "85.4 % (103.0 % worst case), above max_bus_load 90 %" in text
+    assert "link.sync_hz: lower it to at most 873 Hz" in text
+    assert (
+        make(channel, sync_hz=1000, max_bus_load=1.2, axis_table={"read_velocity_demand": True})
+        .planned_bus_load()
+        .frames_per_cycle
+        == 10
+    )
+
+
+# --- settings -------------------------------------------------------------------------------
+
+
+def problems_of(
+    link_table: dict[str, Any], axes: list[tuple[AxisConfig, dict[str, Any]]]
+) -> list[str]:
+    with pytest.raises(ConfigError) as info:
+        CanOpenLink.from_tables(link_table, axes)
+    return list(info.value.problems)
+
+
+def test_bad_settings_are_located() -> None:
+    x, y = axis_config("X"), axis_config("Y")
+    assert problems_of({}, [(x, {"increments_per_rev": IPR})]) == [
+        "axes[0].link.node_id: required key is missing"
+    ]
+    problems = problems_of(
+        {"sync_hz": 0, "bitrat": 5, "raw_log": "bus.txt"},
+        [
+            (x, {"node_id": 1, "increments_per_rev": IPR}),
+            (y, {"node_id": 200, "increments_per_rev": 0}),
+        ],
+    )
+    assert any(p.startswith("link.sync_hz:") for p in problems)
+    assert any(p.startswith("link.bitrat: unknown key") for p in problems)
+    assert any(p.startswith("link.raw_log:") for p in problems)
+    assert any(p.startswith("axes[1].link.node_id:") for p in problems)
+    assert any(p.startswith("axes[1].link.increments_per_rev:") for p in problems)
+    assert problems_of(
+        {"bus_options": {"bitrate": 5}}, [(x, {"node_id": 1, "increments_per_rev": IPR})]
+    ) == ["link.bus_options: Value error, set bitrate as link settings, not in bus_options"]
+
+
+def test_cross_checks_are_located() -> None:
+    no_lead = axis_config("X", screw_lead_mm=None)
+    problems = problems_of(
+        {},
+        [
+            (no_lead, {"node_id": 1, "increments_per_rev": IPR}),
+            (axis_config("Y"), {"node_id": 1, "increments_per_rev": IPR}),
+        ],
+    )
+    assert (
+        "axes[0].screw_lead_mm: needed by the canopen link to convert increments to mm" in problems
+    )
+    assert "axes[1].link.node_id: node 1 is already used by axis X" in problems
+
+
+def test_unparsable_eds_is_named(tmp_path: Path) -> None:
+    broken = tmp_path / "broken.eds"
+    broken.write_text("this is not\nan EDS [file\n", encoding="utf-8")
+    problems = problems_of(
+        {"eds": str(broken)}, [(axis_config("X"), {"node_id": 1, "increments_per_rev": IPR})]
+    )
+    assert len(problems) == 1
+    assert problems[0].startswith(f"link.eds: {broken}: not a readable EDS/DCF file")
+    missing = tmp_path / "missing.dcf"
+    problems = problems_of(
+        {}, [(axis_config("X"), {"node_id": 1, "increments_per_rev": IPR, "eds": str(missing)})]
+    )
+    assert problems == [f"axes[0].link.eds: {missing}: no such EDS/DCF file"]
+
+
+def test_object_maps_are_checked(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"unknown object map 'nope'.*cia402, maxon_epos4"):
+        load_object_map("nope")
+    custom = tmp_path / "drive.toml"
+    custom.write_text(
+        (Path(__file__).parents[2] / "src" / "ncmeasure" / "links" / "objectmaps" / "cia402.toml")
+        .read_text(encoding="utf-8")
+        .replace('["velocity", "current"]', '["velocity", "current", "velocity_demand"]')
+        .replace('    ["velocity_demand"],\n', ""),
+        encoding="utf-8",
+    )
+    with pytest.raises(ConfigError) as info:
+        load_object_map(custom)
+    assert "needs 10 bytes, a PDO holds 8" in str(info.value)
+    with pytest.raises(ConfigError, match="no such object map file"):
+        load_object_map(tmp_path / "absent.toml")
+
+
+# --- pure pieces ------------------------------------------------------------------------------
+
+
+def test_assembler_puts_frames_of_a_lagging_drive_back_in_their_cycles() -> None:
+    asm = CycleAssembler(slots=2, hold_cycles=4)
+    asm.sync(0)
+    asm.frame(0, b"a0")
+    asm.frame(1, b"b0")
+    asm.sync(1)
+    asm.sync(2)  # both drives lag: their frames of cycles 1 and 2 come after SYNC 2
+    asm.frame(0, b"a1")
+    asm.frame(1, b"b1")
+    asm.frame(1, b"b2")
+    asm.frame(0, b"a2")
+    rows, lost = asm.settle()
+    assert lost == []
+    assert rows == [(0, [b"a0", b"b0"]), (1, [b"a1", b"b1"]), (2, [b"a2", b"b2"])]
+    assert asm.late_frames == 0
+
+
+def test_assembler_loses_incomplete_cycles_after_the_hold() -> None:
+    asm = CycleAssembler(slots=2, hold_cycles=2)
+    for cycle in range(5):
+        asm.sync(cycle)
+        asm.frame(0, bytes([cycle]))
+        if cycle != 1:
+            asm.frame(1, bytes([cycle]))
+    asm.sync(5)
+    asm.frame(0, b"5")  # incomplete, but still within the hold
+    rows, lost = asm.settle()
+    assert [c for c, _ in rows] == [0, 2, 3, 4]
+    assert [(x.cycle, set(x.missing), x.no_sync) for x in lost] == [(1, {1}, False)]
+    asm.sync(6)
+    asm.sync(7)
+    rows, lost = asm.settle()
+    assert rows == [] and [(x.cycle, set(x.missing)) for x in lost] == [(5, {1})]
+    asm.skip(8, 2)
+    asm.sync(10)
+    asm.frame(0, b"x")
+    asm.frame(1, b"y")
+    rows, lost = asm.settle()
+    assert [(x.cycle, x.no_sync) for x in lost] == [(6, False), (7, False), (8, True), (9, True)]
+    assert rows == [(10, [b"x", b"y"])]
+
+
+def test_readable_texts() -> None:
+    assert emcy_text(0x7121) == "motor blocked"
+    assert emcy_text(0x8130) == "life guard or heartbeat error"
+    assert emcy_text(0xFF42).startswith("device-specific")
+    assert emcy_text(0x2399) == "current error"
+    from canopen.sdo.exceptions import SdoAbortedError
+
+    assert (
+        sdo_error_text(SdoAbortedError(0x06010002))
+        == "SDO abort 0x06010002 (Attempt to write a read only object)"
+    )

@@ -1,0 +1,405 @@
+"""The simulated CiA 402 drive, driven by canopen's own master on python-can's virtual bus.
+
+These tests do not use ncmeasure's link, so a mistake shared by the link and
+the simulator cannot hide. Every test has its own channel; every wait is bounded.
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import can
+import canopen
+import pytest
+from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+from ncmeasure.errors import ConfigError
+from ncmeasure.links.canopen import load_object_map
+from ncmeasure.sim.cia402 import (
+    OPERATION_ENABLED,
+    DriveScaling,
+    SimulatedDrive,
+    SimulatedDrives,
+    serve,
+)
+from ncmeasure.sim.signals import PatternSource
+
+EDS_DIR = Path(__file__).resolve().parents[3] / "shared" / "fixtures" / "eds"
+SOURCE = PatternSource()
+SCALING = DriveScaling(increments_per_rev=4096, screw_lead_mm=10.0, rated_current_a=5.0)
+PERIOD_S = 0.002
+TIMEOUT_S = 5.0
+
+
+@pytest.fixture
+def channel() -> str:
+    # no digits at the end: python-can's BLF writer reads them as a channel number
+    return f"ncm-sim-{uuid.uuid4().hex}-bus"
+
+
+@pytest.fixture
+def drives(channel: str) -> Iterator[SimulatedDrives]:
+    with SimulatedDrives.start(
+        channel, {0: 1, 1: 2}, SOURCE, scaling=SCALING, period_s=PERIOD_S
+    ) as sim:
+        yield sim
+
+
+@pytest.fixture
+def network(channel: str) -> Iterator[canopen.Network]:
+    net = canopen.Network()
+    net.NOTIFIER_CYCLE = 0.1
+    net.connect(interface="virtual", channel=channel)
+    try:
+        yield net
+    finally:
+        net.disconnect()
+
+
+def node(network: canopen.Network, node_id: int = 1) -> canopen.RemoteNode:
+    remote = canopen.RemoteNode(node_id, canopen.ObjectDictionary())  # type: ignore[no-untyped-call]
+    remote.sdo.RESPONSE_TIMEOUT = 0.5
+    network.add_node(remote)
+    return remote
+
+
+def eventually(condition: Callable[[], bool], timeout_s: float = TIMEOUT_S) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.002)
+    return True
+
+
+def u32(value: int) -> bytes:
+    return struct.pack("<I", value)
+
+
+def configure_tpdo(remote: canopen.RemoteNode, number: int, entries: list[int]) -> None:
+    comm, mapping = 0x1800 + number - 1, 0x1A00 + number - 1
+    cob = 0x180 + 0x100 * (number - 1) + (remote.id or 0)
+    remote.sdo.download(comm, 1, u32(cob | 0x80000000))
+    remote.sdo.download(comm, 2, b"\x01")
+    remote.sdo.download(mapping, 0, b"\x00")
+    for sub, entry in enumerate(entries, start=1):
+        remote.sdo.download(mapping, sub, u32(entry))
+    remote.sdo.download(mapping, 0, bytes([len(entries)]))
+    remote.sdo.download(comm, 1, u32(cob))
+
+
+class Frames(can.Listener):
+    """Collects frames with given CAN ids (thread-safe enough for tests)."""
+
+    def __init__(self, ids: set[int]) -> None:
+        self.ids = ids
+        self.frames: list[can.Message] = []
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if msg.arbitration_id in self.ids:
+            self.frames.append(msg)
+
+
+# --- SDO ---------------------------------------------------------------------------------
+
+
+def test_sdo_expedited_and_segmented(drives: SimulatedDrives, network: canopen.Network) -> None:
+    remote = node(network)
+    assert remote.sdo.upload(0x1000, 0) == u32(0x00020192)
+    assert remote.sdo.upload(0x6075, 0) == u32(5000)  # rated current in mA
+    remote.sdo.download(0x1017, 0, struct.pack("<H", 250))
+    assert remote.sdo.upload(0x1017, 0) == struct.pack("<H", 250)
+    remote.sdo.download(0x1017, 0, struct.pack("<H", 77), force_segment=True)
+    assert drives[0].value(0x1017) == struct.pack("<H", 77)
+    assert remote.sdo.upload(0x1008, 0) == b"ncmeasure CiA 402 drive"  # segmented upload
+    assert drives[0].sdo_writes == 2
+
+
+@pytest.mark.parametrize(
+    ("action", "code"),
+    [
+        (lambda r: r.sdo.download(0x6041, 0, b"\x00\x00"), 0x06010002),  # read-only
+        (lambda r: r.sdo.upload(0x5000, 0), 0x06020000),  # no such object
+        (lambda r: r.sdo.upload(0x1018, 9), 0x06090011),  # no such sub-index
+        (lambda r: r.sdo.download(0x1017, 0, b"\x01\x02\x03\x04"), 0x06070012),  # too long
+        (lambda r: r.sdo.download(0x1A00, 1, u32(0x60640020)), 0x06010000),  # PDO still valid
+    ],
+)
+def test_sdo_aborts_like_a_drive(
+    drives: SimulatedDrives,
+    network: canopen.Network,
+    action: Callable[[canopen.RemoteNode], object],
+    code: int,
+) -> None:
+    remote = node(network)
+    with pytest.raises(SdoAbortedError) as info:
+        action(remote)
+    assert info.value.code == code
+
+
+def test_pdo_mapping_rules(drives: SimulatedDrives, network: canopen.Network) -> None:
+    remote = node(network)
+    remote.sdo.download(0x1800, 1, u32(0x80000181))
+    remote.sdo.download(0x1A00, 1, u32(0x60640020))
+    remote.sdo.download(0x1A00, 0, b"\x01")
+    with pytest.raises(SdoAbortedError) as info:  # entries change only while the count is 0
+        remote.sdo.download(0x1A00, 2, u32(0x60410010))
+    assert info.value.code == 0x06010000
+    remote.sdo.download(0x1A00, 0, b"\x00")
+    remote.sdo.download(0x1A00, 1, u32(0x60750020))  # rated current: not mappable
+    with pytest.raises(SdoAbortedError) as info:
+        remote.sdo.download(0x1A00, 0, b"\x01")
+    assert info.value.code == 0x06040041
+    for sub in range(1, 4):
+        remote.sdo.download(0x1A00, sub, u32(0x60640020))
+    with pytest.raises(SdoAbortedError) as info:  # 96 bits
+        remote.sdo.download(0x1A00, 0, b"\x03")
+    assert info.value.code == 0x06040042
+    remote.sdo.download(0x1800, 1, u32(0x181))
+    with pytest.raises(SdoAbortedError) as info:  # a valid PDO keeps its COB-ID
+        remote.sdo.download(0x1800, 1, u32(0x1A1))
+    assert info.value.code == 0x06090030
+
+
+# --- PDOs on SYNC -----------------------------------------------------------------------
+
+
+def test_tpdos_on_sync_carry_the_source_encoded_like_a_drive(
+    drives: SimulatedDrives, network: canopen.Network
+) -> None:
+    remote = node(network, 2)
+    configure_tpdo(remote, 1, [0x60640020, 0x60410010])
+    configure_tpdo(remote, 2, [0x606C0020, 0x60780010])
+    frames = Frames({0x182, 0x282})
+    network.notifier.add_listener(frames)  # type: ignore[union-attr]
+    remote.nmt.state = "OPERATIONAL"
+    assert eventually(lambda: drives[1].nmt_state == "OPERATIONAL")
+    for _ in range(20):
+        network.sync.transmit()
+        time.sleep(0.001)
+    assert eventually(lambda: len(frames.frames) == 40)
+    tpdo1 = [f for f in frames.frames if f.arbitration_id == 0x182]
+    tpdo2 = [f for f in frames.frames if f.arbitration_id == 0x282]
+    for index, (f1, f2) in enumerate(zip(tpdo1, tpdo2, strict=True)):
+        state = SOURCE.state(1, index * PERIOD_S)
+        position, status = struct.unpack("<iH", f1.data)
+        velocity, current = struct.unpack("<ih", f2.data)
+        assert position == round(state.position_mm / 10.0 * 4096)
+        assert status == OPERATION_ENABLED
+        assert velocity == round(state.velocity_mm_min / 60 / 10.0 * 4096)
+        assert current == round(state.current_a / 5.0 * 1000)
+    assert drives.sync_count == 20
+
+
+def test_cycle_period_written_by_the_master_sets_the_sample_time(
+    drives: SimulatedDrives, network: canopen.Network
+) -> None:
+    remote = node(network)
+    remote.sdo.download(0x1006, 0, u32(1000))  # 1 ms
+    configure_tpdo(remote, 1, [0x60640020])
+    frames = Frames({0x181})
+    network.notifier.add_listener(frames)  # type: ignore[union-attr]
+    remote.nmt.state = "OPERATIONAL"
+    assert eventually(lambda: drives[0].nmt_state == "OPERATIONAL")
+    for _ in range(5):
+        network.sync.transmit()
+    assert eventually(lambda: len(frames.frames) == 5)
+    got = [struct.unpack("<i", f.data)[0] for f in frames.frames]
+    assert got == [round(SOURCE.state(0, k * 0.001).position_mm / 10.0 * 4096) for k in range(5)]
+
+
+def test_no_pdos_unless_operational(drives: SimulatedDrives, network: canopen.Network) -> None:
+    remote = node(network)
+    configure_tpdo(remote, 1, [0x60640020])
+    frames = Frames({0x181})
+    network.notifier.add_listener(frames)  # type: ignore[union-attr]
+    network.sync.transmit()  # pre-operational: nothing
+    remote.nmt.state = "OPERATIONAL"
+    assert eventually(lambda: drives[0].nmt_state == "OPERATIONAL")
+    network.sync.transmit()
+    assert eventually(lambda: len(frames.frames) == 1)
+    remote.nmt.state = "STOPPED"
+    assert eventually(lambda: drives[0].nmt_state == "STOPPED")
+    network.sync.transmit()
+    with pytest.raises(SdoCommunicationError):  # stopped: no SDO either
+        remote.sdo.upload(0x1000, 0)
+    assert drives.sync_count == 3
+    assert len(frames.frames) == 1
+
+
+# --- fault switches -----------------------------------------------------------------------
+
+
+def test_stop_answering_and_resume(drives: SimulatedDrives, network: canopen.Network) -> None:
+    remote = node(network)
+    drives[0].stop_answering()
+    with pytest.raises(SdoCommunicationError):
+        remote.sdo.upload(0x1000, 0)
+    drives[0].resume()
+    assert remote.sdo.upload(0x1000, 0) == u32(0x00020192)
+
+
+def test_abort_sdo_switch(drives: SimulatedDrives, network: canopen.Network) -> None:
+    remote = node(network)
+    drives[0].abort_sdo(0x1A01, 0x06040041, upload=False)
+    assert remote.sdo.upload(0x1A01, 0) == b"\x00"  # uploads still answered
+    with pytest.raises(SdoAbortedError) as info:
+        remote.sdo.download(0x1A01, 0, b"\x00")
+    assert info.value.code == 0x06040041
+    drives[0].abort_sdo()  # everything, default code
+    with pytest.raises(SdoAbortedError) as info:
+        remote.sdo.upload(0x1000, 0)
+    assert info.value.code == 0x08000000
+    drives[0].resume()
+    assert remote.sdo.upload(0x1000, 0) == u32(0x00020192)
+
+
+def test_slow_answers(drives: SimulatedDrives, network: canopen.Network) -> None:
+    remote = node(network)
+    remote.sdo.RESPONSE_TIMEOUT = 0.1
+    drives[0].slow(0.3)
+    with pytest.raises(SdoCommunicationError):
+        remote.sdo.upload(0x1000, 0)
+    drives[0].slow(0.02)
+    remote.sdo.RESPONSE_TIMEOUT = 1.0
+    assert remote.sdo.upload(0x1000, 0) == u32(0x00020192)
+
+
+def test_reboot_sends_boot_up_and_forgets_the_pdo_configuration(
+    drives: SimulatedDrives, network: canopen.Network
+) -> None:
+    remote = node(network)
+    configure_tpdo(remote, 1, [0x60640020])
+    remote.nmt.state = "OPERATIONAL"
+    assert eventually(lambda: drives[0].nmt_state == "OPERATIONAL")
+    boots = Frames({0x701})
+    network.notifier.add_listener(boots)  # type: ignore[union-attr]
+    drives[0].reboot(downtime_s=0.05)
+    with pytest.raises(SdoCommunicationError):  # silent while booting
+        remote.sdo.upload(0x1000, 0)
+    assert eventually(lambda: len(boots.frames) == 1)
+    assert bytes(boots.frames[0].data) == b"\x00"
+    assert drives[0].nmt_state == "PRE-OPERATIONAL"
+    tpdo1 = drives[0].tpdos()[0]
+    assert tpdo1.mapping == () and tpdo1.transmission_type == 255
+    assert remote.sdo.upload(0x1A00, 0) == b"\x00"
+
+
+def test_nmt_reset_node_boots(drives: SimulatedDrives, network: canopen.Network) -> None:
+    remote = node(network, 2)
+    remote.sdo.download(0x1017, 0, struct.pack("<H", 100))
+    remote.nmt.state = "RESET"
+    assert eventually(lambda: drives[1].boots == 1)
+    assert remote.sdo.upload(0x1017, 0) == b"\x00\x00"
+    assert drives[1].nmt_state == "PRE-OPERATIONAL"
+
+
+def test_send_emcy(drives: SimulatedDrives, network: canopen.Network) -> None:
+    remote = node(network, 2)
+    drives[1].send_emcy(0x7121, register=0x81, data=b"\x01")
+    assert eventually(lambda: bool(remote.emcy.log))
+    entry = remote.emcy.log[0]
+    assert (entry.code, entry.register, entry.data[:1]) == (0x7121, 0x81, b"\x01")
+
+
+def test_fault_bit(drives: SimulatedDrives, network: canopen.Network) -> None:
+    remote = node(network)
+    drives[0].set_fault(True)
+    status = struct.unpack("<H", remote.sdo.upload(0x6041, 0))[0]
+    assert status & 0x0008
+    drives[0].set_fault(False)
+    assert struct.unpack("<H", remote.sdo.upload(0x6041, 0))[0] == OPERATION_ENABLED
+
+
+# --- dictionaries -------------------------------------------------------------------------
+
+
+def fixture(name: str) -> Path:
+    if not EDS_DIR.is_dir():
+        pytest.skip(f"EDS fixtures folder {EDS_DIR} is absent")
+    return EDS_DIR / name
+
+
+def test_technosoft_eds_drive(channel: str, network: canopen.Network) -> None:
+    path = fixture("technosoft_ipos.eds")
+    with SimulatedDrives.start(channel, {0: 3}, SOURCE, scaling=SCALING, eds=path):
+        remote = node(network, 3)
+        assert remote.sdo.upload(0x1008, 0) == b"iPOS"
+        assert remote.sdo.upload(0x6075, 0) == u32(5000)
+        with pytest.raises(SdoAbortedError) as info:  # this drive has no 0x6078
+            remote.sdo.upload(0x6078, 0)
+        assert info.value.code == 0x06020000
+        torque = struct.unpack("<h", remote.sdo.upload(0x6077, 0))[0]
+        assert abs(torque) < 1000  # per mille of the rated torque, within the pattern
+
+
+def test_elmo_dcf_drive_copes_with_mapping_entries_without_defaults(
+    channel: str, network: canopen.Network
+) -> None:
+    path = fixture("elmo_gold.dcf")
+    with SimulatedDrives.start(channel, {0: 4}, SOURCE, scaling=SCALING, eds=path) as sim:
+        remote = node(network, 4)
+        assert remote.sdo.upload(0x1A01, 2) == u32(0)  # no DefaultValue in the DCF
+        assert remote.sdo.upload(0x1A01, 0) == b"\x00"
+        tpdo1 = sim.drives[0].tpdos()[0]  # the DCF's ParameterValue is the start state
+        assert tpdo1.valid and tpdo1.transmission_type == 1
+        assert tpdo1.mapping[0] == (0x6041, 0, 16)
+
+
+def test_broken_eds_is_named(tmp_path: Path) -> None:
+    broken = tmp_path / "drive.eds"
+    broken.write_text("[FileInfo\nnot an eds", encoding="utf-8")
+    with pytest.raises(ConfigError, match=str(broken)):
+        SimulatedDrive.from_eds(broken, 1, 0, load_object_map("cia402"))
+
+
+def test_node_ids_must_differ(channel: str) -> None:
+    cia402 = load_object_map("cia402")
+    twins = [SimulatedDrive.builtin(1, 0, cia402), SimulatedDrive.builtin(1, 1, cia402)]
+    with (
+        can.Bus(interface="virtual", channel=channel) as bus,
+        pytest.raises(ValueError, match="node ids repeat"),
+    ):
+        SimulatedDrives(bus, twins, SOURCE)
+
+
+# --- serve ---------------------------------------------------------------------------------
+
+
+def test_serve_runs_until_stopped(channel: str) -> None:
+    stop = threading.Event()
+    running: list[SimulatedDrives] = []
+    result: list[int] = []
+
+    def run() -> None:
+        result.append(serve(channel=channel, nodes=[7, 8], stop=stop, on_ready=running.append))
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    try:
+        assert eventually(lambda: bool(running))
+        assert [d.node_id for d in running[0].drives] == [7, 8]
+        net = canopen.Network()
+        net.NOTIFIER_CYCLE = 0.1
+        net.connect(interface="virtual", channel=channel)
+        try:
+            assert node(net, 8).sdo.upload(0x1000, 0) == u32(0x00020192)
+            net.sync.transmit()
+            net.sync.transmit()
+            assert eventually(lambda: running[0].sync_count == 2)
+        finally:
+            net.disconnect()
+    finally:
+        stop.set()
+        thread.join(TIMEOUT_S)
+    assert not thread.is_alive()
+    assert result == [2]
+
+
+def test_serve_stops_after_its_duration(channel: str) -> None:
+    assert serve(channel=channel, nodes={0: 1}, duration_s=0.05) == 0
