@@ -209,3 +209,63 @@ def test_replay_of_a_subset_of_axes(tmp_path: Path) -> None:
         "Y_position_mm",
     ]
     np.testing.assert_array_equal(replayed.values, read_recording(source).values[:, 3:6])
+
+
+def test_schedule_sets_the_end_and_the_config_hash(tmp_path: Path) -> None:
+    from ncmeasure.plan import plan_machine
+
+    config = machine()
+    source = _source_recording(tmp_path / "source", config, rows=2500)  # 10 s
+    schedule, _ = plan_machine(config)
+    short = schedule.model_copy(update={"duration_s": 2.0})
+    result = record(
+        config,
+        out=tmp_path / "run",
+        link="replay",
+        link_settings={"source": str(source), "speed": 0},
+        schedule=short,
+        schedule_margin_s=1.0,
+    )
+    recording = read_recording(result.directory)
+    assert result.status == "complete"
+    assert len(recording.time_s) == 750  # 3 s at 4 ms
+    assert recording.meta.config_hash == schedule.config_hash
+
+
+def test_link_blocks_iterator_ends_with_the_source(tmp_path: Path) -> None:
+    from ncmeasure.links import make_link
+
+    config = machine()
+    source = _source_recording(tmp_path / "source", config, rows=1000)
+    with make_link(config, "replay", {"source": str(source), "speed": 0}) as link:
+        rows = sum(len(block) for block in link.blocks())
+    assert rows == 1000
+
+
+def test_raw_can_log_replays_onto_a_virtual_bus(tmp_path: Path) -> None:
+    import uuid
+
+    import can
+
+    from ncmeasure.links.replay import replay_can_log
+
+    log = tmp_path / "trace.asc"
+    with can.Logger(str(log)) as writer:
+        for k in range(50):
+            writer.on_message_received(
+                can.Message(
+                    timestamp=k * 0.001,
+                    arbitration_id=0x181 + k % 3,
+                    data=k.to_bytes(2, "little"),
+                    is_extended_id=False,
+                )
+            )
+    channel = f"raw-{uuid.uuid4().hex[:8]}"
+    with can.Bus(interface="virtual", channel=channel) as listener:
+        sent = replay_can_log(log, channel=channel, speed=0)
+        received = []
+        while (message := listener.recv(timeout=0.5)) is not None:
+            received.append(message)
+    assert sent == 50
+    assert [m.arbitration_id for m in received] == [0x181 + k % 3 for k in range(50)]
+    assert [int.from_bytes(m.data, "little") for m in received] == list(range(50))

@@ -131,3 +131,96 @@ def test_export_and_import_bad_input(tmp_path: Path) -> None:
     bad.write_text("time_s,X_current_a\n0.0,1.0\n0.004,oops\n")
     code, _, err = run("import", bad, "-o", tmp_path / "imp")
     assert code == 2 and "bad.csv:3" in err
+
+
+def _machine_with(tmp_path: Path, link: str, axis_link: str = "") -> Path:
+    path = tmp_path / "m.toml"
+    text = example_machine("linuxcnc")
+    if axis_link:
+        text = text.replace("screw_lead_mm = 20.0", f"screw_lead_mm = 20.0\nlink = {axis_link}")
+    path.write_text(text + "\n[link]\n" + link + "\n")
+    return path
+
+
+def test_link_bad_input_from_the_command_line(tmp_path: Path) -> None:
+    # missing node id: the canopen link names the axis and the key
+    machine = _machine_with(tmp_path, 'type = "canopen"\nchannel = "cli-missing-node"')
+    code, _, err = run("record", machine, "-o", tmp_path / "r", "--duration", "1")
+    assert code == 2 and "axes[0].link.node_id" in err
+    # an EDS that cannot be parsed
+    eds = tmp_path / "broken.eds"
+    eds.write_text("[DeviceInfo\nthis is not an EDS\n")
+    machine = _machine_with(
+        tmp_path, 'type = "canopen"\nchannel = "cli-bad-eds"', "{ increments_per_rev = 10000 }"
+    )
+    code, _, err = run(
+        "record",
+        machine,
+        "--node",
+        "X=1",
+        "--node",
+        "Y=2",
+        "--node",
+        "Z=3",
+        "--eds",
+        eds,
+        "-o",
+        tmp_path / "r",
+    )
+    assert code in (2, 4) and "broken.eds" in err
+    # a register map with overlapping entries
+    bad_map = tmp_path / "overlap.toml"
+    bad_map.write_text(
+        (Path(__file__).parents[1] / "src/ncmeasure/links/registermaps/generic.toml")
+        .read_text()
+        .replace("address = 2", "address = 1", 1)
+    )
+    machine = _machine_with(tmp_path, 'type = "modbus"')
+    code, _, err = run(
+        "record",
+        machine,
+        "--unit",
+        "X=1",
+        "--unit",
+        "Y=2",
+        "--unit",
+        "Z=3",
+        "--register-map",
+        bad_map,
+        "-o",
+        tmp_path / "r",
+    )
+    assert code == 2 and "overlap" in err.lower()
+    # an unreachable host (nothing listens on this loopback port)
+    code, _, err = run(
+        "record",
+        machine,
+        "--unit",
+        "X=1",
+        "--unit",
+        "Y=2",
+        "--unit",
+        "Z=3",
+        "--register-map",
+        "generic",
+        "--port",
+        "1",
+        "-o",
+        tmp_path / "r",
+    )
+    assert code == 4 and "127.0.0.1:1" in err
+    assert "Traceback" not in err
+    assert not (tmp_path / "r").exists()
+
+
+def test_simulate_drive_port_in_use(tmp_path: Path) -> None:
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        code, _, err = run(
+            "simulate-drive", "--link", "modbus", "--port", str(port), "--duration", "2"
+        )
+    assert code == 2 and str(port) in err and "Traceback" not in err

@@ -114,6 +114,11 @@ def _main(
         level=logging.DEBUG if debug else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
+    if not debug:
+        # The bus and protocol libraries log what ncmeasure already reports as events
+        # and errors; their own lines would only repeat it less clearly.
+        for name in ("can", "canopen", "pymodbus"):
+            logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
 def _load(machine: Path) -> MachineConfig:

@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 import threading
 from abc import ABC, abstractmethod
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any, ClassVar, Literal, Self
@@ -211,6 +211,7 @@ class DriveLink(ABC):
             except ValidationError as exc:
                 problems += format_validation_error(exc, f"axes[{index}].link")
         if problems or settings is None:
+            problems = list(dict.fromkeys(problems))  # a link-wide problem, once
             raise ConfigError(f"the settings of the {cls.name} link are not valid", problems)
         return cls(settings, bindings)
 
@@ -290,6 +291,19 @@ class DriveLink(ABC):
         if timeout_s < 0:
             raise ValueError("timeout_s must not be negative")
         return self._read(timeout_s)
+
+    def blocks(self, timeout_s: float = 1.0) -> Iterator[SampleBlock]:
+        """Yield the blocks with rows as they arrive, until the source ends (replay).
+
+        For scripts::
+
+            with make_link(config) as link:
+                for block in link.blocks():
+                    print(block.time_s[-1], block.values[-1])
+        """
+        while (block := self.read(timeout_s)) is not None:
+            if len(block):
+                yield block
 
     def events(self) -> list[LinkEvent]:
         """Events since the last call (gaps, faults, reboots, reconnects)."""

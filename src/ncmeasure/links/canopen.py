@@ -637,9 +637,8 @@ def load_eds(path: Path, node_id: int) -> ObjectDictionary:
     try:
         od = canopen.import_od(str(path), node_id)
     except Exception as exc:  # configparser, ValueError, KeyError... all mean "unreadable"
-        raise ConfigError(
-            f"{path}: not a readable EDS/DCF file ({type(exc).__name__}: {exc})"
-        ) from exc
+        reason = " ".join(str(exc).split())  # parser messages span several lines
+        raise ConfigError(f"{path}: not a readable EDS/DCF file ({reason})") from exc
     if len(od) == 0:
         raise ConfigError(f"{path}: not a readable EDS/DCF file (no objects found)")
     return od
@@ -1120,7 +1119,9 @@ class CanOpenLink(DriveLink):
                     )
             self._axes.append(axis)
         if problems:
-            raise ConfigError("the settings of the canopen link are not valid", problems)
+            raise ConfigError(
+                "the settings of the canopen link are not valid", list(dict.fromkeys(problems))
+            )
         self._channels = tuple(channels)
 
     def _from_eds(
