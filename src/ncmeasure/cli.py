@@ -59,8 +59,8 @@ schema_app = typer.Typer(
 )
 app.add_typer(schema_app, name="schema")
 
-console = Console(highlight=False)
-err_console = Console(stderr=True, highlight=False)
+console = Console(highlight=False, soft_wrap=True)
+err_console = Console(stderr=True, highlight=False, soft_wrap=True)
 _state = {"debug": False}
 
 ControllersDir = Annotated[
