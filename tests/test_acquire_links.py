@@ -3,10 +3,11 @@ before the fault and marks the gap."""
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -55,7 +56,9 @@ def assert_contiguous_until(recording: Recording, period_s: float, until_s: floa
     return len(before)
 
 
-def test_canopen_drive_that_goes_silent_leaves_a_marked_gap(tmp_path: Path) -> None:
+@contextlib.contextmanager
+def canopen_machine() -> Iterator[tuple[MachineConfig, SimulatedDrives]]:
+    """Three simulated CiA 402 drives on a fresh virtual bus, and a machine to record them."""
     channel = f"acq-{uuid.uuid4().hex[:8]}"
     config = machine(
         {"type": "canopen", "interface": "virtual", "channel": channel, "sync_hz": 250}, "node_id"
@@ -64,6 +67,11 @@ def test_canopen_drive_that_goes_silent_leaves_a_marked_gap(tmp_path: Path) -> N
     with SimulatedDrives.start(
         channel, {0: 1, 1: 2, 2: 3}, PatternSource(), scaling=scaling
     ) as drives:
+        yield config, drives
+
+
+def test_canopen_drive_that_goes_silent_leaves_a_marked_gap(tmp_path: Path) -> None:
+    with canopen_machine() as (config, drives):
         fault_at: list[float] = []
 
         def fault() -> None:
@@ -83,14 +91,7 @@ def test_canopen_drive_that_goes_silent_leaves_a_marked_gap(tmp_path: Path) -> N
 
 
 def test_canopen_reboot_is_recorded(tmp_path: Path) -> None:
-    channel = f"acq-{uuid.uuid4().hex[:8]}"
-    config = machine(
-        {"type": "canopen", "interface": "virtual", "channel": channel, "sync_hz": 250}, "node_id"
-    )
-    scaling = DriveScaling(increments_per_rev=10_000, screw_lead_mm=20.0, rated_current_a=17.7)
-    with SimulatedDrives.start(
-        channel, {0: 1, 1: 2, 2: 3}, PatternSource(), scaling=scaling
-    ) as drives:
+    with canopen_machine() as (config, drives):
 
         def fault() -> None:
             time.sleep(1.0)
