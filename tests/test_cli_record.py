@@ -224,3 +224,93 @@ def test_simulate_drive_port_in_use(tmp_path: Path) -> None:
             "simulate-drive", "--link", "modbus", "--port", str(port), "--duration", "2"
         )
     assert code == 2 and str(port) in err and "Traceback" not in err
+
+
+def test_sigterm_closes_the_recording_and_exits_3(tmp_path: Path) -> None:
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    source = _source(tmp_path / "run1", rows=10_000)  # 40 s at recorded speed
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ncmeasure",
+            "record",
+            str(_machine(tmp_path)),
+            "--link",
+            "replay",
+            "--source",
+            str(source),
+            "-o",
+            str(tmp_path / "run2"),
+            "--quiet",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "COLUMNS": "200"},
+    )
+    deadline = time.monotonic() + 30
+    while not (tmp_path / "run2" / "samples.bin").exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    time.sleep(1.5)
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=30)
+    assert process.returncode == 3, err
+    assert "interrupted" in err and "Traceback" not in err
+    recording = read_recording(tmp_path / "run2")
+    assert recording.meta.status == "interrupted"
+    assert 100 < len(recording.time_s) < 10_000
+    np.testing.assert_array_equal(
+        recording.values, read_recording(source).values[: len(recording.time_s)]
+    )
+
+
+def test_simulate_drive_canopen_serves_a_recording(tmp_path: Path) -> None:
+    import threading
+    import time
+    import uuid
+
+    from ncmeasure.acquire import record
+    from ncmeasure.config import load_machine
+
+    channel = f"cli-sim-{uuid.uuid4().hex[:8]}"
+    done: list[int] = []
+    server = threading.Thread(
+        target=lambda: done.append(
+            run(
+                "simulate-drive",
+                "--link",
+                "canopen",
+                "--interface",
+                "virtual",
+                "--channel",
+                channel,
+                "--duration",
+                "6",
+            )[0]
+        ),
+        daemon=True,
+    )
+    server.start()
+    time.sleep(1.0)  # the drives join the virtual bus
+    machine = _machine_with(
+        tmp_path,
+        f'type = "canopen"\ninterface = "virtual"\nchannel = "{channel}"',
+        "{ increments_per_rev = 10000 }",
+    )
+    # the command line runs the drives; the recording is made through the Python API
+    result = record(
+        load_machine(machine),
+        out=tmp_path / "r",
+        duration_s=1.0,
+        axis_settings={"X": {"node_id": 1}, "Y": {"node_id": 2}, "Z": {"node_id": 3}},
+    )
+    server.join(timeout=30)
+    assert result.status == "complete"
+    assert len(read_recording(tmp_path / "r").time_s) == 250
+    assert done == [0]

@@ -363,6 +363,24 @@ def _settings(values: list[str]) -> dict[str, Any]:
     return result
 
 
+def _stop_on_signals(stop: threading.Event) -> dict[int, Any]:
+    """Ctrl-C and SIGTERM set ``stop``; returns the handlers to restore.
+
+    Signal handlers belong to the main thread; elsewhere (an embedding
+    program) the caller's own handling stays in place.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    return {
+        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
+    }
+
+
+def _restore_signals(previous: dict[int, Any]) -> None:
+    for sig, handler in previous.items():
+        signal.signal(sig, handler)
+
+
 def _progress_table(progress: Progress) -> Table:
     table = Table(
         title=f"recording · {progress.elapsed_s:.0f} s · {progress.rows} samples · "
@@ -516,9 +534,7 @@ def record_command(
         _fail(exc)
 
     stop = threading.Event()
-    previous = {
-        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
-    }
+    previous = _stop_on_signals(stop)
     live: Live | None = None
 
     def show(progress: Progress) -> None:
@@ -557,8 +573,7 @@ def record_command(
     finally:
         if live is not None:
             live.stop()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        _restore_signals(previous)
     lost = sum(e.lost_samples for e in result.events)
     if not quiet or result.status != "complete":
         err_console.print(
@@ -675,9 +690,7 @@ def simulate_drive_command(
     `ncmeasure record m.toml --link modbus --host 127.0.0.1 --port 5020 --unit X=1 ...`.
     """
     stop = threading.Event()
-    previous = {
-        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
-    }
+    previous = _stop_on_signals(stop)
     default = {"X": 1, "Y": 2, "Z": 3}
     if duration is not None:
         threading.Timer(duration, stop.set).start()
@@ -716,5 +729,4 @@ def simulate_drive_command(
         _fail(exc)
     finally:
         stop.set()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        _restore_signals(previous)
