@@ -34,7 +34,7 @@ from ncmeasure.program import (
     load_dialect,
     load_schedule,
 )
-from ncmeasure.recording import export_csv, export_mdf4, import_csv, import_mdf4, read_recording
+from ncmeasure.recording import export_csv, export_mdf4, import_mdf4, read_recording
 
 __all__ = ["app", "main"]
 
@@ -618,19 +618,86 @@ def export_command(
 
 @app.command("import")
 def import_command(
-    file: Annotated[Path, typer.Argument(help="File to import.")],
+    file: Annotated[Path, typer.Argument(help="Trace or exported file to import.")],
     output: Annotated[Path, typer.Option("--output", "-o", help="New recording directory.")],
     fmt: Annotated[
-        str, typer.Option("--format", "-f", help="csv (the layout of `ncmeasure export`) or mdf4.")
-    ] = "csv",
+        str | None,
+        typer.Option(
+            "--format",
+            "-f",
+            help="sinumerik-xml, "
+            "sinumerik-csv, twincat-csv, tncscope, csv, mdf4 "
+            "(default: detected from the content).",
+        ),
+    ] = None,
+    machine: Annotated[
+        Path | None,
+        typer.Option(
+            help="Machine file: axis names, screw lead and torque constant for unit conversion."
+        ),
+    ] = None,
+    axis: Annotated[
+        list[str] | None,
+        typer.Option(help="Map a trace's axis to a machine axis, e.g. --axis 1=X --axis 2=Y."),
+    ] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress, no report.")] = False,
 ) -> None:
-    """Turn an exported CSV or MDF4 file back into a recording."""
-    if fmt not in _FORMATS:
-        _fail(ConfigError(f"--format {fmt!r}: expected one of {', '.join(_FORMATS)}"))
+    """Turn a controller trace (Sinumerik, TwinCAT Scope, TNCscope) or an exported CSV/MDF4
+    file into a recording, reporting what was mapped, converted and left out."""
+    from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
+
+    from ncmeasure.traces import detect_format, import_trace
+
+    axis_names: dict[str, str] = {}
+    for text in axis or []:
+        source, sep, target = text.partition("=")
+        if not sep or not source.strip() or not target.strip():
+            _fail(ConfigError(f"--axis {text!r}: expected TRACE_AXIS=MACHINE_AXIS, e.g. 1=X"))
+        axis_names[source.strip()] = target.strip()
+    report: list[str] = []
     try:
-        recording = import_csv(file, output) if fmt == "csv" else import_mdf4(file, output)
+        config = load_machine(machine) if machine else None
+        if fmt == "mdf4" or (fmt is None and file.suffix.lower() in (".mf4", ".mdf")):
+            recording = import_mdf4(file, output)
+        else:
+            fmt = fmt or detect_format(file)
+            bar = (
+                None
+                if quiet
+                else Progress(
+                    TextColumn(f"importing {file.name}"),
+                    BarColumn(),
+                    DownloadColumn(),
+                    console=err_console,
+                    transient=True,
+                )
+            )
+            task = bar.add_task("import", total=None) if bar else None
+
+            def progress(done: int, total: int) -> None:
+                if bar is not None and task is not None:
+                    bar.update(task, completed=done, total=total)
+
+            if bar is not None:
+                bar.start()
+            try:
+                result = import_trace(
+                    file,
+                    output,
+                    format=fmt,
+                    machine=config,
+                    axis_names=axis_names or None,
+                    progress=progress,
+                )
+            finally:
+                if bar is not None:
+                    bar.stop()
+            recording, report = result.recording, result.report
     except NcMeasureError as exc:
         _fail(exc)
+    if not quiet:
+        for line in report:
+            err_console.print(f"  {line}", markup=False)
     console.print(
         f"wrote {output} ({len(recording.time_s)} samples, {len(recording.channels)} channels)"
     )
@@ -730,3 +797,173 @@ def simulate_drive_command(
     finally:
         stop.set()
         _restore_signals(previous)
+
+
+# --- analysis ----------------------------------------------------------------------------
+
+
+def _progress_bar(quiet: bool) -> tuple[Any, Any]:
+    """A rich progress bar and a ``progress(stage, fraction)`` callback feeding it."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    if quiet:
+        return None, None
+    bar = Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TimeElapsedColumn(),
+        console=err_console,
+        transient=True,
+    )
+    task = bar.add_task("analysing", total=1.0)
+
+    def update(stage: str, fraction: float) -> None:
+        bar.update(task, description=stage, completed=max(0.0, min(1.0, fraction)))
+
+    return bar, update
+
+
+@app.command("analyze")
+def analyze_command(
+    run: Annotated[Path, typer.Argument(help="Recording directory (recorded or imported).")],
+    schedule: Annotated[
+        Path | None,
+        typer.Option(
+            help="schedule.json of the program: labels every window with its step and position."
+        ),
+    ] = None,
+    machine: Annotated[
+        Path | None,
+        typer.Option(
+            help="Machine file: torque constant, screw lead, fixed-bearing end, vertical axes."
+        ),
+    ] = None,
+    output: Annotated[
+        Path | None,
+        typer.Option("--output", "-o", help="results.json to write (default: RUN.results.json)."),
+    ] = None,
+    report: Annotated[Path | None, typer.Option(help="Also write this HTML report.")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress, no summary.")] = False,
+) -> None:
+    """Friction per position, direction and velocity; fits; position diagnosis.
+
+    Windows come from the marker when recorded, else from commanded vs actual velocity,
+    else from constant-velocity plateaus. Example:
+    ncmeasure analyze run1 --schedule programs/schedule.json --report run1.html
+    """
+    from ncmeasure.analysis.analyze import analyze, write_results
+
+    target = output or run.with_name(run.name + ".results.json")
+    try:
+        recording = read_recording(run)
+        plan_schedule = load_schedule(schedule) if schedule else None
+        config = load_machine(machine) if machine else None
+        bar, update = _progress_bar(quiet)
+        if bar is not None:
+            bar.start()
+        try:
+            results = analyze(recording, schedule=plan_schedule, machine=config, progress=update)
+        finally:
+            if bar is not None:
+                bar.stop()
+        write_results(results, target)
+        if report is not None:
+            from ncmeasure.report import write_report
+
+            write_report(results, report, recording=recording)
+    except NcMeasureError as exc:
+        _fail(exc)
+    if quiet:
+        return
+    for problem in recording.problems:
+        err_console.print(f"[yellow]warning:[/] {problem}")
+    table = Table(box=None, header_style="bold")
+    for column in (
+        "axis",
+        "windows",
+        "unit",
+        "Coulomb (pos. 1 … n)",
+        "spread",
+        "signature",
+        "likely cause",
+    ):
+        table.add_column(column)
+    for name, axis in results.axes.items():
+        coulombs = []
+        for position in axis.positions:
+            fits = [d.fit.coulomb for d in position.directions.values() if d and d.fit]
+            coulombs.append(f"{sum(fits) / len(fits):.3g}" if fits else "—")
+        dependency = axis.position_dependency
+        cause = dependency.causes[0] if dependency and dependency.causes else None
+        table.add_row(
+            name,
+            str(axis.windows),
+            axis.unit,
+            " / ".join(coulombs),
+            f"{dependency.spread_percent:.0f} %" if dependency else "—",
+            dependency.signature if dependency else "—",
+            f"{cause.cause} ({cause.score:.2f})" if cause else "—",
+        )
+        for warning in axis.warnings:
+            err_console.print(f"[yellow]warning:[/] axis {name}: {warning}")
+    console.print(table)
+    console.print(f"wrote {target}" + (f" and {report}" if report else ""))
+
+
+@app.command("compare")
+def compare_command(
+    base: Annotated[
+        Path,
+        typer.Argument(
+            help="results.json of the reference (the machine at delivery, or the fleet's first)."
+        ),
+    ],
+    others: Annotated[list[Path], typer.Argument(help="results.json files to compare with it.")],
+    warning: Annotated[
+        float | None, typer.Option(help="Warning limit of the deviation in %.")
+    ] = None,
+    critical: Annotated[float | None, typer.Option(help="Critical limit in %.")] = None,
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="Write the comparison as JSON.")
+    ] = None,
+) -> None:
+    """Compare runs: the same machine over its life, or identical machines (fleet).
+
+    Exit code 0: every deviation within the warning limit; 1: a warning limit crossed;
+    3: a critical limit crossed; 2: bad input.
+    """
+    from ncmeasure.analysis.analyze import load_results
+    from ncmeasure.analysis.compare import Limits, compare_results, comparison_exit_code
+
+    try:
+        reference = load_results(base)
+        runs = [load_results(path) for path in others]
+        limits = Limits()
+        updates = {
+            k: v
+            for k, v in {"warning_percent": warning, "critical_percent": critical}.items()
+            if v is not None
+        }
+        if updates:
+            limits = Limits.model_validate({**limits.model_dump(), **updates})
+        comparison = compare_results(
+            reference, runs, labels=[p.stem for p in others], limits=limits
+        )
+    except NcMeasureError as exc:
+        _fail(exc)
+    except ValueError as exc:  # pydantic validation of the limits
+        _fail(ConfigError(f"limits: {exc}"))
+    if output is not None:
+        output.write_text(comparison.model_dump_json(indent=2) + "\n", encoding="utf-8")
+    for line in comparison.findings:
+        console.print(line)
+    code = comparison_exit_code(comparison)
+    raise typer.Exit(code)
+
+
+@schema_app.command("results")
+def schema_results() -> None:
+    """JSON Schema of results.json, what `ncmeasure analyze` writes."""
+    from ncmeasure.analysis.results import Results
+
+    sys.stdout.write(json.dumps(Results.model_json_schema(), indent=2) + "\n")

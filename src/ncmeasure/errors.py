@@ -11,6 +11,7 @@ either::
     ├── ProgramError (ValueError)        an NC program cannot be read
     │   └── ProgramCheckError            a program leaves its limits or its schedule
     ├── OutputError (OSError)            results cannot be written
+    ├── ComparisonError (ValueError)     results that cannot be compared
     ├── RecordingError (OSError)         a recording cannot be written or read
     ├── DependencyError (ImportError)    an optional package is missing (names the extra)
     └── LinkError (ConnectionError)      a drive link failed (bus, network, drive)
@@ -25,6 +26,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 
 __all__ = [
+    "ComparisonError",
     "ConfigError",
     "DependencyError",
     "DialectError",
@@ -96,3 +98,7 @@ class LinkError(NcMeasureError, ConnectionError):
 
 class LinkTimeoutError(LinkError, TimeoutError):
     """A drive or the bus did not answer in time."""
+
+
+class ComparisonError(NcMeasureError, ValueError):
+    """Results that cannot be compared at all (different machines, axes or units)."""

@@ -1,0 +1,532 @@
+"""Position dependency of friction along the travel and the assembly causes it points at.
+
+Input is a table of friction magnitudes, one row per velocity and one column
+per measuring position. The table is reduced to one *relative profile*
+(friction at each position divided by the mean over the positions, the same
+for every velocity) by a least-squares fit of
+
+    ln T[j, k] = α_j + β_k
+
+(α_j: the level of velocity j, β_k: the effect of position k). Working in
+logarithms normalises every velocity by its own level, so high and low
+speeds weigh alike, and missing cells need no special case. The shape of
+the profile is then classified into a :data:`~ncmeasure.analysis.results.Signature`
+and mapped to ranked causes following method.md, "What the patterns mean".
+The rules and the scores are written out in ``docs/analysis-models.md``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import stats
+
+from ncmeasure.analysis.results import (
+    Cause,
+    CauseName,
+    PositionDependency,
+    Signature,
+    VelocityProfile,
+)
+
+__all__ = [
+    "ALTERNATIVE_FACTOR",
+    "BEARING_STEP_FACTOR",
+    "END_RISE_FRACTION",
+    "FLAT_THRESHOLD_PERCENT",
+    "FULL_STRENGTH_PERCENT",
+    "MONOTONE_TOLERANCE_FRACTION",
+    "SIGNIFICANCE_LEVEL",
+    "STEP_RATIO",
+    "position_dependency",
+]
+
+log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+
+FLAT_THRESHOLD_PERCENT = 5.0
+"""A spread of the averaged profile below this is flat, however significant.
+
+Well below the position effects the method reports (~40 % along one axis, a
+~20 % step from a sticking cover) and above the few-percent repeatability of
+runs 20 min apart.
+"""
+
+SIGNIFICANCE_LEVEL = 0.01
+"""A position effect must also be significant at this level (F or χ² test)."""
+
+STEP_RATIO = 3.0
+"""A step is one jump between adjacent positions at least this many times every other jump."""
+
+END_RISE_FRACTION = 1.0 / 3.0
+"""High at both ends: each end exceeds the interior minimum by this fraction of the spread."""
+
+MONOTONE_TOLERANCE_FRACTION = 0.15
+"""A rising profile may step back by this fraction of the spread (or 2 standard errors)."""
+
+FULL_STRENGTH_PERCENT = 20.0
+"""A spread this large (the cover step of method.md) gives a pattern its full weight."""
+
+ALTERNATIVE_FACTOR = 0.5
+"""An alternative cause scores this fraction of the leading cause."""
+
+BEARING_STEP_FACTOR = 0.6
+"""A step in the last interval before a bearing, rising towards it: that bearing's score factor."""
+
+
+@dataclass(frozen=True)
+class _Profile:
+    """The averaged relative profile and what the statistics say about it."""
+
+    positions_mm: FloatArray  # ascending
+    relative: FloatArray  # mean 1
+    level: float  # mean fitted friction over the grid
+    cov_log: FloatArray | None  # covariance of the centred log profile, or None
+    p_value: float | None  # position effect test; None when untestable
+    velocities_used: int
+
+
+def _as_table(values: ArrayLike, n_velocities: int, n_positions: int, name: str) -> FloatArray:
+    table = np.asarray(values, dtype=np.float64)
+    if table.ndim == 1 and n_velocities == 1:
+        table = table[None, :]
+    if table.shape != (n_velocities, n_positions):
+        raise ValueError(
+            f"{name} has shape {table.shape}, expected (n_velocities, n_positions) = "
+            f"({n_velocities}, {n_positions})"
+        )
+    return table
+
+
+def _fit_profile(
+    positions: FloatArray, table: FloatArray, noise: FloatArray | None
+) -> _Profile | None:
+    """Fit ln T = α_j + β_k over the valid cells; None with fewer than 2 usable positions."""
+    usable = np.isfinite(table) & (table > 0)
+    # Rows need 2 positions to say anything about position; a column dropped
+    # here has no value in those rows, so the row counts stay as they are.
+    rows = np.flatnonzero(np.count_nonzero(usable, axis=1) >= 2)
+    cols = np.flatnonzero(np.any(usable[rows], axis=0))
+    valid = usable[np.ix_(rows, cols)]
+    n_v, n_p = rows.size, cols.size
+    if n_v == 0 or n_p < 2:
+        return None
+    sub = table[np.ix_(rows, cols)]
+    jj, kk = np.nonzero(valid)
+    y = np.log(sub[jj, kk])
+    if noise is not None:
+        rel_noise = noise[np.ix_(rows, cols)][jj, kk] / sub[jj, kk]
+        ok = np.isfinite(rel_noise) & (rel_noise > 0)
+        typical = float(np.median(rel_noise[ok])) if np.any(ok) else math.nan
+        if not math.isfinite(typical):
+            noise = None
+            weight = np.ones_like(y)
+        else:
+            rel_noise = np.where(ok, rel_noise, typical)
+            weight = 1.0 / rel_noise**2
+    else:
+        weight = np.ones_like(y)
+    design = np.zeros((y.size, n_v + n_p - 1))
+    design[np.arange(y.size), jj] = 1.0
+    has_pos = kk > 0
+    design[np.flatnonzero(has_pos), n_v + kk[has_pos] - 1] = 1.0
+    root_w = np.sqrt(weight)
+    coef, *_ = np.linalg.lstsq(design * root_w[:, None], y * root_w, rcond=None)
+    residual = y - design @ coef
+    rss1 = float(np.sum(weight * residual**2))
+    dof = y.size - (n_v + n_p - 1)
+    # Velocity-only model: each row's weighted mean.
+    row_mean = np.bincount(jj, weights=weight * y, minlength=n_v) / np.bincount(
+        jj, weights=weight, minlength=n_v
+    )
+    rss0 = float(np.sum(weight * (y - row_mean[jj]) ** 2))
+    delta = max(rss0 - rss1, 0.0)
+    q = n_p - 1
+
+    observed = rss1 / dof if dof > 0 else None
+    scale2: float | None
+    p_value: float | None
+    if noise is not None:
+        # The stated noise, inflated when the cells scatter more than it says.
+        scale2 = max(1.0, observed or 0.0)
+        p_value = float(stats.chi2.sf(delta / scale2, q))
+    elif observed is not None and observed > 0:
+        scale2 = observed
+        p_value = float(stats.f.sf(delta / q / observed, q, dof))
+    elif observed is not None:  # an exact fit: any position effect is real
+        scale2 = 0.0
+        p_value = 0.0 if delta > 0 else 1.0
+    else:
+        scale2, p_value = None, None
+
+    beta = np.concatenate([[0.0], coef[n_v:]])
+    alpha = coef[:n_v]
+    cov_log: FloatArray | None = None
+    if scale2 is not None:
+        info = (design * weight[:, None]).T @ design
+        cov_full = np.linalg.pinv(info) * scale2
+        cov_beta = np.zeros((n_p, n_p))
+        cov_beta[1:, 1:] = cov_full[n_v:, n_v:]
+        centre = np.eye(n_p) - 1.0 / n_p
+        cov_log = centre @ cov_beta @ centre.T
+    shape = np.exp(beta - beta.mean())
+    relative = shape / shape.mean()
+    level = float(np.mean(np.exp(alpha[:, None] + beta[None, :])))
+    return _Profile(
+        positions_mm=positions[cols],
+        relative=relative,
+        level=level,
+        cov_log=cov_log,
+        p_value=p_value,
+        velocities_used=n_v,
+    )
+
+
+def _profiles(
+    positions: FloatArray, velocities: FloatArray, table: FloatArray
+) -> list[VelocityProfile]:
+    out = []
+    for j, velocity in enumerate(velocities):
+        ok = np.isfinite(table[j]) & (table[j] > 0)
+        if np.count_nonzero(ok) < 2:
+            continue
+        vals = table[j, ok]
+        out.append(
+            VelocityProfile(
+                velocity_mm_min=float(velocity),
+                positions_mm=[float(x) for x in positions[ok]],
+                values=[float(x) for x in vals],
+                spread_percent=float((vals.max() - vals.min()) / vals.mean() * 100.0),
+            )
+        )
+    return out
+
+
+def _explained(profile: FloatArray, basis: FloatArray) -> float:
+    """Fraction of the profile's variation a constant + ``basis`` explains (0..1)."""
+    centred = profile - profile.mean()
+    total = float(centred @ centred)
+    if total <= 0:
+        return 1.0
+    design = np.column_stack([np.ones_like(profile), basis])
+    coef, *_ = np.linalg.lstsq(design, profile, rcond=None)
+    residual = profile - design @ coef
+    return float(np.clip(1.0 - (residual @ residual) / total, 0.0, 1.0))
+
+
+def _best_step(q: FloatArray) -> tuple[int, float]:
+    """Interval index and explained fraction of the best single-step template."""
+    best = (0, -1.0)
+    for i in range(q.size - 1):
+        step = (np.arange(q.size) > i).astype(np.float64)
+        score = _explained(q, step)
+        if score > best[1]:
+            best = (i, score)
+    return best
+
+
+def _pair_se(cov: FloatArray | None, i: int, j: int) -> float:
+    if cov is None:
+        return 0.0
+    return math.sqrt(max(float(cov[i, i] + cov[j, j] - 2.0 * cov[i, j]), 0.0))
+
+
+def _ratio_pct(reference: float, value: float) -> float:
+    """Change from ``reference`` to ``value`` in % of ``reference``."""
+    return (value / reference - 1.0) * 100.0
+
+
+def _cause(name: CauseName, score: float, evidence: str) -> Cause:
+    return Cause(cause=name, score=round(float(np.clip(score, 0.0, 1.0)), 3), evidence=evidence)
+
+
+def position_dependency(
+    positions_mm: Sequence[float],
+    velocities_mm_min: Sequence[float],
+    values: ArrayLike,
+    *,
+    travel_mm: tuple[float, float],
+    fixed_bearing_end: Literal["min", "max"],
+    noise: ArrayLike | None = None,
+) -> PositionDependency:
+    """Describe how friction changes along the travel and rank the likely causes.
+
+    Args:
+        positions_mm: Measuring positions (any order).
+        velocities_mm_min: Velocity of each row of ``values`` (reported only).
+        values: Friction magnitudes, shape (n_velocities, n_positions); NaN
+            where missing. Non-positive values count as missing.
+        travel_mm: Soft limits (min, max) of the axis, for the evidence texts.
+        fixed_bearing_end: Which end of the travel carries the fixed bearing;
+            the loose bearing is at the other end.
+        noise: Standard error of each value, same shape, or None. With it
+            the significance test uses the stated noise (or the observed
+            scatter when that is larger); without it only the observed
+            scatter between velocities.
+
+    Returns:
+        Profiles (the average first, ``velocity_mm_min`` None, then one per
+        velocity with at least 2 positions), the spread and trend of the
+        average, the signature and the causes, best first.
+
+    Raises:
+        ValueError: ``values`` or ``noise`` do not have the shape
+            (len(velocities_mm_min), len(positions_mm)).
+    """
+    positions = np.asarray(positions_mm, dtype=np.float64).ravel()
+    velocities = np.asarray(velocities_mm_min, dtype=np.float64).ravel()
+    table = _as_table(values, velocities.size, positions.size, "values")
+    noise_table = (
+        None if noise is None else _as_table(noise, velocities.size, positions.size, "noise")
+    )
+    order = np.argsort(positions, kind="stable")
+    positions, table = positions[order], table[:, order]
+    if noise_table is not None:
+        noise_table = noise_table[:, order]
+
+    profiles = _profiles(positions, velocities, table)
+    fit = _fit_profile(positions, table, noise_table)
+    if fit is None:
+        return PositionDependency(
+            spread_percent=0.0,
+            trend_per_100mm=0.0,
+            signature="insufficient_data",
+            profiles=profiles,
+            causes=[
+                _cause(
+                    "none",
+                    0.0,
+                    "Fewer than 2 measuring positions with friction at a common velocity: "
+                    "no position dependency can be judged.",
+                )
+            ],
+        )
+
+    x, rel = fit.positions_mm, fit.relative
+    spread = float((rel.max() - rel.min()) / rel.mean())
+    slope = float(np.polyfit(x, rel, 1)[0]) if np.ptp(x) > 0 else 0.0
+    average = VelocityProfile(
+        velocity_mm_min=None,
+        positions_mm=[float(p) for p in x],
+        values=[float(r * fit.level) for r in rel],
+        spread_percent=spread * 100.0,
+    )
+    signature, causes = _diagnose(fit, spread, travel_mm, fixed_bearing_end)
+    return PositionDependency(
+        spread_percent=spread * 100.0,
+        trend_per_100mm=slope * 100.0 * 100.0,
+        signature=signature,
+        profiles=[average, *profiles],
+        causes=causes,
+    )
+
+
+def _diagnose(
+    fit: _Profile,
+    spread: float,
+    travel_mm: tuple[float, float],
+    fixed_bearing_end: Literal["min", "max"],
+) -> tuple[Signature, list[Cause]]:
+    """Signature and ranked causes of the averaged relative profile."""
+    n = fit.relative.size
+    spread_pct = spread * 100.0
+    if n < 3:
+        return "insufficient_data", [
+            _cause(
+                "none",
+                0.0,
+                f"Only {n} measuring positions with data (spread {spread_pct:.1f} %): "
+                "the pattern along the travel needs at least 3 (fixed-bearing end, middle, "
+                "loose-bearing end).",
+            )
+        ]
+
+    # Orient from the fixed-bearing end to the loose-bearing end.
+    flip = fixed_bearing_end == "max"
+    q = fit.relative[::-1] if flip else fit.relative
+    x = fit.positions_mm[::-1] if flip else fit.positions_mm
+    cov = None if fit.cov_log is None else (fit.cov_log[::-1, ::-1] if flip else fit.cov_log)
+    low_end, high_end = travel_mm
+    length = (high_end - low_end) or 1.0
+    t = np.abs(x - (high_end if flip else low_end)) / abs(length)  # 0 fixed end, 1 loose end
+
+    def at(i: int) -> str:
+        return f"{x[i]:.0f} mm"
+
+    strength = min(1.0, spread_pct / FULL_STRENGTH_PERCENT)
+    if fit.p_value is None:
+        p_text = ""
+    elif fit.p_value < 1e-6:
+        p_text = ", p < 1e-6"
+    else:
+        p_text = f", p = {fit.p_value:.2g}"
+    significant = fit.p_value is None or fit.p_value < SIGNIFICANCE_LEVEL
+
+    if spread_pct < FLAT_THRESHOLD_PERCENT or not significant:
+        if spread_pct < FLAT_THRESHOLD_PERCENT:
+            why = f"below the {FLAT_THRESHOLD_PERCENT:g} % threshold"
+            score = 0.9 - 0.4 * spread_pct / FLAT_THRESHOLD_PERCENT
+        else:
+            why = "within the noise between velocities"
+            score = 0.5
+        return "flat", [
+            _cause(
+                "none",
+                score,
+                f"Friction varies by {spread_pct:.1f} % over {n} positions "
+                f"({at(0)} to {at(n - 1)}), {why}{p_text}: no local assembly fault shows.",
+            ),
+            _cause(
+                "preload_or_carriage",
+                0.1,
+                "Preload of bearings or nut and a shifted or tilted guide carriage raise "
+                "friction at every position alike; only a comparison against a reference "
+                "(the same machine earlier, or identical machines) can show them.",
+            ),
+        ]
+
+    d = np.diff(q)
+    jump_se = np.array([_pair_se(cov, i, i + 1) for i in range(n - 1)])
+    k_min = int(np.argmin(q))
+    rise_fixed, rise_loose = q[0] - q[k_min], q[-1] - q[k_min]
+    end_se = (_pair_se(cov, 0, k_min), _pair_se(cov, n - 1, k_min))
+    big = int(np.argmax(np.abs(d)))
+    others = np.delete(np.abs(d), big)
+    causes: list[Cause]
+
+    if (
+        0 < k_min < n - 1
+        and min(rise_fixed, rise_loose) >= END_RISE_FRACTION * spread
+        and rise_fixed > 2 * end_se[0]
+        and rise_loose > 2 * end_se[1]
+    ):
+        explained = _explained(q, np.column_stack([t, (2 * t - 1) ** 2]))
+        lead = 0.3 + 0.6 * explained * strength
+        return "high_at_both_ends", [
+            _cause(
+                "screw_nut",
+                lead,
+                f"Friction is lowest mid-travel at {at(k_min)} and higher by "
+                f"{_ratio_pct(q[k_min], q[0]):.1f} % next to the fixed bearing ({at(0)}) and "
+                f"by {_ratio_pct(q[k_min], q[-1]):.1f} % next to the loose bearing "
+                f"({at(n - 1)}) "
+                f"(spread {spread_pct:.1f} %{p_text}): a shifted or tilted ball-screw nut "
+                "bends the screw most where it runs close to a bearing.",
+            ),
+            _cause(
+                "guide_rail",
+                ALTERNATIVE_FACTOR * lead,
+                "A misaligned guide rail can give any shape along the travel, this one included.",
+            ),
+        ]
+
+    if np.all(np.abs(d[big]) >= STEP_RATIO * others) and abs(d[big]) > 2 * jump_se[big]:
+        explained = _best_step(q)[1]
+        lead = 0.3 + 0.6 * explained * strength
+        ratio = abs(d[big]) / others.max() if others.size and others.max() > 0 else math.inf
+        # Name the two positions in ascending order along the travel.
+        lo_side, hi_side = (big + 1, big) if flip else (big, big + 1)
+        ratio_text = (
+            "all other jumps are zero"
+            if math.isinf(ratio)
+            else (f"{ratio:.1f} times the next largest jump")
+        )
+        causes = [
+            _cause(
+                "cover_or_seal",
+                lead,
+                f"Friction changes by {_ratio_pct(q[lo_side], q[hi_side]):+.1f} % from "
+                f"{at(lo_side)} to {at(hi_side)}, {ratio_text} (spread "
+                f"{spread_pct:.1f} %{p_text}): a sticking "
+                "or misaligned telescopic cover, wiper seal or cable chain acts from where "
+                "it engages (method: a ~20 % step).",
+            ),
+            _cause(
+                "guide_rail",
+                ALTERNATIVE_FACTOR * lead,
+                "A guide rail joint or a local rail deviation can also change friction "
+                f"between {at(big)} and {at(big + 1)}.",
+            ),
+        ]
+        if big == n - 2 and d[big] > 0:
+            causes.insert(
+                1,
+                _cause(
+                    "loose_bearing",
+                    BEARING_STEP_FACTOR * lead,
+                    f"The jump lies next to the loose bearing ({at(n - 1)}) and rises towards "
+                    "it: a shifted loose bearing acts most where the nut comes close.",
+                ),
+            )
+        elif big == 0 and d[big] < 0:
+            causes.insert(
+                1,
+                _cause(
+                    "fixed_bearing",
+                    BEARING_STEP_FACTOR * lead,
+                    f"The jump lies next to the fixed bearing ({at(0)}) and rises towards it: "
+                    "a shifted fixed bearing acts most where the nut comes close.",
+                ),
+            )
+        return "step", causes
+
+    rise = q[-1] - q[0]
+    sense = 1.0 if rise > 0 else -1.0
+    tolerance = np.maximum(MONOTONE_TOLERANCE_FRACTION * spread, 2 * jump_se)
+    if abs(rise) >= 0.5 * spread and np.all(sense * d >= -tolerance):
+        explained = _explained(q, t)
+        lead = 0.3 + 0.6 * explained * strength
+        shape = "nearly linearly" if explained >= 0.9 else "monotonically"
+        if sense > 0:
+            near, far, bearing = 0, n - 1, "loose"
+            name: CauseName = "loose_bearing"
+            signature: Signature = "rising_to_loose_bearing"
+        else:
+            near, far, bearing = n - 1, 0, "fixed"
+            name = "fixed_bearing"
+            signature = "rising_to_fixed_bearing"
+        other = "fixed" if bearing == "loose" else "loose"
+        return signature, [
+            _cause(
+                name,
+                lead,
+                f"Friction rises {shape} by {_ratio_pct(q[near], q[far]):.1f} % from {at(near)} "
+                f"({other}-bearing end) to {at(far)} ({bearing}-bearing end); a straight line "
+                f"explains {explained * 100:.0f} % of the variation{p_text}. A shifted or "
+                f"tilted {bearing} bearing bends the screw, more the closer the nut runs "
+                "to it (test rig: no change next to the other bearing, a nearly linear rise "
+                "towards the shifted one).",
+            ),
+            _cause(
+                "guide_rail",
+                ALTERNATIVE_FACTOR * lead,
+                "A guide rail misaligned along the travel gives a ramp as well.",
+            ),
+        ]
+
+    lead = 0.2 + 0.3 * strength
+    return "irregular", [
+        _cause(
+            "guide_rail",
+            lead,
+            f"Friction varies by {spread_pct:.1f} % over {n} positions without a bearing, "
+            "nut or step pattern (relative to the mean: "
+            + ", ".join(
+                f"{pos:.0f} mm {val:.2f}"
+                for pos, val in zip(fit.positions_mm, fit.relative, strict=True)
+            )
+            + f"{p_text}): a misaligned guide rail follows its own deviation.",
+        ),
+        _cause(
+            "cover_or_seal",
+            ALTERNATIVE_FACTOR * lead,
+            "Covers, seals or the cable chain can add friction over parts of the travel.",
+        ),
+    ]

@@ -1,0 +1,636 @@
+"""Friction models fitted to the points of one position and direction. Pure numpy/scipy.
+
+Three static models of friction T over speed v = |velocity| (mm/min), all in
+the sense of one direction so that friction is a positive magnitude:
+
+- linear (Coulomb + viscous), linear least squares::
+
+      T(v) = T_C + t_v·v
+
+- Stribeck, nonlinear least squares (:func:`scipy.optimize.least_squares`)::
+
+      T(v) = T_C + (T_S − T_C)·exp(−(v/v_S)^δ) + b·v
+
+- extended Stribeck, with the rolling term of ball screws with many loaded
+  balls (``f_w < 0`` bends the curve down at high speed)::
+
+      T(v) = T_C + (T_S − T_C)·exp(−(v/v_S)^δ) + b·v + f_w·(v / 1000 mm/min)^k
+
+How σ, the χ² test and the identifiability rule are defined is written out
+in ``docs/analysis-models.md`` and in the docstrings below. Nothing here
+raises on bad data: a fit that cannot be made returns ``None``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import optimize, stats
+
+from ncmeasure.analysis.results import LinearFit, NonlinearFit, OffsetResult, Point
+
+__all__ = [
+    "EXTENDED_PARAMETERS",
+    "LINEAR_REGION_DECAY",
+    "MEDIAN_SE_FACTOR",
+    "MIN_LINEAR_POINTS_ABOVE_STRIBECK",
+    "SPEED_MATCH_TOLERANCE",
+    "STRIBECK_PARAMETERS",
+    "fit_direction",
+    "fit_linear",
+    "fit_nonlinear",
+    "point_sigma",
+    "separate_offset",
+]
+
+log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+
+STRIBECK_PARAMETERS: tuple[str, ...] = ("T_C", "T_S", "v_S", "delta", "b")
+"""Keys of :attr:`NonlinearFit.parameters` for the Stribeck model.
+
+Units: ``T_C``, ``T_S`` in the friction quantity (Nm or A), ``v_S`` in mm/min,
+``delta`` dimensionless, ``b`` per mm/min.
+"""
+
+EXTENDED_PARAMETERS: tuple[str, ...] = (*STRIBECK_PARAMETERS, "f_w", "k")
+"""Keys for the extended model: ``f_w`` in the quantity (rolling term at 1 m/min), ``k``."""
+
+ROLLING_REFERENCE_MM_MIN = 1000.0
+"""The rolling term is f_w·(v / 1000 mm/min)^k: f_w is its value at 1 m/min, in the quantity."""
+
+DELTA_BOUNDS = (0.3, 3.0)
+"""Bounds of the Stribeck shape exponent δ."""
+
+ROLLING_EXPONENT_BOUNDS = (0.3, 2.0)
+"""Bounds of the rolling-term exponent k."""
+
+STRIBECK_VELOCITY_MIN_FRACTION = 0.1
+"""v_S may go down to this fraction of the lowest measured speed (and up to the highest)."""
+
+LINEAR_REGION_DECAY = 0.01
+"""The linear fit starts where the Stribeck hump has decayed to this fraction of its height."""
+
+MIN_LINEAR_POINTS_ABOVE_STRIBECK = 5
+"""Fewest points above the Stribeck region for a linear fit restricted to them."""
+
+SPEED_MATCH_TOLERANCE = 0.005
+"""Relative tolerance when speeds of the two directions are paired (0.5 %)."""
+
+MEDIAN_SE_FACTOR = math.sqrt(math.pi / 2)
+"""Standard error of a median of n normal samples: √(π/2)·std/√n (≈ 1.25 × the mean's)."""
+
+SIGMA_FLOOR_FRACTION = 0.1
+"""Per-point σ below this fraction of the median σ is raised to it (guards std = 0)."""
+
+_INFO_EIGEN_FLOOR = 1e-12
+_T95 = 0.975
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _as_float(values: ArrayLike) -> FloatArray:
+    return np.atleast_1d(np.asarray(values, dtype=np.float64)).ravel()
+
+
+def _clean(
+    speed_mm_min: ArrayLike, value: ArrayLike, sigma: ArrayLike | None
+) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """Speeds as |v|, values and σ with every non-finite or non-positive-σ point dropped."""
+    v = np.abs(_as_float(speed_mm_min))
+    y = _as_float(value)
+    if v.shape != y.shape:
+        raise ValueError(f"speed ({v.size}) and value ({y.size}) differ in length")
+    keep = np.isfinite(v) & np.isfinite(y)
+    s: FloatArray | None = None
+    if sigma is not None:
+        s = _as_float(sigma)
+        if s.shape != y.shape:
+            raise ValueError(f"sigma ({s.size}) and value ({y.size}) differ in length")
+        keep &= np.isfinite(s) & (s > 0)
+        s = s[keep]
+    return v[keep], y[keep], s
+
+
+def _covariance(info: FloatArray) -> FloatArray:
+    """(JᵀWJ)⁻¹, finite even when the data cannot determine a parameter.
+
+    The columns are scaled to unit norm first (parameters differ by orders of
+    magnitude); eigenvalues of the scaled matrix are floored at 1e-12 of the
+    largest, so a parameter the data do not determine gets a huge but finite
+    variance (results.json is plain JSON: no inf, no NaN).
+    """
+    scale = np.sqrt(np.clip(np.diag(info), 0.0, None))
+    scale[scale == 0] = 1.0
+    scaled = info / np.outer(scale, scale)
+    eigval, eigvec = np.linalg.eigh(scaled)
+    top = float(eigval.max()) if eigval.size and eigval.max() > 0 else 1.0
+    eigval = np.maximum(eigval, top * _INFO_EIGEN_FLOOR)
+    inverse = (eigvec / eigval) @ eigvec.T
+    return np.asarray(inverse / np.outer(scale, scale), dtype=np.float64)
+
+
+# --------------------------------------------------------------------------- linear
+
+
+def fit_linear(
+    speed_mm_min: ArrayLike,
+    value: ArrayLike,
+    sigma: ArrayLike | None = None,
+    *,
+    k_accept: float = 10.0,
+) -> LinearFit | None:
+    """Coulomb + viscous friction T(v) = T_C + t_v·v by linear least squares.
+
+    Regressor rows are [v_k, 1] with v = |speed|; the estimate is
+    ŷ = (HᵀWH)⁻¹HᵀWx, solved with :func:`numpy.linalg.lstsq` on the
+    √W-scaled system.
+
+    σ, the scatter of the points, is defined in one of two ways:
+
+    - ``sigma`` given (per point, e.g. the standard error std/√n of each
+      point's window samples): weighted least squares with W = diag(1/σ²);
+      χ²_red = Σ(ê/σ)²/(n − m). This is the informative case: χ²_red ≫ 1
+      means the points scatter around the line more than they scatter in
+      themselves, i.e. the model is wrong. Standard errors are
+      √diag((HᵀWH)⁻¹), multiplied by √χ²_red when χ²_red > 1 (the points'
+      own σ then understates the scatter, e.g. correlated samples).
+    - ``sigma`` omitted: σ² = Σê²/(n − m), the residual variance, and standard
+      errors from σ²(HᵀH)⁻¹. χ²_red is then 1 by construction and the test
+      always accepts: without an independent σ it says nothing.
+
+    The fit is accepted when Σ(ê/σ)² ≤ k·(n − m), i.e. χ²_red ≤ ``k_accept``
+    (method: accepted for k < 10). m = 2.
+
+    Args:
+        speed_mm_min: Speeds |v| in mm/min (signs are dropped).
+        value: Friction magnitudes at those speeds (positive).
+        sigma: Standard error of each value, or None. Points with a
+            non-finite or non-positive σ are dropped, as are non-finite points.
+        k_accept: The χ² acceptance factor k.
+
+    Returns:
+        The fit, or None with fewer than 3 usable points or fewer than 2
+        distinct speeds.
+    """
+    v, y, s = _clean(speed_mm_min, value, sigma)
+    n, m = v.size, 2
+    if n < 3 or np.unique(v).size < 2:
+        return None
+    design = np.column_stack([v, np.ones_like(v)])
+    weight = np.ones_like(v) if s is None else 1.0 / s
+    coef, *_ = np.linalg.lstsq(design * weight[:, None], y * weight, rcond=None)
+    residual = y - design @ coef
+    dof = n - m
+    inverse = _covariance((design * weight[:, None]).T @ (design * weight[:, None]))
+    if s is None:
+        sigma2 = float(residual @ residual) / dof
+        cov = sigma2 * inverse
+        chi2 = 1.0 if sigma2 > 0 else 0.0
+    else:
+        chi2 = float(np.sum((residual / s) ** 2)) / dof
+        cov = inverse * max(1.0, chi2)
+    stderr = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    if not (np.all(np.isfinite(coef)) and np.all(np.isfinite(stderr)) and math.isfinite(chi2)):
+        return None
+    return LinearFit(
+        coulomb=float(coef[1]),
+        viscous_per_mm_min=float(coef[0]),
+        coulomb_stderr=float(stderr[1]),
+        viscous_stderr=float(stderr[0]),
+        chi2_reduced=chi2,
+        accepted=bool(chi2 <= k_accept),
+        n_points=int(n),
+        velocity_range_mm_min=(float(v.min()), float(v.max())),
+    )
+
+
+# --------------------------------------------------------------------------- nonlinear
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """Normalised data: u = v / v_ref, y = T / T_ref, s = σ / T_ref (or ones)."""
+
+    u: FloatArray
+    y: FloatArray
+    s: FloatArray
+    v_ref: float
+    t_ref: float
+    extended: bool
+
+
+def _model_internal(x: FloatArray, p: _Problem) -> tuple[FloatArray, FloatArray]:
+    """Model values and Jacobian in the internal parameters.
+
+    Internal parameters: tc, h = ts − tc (≥ 0), ln(u_S), δ, bb (and fw, k),
+    all on normalised scales so the optimiser sees numbers of order one.
+    """
+    tc, h, lus, delta, bb = x[:5]
+    z = (p.u / math.exp(lus)) ** delta
+    e = np.exp(-z)
+    log_ratio = np.log(p.u) - lus
+    value = tc + h * e + bb * p.u
+    cols = [np.ones_like(p.u), e, h * e * z * delta, -h * e * z * log_ratio, p.u]
+    if p.extended:
+        fw, k = x[5], x[6]
+        uk = p.u**k
+        value = value + fw * uk
+        cols += [uk, fw * uk * np.log(p.u)]
+    return value, np.column_stack(cols)
+
+
+def _jacobian_physical(params: dict[str, float], v: FloatArray) -> FloatArray:
+    """∂T/∂(T_C, T_S, v_S, δ, b[, f_w, k]) at the solution, in physical units."""
+    tc, ts, vs, delta, _ = (params[name] for name in STRIBECK_PARAMETERS)
+    z = (v / vs) ** delta
+    e = np.exp(-z)
+    hump = ts - tc
+    cols = [1.0 - e, e, hump * e * z * delta / vs, -hump * e * z * np.log(v / vs), v]
+    if "f_w" in params:
+        fw, k = params["f_w"], params["k"]
+        ratio = v / ROLLING_REFERENCE_MM_MIN
+        vk = ratio**k
+        cols += [vk, fw * vk * np.log(ratio)]
+    return np.column_stack(cols)
+
+
+def _linear_part(
+    p: _Problem, lus: float, delta: float, k: float | None
+) -> tuple[float, FloatArray]:
+    """Best linear coefficients for fixed (v_S, δ[, k]): the model is linear in the rest.
+
+    Returns the weighted residual sum of squares and (tc, h, bb[, fw]); h ≥ 0 is
+    kept by dropping the hump column when the free solution makes it negative.
+    """
+    e = np.exp(-((p.u / math.exp(lus)) ** delta))
+    cols = [np.ones_like(p.u), e, p.u] + ([] if k is None else [p.u**k])
+    basis = np.column_stack(cols) / p.s[:, None]
+    target = p.y / p.s
+    coef, *_ = np.linalg.lstsq(basis, target, rcond=None)
+    if coef[1] < 0:
+        reduced, *_ = np.linalg.lstsq(np.delete(basis, 1, axis=1), target, rcond=None)
+        coef = np.insert(reduced, 1, 0.0)
+    rss = float(np.sum((basis @ coef - target) ** 2))
+    return rss, np.asarray(coef, dtype=np.float64)
+
+
+def _starts(p: _Problem, count: int = 3) -> list[FloatArray]:
+    """Starting points from a grid over the nonlinear parameters (variable projection).
+
+    For each (v_S, δ[, k]) on the grid the linear parameters follow by linear
+    least squares; the ``count`` best grid points with distinct v_S start the
+    full optimisation.
+    """
+    lo, hi = _log_us_bounds(p)
+    lus_grid = np.linspace(lo, hi, 25)[1:-1]
+    delta_grid = (0.4, 0.6, 0.8, 1.0, 1.4, 2.0, 2.8)
+    k_grid: tuple[float | None, ...] = (0.4, 0.7, 1.3, 1.6, 1.9) if p.extended else (None,)
+    ranked = []
+    for lus in lus_grid:
+        for delta in delta_grid:
+            for k in k_grid:
+                rss, coef = _linear_part(p, float(lus), delta, k)
+                if math.isfinite(rss):
+                    ranked.append((rss, float(lus), delta, k, coef))
+    ranked.sort(key=lambda item: item[0])
+    starts: list[FloatArray] = []
+    taken: list[float] = []
+    for _, lus, delta, k, coef in ranked:
+        if any(abs(lus - other) < 0.3 for other in taken):
+            continue
+        tc, h, bb = float(coef[0]), max(float(coef[1]), 1e-3), float(coef[2])
+        x0 = [tc, h, lus, delta, bb]
+        if k is not None:
+            x0 += [float(coef[3]), k]
+        starts.append(np.array(x0))
+        taken.append(lus)
+        if len(starts) == count:
+            break
+    return starts
+
+
+def _log_us_bounds(p: _Problem) -> tuple[float, float]:
+    return math.log(STRIBECK_VELOCITY_MIN_FRACTION * float(p.u.min())), 0.0
+
+
+def _bounds(p: _Problem) -> tuple[list[float], list[float]]:
+    lo, hi = _log_us_bounds(p)
+    lower = [-np.inf, 0.0, lo, DELTA_BOUNDS[0], -np.inf]
+    upper = [np.inf, np.inf, hi, DELTA_BOUNDS[1], np.inf]
+    if p.extended:
+        lower += [-np.inf, ROLLING_EXPONENT_BOUNDS[0]]
+        upper += [np.inf, ROLLING_EXPONENT_BOUNDS[1]]
+    return lower, upper
+
+
+def _solve(p: _Problem, starts: Sequence[FloatArray]) -> list[optimize.OptimizeResult]:
+    """Run least_squares from every start; successful runs, best (lowest cost) first."""
+
+    def residual(x: FloatArray) -> FloatArray:
+        return (_model_internal(x, p)[0] - p.y) / p.s
+
+    def jacobian(x: FloatArray) -> FloatArray:
+        return _model_internal(x, p)[1] / p.s[:, None]
+
+    lower, upper = _bounds(p)
+    found = []
+    for x0 in starts:
+        x0 = np.clip(x0, np.add(lower, 1e-9), np.subtract(upper, 1e-9))
+        try:
+            with np.errstate(all="ignore"):
+                res = optimize.least_squares(
+                    residual,
+                    x0,
+                    jac=jacobian,
+                    bounds=(lower, upper),
+                    method="trf",
+                    x_scale="jac",
+                    max_nfev=1000,
+                )
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
+            log.debug("least_squares failed from %s: %s", x0, exc)
+            continue
+        if res.status > 0 and np.isfinite(res.cost) and np.all(np.isfinite(res.x)):
+            found.append(res)
+    found.sort(key=lambda r: float(r.cost))
+    return found
+
+
+def _physical(x: FloatArray, p: _Problem) -> dict[str, float]:
+    tc, h, lus, delta, bb = (float(val) for val in x[:5])
+    params = {
+        "T_C": tc * p.t_ref,
+        "T_S": (tc + h) * p.t_ref,
+        "v_S": math.exp(lus) * p.v_ref,
+        "delta": delta,
+        "b": bb * p.t_ref / p.v_ref,
+    }
+    if p.extended:
+        fw, k = float(x[5]), float(x[6])
+        params["f_w"] = fw * p.t_ref * (ROLLING_REFERENCE_MM_MIN / p.v_ref) ** k
+        params["k"] = k
+    return params
+
+
+def fit_nonlinear(
+    speed_mm_min: ArrayLike,
+    value: ArrayLike,
+    sigma: ArrayLike | None = None,
+    *,
+    model: Literal["stribeck", "extended"],
+) -> NonlinearFit | None:
+    """Fit the Stribeck or the extended Stribeck model by bounded nonlinear least squares.
+
+    ``stribeck``: T = T_C + (T_S − T_C)·exp(−(v/v_S)^δ) + b·v, parameters
+    :data:`STRIBECK_PARAMETERS`. ``extended`` adds f_w·(v/1000)^k
+    (:data:`EXTENDED_PARAMETERS`); f_w may have either sign.
+
+    Bounds: T_S ≥ T_C (a Stribeck hump, never a dip), v_S between 0.1 × the
+    lowest and the highest speed, δ in [0.3, 3], k in [0.3, 2]; T_C, b and f_w
+    are free. The rolling term is written with v in m/min, f_w·(v/1000)^k,
+    so f_w is the rolling friction at 1 m/min in the friction quantity; with
+    v in mm/min f_w's unit would depend on k and its interval would be
+    dominated by the uncertainty of k.
+
+    Starting values come from the data: the model is linear in T_C, T_S − T_C,
+    b (and f_w) once v_S, δ (and k) are fixed, so a grid over v_S (23 values
+    across the speed range) × δ (7) [× k (5)] is solved by linear least
+    squares, and the three best grid points with distinct v_S start
+    :func:`scipy.optimize.least_squares` (``trf``, analytic Jacobian) on all
+    parameters. The lowest cost wins; a run that stops without converging
+    does not count.
+
+    σ and χ²_red as in :func:`fit_linear`, with m the number of parameters.
+    The covariance is s²(JᵀWJ)⁻¹ with J the Jacobian in the physical
+    parameters at the solution, s² = max(1, χ²_red) with ``sigma`` and the
+    residual variance without. 95 % intervals: value ± t₀.₉₇₅(n − m)·stderr.
+
+    ``identifiable`` is True only when all of these hold:
+
+    - every interval is narrower than |value| (hi − lo < |value|, so it also
+      excludes zero): each parameter is known to better than ±50 %;
+    - no parameter sits on a bound (the data push it outside the model);
+    - the hump T_S − T_C is positive beyond its own 95 % interval.
+
+    Pure Coulomb + viscous data leave v_S and δ undetermined (the hump is
+    zero), so they are reported as not identifiable.
+
+    Args:
+        speed_mm_min: Speeds |v| in mm/min; points at zero speed are dropped.
+        value: Friction magnitudes.
+        sigma: Standard error per point, or None.
+        model: ``"stribeck"`` or ``"extended"``.
+
+    Returns:
+        The fit, or None with fewer than (parameters + 2) usable points, fewer
+        than 3 distinct speeds, or when no start converges.
+    """
+    try:
+        v, y, s = _clean(speed_mm_min, value, sigma)
+    except ValueError as exc:
+        log.debug("nonlinear fit skipped: %s", exc)
+        return None
+    positive = v > 0
+    v, y = v[positive], y[positive]
+    s = None if s is None else s[positive]
+    names = STRIBECK_PARAMETERS if model == "stribeck" else EXTENDED_PARAMETERS
+    m = len(names)
+    n = v.size
+    if n < m + 2 or np.unique(v).size < 3:
+        return None
+    v_ref = float(v.max())
+    t_ref = float(np.median(np.abs(y))) or 1.0
+    problem = _Problem(
+        u=v / v_ref,
+        y=y / t_ref,
+        s=np.ones_like(y) if s is None else s / t_ref,
+        v_ref=v_ref,
+        t_ref=t_ref,
+        extended=model == "extended",
+    )
+    solutions = _solve(problem, _starts(problem))
+    if not solutions:
+        log.debug("%s fit did not converge from any start", model)
+        return None
+    best = solutions[0]
+    params = _physical(best.x, problem)
+
+    fitted = _model_internal(best.x, problem)[0] * t_ref
+    residual = y - fitted
+    dof = n - m
+    jac = _jacobian_physical(params, v)
+    if s is not None:
+        jac = jac / s[:, None]
+        chi2 = float(np.sum((residual / s) ** 2)) / dof
+        scale2 = max(1.0, chi2)
+    else:
+        chi2 = 1.0
+        scale2 = float(residual @ residual) / dof
+    if not (math.isfinite(chi2) and np.all(np.isfinite(jac))):
+        return None
+    cov = scale2 * _covariance(jac.T @ jac)
+    stderr = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    t = float(stats.t.ppf(_T95, dof))
+    ci = {
+        name: (params[name] - t * float(stderr[i]), params[name] + t * float(stderr[i]))
+        for i, name in enumerate(names)
+    }
+    hump = params["T_S"] - params["T_C"]
+    hump_se = math.sqrt(max(float(cov[0, 0] + cov[1, 1] - 2 * cov[0, 1]), 0.0))
+    narrow = all(hi - lo < abs(params[name]) for name, (lo, hi) in ci.items())
+    on_bound = bool(np.any(best.active_mask != 0))
+    identifiable = narrow and not on_bound and hump - t * hump_se > 0
+    if not all(math.isfinite(x) for pair in ci.values() for x in pair):
+        return None
+    return NonlinearFit(
+        model=model,
+        parameters=params,
+        ci95=ci,
+        identifiable=bool(identifiable),
+        chi2_reduced=chi2,
+        stribeck_velocity_mm_min=params["v_S"],
+    )
+
+
+# --------------------------------------------------------------------------- per direction
+
+
+def point_sigma(points: Sequence[Point]) -> FloatArray | None:
+    """σ per point: the standard error of its median, √(π/2)·std/√n.
+
+    std/√n is the standard error of the mean of n independent samples; the
+    point is their median, whose standard error is √(π/2) ≈ 1.25 times larger
+    for normal samples (the same factor the position table uses).
+
+    Guards: a point with n < 1 or a non-finite or zero std gets the median σ
+    of the others; any σ below 0.1 × that median is raised to it (a current
+    quantised to a constant reading has std 0, not infinite precision).
+    None when no point has a usable σ.
+    """
+    raw = np.array(
+        [
+            MEDIAN_SE_FACTOR * p.std / math.sqrt(p.n) if p.n >= 1 and p.std > 0 else math.nan
+            for p in points
+        ],
+        dtype=np.float64,
+    )
+    valid = np.isfinite(raw) & (raw > 0)
+    if not np.any(valid):
+        return None
+    typical = float(np.median(raw[valid]))
+    sigma = np.where(valid, raw, typical)
+    return np.asarray(np.maximum(sigma, SIGMA_FLOOR_FRACTION * typical), dtype=np.float64)
+
+
+def fit_direction(
+    points: Sequence[Point], direction: Literal[1, -1]
+) -> tuple[LinearFit | None, NonlinearFit | None, NonlinearFit | None]:
+    """All fits of one position and direction.
+
+    Points carry signed velocities and signed medians (the negative direction
+    has negative friction); the fits see speed |v| and magnitude
+    ``direction × median``, with σ from :func:`point_sigma`.
+
+    The Stribeck and extended models are fitted to all points. Where the
+    Stribeck fit is identifiable, the linear Coulomb + viscous fit uses only
+    the points above the Stribeck region: speeds where the hump has decayed
+    to 1 % of its height, v ≥ v_S·(ln 100)^(1/δ), and at least 3·v_S,
+    provided at least 5 points remain; otherwise all points. The linear fit's
+    ``velocity_range_mm_min`` shows which speeds it used.
+
+    Returns:
+        (linear, stribeck, extended); each may be None.
+    """
+    if not points:
+        return None, None, None
+    speed = np.abs(np.array([p.velocity_mm_min for p in points], dtype=np.float64))
+    magnitude = direction * np.array([p.median for p in points], dtype=np.float64)
+    sigma = point_sigma(points)
+    stribeck = fit_nonlinear(speed, magnitude, sigma, model="stribeck")
+    extended = fit_nonlinear(speed, magnitude, sigma, model="extended")
+    use = np.ones(speed.size, dtype=bool)
+    if stribeck is not None and stribeck.identifiable:
+        vs, delta = stribeck.parameters["v_S"], stribeck.parameters["delta"]
+        cut = max(3.0 * vs, vs * math.log(1.0 / LINEAR_REGION_DECAY) ** (1.0 / delta))
+        above = speed >= cut
+        if np.count_nonzero(above) >= MIN_LINEAR_POINTS_ABOVE_STRIBECK:
+            use = above
+        else:
+            log.debug(
+                "only %d points above the Stribeck region (%.4g mm/min): linear fit on all",
+                np.count_nonzero(above),
+                cut,
+            )
+    linear = fit_linear(speed[use], magnitude[use], None if sigma is None else sigma[use])
+    return linear, stribeck, extended
+
+
+# --------------------------------------------------------------------------- offset
+
+
+def separate_offset(positive: Sequence[Point], negative: Sequence[Point]) -> OffsetResult | None:
+    """The direction-independent part of the signal, from both directions at equal speed.
+
+    With T₊ = F + o and T₋ = −F + o at the same |v|, o = (T₊ + T₋)/2 for
+    every speed measured in both directions (|v| equal within 0.5 %; each
+    positive point is paired with the nearest unused negative one). The
+    result is the mean of those offsets; its standard error is the scatter of
+    the per-speed offsets / √m (m ≥ 2), or from the two points' σ when only
+    one speed matches.
+
+    Returns:
+        The offset, or None when no speed is measured in both directions.
+    """
+    neg = [p for p in negative if p.velocity_mm_min != 0 and math.isfinite(p.median)]
+    neg_speed = np.array([abs(p.velocity_mm_min) for p in neg], dtype=np.float64)
+    used = np.zeros(len(neg), dtype=bool)
+    offsets: list[float] = []
+    pair_se: list[float] = []
+    speeds: list[float] = []
+    for p in sorted(positive, key=lambda q: abs(q.velocity_mm_min)):
+        speed = abs(p.velocity_mm_min)
+        if speed == 0 or not math.isfinite(p.median) or not neg:
+            continue
+        gap = np.where(used, np.inf, np.abs(neg_speed - speed) / np.maximum(neg_speed, speed))
+        j = int(np.argmin(gap))
+        if gap[j] > SPEED_MATCH_TOLERANCE:
+            continue
+        used[j] = True
+        q = neg[j]
+        offsets.append(0.5 * (p.median + q.median))
+        speeds.append(speed)
+        se = [MEDIAN_SE_FACTOR * x.std / math.sqrt(x.n) for x in (p, q) if x.n >= 1 and x.std > 0]
+        pair_se.append(0.5 * math.sqrt(sum(e * e for e in se)) if len(se) == 2 else math.nan)
+    if not offsets:
+        return None
+    values = np.array(offsets)
+    mean = float(values.mean())
+    if values.size >= 2:
+        stderr: float | None = float(values.std(ddof=1) / math.sqrt(values.size))
+    else:
+        stderr = pair_se[0] if math.isfinite(pair_se[0]) else None
+    if stderr is not None and stderr > 0:
+        verdict = (
+            "significant" if abs(mean) > 2 * stderr else "not distinguishable from zero"
+        ) + f" (±{stderr:.3g} standard error)"
+    else:
+        verdict = "no standard error available"
+    explanation = (
+        f"Direction-independent part o = (T₊ + T₋)/2 = {mean:.4g}, {verdict}, over "
+        f"{values.size} speed(s) measured in both directions "
+        f"({min(speeds):.4g}–{max(speeds):.4g} mm/min; per-speed offsets "
+        f"{values.min():.4g} to {values.max():.4g}). On a vertical axis this is gravity "
+        "(the weight's torque on the screw, M = F·h/2π); on a horizontal axis a bias of the "
+        "torque or current signal, or friction that differs between the directions. "
+        "Friction per direction is the half difference (T₊ − T₋)/2."
+    )
+    return OffsetResult(value=mean, stderr=stderr, explanation=explanation)

@@ -1,0 +1,1005 @@
+"""Windows of constant velocity: where in a recording an axis moved steadily.
+
+The friction of a feed axis is the motor current at *constant* velocity, so
+the first job of the analysis is to find those stretches of an axis' signals.
+Three ways are tried, in this order; the first that yields windows wins:
+
+``marker``
+    The NC program sets a marker while a window is driven (``<AXIS>_marker``
+    > 0). With a schedule whose ``marker_scope`` is ``"run"``, the marker
+    brackets the whole run (ramps included) and the window is cut out of it
+    at the schedule's ``window_start_mm`` .. ``window_end_mm``; the source is
+    then called ``"schedule"``.
+``command``
+    Where the commanded velocity is constant and the actual velocity is
+    within a tolerance of it (relative, with an absolute floor).
+``plateau``
+    From the actual velocity alone, for recordings of programs ncmeasure did
+    not generate: a rolling median smooths the velocity, and every stretch
+    where the smoothed velocity stays within the tolerance of its level for
+    at least ``plateau_min_s`` (and above the standstill floor) is a plateau.
+
+Every window then loses its acceleration transient: the samples up to
+``settle_s`` after the (smoothed) actual velocity entered the tolerance band
+of the window's velocity. A window that the NC program already started
+``settle_s`` after the run-up loses nothing. Windows shorter than
+``min_window_samples`` after that are dropped.
+
+Labelling: with a schedule, each window gets the step, position index,
+direction and repetition of the scheduled window it belongs to: by marker
+value (``marker_values = "window_id"``), else by time order, velocity and
+position (a window matches the next scheduled window in program order whose
+velocity agrees within the tolerance and whose run contains the window's
+centre). Windows that match nothing (rapids, warm-up strokes) are dropped.
+Without a schedule, windows are clustered: velocities into steps (gaps in
+|v| larger than ``step_tolerance`` relative, ``step_floor_mm_min`` absolute)
+and window centres into positions (gaps larger than ``position_gap_mm`` or
+``position_gap_fraction`` of the span, found among the slower half of the
+steps, whose windows no planner shifts; every window then joins the nearest
+position). Rapid traverse is dropped first: windows faster than
+``max_velocity_mm_min`` (or the schedule's top step), the fastest level when
+it holds ``rapid_count_factor`` times more windows than a typical level, and
+windows lasting ``duration_outlier_factor`` times longer than their level's
+trend of duration over velocity (warm-up strokes over the whole travel).
+
+Pure numpy/scipy; loops run over windows, never over samples.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.ndimage import maximum_filter1d, median_filter, minimum_filter1d
+from scipy.stats import theilslopes
+
+from ncmeasure.errors import RecordingError
+from ncmeasure.plan import AxisSummary, Schedule
+from ncmeasure.plan import Window as ScheduledWindow
+from ncmeasure.recording import Recording
+
+__all__ = [
+    "Cluster",
+    "SegmentSettings",
+    "Segmentation",
+    "VelocityWindow",
+    "WindowSource",
+    "cluster_gaps",
+    "find_windows",
+    "windows_of",
+]
+
+log = logging.getLogger(__name__)
+
+WindowSource = Literal["marker", "command", "plateau", "schedule"]
+Method = Literal["auto", "marker", "command", "plateau"]
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.intp]
+BoolArray = NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class SegmentSettings:
+    """How windows are found; :class:`~ncmeasure.analysis.analyze.AnalysisSettings` documents each.
+
+    The defaults suit recordings of ncmeasure's own programs at 1 to 4 ms.
+    """
+
+    velocity_tolerance: float = 0.03
+    velocity_floor_mm_min: float = 2.0
+    settle_s: float = 0.1
+    min_window_samples: int = 10
+    plateau_min_s: float = 0.2
+    plateau_filter_s: float = 0.02
+    standstill_mm_min: float = 1.0
+    step_tolerance: float = 0.01
+    step_floor_mm_min: float = 0.5
+    position_gap_mm: float = 20.0
+    position_gap_fraction: float = 0.05
+    max_velocity_mm_min: float | None = None
+    duration_outlier_factor: float = 4.0
+    rapid_count_factor: float = 3.0
+    method: Method = "auto"
+
+    def tolerance_mm_min(self, velocity_mm_min: float | FloatArray) -> FloatArray:
+        """The accepted |actual − target| at a target velocity: relative with a floor."""
+        return np.maximum(
+            self.velocity_tolerance * np.abs(np.asarray(velocity_mm_min, dtype=np.float64)),
+            self.velocity_floor_mm_min,
+        )
+
+
+@dataclass(frozen=True)
+class VelocityWindow:
+    """One window of constant velocity of one axis.
+
+    Attributes:
+        axis: The axis name.
+        start: First sample index of the window.
+        stop: One past the last sample index (``values[start:stop]``).
+        velocity_mm_min: The signed velocity of the window's step: the
+            schedule's, or the centre of its velocity cluster.
+        level_mm_min: This window's own signed velocity: the commanded one
+            where recorded, else the median actual velocity. Samples are kept
+            where the actual velocity is within the tolerance of it.
+        direction: +1 or −1.
+        position_mm: Mean measured position over the window (integrated
+            velocity where no position was recorded).
+        position_index: Index of the measuring position, 0 = lowest.
+        step: Velocity step index, 0 = slowest.
+        source: How the window was found.
+        window_id: The schedule's window id, when labelled by a schedule.
+        repetition: The schedule's repetition, when labelled by a schedule.
+    """
+
+    axis: str
+    start: int
+    stop: int
+    velocity_mm_min: float
+    level_mm_min: float
+    direction: Literal[1, -1]
+    position_mm: float
+    position_index: int
+    step: int
+    source: WindowSource
+    window_id: int | None = None
+    repetition: int | None = None
+
+    @property
+    def samples(self) -> int:
+        """Number of samples in the window."""
+        return self.stop - self.start
+
+
+@dataclass(frozen=True)
+class Cluster:
+    """A velocity level or a measuring position found in the data (or given by the schedule).
+
+    ``centre`` is the reported value (|v| in mm/min, or mm); ``low``/``high``
+    the range of the windows in it.
+    """
+
+    index: int
+    centre: float
+    low: float
+    high: float
+    windows: int
+
+
+@dataclass
+class Segmentation:
+    """What :func:`find_windows` found for one axis.
+
+    Attributes:
+        axis: The axis name.
+        windows: The labelled windows, in time order.
+        source: How the windows were found.
+        labelled_by: ``"schedule"`` or ``"clusters"``.
+        steps: Velocity levels (|v|), index = step, ascending.
+        positions: Measuring positions, index = position_index, ascending.
+        warnings: What the analysis should tell the user.
+        tried: What was tried before ``source`` worked, one line each.
+    """
+
+    axis: str
+    windows: list[VelocityWindow]
+    source: WindowSource
+    labelled_by: Literal["schedule", "clusters"]
+    steps: list[Cluster]
+    positions: list[Cluster]
+    warnings: list[str] = field(default_factory=list)
+    tried: list[str] = field(default_factory=list)
+
+
+@dataclass
+class _Candidate:
+    """A stretch of samples that may hold a window, before labelling."""
+
+    start: int
+    stop: int
+    level_mm_min: float
+    marker_value: float | None = None
+    scheduled: ScheduledWindow | None = None
+
+
+# --- small vectorised helpers ----------------------------------------------------------
+
+
+def _runs(mask: BoolArray) -> tuple[IntArray, IntArray]:
+    """Start and stop (exclusive) indices of the runs of True in ``mask``."""
+    edges = np.diff(mask.astype(np.int8), prepend=np.int8(0), append=np.int8(0))
+    return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+
+
+def _value_runs(on: BoolArray, value: FloatArray) -> tuple[IntArray, IntArray]:
+    """Runs of ``on`` that also break wherever ``value`` changes."""
+    n = len(on)
+    if n == 0:
+        return np.empty(0, np.intp), np.empty(0, np.intp)
+    changed = np.empty(n, dtype=np.bool_)
+    changed[0] = True
+    changed[1:] = (value[1:] != value[:-1]) | ~on[:-1]
+    ends = np.empty(n, dtype=np.bool_)
+    ends[-1] = True
+    ends[:-1] = (value[:-1] != value[1:]) | ~on[1:]
+    return np.flatnonzero(on & changed), np.flatnonzero(on & ends) + 1
+
+
+def _odd(count: float) -> int:
+    size = max(1, round(count))
+    return size if size % 2 else size + 1
+
+
+def cluster_gaps(values: Sequence[float] | FloatArray, gaps: FloatArray | float) -> IntArray:
+    """Gap-based 1-D clustering: sorted values split where neighbours are further apart.
+
+    Args:
+        values: The values (any order).
+        gaps: The largest distance inside a cluster: one number, or one per
+            value, applying to the gap *below* that value in sorted order.
+
+    Returns:
+        The cluster index of every value, 0 for the lowest cluster, in the
+        order of ``values``.
+    """
+    data = np.asarray(values, dtype=np.float64)
+    labels = np.zeros(len(data), dtype=np.intp)
+    if len(data) < 2:
+        return labels
+    order = np.argsort(data, kind="stable")
+    ordered = data[order]
+    limit = np.broadcast_to(np.asarray(gaps, dtype=np.float64), data.shape)[order]
+    breaks = np.diff(ordered) > limit[1:]
+    labels[order] = np.concatenate(([0], np.cumsum(breaks)))
+    return labels
+
+
+def _clusters(values: FloatArray, labels: IntArray) -> list[Cluster]:
+    result = []
+    for index in range(int(labels.max()) + 1 if len(labels) else 0):
+        members = values[labels == index]
+        result.append(
+            Cluster(
+                index=index,
+                centre=float(np.median(members)),
+                low=float(members.min()),
+                high=float(members.max()),
+                windows=len(members),
+            )
+        )
+    return result
+
+
+# --- the finder ------------------------------------------------------------------------
+
+
+class _Finder:
+    """Finds and labels the windows of one axis (one call of :func:`find_windows`)."""
+
+    def __init__(
+        self,
+        axis: str,
+        time_s: FloatArray,
+        velocity: FloatArray,
+        position: FloatArray | None,
+        command: FloatArray | None,
+        marker: FloatArray | None,
+        schedule: Schedule | None,
+        settings: SegmentSettings,
+    ) -> None:
+        self.axis = axis
+        self.settings = settings
+        self.v = velocity
+        self.n = len(velocity)
+        steps = np.diff(time_s)
+        self.dt = float(np.median(steps)) if len(steps) else 1.0
+        if not self.dt > 0:
+            raise RecordingError(f"axis {axis}: the sample times do not increase")
+        self.command = command
+        self.marker = marker
+        self.warnings: list[str] = []
+        self.tried: list[str] = []
+        self.positions_known = position is not None
+        if position is None:
+            # Relative positions are enough to tell measuring positions apart.
+            filled = np.where(np.isfinite(velocity), velocity, 0.0)
+            self.x = np.cumsum(filled) * (self.dt / 60.0)
+            self.warnings.append(
+                "no position channel: positions integrated from the velocity (relative)"
+            )
+        else:
+            self.x = position
+        self.summary: AxisSummary | None = None
+        self.scope: Literal["window", "run", "none"] = "window"
+        self.marker_values: Literal["window_id", "flag"] = "window_id"
+        if schedule is not None:
+            self.scope = schedule.marker_scope
+            self.marker_values = schedule.marker_values
+            for summary in schedule.axes:
+                if summary.name == axis:
+                    self.summary = summary
+            if self.summary is None:
+                self.warnings.append(
+                    "the schedule has no windows for this axis: windows clustered instead"
+                )
+        self.settle_n = round(settings.settle_s / self.dt)
+        self.filter_n = _odd(settings.plateau_filter_s / self.dt)
+
+    # -- detection ---------------------------------------------------------------------
+
+    def marker_candidates(self) -> list[_Candidate]:
+        marker = self.marker
+        if marker is None:
+            self.tried.append("marker: not recorded")
+            return []
+        if self.summary is not None and self.scope == "none":
+            self.tried.append("marker: the schedule says the program writes none")
+            return []
+        on = np.isfinite(marker) & (marker > 0)
+        starts, stops = _value_runs(on, marker)
+        if len(starts) == 0:
+            self.tried.append("marker: recorded but never set")
+            return []
+        reference = self.command if self.command is not None else self.v
+        result = []
+        for start, stop in zip(starts.tolist(), stops.tolist(), strict=True):
+            level = float(np.nanmedian(reference[start:stop]))
+            if not abs(level) >= self.settings.standstill_mm_min:
+                continue
+            result.append(_Candidate(start, stop, level, marker_value=float(marker[start])))
+        if not result:
+            self.tried.append(f"marker: {len(starts)} marker windows, all at standstill")
+        return result
+
+    def command_candidates(self) -> list[_Candidate]:
+        command = self.command
+        if command is None:
+            self.tried.append("commanded velocity: not recorded")
+            return []
+        settings = self.settings
+        if self.n < 2:
+            return []
+        jump = np.abs(np.diff(command))
+        limit = 1e-4 * np.abs(command[1:]) + 1e-3
+        constant = np.zeros(self.n, dtype=np.bool_)
+        constant[1:] = jump <= limit  # sample i repeats sample i - 1
+        # A constant stretch starts one sample before its first repeat.
+        begins = np.flatnonzero(~constant)
+        ends = np.append(begins[1:], self.n)
+        lengths = ends - begins
+        moving = np.abs(command[begins]) >= settings.standstill_mm_min
+        keep = moving & (lengths >= settings.min_window_samples)
+        result = [
+            _Candidate(int(b), int(e), float(command[b]))
+            for b, e in zip(begins[keep].tolist(), ends[keep].tolist(), strict=True)
+        ]
+        if not result:
+            self.tried.append(
+                f"commanded velocity: no constant stretch of {settings.min_window_samples} "
+                f"samples above {settings.standstill_mm_min:g} mm/min"
+            )
+        return result
+
+    def plateau_candidates(self) -> list[_Candidate]:
+        settings = self.settings
+        length = max(2, round(settings.plateau_min_s / self.dt))
+        if self.n < length:
+            self.tried.append(
+                "plateaus: the recording is shorter than plateau_min_s "
+                f"({settings.plateau_min_s:g} s)"
+            )
+            return []
+        finite = np.where(np.isfinite(self.v), self.v, 0.0)
+        smooth = median_filter(finite, size=self.filter_n, mode="nearest")
+        # ok[j]: the smoothed velocity stays within the tolerance over [j, j + length).
+        low = minimum_filter1d(smooth, length, mode="nearest", origin=-(length // 2))
+        high = maximum_filter1d(smooth, length, mode="nearest", origin=-(length // 2))
+        slowest = minimum_filter1d(np.abs(smooth), length, mode="nearest", origin=-(length // 2))
+        ok = (high - low) <= settings.tolerance_mm_min(smooth)
+        ok &= slowest >= settings.standstill_mm_min
+        ok[self.n - length + 1 :] = False
+        # Samples covered by any good span of `length` samples.
+        covered = maximum_filter1d(ok.astype(np.int8), length, origin=(length - 1) // 2) > 0
+        # Two levels that touch without a ramp between them are two plateaus.
+        jump = np.zeros(self.n, dtype=np.bool_)
+        jump[1:] = np.abs(np.diff(smooth)) > 0.5 * settings.tolerance_mm_min(smooth[1:])
+        starts, stops = _runs(covered & ~jump)
+        result = []
+        for start, stop in zip(starts.tolist(), stops.tolist(), strict=True):
+            if stop - start < length:
+                continue
+            result.append(_Candidate(start, stop, float(np.median(smooth[start:stop]))))
+        if not result:
+            self.tried.append(
+                f"plateaus: no stretch of {settings.plateau_min_s:g} s where the actual velocity "
+                f"stays within {100 * settings.velocity_tolerance:g} % "
+                f"(at least {settings.velocity_floor_mm_min:g} mm/min) above "
+                f"{settings.standstill_mm_min:g} mm/min"
+            )
+        return result
+
+    # -- trimming ----------------------------------------------------------------------
+
+    def trim(
+        self, start: int, stop: int, level: float, *, guard_end: bool = False
+    ) -> tuple[int, int] | None:
+        """Cut transients: begin ``settle_s`` after the velocity settled, end at its last good.
+
+        Where the velocity itself says where the window ends (``guard_end``, or
+        the velocity left the band before ``stop``), the end moves back by the
+        smoothing width: the rolling median sees a deceleration that much late,
+        and the current (the controller's torque) leads the velocity.
+        """
+        settings = self.settings
+        width = self.filter_n
+        low = max(0, start - self.settle_n - width)
+        high = min(self.n, stop + width)
+        chunk = self.v[low:high]
+        chunk = np.where(np.isfinite(chunk), chunk, np.inf)
+        smooth = median_filter(chunk, size=width, mode="nearest") if width > 1 else chunk
+        inside = np.abs(smooth - level) <= settings.tolerance_mm_min(level)
+        a, b = start - low, stop - low
+        good = inside[a:b]
+        if not good.any():
+            return None
+        first = a + int(np.argmax(good))
+        last = b - int(np.argmax(good[::-1]))
+        if guard_end or last < b:
+            last -= width
+        begin = first
+        c0, c1 = max(0, first - self.settle_n), min(last, first + self.settle_n)
+        outside = ~inside[c0:c1]
+        if outside.any():
+            j = c0 + len(outside) - 1 - int(np.argmax(outside[::-1]))
+            begin = max(first, j + 1 + self.settle_n)
+        if last - begin < settings.min_window_samples:
+            return None
+        return low + begin, low + last
+
+    # -- the schedule ------------------------------------------------------------------
+
+    def match(
+        self, candidates: Sequence[_Candidate], *, by_position: bool, whole_runs: bool
+    ) -> list[ScheduledWindow | None]:
+        """Match candidates to scheduled windows by program order, velocity and position."""
+        assert self.summary is not None
+        planned = self.summary.windows
+        if not planned or not candidates:
+            return [None] * len(candidates)
+        settings = self.settings
+        sched_v = np.array([w.velocity_mm_min for w in planned])
+        run_lo = np.array([min(w.start_mm, w.stop_mm) for w in planned])
+        run_hi = np.array([max(w.start_mm, w.stop_mm) for w in planned])
+        run_s = np.array([w.t_stop_s - w.t_start_s for w in planned])
+        span = self.summary.travel_mm[1] - self.summary.travel_mm[0]
+        margin = max(5.0, 0.02 * abs(span))
+        cand_v = np.array([c.level_mm_min for c in candidates])
+        cand_x = np.array([float(np.nanmean(self.x[c.start : c.stop])) for c in candidates])
+        cand_s = np.array([(c.stop - c.start) * self.dt for c in candidates])
+        ok = np.sign(cand_v)[:, None] == np.sign(sched_v)[None, :]
+        ok &= np.abs(cand_v[:, None] - sched_v[None, :]) <= 2 * settings.tolerance_mm_min(sched_v)
+        if by_position:
+            ok &= (cand_x[:, None] >= run_lo - margin) & (cand_x[:, None] <= run_hi + margin)
+        # A window never lasts longer than its run (plus a generous slack: controllers
+        # ramp more gently than planned); warm-up strokes and long rapids do.
+        slack = 2.0 if whole_runs else 1.5
+        ok &= cand_s[:, None] <= slack * run_s[None, :] + 1.0
+        result: list[ScheduledWindow | None] = []
+        pointer = 0
+        for row in ok:
+            hits = np.flatnonzero(row[pointer:])
+            if len(hits) == 0:
+                result.append(None)
+                continue
+            index = pointer + int(hits[0])
+            result.append(planned[index])
+            pointer = index + 1
+        return result
+
+    def match_by_id(self, candidates: Sequence[_Candidate]) -> list[ScheduledWindow | None]:
+        assert self.summary is not None
+        by_id = {w.id: w for w in self.summary.windows}
+        result: list[ScheduledWindow | None] = []
+        mismatched = 0
+        for candidate in candidates:
+            value = candidate.marker_value
+            window = by_id.get(round(value)) if value is not None else None
+            if window is not None and np.sign(window.velocity_mm_min) != np.sign(
+                candidate.level_mm_min
+            ):
+                mismatched += 1
+                window = None
+            result.append(window)
+        if mismatched:
+            self.warnings.append(
+                f"{mismatched} marker windows move against their scheduled direction: dropped"
+            )
+        return result
+
+    def match_schedule(
+        self, candidates: Sequence[_Candidate], *, by_id: bool, whole_runs: bool
+    ) -> list[_Candidate]:
+        """Attach the scheduled window to every candidate; drop the unmatched ones."""
+        if by_id:
+            matched = self.match_by_id(candidates)
+        else:
+            matched = self.match(
+                candidates, by_position=self.positions_known, whole_runs=whole_runs
+            )
+            found = sum(m is not None for m in matched)
+            if self.positions_known and found < 0.5 * min(len(candidates), self.planned_count):
+                retry = self.match(candidates, by_position=False, whole_runs=whole_runs)
+                if sum(m is not None for m in retry) > found:
+                    self.warnings.append(
+                        "the recorded positions do not fit the schedule's (another coordinate "
+                        "system?): windows matched by velocity and order only"
+                    )
+                    matched = retry
+        kept = []
+        for candidate, window in zip(candidates, matched, strict=True):
+            if window is not None:
+                candidate.scheduled = window
+                kept.append(candidate)
+        unmatched = len(candidates) - len(kept)
+        if unmatched:
+            self.warnings.append(
+                f"{unmatched} constant-velocity stretches match no scheduled window "
+                "(rapids, warm-up, other moves): dropped"
+            )
+        ids = [c.scheduled.id for c in kept if c.scheduled is not None]
+        if len(set(ids)) < len(ids):
+            self.warnings.append("some scheduled windows were found more than once: pooled")
+        return kept
+
+    @property
+    def planned_count(self) -> int:
+        return len(self.summary.windows) if self.summary is not None else 0
+
+    def cut_runs(self, candidates: Sequence[_Candidate]) -> list[_Candidate]:
+        """Marker brackets whole runs: cut the scheduled window out of each run."""
+        cut_by_position: list[_Candidate | None] = []
+        if self.positions_known:
+            for candidate in candidates:
+                window = candidate.scheduled
+                assert window is not None
+                lo = min(window.window_start_mm, window.window_end_mm)
+                hi = max(window.window_start_mm, window.window_end_mm)
+                x = self.x[candidate.start : candidate.stop]
+                inside = np.flatnonzero((x >= lo) & (x <= hi))
+                if len(inside) < self.settings.min_window_samples:
+                    cut_by_position.append(None)
+                    continue
+                cut_by_position.append(
+                    replace(
+                        candidate,
+                        start=candidate.start + int(inside[0]),
+                        stop=candidate.start + int(inside[-1]) + 1,
+                    )
+                )
+            good = [c for c in cut_by_position if c is not None]
+            if len(good) >= 0.5 * len(candidates):
+                if len(good) < len(candidates):
+                    self.warnings.append(
+                        f"{len(candidates) - len(good)} runs never crossed their scheduled "
+                        "window positions: dropped"
+                    )
+                return good
+            self.warnings.append(
+                "the recorded positions do not cross the scheduled windows (another "
+                "coordinate system?): windows cut by the schedule's times from the marker edge"
+            )
+        result = []
+        for candidate in candidates:
+            window = candidate.scheduled
+            assert window is not None
+            begin = candidate.start + round((window.t_window_start_s - window.t_start_s) / self.dt)
+            end = candidate.start + round((window.t_window_end_s - window.t_start_s) / self.dt)
+            end = min(end, candidate.stop)
+            if end - begin >= self.settings.min_window_samples:
+                result.append(replace(candidate, start=begin, stop=end))
+        return result
+
+    # -- rapids and outliers without a schedule ----------------------------------------
+
+    def drop_too_fast(self, candidates: list[_Candidate]) -> list[_Candidate]:
+        top = self.settings.max_velocity_mm_min
+        if top is None and self.summary is not None and self.summary.velocities_mm_min:
+            top = max(self.summary.velocities_mm_min)
+        if top is None:
+            return candidates
+        limit = top + float(self.settings.tolerance_mm_min(top))
+        kept = [c for c in candidates if abs(c.level_mm_min) <= limit]
+        if len(kept) < len(candidates):
+            self.warnings.append(
+                f"{len(candidates) - len(kept)} windows faster than {top:g} mm/min "
+                "(rapid traverse): dropped"
+            )
+        return kept
+
+    def levels(self, candidates: Sequence[_Candidate]) -> IntArray:
+        speeds = np.abs(np.array([c.level_mm_min for c in candidates]))
+        gaps = np.maximum(self.settings.step_tolerance * speeds, self.settings.step_floor_mm_min)
+        return cluster_gaps(speeds, gaps)
+
+    def drop_rapids(self, candidates: list[_Candidate]) -> list[_Candidate]:
+        """Without a schedule: drop the rapid-traverse level and over-long windows."""
+        settings = self.settings
+        if len(candidates) < 3:
+            return candidates
+        labels = self.levels(candidates)
+        count = int(labels.max()) + 1
+        per_level = np.bincount(labels, minlength=count)
+        if count >= 3:
+            fastest = count - 1
+            typical = float(np.median(per_level[:-1]))
+            if per_level[fastest] > settings.rapid_count_factor * max(typical, 1.0):
+                speed = float(
+                    np.median(
+                        [
+                            abs(c.level_mm_min)
+                            for c, k in zip(candidates, labels, strict=True)
+                            if k == fastest
+                        ]
+                    )
+                )
+                self.warnings.append(
+                    f"the fastest level, {speed:g} mm/min, holds {per_level[fastest]} windows "
+                    f"where the others hold about {typical:g}: taken as rapid traverse, dropped"
+                )
+                candidates = [c for c, k in zip(candidates, labels, strict=True) if k != fastest]
+                labels = self.levels(candidates)
+                count = int(labels.max()) + 1
+        speeds = np.abs(np.array([c.level_mm_min for c in candidates]))
+        durations = np.array([(c.stop - c.start) * self.dt for c in candidates])
+        log_d = np.log(durations)
+        level_v = np.array([np.median(np.log(speeds[labels == k])) for k in range(count)])
+        level_d = np.array([np.median(log_d[labels == k]) for k in range(count)])
+        if count >= 3:
+            slope, intercept, _, _ = theilslopes(level_d, level_v)
+            expected = intercept + slope * np.log(speeds)
+        else:
+            expected = level_d[labels]
+        long = log_d - expected > math.log(settings.duration_outlier_factor)
+        if long.any():
+            self.warnings.append(
+                f"{int(long.sum())} windows last over {settings.duration_outlier_factor:g} times "
+                "longer than the others at their velocity (warm-up strokes, traverses): dropped"
+            )
+            candidates = [c for c, bad in zip(candidates, long, strict=True) if not bad]
+        return candidates
+
+    # -- labelling ---------------------------------------------------------------------
+
+    def window(
+        self, candidate: _Candidate, source: WindowSource, **labels: int | float
+    ) -> VelocityWindow:
+        direction: Literal[1, -1] = 1 if candidate.level_mm_min > 0 else -1
+        x = self.x[candidate.start : candidate.stop]
+        position = float(np.nanmean(x)) if np.isfinite(x).any() else float("nan")
+        return VelocityWindow(
+            axis=self.axis,
+            start=candidate.start,
+            stop=candidate.stop,
+            velocity_mm_min=float(labels.get("velocity_mm_min", candidate.level_mm_min)),
+            level_mm_min=candidate.level_mm_min,
+            direction=direction,
+            position_mm=position,
+            position_index=int(labels.get("position_index", -1)),
+            step=int(labels.get("step", -1)),
+            source=source,
+            window_id=int(labels["window_id"]) if "window_id" in labels else None,
+            repetition=int(labels["repetition"]) if "repetition" in labels else None,
+        )
+
+    def label_by_schedule(
+        self, candidates: Sequence[_Candidate], source: WindowSource
+    ) -> tuple[list[VelocityWindow], list[Cluster], list[Cluster]]:
+        assert self.summary is not None
+        summary = self.summary
+        windows = []
+        off_schedule: list[int] = []
+        for candidate in candidates:
+            planned = candidate.scheduled
+            assert planned is not None
+            windows.append(
+                self.window(
+                    candidate,
+                    source,
+                    velocity_mm_min=planned.velocity_mm_min,
+                    position_index=planned.position_index,
+                    step=planned.step,
+                    window_id=planned.id,
+                    repetition=planned.repetition,
+                )
+            )
+            tolerance = float(self.settings.tolerance_mm_min(planned.velocity_mm_min))
+            if abs(candidate.level_mm_min - planned.velocity_mm_min) > tolerance:
+                off_schedule.append(planned.id)
+        if off_schedule:
+            shown = ", ".join(str(i) for i in off_schedule[:5])
+            more = ", ..." if len(off_schedule) > 5 else ""
+            self.warnings.append(
+                f"{len(off_schedule)} windows moved at another velocity than scheduled "
+                f"(feed override?): windows {shown}{more}"
+            )
+        steps = []
+        for index, speed in enumerate(summary.velocities_mm_min):
+            levels = [abs(w.level_mm_min) for w in windows if w.step == index]
+            steps.append(
+                Cluster(
+                    index,
+                    speed,
+                    min(levels, default=speed),
+                    max(levels, default=speed),
+                    len(levels),
+                )
+            )
+        positions = []
+        for index, nominal in enumerate(summary.nominal_positions_mm):
+            centres = [w.position_mm for w in windows if w.position_index == index]
+            positions.append(
+                Cluster(
+                    index,
+                    nominal,
+                    min(centres, default=nominal),
+                    max(centres, default=nominal),
+                    len(centres),
+                )
+            )
+        return windows, steps, positions
+
+    def label_by_clusters(
+        self, candidates: Sequence[_Candidate], source: WindowSource
+    ) -> tuple[list[VelocityWindow], list[Cluster], list[Cluster]]:
+        settings = self.settings
+        speeds = np.abs(np.array([c.level_mm_min for c in candidates]))
+        step_of = self.levels(candidates)
+        steps = _clusters(speeds, step_of)
+        centres = np.array([float(np.nanmean(self.x[c.start : c.stop])) for c in candidates])
+        # Anchor the positions on the slower half of the steps: planners shift the
+        # windows of fast steps inward where the run-up would not fit.
+        slow = step_of <= (len(steps) - 1) // 2
+        anchor = centres[slow & np.isfinite(centres)]
+        if len(anchor) == 0:
+            anchor = centres[np.isfinite(centres)]
+        span = float(anchor.max() - anchor.min()) if len(anchor) else 0.0
+        gap = max(settings.position_gap_mm, settings.position_gap_fraction * span)
+        anchor_of = cluster_gaps(anchor, gap)
+        anchors = _clusters(anchor, anchor_of)
+        anchor_x = np.array([a.centre for a in anchors])
+        position_of = np.argmin(np.abs(centres[:, None] - anchor_x[None, :]), axis=1)
+        position_of[~np.isfinite(centres)] = 0
+        # Renumber: a position that no window ended up nearest to is left out.
+        used = np.unique(position_of)
+        position_of = np.searchsorted(used, position_of)
+        positions = [
+            Cluster(
+                index,
+                anchors[int(anchor)].centre,
+                float(centres[position_of == index].min()),
+                float(centres[position_of == index].max()),
+                int((position_of == index).sum()),
+            )
+            for index, anchor in enumerate(used)
+        ]
+        windows = []
+        for candidate, step, position in zip(candidates, step_of, position_of, strict=True):
+            sign = 1.0 if candidate.level_mm_min > 0 else -1.0
+            windows.append(
+                self.window(
+                    candidate,
+                    source,
+                    velocity_mm_min=sign * steps[int(step)].centre,
+                    position_index=int(position),
+                    step=int(step),
+                )
+            )
+        return windows, steps, positions
+
+    # -- the whole job -----------------------------------------------------------------
+
+    def attempt(self, method: Method) -> tuple[WindowSource, list[_Candidate], bool] | None:
+        """One way of finding windows, up to trimmed candidates; None when none is left.
+
+        Returns:
+            The source, the trimmed candidates, and whether they are already
+            matched to the schedule (marker windows are matched before the cut).
+        """
+        settings = self.settings
+        noted = len(self.warnings)
+        source: WindowSource
+        if method == "marker":
+            candidates, source, name = self.marker_candidates(), "marker", "marker"
+        elif method == "command":
+            candidates, source, name = self.command_candidates(), "command", "commanded velocity"
+        else:
+            candidates, source, name = self.plateau_candidates(), "plateau", "plateaus"
+        if not candidates:
+            return None
+        found = len(candidates)
+        labelled = False
+        if method == "marker" and self.summary is not None:
+            whole_runs = self.scope == "run"
+            by_id = self.marker_values == "window_id"
+            candidates = self.match_schedule(candidates, by_id=by_id, whole_runs=whole_runs)
+            labelled = True
+            if whole_runs:
+                candidates = self.cut_runs(candidates)
+                source = "schedule"
+            if not candidates:
+                self.tried.append(f"marker: {found} marker windows, none fits the schedule")
+                del self.warnings[noted:]
+                return None
+        trimmed = []
+        for candidate in candidates:
+            cut = self.trim(
+                candidate.start,
+                candidate.stop,
+                candidate.level_mm_min,
+                guard_end=source == "plateau",
+            )
+            if cut is not None:
+                trimmed.append(replace(candidate, start=cut[0], stop=cut[1]))
+        if not trimmed:
+            self.tried.append(
+                f"{name}: {len(candidates)} stretches, in none does the actual velocity stay "
+                f"within the tolerance for {settings.min_window_samples} samples after "
+                f"settle_s ({settings.settle_s:g} s)"
+            )
+            del self.warnings[noted:]
+            return None
+        if len(trimmed) < len(candidates):
+            self.warnings.append(
+                f"{len(candidates) - len(trimmed)} windows shorter than "
+                f"{settings.min_window_samples} samples after the settling time: dropped"
+            )
+        return source, trimmed, labelled
+
+    def run(self) -> Segmentation:
+        method = self.settings.method
+        order: tuple[Method, ...] = (
+            ("marker", "command", "plateau") if method == "auto" else (method,)
+        )
+        for way in order:
+            found = self.attempt(way)
+            if found is not None:
+                break
+        else:
+            raise RecordingError(
+                f"axis {self.axis}: no window of constant velocity found",
+                [*self.tried, "settings: velocity_tolerance, velocity_floor_mm_min, "
+                 "standstill_mm_min, plateau_min_s, min_window_samples, settle_s"],
+            )  # fmt: skip
+        source, candidates, labelled = found
+        if method == "auto" and way != "marker":
+            if way == "command":
+                why = "no marker windows" if self.marker is not None else "no marker"
+                first = f"{why}: windows from the commanded velocity"
+            elif self.marker is None and self.command is None:
+                first = (
+                    "no marker and no commanded velocity: windows from constant-velocity "
+                    "plateaus of the actual velocity"
+                )
+            else:
+                first = (
+                    "neither marker nor commanded velocity gave windows: windows from "
+                    "constant-velocity plateaus of the actual velocity"
+                )
+            reasons = [t for t in self.tried if not t.endswith("not recorded")]
+            self.warnings[:0] = [first, *reasons]
+        candidates = self.drop_too_fast(candidates)
+        if self.summary is not None and not labelled:
+            candidates = self.match_schedule(candidates, by_id=False, whole_runs=False)
+            labelled = True
+        if not labelled and source in ("command", "plateau"):
+            candidates = self.drop_rapids(candidates)
+        if not candidates:
+            raise RecordingError(
+                f"axis {self.axis}: every {source} window was dropped",
+                [*self.tried, *self.warnings],
+            )
+        if labelled:
+            windows, steps, positions = self.label_by_schedule(candidates, source)
+        else:
+            windows, steps, positions = self.label_by_clusters(candidates, source)
+        windows.sort(key=lambda w: w.start)
+        log.debug(
+            "axis %s: %d %s windows, %d steps, %d positions",
+            self.axis,
+            len(windows),
+            source,
+            len(steps),
+            len(positions),
+        )
+        return Segmentation(
+            axis=self.axis,
+            windows=windows,
+            source=source,
+            labelled_by="schedule" if labelled else "clusters",
+            steps=steps,
+            positions=positions,
+            warnings=list(dict.fromkeys(self.warnings)),
+            tried=self.tried,
+        )
+
+
+def find_windows(
+    axis: str,
+    time_s: FloatArray,
+    velocity_mm_min: FloatArray,
+    *,
+    position_mm: FloatArray | None = None,
+    command_mm_min: FloatArray | None = None,
+    marker: FloatArray | None = None,
+    schedule: Schedule | None = None,
+    settings: SegmentSettings | None = None,
+) -> Segmentation:
+    """Find and label the constant-velocity windows of one axis.
+
+    Args:
+        axis: The axis name (to find its part of the schedule).
+        time_s: Sample times (n,).
+        velocity_mm_min: Actual velocity (n,).
+        position_mm: Actual position (n,); integrated velocity when missing.
+        command_mm_min: Commanded velocity (n,), where recorded.
+        marker: The program's marker (n,), where recorded.
+        schedule: The schedule.json of the program, to label the windows.
+        settings: How windows are found.
+
+    Returns:
+        The windows with their labels, the steps and positions, and warnings.
+
+    Raises:
+        RecordingError: No window was found (the message says what was tried).
+    """
+    finder = _Finder(
+        axis,
+        np.asarray(time_s, dtype=np.float64),
+        np.asarray(velocity_mm_min, dtype=np.float64),
+        None if position_mm is None else np.asarray(position_mm, dtype=np.float64),
+        None if command_mm_min is None else np.asarray(command_mm_min, dtype=np.float64),
+        None if marker is None else np.asarray(marker, dtype=np.float64),
+        schedule,
+        settings or SegmentSettings(),
+    )
+    return finder.run()
+
+
+def _optional(recording: Recording, axis: str, signal: str) -> FloatArray | None:
+    name = f"{axis}_{signal}"
+    return recording.column(name) if name in recording.channel_names else None
+
+
+def windows_of(
+    recording: Recording,
+    axis: str,
+    *,
+    schedule: Schedule | None = None,
+    settings: SegmentSettings | None = None,
+) -> Segmentation:
+    """:func:`find_windows` on the channels of one axis of a recording.
+
+    Raises:
+        RecordingError: The axis has no velocity channel, or no window was found.
+    """
+    velocity = _optional(recording, axis, "velocity_mm_min")
+    if velocity is None:
+        raise RecordingError(
+            f"{recording.directory}: axis {axis} has no velocity channel ({axis}_velocity_mm_min)"
+        )
+    return find_windows(
+        axis,
+        recording.time_s,
+        velocity,
+        position_mm=_optional(recording, axis, "position_mm"),
+        command_mm_min=_optional(recording, axis, "velocity_cmd_mm_min"),
+        marker=_optional(recording, axis, "marker"),
+        schedule=schedule,
+        settings=settings,
+    )

@@ -1,0 +1,665 @@
+"""The report's figures: Stribeck curves, friction along the travel, raw data with windows.
+
+Every ``plot_*`` function returns a :class:`matplotlib.figure.Figure` drawn on
+its own Agg canvas: no pyplot, no global backend switch, nothing left in a
+figure registry, so a program that uses pyplot interactively is unaffected.
+The report's fonts and colours are matplotlib rc settings applied only while a
+figure is drawn or saved (``rc_context``) and restored afterwards.
+:func:`figure_png` and :func:`save_png` turn a figure into PNG bytes / a file
+at the fixed :data:`DPI`, without a timestamp or software tag, so the same
+results give the same bytes.
+"""
+
+from __future__ import annotations
+
+import functools
+import io
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Final, ParamSpec
+
+import numpy as np
+from matplotlib import rc_context
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.cm import ScalarMappable
+from matplotlib.colors import LinearSegmentedColormap, LogNorm, Normalize
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch, Rectangle
+from matplotlib.ticker import FuncFormatter
+from numpy.typing import NDArray
+
+from ncmeasure.analysis.compare import Comparison
+from ncmeasure.analysis.results import AxisResult, DirectionResult, NonlinearFit
+from ncmeasure.errors import OutputError
+from ncmeasure.recording import Recording
+from ncmeasure.report.bearings import BearingLayout
+from ncmeasure.report.curves import linear_curve, offset_is_significant, stribeck_curve
+from ncmeasure.report.words import format_mm
+
+if TYPE_CHECKING:
+    from matplotlib.typing import RcKeyType
+
+__all__ = [
+    "DPI",
+    "PALETTE",
+    "WIDTH_IN",
+    "figure_png",
+    "plot_comparison",
+    "plot_raw_data",
+    "plot_stribeck",
+    "plot_travel",
+    "save_png",
+]
+
+FloatArray = NDArray[np.float64]
+_P = ParamSpec("_P")
+
+#: Dots per inch of every PNG; with :data:`WIDTH_IN` a figure is 1056 px wide.
+DPI: Final = 110
+#: Width of every figure in inches.
+WIDTH_IN: Final = 9.6
+#: One colour per measuring position (and the raw-data signals); distinct on screen and paper.
+PALETTE: Final = ("#1f5fa8", "#e07b00", "#2e8b3e", "#c0392b", "#7b4fa3", "#8c6d31", "#d45fa0")
+INK: Final = "#222222"
+GRID: Final = "#d9d9d9"
+WINDOW_FILL: Final = "#9fd3a8"
+_PROFILES = LinearSegmentedColormap.from_list("ncmeasure_profiles", ["#b9cfe8", "#0b2f5c"])
+
+_RC: Final[dict[RcKeyType, Any]] = {
+    "font.family": "DejaVu Sans",
+    "font.size": 9.5,
+    "axes.titlesize": 11,
+    "axes.labelsize": 9.5,
+    "axes.edgecolor": "#555555",
+    "axes.labelcolor": INK,
+    "xtick.color": "#444444",
+    "ytick.color": "#444444",
+    "legend.fontsize": 8.5,
+    "legend.frameon": False,
+}
+
+
+def _styled(function: Callable[_P, Figure]) -> Callable[_P, Figure]:
+    """Draw inside the report's rc settings, restored afterwards (no lasting global change)."""
+
+    @functools.wraps(function)
+    def draw(*args: _P.args, **kwargs: _P.kwargs) -> Figure:
+        with rc_context(_RC):
+            return function(*args, **kwargs)
+
+    return draw
+
+
+def _plain(text: str) -> str:
+    """Text from user files as matplotlib draws it literally (no mathtext from ``$``)."""
+    return text.replace("$", r"\$")
+
+
+def _figure(height_in: float) -> Figure:
+    figure = Figure(figsize=(WIDTH_IN, height_in), dpi=DPI, layout="constrained")
+    FigureCanvasAgg(figure)
+    return figure
+
+
+def _style(ax: Axes) -> None:
+    ax.grid(True, color=GRID, linewidth=0.6)
+    ax.set_axisbelow(True)
+    for side in ("top", "right"):
+        ax.spines[side].set_visible(False)
+
+
+def figure_png(figure: Figure) -> bytes:
+    """The figure as PNG bytes at :data:`DPI`; the figure is cleared afterwards."""
+    buffer = io.BytesIO()
+    with rc_context(_RC):
+        figure.savefig(
+            buffer, format="png", dpi=DPI, facecolor="white", metadata={"Software": None}
+        )
+    figure.clear()
+    return buffer.getvalue()
+
+
+def save_png(figure: Figure, path: str | Path) -> bytes:
+    """Write the figure as a PNG file (see :func:`figure_png`) and return its bytes.
+
+    Raises:
+        OutputError: The file cannot be written.
+    """
+    data = figure_png(figure)
+    target = Path(path)
+    try:
+        target.write_bytes(data)
+    except OSError as exc:
+        raise OutputError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
+    return data
+
+
+def _unit_label(result: AxisResult) -> str:
+    if result.quantity == "torque_nm":
+        return "friction torque [Nm]"
+    return "friction as motor current [A]"
+
+
+def _drawn_model(direction: DirectionResult) -> NonlinearFit | None:
+    """The nonlinear fit to draw: the extended model where identifiable, else Stribeck."""
+    for fit in (direction.extended, direction.stribeck):
+        if fit is not None and fit.identifiable:
+            return fit
+    return None
+
+
+def _speed_tick(sign: float) -> FuncFormatter:
+    def label(value: float, _position: float) -> str:
+        if value <= 0:
+            return ""
+        text = f"{value:,.0f}".replace(",", " ") if value >= 1 else f"{value:g}"
+        return f"−{text}" if sign < 0 else text
+
+    return FuncFormatter(label)
+
+
+def _draw_direction(
+    ax: Axes,
+    direction: DirectionResult,
+    sign: float,
+    colour: str,
+    offset: float | None,
+    slowest: float,
+) -> bool:
+    """Points, linear fit and Stribeck fit of one direction on a log |v| axis.
+
+    Returns:
+        True when a Stribeck curve was drawn.
+    """
+    points = sorted(direction.points, key=lambda p: abs(p.velocity_mm_min))
+    points = [p for p in points if p.velocity_mm_min != 0]
+    if points:
+        ax.errorbar(
+            [abs(p.velocity_mm_min) for p in points],
+            [p.median for p in points],
+            yerr=[p.std for p in points],
+            fmt="o",
+            markersize=4.5,
+            color=colour,
+            ecolor=colour,
+            elinewidth=1.0,
+            capsize=2.5,
+            zorder=3,
+        )
+    fit = direction.fit
+    if fit is not None:
+        low, high = fit.velocity_range_mm_min
+        low, high = max(low, slowest), max(high, low)
+        inside = np.geomspace(low, high, 80)
+        ax.plot(
+            inside,
+            linear_curve(fit, sign * inside, sign, points, offset),
+            linestyle=(0, (5, 3)),
+            color=colour,
+            linewidth=1.3,
+            zorder=2.5,
+        )
+        if low > slowest * 1.01:  # extrapolated below the fitted speeds: lighter
+            below = np.geomspace(slowest, low, 40)
+            ax.plot(
+                below,
+                linear_curve(fit, sign * below, sign, points, offset),
+                linestyle=(0, (1, 2)),
+                color=colour,
+                linewidth=1.1,
+                alpha=0.7,
+                zorder=2,
+            )
+    model = _drawn_model(direction)
+    if model is None or not points:
+        return False
+    grid = np.geomspace(abs(points[0].velocity_mm_min), abs(points[-1].velocity_mm_min), 160)
+    curve = stribeck_curve(model, sign * grid, sign, points, offset)
+    if curve is None:
+        return False
+    ax.plot(grid, curve, color=colour, linewidth=1.9, zorder=2)
+    return True
+
+
+@_styled
+def plot_stribeck(axis: str, result: AxisResult) -> Figure:
+    """Friction over velocity for every position and direction of an axis.
+
+    Two panels share the friction scale: the negative direction on the left
+    (velocity growing to the left), the positive on the right, both with a
+    logarithmic speed scale so that the slow steps, where the Stribeck effect
+    lives, get as much room as the fast ones. Median ± standard deviation per
+    velocity step, one colour per position; the Coulomb + viscous fit dashed
+    over the speeds it was fitted to (dotted where extrapolated below them);
+    the Stribeck fit solid where it is identifiable.
+
+    Args:
+        axis: The axis name, for the title.
+        result: The axis' results.
+
+    Returns:
+        A new figure on an Agg canvas.
+    """
+    figure = _figure(5.4)
+    negative, positive = figure.subplots(1, 2, sharey=True)
+    offset = result.offset.value if result.offset is not None else None
+    significant = offset_is_significant(result.offset)
+    speeds = [
+        abs(p.velocity_mm_min)
+        for pos in result.positions
+        for d in pos.directions.values()
+        if d is not None
+        for p in d.points
+        if p.velocity_mm_min != 0
+    ]
+    slowest = min(speeds) if speeds else 10.0
+    fastest = max(speeds) if speeds else 10000.0
+    panels = {"negative": (negative, -1.0), "positive": (positive, 1.0)}
+    drawn = {"negative": False, "positive": False}
+    position_handles: list[Line2D] = []
+    any_stribeck = False
+    for index, position in enumerate(result.positions):
+        colour = PALETTE[index % len(PALETTE)]
+        label = f"position {position.position_index + 1}: {format_mm(position.position_mm)} mm"
+        position_handles.append(
+            Line2D([], [], color=colour, marker="o", markersize=5, linewidth=1.9, label=label)
+        )
+        for name, direction in position.directions.items():
+            if direction is None:
+                continue
+            ax, sign = panels[name]
+            drawn[name] = drawn[name] or bool(direction.points)
+            if _draw_direction(ax, direction, sign, colour, offset, slowest):
+                any_stribeck = True
+    for side, (ax, sign) in panels.items():
+        _style(ax)
+        ax.set_xscale("log")
+        ax.set_xlim(slowest / 1.4, fastest * 1.4)
+        if sign < 0:
+            ax.invert_xaxis()
+        ax.xaxis.set_major_formatter(_speed_tick(sign))
+        ax.axhline(0, color="#888888", linewidth=0.8, zorder=1)
+        if offset is not None and significant:
+            ax.axhline(offset, color="#666666", linewidth=1.0, linestyle="-.", zorder=1)
+        ax.set_xlabel("velocity [mm/min], logarithmic")
+        ax.set_title(f"{side} direction", fontsize=10, color="#444444")
+        if not drawn[side]:
+            ax.text(
+                0.5,
+                0.5,
+                "not measured",
+                transform=ax.transAxes,
+                ha="center",
+                va="center",
+                color="#888888",
+                fontsize=12,
+            )
+    positive.tick_params(labelleft=False)
+    positive.spines["left"].set_color("#aaaaaa")
+    negative.set_ylabel(_unit_label(result))
+    low, high = negative.get_ylim()
+    negative.set_ylim(min(low, 0.0), max(high, 0.0))
+    figure.suptitle(
+        _plain(f"Axis {axis}: friction over velocity (Stribeck curves)"),
+        x=0.01,
+        ha="left",
+        fontsize=11,
+    )
+    style_handles = [
+        Line2D(
+            [], [], color=INK, marker="o", linestyle="none", markersize=4.5, label="median ± std"
+        ),
+        Line2D(
+            [], [], color=INK, linestyle=(0, (5, 3)), linewidth=1.3, label="Coulomb + viscous fit"
+        ),
+    ]
+    if any_stribeck:
+        style_handles.append(Line2D([], [], color=INK, linewidth=1.9, label="Stribeck fit"))
+    if offset is not None and significant:
+        style_handles.append(
+            Line2D([], [], color="#666666", linestyle="-.", linewidth=1.0, label="offset")
+        )
+    figure.legend(
+        handles=[*position_handles, *style_handles],
+        loc="outside lower center",
+        ncols=min(4, len(position_handles) + len(style_handles)),
+    )
+    return figure
+
+
+def _mark_bearings(ax: Axes, bearings: BearingLayout, positions: Sequence[float]) -> None:
+    """Vertical lines at the travel ends, labelled fixed and loose bearing."""
+    low_mm = min(positions, default=0.0)
+    high_mm = max(positions, default=1.0)
+    if bearings.travel_mm is not None:
+        low_mm = min(low_mm, bearings.travel_mm[0])
+        high_mm = max(high_mm, bearings.travel_mm[1])
+    pad = 0.04 * max(high_mm - low_mm, 1.0)
+    ax.set_xlim(low_mm - pad, high_mm + pad)
+    suffix = "" if bearings.known else " (assumed)"
+    for end, what in ((bearings.fixed_end, "fixed"), (bearings.loose_end, "loose")):
+        where = bearings.end_mm(end)
+        if where is not None:
+            ax.axvline(where, color=INK, linewidth=2.2, alpha=0.55, zorder=1)
+            x, coords = where, ax.get_xaxis_transform()
+        else:
+            x, coords = (0.0 if end == "min" else 1.0), ax.transAxes
+        ax.text(
+            x,
+            1.01,
+            f"{what} bearing{suffix}",
+            transform=coords,
+            ha="left" if end == "min" else "right",
+            va="bottom",
+            fontsize=9,
+            fontweight="bold",
+            color=INK,
+        )
+
+
+@_styled
+def plot_travel(axis: str, result: AxisResult, bearings: BearingLayout) -> Figure:
+    """Friction along the travel: one thin line per velocity, the average bold.
+
+    The travel ends carry the fixed and loose bearing. Values are friction
+    magnitudes (the sign of the direction removed).
+
+    Args:
+        axis: The axis name, for the title.
+        result: The axis' results; needs ``position_dependency``.
+        bearings: Where the fixed and loose bearing are.
+
+    Raises:
+        ValueError: The results have no position dependency.
+    """
+    dependency = result.position_dependency
+    if dependency is None:
+        raise ValueError(f"axis {axis}: the results have no friction along the travel")
+    figure = _figure(4.6)
+    ax = figure.add_subplot()
+    _style(ax)
+    per_velocity = [p for p in dependency.profiles if p.velocity_mm_min is not None]
+    averages = [p for p in dependency.profiles if p.velocity_mm_min is None]
+    speeds = [abs(p.velocity_mm_min) for p in per_velocity if p.velocity_mm_min is not None]
+    slowest, fastest = min(speeds, default=0.0), max(speeds, default=1.0)
+    norm: Normalize = Normalize(vmin=slowest, vmax=fastest if fastest > slowest else slowest + 1)
+    if slowest > 0 and fastest / slowest > 20:
+        norm = LogNorm(vmin=slowest, vmax=fastest)
+    for profile in per_velocity:
+        speed = abs(profile.velocity_mm_min or 0.0)
+        ax.plot(
+            profile.positions_mm,
+            np.abs(profile.values),
+            color=_PROFILES(norm(speed)),
+            linewidth=0.9,
+            marker="o",
+            markersize=2.5,
+            alpha=0.85,
+            zorder=2,
+        )
+    for profile in averages:
+        ax.plot(
+            profile.positions_mm,
+            np.abs(profile.values),
+            color=PALETTE[1],
+            linewidth=2.8,
+            marker="o",
+            markersize=7,
+            zorder=4,
+            label=f"average over velocities (spread {profile.spread_percent:.0f} %)",
+        )
+    positions = [x for p in dependency.profiles for x in p.positions_mm]
+    _mark_bearings(ax, bearings, positions)
+    low, high = ax.get_ylim()
+    ax.set_ylim(min(0.0, low), high * 1.08)
+    if speeds:
+        mappable = ScalarMappable(norm=norm, cmap=_PROFILES)
+        bar = figure.colorbar(mappable, ax=ax, pad=0.01, fraction=0.035)
+        bar.set_label("velocity of the thin lines [mm/min]", fontsize=8.5)
+        bar.ax.tick_params(labelsize=8)
+    ax.set_xlabel("position along the travel [mm]")
+    ax.set_ylabel(_unit_label(result))
+    ax.set_title(
+        _plain(f"Axis {axis}: friction along the travel"),
+        loc="left",
+        pad=18,
+    )
+    if averages:
+        ax.legend(loc="lower right")
+    return figure
+
+
+def _envelope(time_s: FloatArray, values: FloatArray, bins: int) -> tuple[FloatArray, FloatArray]:
+    """At most ``2·bins`` points that keep every peak: min and max of each bin, in order."""
+    if len(time_s) <= 2 * bins:
+        return time_s, values
+    size = -(-len(time_s) // bins)  # ceil: the last bin is padded with the last sample
+    pad = size * bins - len(time_s)
+    blocks = np.pad(values, (0, pad), mode="edge").reshape(bins, size)
+    times = np.pad(time_s, (0, pad), mode="edge").reshape(bins, size)
+    low_index = np.argmin(blocks, axis=1)
+    high_index = np.argmax(blocks, axis=1)
+    first = np.minimum(low_index, high_index)
+    second = np.maximum(low_index, high_index)
+    rows = np.arange(bins)
+    out_t = np.column_stack([times[rows, first], times[rows, second]]).ravel()
+    out_v = np.column_stack([blocks[rows, first], blocks[rows, second]]).ravel()
+    return out_t, out_v
+
+
+def _axis_span(
+    time_s: FloatArray, velocity: FloatArray, windows: Sequence[tuple[float, float]]
+) -> tuple[float, float]:
+    """The time the axis was being measured: its windows, or where it moved."""
+    if windows:
+        start = min(w[0] for w in windows)
+        end = max(w[1] for w in windows)
+        pad = 0.02 * max(end - start, 1.0)
+        return max(float(time_s[0]), start - pad), min(float(time_s[-1]), end + pad)
+    peak = float(np.nanmax(np.abs(velocity))) if len(velocity) else 0.0
+    moving = np.flatnonzero(np.abs(velocity) > 0.01 * peak) if peak > 0 else np.array([], int)
+    if len(moving) == 0:
+        return float(time_s[0]), float(time_s[-1])
+    return float(time_s[moving[0]]), float(time_s[moving[-1]])
+
+
+def _stretch(
+    span: tuple[float, float], windows: Sequence[tuple[float, float]], stretch_s: float
+) -> tuple[float, float]:
+    """A stretch of about ``stretch_s`` seconds from the first windows on."""
+    if not windows:
+        return span[0], min(span[1], span[0] + stretch_s)
+    lead = 0.5
+    start = max(span[0], windows[0][0] - lead)
+    end = windows[0][1] + lead
+    for window in windows[1:]:
+        if window[1] + lead - start > stretch_s:
+            break
+        end = window[1] + lead
+    return start, min(span[1], end)
+
+
+def _shade(ax: Axes, windows: Sequence[tuple[float, float]], start: float, end: float) -> None:
+    for t0, t1 in windows:
+        if t1 >= start and t0 <= end:
+            ax.axvspan(t0, t1, color=WINDOW_FILL, alpha=0.55, linewidth=0, zorder=0)
+
+
+@_styled
+def plot_raw_data(
+    recording: Recording,
+    axis: str,
+    windows: Sequence[tuple[float, float]] = (),
+    *,
+    stretch_s: float = 30.0,
+) -> Figure:
+    """Motor current and velocity of one axis over time, the cut windows shaded.
+
+    The top strip shows the axis' whole measurement (velocity, peaks kept),
+    the two panels below a stretch of about ``stretch_s`` seconds from its
+    first windows on: current, then commanded and actual velocity. Only the
+    shaded windows enter the friction values.
+
+    Args:
+        recording: The recording.
+        axis: The axis; needs ``<axis>_current_a`` and ``<axis>_velocity_mm_min``.
+        windows: The constant-velocity windows the analysis used, (t_start, t_end) in s.
+        stretch_s: Length of the detailed stretch in seconds.
+
+    Raises:
+        RecordingError: The recording lacks the current or velocity of the axis.
+    """
+    time_s = recording.time_s
+    current = recording.axis_signal(axis, "current_a")
+    velocity = recording.axis_signal(axis, "velocity_mm_min")
+    command: FloatArray | None = None
+    if f"{axis}_velocity_cmd_mm_min" in recording.channel_names:
+        command = recording.axis_signal(axis, "velocity_cmd_mm_min")
+    cuts = sorted((float(a), float(b)) for a, b in windows)
+    figure = _figure(6.2)
+    grid = figure.add_gridspec(3, 1, height_ratios=(1.0, 2.0, 2.0))
+    overview = figure.add_subplot(grid[0])
+    top = figure.add_subplot(grid[1])
+    bottom = figure.add_subplot(grid[2], sharex=top)
+    for ax in (overview, top, bottom):
+        _style(ax)
+    if len(time_s) == 0:
+        top.text(
+            0.5,
+            0.5,
+            "the recording holds no samples",
+            transform=top.transAxes,
+            ha="center",
+            va="center",
+            color="#888888",
+        )
+        return figure
+    span = _axis_span(time_s, velocity, cuts)
+    start, end = _stretch(span, cuts, stretch_s)
+
+    inside = (time_s >= span[0]) & (time_s <= span[1])
+    t_all, v_all = _envelope(time_s[inside], velocity[inside], 2000)
+    _shade(overview, cuts, *span)
+    overview.plot(t_all, v_all, color=PALETTE[1], linewidth=0.7)
+    overview.add_patch(
+        Rectangle(
+            (start, 0.0),
+            end - start,
+            1.0,
+            transform=overview.get_xaxis_transform(),
+            fill=False,
+            edgecolor=INK,
+            linewidth=1.2,
+            zorder=5,
+        )
+    )
+    overview.set_xlim(*span)
+    overview.set_ylabel("mm/min", fontsize=8.5)
+    overview.set_title(
+        _plain(
+            f"Axis {axis}: raw data — whole measurement ({span[1] - span[0]:.0f} s, box: "
+            "the stretch below)"
+        ),
+        loc="left",
+    )
+
+    part = (time_s >= start) & (time_s <= end)
+    t_part, i_part = _envelope(time_s[part], current[part], 4000)
+    _shade(top, cuts, start, end)
+    top.plot(t_part, i_part, color=PALETTE[0], linewidth=0.8)
+    top.set_ylabel("current [A]")
+    top.tick_params(labelbottom=False)
+    top.set_title(_plain(f"stretch {start:.1f} – {end:.1f} s"), loc="left", fontsize=9.5)
+
+    _shade(bottom, cuts, start, end)
+    if command is not None:
+        t_cmd, c_part = _envelope(time_s[part], command[part], 4000)
+        bottom.plot(
+            t_cmd,
+            c_part,
+            color="#777777",
+            linewidth=1.0,
+            linestyle=(0, (4, 2)),
+            label="commanded velocity",
+        )
+    t_vel, v_part = _envelope(time_s[part], velocity[part], 4000)
+    bottom.plot(t_vel, v_part, color=PALETTE[1], linewidth=1.0, label="actual velocity")
+    bottom.set_ylabel("velocity [mm/min]")
+    bottom.set_xlabel("time [s]")
+    bottom.set_xlim(start, end)
+    handles = [
+        Line2D([], [], color=PALETTE[0], linewidth=1.2, label="motor current"),
+        *bottom.get_legend_handles_labels()[0],
+        Patch(facecolor=WINDOW_FILL, alpha=0.55, label="windows used for friction"),
+    ]
+    figure.legend(handles=handles, loc="outside lower center", ncols=len(handles))
+    return figure
+
+
+_STATUS_COLOURS: Final = {"ok": "#ffffff", "warning": "#e07b00", "critical": "#c0392b"}
+
+
+@_styled
+def plot_comparison(comparison: Comparison) -> Figure:
+    """Change of friction per axis, position and direction against the base run.
+
+    One row per (axis, position, direction), one marker per compared run: the
+    median over the velocities of (run − base)/base in %. The bands mark the
+    warning and critical limits.
+
+    Args:
+        comparison: The comparison.
+
+    Returns:
+        A new figure on an Agg canvas.
+    """
+    keys = sorted(
+        {(g.axis, g.position_index, g.position_mm, g.direction) for g in comparison.groups},
+        key=lambda k: (k[0], k[1], k[3] != "positive"),
+    )
+    labels = list(dict.fromkeys(g.label for g in comparison.groups))
+    height = min(12.0, 1.6 + 0.28 * max(len(keys), 1))
+    figure = _figure(height)
+    ax = figure.add_subplot()
+    _style(ax)
+    warning = comparison.limits.warning_percent
+    critical = comparison.limits.critical_percent
+    values = [g.median_deviation_percent for g in comparison.groups]
+    reach = max([critical * 1.25, *(abs(v) * 1.1 for v in values)])
+    ax.axvspan(-warning, warning, color="#2e8b3e", alpha=0.08, linewidth=0)
+    for sign in (-1, 1):
+        ax.axvspan(sign * warning, sign * critical, color="#e07b00", alpha=0.12, linewidth=0)
+        ax.axvspan(sign * critical, sign * reach, color="#c0392b", alpha=0.10, linewidth=0)
+    ax.axvline(0, color="#555555", linewidth=0.9)
+    rows = {key: index for index, key in enumerate(keys)}
+    for number, label in enumerate(labels):
+        groups = [g for g in comparison.groups if g.label == label]
+        ax.scatter(
+            [g.median_deviation_percent for g in groups],
+            [rows[(g.axis, g.position_index, g.position_mm, g.direction)] for g in groups],
+            color=PALETTE[number % len(PALETTE)],
+            edgecolors=[_STATUS_COLOURS[g.status] for g in groups],
+            linewidths=1.6,
+            s=42,
+            zorder=3,
+            label=_plain(label),
+        )
+    ax.set_yticks(
+        range(len(keys)),
+        [_plain(f"{a} · {i + 1}: {format_mm(mm)} mm · {d}") for a, i, mm, d in keys],
+    )
+    ax.set_ylim(len(keys) - 0.5, -0.5)
+    ax.set_xlim(-reach, reach)
+    ax.set_xlabel("change of friction against the base [%]  (median over the velocities)")
+    ax.set_title(
+        _plain(
+            f"Comparison with {comparison.base}: warning beyond ±{warning:g} %, "
+            f"critical beyond ±{critical:g} %"
+        ),
+        loc="left",
+    )
+    if labels:
+        figure.legend(loc="outside lower center", ncols=min(4, len(labels)))
+    return figure

@@ -1,0 +1,236 @@
+"""write_report: results (+ recording, windows, comparison) -> one self-contained HTML file.
+
+The HTML file embeds every plot as a base64 PNG and its CSS inline, so it can be
+mailed, archived and printed on its own. The same PNGs are also written
+beside it, in ``<stem>_plots/``, for use in other documents.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from matplotlib.figure import Figure as MplFigure
+from pydantic import BaseModel
+
+from ncmeasure.analysis.compare import Comparison
+from ncmeasure.analysis.results import Results
+from ncmeasure.errors import NcMeasureError, OutputError, RecordingError
+from ncmeasure.recording import Recording
+from ncmeasure.report.bearings import bearing_layout
+from ncmeasure.report.page import AxisSection, Figure, render_page
+from ncmeasure.report.plots import (
+    plot_comparison,
+    plot_raw_data,
+    plot_stribeck,
+    plot_travel,
+    save_png,
+)
+from ncmeasure.report.windows import find_window_times
+
+__all__ = ["ReportProgress", "write_report"]
+
+log = logging.getLogger(__name__)
+
+Windows = Mapping[str, Sequence[tuple[float, float]]]
+
+
+@dataclass(frozen=True)
+class ReportProgress:
+    """Handed to ``on_progress`` after every step of :func:`write_report`.
+
+    Attributes:
+        done: Steps finished.
+        total: Steps in all (three plots per axis, then the page).
+        step: What was just finished, e.g. ``axis X: Stribeck curves``.
+    """
+
+    done: int
+    total: int
+    step: str
+
+
+def _safe_name(name: str) -> str:
+    """An axis name as part of a file name (names from files may hold anything)."""
+    cleaned = re.sub(r"[^A-Za-z0-9_-]+", "_", name).strip("_")
+    return cleaned[:40] or "axis"
+
+
+def _default_title(results: Results, recording: Recording | None) -> str:
+    machine = results.recording.machine or (
+        recording.meta.machine if recording is not None else None
+    )
+    return f"Friction report: {machine}" if machine else "Friction report"
+
+
+def write_report(
+    results: Results,
+    path: str | os.PathLike[str],
+    *,
+    recording: Recording | None = None,
+    windows: Windows | None = None,
+    comparison: BaseModel | None = None,
+    title: str | None = None,
+    on_progress: Callable[[ReportProgress], None] | None = None,
+) -> Path:
+    """Write the friction report as one self-contained HTML file, PNGs beside it.
+
+    Per axis: Stribeck curves per position and direction with the fits,
+    friction along the travel with the bearings marked, the diagnosis in plain
+    words, the offset, the fit tables and (with a recording) a stretch of raw
+    data with the cut windows shaded; a summary at the top; the comparison at
+    the end when one is given.
+
+    Args:
+        results: The analysis results.
+        path: The HTML file to write (replaced if it exists). The plots go to
+            ``<stem>_plots/`` in the same directory.
+        recording: The recording the results came from; adds the raw data and
+            the bearing layout from its axis metadata.
+        windows: Per axis, the (t_start, t_end) windows in seconds that the
+            analysis used (see :func:`~ncmeasure.report.windows.window_times`);
+            shaded in the raw data. An axis missing here has its windows found
+            again in the recording with the settings in ``results.settings``.
+        comparison: A comparison with earlier results (any pydantic model; a
+            ``summary`` and ``findings`` are shown first, the other fields in
+            a table).
+        title: The page title; default ``Friction report: <machine>``.
+        on_progress: Called with a :class:`ReportProgress` after every step.
+
+    Returns:
+        The path of the HTML file.
+
+    Raises:
+        OutputError: The HTML file or a PNG cannot be written.
+    """
+    target = Path(path)
+    plots_dir = target.with_name(f"{target.stem}_plots")
+    try:
+        plots_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{plots_dir}: cannot be created ({exc.strerror or exc})") from exc
+    total = 3 * len(results.axes) + 1 + (comparison is not None)
+    done = 0
+
+    def advance(step: str) -> None:
+        nonlocal done
+        done += 1
+        log.debug("report %d/%d: %s", done, total, step)
+        if on_progress is not None:
+            on_progress(ReportProgress(done, total, step))
+
+    def keep(figure: MplFigure, filename: str, alt: str, caption: str) -> Figure:
+        png = save_png(figure, plots_dir / filename)
+        return Figure(png=png, filename=f"{plots_dir.name}/{filename}", alt=alt, caption=caption)
+
+    sections: list[AxisSection] = []
+    for index, (name, result) in enumerate(results.axes.items(), start=1):
+        stem = f"{index:02d}_{_safe_name(name)}"
+        section = AxisSection(
+            name=name,
+            anchor=f"axis-{index}",
+            result=result,
+            bearings=bearing_layout(name, recording, result),
+        )
+        section.stribeck = keep(
+            plot_stribeck(name, result),
+            f"{stem}_stribeck.png",
+            f"Friction over velocity of axis {name}",
+            "Median friction per velocity step with ± one standard deviation, one colour "
+            "per position; negative velocities on the left. Dashed: Coulomb + viscous fit "
+            "over the speeds it was fitted to, dotted where extended below them; solid: "
+            "Stribeck fit where identifiable. The velocity scale is logarithmic on "
+            "both sides so that the slow steps, where friction drops with rising speed "
+            "(Stribeck effect), are as visible as the fast ones.",
+        )
+        advance(f"axis {name}: Stribeck curves")
+        if result.position_dependency is not None:
+            section.travel = keep(
+                plot_travel(name, result, section.bearings),
+                f"{stem}_travel.png",
+                f"Friction along the travel of axis {name}",
+                "Friction magnitude at each measuring position: thin lines per velocity "
+                "(darker is faster), the bold line the average over all velocities. "
+                "A deviation in the assembly shows as a pattern along the travel, e.g. "
+                "a rise towards the bearing that bends the screw.",
+            )
+        advance(f"axis {name}: friction along the travel")
+        _raw_section(section, recording, windows, results.settings, keep, stem)
+        advance(f"axis {name}: raw data")
+        sections.append(section)
+
+    comparison_figure: Figure | None = None
+    if isinstance(comparison, Comparison) and comparison.groups:
+        comparison_figure = keep(
+            plot_comparison(comparison),
+            "comparison.png",
+            "Change of friction against the base run",
+            "Median change of friction over the velocities, per axis, position and direction; "
+            "one colour per compared run. Green band: within the warning limit; orange: "
+            "warning; red: critical (an orange or red rim marks the point as well).",
+        )
+    if comparison is not None:
+        advance("comparison")
+    page = render_page(
+        results,
+        sections,
+        title=title or _default_title(results, recording),
+        recording=recording,
+        comparison=comparison,
+        comparison_figure=comparison_figure,
+    )
+    temporary = target.with_name(f".{target.name}.tmp")
+    try:
+        temporary.write_text(page, encoding="utf-8")
+        temporary.replace(target)
+    except OSError as exc:
+        temporary.unlink(missing_ok=True)
+        raise OutputError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
+    advance("report page")
+    log.info("report written to %s (plots in %s)", target, plots_dir)
+    return target
+
+
+def _raw_section(
+    section: AxisSection,
+    recording: Recording | None,
+    windows: Windows | None,
+    settings: Mapping[str, object],
+    keep: Callable[[MplFigure, str, str, str], Figure],
+    stem: str,
+) -> None:
+    """Plot the raw data of an axis into its section, or say why there is none."""
+    name = section.name
+    if recording is None:
+        section.raw_note = "No recording was given, so no raw data is shown."
+        return
+    if windows is not None and name in windows:
+        cuts = [(float(a), float(b)) for a, b in windows[name]]
+    else:
+        try:
+            cuts = find_window_times(recording, name, settings)
+            section.raw_note = (
+                "The shaded windows were found again in the recording with the analysis "
+                "settings (without the schedule)."
+            )
+        except NcMeasureError as exc:
+            cuts = []
+            section.raw_note = f"No windows are shaded: {exc.message}"
+    try:
+        figure = plot_raw_data(recording, name, cuts)
+    except RecordingError as exc:
+        section.raw_note = f"The recording has no raw data of this axis ({exc.message})."
+        return
+    section.raw = keep(
+        figure,
+        f"{stem}_raw.png",
+        f"Raw motor current and velocity of axis {name}",
+        "Top: the axis' whole measurement (velocity); the box marks the stretch shown "
+        "below. Middle: motor current; bottom: velocity. Only the shaded windows, where "
+        "the axis moved at constant velocity, enter the friction values; acceleration, "
+        "rapid moves and standstill are cut away.",
+    )

@@ -1,0 +1,201 @@
+"""Controller trace importers: a controller's own trace export becomes an ncmeasure recording.
+
+Where no drive link can be used, the controller's oscilloscope records the
+measurement program instead; these importers turn its export into a
+recording that the analysis reads like any other::
+
+    from ncmeasure.traces import import_trace
+
+    result = import_trace("X_friction.xml", "runs/x-trace", machine=config,
+                          axis_names={"1": "X"})
+    result.recording.axis_signal("X", "current_a")
+    for line in result.report:
+        print(line)
+
+Formats (:data:`FORMATS`):
+
+``sinumerik-xml``  Sinumerik Operate / SinuCom trace XML (streamed)   :mod:`.sinumerik_xml`
+``sinumerik-csv``  its CSV export                                       :mod:`.sinumerik_csv`
+``twincat-csv``    TwinCAT Scope CSV export                             :mod:`.twincat_csv`
+``tncscope``       Heidenhain TNCscope text export (``.sco``)           :mod:`.tncscope`
+``csv``            the layout of ``ncmeasure export`` (``recording.import_csv``)
+
+Each importer maps the controller's axes (an index or a name) to axis names
+(``axis_names``, else the machine file's axes, else a default name), converts
+units into ncmeasure's (A, mm/min, mm), and reports every decision in
+:attr:`TraceImport.report`. Bad input raises a
+:class:`~ncmeasure.errors.RecordingError` that names ``file:line`` (or the
+element) and the problem; a failed import leaves nothing in the target
+directory. The formats and what was verified about them: ``docs/traces.md``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Final
+
+from ncmeasure.config import MachineConfig
+from ncmeasure.errors import ConfigError, RecordingError
+from ncmeasure.recording import Recording, import_csv
+from ncmeasure.traces._common import ImportJob, ProgressFn, TraceImport, check_target
+from ncmeasure.traces.sinumerik_csv import import_sinumerik_csv
+from ncmeasure.traces.sinumerik_xml import import_sinumerik_xml
+from ncmeasure.traces.tncscope import import_tncscope
+from ncmeasure.traces.twincat_csv import import_twincat_csv
+
+__all__ = ["FORMATS", "TraceImport", "detect_format", "import_trace"]
+
+log = logging.getLogger(__name__)
+
+#: The trace formats :func:`import_trace` reads.
+FORMATS: Final = ("sinumerik-xml", "sinumerik-csv", "twincat-csv", "tncscope", "csv")
+
+_IMPORTERS: Final[Mapping[str, Callable[[ImportJob], Recording]]] = {
+    "sinumerik-xml": import_sinumerik_xml,
+    "sinumerik-csv": import_sinumerik_csv,
+    "twincat-csv": import_twincat_csv,
+    "tncscope": import_tncscope,
+}
+_SNIFF_BYTES: Final = 1 << 16
+
+
+def detect_format(path: str | os.PathLike[str]) -> str:
+    """The format of a trace file, from its content (not its name).
+
+    Returns:
+        One of :data:`FORMATS`.
+
+    Raises:
+        RecordingError: The file cannot be read, or its content matches no format.
+    """
+    source = Path(path)
+    try:
+        with source.open("rb") as file:
+            head = file.read(_SNIFF_BYTES)
+    except FileNotFoundError as exc:
+        raise RecordingError(f"{source}: no such file") from exc
+    except IsADirectoryError as exc:
+        raise RecordingError(f"{source}: is a directory, expected a trace file") from exc
+    except OSError as exc:
+        raise RecordingError(f"{source}: cannot be read ({exc.strerror or exc})") from exc
+    if not head.strip():
+        raise RecordingError(f"{source}: the file is empty")
+    if b"\x00" in head:
+        raise RecordingError(
+            f"{source}: a binary file, not a trace export (formats: {', '.join(FORMATS)})"
+        )
+    text = head.decode("utf-8", errors="replace").lstrip("\ufeff")
+    stripped = text.lstrip()
+    if stripped.startswith("<"):
+        if "<traceSession" in text:
+            return "sinumerik-xml"
+        raise RecordingError(
+            f"{source}: an XML file without a <traceSession> element: not a Sinumerik trace"
+        )
+    lines = text.splitlines()
+    first = lines[0] if lines else ""
+    if any(line.strip().upper() in ("%[GLOBAL]", "%[DATA]") for line in lines) or any(
+        line.strip().upper().startswith("%[CURVE") for line in lines
+    ):
+        return "tncscope"
+    if (
+        first.startswith("Name")
+        and len(first) > 4
+        and ("Starttime of export" in text or "SampleTime" in text)
+    ):
+        return "twincat-csv"
+    if first.split(",")[0].strip() == "time_s":
+        return "csv"
+    if ("/Nck/" in text or "/Channel/" in text) and "[u" in text:
+        return "sinumerik-csv"
+    raise RecordingError(
+        f"{source}: the trace format is not recognised; formats: {', '.join(FORMATS)} "
+        "(pass the format explicitly if the file is one of them)"
+    )
+
+
+def import_trace(
+    path: str | os.PathLike[str],
+    directory: str | os.PathLike[str],
+    *,
+    format: str | None = None,
+    machine: MachineConfig | None = None,
+    axis_names: Mapping[str, str] | None = None,
+    progress: ProgressFn | None = None,
+) -> TraceImport:
+    """Make a recording from a controller trace export.
+
+    Args:
+        path: The trace file.
+        directory: The new recording (must not exist or be empty).
+        format: One of :data:`FORMATS`; detected from the content when None.
+        machine: The machine file: its axes name the controller's axes in
+            order (when ``axis_names`` is not given), its screw leads and
+            torque constants convert motor speed and torque, and its axis
+            data go into ``meta.json``.
+        axis_names: Controller axis (index as a string, e.g. ``"1"``, or
+            name) to axis name, e.g. ``{"1": "X", "2": "Y"}``. Controller axes
+            left out are not imported.
+        progress: Called now and then with ``(bytes_read, total_bytes)``.
+
+    Returns:
+        The recording (source ``import:<format>``) and the report.
+
+    Raises:
+        RecordingError: The file cannot be read or is not valid in its format
+            (the message names ``file:line`` or the element), no signal can be
+            imported, or the recording cannot be written. Nothing is left in
+            ``directory`` then.
+        ConfigError: ``format`` is unknown, or ``axis_names`` does not fit.
+    """
+    source = Path(path)
+    target = Path(directory)
+    if format is not None and format not in FORMATS:
+        raise ConfigError(f"unknown trace format {format!r}; one of {', '.join(FORMATS)}")
+    if not source.is_file():
+        if source.is_dir():
+            raise RecordingError(f"{source}: is a directory, expected a trace file")
+        raise RecordingError(f"{source}: no such file")
+    name = format if format is not None else detect_format(source)
+    if name == "csv":
+        return _import_recording_csv(source, target, machine, axis_names, progress)
+    check_target(target)
+    job = ImportJob(source, target, name, machine=machine, axis_names=axis_names, progress=progress)
+    try:
+        recording = _IMPORTERS[name](job)
+    except BaseException as exc:
+        job.discard()
+        if isinstance(exc, UnicodeDecodeError):
+            raise RecordingError(f"{source}: not a text file") from exc
+        if isinstance(exc, OSError) and not isinstance(exc, RecordingError):
+            raise RecordingError(f"{source}: cannot be read ({exc.strerror or exc})") from exc
+        raise
+    log.info("imported %s (%s) into %s: %d samples", source, name, target, len(recording))
+    return TraceImport(recording, job.report)
+
+
+def _import_recording_csv(
+    source: Path,
+    target: Path,
+    machine: MachineConfig | None,
+    axis_names: Mapping[str, str] | None,
+    progress: ProgressFn | None,
+) -> TraceImport:
+    """The generic CSV of ``ncmeasure export``: columns already name axes and signals."""
+    if axis_names:
+        raise ConfigError(
+            "axis_names does not apply to the csv format: its columns already name the axes "
+            "(rename the columns instead)"
+        )
+    total = source.stat().st_size
+    recording = import_csv(source, target, machine=machine)
+    if progress is not None:
+        progress(total, total)
+    report = [
+        f"{c.name} [{c.unit}]: from column {c.name} (ncmeasure CSV, no conversion)"
+        for c in recording.channels
+    ]
+    return TraceImport(recording, report)

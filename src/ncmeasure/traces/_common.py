@@ -1,0 +1,785 @@
+"""What the trace importers share: axis mapping, units, invalid samples, the target recording.
+
+Every importer turns the signals of a controller trace into *candidates*
+(this trace column could be that ncmeasure signal of that controller axis, in
+this unit), lets :func:`plan_channels` decide which become channels of the
+recording, and streams rows into a :class:`RecordingSink`. Two ways of
+building rows exist, matching the two ways controllers write traces:
+
+* :class:`CarryForward` for record-oriented traces (Sinumerik) where a record
+  holds only the signals sampled at that instant and the others keep their
+  last value;
+* :func:`merge_series` for column-oriented traces (TwinCAT Scope, TNCscope)
+  where every channel has its own timeline, merged on the union of the times.
+
+A failed import removes everything it wrote (:meth:`RecordingSink.discard`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import logging
+import math
+import re
+from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ncmeasure.config import AXIS_NAME_PATTERN, AxisConfig, MachineConfig
+from ncmeasure.errors import ConfigError, RecordingError
+from ncmeasure.links.base import SIGNAL_UNITS, Channel, SampleBlock
+from ncmeasure.recording import (
+    EVENTS_FILE,
+    MAX_FLUSH_INTERVAL_S,
+    META_FILE,
+    SAMPLES_FILE,
+    Recording,
+    RecordingWriter,
+)
+
+__all__ = [
+    "CHUNK_ROWS",
+    "INVALID_ABOVE",
+    "Candidate",
+    "CarryForward",
+    "ImportJob",
+    "Mapped",
+    "Needs",
+    "ProgressFn",
+    "RecordingSink",
+    "Series",
+    "TextLines",
+    "TraceImport",
+    "check_target",
+    "decimal_mark",
+    "filetime_to_datetime",
+    "is_invalid",
+    "merge_series",
+    "normalize_unit",
+    "parse_number",
+    "plan_channels",
+    "resolve_axes",
+    "unit_factor",
+]
+
+log = logging.getLogger(__name__)
+
+ProgressFn = Callable[[int, int], None]
+
+#: Values at or above this magnitude mark an invalid sample. Sinumerik writes
+#: such samples as the bit pattern of +inf read as a 64-bit integer
+#: (0x7FF0000000000000 = 9218868437227405312); the public parser
+#: eliasrhoden/Trace-Tools rejects every value above 9218868437227405000.
+INVALID_ABOVE: Final = 9.218868437227405e18
+#: Rows handed to the recording at a time: bounds the memory of a streaming import.
+CHUNK_ROWS: Final = 8192
+#: Bytes read before the progress callback is called again.
+PROGRESS_STEP_BYTES: Final = 1 << 20
+_SNIFF_BYTES: Final = 1 << 16
+
+
+@dataclass(frozen=True)
+class TraceImport:
+    """The result of an import: the new recording and what happened on the way.
+
+    Attributes:
+        recording: The recording, read back from disk.
+        report: One sentence per fact: which trace signal became which
+            channel (with unit conversions), what was not imported and why,
+            invalid samples, dropped rows.
+    """
+
+    recording: Recording
+    report: list[str]
+
+
+def is_invalid(value: float) -> bool:
+    """True for a sample the controller marked invalid (or one that is not a number)."""
+    return not math.isfinite(value) or abs(value) >= INVALID_ABOVE
+
+
+def parse_number(text: str, decimal: str = ".") -> float:
+    """A float from trace text, with ``decimal`` as the decimal mark.
+
+    Raises:
+        ValueError: ``text`` is not a number in that notation (a decimal
+            comma in a file that uses points, or the other way round).
+    """
+    cell = text.strip()
+    if decimal == ",":
+        if "." in cell:
+            raise ValueError(f"{cell!r} has a decimal point; this file uses decimal commas")
+        cell = cell.replace(",", ".")
+    elif "," in cell:
+        raise ValueError(f"{cell!r} has a decimal comma; this file uses decimal points")
+    return float(cell)
+
+
+_COMMA_NUMBER = re.compile(r"[+-]?\d+,\d+(?:[eE][+-]?\d+)?")
+_POINT_NUMBER = re.compile(r"[+-]?\d*\.\d+(?:[eE][+-]?\d+)?")
+
+
+def decimal_mark(cells: Sequence[str]) -> str | None:
+    """The decimal mark that the first number with a fraction in ``cells`` shows, if any."""
+    for cell in cells:
+        text = cell.strip()
+        if _COMMA_NUMBER.fullmatch(text):
+            return ","
+        if _POINT_NUMBER.fullmatch(text):
+            return "."
+    return None
+
+
+# --- units -----------------------------------------------------------------------------
+
+_UNIT_FACTORS: Final[Mapping[str, Mapping[str, float]]] = {
+    "position_mm": {"mm": 1.0, "um": 1e-3, "m": 1e3},
+    "velocity_mm_min": {"mm/min": 1.0, "mm/s": 60.0, "m/min": 1e3, "m/s": 6e4},
+    "velocity_cmd_mm_min": {"mm/min": 1.0, "mm/s": 60.0, "m/min": 1e3, "m/s": 6e4},
+    "current_a": {"a": 1.0, "ma": 1e-3},
+    "marker": {"1": 1.0, "": 1.0},
+}
+
+
+def normalize_unit(unit: str) -> str:
+    """A unit as written in a trace, reduced to a lookup key (``"µm"`` -> ``"um"``)."""
+    text = unit.strip().strip("[]()").strip()
+    text = text.replace("µ", "u").replace("μ", "u").replace(" ", "")
+    return text.lower()
+
+
+def unit_factor(signal: str, unit: str) -> float | None:
+    """The factor that turns ``unit`` into the ncmeasure unit of ``signal``, if known."""
+    return _UNIT_FACTORS.get(signal, {}).get(normalize_unit(unit))
+
+
+# --- reading text ----------------------------------------------------------------------
+
+
+class TextLines:
+    """The lines of a text file, read once, with their numbers and a byte count for progress.
+
+    UTF-8 (with or without BOM) is tried first; a file that is not UTF-8 is
+    read as Windows-1252, the code page of the controllers' Windows PCs. Use
+    it as a context manager, so the file is closed when an import stops early.
+    """
+
+    def __init__(self, path: Path, job: ImportJob) -> None:
+        self.path = path
+        self.job = job
+        with path.open("rb") as file:
+            head = file.read(_SNIFF_BYTES)
+        self.encoding = "utf-8"
+        try:
+            head.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            if exc.start < len(head) - 4:  # not merely a character cut at the sniff limit
+                self.encoding = "cp1252"
+                job.note(f"{path.name} is not UTF-8 text; read as Windows-1252")
+        self.line_number = 0
+        self._lines: Generator[str, None, None] = self._read()
+
+    def __iter__(self) -> Iterator[str]:
+        return self._lines
+
+    def __next__(self) -> str:
+        return next(self._lines)
+
+    def __enter__(self) -> TextLines:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self._lines.close()
+
+    def _read(self) -> Generator[str, None, None]:
+        bytes_read = 0
+        reported = 0
+        with self.path.open("rb") as file:
+            for raw in file:
+                self.line_number += 1
+                bytes_read += len(raw)
+                if bytes_read - reported >= PROGRESS_STEP_BYTES:
+                    self.job.tick(bytes_read)
+                    reported = bytes_read
+                try:
+                    text = raw.decode(self.encoding)
+                except UnicodeDecodeError as exc:
+                    raise RecordingError(
+                        f"{self.path}:{self.line_number}: not valid {self.encoding} text "
+                        f"(byte {exc.start + 1} of the line)"
+                    ) from exc
+                if self.line_number == 1:
+                    text = text.lstrip("\ufeff")
+                yield text.rstrip("\r\n")
+        self.job.tick(bytes_read)
+
+    def where(self) -> str:
+        """``file:line`` of the line last read."""
+        return f"{self.path}:{self.line_number}"
+
+
+# --- the import job --------------------------------------------------------------------
+
+
+class ImportJob:
+    """One import: its arguments, the report it builds and the progress it reports."""
+
+    def __init__(
+        self,
+        path: Path,
+        directory: Path,
+        format_name: str,
+        *,
+        machine: MachineConfig | None,
+        axis_names: Mapping[str, str] | None,
+        progress: ProgressFn | None,
+    ) -> None:
+        self.path = path
+        self.directory = directory
+        self.format_name = format_name
+        self.machine = machine
+        self.axis_names = dict(axis_names) if axis_names is not None else None
+        self._progress = progress
+        self.total_bytes = path.stat().st_size
+        self.report: list[str] = []
+        self.link: dict[str, Any] = {"type": "import", "format": format_name, "file": path.name}
+        self.sink: RecordingSink | None = None
+
+    def note(self, line: str) -> None:
+        """Add a sentence to the report."""
+        log.info("%s: %s", self.path.name, line)
+        self.report.append(line)
+
+    def tick(self, bytes_read: int) -> None:
+        """Tell the progress callback how far the import got."""
+        if self._progress is not None:
+            self._progress(min(bytes_read, self.total_bytes), self.total_bytes)
+
+    def open_sink(
+        self,
+        channels: Sequence[Channel],
+        *,
+        nominal_period_s: float | None,
+        start_utc: dt.datetime | None = None,
+    ) -> RecordingSink:
+        """The recording the rows go to (created on disk when the first rows arrive)."""
+        self.sink = RecordingSink(
+            self.directory,
+            channels,
+            machine=self.machine,
+            nominal_period_s=nominal_period_s,
+            start_utc=start_utc,
+            source=f"import:{self.format_name}",
+            notes=f"imported from {self.path.name}",
+            link=self.link,
+        )
+        return self.sink
+
+    def finish(self) -> Recording:
+        """Close the recording with the complete report and read it back."""
+        if self.sink is None:
+            raise RecordingError(f"{self.path}: no samples to import")
+        self.link["report"] = list(self.report)
+        recording = self.sink.finish(self.link)
+        self.tick(self.total_bytes)  # the whole file is done, even if an end marker stopped reading
+        return recording
+
+    def discard(self) -> None:
+        """Remove what this import wrote."""
+        if self.sink is not None:
+            self.sink.discard()
+
+
+def check_target(directory: Path) -> None:
+    """Fail before reading a large trace when the recording could not be written anyway."""
+    if directory.exists():
+        if not directory.is_dir():
+            raise RecordingError(f"{directory}: exists and is not a directory")
+        if any(directory.iterdir()):
+            raise RecordingError(
+                f"{directory}: directory is not empty; a recording needs a new or empty directory"
+            )
+
+
+# --- mapping trace signals to channels -------------------------------------------------
+
+Needs = Literal["", "screw_lead", "torque_constant"]
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A trace signal that can become an ncmeasure channel.
+
+    Attributes:
+        source: The signal as the trace names it.
+        axis_id: The controller's axis (an index such as ``"1"`` or a name).
+        signal: The ncmeasure signal (a key of ``SIGNAL_UNITS``).
+        factor: Multiplies the trace values into ncmeasure units (before ``needs``).
+        needs: Machine data the conversion needs: ``screw_lead`` (motor rpm
+            to mm/min) or ``torque_constant`` (Nm to A).
+        rank: Lower wins when several signals give the same channel.
+        conversion: How the unit is converted, for the report.
+    """
+
+    source: str
+    axis_id: str
+    signal: str
+    factor: float = 1.0
+    needs: Needs = ""
+    rank: int = 0
+    conversion: str = ""
+
+
+@dataclass(frozen=True)
+class Mapped:
+    """A candidate that became a channel, with the factor that converts its values."""
+
+    candidate: Candidate
+    channel: Channel
+    factor: float
+    conversion: str
+
+
+def _id_order(ids: Sequence[str]) -> list[str]:
+    numeric = sorted((i for i in ids if i.isdigit()), key=int)
+    return numeric + [i for i in ids if not i.isdigit()]
+
+
+def resolve_axes(
+    ids: Sequence[str],
+    machine: MachineConfig | None,
+    axis_names: Mapping[str, str] | None,
+    report: list[str],
+) -> dict[str, str]:
+    """Machine axis names for controller axes; the ones left out are reported.
+
+    ``axis_names`` decides alone when given; else controller axes named like a
+    machine axis take that axis and the others take the remaining machine
+    axes in order (numeric indices ascending); without a machine file a
+    controller axis keeps a name that is a valid axis name and an index ``n``
+    becomes ``An``.
+
+    Raises:
+        ConfigError: ``axis_names`` names an invalid or unknown axis, or two
+            controller axes get the same name.
+    """
+    known = [a.name for a in machine.axes] if machine is not None else None
+    result: dict[str, str] = {}
+    if axis_names is not None:
+        problems: list[str] = []
+        for key, name in axis_names.items():
+            if not re.fullmatch(AXIS_NAME_PATTERN, name):
+                problems.append(
+                    f"axis_names[{key!r}]: {name!r} is not an axis name (X, Y, Z1, ...)"
+                )
+            elif known is not None and name not in known:
+                problems.append(
+                    f"axis_names[{key!r}]: {name} is not an axis of the machine "
+                    f"({', '.join(known)})"
+                )
+        targets = list(axis_names.values())
+        for name in sorted({n for n in targets if targets.count(n) > 1}):
+            problems.append(f"axis_names: more than one controller axis is mapped to {name}")
+        if problems:
+            raise ConfigError("axis_names does not fit", problems)
+        for axis_id in ids:
+            if axis_id in axis_names:
+                result[axis_id] = axis_names[axis_id]
+                report.append(f"controller axis {axis_id} -> {axis_names[axis_id]} (axis_names)")
+            else:
+                report.append(f"controller axis {axis_id}: not imported (not in axis_names)")
+        for key in axis_names:
+            if key not in ids:
+                report.append(f"axis_names: controller axis {key!r} does not appear in the trace")
+        return result
+    if known is not None:
+        free = list(known)
+        for axis_id in ids:
+            if axis_id in free:
+                result[axis_id] = axis_id
+                free.remove(axis_id)
+                report.append(f"controller axis {axis_id} -> {axis_id} (same name in the machine)")
+        for axis_id in _id_order([i for i in ids if i not in result]):
+            if not free:
+                report.append(
+                    f"controller axis {axis_id}: not imported (the machine file has no further "
+                    "axis; pass axis_names)"
+                )
+                continue
+            result[axis_id] = free.pop(0)
+            report.append(
+                f"controller axis {axis_id} -> {result[axis_id]} (machine axes in order; "
+                "pass axis_names to choose)"
+            )
+        return result
+    used: set[str] = set()
+    for axis_id in _id_order(ids):
+        if re.fullmatch(AXIS_NAME_PATTERN, axis_id):
+            name = axis_id
+        elif axis_id.isdigit() and re.fullmatch(AXIS_NAME_PATTERN, f"A{int(axis_id)}"):
+            name = f"A{int(axis_id)}"
+        else:
+            name = next(f"A{k}" for k in range(1, 10_000) if f"A{k}" not in used)
+        if name in used:
+            name = next(f"A{k}" for k in range(1, 10_000) if f"A{k}" not in used)
+        used.add(name)
+        result[axis_id] = name
+        report.append(
+            f"controller axis {axis_id} -> {name} (no machine file or axis_names; default name)"
+        )
+    return result
+
+
+def _machine_axis(machine: MachineConfig | None, name: str) -> AxisConfig | None:
+    if machine is None:
+        return None
+    try:
+        return machine.axis(name)
+    except KeyError:
+        return None
+
+
+def plan_channels(candidates: Sequence[Candidate], job: ImportJob) -> list[Mapped]:
+    """Decide which candidates become channels; report every decision.
+
+    Returns:
+        The channels, axis by axis in the order of the axes, signals in the
+        order of ``SIGNAL_UNITS``.
+
+    Raises:
+        RecordingError: No candidate can be imported.
+        ConfigError: ``axis_names`` does not fit (see :func:`resolve_axes`).
+    """
+    ids = list(dict.fromkeys(c.axis_id for c in candidates))
+    axis_map = resolve_axes(ids, job.machine, job.axis_names, job.report)
+    chosen: dict[Channel, Mapped] = {}
+    for cand in sorted(candidates, key=lambda c: c.rank):
+        axis = axis_map.get(cand.axis_id)
+        if axis is None:
+            job.note(f"{cand.source}: not imported (controller axis {cand.axis_id} has no name)")
+            continue
+        channel = Channel(axis, cand.signal, SIGNAL_UNITS[cand.signal])
+        if channel in chosen:
+            job.note(
+                f"{cand.source}: not imported ({channel.name} already comes from "
+                f"{chosen[channel].candidate.source})"
+            )
+            continue
+        factor = cand.factor
+        conversion = cand.conversion or "no unit conversion"
+        axis_config = _machine_axis(job.machine, axis)
+        where = "of the machine file" if job.machine is not None else "(no machine file given)"
+        if cand.needs == "screw_lead":
+            lead = axis_config.screw_lead_mm if axis_config is not None else None
+            if lead is None:
+                job.note(
+                    f"{cand.source}: velocity not converted, not imported: motor speed in rpm "
+                    f"needs screw_lead_mm of axis {axis} {where}"
+                )
+                continue
+            factor *= lead
+            conversion = (
+                f"motor rpm x screw lead {lead:g} mm/rev = mm/min, assuming the motor "
+                "drives the screw directly"
+            )
+        elif cand.needs == "torque_constant":
+            k_t = axis_config.torque_constant_nm_per_a if axis_config is not None else None
+            if k_t is None:
+                job.note(
+                    f"{cand.source}: torque not converted, not imported: Nm to A needs "
+                    f"torque_constant_nm_per_a of axis {axis} {where}"
+                )
+                continue
+            factor /= k_t
+            conversion = f"torque Nm / torque constant {k_t:g} Nm/A = A"
+        chosen[channel] = Mapped(cand, channel, factor, conversion)
+    axis_order = list(dict.fromkeys(axis_map[i] for i in ids if i in axis_map))
+    if job.machine is not None:
+        names = [a.name for a in job.machine.axes]
+        axis_order.sort(key=lambda a: names.index(a) if a in names else len(names))
+    signal_order = list(SIGNAL_UNITS)
+    mapped = sorted(
+        chosen.values(),
+        key=lambda m: (axis_order.index(m.channel.axis), signal_order.index(m.channel.signal)),
+    )
+    for m in mapped:
+        job.note(f"{m.channel.name} [{m.channel.unit}]: from {m.candidate.source} ({m.conversion})")
+    if not mapped:
+        raise RecordingError(
+            f"{job.path}: no signal of the trace can be imported as an ncmeasure channel",
+            job.report,
+        )
+    return mapped
+
+
+# --- the target recording --------------------------------------------------------------
+
+
+class RecordingSink:
+    """The recording an import writes, created on disk when the first rows arrive.
+
+    Rows are flushed to disk chunk by chunk, so an import keeps at most one
+    chunk in memory. :meth:`discard` removes the files again (never anything
+    that was there before).
+    """
+
+    def __init__(
+        self,
+        directory: Path,
+        channels: Sequence[Channel],
+        *,
+        machine: MachineConfig | None,
+        nominal_period_s: float | None,
+        start_utc: dt.datetime | None,
+        source: str,
+        notes: str,
+        link: Mapping[str, Any],
+    ) -> None:
+        self.directory = directory
+        self.channels = tuple(channels)
+        self.machine = machine
+        self.nominal_period_s = nominal_period_s
+        self.start_utc = start_utc
+        self.source = source
+        self.notes = notes
+        self.link = dict(link)
+        self.existed = directory.exists()
+        self.rows = 0
+        self._writer: RecordingWriter | None = None
+        self._pending: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
+
+    def append(self, time_s: NDArray[np.float64], values: NDArray[np.float64]) -> None:
+        """Write rows (times strictly increasing, also across calls; checked by the writer)."""
+        if len(time_s) == 0:
+            return
+        self.rows += len(time_s)
+        if self._writer is None:
+            self._pending.append((time_s, values))
+            if sum(len(t) for t, _ in self._pending) < 2 and self.nominal_period_s is None:
+                return
+            self._create()
+            pending, self._pending = self._pending, []
+            for t, v in pending:
+                self._write(t, v)
+            return
+        self._write(time_s, values)
+
+    def _write(self, time_s: NDArray[np.float64], values: NDArray[np.float64]) -> None:
+        assert self._writer is not None
+        self._writer.append(SampleBlock(time_s, values))
+        self._writer.flush()
+
+    def _create(self) -> None:
+        period_s = self.nominal_period_s
+        if period_s is None:
+            times = np.concatenate([t for t, _ in self._pending])
+            period_s = float(np.median(np.diff(times)))
+        self._writer = RecordingWriter.create(
+            self.directory,
+            self.channels,
+            nominal_period_s=period_s,
+            machine=self.machine,
+            link=self.link,
+            notes=self.notes,
+            source=self.source,
+            flush_interval_s=MAX_FLUSH_INTERVAL_S,
+            start_utc=self.start_utc,
+        )
+
+    def finish(self, link: Mapping[str, Any]) -> Recording:
+        """Close the recording (status ``complete``) and read it back."""
+        if self._writer is None:
+            if not self._pending:
+                raise RecordingError(f"{self.directory}: the trace holds no complete sample")
+            raise RecordingError(
+                f"{self.directory}: the trace holds a single sample and no sample period; "
+                "a recording needs at least two"
+            )
+        self._writer.close("complete", link=dict(link))
+        log.info("imported into %s: %d samples", self.directory, self._writer.rows_written)
+        return Recording.open(self.directory)
+
+    def discard(self) -> None:
+        """Remove the files of this import and, if the import made it, the directory."""
+        if self._writer is None:
+            return
+        with contextlib.suppress(RecordingError):
+            self._writer.close("failed")
+        for name in (META_FILE, SAMPLES_FILE, EVENTS_FILE, META_FILE + ".tmp"):
+            with contextlib.suppress(OSError):
+                (self.directory / name).unlink()
+        if not self.existed:
+            with contextlib.suppress(OSError):
+                self.directory.rmdir()
+
+
+# --- building rows ---------------------------------------------------------------------
+
+
+class CarryForward:
+    """Rows from records that hold only some signals: the others keep their last value.
+
+    A record before every channel has had a value is dropped (counted in
+    :attr:`dropped_leading`). An invalid sample (:func:`is_invalid`) makes its
+    channel NaN until the next valid value and is counted per channel.
+    """
+
+    def __init__(
+        self,
+        sink: RecordingSink,
+        names: Sequence[str],
+        factors: Sequence[float],
+        chunk_rows: int = CHUNK_ROWS,
+    ) -> None:
+        self._sink = sink
+        self.names = list(names)
+        self._factors = list(factors)
+        self._chunk_rows = chunk_rows
+        self._current = [math.nan] * len(names)
+        self._seen = [False] * len(names)
+        self._unseen = len(names)
+        self._times: list[float] = []
+        self._rows: list[list[float]] = []
+        self._last_time = -math.inf
+        self.records = 0
+        self.dropped_leading = 0
+        self.first_complete_s: float | None = None
+        self.invalid = [0] * len(names)
+        self.first_invalid: list[str | None] = [None] * len(names)
+
+    def set(self, column: int, raw: float, where: Callable[[], str]) -> None:
+        """Give ``column`` a new value (as the trace writes it) in the current record."""
+        if not self._seen[column]:
+            self._seen[column] = True
+            self._unseen -= 1
+        if is_invalid(raw):
+            self.invalid[column] += 1
+            if self.first_invalid[column] is None:
+                self.first_invalid[column] = where()
+            self._current[column] = math.nan
+        else:
+            self._current[column] = raw * self._factors[column]
+
+    def commit(self, time_s: float, where: Callable[[], str]) -> None:
+        """End the current record at ``time_s``.
+
+        Raises:
+            RecordingError: The time is not a finite number or not later than
+                the record before.
+        """
+        if not math.isfinite(time_s):
+            raise RecordingError(f"{where()}: time {time_s!r} is not a finite number")
+        if not time_s > self._last_time:
+            raise RecordingError(
+                f"{where()}: time {time_s!r} s is not later than the record before "
+                f"({self._last_time!r} s); times must increase"
+            )
+        self._last_time = time_s
+        self.records += 1
+        if self._unseen:
+            self.dropped_leading += 1
+            return
+        if self.first_complete_s is None:
+            self.first_complete_s = time_s
+        self._times.append(time_s)
+        self._rows.append(self._current.copy())
+        if len(self._times) >= self._chunk_rows:
+            self.flush()
+
+    def flush(self) -> None:
+        """Hand the collected rows to the recording."""
+        if not self._times:
+            return
+        time_s = np.array(self._times, dtype=np.float64)
+        values = np.array(self._rows, dtype=np.float64).reshape(len(self._times), len(self.names))
+        self._times, self._rows = [], []
+        self._sink.append(time_s, values)
+
+    def missing(self) -> list[str]:
+        """The channels that never had a value."""
+        return [n for n, seen in zip(self.names, self._seen, strict=True) if not seen]
+
+    def summarize(self, job: ImportJob, unit: str = "records") -> None:
+        """Report dropped leading rows and invalid samples."""
+        if self.dropped_leading and self.first_complete_s is not None:
+            job.note(
+                f"{self.dropped_leading} leading {unit} dropped: not every channel had a value "
+                f"before t = {self.first_complete_s:g} s"
+            )
+        for name, count, first in zip(self.names, self.invalid, self.first_invalid, strict=True):
+            if count:
+                job.note(
+                    f"{name}: {count} invalid sample(s) (controller's invalid-value marker) "
+                    f"stored as NaN until the next valid value; first at {first}"
+                )
+
+
+@dataclass(frozen=True)
+class Series:
+    """One channel of a column-oriented trace: its own times and values."""
+
+    name: str
+    time_s: NDArray[np.float64]
+    values: NDArray[np.float64]
+    factor: float = 1.0
+
+
+def merge_series(
+    series: Sequence[Series], job: ImportJob
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Rows on the union of the channels' times; each channel holds its last value.
+
+    Rows before every channel has a value and after the first channel ends
+    are dropped (a held value is not extrapolated past a channel's end);
+    invalid samples become NaN. Both are reported.
+
+    Raises:
+        RecordingError: A channel has no valid time.
+    """
+    for s in series:
+        if len(s.time_s) == 0:
+            raise RecordingError(f"{job.path}: channel {s.name} holds no samples")
+    start = max(float(s.time_s[0]) for s in series)
+    end = min(float(s.time_s[-1]) for s in series)
+    all_times = np.unique(np.concatenate([s.time_s for s in series]))
+    keep = (all_times >= start) & (all_times <= end)
+    before = int(np.count_nonzero(all_times < start))
+    after = int(np.count_nonzero(all_times > end))
+    times = all_times[keep]
+    values = np.empty((len(times), len(series)), dtype=np.float64)
+    for column, s in enumerate(series):
+        index = np.searchsorted(s.time_s, times, side="right") - 1
+        raw = np.asarray(s.values, dtype=np.float64)
+        bad = ~np.isfinite(raw) | (np.abs(raw) >= INVALID_ABOVE)
+        column_values = raw * s.factor
+        if bad.any():
+            first = int(np.flatnonzero(bad)[0])
+            job.note(
+                f"{s.name}: {int(bad.sum())} invalid sample(s) stored as NaN until the next "
+                f"valid value; first at t = {float(s.time_s[first]):g} s"
+            )
+            column_values[bad] = np.nan
+        values[:, column] = column_values[index]
+    rates = {len(s.time_s) for s in series}
+    if len(rates) > 1 or any(not np.array_equal(series[0].time_s, s.time_s) for s in series):
+        job.note(
+            f"channels have different timelines: merged on the union of their times "
+            f"({len(times)} rows); each channel holds its last value between its samples"
+        )
+    if before:
+        job.note(
+            f"{before} leading row(s) dropped: not every channel had a value before t = {start:g} s"
+        )
+    if after:
+        job.note(f"{after} trailing row(s) dropped: a channel ends at t = {end:g} s")
+    return times, values
+
+
+def filetime_to_datetime(ticks: int) -> dt.datetime:
+    """A Windows FILETIME (100 ns ticks since 1601-01-01 UTC) as an aware datetime."""
+    return dt.datetime(1601, 1, 1, tzinfo=dt.UTC) + dt.timedelta(microseconds=ticks // 10)

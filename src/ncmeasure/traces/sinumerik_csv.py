@@ -1,0 +1,186 @@
+"""Sinumerik trace CSV: the same servo signals as the XML, one row per instant.
+
+What public code that reads these exports shows:
+
+* a header row with a ``time`` column (seconds) followed by the signal names,
+  then one row per instant (``pandas.read_csv`` with defaults in a public
+  milling-signal pipeline, signal column ``+/Nck/!SD/nckServoDataActCurr32 [u1; 4]``);
+* the comma inside ``[u1, 1]`` is written differently so it cannot clash with
+  the separator: ``[u1; 1]`` (the pipeline above), ``[u1  1]`` (the public MATLAB
+  importer ``load_siemens_data.m``), and ``[u1, 1]`` where the name is quoted
+  or the separator is not a comma; a leading ``+`` may precede the name.
+
+The layout that the MATLAB importer reads (one signal per header line, names
+in the fifth column) was not verified far enough to be read safely; such a
+file is refused ("no header row").
+
+ncmeasure therefore looks for the first row whose first cell is a time label
+(``time``, ``time [s]``, ``Zeit``, ...) and whose other cells include signal
+names; rows before it are skipped and reported. A name that the separator
+split inside ``[...]`` is joined again. The separator is ``,``, ``;``
+or tab, whichever splits that row into the most signal names. The decimal mark
+is the point, or the comma where the separator is not a comma; it is fixed by
+the first number that shows one, and a number written the other way is an
+error. An empty cell means the signal has no new sample at that instant: it
+keeps its last value (as in the XML). Invalid-sample markers become NaN.
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import re
+from collections.abc import Callable, Iterator
+from typing import Final
+
+from ncmeasure.errors import RecordingError
+from ncmeasure.recording import Recording
+from ncmeasure.traces._common import (
+    CarryForward,
+    ImportJob,
+    TextLines,
+    decimal_mark,
+    parse_number,
+    plan_channels,
+)
+from ncmeasure.traces.sinumerik_xml import parse_signal_name, sinumerik_candidates
+
+__all__ = ["import_sinumerik_csv"]
+
+log = logging.getLogger(__name__)
+
+_HEADER_SEARCH_LINES: Final = 200
+_SEPARATORS: Final = (",", ";", "\t")
+_TIME_LABEL = re.compile(
+    r"^(?:time|zeit|t)\s*(?:[\[(]\s*(?P<unit>s|ms|us|µs)\s*[\])])?$",
+    re.IGNORECASE,
+)
+_TIME_FACTORS: Final = {None: 1.0, "s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6}
+
+
+def _split(line: str, separator: str) -> list[str]:
+    """The cells of a header row; a name split inside ``[...]`` by the separator is rejoined."""
+    cells: list[str] = []
+    for cell in next(csv.reader([line], delimiter=separator, quotechar='"')):
+        if cells and cells[-1].count("[") > cells[-1].count("]"):
+            cells[-1] += separator + cell
+        else:
+            cells.append(cell)
+    return cells
+
+
+def _header(line: str) -> tuple[str, list[str], float] | None:
+    """Separator, cells and time factor of a header row, or None if ``line`` is none."""
+    best: tuple[str, list[str], float] | None = None
+    best_count = 0
+    for separator in _SEPARATORS:
+        cells = [c.strip() for c in _split(line, separator)] if line.strip() else []
+        if len(cells) < 2:
+            continue
+        match = _TIME_LABEL.match(cells[0])
+        if match is None:
+            continue
+        count = sum(parse_signal_name(c) is not None for c in cells[1:])
+        if count > best_count:
+            unit = match["unit"].lower() if match["unit"] else None
+            best, best_count = (separator, cells, _TIME_FACTORS[unit]), count
+    return best
+
+
+def import_sinumerik_csv(job: ImportJob) -> Recording:
+    """Import a Sinumerik trace CSV export (see the module docstring).
+
+    Raises:
+        RecordingError: ``file:line: problem`` for a missing header, a row
+            with too many cells, a cell that is not a number (or has the
+            other decimal mark), times that do not increase, or no signal
+            that can be imported.
+    """
+    with TextLines(job.path, job) as lines:
+        return _read(job, lines)
+
+
+def _read(job: ImportJob, lines: TextLines) -> Recording:
+    rows: Iterator[str] = iter(lines)
+    found: tuple[str, list[str], float] | None = None
+    skipped = 0
+    for line in rows:
+        found = _header(line)
+        if found is not None:
+            break
+        skipped += 1
+        if lines.line_number >= _HEADER_SEARCH_LINES:
+            break
+    if found is None:
+        if lines.line_number == 0:
+            raise RecordingError(f"{job.path}: the file is empty")
+        raise RecordingError(
+            f"{job.path}: no header row in the first {lines.line_number} lines: expected a time "
+            "column followed by signal names such as /Nck/!SD/nckServoDataActCurr64 [u1, 1]"
+        )
+    separator, header, time_factor = found
+    header_line = lines.line_number
+    if skipped:
+        job.note(f"{skipped} line(s) before the header row (line {header_line}) skipped")
+    names = header[1:]
+    candidates = sinumerik_candidates(names, job)
+    mapped = plan_channels([c for c in candidates if c is not None], job)
+    column_of = {id(m.candidate): i for i, m in enumerate(mapped)}
+    # (cell index, channel column) of every imported signal column
+    columns = [
+        (1 + i, column_of[id(c)])
+        for i, c in enumerate(candidates)
+        if c is not None and id(c) in column_of
+    ]
+    if time_factor != 1.0:
+        job.note(f"time column {header[0]!r} converted to seconds (x {time_factor:g})")
+    sink = job.open_sink([m.channel for m in mapped], nominal_period_s=None)
+    assembler = CarryForward(sink, [m.channel.name for m in mapped], [m.factor for m in mapped])
+    decimal: str | None = "." if separator == "," else None
+    width = len(header)
+    reader = csv.reader(rows, delimiter=separator, quotechar='"')
+    for cells in reader:
+        where = lines.where()
+        if not any(c.strip() for c in cells):
+            continue
+        if len(cells) > width:
+            hint = " (a decimal comma in a comma-separated file?)" if separator == "," else ""
+            raise RecordingError(
+                f"{where}: {len(cells)} cells, the header (line {header_line}) has {width}{hint}"
+            )
+        if decimal is None:
+            decimal = decimal_mark(cells)
+        try:
+            time_s = parse_number(cells[0], decimal or ".") * time_factor
+        except ValueError as exc:
+            raise RecordingError(
+                f"{where}: time {cells[0].strip()!r} is not a number ({exc})"
+            ) from exc
+        for index, column in columns:
+            cell = cells[index] if index < len(cells) else ""
+            if not cell.strip():
+                continue
+            try:
+                value = parse_number(cell, decimal or ".")
+            except ValueError as exc:
+                raise RecordingError(
+                    f"{where}: column {header[index]!r}: {cell.strip()!r} is not a number ({exc})"
+                ) from exc
+            assembler.set(column, value, _at(where))
+        assembler.commit(time_s, _at(where))
+    if assembler.records == 0:
+        raise RecordingError(f"{job.path}: no data rows after the header (line {header_line})")
+    assembler.flush()
+    missing = assembler.missing()
+    if missing:
+        raise RecordingError(
+            f"{job.path}: {', '.join(missing)} never has a value in {assembler.records} rows"
+        )
+    assembler.summarize(job, "rows")
+    if decimal == ",":
+        job.note("numbers use a decimal comma")
+    return job.finish()
+
+
+def _at(where: str) -> Callable[[], str]:
+    return lambda: where

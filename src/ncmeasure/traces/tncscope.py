@@ -1,0 +1,304 @@
+"""Heidenhain TNCscope text export (``.sco``): curves with their own cycle time.
+
+The layout, as verified against a public MATLAB reader of TNCscope files
+(function ``read_tncscope_file``: ``%[GLOBAL]`` and ``%[CURVE n]`` blocks that end at a
+line holding only ``%``, the keys ``%CHANNELTYPE``, ``%AXISTYPE``,
+``%DIMENSION`` (unit), ``%COUNT`` (samples) and ``%CYCLETIME`` (microseconds),
+then ``%[DATA]`` with ``;``-terminated rows: a time column and one column per
+curve, curve ``i`` holding its first ``COUNT`` values; the time of sample ``k``
+is ``k x CYCLETIME``)::
+
+    %[GLOBAL]
+    %...
+    %
+    %[CURVE 1]
+    %CHANNELTYPE=v act.
+    %AXISTYPE=X
+    %DIMENSION=mm/min
+    %COUNT=4096
+    %CYCLETIME=3000
+    %
+    %[DATA]
+    0;1250.0;3.25;
+    3000;1250.5;3.31;
+
+Channel types verified in public sources (the HEIDENHAIN technical manuals of
+the TNC 426/430 and iTNC 530, integrated oscilloscope; a public conversion of
+TNCscope exports with "s actual", "v act.", "i ist"; the MATLAB reader above):
+"s actual", "Actual pos" [mm]; "v act.", "Actl. speed" (from the position
+encoder) and "V (act rpm)" (from the speed encoder) [mm/min]; "Noml. speed",
+"V (nom rpm)" [mm/min]; "i ist", "I nominal" (the torque-determining current)
+[A]; "M actual" [Nm]; "DSP-Debug" ``id(10)`` (torque-generating current [A]).
+Other spellings of the same signals (``s act.``, ``v nom.``, ``I actual``, ...)
+are accepted as well; they were not found in a source. The unit comes from
+``%DIMENSION``.
+
+Curves with different cycle times are merged on the union of their sample
+times, each holding its last value. The time column of ``%[DATA]`` must
+increase; its unit is not documented, so the times come from ``COUNT`` and
+``CYCLETIME`` as in the reader above.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+from array import array
+from dataclasses import dataclass, field
+from typing import Final
+
+import numpy as np
+
+from ncmeasure.errors import RecordingError
+from ncmeasure.links.base import SIGNAL_UNITS
+from ncmeasure.recording import Recording
+from ncmeasure.traces._common import (
+    Candidate,
+    ImportJob,
+    Needs,
+    Series,
+    TextLines,
+    decimal_mark,
+    merge_series,
+    parse_number,
+    plan_channels,
+    unit_factor,
+)
+
+__all__ = ["import_tncscope"]
+
+log = logging.getLogger(__name__)
+
+_CURVE = re.compile(r"^%\[CURVE\s*(?P<number>\d*)\s*\]$", re.IGNORECASE)
+_KEY = re.compile(r"^%(?P<key>[A-Za-z_][A-Za-z0-9_ ]*?)\s*=\s*(?P<value>.*)$")
+
+#: normalized CHANNELTYPE -> (signal, unit when DIMENSION is missing, rank, needs)
+_CHANNEL_TYPES: Final[dict[str, tuple[str, str, int, Needs]]] = {
+    "s actual": ("position_mm", "mm", 0, ""),
+    "s act.": ("position_mm", "mm", 0, ""),
+    "actual pos": ("position_mm", "mm", 0, ""),
+    "actual pos.": ("position_mm", "mm", 0, ""),
+    "s ist": ("position_mm", "mm", 0, ""),
+    "v act.": ("velocity_mm_min", "mm/min", 0, ""),
+    "v actual": ("velocity_mm_min", "mm/min", 0, ""),
+    "actl. speed": ("velocity_mm_min", "mm/min", 0, ""),
+    "v ist": ("velocity_mm_min", "mm/min", 0, ""),
+    "v (act rpm)": ("velocity_mm_min", "mm/min", 1, ""),
+    "v nom.": ("velocity_cmd_mm_min", "mm/min", 0, ""),
+    "v nominal": ("velocity_cmd_mm_min", "mm/min", 0, ""),
+    "noml. speed": ("velocity_cmd_mm_min", "mm/min", 0, ""),
+    "v soll": ("velocity_cmd_mm_min", "mm/min", 0, ""),
+    "v (nom rpm)": ("velocity_cmd_mm_min", "mm/min", 1, ""),
+    "i actual": ("current_a", "A", 0, ""),
+    "i act.": ("current_a", "A", 0, ""),
+    "i ist": ("current_a", "A", 0, ""),
+    "i nominal": ("current_a", "A", 1, ""),
+    "i nom.": ("current_a", "A", 1, ""),
+    "i soll": ("current_a", "A", 1, ""),
+    "m actual": ("current_a", "Nm", 5, "torque_constant"),
+}
+_DSP_DEBUG_CURRENT: Final = "id(10)"
+
+
+@dataclass
+class _Curve:
+    number: str
+    line: int
+    keys: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        kind = self.keys.get("CHANNELTYPE", "?")
+        axis = self.keys.get("AXISTYPE", "")
+        return f"curve {self.number} ({kind}{' ' + axis if axis else ''})"
+
+
+def _normalize(text: str) -> str:
+    return " ".join(text.lower().split())
+
+
+def _read_header(lines: TextLines, job: ImportJob) -> tuple[list[_Curve], dict[str, str]]:
+    curves: list[_Curve] = []
+    global_keys: dict[str, str] = {}
+    block: dict[str, str] | None = None
+    for line in lines:
+        text = line.strip()
+        if text.upper() == "%[DATA]":
+            return curves, global_keys
+        if not text:
+            continue
+        if text == "%":
+            block = None
+            continue
+        if text.upper() == "%[GLOBAL]":
+            block = global_keys
+            continue
+        match = _CURVE.match(text)
+        if match:
+            curve = _Curve(match["number"] or str(len(curves) + 1), lines.line_number)
+            curves.append(curve)
+            block = curve.keys
+            continue
+        if not text.startswith("%"):
+            raise RecordingError(
+                f"{lines.where()}: {text[:40]!r} before %[DATA]: not a TNCscope header line"
+            )
+        key = _KEY.match(text)
+        if key and block is not None:
+            block[key["key"].strip().upper()] = key["value"].strip()
+    if lines.line_number == 0:
+        raise RecordingError(f"{job.path}: the file is empty")
+    raise RecordingError(f"{job.path}: no %[DATA] line: not a TNCscope export, or cut short")
+
+
+def _timing(curve: _Curve, job: ImportJob) -> tuple[int, float]:
+    try:
+        count = int(curve.keys["COUNT"])
+        cycle_us = float(curve.keys["CYCLETIME"].replace(",", "."))
+    except KeyError as exc:
+        raise RecordingError(
+            f"{job.path}:{curve.line}: {curve.label} has no %{exc.args[0]}= line"
+        ) from exc
+    except ValueError as exc:
+        raise RecordingError(
+            f"{job.path}:{curve.line}: {curve.label}: COUNT or CYCLETIME is not a number"
+        ) from exc
+    if count < 1 or not (math.isfinite(cycle_us) and cycle_us > 0):
+        raise RecordingError(
+            f"{job.path}:{curve.line}: {curve.label}: COUNT {count} and CYCLETIME "
+            f"{cycle_us:g} us must be positive"
+        )
+    return count, cycle_us
+
+
+def _candidate(curve: _Curve, job: ImportJob) -> Candidate | None:
+    kind = curve.keys.get("CHANNELTYPE", "")
+    dimension = curve.keys.get("DIMENSION", "")
+    axis = curve.keys.get("AXISTYPE", "").strip()
+    if _normalize(kind) == "dsp-debug" and dimension.strip().lower() == _DSP_DEBUG_CURRENT:
+        signal, default_unit, rank = "current_a", "A", 2
+        needs: Needs = ""
+        dimension = "A"
+    elif _normalize(kind) in _CHANNEL_TYPES:
+        signal, default_unit, rank, needs = _CHANNEL_TYPES[_normalize(kind)]
+    else:
+        job.note(f"{curve.label}: not imported (no ncmeasure signal for channel type {kind!r})")
+        return None
+    if not axis:
+        job.note(f"{curve.label}: not imported (no %AXISTYPE: the axis is unknown)")
+        return None
+    unit = dimension or default_unit
+    if needs == "torque_constant":
+        if unit.strip().lower() != "nm":
+            job.note(f"{curve.label}: not imported (torque in {unit!r}, expected Nm)")
+            return None
+        return Candidate(curve.label, axis, signal, 1.0, needs, rank, "")
+    factor = unit_factor(signal, unit)
+    if factor is None:
+        job.note(
+            f"{curve.label}: not imported (DIMENSION {unit!r} cannot be converted to "
+            f"{SIGNAL_UNITS[signal]})"
+        )
+        return None
+    target = SIGNAL_UNITS[signal]
+    if not dimension:
+        conversion = f"no DIMENSION, {default_unit} assumed"
+    elif factor == 1:
+        conversion = "no unit conversion"
+    else:
+        conversion = f"{unit} x {factor:g} = {target}"
+    return Candidate(curve.label, axis, signal, factor, "", rank, conversion)
+
+
+def import_tncscope(job: ImportJob) -> Recording:
+    """Import a TNCscope text export (see the module docstring).
+
+    Raises:
+        RecordingError: ``file:line: problem`` for a header without
+            ``%[DATA]``, a curve without COUNT or CYCLETIME, a cell that is not
+            a number, a time column that does not increase, data cut short of
+            a curve's COUNT, or no curve that can be imported.
+    """
+    with TextLines(job.path, job) as lines:
+        return _read(job, lines)
+
+
+def _read(job: ImportJob, lines: TextLines) -> Recording:
+    curves, global_keys = _read_header(lines, job)
+    if not curves:
+        raise RecordingError(f"{job.path}: no %[CURVE n] block before %[DATA]")
+    if global_keys:
+        job.link["global"] = global_keys
+    timing = [_timing(curve, job) for curve in curves]
+    candidates = [_candidate(curve, job) for curve in curves]
+    pairs = [(i, c) for i, c in enumerate(candidates) if c is not None]
+    mapped = plan_channels([c for _, c in pairs], job)
+    by_candidate = {id(m.candidate): m for m in mapped}
+    used = sorted(
+        ((i, by_candidate[id(c)]) for i, c in pairs if id(c) in by_candidate),
+        key=lambda pair: mapped.index(pair[1]),
+    )
+    values: list[array[float]] = [array("d") for _ in used]
+    longest = max(count for count, _ in timing)
+    decimal: str | None = None
+    last_time = -math.inf
+    rows = 0
+    for line in lines:
+        if not line.strip():
+            continue
+        where = lines.where()
+        cells = line.strip().split(";")
+        if cells and not cells[-1].strip():
+            cells.pop()  # rows end with ';'
+        if len(cells) < 1 + len(curves):
+            shown = line.strip()[:40]
+            raise RecordingError(
+                f"{where}: {len(cells)} cells, expected a time and {len(curves)} "
+                f"curve(s): {shown!r}"
+            )
+        if decimal is None:
+            decimal = decimal_mark(cells)
+        try:
+            time_value = parse_number(cells[0], decimal or ".")
+        except ValueError as exc:
+            raise RecordingError(f"{where}: time {cells[0].strip()!r}: {exc}") from exc
+        if not time_value > last_time:
+            raise RecordingError(
+                f"{where}: time {cells[0].strip()} is not later than the row before; "
+                "times must increase"
+            )
+        last_time = time_value
+        for k, (index, _) in enumerate(used):
+            if rows >= timing[index][0]:
+                continue
+            cell = cells[1 + index]
+            try:
+                values[k].append(parse_number(cell, decimal or "."))
+            except ValueError as exc:
+                raise RecordingError(
+                    f"{where}: {curves[index].label}: {cell.strip()!r} is not a number ({exc})"
+                ) from exc
+        rows += 1
+    if rows < longest:
+        short = [c.label for c, (count, _) in zip(curves, timing, strict=True) if count > rows]
+        raise RecordingError(
+            f"{job.path}: %[DATA] has {rows} rows, but {', '.join(short)} declare(s) more "
+            f"(COUNT up to {longest}); the file is cut short"
+        )
+    if rows > longest:
+        job.note(f"{rows - longest} row(s) after the longest curve ignored")
+    series = []
+    for k, (index, m) in enumerate(used):
+        count, cycle_us = timing[index]
+        # whole microseconds first, so that curves at multiple cycle times meet exactly
+        time_s = np.arange(count, dtype=np.float64) * cycle_us / 1e6
+        series.append(Series(m.channel.name, time_s, np.frombuffer(values[k]), m.factor))
+    if decimal == ",":
+        job.note("numbers use a decimal comma")
+    job.note("time of sample k of a curve = k x CYCLETIME of that curve")
+    time_s, matrix = merge_series(series, job)
+    period = min(timing[index][1] for index, _ in used) * 1e-6
+    sink = job.open_sink([m.channel for _, m in used], nominal_period_s=period)
+    sink.append(time_s, matrix)
+    return job.finish()

@@ -1,0 +1,294 @@
+"""Comparison of results: lifetime deviation, limits and exit codes, fleet outliers, mismatches."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Literal
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from ncmeasure.analysis.compare import (
+    Comparison,
+    ComparisonError,
+    Limits,
+    compare_results,
+    comparison_exit_code,
+)
+from ncmeasure.analysis.results import (
+    AxisResult,
+    DirectionResult,
+    Point,
+    PositionResult,
+    RecordingInfo,
+    Results,
+)
+
+SPEEDS = np.geomspace(10.0, 15000.0, 20)
+POSITIONS = [50.0, 375.0, 700.0]
+
+
+def curve(v: float) -> float:
+    return 1.5 + 0.7 * math.exp(-v / 60.0) + 2e-4 * v
+
+
+Factor = Callable[[str, int, str, float], float]  # axis, position index, direction, speed
+
+
+def results(
+    machine: str | None = "HMX-400 #17",
+    factor: Factor | float = 1.0,
+    *,
+    axes: tuple[str, ...] = ("X", "Y"),
+    positions: list[float] = POSITIONS,
+    speeds: np.ndarray = SPEEDS,
+    noise: float = 0.0,
+    seed: int = 0,
+    quantity: Literal["torque_nm", "current_a"] = "torque_nm",
+    created: str = "2026-01-15T08:30:00+00:00",
+) -> Results:
+    """Results of a machine whose friction is the healthy curve times ``factor``."""
+    rng = np.random.default_rng(seed)
+
+    def scale(axis: str, i: int, direction: str, v: float) -> float:
+        return factor(axis, i, direction, v) if callable(factor) else float(factor)
+
+    def direction(axis: str, i: int, name: str, sign: int) -> DirectionResult:
+        pts = []
+        for v in speeds:
+            t = curve(float(v)) * scale(axis, i, name, float(v)) * (1 + rng.normal(0, noise))
+            pts.append(
+                Point(
+                    velocity_mm_min=sign * float(v), median=sign * t, mean=sign * t, std=0.05, n=100
+                )
+            )
+        return DirectionResult(points=pts, fit=None)
+
+    axis_results = {
+        axis: AxisResult(
+            quantity=quantity,
+            unit="Nm" if quantity == "torque_nm" else "A",
+            torque_constant_nm_per_a=2.1 if quantity == "torque_nm" else None,
+            window_source="marker",
+            windows=len(positions) * 2 * len(speeds),
+            samples_used=100 * len(positions) * 2 * len(speeds),
+            positions=[
+                PositionResult(
+                    position_mm=p,
+                    position_index=i,
+                    directions={
+                        "positive": direction(axis, i, "positive", 1),
+                        "negative": direction(axis, i, "negative", -1),
+                    },
+                )
+                for i, p in enumerate(positions)
+            ],
+        )
+        for axis in axes
+    }
+    return Results(
+        created_utc=created,
+        recording=RecordingInfo(
+            directory=f"/data/{machine}",
+            machine=machine,
+            start_utc=created,
+            config_hash="abc",
+            source="recording",
+        ),
+        settings={},
+        axes=axis_results,
+    )
+
+
+# --------------------------------------------------------------------------- lifetime
+
+
+@pytest.mark.parametrize(
+    ("factor", "status", "code"),
+    [(1.05, "ok", 0), (0.7, "warning", 1), (1.3, "warning", 1), (0.5, "critical", 3)],
+)
+def test_lifetime_deviation_limits_and_exit_code(factor: float, status: str, code: int) -> None:
+    base = results(created="2026-01-15T08:30:00+00:00")
+    later = results(factor=factor, created="2028-01-15T08:30:00+00:00")
+    comparison = compare_results(base, [later])
+    assert comparison.mode == "lifetime"
+    assert len(comparison.deviations) == 2 * 3 * 2 * SPEEDS.size
+    for d in comparison.deviations:
+        assert d.deviation_percent == pytest.approx((factor - 1) * 100)
+        assert d.base > 0 and d.value > 0  # magnitudes, also in the negative direction
+    (run,) = comparison.runs
+    assert run.status == status
+    assert run.max_abs_deviation_percent == pytest.approx(abs(factor - 1) * 100)
+    assert comparison_exit_code(comparison) == code
+    assert comparison.problems == []
+    # Same machine name: the labels are made unique by the creation time.
+    assert comparison.base != comparison.others[0]
+
+
+def test_global_decrease_is_called_preload_loss() -> None:
+    comparison = compare_results(results(), [results(factor=0.62)], labels=["delivery", "year 3"])
+    assert comparison.base == "delivery" and comparison.others == ["year 3"]
+    text = " ".join(comparison.findings)
+    assert "-38.0 %" in text
+    assert "preload" in text
+    assert comparison.runs[0].status == "warning"
+
+
+def test_local_change_is_reported_as_local() -> None:
+    def stuck_cover(axis: str, i: int, direction: str, v: float) -> float:
+        return 1.3 if (axis, i) == ("X", 2) else 1.0
+
+    comparison = compare_results(results(), [results(factor=stuck_cover)])
+    assert comparison.runs[0].status == "warning"
+    assert "axis X position 2 (700 mm)" in (comparison.runs[0].worst or "")
+    assert any("local cause" in line for line in comparison.findings)
+    groups = {(g.axis, g.position_index, g.direction): g for g in comparison.groups}
+    assert groups["X", 2, "negative"].median_deviation_percent == pytest.approx(30.0)
+    assert groups["X", 1, "negative"].status == "ok"
+
+
+def test_limits_use_the_median_over_velocities_not_single_points() -> None:
+    def one_bad_step(axis: str, i: int, direction: str, v: float) -> float:
+        return 2.0 if v == SPEEDS[3] else 1.0  # +100 % at one velocity only
+
+    comparison = compare_results(results(), [results(factor=one_bad_step)])
+    assert comparison.runs[0].status == "ok"
+    assert max(g.max_abs_point_deviation_percent for g in comparison.groups) == pytest.approx(100)
+    assert comparison_exit_code(comparison) == 0
+
+
+def test_labels_for_the_others_only_or_for_all() -> None:
+    base, later = results("M1"), results("M1", 0.9, created="2027-01-01T00:00:00+00:00")
+    only_others = compare_results(base, [later], labels=["2027"])
+    assert only_others.base == "M1 @ 2026-01-15T08:30:00+00:00"
+    assert only_others.others == ["2027"]
+    assert {d.label for d in only_others.deviations} == {"2027"}
+    both = compare_results(base, [later], labels=["2026", "2027"])
+    assert (both.base, both.others) == ("2026", ["2027"])
+
+
+def test_custom_limits() -> None:
+    limits = Limits(warning_percent=10, critical_percent=15)
+    comparison = compare_results(results(), [results(factor=1.12)], limits=limits)
+    assert comparison.runs[0].status == "warning"
+    comparison = compare_results(results(), [results(factor=1.2)], limits=limits)
+    assert comparison_exit_code(comparison) == 3
+    with pytest.raises(ValidationError, match="critical_percent"):
+        Limits(warning_percent=30, critical_percent=20)
+    with pytest.raises(ValidationError):
+        Limits(outlier_z=0)
+
+
+# --------------------------------------------------------------------------- fleet
+
+
+def test_fleet_outlier_among_six_machines() -> None:
+    levels = [1.0, 1.04, 0.97, 1.02, 0.99, 1.6]  # machine 6: a constrained assembly
+    runs = [
+        results(f"HMX-400 #{i + 1}", level, noise=0.01, seed=i) for i, level in enumerate(levels)
+    ]
+    comparison = compare_results(runs[0], runs[1:])
+    assert comparison.mode == "fleet"
+    assert comparison.others == [f"HMX-400 #{i}" for i in range(2, 7)]
+    assert [f.axis for f in comparison.fleet] == ["X", "Y"]
+    for stats in comparison.fleet:
+        assert stats.outliers == ["HMX-400 #6"]
+        assert stats.common_points == 3 * 2 * SPEEDS.size
+        assert len(stats.mean_friction) == 6
+        assert stats.modified_z[5] > 3.5
+        assert max(abs(z) for z in stats.modified_z[:5]) < 3.5
+        expected = (max(stats.mean_friction) - min(stats.mean_friction)) / np.mean(
+            stats.mean_friction
+        )
+        assert stats.spread_percent == pytest.approx(100 * expected)
+        assert stats.spread_percent == pytest.approx(100 * 0.63 / np.mean(levels), rel=0.05)
+        assert stats.std == pytest.approx(np.std(stats.mean_friction, ddof=1))
+    assert any("outlier: 'HMX-400 #6'" in line for line in comparison.findings)
+    statuses = {r.label: r.status for r in comparison.runs}
+    assert statuses["HMX-400 #6"] == "critical"
+    assert comparison_exit_code(comparison) == 3
+
+
+def test_fleet_without_outlier() -> None:
+    runs = [results(f"M{i}", 1 + 0.02 * i, noise=0.01, seed=i) for i in range(6)]
+    comparison = compare_results(runs[0], runs[1:])
+    assert all(stats.outliers == [] for stats in comparison.fleet)
+    assert comparison_exit_code(comparison) == 0
+
+
+def test_two_different_machines_are_a_fleet_without_outliers() -> None:
+    comparison = compare_results(results("A"), [results("B", 1.1)])
+    assert comparison.mode == "fleet"
+    assert comparison.fleet[0].outliers == []
+    assert any("at least 3 runs" in line for line in comparison.findings)
+
+
+# --------------------------------------------------------------------------- mismatches
+
+
+def test_mismatched_velocities_are_reported_and_skipped() -> None:
+    other_speeds = SPEEDS.copy()
+    other_speeds[4] *= 1.01  # 1 % off: no match
+    other_speeds[5] *= 1.004  # 0.4 % off: matches
+    other = results(factor=0.9, speeds=np.delete(other_speeds, [0]))  # lowest step missing
+    comparison = compare_results(results(), [other])
+    per_direction = SPEEDS.size - 2
+    assert len(comparison.deviations) == 2 * 3 * 2 * per_direction
+    assert len(comparison.problems) == 2 * 3 * 2 * 2  # missing + extra per direction
+    first = comparison.problems[0]
+    assert "2 of 20 base velocities have no match within 0.5 %" in first
+    assert f"{SPEEDS[0]:g}" in first
+    assert any("not every point was compared" in line for line in comparison.findings)
+    assert comparison.runs[0].max_abs_deviation_percent == pytest.approx(10.0)
+
+
+def test_different_position_counts_are_matched_by_position() -> None:
+    other = results(factor=0.9, positions=[50.0, 212.5, 375.0, 537.5, 700.0])
+    comparison = compare_results(results(), [other])
+    assert {d.position_index for d in comparison.deviations} == {0, 1, 2}
+    assert {d.position_mm for d in comparison.deviations} == set(POSITIONS)
+    assert any(
+        "has 5 positions, the base 3; matched 3 by position" in p for p in comparison.problems
+    )
+
+
+def test_shifted_positions_are_compared_by_index_with_a_note() -> None:
+    other = results(factor=0.9, positions=[60.0, 375.0, 690.0])
+    comparison = compare_results(results(), [other])
+    assert len(comparison.deviations) == 2 * 3 * 2 * SPEEDS.size
+    assert any("position 0 is at 60 mm, the base's at 50 mm" in p for p in comparison.problems)
+
+
+def test_missing_axis_and_other_quantity() -> None:
+    other = results(factor=0.9, axes=("X",))
+    comparison = compare_results(results(), [other])
+    assert any("axis Y of the base is missing" in p for p in comparison.problems)
+    current = results(axes=("X", "Y"), quantity="current_a")
+    with pytest.raises(ComparisonError, match="no point"):
+        compare_results(results(), [current])
+
+
+def test_nothing_to_compare_is_bad_input() -> None:
+    with pytest.raises(ComparisonError, match="at least one"):
+        compare_results(results(), [])
+    with pytest.raises(ComparisonError, match="1 labels for 3 results"):
+        compare_results(results("A"), [results("B"), results("C")], labels=["B"])
+    with pytest.raises(ComparisonError, match="unique"):
+        compare_results(results("A"), [results("B")], labels=["A", "A"])
+    other = results(speeds=SPEEDS * 1.5)
+    with pytest.raises(ComparisonError) as info:
+        compare_results(results(), [other])
+    assert "within 0.5 %" in str(info.value)
+    assert "no match" in str(info.value)  # the problem lines come with it
+    assert isinstance(info.value, ValueError)
+
+
+def test_comparison_json_round_trip() -> None:
+    comparison = compare_results(results("A"), [results("B", 0.8), results("C", 1.1)])
+    again = Comparison.model_validate_json(comparison.model_dump_json())
+    assert again == comparison
+    assert again.format == "ncmeasure-comparison" and again.format_version == 1
+    with pytest.raises(ValidationError):
+        Comparison.model_validate({**comparison.model_dump(), "unexpected": 1})

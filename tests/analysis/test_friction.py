@@ -1,0 +1,198 @@
+"""The friction table against a plain per-group computation, and its sample selection."""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+
+from ncmeasure.analysis.friction import friction_table, window_samples
+from ncmeasure.analysis.segment import VelocityWindow
+
+
+def _window(
+    start: int, stop: int, *, step: int, position: int, direction: Literal[1, -1], v: float
+) -> VelocityWindow:
+    return VelocityWindow(
+        axis="X",
+        start=start,
+        stop=stop,
+        velocity_mm_min=direction * v,
+        level_mm_min=direction * v,
+        direction=direction,
+        position_mm=100.0 * position,
+        position_index=position,
+        step=step,
+        source="command",
+    )
+
+
+def _random_case(
+    seed: int,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], list[VelocityWindow]]:
+    """Windows of 3 steps × 2 positions × 2 directions, two repetitions each, shuffled."""
+    rng = np.random.default_rng(seed)
+    n = 20_000
+    current = rng.normal(1.0, 0.3, n)
+    velocity = np.zeros(n)
+    windows = []
+    start = 10
+    for _ in range(2):
+        for step, v in enumerate((10.0, 100.0, 1000.0)):
+            for position in (0, 1):
+                for direction in (1, -1):
+                    length = int(rng.integers(20, 400))
+                    sign: Literal[1, -1] = 1 if direction > 0 else -1
+                    windows.append(
+                        _window(
+                            start, start + length, step=step, position=position,
+                            direction=sign, v=v,
+                        )
+                    )  # fmt: skip
+                    velocity[start : start + length] = direction * v
+                    start += length + int(rng.integers(1, 50))
+    # Some samples fall out of the velocity band; one current is missing.
+    off = rng.choice(start, 300, replace=False)
+    velocity[off] *= 1.5
+    current[windows[3].start + 2] = np.nan
+    order = rng.permutation(len(windows))
+    return current, velocity, [windows[i] for i in order]
+
+
+def _plain(
+    current: NDArray[np.float64], velocity: NDArray[np.float64], windows: list[VelocityWindow]
+) -> dict[tuple[int, int, int], tuple[float, float, float, int, int]]:
+    """The same statistics, one group at a time, the obvious way."""
+    groups: dict[tuple[int, int, int], list[NDArray[np.float64]]] = {}
+    for w in windows:
+        samples = current[w.start : w.stop]
+        v = velocity[w.start : w.stop]
+        tolerance = max(0.03 * abs(w.level_mm_min), 2.0)
+        keep = (np.abs(v - w.level_mm_min) <= tolerance) & np.isfinite(samples)
+        groups.setdefault((w.position_index, w.direction, w.step), []).append(samples[keep])
+    result = {}
+    for key, parts in groups.items():
+        values = np.concatenate(parts)
+        result[key] = (
+            float(np.median(values)),
+            float(np.mean(values)),
+            float(np.std(values, ddof=1)),
+            len(values),
+            len(parts),
+        )
+    return result
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_table_equals_the_plain_per_group_statistics(seed: int) -> None:
+    current, velocity, windows = _random_case(seed)
+    table = friction_table("X", current, windows, velocity_mm_min=velocity)
+    expected = _plain(current, velocity, windows)
+    assert len(table) == len(expected) == 12
+    for i in range(len(table)):
+        key = (int(table.position_index[i]), int(table.direction[i]), int(table.step[i]))
+        median, mean, std, n, count = expected[key]
+        assert table.median[i] == pytest.approx(median, rel=1e-12)
+        assert table.mean[i] == pytest.approx(mean, rel=1e-12)
+        assert table.std[i] == pytest.approx(std, rel=1e-9)
+        assert table.n[i] == n
+        assert table.windows[i] == count == 2
+    assert table.samples == sum(e[3] for e in expected.values())
+    assert table.quantity == "current_a"
+    assert table.unit == "A"
+
+
+def test_rows_are_sorted_by_position_direction_step() -> None:
+    current, velocity, windows = _random_case(0)
+    table = friction_table("X", current, windows, velocity_mm_min=velocity)
+    keys = list(
+        zip(table.position_index.tolist(), table.direction.tolist(), table.step.tolist(),
+            strict=True)
+    )  # fmt: skip
+    assert keys == sorted(keys)
+
+
+def test_torque_constant_turns_the_table_into_torque() -> None:
+    current, velocity, windows = _random_case(1)
+    amps = friction_table("X", current, windows, velocity_mm_min=velocity)
+    torque = friction_table(
+        "X", current, windows, velocity_mm_min=velocity, torque_constant_nm_per_a=2.1
+    )
+    assert torque.quantity == "torque_nm"
+    assert torque.unit == "Nm"
+    assert torque.torque_constant_nm_per_a == 2.1
+    np.testing.assert_allclose(torque.median, 2.1 * amps.median)
+    np.testing.assert_allclose(torque.mean, 2.1 * amps.mean)
+    np.testing.assert_allclose(torque.std, 2.1 * amps.std)
+    np.testing.assert_array_equal(torque.n, amps.n)
+
+
+def test_samples_outside_the_velocity_band_do_not_count() -> None:
+    current = np.concatenate([np.full(50, 1.0), np.full(50, 9.0)])
+    velocity = np.concatenate([np.full(50, 1000.0), np.full(50, 1100.0)])  # 10 % off
+    windows = [_window(0, 100, step=0, position=0, direction=1, v=1000.0)]
+    table = friction_table("X", current, windows, velocity_mm_min=velocity)
+    assert table.n.tolist() == [50]
+    assert table.median.tolist() == [1.0]
+    everything = friction_table("X", current, windows)
+    assert everything.n.tolist() == [100]
+    assert everything.median.tolist() == [5.0]
+
+
+def test_floor_of_the_velocity_band_applies_at_low_speed() -> None:
+    velocity = np.array([10.0, 11.5, 8.5, 12.5, 7.0])  # band 10 ± 2 (floor), not ± 0.3
+    current = np.arange(5.0)
+    windows = [_window(0, 5, step=0, position=0, direction=1, v=10.0)]
+    table = friction_table("X", current, windows, velocity_mm_min=velocity)
+    assert table.n.tolist() == [3]
+    assert table.mean.tolist() == [1.0]
+
+
+def test_points_of_a_position_and_direction_slowest_first() -> None:
+    current, velocity, windows = _random_case(2)
+    table = friction_table("X", current, windows, velocity_mm_min=velocity)
+    points = table.points(1, -1)
+    assert [p.velocity_mm_min for p in points] == [-10.0, -100.0, -1000.0]
+    assert [p.step for p in points] == [0, 1, 2]
+    assert all(p.windows == 2 for p in points)
+    assert table.points(5, 1) == []
+
+
+def test_a_single_sample_has_nan_std_in_the_table_and_zero_in_its_point() -> None:
+    windows = [_window(3, 4, step=0, position=0, direction=1, v=100.0)]
+    table = friction_table("X", np.arange(10.0), windows)
+    assert table.n.tolist() == [1]
+    assert math.isnan(table.std[0])
+    (point,) = table.points(0, 1)
+    assert point.std == 0.0
+    assert point.median == point.mean == 3.0
+
+
+def test_a_group_without_usable_samples_is_left_out() -> None:
+    current = np.array([np.nan] * 10 + [2.0] * 10)
+    windows = [
+        _window(0, 10, step=0, position=0, direction=1, v=100.0),
+        _window(10, 20, step=1, position=0, direction=1, v=200.0),
+    ]
+    table = friction_table("X", current, windows)
+    assert table.step.tolist() == [1]
+
+
+def test_no_windows_make_an_empty_table() -> None:
+    table = friction_table("X", np.ones(10), [])
+    assert len(table) == 0
+    assert table.samples == 0
+
+
+def test_window_samples_are_the_concatenated_ranges() -> None:
+    windows = [
+        _window(5, 8, step=0, position=0, direction=1, v=1.0),
+        _window(20, 22, step=0, position=0, direction=1, v=1.0),
+        _window(0, 2, step=0, position=0, direction=1, v=1.0),
+    ]
+    index, owner = window_samples(windows)
+    assert index.tolist() == [5, 6, 7, 20, 21, 0, 1]
+    assert owner.tolist() == [0, 0, 0, 1, 1, 2, 2]

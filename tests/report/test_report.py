@@ -1,0 +1,416 @@
+"""The HTML report: self-contained, complete, escaped, and rendered by a real browser.
+
+The example (tests/report/example.py) is a simulated recording of two axes
+with results built from the pydantic models: X with friction rising towards
+the loose bearing, Z vertical with a gravity offset.
+"""
+
+from __future__ import annotations
+
+import base64
+import os
+import re
+import shutil
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import matplotlib.image
+import numpy as np
+import pytest
+from pydantic import BaseModel
+
+from ncmeasure.analysis.compare import Comparison, compare_results
+from ncmeasure.analysis.results import (
+    AxisResult,
+    Cause,
+    PositionDependency,
+    RecordingInfo,
+    Results,
+)
+from ncmeasure.recording import Recording
+from ncmeasure.report import (
+    PALETTE,
+    ReportProgress,
+    bearing_layout,
+    plot_stribeck,
+    plot_travel,
+    write_report,
+)
+from ncmeasure.report.curves import linear_curve
+from ncmeasure.report.words import CAUSE_TITLES, format_mm, format_number, format_with_error
+from tests.report.example import Window, build_results, cut_windows, simulate
+
+CHROMIUM = Path("/usr/bin/chromium")
+_SIDES: tuple[tuple[Literal["positive", "negative"], float], ...] = (
+    ("positive", 1.0),
+    ("negative", -1.0),
+)
+
+
+@dataclass(frozen=True)
+class Example:
+    recording: Recording
+    windows: dict[str, list[Window]]
+    results: Results
+    comparison: Comparison
+
+
+@pytest.fixture(scope="module")
+def example(tmp_path_factory: pytest.TempPathFactory) -> Example:
+    recording, windows = simulate(tmp_path_factory.mktemp("recording") / "run1")
+    results = build_results(recording, windows)
+    # a re-measurement in which X lost a quarter of its friction (preload loss)
+    later = results.model_copy(
+        update={
+            "recording": results.recording.model_copy(update={"directory": "run2"}),
+            "axes": {**results.axes, "X": _scaled(results.axes["X"], 0.75)},
+        }
+    )
+    comparison = compare_results(results, [later], labels=["delivery", "service 2027"])
+    return Example(recording, windows, results, comparison)
+
+
+def _scaled(axis: AxisResult, factor: float) -> AxisResult:
+    positions = []
+    for position in axis.positions:
+        directions = {
+            name: None
+            if found is None
+            else found.model_copy(
+                update={
+                    "points": [
+                        p.model_copy(update={"median": p.median * factor}) for p in found.points
+                    ]
+                }
+            )
+            for name, found in position.directions.items()
+        }
+        positions.append(position.model_copy(update={"directions": directions}))
+    return axis.model_copy(update={"positions": positions})
+
+
+@pytest.fixture(scope="module")
+def report(example: Example, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("report")
+    return write_report(
+        example.results,
+        out / "friction.html",
+        recording=example.recording,
+        windows=cut_windows(example.windows),
+        comparison=example.comparison,
+    )
+
+
+def _text(path: Path) -> str:
+    return path.read_text(encoding="utf-8")
+
+
+# --- the file --------------------------------------------------------------------------
+
+
+def test_report_is_one_self_contained_file(report: Path) -> None:
+    page = _text(report)
+    assert page.startswith("<!DOCTYPE html>")
+    assert not re.search(r"https?:", page, re.IGNORECASE), "no link to the outside"
+    assert "<script" not in page.lower()
+    assert "<link" not in page.lower()
+    assert "url(" not in page and "@import" not in page
+    sources = re.findall(r"""src\s*=\s*["']([^"']*)["']""", page)
+    assert len(sources) == 2 * 3 + 1  # three plots per axis and the comparison
+    assert all(s.startswith("data:image/png;base64,") for s in sources)
+    assert not re.search(r"""href\s*=\s*["'](?!#)""", page), "only links inside the page"
+
+
+def test_embedded_images_are_the_pngs_beside_the_report(report: Path) -> None:
+    plots = report.parent / "friction_plots"
+    files = sorted(p.name for p in plots.iterdir())
+    assert files == [
+        "01_X_raw.png",
+        "01_X_stribeck.png",
+        "01_X_travel.png",
+        "02_Z_raw.png",
+        "02_Z_stribeck.png",
+        "02_Z_travel.png",
+        "comparison.png",
+    ]
+    embedded = {
+        base64.b64decode(data)
+        for data in re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', _text(report))
+    }
+    on_disk = {(plots / name).read_bytes() for name in files}
+    assert embedded == on_disk
+    for data in on_disk:
+        assert data.startswith(b"\x89PNG\r\n\x1a\n")
+        assert b"matplotlib.org" not in data  # no software tag: same results, same bytes
+
+
+def test_report_has_every_section(report: Path) -> None:
+    page = _text(report)
+    for heading in (
+        "<h2>Summary</h2>",
+        "<h2>Axis X</h2>",
+        "<h2>Axis Z</h2>",
+        "<h3>Friction over velocity</h3>",
+        "<h3>Friction along the travel</h3>",
+        "<h3>Diagnosis</h3>",
+        "<h3>Offset (gravity or bias)</h3>",
+        "<h3>Fits</h3>",
+        "<h3>Raw data</h3>",
+        "<h2>Comparison</h2>",
+        "<h3>Analysis settings</h3>",
+    ):
+        assert heading in page, heading
+    assert page.count("<h3>Friction over velocity</h3>") == 2
+    assert not re.search(r"&lt;/?(p|span|strong|ul|li|br|table|td|a|div)\b", page), "escaped twice"
+    assert "(friction_plots/01_X_stribeck.png)" in page
+    assert "HMX-400 #17" in page
+    assert "2026-01-15 08:30 UTC" in page  # recorded
+
+
+def test_report_shows_the_numbers(report: Path, example: Example) -> None:
+    page = _text(report)
+    x = example.results.axes["X"]
+    dependency = x.position_dependency
+    assert dependency is not None
+    # every linear fit, Coulomb ± stderr and viscous per m/min ± stderr
+    for position in x.positions:
+        for found in position.directions.values():
+            assert found is not None and found.fit is not None
+            fit = found.fit
+            assert format_with_error(fit.coulomb, fit.coulomb_stderr) in page
+            assert (
+                format_with_error(fit.viscous_per_mm_min * 1000, fit.viscous_stderr * 1000) in page
+            )
+            assert format_number(fit.chi2_reduced) in page
+    # the diagnosis in words, the causes best first with their evidence
+    assert f"{dependency.spread_percent:.0f} % spread, rises towards the loose bearing" in page
+    assert "Friction rises as the nut moves towards the loose bearing." in page
+    titles = [CAUSE_TITLES[c.cause] for c in dependency.causes]
+    found_at = [page.index(t) for t in titles]
+    assert found_at == sorted(found_at), "causes best first"
+    assert "the highest value is at 690 mm" in page
+    assert "fixed bearing at the min end (0 mm), loose bearing at the max end (750 mm)" in page
+    # the gravity offset of Z, and the Z fits carrying it
+    z = example.results.axes["Z"]
+    assert z.offset is not None
+    assert format_with_error(z.offset.value, z.offset.stderr) + " Nm" in page
+    assert "include the offset" in page
+    # headline Coulomb friction of Z: the offset cancels between the directions
+    coulombs = [
+        sum(d.fit.coulomb for d in p.directions.values() if d and d.fit) / 2 for p in z.positions
+    ]
+    assert f"{format_number(float(np.mean(coulombs)))} Nm" in page
+    # the comparison: the run and its finding
+    assert "service 2027" in page
+    assert "preload loss" in page
+    assert "critical" in page
+
+
+def test_escapes_names_from_files(example: Example, tmp_path: Path) -> None:
+    x = example.results.axes["X"]
+    assert x.position_dependency is not None
+    evil = "<script>alert(1)</script>"
+    dependency = x.position_dependency.model_copy(
+        update={
+            "causes": [
+                Cause(cause="loose_bearing", score=0.7, evidence='rises "a lot" <b>& more</b>')
+            ]
+        }
+    )
+    results = example.results.model_copy(
+        update={
+            "recording": RecordingInfo(
+                directory="/data/<img src=x onerror=alert(1)>",
+                machine=evil,
+                start_utc=None,
+                config_hash=None,
+                source="import:csv",
+            ),
+            "axes": {"A$1<&>": x.model_copy(update={"position_dependency": dependency})},
+            "settings": {"<i>": "</td>"},
+        }
+    )
+    path = write_report(results, tmp_path / "evil.html")
+    page = _text(path)
+    assert evil not in page
+    assert "<script" not in page.lower()
+    assert "<img src=x" not in page and "<b>" not in page and "<i>" not in page
+    assert "&lt;script&gt;alert(1)&lt;/script&gt;" in page
+    assert "rises &quot;a lot&quot; &lt;b&gt;&amp; more&lt;/b&gt;" in page
+    assert "Axis A$1&lt;&amp;&gt;" in page
+    names = sorted(p.name for p in (tmp_path / "evil_plots").iterdir())
+    assert names == ["01_A_1_stribeck.png", "01_A_1_travel.png"]
+    assert "No recording was given" in page
+
+
+def test_pyplot_users_are_not_disturbed(example: Example, tmp_path: Path) -> None:
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    backend = matplotlib.get_backend()
+    size = matplotlib.rcParams["font.size"]
+    figures = plt.get_fignums()
+    write_report(example.results, tmp_path / "r.html")
+    assert matplotlib.get_backend() == backend
+    assert matplotlib.rcParams["font.size"] == size
+    assert plt.get_fignums() == figures
+
+
+def test_progress_is_reported(example: Example, tmp_path: Path) -> None:
+    seen: list[ReportProgress] = []
+    write_report(
+        example.results,
+        tmp_path / "r.html",
+        recording=example.recording,
+        windows=cut_windows(example.windows),
+        on_progress=seen.append,
+    )
+    assert [p.done for p in seen] == list(range(1, 8))
+    assert {p.total for p in seen} == {7}
+    assert seen[0].step == "axis X: Stribeck curves"
+    assert seen[-1].step == "report page"
+
+
+def test_windows_are_found_when_not_given(example: Example, tmp_path: Path) -> None:
+    page = _text(write_report(example.results, tmp_path / "r.html", recording=example.recording))
+    assert page.count("found again in the recording") == 2
+
+
+def test_any_comparison_model_is_shown(example: Example, tmp_path: Path) -> None:
+    class Finding(BaseModel):
+        axis: str
+        change_percent: float
+
+    class OtherComparison(BaseModel):
+        summary: str
+        findings: list[Finding]
+        reference: str
+
+    other = OtherComparison(
+        summary="Axis X lost 25 % <friction>",
+        findings=[Finding(axis="X", change_percent=-25.04)],
+        reference="delivery 2026",
+    )
+    page = _text(write_report(example.results, tmp_path / "r.html", comparison=other))
+    assert "<h2>Comparison</h2>" in page
+    assert "Axis X lost 25 % &lt;friction&gt;" in page
+    assert "-25.0" in page and "delivery 2026" in page
+
+
+def test_plots_without_optional_parts(example: Example) -> None:
+    x = example.results.axes["X"]
+    bare = x.model_copy(
+        update={
+            "positions": [
+                p.model_copy(update={"directions": {"positive": p.directions["positive"]}})
+                for p in x.positions
+            ],
+            "offset": None,
+        }
+    )
+    assert plot_stribeck("X", bare).axes
+    dependency = x.position_dependency
+    assert isinstance(dependency, PositionDependency)
+    figure = plot_travel("X", x, bearing_layout("X"))
+    assert figure.axes
+    with pytest.raises(ValueError, match="no friction along the travel"):
+        plot_travel("X", x.model_copy(update={"position_dependency": None}), bearing_layout("X"))
+
+
+def test_fit_lines_follow_the_points(example: Example) -> None:
+    """The negative direction's line is negative; Z's offset shifts it where the points are."""
+    for name in ("X", "Z"):
+        axis = example.results.axes[name]
+        offset = axis.offset.value if axis.offset else None
+        for position in axis.positions:
+            for key, sign in _SIDES:
+                found = position.directions[key]
+                assert found is not None and found.fit is not None
+                fast = [p for p in found.points if abs(p.velocity_mm_min) >= 800]
+                velocity = np.array([p.velocity_mm_min for p in fast])
+                line = linear_curve(found.fit, velocity, sign, fast, offset)
+                medians = np.array([p.median for p in fast])
+                assert np.max(np.abs(line - medians)) < 0.05
+
+
+def test_numbers_for_technicians() -> None:
+    assert format_number(1.6234) == "1.62"
+    assert format_number(7500.4) == "7500"
+    assert format_number(0.01234) == "0.0123"
+    assert format_number(float("nan")) == "–"
+    assert format_with_error(1.5103, 0.0021) == "1.510 ± 0.002"
+    assert format_with_error(1.51, 0.3) == "1.51 ± 0.30"
+    assert format_with_error(-0.000292, 0.000752) == "-0.00029 ± 0.00075"
+    assert format_with_error(-0.0001, 0.02) == "0.000 ± 0.020"
+    assert format_mm(61.506) == "61.5"
+    assert format_mm(750.0) == "750"
+    assert format_mm(-0.04) == "0"
+
+
+# --- in a browser ----------------------------------------------------------------------
+
+
+def _chromium_or_skip() -> Path:
+    if CHROMIUM.exists():
+        return CHROMIUM
+    if os.environ.get("CI"):
+        pytest.fail(f"{CHROMIUM} is missing: CI must install the Debian package chromium")
+    pytest.skip(f"{CHROMIUM} is not installed (apt-get install chromium); CI runs this test")
+
+
+def _screenshot(page: Path, out: Path, height: int) -> np.ndarray:
+    browser = _chromium_or_skip()
+    shot = out / "shot.png"
+    command = [
+        str(browser),
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        f"--user-data-dir={out / 'profile'}",
+        f"--screenshot={shot}",
+        f"--window-size=1280,{height}",
+        page.resolve().as_uri(),
+    ]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=180, check=False)
+    assert done.returncode == 0 and shot.exists(), done.stderr[-2000:]
+    image = np.asarray(matplotlib.image.imread(shot), dtype=np.float64)
+    shutil.rmtree(out / "profile", ignore_errors=True)
+    return image[:, :, :3]
+
+
+def _pixels_like(image: np.ndarray, colour: str, tolerance: float = 0.06) -> int:
+    target = np.array([int(colour[i : i + 2], 16) / 255 for i in (1, 3, 5)])
+    return int(np.count_nonzero(np.all(np.abs(image - target) <= tolerance, axis=2)))
+
+
+def test_chromium_renders_the_plots(report: Path, tmp_path: Path) -> None:
+    image = _screenshot(report, tmp_path, 2400)
+    assert image.shape == (2400, 1280, 3)
+    ink = np.any(image < 0.94, axis=2)
+    assert ink.mean() > 0.04, f"only {ink.mean():.1%} of the page is not white: blank?"
+    # the plot colours reach the screen: positions 1-3 of the Stribeck curves,
+    # the average along the travel (the page's own CSS uses none of them)
+    for colour in PALETTE[:3]:
+        assert _pixels_like(image, colour) > 400, colour
+    # the first axis' plots are inside the first 2400 px, side by side with the text
+    rows_with_blue = np.flatnonzero(
+        np.all(np.abs(image - np.array([0x1F, 0x5F, 0xA8]) / 255) <= 0.06, axis=2).any(axis=1)
+    )
+    assert rows_with_blue.min() < 1400 < rows_with_blue.max()
+
+
+def test_chromium_without_images_has_no_plot_colours(report: Path, tmp_path: Path) -> None:
+    """The colour check above is not fooled by the page itself: without images it fails."""
+    bare = tmp_path / "bare.html"
+    bare.write_text(
+        re.sub(r'<img src="data:[^"]*"', '<img src=""', _text(report)), encoding="utf-8"
+    )
+    image = _screenshot(bare, tmp_path, 2400)
+    assert all(_pixels_like(image, colour) < 50 for colour in PALETTE[:3])
