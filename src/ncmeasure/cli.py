@@ -877,36 +877,24 @@ def analyze_command(
         return
     for problem in recording.problems:
         err_console.print(f"[yellow]warning:[/] {problem}")
-    table = Table(box=None, header_style="bold")
-    for column in (
-        "axis",
-        "windows",
-        "unit",
-        "Coulomb (pos. 1 … n)",
-        "spread",
-        "signature",
-        "likely cause",
-    ):
-        table.add_column(column)
     for name, axis in results.axes.items():
         coulombs = []
         for position in axis.positions:
             fits = [d.fit.coulomb for d in position.directions.values() if d and d.fit]
             coulombs.append(f"{sum(fits) / len(fits):.3g}" if fits else "—")
-        dependency = axis.position_dependency
-        cause = dependency.causes[0] if dependency and dependency.causes else None
-        table.add_row(
-            name,
-            str(axis.windows),
-            axis.unit,
-            " / ".join(coulombs),
-            f"{dependency.spread_percent:.0f} %" if dependency else "—",
-            dependency.signature if dependency else "—",
-            f"{cause.cause} ({cause.score:.2f})" if cause else "—",
+        line = (
+            f"axis {name}: {axis.windows} windows ({axis.window_source}); Coulomb by "
+            f"position {' / '.join(coulombs)} {axis.unit}"
         )
+        dependency = axis.position_dependency
+        if dependency is not None:
+            line += f"; spread {dependency.spread_percent:.0f} %, {dependency.signature}"
+            if dependency.causes:
+                cause = dependency.causes[0]
+                line += f" → likely cause {cause.cause} ({cause.score:.2f})"
+        console.print(line)
         for warning in axis.warnings:
             err_console.print(f"[yellow]warning:[/] axis {name}: {warning}")
-    console.print(table)
     console.print(f"wrote {target}" + (f" and {report}" if report else ""))
 
 

@@ -1,0 +1,80 @@
+"""`ncmeasure analyze`, `compare` and `schema results` from the command line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from ncmeasure.analysis.analyze import load_results
+from ncmeasure.cli import app
+from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
+
+runner = CliRunner()
+P3 = (50.0, 375.0, 700.0)
+
+
+def run(*args: str | Path) -> tuple[int, str, str]:
+    result = runner.invoke(app, [str(a) for a in args])
+    return result.exit_code, result.stdout, result.stderr
+
+
+def _run(folder: Path, coulomb: tuple[float, ...], seed: int = 0) -> tuple[Path, Path]:
+    spec = SyntheticAxis(
+        positions_mm=P3, coulomb=coulomb, velocities_mm_min=geometric_velocities(10.0, 15000.0, 20)
+    )
+    _, schedule = synthetic_recording(folder, [spec], seed=seed)
+    assert schedule is not None
+    path = folder.with_suffix(".schedule.json")
+    path.write_text(schedule.model_dump_json())
+    return folder, path
+
+
+def test_analyze_writes_results_and_report(tmp_path: Path) -> None:
+    run_dir, schedule = _run(tmp_path / "run1", (2.0, 2.3, 2.6))
+    code, out, err = run(
+        "analyze", run_dir, "--schedule", schedule, "--report", tmp_path / "report.html", "--quiet"
+    )
+    assert code == 0, err
+    results = load_results(tmp_path / "run1.results.json")
+    x = results.axes["X"]
+    assert x.quantity == "torque_nm" and len(x.positions) == 3
+    assert x.position_dependency is not None
+    assert x.position_dependency.signature == "rising_to_loose_bearing"
+    assert x.position_dependency.causes[0].cause == "loose_bearing"
+    fit = x.positions[0].directions["positive"]
+    assert fit is not None and fit.fit is not None
+    assert abs(fit.fit.coulomb - 2.0) < 0.02
+    html = (tmp_path / "report.html").read_text()
+    assert "data:image/png;base64," in html and "loose" in html
+    code, out, _ = run("analyze", run_dir, "-o", tmp_path / "r2.json")
+    assert code == 0 and "rising_to_loose_bearing" in out and "loose_bearing" in out
+
+
+def test_compare_lifetime_exit_codes(tmp_path: Path) -> None:
+    base_dir, _ = _run(tmp_path / "base", (2.0, 2.0, 2.0))
+    same_dir, _ = _run(tmp_path / "same", (2.02, 2.0, 1.98), seed=1)
+    worn_dir, _ = _run(tmp_path / "worn", (1.0, 1.0, 1.0), seed=2)
+    for folder in (base_dir, same_dir, worn_dir):
+        assert run("analyze", folder, "--quiet")[0] == 0
+    base = tmp_path / "base.results.json"
+    code, out, _ = run("compare", base, tmp_path / "same.results.json")
+    assert code == 0, out
+    code, out, _ = run("compare", base, tmp_path / "worn.results.json", "-o", tmp_path / "cmp.json")
+    assert code == 3, out
+    assert json.loads((tmp_path / "cmp.json").read_text())["format"] == "ncmeasure-comparison"
+    code, out, _ = run("compare", base, tmp_path / "worn.results.json", "--critical", "60")
+    assert code == 1, out
+
+
+def test_analysis_bad_input(tmp_path: Path) -> None:
+    code, _, err = run("analyze", tmp_path / "nothing")
+    assert code == 2 and "nothing" in err and "Traceback" not in err
+    (tmp_path / "x.json").write_text("{}")
+    code, _, err = run("compare", tmp_path / "x.json", tmp_path / "x.json")
+    assert code == 2 and "x.json" in err
+    code, out, _ = run("schema", "results")
+    assert (
+        code == 0 and "position_dependency" in json.loads(out)["$defs"]["AxisResult"]["properties"]
+    )
