@@ -64,8 +64,18 @@ def test_compare_lifetime_exit_codes(tmp_path: Path) -> None:
     code, out, _ = run("compare", base, tmp_path / "worn.results.json", "-o", tmp_path / "cmp.json")
     assert code == 3, out
     assert json.loads((tmp_path / "cmp.json").read_text())["format"] == "ncmeasure-comparison"
-    code, out, _ = run("compare", base, tmp_path / "worn.results.json", "--critical", "60")
+    code, out, _ = run(
+        "compare",
+        base,
+        tmp_path / "worn.results.json",
+        "--critical",
+        "60",
+        "--report",
+        tmp_path / "cmp.html",
+    )
     assert code == 1, out
+    html = (tmp_path / "cmp.html").read_text()
+    assert "Comparison" in html and "warning" in html.lower()
 
 
 def test_analysis_bad_input(tmp_path: Path) -> None:

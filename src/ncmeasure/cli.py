@@ -914,6 +914,10 @@ def compare_command(
     output: Annotated[
         Path | None, typer.Option("--output", "-o", help="Write the comparison as JSON.")
     ] = None,
+    report: Annotated[
+        Path | None,
+        typer.Option(help="Write an HTML report of the last run with the comparison."),
+    ] = None,
 ) -> None:
     """Compare runs: the same machine over its life, or identical machines (fleet).
 
@@ -943,6 +947,14 @@ def compare_command(
         _fail(ConfigError(f"limits: {exc}"))
     if output is not None:
         output.write_text(comparison.model_dump_json(indent=2) + "\n", encoding="utf-8")
+    if report is not None:
+        from ncmeasure.report import write_report
+
+        try:
+            write_report(runs[-1], report, comparison=comparison)
+        except NcMeasureError as exc:
+            _fail(exc)
+        console.print(f"wrote {report}")
     for line in comparison.findings:
         console.print(line)
     code = comparison_exit_code(comparison)
