@@ -105,15 +105,6 @@ class ReplayLink(DriveLink):
         self._columns = columns
         self._channels = tuple(channels)
 
-    @classmethod
-    def bindings_for(cls, recording: Recording) -> list[str]:
-        """The axis names a recording holds, in order (for replay without a machine file)."""
-        names: list[str] = []
-        for channel in recording.channels:
-            if channel.axis not in names:
-                names.append(channel.axis)
-        return names
-
     @property
     def channels(self) -> tuple[Channel, ...]:
         return self._channels
