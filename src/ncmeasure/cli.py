@@ -642,8 +642,12 @@ def import_command(
     ] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress, no report.")] = False,
 ) -> None:
-    """Turn a controller trace (Sinumerik, TwinCAT Scope, TNCscope) or an exported CSV/MDF4
-    file into a recording, reporting what was mapped, converted and left out."""
+    """Turn a controller trace or an exported CSV/MDF4 file into a recording.
+
+    Reads SINUMERIK trace XML and CSV, TwinCAT Scope CSV, TNCscope text and the
+    CSV of `ncmeasure export`; reports what was mapped, converted and left out.
+    Example: ncmeasure import trace.xml --machine machine.toml --axis 1=X -o run1
+    """
     from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
 
     from ncmeasure.traces import detect_format, import_trace
