@@ -1,0 +1,581 @@
+"""The physical friction model of one ball-screw feed axis (pure numpy, no I/O).
+
+An :class:`AxisModel` says which friction torque, and which motor current, a
+feed axis shows at a position and velocity. The drive train is split into the
+components of the method's test rig: motor, fixed bearing, loose bearing,
+ball-screw nut, guide carriages and covers. Each component has Coulomb,
+viscous and Stribeck friction, expressed as torque on the screw (= motor)
+shaft, and each splits its Coulomb and Stribeck part into a load-independent
+share (seals, lubricant) and a share proportional to the normal force in its
+rolling contacts (``F_R = μ F_N``, as torque ``T = (μ r) F_N``). The defaults
+are the rig's identified values (method, "Reference numbers"), so the
+components add up to the measured total.
+
+Assembly variances (:class:`Variation`) change the normal forces:
+
+* preload changes (bearings, nut, carriages) scale the nominal normal force:
+  a constant offset along the travel;
+* a radial shift of a bearing or of the nut bends the screw spindle. The
+  nut, held by its carriage on the guides, is a moving support that clamps
+  the screw (position and slope) to the guide line; it splits the screw into
+  the span ``a`` to the fixed bearing and the span ``b = L − a`` to the loose
+  bearing. A support misaligned by ``δ`` against the nut at the end of a span
+  ``ℓ`` loads that span like a cantilever with a tip load (Euler–Bernoulli
+  beam, Gere & Goodno, Mechanics of Materials, App. G, table G-1 case 4;
+  Roark's Formulas for Stress and Strain, 8th ed., Table 8.1 case 1a with
+  the load at the free end):
+
+      δ = F ℓ³ / (3 E I)   →   k_beam(ℓ) = 3 E I / ℓ³,   I = π d_core⁴ / 64
+
+  in series with the lateral contact and housing compliance ``1/k_s`` of the
+  support chain (bearing housing on its joint, nut flange, carriage):
+
+      F_fixed = (δ_F − δ_N) / (a³/(3EI) + 1/k_s)
+      F_loose = (δ_L − δ_N) / (b³/(3EI) + 1/k_s)
+
+  The bearings see ``|F_fixed|`` and ``|F_loose|``, the nut their sum. The
+  closer the nut is to a misaligned support, the shorter and stiffer the
+  path and the larger the force. This reproduces the test rig: a shifted
+  loose bearing loads only span ``b``, which is long and soft next to the
+  fixed bearing (no change there) and stiffens towards the loose bearing,
+  where ``1/k_s`` caps it, so the rise is nearly linear; a shifted nut loads
+  both spans, so friction rises next to both bearings and is lowest
+  mid-travel, where both spans are long. The default ``k_s`` (1 N/µm) is
+  chosen to give the rig's shapes, not measured. Not modelled: the bending
+  moment carried by the nut and by the fixed bearing pair (its spacing is
+  unknown), and the clamping by the fixed bearing's tilt stiffness
+  (``12EI/a³`` instead of ``3EI/a³``), which would make the fixed span
+  stiffer mid-travel.
+* a misaligned guide rail (a ramp from 0 at the travel minimum to
+  ``rail_misalignment_um`` at the maximum) presses the carriages against
+  their preload with the constraint stiffness of table and carriages: the
+  guide friction follows the rail's deviation;
+* a sticking cover adds a step of ``cover_step`` × the axis' nominal
+  friction beyond a position.
+
+The motor current is ``(friction + J α + gravity) / k_T`` plus cogging
+ripple (3 and 18 periods per motor revolution), optional Gaussian noise and
+rare outliers. Units are in the names: positions in mm, velocities in
+mm/min, accelerations in m/s², torques in Nm, forces in N.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ncmeasure.config import AxisConfig
+from ncmeasure.errors import ConfigError
+
+__all__ = [
+    "AxisModel",
+    "AxisParameters",
+    "Component",
+    "Components",
+    "Variation",
+    "default_components",
+    "parse_variation",
+]
+
+FloatArray = NDArray[np.float64]
+
+_G_M_S2 = 9.81
+_STEEL_DENSITY_KG_M3 = 7850.0
+
+
+def _omega_rad_s(velocity_mm_min: FloatArray, lead_mm: float) -> FloatArray:
+    """Screw angular velocity for an axis velocity."""
+    return np.asarray(2.0 * math.pi * velocity_mm_min / (60.0 * lead_mm), dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class Component:
+    """Friction of one drive-train component, as torque on the screw shaft.
+
+    Attributes:
+        coulomb_nm: Coulomb friction torque at nominal load.
+        viscous_nms_rad: Viscous friction per screw angular velocity.
+        stribeck_nm: Extra torque at standstill, decaying as ``exp(−|v|/v_S)``.
+        stribeck_velocity_mm_min: Stribeck velocity (axis velocity).
+        load_share: Share of Coulomb and Stribeck torque proportional to the
+            normal force (the rest is load-independent: seals, lubricant).
+        torque_per_newton_nm: Friction torque per newton of normal force
+            (``μ`` times the effective radius; for a linear guide ``μ h / 2π``).
+    """
+
+    coulomb_nm: float
+    viscous_nms_rad: float
+    stribeck_nm: float = 0.0
+    stribeck_velocity_mm_min: float = 300.0
+    load_share: float = 0.0
+    torque_per_newton_nm: float = 0.0
+
+    def __post_init__(self) -> None:
+        checks = {
+            "coulomb_nm": self.coulomb_nm >= 0,
+            "viscous_nms_rad": self.viscous_nms_rad >= 0,
+            "stribeck_nm": self.stribeck_nm >= 0,
+            "stribeck_velocity_mm_min": self.stribeck_velocity_mm_min > 0,
+            "load_share": 0 <= self.load_share <= 1,
+            "torque_per_newton_nm": self.torque_per_newton_nm >= 0,
+        }
+        bad = [
+            f"{key}: {getattr(self, key)!r} is out of range" for key, ok in checks.items() if not ok
+        ]
+        if self.load_share > 0 and self.torque_per_newton_nm == 0:
+            bad.append("torque_per_newton_nm: must be > 0 when load_share > 0")
+        if bad:
+            raise ConfigError("invalid friction component", bad)
+
+    @property
+    def nominal_normal_force_n(self) -> float:
+        """The preload normal force that carries the load-dependent share."""
+        if self.torque_per_newton_nm == 0:
+            return 0.0
+        return self.load_share * self.coulomb_nm / self.torque_per_newton_nm
+
+
+def _component(coulomb: float, viscous: float, load_share: float, per_n: float) -> Component:
+    return Component(
+        coulomb_nm=coulomb,
+        viscous_nms_rad=viscous,
+        stribeck_nm=0.3 * coulomb,
+        load_share=load_share,
+        torque_per_newton_nm=per_n,
+    )
+
+
+@dataclass(frozen=True)
+class Components:
+    """The friction components of one feed axis (defaults: the method's test rig)."""
+
+    motor: Component = field(default_factory=lambda: _component(0.72, 0.05, 0.0, 0.0))
+    # Angular-contact bearing: μ ≈ 0.002 at a 20 mm effective radius.
+    fixed_bearing: Component = field(default_factory=lambda: _component(0.09, 0.00048, 0.6, 4.0e-5))
+    loose_bearing: Component = field(default_factory=lambda: _component(0.09, 0.00048, 0.6, 4.0e-5))
+    # Nut: μ ≈ 0.004 at the 20 mm pitch radius.
+    nut: Component = field(default_factory=lambda: _component(0.25, 0.00019, 0.7, 8.0e-5))
+    # Guides: μ ≈ 0.003 as screw torque, times h / 2π = 3.18 mm.
+    guides: Component = field(
+        default_factory=lambda: _component(0.205, 0.000014, 0.8, 0.003 * 20e-3 / (2 * math.pi))
+    )
+    covers: Component = field(default_factory=lambda: Component(0.0, 0.0))
+
+    def items(self) -> tuple[tuple[str, Component], ...]:
+        """``(name, component)`` pairs in drive-train order."""
+        return tuple((f.name, getattr(self, f.name)) for f in fields(self))
+
+    @property
+    def coulomb_nm(self) -> float:
+        """Sum of the components' Coulomb torques."""
+        return sum(c.coulomb_nm for _, c in self.items())
+
+    @property
+    def viscous_nms_rad(self) -> float:
+        """Sum of the components' viscous coefficients."""
+        return sum(c.viscous_nms_rad for _, c in self.items())
+
+
+def default_components() -> Components:
+    """The component friction identified on the method's test rig."""
+    return Components()
+
+
+@dataclass(frozen=True)
+class AxisParameters:
+    """Geometry, drive and disturbance data of one axis.
+
+    Attributes:
+        travel_mm: Soft limits [min, max]; the nut centre sweeps this range.
+        fixed_bearing_end: Which end of the travel carries the fixed bearing.
+        vertical: Gravity acts on the motor torque (positive direction up).
+        torque_constant_nm_per_a: Motor torque constant k_T.
+        screw_lead_mm: Lead (axis travel per screw revolution).
+        screw_diameter_mm: Nominal screw diameter (for the screw inertia).
+        screw_core_diameter_mm: Core diameter (for the bending stiffness).
+        bearing_clearance_mm: Distance of each bearing from the nearest travel
+            end of the nut centre; the span is travel + 2 × this.
+        youngs_modulus_gpa: Young's modulus of the screw.
+        support_stiffness_n_per_um: Contact and housing stiffness in series
+            with the screw's bending (nut and bearings, lateral).
+        guide_stiffness_n_per_um: Lateral constraint stiffness of table and
+            carriages against a misaligned rail.
+        moved_mass_kg: Table and workpiece mass.
+        rotor_inertia_kgm2: Motor rotor inertia (incl. coupling).
+        cogging_3_nm: Cogging amplitude, 3 periods per revolution.
+        cogging_18_nm: Cogging amplitude, 18 periods per revolution.
+        noise_a: Standard deviation of the current noise (with an ``rng``).
+        outlier_rate: Share of samples that are outliers (with an ``rng``).
+        outlier_a: Size of an outlier.
+        regularisation_mm_min: Velocity over which the friction sign turns
+            smoothly (tanh), so the model has no jump at standstill.
+    """
+
+    travel_mm: tuple[float, float] = (0.0, 750.0)
+    fixed_bearing_end: Literal["min", "max"] = "min"
+    vertical: bool = False
+    torque_constant_nm_per_a: float = 2.1
+    screw_lead_mm: float = 20.0
+    screw_diameter_mm: float = 40.0
+    screw_core_diameter_mm: float = 34.0
+    bearing_clearance_mm: float = 80.0
+    youngs_modulus_gpa: float = 210.0
+    support_stiffness_n_per_um: float = 1.0
+    guide_stiffness_n_per_um: float = 20.0
+    moved_mass_kg: float = 500.0
+    rotor_inertia_kgm2: float = 0.0193
+    cogging_3_nm: float = 0.06
+    cogging_18_nm: float = 0.03
+    noise_a: float = 0.02
+    outlier_rate: float = 1e-3
+    outlier_a: float = 2.0
+    regularisation_mm_min: float = 1.0
+
+    def __post_init__(self) -> None:
+        low, high = self.travel_mm
+        positive = (
+            "torque_constant_nm_per_a",
+            "screw_lead_mm",
+            "screw_diameter_mm",
+            "screw_core_diameter_mm",
+            "youngs_modulus_gpa",
+            "support_stiffness_n_per_um",
+            "guide_stiffness_n_per_um",
+            "regularisation_mm_min",
+        )
+        non_negative = (
+            "bearing_clearance_mm",
+            "moved_mass_kg",
+            "rotor_inertia_kgm2",
+            "cogging_3_nm",
+            "cogging_18_nm",
+            "noise_a",
+            "outlier_a",
+        )
+        bad = [
+            f"{key}: {getattr(self, key)!r} must be > 0"
+            for key in positive
+            if not getattr(self, key) > 0
+        ]
+        bad += [
+            f"{key}: {getattr(self, key)!r} must be >= 0"
+            for key in non_negative
+            if not getattr(self, key) >= 0
+        ]
+        if not low < high:
+            bad.append(f"travel_mm: min ({low:g}) must be below max ({high:g})")
+        if not 0 <= self.outlier_rate <= 1:
+            bad.append(f"outlier_rate: {self.outlier_rate!r} must be in [0, 1]")
+        if bad:
+            raise ConfigError("invalid axis parameters", bad)
+
+    @classmethod
+    def from_config(cls, axis: AxisConfig, **overrides: object) -> AxisParameters:
+        """Parameters for a configured axis; drive data it lacks keep the rig's values."""
+        values: dict[str, object] = {
+            "travel_mm": axis.travel_mm,
+            "fixed_bearing_end": axis.fixed_bearing_end,
+            "vertical": axis.vertical,
+        }
+        if axis.torque_constant_nm_per_a is not None:
+            values["torque_constant_nm_per_a"] = axis.torque_constant_nm_per_a
+        if axis.screw_lead_mm is not None:
+            values["screw_lead_mm"] = axis.screw_lead_mm
+        values.update(overrides)
+        return replace(cls(), **values)  # type: ignore[arg-type]
+
+    @property
+    def span_mm(self) -> float:
+        """Distance between fixed and loose bearing."""
+        return self.travel_mm[1] - self.travel_mm[0] + 2 * self.bearing_clearance_mm
+
+    @property
+    def bending_stiffness_nm2(self) -> float:
+        """E I of the screw core."""
+        d_m = self.screw_core_diameter_mm / 1000.0
+        return self.youngs_modulus_gpa * 1e9 * math.pi * d_m**4 / 64.0
+
+    @property
+    def inertia_kgm2(self) -> float:
+        """Total inertia at the motor: rotor + screw + moved mass through the lead."""
+        d_m = self.screw_diameter_mm / 1000.0
+        screw = math.pi * _STEEL_DENSITY_KG_M3 * (self.span_mm / 1000.0) * d_m**4 / 32.0
+        lever_m = self.screw_lead_mm / 1000.0 / (2 * math.pi)
+        return self.rotor_inertia_kgm2 + screw + self.moved_mass_kg * lever_m**2
+
+    @property
+    def gravity_torque_nm(self) -> float:
+        """Motor torque holding the moved mass on a vertical axis (0 if horizontal)."""
+        if not self.vertical:
+            return 0.0
+        return self.moved_mass_kg * _G_M_S2 * self.screw_lead_mm / 1000.0 / (2 * math.pi)
+
+
+@dataclass(frozen=True)
+class Variation:
+    """Assembly variances of one axis (all zero: a well-assembled axis).
+
+    Attributes:
+        fixed_bearing_shift_um: Radial shift of the fixed bearing.
+        loose_bearing_shift_um: Radial shift of the loose bearing.
+        nut_shift_um: Radial shift of the nut against its carriage.
+        bearing_preload_change: Relative change of both bearings' preload (−0.6 = −60 %).
+        nut_preload_change: Relative change of the nut preload.
+        carriage_preload_change: Relative change of the carriages' preload.
+        rail_misalignment_um: Rail deviation at the travel maximum; a ramp from 0
+            at the travel minimum.
+        cover_step: Friction step of a sticking cover, relative to the axis'
+            nominal friction (0.2 = a 20 % step).
+        cover_step_position_mm: Where the step occurs (default: mid-travel).
+    """
+
+    fixed_bearing_shift_um: float = 0.0
+    loose_bearing_shift_um: float = 0.0
+    nut_shift_um: float = 0.0
+    bearing_preload_change: float = 0.0
+    nut_preload_change: float = 0.0
+    carriage_preload_change: float = 0.0
+    rail_misalignment_um: float = 0.0
+    cover_step: float = 0.0
+    cover_step_position_mm: float | None = None
+
+    def __post_init__(self) -> None:
+        bad: list[str] = []
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if value is None:
+                continue
+            if not math.isfinite(value):
+                bad.append(f"{f.name}: {value!r} is not a finite number")
+            elif f.name.endswith("_preload_change") and value <= -1:
+                bad.append(f"{f.name}: {value!r} must be > -1 (a relative change)")
+            elif f.name == "cover_step" and value < -1:
+                bad.append(f"{f.name}: {value!r} must be >= -1 (a relative step)")
+        if bad:
+            raise ConfigError("invalid assembly variation", bad)
+
+
+_VARIATION_KEYS = tuple(f.name for f in fields(Variation))
+
+
+def parse_variation(text: str) -> Variation:
+    """Parse ``key=value`` pairs, separated by commas or spaces, into a :class:`Variation`.
+
+    Example: ``parse_variation("loose_bearing_shift_um=20, nut_preload_change=-0.3")``.
+
+    Raises:
+        ConfigError: a pair without ``=``, an unknown or repeated key, a value that is
+            not a number or out of range; the message names the key and value.
+    """
+    values: dict[str, float] = {}
+    problems: list[str] = []
+    for item in text.replace(",", " ").split():
+        key, sep, raw = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            problems.append(f"{item!r}: expected key=value, e.g. loose_bearing_shift_um=20")
+            continue
+        if key not in _VARIATION_KEYS:
+            problems.append(f"{key}: unknown variation key (known: {', '.join(_VARIATION_KEYS)})")
+            continue
+        if key in values:
+            problems.append(f"{key}: given twice")
+            continue
+        try:
+            value = float(raw)
+        except ValueError:
+            problems.append(f"{key}: {raw!r} is not a number")
+            continue
+        if not math.isfinite(value):
+            problems.append(f"{key}: {raw!r} is not a finite number")
+            continue
+        values[key] = value
+    if problems:
+        raise ConfigError(f"invalid variation {text!r}", problems)
+    return Variation(**values)
+
+
+class AxisModel:
+    """Friction and motor current of one ball-screw feed axis.
+
+    Args:
+        axis: Axis parameters, or an :class:`~ncmeasure.config.AxisConfig`
+            (its travel, bearing end, orientation, k_T and lead are used).
+        components: Component friction (default: the method's test rig).
+        variation: Assembly variances (default: none).
+    """
+
+    def __init__(
+        self,
+        axis: AxisParameters | AxisConfig | None = None,
+        components: Components | None = None,
+        variation: Variation | None = None,
+    ) -> None:
+        if axis is None:
+            axis = AxisParameters()
+        elif isinstance(axis, AxisConfig):
+            axis = AxisParameters.from_config(axis)
+        self.axis: AxisParameters = axis
+        self.components: Components = components if components is not None else Components()
+        self.variation: Variation = variation if variation is not None else Variation()
+        step_at = self.variation.cover_step_position_mm
+        low, high = axis.travel_mm
+        if step_at is not None and not low <= step_at <= high:
+            raise ConfigError(
+                "invalid assembly variation",
+                [
+                    f"cover_step_position_mm: {step_at:g} mm is outside the travel "
+                    f"[{low:g}, {high:g}] mm"
+                ],
+            )
+        self._cover_step_mm = step_at if step_at is not None else (low + high) / 2
+
+    # --- geometry -----------------------------------------------------------------
+
+    def nut_distance_mm(self, position_mm: ArrayLike) -> FloatArray:
+        """Distance of the nut centre from the fixed bearing, ``s``."""
+        x = np.asarray(position_mm, dtype=np.float64)
+        low, high = self.axis.travel_mm
+        from_end = x - low if self.axis.fixed_bearing_end == "min" else high - x
+        return np.asarray(self.axis.bearing_clearance_mm + from_end, dtype=np.float64)
+
+    def normal_forces_n(self, position_mm: ArrayLike) -> dict[str, FloatArray]:
+        """Constraining forces added to the preloads by the variation, per component.
+
+        Keys: ``fixed_bearing``, ``loose_bearing``, ``nut``, ``guides`` (N, ≥ 0).
+        """
+        ax = self.axis
+        var = self.variation
+        x = np.asarray(position_mm, dtype=np.float64)
+        span_m = ax.span_mm / 1000.0
+        a_m = np.clip(self.nut_distance_mm(x) / 1000.0, 1e-6, span_m)  # nut to fixed bearing
+        b_m = np.clip(span_m - a_m, 1e-6, span_m)  # nut to loose bearing
+        three_ei = 3 * ax.bending_stiffness_nm2
+        compliance = 1.0 / (ax.support_stiffness_n_per_um * 1e6)
+        d_nut = var.nut_shift_um * 1e-6
+        # Each span is a cantilever from the guided nut to a bearing, δ = F ℓ³ / (3 E I),
+        # in series with the contact and housing compliance.
+        fixed_force = (var.fixed_bearing_shift_um * 1e-6 - d_nut) / (a_m**3 / three_ei + compliance)
+        loose_force = (var.loose_bearing_shift_um * 1e-6 - d_nut) / (b_m**3 / three_ei + compliance)
+        low, high = ax.travel_mm
+        rail_m = var.rail_misalignment_um * 1e-6 * (x - low) / (high - low)
+        return {
+            "fixed_bearing": np.abs(fixed_force),
+            "loose_bearing": np.abs(loose_force),
+            "nut": np.abs(fixed_force + loose_force),
+            "guides": np.abs(ax.guide_stiffness_n_per_um * 1e6 * rail_m),
+        }
+
+    # --- friction -----------------------------------------------------------------
+
+    def _load_factors(self, x: FloatArray) -> dict[str, FloatArray]:
+        """Per component: static friction at this position relative to nominal."""
+        var = self.variation
+        forces = self.normal_forces_n(x)
+        preload = {
+            "fixed_bearing": var.bearing_preload_change,
+            "loose_bearing": var.bearing_preload_change,
+            "nut": var.nut_preload_change,
+            "guides": var.carriage_preload_change,
+        }
+        factors: dict[str, FloatArray] = {}
+        for name, comp in self.components.items():
+            factor = np.ones_like(x)
+            if comp.coulomb_nm > 0 and comp.torque_per_newton_nm > 0:
+                extra_n = comp.nominal_normal_force_n * preload.get(name, 0.0) + forces.get(
+                    name, np.zeros_like(x)
+                )
+                factor = factor + comp.torque_per_newton_nm * extra_n / comp.coulomb_nm
+            factors[name] = factor
+        return factors
+
+    def component_breakdown(
+        self, position_mm: ArrayLike, velocity_mm_min: ArrayLike
+    ) -> dict[str, FloatArray]:
+        """Friction torque of each component (Nm, sign of the velocity), broadcast."""
+        x, v = np.broadcast_arrays(
+            np.asarray(position_mm, dtype=np.float64), np.asarray(velocity_mm_min, dtype=np.float64)
+        )
+        ax = self.axis
+        omega = _omega_rad_s(v, ax.screw_lead_mm)
+        sign = np.tanh(v / ax.regularisation_mm_min)
+        factors = self._load_factors(x)
+        result: dict[str, FloatArray] = {}
+        for name, comp in self.components.items():
+            decay = np.exp(-np.abs(v) / comp.stribeck_velocity_mm_min)
+            static = comp.coulomb_nm + comp.stribeck_nm * decay
+            # The load-dependent share scales with the normal force; factor is
+            # relative to the whole Coulomb torque, so apply it to static friction.
+            torque = static * factors[name] * sign + comp.viscous_nms_rad * omega
+            result[name] = np.asarray(torque, dtype=np.float64)
+        if self.variation.cover_step != 0:
+            # The nominal friction of the whole axis, without variation.
+            nominal = sum(
+                (c.coulomb_nm + c.stribeck_nm * np.exp(-np.abs(v) / c.stribeck_velocity_mm_min))
+                * sign
+                + c.viscous_nms_rad * omega
+                for _, c in self.components.items()
+            )
+            beyond = x >= self._cover_step_mm
+            result["covers"] = result["covers"] + np.where(
+                beyond, self.variation.cover_step * nominal, 0.0
+            )
+        return result
+
+    def friction_torque_nm(self, position_mm: ArrayLike, velocity_mm_min: ArrayLike) -> FloatArray:
+        """Total friction torque at the motor (Nm), sign of the velocity, broadcast."""
+        parts = self.component_breakdown(position_mm, velocity_mm_min)
+        return np.asarray(sum(parts.values()), dtype=np.float64)
+
+    def friction_map(self, positions_mm: ArrayLike, velocities_mm_min: ArrayLike) -> FloatArray:
+        """Friction torque on a grid: shape ``(len(positions), len(velocities))``."""
+        x = np.atleast_1d(np.asarray(positions_mm, dtype=np.float64))[:, None]
+        v = np.atleast_1d(np.asarray(velocities_mm_min, dtype=np.float64))[None, :]
+        return self.friction_torque_nm(x, v)
+
+    # --- motor current ------------------------------------------------------------
+
+    def cogging_current_a(self, position_mm: ArrayLike) -> FloatArray:
+        """Position-periodic current ripple of the motor (3 and 18 periods per revolution)."""
+        ax = self.axis
+        x = np.asarray(position_mm, dtype=np.float64)
+        angle = 2 * math.pi * (x - ax.travel_mm[0]) / ax.screw_lead_mm
+        torque = ax.cogging_3_nm * np.sin(3 * angle) + ax.cogging_18_nm * np.sin(18 * angle + 0.7)
+        return np.asarray(torque / ax.torque_constant_nm_per_a, dtype=np.float64)
+
+    def motor_current_a(
+        self,
+        position_mm: ArrayLike,
+        velocity_mm_min: ArrayLike,
+        acceleration_m_s2: ArrayLike = 0.0,
+        *,
+        rng: np.random.Generator | None = None,
+    ) -> FloatArray:
+        """Motor current (A): friction, inertia and gravity over k_T, cogging, noise.
+
+        Args:
+            position_mm: Axis position.
+            velocity_mm_min: Axis velocity.
+            acceleration_m_s2: Axis acceleration.
+            rng: With a generator, Gaussian noise (``noise_a``) and rare outliers
+                (``outlier_rate``, ``outlier_a`` with random sign) are added.
+        """
+        ax = self.axis
+        x, v, a = np.broadcast_arrays(
+            np.asarray(position_mm, dtype=np.float64),
+            np.asarray(velocity_mm_min, dtype=np.float64),
+            np.asarray(acceleration_m_s2, dtype=np.float64),
+        )
+        alpha = 2 * math.pi * a * 1000.0 / ax.screw_lead_mm
+        torque = self.friction_torque_nm(x, v) + ax.inertia_kgm2 * alpha + ax.gravity_torque_nm
+        current = torque / ax.torque_constant_nm_per_a + self.cogging_current_a(x)
+        if rng is not None:
+            current = current + rng.normal(0.0, ax.noise_a, size=current.shape)
+            hit = rng.random(current.shape) < ax.outlier_rate
+            signs = rng.choice(np.array([-1.0, 1.0]), size=current.shape)
+            current = current + np.where(hit, signs * ax.outlier_a, 0.0)
+        return np.asarray(current, dtype=np.float64)
