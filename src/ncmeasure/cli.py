@@ -965,6 +965,63 @@ def compare_command(
     raise typer.Exit(code)
 
 
+@app.command("simulate")
+def simulate_command(
+    machine: Annotated[Path, typer.Argument(help="Machine file.")],
+    variation: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="An assembly variation, e.g. loose_bearing_shift_um=20 or "
+            "'nut_shift_um=20, bearing_preload_change=-0.3'; repeat for side by side."
+        ),
+    ] = None,
+    axis: Annotated[str | None, typer.Option(help="Axis to study (default: the first).")] = None,
+    plot: Annotated[Path | None, typer.Option(help="Write contour plots (PNG).")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the study as JSON.")] = False,
+) -> None:
+    """The axis friction model alone: what does each assembly variation do along the travel?
+
+    Example: ncmeasure simulate machine.toml --variation loose_bearing_shift_um=20
+    --variation nut_shift_um=20 --plot variations.png
+    """
+    from ncmeasure.sim.explore import plot_study, study
+
+    config = _load(machine)
+    names = [a.name for a in config.axes]
+    if axis is not None and axis not in names:
+        _fail(ConfigError(f"--axis {axis}: the machine has axes {', '.join(names)}"))
+    chosen = config.axis(axis or names[0])
+    try:
+        result = study(chosen, config.measurement_for(chosen), variation or [])
+        if plot is not None:
+            plot_study(result, plot)
+    except NcMeasureError as exc:
+        _fail(exc)
+    if as_json:
+        sys.stdout.write(result.model_dump_json(indent=2) + "\n")
+        return
+    table = Table(box=None, header_style="bold")
+    table.add_column("variation", overflow="fold")
+    table.add_column("mean Nm", justify="right")
+    table.add_column("spread", justify="right")
+    for position in result.positions_mm[:: max(1, len(result.positions_mm) // 5)]:
+        table.add_column(f"{position:g} mm", justify="right")
+    step = max(1, len(result.positions_mm) // 5)
+    for scenario in result.scenarios:
+        table.add_row(
+            scenario.name,
+            f"{scenario.mean_nm:.3f}",
+            f"{scenario.spread_percent:.1f} %",
+            *(f"{c:+.1f} %" for c in scenario.change_percent[::step]),
+        )
+    console.print(
+        f"axis {result.axis}: friction change against the nominal axis, averaged over velocities"
+    )
+    console.print(table)
+    if plot is not None:
+        console.print(f"wrote {plot}")
+
+
 @schema_app.command("results")
 def schema_results() -> None:
     """JSON Schema of results.json, what `ncmeasure analyze` writes."""
