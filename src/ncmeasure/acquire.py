@@ -162,7 +162,10 @@ def acquire(
     except LinkError as exc:
         status, error = "link_lost", str(exc)
         log.error("link lost: %s", exc)
-        take_events_safely(link, events, writer)
+        try:
+            take_events()  # the failing link's last words, if it still has them
+        except Exception:
+            log.exception("could not collect the link's last events")
     finally:
         writer.close(status=status)
     return AcquisitionResult(
@@ -174,16 +177,6 @@ def acquire(
         events=events,
         error=error,
     )
-
-
-def take_events_safely(link: DriveLink, events: list[LinkEvent], writer: RecordingWriter) -> None:
-    """Collect the link's last events after a failure; never raises."""
-    try:
-        for event in link.events():
-            events.append(event)
-            writer.add_event(event)
-    except Exception:  # the link already failed; keep what we have
-        log.exception("could not collect the link's last events")
 
 
 def record(

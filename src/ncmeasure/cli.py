@@ -83,8 +83,9 @@ TemplatesDir = Annotated[
 ]
 
 
-def _fail(exc: NcMeasureError) -> NoReturn:
-    code = EXIT_CHECK_FAILED if isinstance(exc, ProgramCheckError) else EXIT_BAD_INPUT
+def _fail(exc: NcMeasureError, code: int | None = None) -> NoReturn:
+    if code is None:
+        code = EXIT_CHECK_FAILED if isinstance(exc, ProgramCheckError) else EXIT_BAD_INPUT
     err_console.print(f"[bold red]error:[/] {exc.message}", markup=True, soft_wrap=True)
     for line in exc.problems:
         err_console.print(f"  {line}", markup=False, soft_wrap=True)
@@ -536,6 +537,7 @@ def record_command(
     stop = threading.Event()
     previous = _stop_on_signals(stop)
     live: Live | None = None
+    failure: NcMeasureError | None = None
 
     def show(progress: Progress) -> None:
         if live is not None:
@@ -557,23 +559,14 @@ def record_command(
             stop=stop,
             on_progress=None if quiet else show,
         )
-    except LinkError as exc:
-        if live is not None:
-            live.stop()
-        err_console.print(f"[bold red]error:[/] {exc.message}", soft_wrap=True)
-        for line in exc.problems:
-            err_console.print(f"  {line}", markup=False, soft_wrap=True)
-        if _state["debug"]:
-            raise
-        raise typer.Exit(EXIT_LINK) from None
     except NcMeasureError as exc:
-        if live is not None:
-            live.stop()
-        _fail(exc)
+        failure = exc
     finally:
         if live is not None:
-            live.stop()
+            live.stop()  # before any message, so the display does not overwrite it
         _restore_signals(previous)
+    if failure is not None:
+        _fail(failure, EXIT_LINK if isinstance(failure, LinkError) else None)
     lost = sum(e.lost_samples for e in result.events)
     if not quiet or result.status != "complete":
         err_console.print(
