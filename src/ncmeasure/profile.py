@@ -11,6 +11,19 @@ to velocity ``v`` takes
 
 The profile is symmetric in time, which is why ``s = v·t/2`` holds in both
 cases, and stopping from ``v`` takes the same time and distance.
+
+:func:`s_curve` gives the whole rest-to-rest move as functions of time (the
+virtual machine drives its axes with it). The ramp to the peak velocity
+``v_p`` has three phases, with ``a_p = min(a, sqrt(v_p·j))``,
+``T_1 = a_p/j`` and ``t_r = v_p/a_p + a_p/j``:
+
+* ``0 ≤ τ < T_1``: jerk ``j``; ``a = jτ``, ``v = jτ²/2``, ``s = jτ³/6``;
+* ``T_1 ≤ τ < t_r − T_1``: constant acceleration ``a_p``;
+* ``t_r − T_1 ≤ τ ≤ t_r``: jerk ``−j``; with ``r = t_r − τ``:
+  ``a = jr``, ``v = v_p − jr²/2``, ``s = v_p t_r/2 − (v_p r − jr³/6)``.
+
+Then the cruise at ``v_p`` and the mirrored stop; a move too short to reach
+the velocity limit peaks at the highest velocity whose two ramps fit.
 """
 
 from __future__ import annotations
@@ -18,7 +31,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["Ramp", "move_time_s", "ramp"]
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["Ramp", "SCurve", "move_time_s", "ramp", "s_curve"]
 
 _MM_MIN_PER_M_S = 60_000.0
 
@@ -53,11 +69,104 @@ def move_time_s(
     full = ramp(velocity_mm_min, acceleration_m_s2, jerk_m_s3)
     if 2.0 * full.distance_mm <= distance_mm:
         return 2.0 * full.time_s + (distance_mm - 2.0 * full.distance_mm) / (velocity_mm_min / 60.0)
+    return (
+        2.0
+        * ramp(
+            _peak_velocity(distance_mm, velocity_mm_min, acceleration_m_s2, jerk_m_s3),
+            acceleration_m_s2,
+            jerk_m_s3,
+        ).time_s
+    )
+
+
+def _peak_velocity(distance_mm: float, velocity_mm_min: float, a: float, j: float) -> float:
+    """The highest velocity ≤ ``velocity_mm_min`` whose two ramps fit in ``distance_mm``."""
+    if 2.0 * ramp(velocity_mm_min, a, j).distance_mm <= distance_mm:
+        return velocity_mm_min
     low, high = 0.0, velocity_mm_min
     for _ in range(60):
         middle = 0.5 * (low + high)
-        if 2.0 * ramp(middle, acceleration_m_s2, jerk_m_s3).distance_mm < distance_mm:
+        if 2.0 * ramp(middle, a, j).distance_mm < distance_mm:
             low = middle
         else:
             high = middle
-    return 2.0 * ramp(high, acceleration_m_s2, jerk_m_s3).time_s
+    return high
+
+
+@dataclass(frozen=True)
+class SCurve:
+    """A jerk-limited rest-to-rest move over ``distance_mm`` (see the module docstring)."""
+
+    distance_mm: float
+    peak_velocity_mm_min: float
+    acceleration_m_s2: float
+    """The acceleration actually reached (``a_p``)."""
+    jerk_m_s3: float
+    ramp_time_s: float
+    cruise_time_s: float
+
+    @property
+    def duration_s(self) -> float:
+        """Time from start to standstill at the target."""
+        return 2.0 * self.ramp_time_s + self.cruise_time_s
+
+    def _ramp(self, tau: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
+        """Distance (m), velocity (m/s), acceleration (m/s²) at ``tau`` into the ramp."""
+        v_p = self.peak_velocity_mm_min / _MM_MIN_PER_M_S
+        a_p, j, t_r = self.acceleration_m_s2, self.jerk_m_s3, self.ramp_time_s
+        t_1 = a_p / j if j > 0 else 0.0
+        tau = np.clip(tau, 0.0, t_r)
+        r = t_r - tau
+        v_1, s_1 = j * t_1**2 / 2.0, j * t_1**3 / 6.0
+        first, last = tau < t_1, r < t_1
+        u = tau - t_1
+        acc = np.where(first, j * tau, np.where(last, j * r, a_p))
+        vel = np.where(first, j * tau**2 / 2.0, np.where(last, v_p - j * r**2 / 2.0, v_1 + a_p * u))
+        dist = np.where(
+            first,
+            j * tau**3 / 6.0,
+            np.where(
+                last,
+                v_p * t_r / 2.0 - (v_p * r - j * r**3 / 6.0),
+                s_1 + v_1 * u + a_p * u**2 / 2.0,
+            ),
+        )
+        return dist, vel, acc
+
+    def at(
+        self, time_s: ArrayLike
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Distance travelled (mm), velocity (mm/min) and acceleration (m/s²) at ``time_s``.
+
+        Times before the start give the start at rest, after the end the target at rest.
+        """
+        t = np.clip(np.asarray(time_s, dtype=np.float64), 0.0, self.duration_s)
+        t_r, total = self.ramp_time_s, self.duration_s
+        up = self._ramp(t)
+        down = self._ramp(total - t)
+        v_p = self.peak_velocity_mm_min / _MM_MIN_PER_M_S
+        length = self.distance_mm / 1000.0
+        accelerating, braking = t < t_r, t > total - t_r
+        dist = np.where(
+            accelerating,
+            up[0],
+            np.where(braking, length - down[0], v_p * t_r / 2.0 + v_p * (t - t_r)),
+        )
+        vel = np.where(accelerating, up[1], np.where(braking, down[1], v_p))
+        acc = np.where(accelerating, up[2], np.where(braking, -down[2], 0.0))
+        return dist * 1000.0, vel * _MM_MIN_PER_M_S, acc
+
+
+def s_curve(
+    distance_mm: float, velocity_mm_min: float, acceleration_m_s2: float, jerk_m_s3: float
+) -> SCurve:
+    """The jerk-limited move over ``distance_mm`` (≥ 0) at most at ``velocity_mm_min``."""
+    distance_mm = abs(distance_mm)
+    if distance_mm == 0.0 or velocity_mm_min <= 0.0:
+        return SCurve(distance_mm, 0.0, 0.0, jerk_m_s3, 0.0, 0.0)
+    peak = _peak_velocity(distance_mm, velocity_mm_min, acceleration_m_s2, jerk_m_s3)
+    up = ramp(peak, acceleration_m_s2, jerk_m_s3)
+    v = peak / _MM_MIN_PER_M_S
+    a_p = min(acceleration_m_s2, math.sqrt(v * jerk_m_s3))
+    cruise = max(0.0, (distance_mm - 2.0 * up.distance_mm) / (peak / 60.0))
+    return SCurve(distance_mm, peak, a_p, jerk_m_s3, up.time_s, cruise)

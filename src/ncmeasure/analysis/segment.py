@@ -231,6 +231,33 @@ def _value_runs(on: BoolArray, value: FloatArray) -> tuple[IntArray, IntArray]:
     return np.flatnonzero(on & changed), np.flatnonzero(on & ends) + 1
 
 
+def _align(ok: BoolArray) -> list[int | None]:
+    """Match rows (found windows) to columns (planned windows), both in program order.
+
+    The most pairs ``ok[i, j]`` such that the order is kept on both sides (a
+    longest common subsequence, by dynamic programming row by row). A greedy
+    match would let one stray stretch (a warm-up stroke at a measured velocity)
+    jump ahead in the schedule and lose every window before the one it took.
+    Among equally long alignments, later rows take the later columns.
+    """
+    rows, cols = ok.shape
+    table = np.zeros((rows + 1, cols + 1), dtype=np.int64)
+    for i in range(1, rows + 1):
+        best = np.maximum(table[i - 1, 1:], table[i - 1, :-1] + ok[i - 1])
+        table[i, 1:] = np.maximum.accumulate(best)
+    result: list[int | None] = [None] * rows
+    i, j = rows, cols
+    while i > 0 and j > 0:
+        if ok[i - 1, j - 1] and table[i, j] == table[i - 1, j - 1] + 1:
+            result[i - 1] = j - 1
+            i, j = i - 1, j - 1
+        elif table[i, j] == table[i - 1, j]:
+            i -= 1
+        else:
+            j -= 1
+    return result
+
+
 def _odd(count: float) -> int:
     size = max(1, round(count))
     return size if size % 2 else size + 1
@@ -490,17 +517,7 @@ class _Finder:
         # ramp more gently than planned); warm-up strokes and long rapids do.
         slack = 2.0 if whole_runs else 1.5
         ok &= cand_s[:, None] <= slack * run_s[None, :] + 1.0
-        result: list[ScheduledWindow | None] = []
-        pointer = 0
-        for row in ok:
-            hits = np.flatnonzero(row[pointer:])
-            if len(hits) == 0:
-                result.append(None)
-                continue
-            index = pointer + int(hits[0])
-            result.append(planned[index])
-            pointer = index + 1
-        return result
+        return [None if j is None else planned[j] for j in _align(ok)]
 
     def match_by_id(self, candidates: Sequence[_Candidate]) -> list[ScheduledWindow | None]:
         assert self.summary is not None

@@ -22,7 +22,7 @@ from typing import Literal
 from ncmeasure.errors import ProgramError
 from ncmeasure.program.dialect import Dialect
 
-__all__ = ["Motion", "ProgramTrace", "read_programs"]
+__all__ = ["Dwell", "Motion", "ProgramTrace", "read_programs"]
 
 _NUMBER = r"[+-]?(?:\d+\.?\d*|\.\d+)"
 _WORD = re.compile(
@@ -47,12 +47,24 @@ class Motion:
     """How many subprogram calls had been made when the move started."""
 
 
+@dataclass(frozen=True)
+class Dwell:
+    """A dwell: the axes stand still for ``seconds``."""
+
+    program: str
+    line: int
+    seconds: float
+    marker: float
+
+
 @dataclass
 class ProgramTrace:
     """What a program commands, in order."""
 
     motions: list[Motion] = field(default_factory=list)
     dwells_s: list[float] = field(default_factory=list)
+    steps: list[Motion | Dwell] = field(default_factory=list)
+    """Motions and dwells in the order the program commands them."""
     calls: list[str] = field(default_factory=list)
     ended: bool = False
 
@@ -199,7 +211,7 @@ class _Interpreter:
         if not text:
             return
         if self.dwell and (match := self.dwell.search(text)):
-            self.trace.dwells_s.append(float(match.group("seconds")))
+            self._dwell(program, number, float(match.group("seconds")))
             return
         targets: dict[str, float] = {}
         dwell = False
@@ -243,7 +255,7 @@ class _Interpreter:
         if dwell:
             if targets or dwell_s is None:
                 raise self._error(program, number, "a dwell needs its time and no axis words")
-            self.trace.dwells_s.append(dwell_s)
+            self._dwell(program, number, dwell_s)
             return
         if not targets:
             return
@@ -252,19 +264,23 @@ class _Interpreter:
         if self.mode == "feed" and not self.feed:
             raise self._error(program, number, "feed move without a feed (F)")
         start = {axis: self.position[axis] for axis in targets}
-        self.trace.motions.append(
-            Motion(
-                kind=self.mode,
-                program=program.key,
-                line=number,
-                start=start,
-                target=targets,
-                feed_mm_min=self.feed if self.mode == "feed" else None,
-                marker=self.marker_value,
-                calls=len(self.trace.calls),
-            )
+        motion = Motion(
+            kind=self.mode,
+            program=program.key,
+            line=number,
+            start=start,
+            target=targets,
+            feed_mm_min=self.feed if self.mode == "feed" else None,
+            marker=self.marker_value,
+            calls=len(self.trace.calls),
         )
+        self.trace.motions.append(motion)
+        self.trace.steps.append(motion)
         self.position.update(targets)
+
+    def _dwell(self, program: _Program, number: int, seconds: float) -> None:
+        self.trace.dwells_s.append(seconds)
+        self.trace.steps.append(Dwell(program.key, number, seconds, self.marker_value))
 
     def _accepted(self, address: str, value_text: str) -> bool:
         if address not in "GM":

@@ -1,0 +1,467 @@
+"""The virtual machine: runs a generated NC program on simulated feed axes.
+
+:class:`VirtualMachine` reads the main program and its subprograms with
+ncmeasure's own program reader (:func:`~ncmeasure.program.reader.read_programs`,
+the same reader ``ncmeasure check`` uses), in the dialect named in the
+folder's ``schedule.json``, and drives every axis the way a controller in
+continuous-path mode would:
+
+* consecutive moves of the same kind (rapid or feed), the same feed and the
+  same direction form one *path segment*: the axis does not stop between the
+  run-up, the window and the run-out blocks;
+* every path segment is a jerk-limited rest-to-rest move
+  (:func:`~ncmeasure.profile.s_curve`) at the programmed feed (G1) or the
+  rapid velocity (G0, the axis' maximum velocity), with the axis' maximum
+  acceleration and jerk; a move of several axes is interpolated linearly,
+  limited by the axis that reaches its limit first;
+* a direction reversal, a change of feed or of kind, and a dwell stop the
+  axes (exact stop).
+
+The commanded position and velocity run through a second-order servo loop
+(natural frequency ``servo_frequency_hz``, damping ``servo_damping``), so
+the actual velocity lags during ramps and overshoots after them. The motor
+current comes from the axis' :class:`~ncmeasure.sim.axis.AxisModel`
+(friction per component and assembly variation, inertia, gravity, cogging,
+noise, outliers). A wrong program therefore shows up as wrong data.
+
+Everything is computed once, on a uniform time grid (``dt_s``, default
+1 ms), and seeded, so a run is reproducible. The result, a
+:class:`MachineRun`, is a :class:`~ncmeasure.sim.signals.SignalSource` that
+the simulated drives (CANopen :class:`~ncmeasure.sim.cia402.SimulatedDrives`,
+Modbus :mod:`~ncmeasure.sim.modbus_drive`) serve to the real links. Its time
+is *machine time*: 0 is the start of the recording, the program starts
+after ``lead_in_s``, and the machine stands still at the end after
+``duration_s``. The links record machine time too, so the virtual machine
+may run faster than real time (the recording says so in its metadata).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import cont2discrete, lfilter, lfilter_zi
+
+from ncmeasure.config import MachineConfig
+from ncmeasure.errors import ConfigError, ProgramError
+from ncmeasure.links.base import Channel, SampleBlock, channels_for
+from ncmeasure.plan import Schedule
+from ncmeasure.profile import SCurve, s_curve
+from ncmeasure.program.dialect import load_dialect
+from ncmeasure.program.reader import Dwell, Motion, ProgramTrace, read_programs
+from ncmeasure.program.render import SCHEDULE_FILE
+from ncmeasure.sim.axis import AxisModel, Variation
+from ncmeasure.sim.signals import AxisState
+
+__all__ = ["MachineRun", "MarkedSpan", "VirtualMachine"]
+
+FloatArray = NDArray[np.float64]
+
+_DIRECTION_TOLERANCE = 1e-9
+
+
+@dataclass(frozen=True)
+class MarkedSpan:
+    """A stretch of machine time during which the program's marker was set."""
+
+    marker: float
+    start_s: float
+    end_s: float
+    axis: str
+    """The axis moving in the span (empty during a dwell)."""
+    velocity_mm_min: float
+    """Signed commanded velocity of that axis (0 during a dwell)."""
+
+
+@dataclass(frozen=True)
+class _Segment:
+    """One path segment: straight, rest to rest."""
+
+    start: FloatArray  # every axis, mm
+    unit: FloatArray  # direction per axis (zero for axes that do not move)
+    curve: SCurve
+    kind: str
+    marks: tuple[tuple[float, float], ...]  # (path position where a block ends, marker)
+
+
+@dataclass(frozen=True)
+class _Pause:
+    position: FloatArray
+    seconds: float
+    marker: float
+
+
+@dataclass
+class _Chain:
+    kind: str
+    feed: float | None
+    start: FloatArray
+    end: FloatArray
+    unit: FloatArray
+    marks: list[tuple[float, float]] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class MachineRun:
+    """The simulated signals of every axis on a uniform time grid.
+
+    A :class:`~ncmeasure.sim.signals.SignalSource`: :meth:`state` looks the
+    signals up at the nearest grid point (before the start and after the end
+    the machine stands still). Plain numpy arrays only, so it pickles (the
+    Modbus drive server runs in another process).
+    """
+
+    axes: tuple[str, ...]
+    dt_s: float
+    position_mm: FloatArray
+    """Actual position, shape (axes, samples)."""
+    velocity_mm_min: FloatArray
+    """Actual velocity as the drive reports it (with measurement noise)."""
+    velocity_cmd_mm_min: FloatArray
+    """Commanded velocity (the interpolator's setpoint)."""
+    current_a: FloatArray
+    """Motor current."""
+    marker: FloatArray
+    """The program's marker, shape (samples,)."""
+    spans: tuple[MarkedSpan, ...]
+    program_start_s: float
+    program_end_s: float
+
+    @property
+    def duration_s(self) -> float:
+        """Machine time covered: lead-in, program and lead-out."""
+        return (self.marker.size - 1) * self.dt_s
+
+    def state(self, axis: int, time_s: float) -> AxisState:
+        """The state of axis ``axis`` (0-based, machine-file order) at ``time_s``."""
+        i = min(max(round(time_s / self.dt_s), 0), self.marker.size - 1)
+        return AxisState(
+            position_mm=float(self.position_mm[axis, i]),
+            velocity_mm_min=float(self.velocity_mm_min[axis, i]),
+            current_a=float(self.current_a[axis, i]),
+            velocity_cmd_mm_min=float(self.velocity_cmd_mm_min[axis, i]),
+        )
+
+    def time_s(self) -> FloatArray:
+        """The grid's machine times."""
+        return np.arange(self.marker.size, dtype=np.float64) * self.dt_s
+
+    def sample(self, period_s: float) -> tuple[tuple[Channel, ...], SampleBlock]:
+        """Every signal sampled every ``period_s`` (no link), marker included.
+
+        The channels are those a link delivers (``X_current_a``, ...), plus the
+        commanded velocity and the program's marker per axis.
+        """
+        signals = ("current_a", "velocity_mm_min", "position_mm", "velocity_cmd_mm_min", "marker")
+        channels = channels_for(self.axes, signals)
+        index = np.round(np.arange(0.0, self.duration_s + 1e-9, period_s) / self.dt_s).astype(int)
+        index = index[index < self.marker.size]
+        columns = []
+        for i in range(len(self.axes)):
+            columns += [
+                self.current_a[i, index],
+                self.velocity_mm_min[i, index],
+                self.position_mm[i, index],
+                self.velocity_cmd_mm_min[i, index],
+                self.marker[index],
+            ]
+        return channels, SampleBlock(index * self.dt_s, np.column_stack(columns))
+
+
+def _servo(dt: float, frequency_hz: float, damping: float) -> tuple[FloatArray, FloatArray]:
+    """A discrete second-order low pass (bilinear transform): how the axis follows."""
+    omega = 2 * math.pi * frequency_hz
+    num, den, _ = cont2discrete(
+        ([omega**2], [1.0, 2 * damping * omega, omega**2]), dt, method="bilinear"
+    )
+    return np.asarray(num, dtype=np.float64).ravel(), np.asarray(den, dtype=np.float64)
+
+
+def _follow(b: FloatArray, a: FloatArray, command: FloatArray) -> FloatArray:
+    """The servo's response to ``command``, starting at rest at its first value."""
+    zi = lfilter_zi(b, a) * command[0]
+    out, _ = lfilter(b, a, command, zi=zi)
+    return np.asarray(out, dtype=np.float64)
+
+
+class VirtualMachine:
+    """A machine tool whose feed axes follow an NC program.
+
+    Args:
+        config: The machine (axis limits, drive data, bearing layout).
+        trace: The program as read by :func:`~ncmeasure.program.reader.read_programs`.
+        variations: Assembly variations by axis name (default: every axis nominal).
+        seed: Seed of the current and velocity noise.
+        dt_s: Time step of the simulation grid.
+        lead_in_s: Standstill before the program starts.
+        lead_out_s: Standstill after the program ends.
+        servo_frequency_hz: Natural frequency of the position loop.
+        servo_damping: Its damping ratio.
+        velocity_noise_mm_min: Standard deviation of the reported velocity's noise.
+
+    Raises:
+        ConfigError: a variation names an axis the machine lacks, or is invalid for it.
+        ProgramError: the program moves an axis outside its travel.
+    """
+
+    def __init__(
+        self,
+        config: MachineConfig,
+        trace: ProgramTrace,
+        *,
+        variations: Mapping[str, Variation] | None = None,
+        seed: int = 0,
+        dt_s: float = 0.001,
+        lead_in_s: float = 0.5,
+        lead_out_s: float = 0.5,
+        servo_frequency_hz: float = 20.0,
+        servo_damping: float = 0.7,
+        velocity_noise_mm_min: float = 0.2,
+    ) -> None:
+        if not dt_s > 0:
+            raise ValueError("dt_s must be > 0")
+        self.config = config
+        self.trace = trace
+        names = [axis.name for axis in config.axes]
+        unknown = sorted(set(variations or {}) - set(names))
+        if unknown:
+            raise ConfigError(
+                "invalid assembly variation",
+                [
+                    f"axis {name}: the machine has no such axis (axes: {', '.join(names)})"
+                    for name in unknown
+                ],
+            )
+        self.variations: dict[str, Variation] = dict(variations or {})
+        self.models: dict[str, AxisModel] = {
+            axis.name: AxisModel(axis, variation=self.variations.get(axis.name))
+            for axis in config.axes
+        }
+        self.seed = seed
+        self.dt_s = dt_s
+        self.lead_in_s = lead_in_s
+        self.lead_out_s = lead_out_s
+        self.servo_frequency_hz = servo_frequency_hz
+        self.servo_damping = servo_damping
+        self.velocity_noise_mm_min = velocity_noise_mm_min
+        self._segments = self._plan()
+
+    @classmethod
+    def from_programs(
+        cls,
+        config: MachineConfig,
+        directory: str | Path,
+        *,
+        controllers_dirs: Sequence[Path] = (),
+        **options: object,
+    ) -> VirtualMachine:
+        """Read the programs generated into ``directory`` (with its schedule.json).
+
+        Keyword options are those of :class:`VirtualMachine`.
+
+        Raises:
+            ProgramError: no schedule or a program that cannot be read.
+            DialectError: the schedule's controller is unknown.
+        """
+        directory = Path(directory)
+        schedule_path = directory / SCHEDULE_FILE
+        try:
+            schedule = Schedule.model_validate_json(schedule_path.read_text(encoding="utf-8"))
+        except FileNotFoundError as exc:
+            raise ProgramError(f"{schedule_path}: not found; generate the programs first") from exc
+        except (OSError, ValueError) as exc:
+            raise ProgramError(f"{schedule_path}: cannot be read ({exc})") from exc
+        dialect = load_dialect(schedule.controller, tuple(controllers_dirs))
+        trace = read_programs(
+            dialect,
+            directory,
+            schedule.main_program,
+            {axis.name for axis in config.axes},
+            schedule.controller_options,
+        )
+        return cls(config, trace, **options)  # type: ignore[arg-type]
+
+    # --- planning -----------------------------------------------------------------------
+
+    def _initial(self) -> FloatArray:
+        """Where the axes stand before the program: where the program first finds them."""
+        position = np.array([axis.park_mm for axis in self.config.axes], dtype=np.float64)
+        return position
+
+    def _plan(self) -> list[_Segment | _Pause]:
+        axes = [axis.name for axis in self.config.axes]
+        index = {name: i for i, name in enumerate(axes)}
+        position = self._initial()
+        plan: list[_Segment | _Pause] = []
+        chain: _Chain | None = None
+
+        def close() -> None:
+            nonlocal chain
+            if chain is not None:
+                plan.append(self._segment(chain))
+                chain = None
+
+        for step in self.trace.steps:
+            if isinstance(step, Dwell):
+                close()
+                plan.append(_Pause(position.copy(), step.seconds, step.marker))
+                continue
+            target = position.copy()
+            for name, value in step.target.items():
+                target[index[name]] = value
+            self._check_travel(step, target)
+            delta = target - position
+            length = float(np.linalg.norm(delta))
+            if length == 0.0:
+                continue
+            unit = delta / length
+            feed = step.feed_mm_min if step.kind == "feed" else None
+            if (
+                chain is None
+                or chain.kind != step.kind
+                or chain.feed != feed
+                or float(np.dot(chain.unit, unit)) < 1.0 - _DIRECTION_TOLERANCE
+            ):
+                close()
+                chain = _Chain(step.kind, feed, position.copy(), position.copy(), unit)
+            chain.end = target.copy()
+            chain.marks.append((float(np.linalg.norm(target - chain.start)), step.marker))
+            position = target
+        close()
+        return plan
+
+    def _check_travel(self, step: Motion, target: FloatArray) -> None:
+        for axis, value in zip(self.config.axes, target, strict=True):
+            low, high = axis.travel_mm
+            if not low - 1e-6 <= value <= high + 1e-6:
+                raise ProgramError(
+                    f"{step.program}:{step.line}: axis {axis.name} would move to {value:g} mm, "
+                    f"outside its travel [{low:g}, {high:g}] mm; the virtual machine stops"
+                )
+
+    def _segment(self, chain: _Chain) -> _Segment:
+        unit = np.abs(chain.unit)
+        moving = unit > 0
+        limits = self.config.axes
+        velocity = min(limits[i].max_velocity_mm_min / unit[i] for i in np.flatnonzero(moving))
+        if chain.kind == "feed" and chain.feed is not None:
+            velocity = min(velocity, chain.feed)
+        acceleration = min(
+            limits[i].max_acceleration_m_s2 / unit[i] for i in np.flatnonzero(moving)
+        )
+        jerk = min(limits[i].max_jerk_m_s3 / unit[i] for i in np.flatnonzero(moving))
+        length = float(np.linalg.norm(chain.end - chain.start))
+        return _Segment(
+            start=chain.start,
+            unit=chain.unit,
+            curve=s_curve(length, velocity, acceleration, jerk),
+            kind=chain.kind,
+            marks=tuple(chain.marks),
+        )
+
+    # --- running ------------------------------------------------------------------------
+
+    @property
+    def program_duration_s(self) -> float:
+        """Machine time the program takes, from its first block to its end."""
+        return sum(
+            p.seconds if isinstance(p, _Pause) else p.curve.duration_s for p in self._segments
+        )
+
+    @property
+    def duration_s(self) -> float:
+        """Lead-in, program and lead-out."""
+        return self.lead_in_s + self.program_duration_s + self.lead_out_s
+
+    def run(self) -> MachineRun:
+        """Simulate the whole program; the signals of every axis."""
+        dt = self.dt_s
+        n = math.ceil(self.duration_s / dt) + 1
+        axes = self.config.axes
+        names = tuple(axis.name for axis in axes)
+        position = np.empty((len(axes), n))
+        velocity = np.zeros((len(axes), n))
+        acceleration = np.zeros((len(axes), n))
+        marker = np.zeros(n)
+        spans: list[MarkedSpan] = []
+        initial = self._initial()
+        position[:, :] = initial[:, None]
+        t = self.lead_in_s
+        for part in self._segments:
+            duration = part.seconds if isinstance(part, _Pause) else part.curve.duration_s
+            first = math.ceil(t / dt - 1e-9)
+            last = min(math.ceil((t + duration) / dt - 1e-9), n)
+            grid = np.arange(first, last) * dt - t
+            if isinstance(part, _Pause):
+                position[:, first:] = part.position[:, None]
+                marker[first:last] = part.marker
+                if part.marker:
+                    spans.append(MarkedSpan(part.marker, t, t + duration, "", 0.0))
+            else:
+                s, v, a = part.curve.at(grid)
+                end = part.start + part.unit * part.curve.distance_mm
+                position[:, first:] = end[:, None]
+                position[:, first:last] = part.start[:, None] + part.unit[:, None] * s
+                velocity[:, first:last] = part.unit[:, None] * v
+                acceleration[:, first:last] = part.unit[:, None] * a
+                edges = np.array([m[0] for m in part.marks])
+                values = np.array([m[1] for m in part.marks])
+                which = np.minimum(np.searchsorted(edges, s, side="left"), len(edges) - 1)
+                marker[first:last] = values[which]
+                moving = int(np.argmax(np.abs(part.unit)))
+                begin = 0.0
+                for edge, value in part.marks:
+                    if value:
+                        t0, t1 = self._time_at(part.curve, begin), self._time_at(part.curve, edge)
+                        spans.append(
+                            MarkedSpan(
+                                value,
+                                float(t + t0),
+                                float(t + t1),
+                                names[moving],
+                                float(part.unit[moving] * part.curve.peak_velocity_mm_min),
+                            )
+                        )
+                    begin = edge
+            t += duration
+        rng = np.random.default_rng(self.seed)
+        b, a_coef = _servo(dt, self.servo_frequency_hz, self.servo_damping)
+        actual_position = np.empty_like(position)
+        actual_velocity = np.empty_like(velocity)
+        current = np.empty_like(position)
+        for i, axis in enumerate(axes):
+            actual_position[i] = _follow(b, a_coef, position[i])
+            followed = _follow(b, a_coef, velocity[i])
+            actual_acceleration = _follow(b, a_coef, acceleration[i])
+            current[i] = self.models[axis.name].motor_current_a(
+                actual_position[i], followed, actual_acceleration, rng=rng
+            )
+            actual_velocity[i] = followed + rng.normal(0.0, self.velocity_noise_mm_min, n)
+        return MachineRun(
+            axes=names,
+            dt_s=dt,
+            position_mm=actual_position,
+            velocity_mm_min=actual_velocity,
+            velocity_cmd_mm_min=velocity,
+            current_a=current,
+            marker=marker,
+            spans=tuple(spans),
+            program_start_s=self.lead_in_s,
+            program_end_s=self.lead_in_s + self.program_duration_s,
+        )
+
+    @staticmethod
+    def _time_at(curve: SCurve, distance_mm: float) -> float:
+        """When the move has covered ``distance_mm`` (bisection; the distance only grows)."""
+        low, high = 0.0, curve.duration_s
+        for _ in range(50):
+            middle = 0.5 * (low + high)
+            if float(curve.at(middle)[0]) < distance_mm:
+                low = middle
+            else:
+                high = middle
+        return high
