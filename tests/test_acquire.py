@@ -189,6 +189,7 @@ def test_replay_of_a_recording_records_the_same_samples(tmp_path: Path, speed: f
     assert [(e.time_s, e.kind, e.axis) for e in replayed.events] == [(1.0, "gap", "Y")]
     assert replayed.meta.source == "replay"
     assert replayed.meta.faster_than_real_time is True
+    assert replayed.meta.time_scale == speed
 
 
 def test_replay_of_a_subset_of_axes(tmp_path: Path) -> None:

@@ -15,10 +15,11 @@ import numpy as np
 
 from ncmeasure.acquire import AcquisitionResult, record
 from ncmeasure.config import MachineConfig, parse_machine
+from ncmeasure.links import LinkClock
 from ncmeasure.recording import Recording, read_recording
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
 from ncmeasure.sim.modbus_drive import Fault, running_server
-from ncmeasure.sim.signals import PatternSource
+from ncmeasure.sim.signals import AxisState, PatternSource, SignalSource
 from tests.conftest import example_data
 
 
@@ -57,7 +58,9 @@ def assert_contiguous_until(recording: Recording, period_s: float, until_s: floa
 
 
 @contextlib.contextmanager
-def canopen_machine() -> Iterator[tuple[MachineConfig, SimulatedDrives]]:
+def canopen_machine(
+    source: SignalSource | None = None,
+) -> Iterator[tuple[MachineConfig, SimulatedDrives]]:
     """Three simulated CiA 402 drives on a fresh virtual bus, and a machine to record them."""
     channel = f"acq-{uuid.uuid4().hex[:8]}"
     config = machine(
@@ -65,7 +68,7 @@ def canopen_machine() -> Iterator[tuple[MachineConfig, SimulatedDrives]]:
     )
     scaling = DriveScaling(increments_per_rev=10_000, screw_lead_mm=20.0, rated_current_a=17.7)
     with SimulatedDrives.start(
-        channel, {0: 1, 1: 2, 2: 3}, PatternSource(), scaling=scaling
+        channel, {0: 1, 1: 2, 2: 3}, source or PatternSource(), scaling=scaling
     ) as drives:
         yield config, drives
 
@@ -130,3 +133,33 @@ def test_modbus_dropped_connection_reconnects_and_marks_it(tmp_path: Path) -> No
     before = recording.time_s[recording.time_s < first_gap.time_s]
     assert len(before) > 50 and np.all(np.diff(before) < 0.1)
     assert recording.time_s[-1] > 3.0
+
+
+class TimeSource:
+    """Positions that encode the machine's time: 10 mm per second."""
+
+    def state(self, axis: int, time_s: float) -> AxisState:
+        return AxisState(position_mm=10.0 * time_s, velocity_mm_min=600.0, current_a=1.0)
+
+
+def test_canopen_faster_than_real_time_records_machine_time(tmp_path: Path) -> None:
+    with canopen_machine(TimeSource()) as (config, _):
+        result = record(config, out=tmp_path / "run", duration_s=4.0, clock=LinkClock(4))
+    recording = read_recording(tmp_path / "run")
+    assert result.status == "complete"
+    assert recording.meta.faster_than_real_time is True
+    assert recording.meta.time_scale == 4.0
+    assert recording.meta.link["clock_speed"] == 4.0
+    assert recording.time_s[-1] - recording.time_s[0] >= 3.9
+    assert result.wall_time_s < 4.0 / 2  # 4 s of machine time at 4 x real time
+    for axis in "XYZ":  # every sample shows the machine at its time stamp, within a period
+        error_s = np.abs(recording.column(f"{axis}_position_mm") - 10.0 * recording.time_s) / 10
+        assert error_s.max() <= recording.meta.nominal_period_s + 0.002 / 10
+
+
+def test_real_time_recording_says_so(tmp_path: Path) -> None:
+    with canopen_machine() as (config, _):
+        record(config, out=tmp_path / "run", duration_s=0.2)
+    meta = read_recording(tmp_path / "run").meta
+    assert meta.faster_than_real_time is False and meta.time_scale == 1.0
+    assert "clock_speed" not in meta.link

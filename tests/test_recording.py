@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import datetime as dt
 import json
+import math
 import os
 import signal
 import struct
@@ -154,6 +155,7 @@ def test_write_close_read_back(tmp_path: Path, make_config: Make) -> None:
     assert meta.notes == "after lubrication"
     assert meta.source == "canopen"
     assert meta.faster_than_real_time is False
+    assert meta.time_scale == 1.0
     assert meta.status == "complete"
     assert meta.samples == sum(sizes)
     assert meta.end_utc is not None
@@ -562,6 +564,29 @@ def test_reading_something_that_is_not_a_recording(
     assert str(directory) in str(info.value)
 
 
+def test_a_recording_without_time_scale_is_real_time(tmp_path: Path) -> None:
+    """Recordings written before ``time_scale`` existed read as real time."""
+    directory = _write_meta(tmp_path / "r", json.dumps({**_valid_meta(), "status": "complete"}))
+    meta = Recording.open(directory).meta
+    assert meta.time_scale == 1.0 and meta.faster_than_real_time is False
+
+
+def test_time_scale_of_a_faster_than_real_time_run(tmp_path: Path) -> None:
+    with RecordingWriter.create(
+        tmp_path / "r", XY, nominal_period_s=0.004, faster_than_real_time=True, time_scale=4.0
+    ):
+        pass
+    on_disk = json.loads((tmp_path / "r" / META_FILE).read_text(encoding="utf-8"))
+    assert on_disk["time_scale"] == 4.0 and on_disk["faster_than_real_time"] is True
+    assert read_recording(tmp_path / "r").meta.time_scale == 4.0
+    for bad in (-1.0, math.nan, math.inf):
+        with pytest.raises(ValueError, match="time_scale"):
+            RecordingWriter.create(tmp_path / "bad", XY, nominal_period_s=0.004, time_scale=bad)
+    directory = _write_meta(tmp_path / "neg", json.dumps({**_valid_meta(), "time_scale": -2}))
+    with pytest.raises(RecordingError, match="time_scale"):
+        Recording.open(directory)
+
+
 def test_reading_a_missing_directory_or_a_file(tmp_path: Path) -> None:
     with pytest.raises(RecordingError, match="no such recording directory"):
         Recording.open(tmp_path / "nowhere")
@@ -752,7 +777,7 @@ def test_mdf4_round_trip(tmp_path: Path, make_config: Make) -> None:
     events = [LinkEvent(0.2, "reconnect", "bus back", details={"tries": 2})]
     with RecordingWriter.create(
         directory, ALL_SIGNALS, nominal_period_s=0.001, machine=config, link=LINK,
-        notes="mdf", source="canopen",
+        notes="mdf", source="canopen", faster_than_real_time=True, time_scale=4.0,
     ) as writer:  # fmt: skip
         time_s = np.arange(2000) * 0.001
         writer.append(SampleBlock(time_s, rng.standard_normal((2000, len(ALL_SIGNALS)))))
@@ -777,6 +802,7 @@ def test_mdf4_round_trip(tmp_path: Path, make_config: Make) -> None:
     assert copy.meta.axes == original.meta.axes
     assert copy.meta.link == LINK
     assert copy.meta.nominal_period_s == 0.001
+    assert copy.meta.faster_than_real_time is True and copy.meta.time_scale == 4.0
     assert copy.meta.start_utc == original.meta.start_utc
     assert copy.problems == []
 

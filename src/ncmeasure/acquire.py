@@ -8,6 +8,11 @@ received is ever lost. :func:`record` is the one-call Python API::
 
     import ncmeasure
     result = ncmeasure.record("machine.toml", duration_s=60, out="run1")
+
+Durations and time stamps are on the link's clock: real time for real
+drives, machine time for a virtual machine with simulated drives running
+faster than real time (``clock=LinkClock(4)``); the recording's metadata says
+so (``faster_than_real_time``, ``time_scale``).
 """
 
 from __future__ import annotations
@@ -25,11 +30,11 @@ import numpy as np
 from ncmeasure.config import MachineConfig, load_machine
 from ncmeasure.errors import ConfigError, LinkError
 from ncmeasure.links import DriveLink, make_link
-from ncmeasure.links.base import LinkEvent, SampleBlock
+from ncmeasure.links.base import LinkClock, LinkEvent, SampleBlock
 from ncmeasure.plan import Schedule
 from ncmeasure.recording import RecordingWriter
 
-__all__ = ["AcquisitionResult", "Progress", "acquire", "record"]
+__all__ = ["AcquisitionResult", "Progress", "acquire", "link_time_scale", "record"]
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +78,19 @@ class AcquisitionResult:
     def gaps(self) -> int:
         """Number of gap events."""
         return sum(1 for e in self.events if e.kind == "gap")
+
+
+def link_time_scale(link: DriveLink) -> float:
+    """Seconds of link time per wall-clock second, for a recording's ``time_scale``.
+
+    The speed of the link's clock when it is not real time (a virtual
+    machine), else the link's ``speed`` setting (a replay; 0 = as fast as
+    possible), else 1.
+    """
+    if not link.clock.real_time:
+        return link.clock.speed
+    speed = getattr(link.settings, "speed", 1.0)
+    return float(speed) if isinstance(speed, (int, float)) else 1.0
 
 
 def acquire(
@@ -192,6 +210,7 @@ def record(
     notes: str = "",
     stop: threading.Event | None = None,
     on_progress: Callable[[Progress], None] | None = None,
+    clock: LinkClock | None = None,
 ) -> AcquisitionResult:
     """Record a machine's drives into the recording directory ``out``.
 
@@ -210,6 +229,9 @@ def record(
         notes: Free text stored with the recording.
         stop: Set it to stop early.
         on_progress: Progress callback (see :class:`Progress`).
+        clock: The link's clock: a virtual machine's, faster than real time
+            (simulated drives only); ``None``: real time. ``duration_s`` and
+            the time stamps are on this clock.
 
     Raises:
         ConfigError: bad machine file or link settings.
@@ -218,6 +240,8 @@ def record(
     """
     config = machine if isinstance(machine, MachineConfig) else load_machine(machine)
     drive_link = make_link(config, link, link_settings, axis_settings)
+    if clock is not None:
+        drive_link.use_clock(clock)
     if schedule is not None:
         names = {a.name for a in schedule.axes}
         unknown = names - {a.name for a in config.axes}
@@ -228,6 +252,7 @@ def record(
         until = schedule.duration_s + schedule_margin_s
         duration_s = until if duration_s is None else min(duration_s, until)
     # The link opens first: a drive that cannot be reached leaves no empty recording behind.
+    time_scale = link_time_scale(drive_link)
     drive_link.open()
     try:
         writer = RecordingWriter.create(
@@ -239,7 +264,8 @@ def record(
             config_hash=schedule.config_hash if schedule else None,
             notes=notes,
             source=drive_link.name,
-            faster_than_real_time=getattr(drive_link.settings, "speed", 1.0) != 1.0,
+            faster_than_real_time=time_scale != 1.0,
+            time_scale=time_scale,
         )
         return acquire(
             drive_link, writer, duration_s=duration_s, stop=stop, on_progress=on_progress

@@ -154,6 +154,9 @@ class RecordingMeta(BaseModel):
     notes: str = ""
     source: str = ""
     faster_than_real_time: bool = False
+    time_scale: float = Field(default=1.0, ge=0, allow_inf_nan=False)
+    """Seconds of ``time_s`` per wall-clock second while recording: the link clock's
+    speed or the replay speed (0: a replay as fast as possible); 1 is real time."""
     status: RecordingStatus = "recording"
     end_utc: str | None = None
     samples: int | None = Field(default=None, ge=0)
@@ -356,6 +359,7 @@ class RecordingWriter:
         notes: str = "",
         source: str = "",
         faster_than_real_time: bool = False,
+        time_scale: float = 1.0,
         flush_interval_s: float = 0.25,
         start_utc: dt.datetime | None = None,
     ) -> RecordingWriter:
@@ -374,6 +378,9 @@ class RecordingWriter:
             source: Where the samples come from: ``canopen``, ``replay``, ``import:csv``...
             faster_than_real_time: True when a replay or simulation ran faster
                 than the machine would.
+            time_scale: Seconds of ``time_s`` per wall-clock second: the link
+                clock's speed (a virtual machine), the replay speed (0: as fast
+                as possible), 1 for real time.
             flush_interval_s: Longest time rows stay in memory, at most 0.5 s.
             start_utc: When the recording began; now when not given.
 
@@ -391,6 +398,8 @@ class RecordingWriter:
             )
         if not (np.isfinite(nominal_period_s) and nominal_period_s > 0):
             raise ValueError(f"nominal_period_s must be positive, not {nominal_period_s!r}")
+        if not (np.isfinite(time_scale) and time_scale >= 0):
+            raise ValueError(f"time_scale must be 0 or positive, not {time_scale!r}")
         path = Path(directory)
         axes: list[dict[str, Any]] = []
         if machine is not None:
@@ -415,6 +424,7 @@ class RecordingWriter:
                 notes=notes,
                 source=source,
                 faster_than_real_time=faster_than_real_time,
+                time_scale=time_scale,
             )
         except ValidationError as exc:
             raise RecordingError(
@@ -1431,6 +1441,10 @@ def import_mdf4(
         original = {k: embedded.get(k) for k in ("link", "config_hash", "notes")}
         meta.update({k: v for k, v in original.items() if v is not None})
         meta["faster_than_real_time"] = bool(embedded.get("faster_than_real_time", False))
+        with contextlib.suppress(TypeError, ValueError):
+            scale = float(embedded.get("time_scale", 1.0))
+            if np.isfinite(scale) and scale >= 0:
+                meta["time_scale"] = scale
         if nominal_period_s is None and embedded.get("nominal_period_s"):
             nominal_period_s = float(embedded["nominal_period_s"])
         if embedded.get("status") in ("interrupted", "link_lost", "failed"):

@@ -11,6 +11,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +21,7 @@ import pytest
 
 from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
-from ncmeasure.links import make_link
+from ncmeasure.links import REAL_TIME, LinkClock, make_link
 from ncmeasure.links.base import LinkEvent
 from ncmeasure.links.canopen import (
     CanOpenLink,
@@ -32,7 +33,7 @@ from ncmeasure.links.canopen import (
     sdo_error_text,
 )
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
-from ncmeasure.sim.signals import PatternSource
+from ncmeasure.sim.signals import AxisState, PatternSource
 
 EDS_DIR = Path(__file__).resolve().parents[3] / "shared" / "fixtures" / "eds"
 LEAD_MM = 20.0
@@ -307,6 +308,87 @@ def test_make_link_builds_it_from_a_machine(make_config: Callable[..., Any], cha
         "X_velocity_mm_min",
         "X_position_mm",
     ]
+
+
+# --- the link clock ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TimeSource:
+    """Axis positions that encode the source's time: 10 mm per second, axis k offset k mm."""
+
+    def state(self, axis: int, time_s: float) -> AxisState:
+        return AxisState(position_mm=10.0 * time_s + axis, velocity_mm_min=600.0, current_a=1.0)
+
+
+@pytest.mark.parametrize("speed", [1.0, 4.0])
+def test_a_sample_shows_the_source_at_its_time_stamp_on_the_link_clock(
+    channel: str, speed: float
+) -> None:
+    link_s = 4.0
+    with SimulatedDrives.start(channel, {0: 1, 1: 2}, TimeSource(), scaling=SCALING):
+        link = make(channel, n_axes=2)
+        link.use_clock(LinkClock(speed))
+        with link:
+            rec = Recorder(link)
+            rec.rows_at_least(1)
+            first = (time.monotonic(), rec.times[-1])
+            rec.until(lambda: rec.times[-1] >= link_s, timeout_s=TIMEOUT_S + link_s / speed)
+            last = (time.monotonic(), rec.times[-1])
+            with pytest.raises(LinkError, match="cannot change while it is open"):
+                link.use_clock(REAL_TIME)
+    times = np.asarray(rec.times)
+    positions = np.asarray(rec.rows)[:, [2, 5]]
+    skipped = [g.time_s for g in rec.kinds("gap") if g.details["missing_sync"]]
+    if speed == 1.0 and skipped:
+        # Real time sends the plain CiA 301 SYNC: a drive samples on receipt, so skipping
+        # late cycles is right for real drives, but the simulated one counts SYNCs and
+        # falls behind by the skipped ones. Faster than real time the counter prevents that.
+        keep = times < skipped[0]
+        times, positions = times[keep], positions[keep]
+        assert len(times) >= 50
+    period = link.nominal_period_s
+    # within one period (plus the drive's position quantum), also after cycles the host skipped
+    for axis in range(2):
+        error_s = np.abs(positions[:, axis] - axis - 10.0 * times) / 10.0
+        assert error_s.max() <= period + LEAD_MM / IPR / 10.0, f"axis {axis}: {error_s.max()} s"
+    # the link's clock runs at its speed: link seconds per wall-clock second
+    rate = (last[1] - first[1]) / (last[0] - first[0])
+    assert 0.75 * speed < rate < 1.25 * speed
+
+
+@pytest.mark.parametrize("speed", [1.0, 2.0])
+def test_sync_carries_the_cycle_counter_only_faster_than_real_time(
+    channel: str, speed: float
+) -> None:
+    with can.Bus(interface="virtual", channel=channel) as bus:
+        syncs = can.BufferedReader()
+        notifier = can.Notifier(bus, [syncs], timeout=0.05)
+        try:
+            with SimulatedDrives.start(channel, {0: 1}, SOURCE, scaling=SCALING):
+                link = make(channel, n_axes=1)
+                link.use_clock(LinkClock(speed))
+                with link:
+                    Recorder(link).rows_at_least(20)
+        finally:
+            notifier.stop()
+        data = []
+        while (msg := syncs.get_message(0)) is not None:
+            if msg.arbitration_id == 0x80:
+                data.append(bytes(msg.data))
+    assert len(data) >= 20
+    if speed == 1.0:  # real drives get the plain SYNC of CiA 301 without a counter
+        assert set(data) == {b""}
+    else:  # cycle number modulo 240, plus 1: it jumps over the cycles the host skipped
+        counters = [d[0] for d in data[:20] if len(d) == 1]
+        assert len(counters) == 20 and counters[0] == 1
+        assert np.all(np.diff(counters) > 0)
+
+
+def test_sync_period_is_whole_microseconds_as_written_to_the_drive(channel: str) -> None:
+    link = make(channel, n_axes=1, sync_hz=300)
+    assert link.nominal_period_s == pytest.approx(3333e-6, rel=1e-12)
+    assert link.describe()["link"]["sync_hz"] == 300
 
 
 # --- faults -------------------------------------------------------------------------------

@@ -22,7 +22,7 @@ import pytest
 
 from ncmeasure.config import AxisConfig, parse_machine
 from ncmeasure.errors import ConfigError, LinkError
-from ncmeasure.links import available_links, link_class
+from ncmeasure.links import REAL_TIME, LinkClock, available_links, link_class
 from ncmeasure.links.base import SIGNAL_UNITS, DriveLink, SampleBlock, channels_for
 from ncmeasure.recording import RecordingWriter
 from ncmeasure.sim.signals import PatternSource
@@ -97,10 +97,13 @@ def test_link_keeps_the_contract(name: str, tmp_path: Path) -> None:
 
         with pytest.raises(LinkError, match="not open"):
             link.read()
+        assert link.clock is REAL_TIME
         with link:
             assert link.is_open
             with pytest.raises(LinkError, match="already open"):
                 link.open()
+            with pytest.raises(LinkError, match="while it is open"):
+                link.use_clock(LinkClock(2))
             rows, last = 0, -np.inf
             deadline = time.monotonic() + 20
             for _ in itertools.count():

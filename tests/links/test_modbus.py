@@ -15,16 +15,18 @@ import struct
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
 from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
-from ncmeasure.links import link_class
+from ncmeasure.links import LinkClock, link_class
 from ncmeasure.links.base import LinkEvent, SampleBlock
 from ncmeasure.links.modbus import (
     EXCEPTION_MEANINGS,
@@ -287,6 +289,48 @@ def test_rtu_values_arrive_exactly_with_the_real_drive_maps() -> None:
     assert request_numbers(rows, slice(0, 3), iai) == expected_numbers
     assert request_numbers(rows, slice(3, 7), rotary(1, 8192)) == expected_numbers
     assert request_numbers(rows, slice(7, 11), rotary(2, 10_000)) == expected_numbers
+
+
+# --- the link clock ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TimeSource:
+    """Positions that encode the server's time: 10 mm per second (picklable for the server)."""
+
+    def state(self, axis: int, time_s: float) -> AxisState:
+        return AxisState(position_mm=10.0 * time_s, velocity_mm_min=600.0, current_a=1.0)
+
+
+def test_faster_than_real_time_with_a_server_on_the_same_clock() -> None:
+    clock = LinkClock(4)
+    link_s = 8.0
+    with running_server({"X": 1}, source=TimeSource(), clock=clock) as handle:
+        link = ModbusLink.from_tables(
+            {"port": handle.port, "register_map": "generic", "poll_hz": 50},
+            [(axis("X"), {"unit_id": 1})],
+        )
+        link.use_clock(clock)
+        assert link.describe()["clock_speed"] == 4
+        with link:
+            rows = read_rows(link, 1)
+            first = (time.monotonic(), rows[-1][0])
+            deadline = time.monotonic() + 10.0 + link_s / clock.speed
+            while rows[-1][0] < link_s and time.monotonic() < deadline:
+                rows += read_rows(link, 1)
+            last = (time.monotonic(), rows[-1][0])
+    assert rows[-1][0] >= link_s
+    times = np.array([t for t, _ in rows])
+    positions = np.array([values[2] for _, values in rows])
+    # the server started before the link: compare slopes, not absolute values
+    fit = np.polyfit(times, positions, 1)
+    assert fit[0] == pytest.approx(10.0, rel=0.05)
+    error_s = np.abs(positions - np.polyval(fit, times)) / 10.0
+    assert np.percentile(error_s, 95) < 3 * link.nominal_period_s
+    assert np.all(np.diff(times) > 0)
+    # link seconds per wall-clock second
+    rate = (last[1] - first[1]) / (last[0] - first[0])
+    assert 0.75 * clock.speed < rate < 1.25 * clock.speed
 
 
 # --- faults ------------------------------------------------------------------------------

@@ -213,6 +213,28 @@ def test_cycle_period_written_by_the_master_sets_the_sample_time(
     assert got == [round(SOURCE.state(0, k * 0.001).position_mm / 10.0 * 4096) for k in range(5)]
 
 
+def test_sync_counter_sets_the_sample_index(
+    drives: SimulatedDrives, network: canopen.Network
+) -> None:
+    """A SYNC with a counter (cycle modulo 240, plus 1) skips the indices the master skipped."""
+    remote = node(network)
+    configure_tpdo(remote, 1, [0x60640020])
+    frames = Frames({0x181})
+    network.notifier.add_listener(frames)  # type: ignore[union-attr]
+    remote.nmt.state = "OPERATIONAL"
+    assert eventually(lambda: drives[0].nmt_state == "OPERATIONAL")
+    sent = [(None, 0), (2, 1), (5, 4), (6, 5), (240, 239), (1, 240), (3, 242), (None, 243)]
+    for number, (count, index) in enumerate(sent, start=1):
+        network.sync.transmit(count)
+        assert drives.wait_for_sync(number, TIMEOUT_S)
+        assert drives.sync_index == index
+    assert eventually(lambda: len(frames.frames) == len(sent))
+    got = [struct.unpack("<i", f.data)[0] for f in frames.frames]
+    want = [round(SOURCE.state(0, i * PERIOD_S).position_mm / 10.0 * 4096) for _, i in sent]
+    assert got == want
+    assert drives.sync_count == len(sent)
+
+
 def test_no_pdos_unless_operational(drives: SimulatedDrives, network: canopen.Network) -> None:
     remote = node(network)
     configure_tpdo(remote, 1, [0x60640020])

@@ -8,6 +8,7 @@ import socket
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
@@ -17,6 +18,7 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusIOException
 
 from ncmeasure.errors import ConfigError, LinkError
+from ncmeasure.links import LinkClock
 from ncmeasure.links.modbus import decode_words
 from ncmeasure.sim.modbus_drive import (
     DriveFaults,
@@ -33,6 +35,13 @@ from ncmeasure.sim.signals import AxisState, PatternSource
 
 STEP_S = 0.01
 SOURCE = PatternSource()
+
+
+class Ramp:
+    """Position 10 mm per second of the source's time."""
+
+    def state(self, axis: int, time_s: float) -> AxisState:
+        return AxisState(position_mm=10.0 * time_s, velocity_mm_min=600.0, current_a=1.0)
 
 
 @contextmanager
@@ -150,6 +159,33 @@ def test_time_mode_follows_the_clock() -> None:
         threading.Event().wait(0.2)
         second = generic_position(client.read_input_registers(0, count=8, device_id=1).registers)
     assert first != second
+
+
+def test_time_runs_on_the_given_clock() -> None:
+    before = time.perf_counter()
+    drive = SimulatedModbusDrive([SimulatedUnit("X", 1)], clock=LinkClock(4))
+    created = time.perf_counter()
+    time.sleep(0.05)
+    low = time.perf_counter()
+    elapsed = drive.elapsed_s()
+    high = time.perf_counter()
+    assert 4 * (low - created) <= elapsed <= 4 * (high - before)
+    plain = SimulatedModbusDrive([SimulatedUnit("X", 1)])
+    assert plain.clock is None and plain.elapsed_s() < elapsed
+
+
+def test_server_on_a_clock_serves_the_state_of_its_time() -> None:
+    with (
+        server_thread(units={"X": 1}, source=Ramp(), clock=LinkClock(4)) as (info, _),
+        tcp_client(info) as client,
+    ):
+        start = time.perf_counter()
+        first = generic_position(client.read_input_registers(0, count=8, device_id=1).registers)
+        time.sleep(0.25)
+        second = generic_position(client.read_input_registers(0, count=8, device_id=1).registers)
+        wall_s = time.perf_counter() - start
+    # 10 mm per second of the clock, 4 clock seconds per wall-clock second
+    assert 40 * 0.25 * 0.9 < second - first < 40 * wall_s * 1.1
 
 
 def test_faults_silent_exception_delay_and_units() -> None:

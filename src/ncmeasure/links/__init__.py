@@ -17,20 +17,24 @@ from typing import Any
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, DependencyError
 from ncmeasure.links.base import (
+    REAL_TIME,
     AxisBinding,
     AxisLinkSettings,
     Channel,
     DriveLink,
+    LinkClock,
     LinkEvent,
     LinkSettings,
     SampleBlock,
 )
 
 __all__ = [
+    "REAL_TIME",
     "AxisBinding",
     "AxisLinkSettings",
     "Channel",
     "DriveLink",
+    "LinkClock",
     "LinkEvent",
     "LinkSettings",
     "SampleBlock",

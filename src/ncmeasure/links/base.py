@@ -16,12 +16,19 @@ Settings: every backend declares a pydantic model for the link-wide settings
 (:attr:`DriveLink.settings_model`, the ``[link]`` table of the machine file)
 and one for the per-axis settings (:attr:`DriveLink.axis_settings_model`, the
 ``link`` table of an ``[[axes]]`` entry, e.g. a node id).
+
+Clock: a link paces itself and stamps its rows by its :class:`LinkClock`,
+real time for real drives. A virtual machine with simulated drives may run
+faster than real time (:meth:`DriveLink.use_clock`); the time stamps are then
+seconds of the simulated machine, not of the wall clock.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import threading
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -36,11 +43,13 @@ from ncmeasure.config import AxisConfig, format_validation_error
 from ncmeasure.errors import ConfigError, LinkError
 
 __all__ = [
+    "REAL_TIME",
     "SIGNAL_UNITS",
     "AxisBinding",
     "AxisLinkSettings",
     "Channel",
     "DriveLink",
+    "LinkClock",
     "LinkEvent",
     "LinkSettings",
     "SampleBlock",
@@ -90,7 +99,8 @@ class SampleBlock:
 
     ``time_s`` is seconds since the link was opened, on the link's clock
     (SYNC count × period for CANopen, response time for Modbus, recorded time
-    for replay); it increases strictly within a block.
+    for replay; machine time when the link runs on a :class:`LinkClock` faster
+    than real time); it increases strictly within a block.
     """
 
     time_s: NDArray[np.float64]
@@ -112,6 +122,70 @@ class SampleBlock:
         """Build a block from Python lists (an empty block when there are no rows)."""
         values = np.asarray(rows, dtype=np.float64).reshape(len(time_s), channels)
         return cls(np.asarray(time_s, dtype=np.float64), values)
+
+
+class LinkClock:
+    """The clock a link paces itself by and time-stamps with.
+
+    Real time (speed 1) for real drives. A virtual machine may run faster than
+    real time: speed 4 means 4 s of this clock pass per wall-clock second.
+    The clock holds only its speed, so it pickles into another process, and
+    :meth:`now` has the same epoch in every process (``time.perf_counter``,
+    the system's monotonic clock on Linux): a simulated drive in a server
+    process and the link reading it agree on the time.
+
+    Args:
+        speed: Seconds of this clock per wall-clock second; finite and positive.
+
+    Raises:
+        ValueError: ``speed`` is not a finite positive number.
+    """
+
+    __slots__ = ("_speed",)
+
+    def __init__(self, speed: float = 1.0) -> None:
+        speed = float(speed)
+        if not (math.isfinite(speed) and speed > 0):
+            raise ValueError(f"a clock speed must be finite and positive, not {speed!r}")
+        self._speed = speed
+
+    @property
+    def speed(self) -> float:
+        """Seconds of this clock per wall-clock second."""
+        return self._speed
+
+    @property
+    def real_time(self) -> bool:
+        """True for speed 1."""
+        return self._speed == 1.0
+
+    def now(self) -> float:
+        """The time on this clock in seconds (monotonic; only differences mean anything)."""
+        return time.perf_counter() * self._speed
+
+    def sleep(self, seconds: float) -> None:
+        """Sleep ``seconds`` of this clock (``seconds / speed`` of wall-clock time)."""
+        if seconds > 0:
+            time.sleep(seconds / self._speed)
+
+    def wall(self, seconds: float) -> float:
+        """``seconds`` of this clock in wall-clock seconds."""
+        return seconds / self._speed
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, LinkClock):
+            return NotImplemented
+        return self._speed == other._speed
+
+    def __hash__(self) -> int:
+        return hash(self._speed)
+
+    def __repr__(self) -> str:
+        return f"LinkClock(speed={self._speed:g})"
+
+
+#: The clock of real drives: wall-clock time.
+REAL_TIME: LinkClock = LinkClock()
 
 
 EventKind = Literal["gap", "fault", "emcy", "reboot", "reconnect", "info"]
@@ -183,6 +257,7 @@ class DriveLink(ABC):
         self._state: Literal["new", "open", "closed"] = "new"
         self._events: list[LinkEvent] = []
         self._events_lock = threading.Lock()
+        self._clock = REAL_TIME
 
     # --- construction from the machine file ------------------------------------------
 
@@ -228,11 +303,17 @@ class DriveLink(ABC):
         """The intended time between two rows (SYNC period, poll period, ...)."""
 
     def describe(self) -> dict[str, Any]:
-        """Link settings and scale factors for a recording's metadata."""
-        return {
+        """Link settings and scale factors for a recording's metadata.
+
+        Holds ``clock_speed`` when the link runs on a clock other than real time.
+        """
+        info: dict[str, Any] = {
             "link": self.settings.model_dump(mode="json"),
             "axes": {b.name: b.settings.model_dump(mode="json") for b in self.axes},
         }
+        if not self._clock.real_time:
+            info["clock_speed"] = self._clock.speed
+        return info
 
     @abstractmethod
     def _open(self) -> None:
@@ -247,6 +328,30 @@ class DriveLink(ABC):
         """Stop streaming and release the bus, socket or port. Must not raise."""
 
     # --- the public methods -----------------------------------------------------------
+
+    @property
+    def clock(self) -> LinkClock:
+        """The clock the link paces itself by and stamps rows with (default real time)."""
+        return self._clock
+
+    def use_clock(self, clock: LinkClock) -> None:
+        """Run the link on ``clock``: a virtual machine's, faster than real time.
+
+        Only simulated drives follow a clock other than real time; real drives
+        need :data:`REAL_TIME`.
+
+        Raises:
+            LinkError: the link is open (set the clock before :meth:`open`).
+            TypeError: ``clock`` is not a :class:`LinkClock`.
+        """
+        if not isinstance(clock, LinkClock):
+            raise TypeError(f"use_clock needs a LinkClock, not {type(clock).__name__}")
+        if self._state == "open":
+            raise LinkError(
+                f"the clock of the {self.name} link cannot change while it is open; "
+                "set it before open()"
+            )
+        self._clock = clock
 
     @property
     def is_open(self) -> bool:

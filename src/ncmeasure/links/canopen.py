@@ -18,6 +18,15 @@ How it works, in the order :meth:`CanOpenLink.open` does it:
    master). A row of samples is complete when every PDO of every node for one
    SYNC cycle has arrived; ``time_s`` is the cycle number × period.
 
+The SYNC producer keeps time by the link's :class:`~ncmeasure.links.base.LinkClock`:
+real time for real drives, or the clock of a virtual machine running faster
+than real time with simulated drives (:mod:`ncmeasure.sim.cia402`). Its
+period is ``1 / sync_hz`` rounded to whole microseconds, the unit of the
+communication cycle period 0x1006 it writes to the drives, so the link and
+the drives agree on it exactly. Faster than real time, every SYNC carries a
+one-byte counter, the cycle number modulo 240 plus 1, so the simulated drives
+follow the link's cycle numbering across cycles the host skipped.
+
 Values are taken inside the PDO callbacks into a :class:`CycleAssembler`
 keyed by SYNC cycle, so no frame is lost to a PDO map holding only its last
 frame. Cycles that stay incomplete are dropped, never filled with invented or
@@ -974,12 +983,14 @@ class CanOpenLink(DriveLink):
     settings_model: ClassVar[type[LinkSettings]] = CanOpenSettings
     axis_settings_model: ClassVar[type[AxisLinkSettings]] = CanOpenAxis
 
-    #: How long an incomplete SYNC cycle may wait for its PDOs before it is lost.
+    #: How long (wall-clock) an incomplete SYNC cycle may wait for its PDOs before it is lost.
     HOLD_S: ClassVar[float] = 0.1
     #: A gap event covers at most this much link time; longer outages give several.
     GAP_REPORT_S: ClassVar[float] = 1.0
-    #: The SYNC producer skips (and reports) cycles when it is this late.
+    #: The SYNC producer skips (and reports) cycles when it is this late (wall-clock).
     MAX_SYNC_LATE_S: ClassVar[float] = 0.005
+    #: Faster than real time, the SYNC counter runs 1..SYNC_COUNTER_MAX (CiA 301 0x1019 at most).
+    SYNC_COUNTER_MAX: ClassVar[int] = 240
 
     settings: CanOpenSettings
 
@@ -988,7 +999,11 @@ class CanOpenLink(DriveLink):
         if not isinstance(settings, CanOpenSettings):
             raise ConfigError("the canopen link needs CanOpenSettings")
         self.settings = settings
-        self._period = 1.0 / settings.sync_hz
+        #: SYNC period in whole µs, as written to 0x1006.
+        self._period_us = max(1, round(1e6 / settings.sync_hz))
+        #: Cycles per second on the link clock: the produced rate, or the other master's.
+        self._rate_hz = 1e6 / self._period_us if settings.sync_producer else settings.sync_hz
+        self._period = 1.0 / self._rate_hz
         self._map = load_object_map(settings.object_map)
         self._axes: list[_Axis] = []
         self._channels: tuple[Channel, ...] = ()
@@ -1002,9 +1017,7 @@ class CanOpenLink(DriveLink):
         self._network: canopen.Network | None = None
         self._threads: list[threading.Thread] = []
         self._jobs: queue.Queue[Callable[[], None] | None] = queue.Queue()
-        self._assembler = CycleAssembler(
-            len(self._slots), max(8, math.ceil(self.HOLD_S * settings.sync_hz))
-        )
+        self._assembler = CycleAssembler(len(self._slots), self._hold_cycles())
         self._cycle = -1
         self._last_sync_time: float | None = None
         self._ready: list[tuple[int, list[bytes]]] = []
@@ -1183,6 +1196,10 @@ class CanOpenLink(DriveLink):
     def nominal_period_s(self) -> float:
         return self._period
 
+    def _hold_cycles(self) -> int:
+        """Cycles an incomplete row waits: ``HOLD_S`` of wall-clock time, at least 8."""
+        return max(8, math.ceil(self.HOLD_S / self.clock.wall(self._period)))
+
     @property
     def mode(self) -> str:
         """``pdo`` (TPDOs on SYNC) or ``sdo_polling`` (the fallback)."""
@@ -1249,6 +1266,7 @@ class CanOpenLink(DriveLink):
     def _open(self) -> None:
         load = self.planned_bus_load()
         self._check_load(load)
+        self._assembler = CycleAssembler(len(self._slots), self._hold_cycles())
         self._bus = self._make_bus()
         network = canopen.Network(self._bus)
         network.NOTIFIER_CYCLE = 0.1  # bounds how long close() waits for the receive thread
@@ -1392,9 +1410,8 @@ class CanOpenLink(DriveLink):
         self._read_rated_current(axis)
         self._set_scales(axis)
         if self.settings.sync_producer:
-            period_us = round(1e6 / self.settings.sync_hz)
             try:  # lets the drive monitor the SYNC; optional for the measurement
-                self._sdo_down(axis, 0x1006, 0, struct.pack("<I", period_us))
+                self._sdo_down(axis, 0x1006, 0, struct.pack("<I", self._period_us))
             except (SdoAbortedError, SdoCommunicationError) as exc:
                 log.info("%s: 0x1006 not written (%s)", axis.who, sdo_error_text(exc))
         for note in axis.notes:
@@ -1588,11 +1605,12 @@ class CanOpenLink(DriveLink):
 
     def _on_sync_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
         """SYNC of another master: count cycles, notice missing ones by their timestamps."""
+        wall_period = self.clock.wall(self._period)  # frame timestamps are wall-clock
         with self._cond:
             if self._last_sync_time is None:
                 step = 1
             else:
-                step = max(1, round((timestamp - self._last_sync_time) / self._period))
+                step = max(1, round((timestamp - self._last_sync_time) / wall_period))
             self._last_sync_time = timestamp
             self._advance(self._cycle + step)
 
@@ -1616,23 +1634,29 @@ class CanOpenLink(DriveLink):
     # --- SYNC producer, polling, worker (own threads) ------------------------------------
 
     def _produce_sync(self) -> None:
+        """Send SYNC cycle k at ``start + k × period`` on the link clock."""
         assert self._network is not None
+        clock = self.clock
+        counted = not clock.real_time  # simulated drives: they follow the counter
         period = self._period
-        max_late = max(2, math.ceil(self.MAX_SYNC_LATE_S / period))
-        start = time.perf_counter()
+        # Late by MAX_SYNC_LATE_S of wall-clock time: a host hiccup. Simulated drives number
+        # their samples by the SYNC counter, so a late SYNC still samples its own cycle.
+        max_late = max(2, math.ceil(self.MAX_SYNC_LATE_S / clock.wall(period)))
+        start = clock.now()
         cycle = 0
         while not self._stop.is_set():
             due = start + cycle * period
-            delay = due - time.perf_counter()
-            if delay > 0 and self._stop.wait(delay):
+            delay = due - clock.now()
+            if delay > 0 and self._stop.wait(clock.wall(delay)):
                 break
-            late = int((time.perf_counter() - due) / period)
+            late = int((clock.now() - due) / period)
             if late >= max_late:
                 cycle += late  # sending them now would stamp the samples wrongly
             with self._cond:
                 self._advance(cycle)
+            data = bytes([cycle % self.SYNC_COUNTER_MAX + 1]) if counted else b""
             try:
-                self._network.send_message(0x80, b"")
+                self._network.send_message(0x80, data)
             except Exception as exc:
                 self._fail(LinkError(f"cannot send SYNC: {exc}"))
                 return
@@ -1695,7 +1719,7 @@ class CanOpenLink(DriveLink):
                 if self._mode == "pdo":
                     self._map_tpdos(axis)
                 if self.settings.sync_producer:
-                    period_us = struct.pack("<I", round(1e6 / self.settings.sync_hz))
+                    period_us = struct.pack("<I", self._period_us)
                     with contextlib.suppress(SdoAbortedError):
                         self._sdo_down(axis, 0x1006, 0, period_us)
                 self._start_node(axis)
@@ -1748,7 +1772,7 @@ class CanOpenLink(DriveLink):
 
     def _lose(self, cycle: int, axes: set[int], no_sync: bool, reason: str) -> None:
         gap = self._gap
-        report_cycles = max(1, math.ceil(self.GAP_REPORT_S * self.settings.sync_hz))
+        report_cycles = max(1, math.ceil(self.GAP_REPORT_S * self._rate_hz))
         if gap is not None and (
             cycle != gap.last + 1
             or gap.last - gap.first + 1 >= report_cycles
@@ -1835,7 +1859,7 @@ class CanOpenLink(DriveLink):
     def _decode(self, rows: list[tuple[int, list[bytes]]]) -> SampleBlock:
         n = len(rows)
         cycles = np.fromiter((c for c, _ in rows), dtype=np.float64, count=n)
-        time_s = cycles / self.settings.sync_hz
+        time_s = cycles / self._rate_hz
         values = np.empty((n, len(self._channels)), dtype=np.float64)
         for index, slot in enumerate(self._slots):
             raw = np.frombuffer(b"".join(r[index] for _, r in rows), dtype=slot.dtype)

@@ -14,12 +14,18 @@ A polling thread runs one *poll cycle* per poll period: for every axis, one
 read request per register type covering all of that axis' signals of the type.
 A cycle whose requests all succeed becomes one row; its ``time_s`` is the
 midpoint between sending the cycle's first request and receiving its last
-answer, in seconds since the link started polling (``time.monotonic``). Cycles
+answer, in seconds since the link started polling. Cycles
 that fail or are skipped because answers were late are missing rows, reported
 as ``gap`` events with their number. A dropped TCP connection is re-opened
 (``reconnect`` event); Modbus exception responses come back as ``fault`` events
 with their meaning; after ``max_outage_s`` without a complete cycle the link
 gives up with :class:`~ncmeasure.errors.LinkError`. See ``docs/modbus.md``.
+
+Time is kept by the link's :class:`~ncmeasure.links.base.LinkClock`: the
+poll period, the time stamps, outage durations and ``max_outage_s`` are on
+that clock (real time for real drives, machine time for simulated drives of
+a virtual machine running faster than real time); the request timeout, the
+reconnect delay and the RTU line silences are wall-clock time.
 """
 
 from __future__ import annotations
@@ -719,7 +725,7 @@ class ModbusLink(DriveLink):
         info["requests_per_cycle"] = len(self._requests)
         info["time_s"] = (
             "midpoint between sending a poll cycle's first request and "
-            "receiving its last answer, s since polling started (monotonic)"
+            "receiving its last answer, s since polling started on the link clock"
         )
         maps: dict[str, Any] = {}
         for binding in self.axes:
@@ -895,7 +901,7 @@ class ModbusLink(DriveLink):
                 )
             raise LinkError(message, problems)
         self._stop.clear()
-        self._t0 = time.monotonic()
+        self._t0 = self.clock.now()
         self._thread = threading.Thread(target=self._run, name="ncmeasure-modbus-poll", daemon=True)
         self._thread.start()
         if self._poll_hz != self.modbus.poll_hz:
@@ -946,7 +952,8 @@ class ModbusLink(DriveLink):
     # --- the polling thread -------------------------------------------------------------
 
     def _now_s(self) -> float:
-        return time.monotonic() - self._t0
+        """Link time since polling started."""
+        return self.clock.now() - self._t0
 
     def _flush_gap(self) -> None:
         gap = self._pending_gap
@@ -984,7 +991,9 @@ class ModbusLink(DriveLink):
 
     def _poll_loop(self) -> None:
         s = self.modbus
+        clock = self.clock
         period = self._period_s
+        reconnect_delay = s.reconnect_delay_s * clock.speed  # wall-clock, in link seconds
         slot = 0
         last_row_slot = -1
         outage: _Outage | None = None
@@ -993,11 +1002,11 @@ class ModbusLink(DriveLink):
             f"poll cycles took longer than the poll period of {period * 1000:.3g} ms (slow answers)"
         )
         while not self._stop.is_set():
-            delay = self._t0 + slot * period - time.monotonic()
-            if delay > 0 and self._stop.wait(delay):
+            delay = self._t0 + slot * period - clock.now()
+            if delay > 0 and self._stop.wait(clock.wall(delay)):
                 break
             failure: _Failure | None = None
-            t_start = time.monotonic()
+            t_start = clock.now()
             if not self._connected():
                 if t_start >= next_connect:
                     try:
@@ -1006,19 +1015,19 @@ class ModbusLink(DriveLink):
                             outage.reconnected = True
                     except LinkError as exc:
                         failure = _Failure("disconnected", exc.message)
-                        next_connect = t_start + s.reconnect_delay_s
+                        next_connect = t_start + reconnect_delay
                 else:
                     failure = (
                         outage.failure if outage else _Failure("disconnected", "not connected")
                     )
             row: list[float] | None = None
             if failure is None:
-                t_start = time.monotonic()
+                t_start = clock.now()
                 try:
                     row = self._poll_once()
                 except _CycleError as exc:
                     failure = exc.failure
-            now = time.monotonic()
+            now = clock.now()
             if row is not None:
                 time_s = 0.5 * (t_start + now) - self._t0
                 missed = slot - last_row_slot - 1
@@ -1045,7 +1054,7 @@ class ModbusLink(DriveLink):
                     self._disconnect()
                 if not self._connected() and next_connect <= now:
                     next_connect = now + (
-                        s.reconnect_delay_s if failure.kind == "disconnected" else 0.0
+                        reconnect_delay if failure.kind == "disconnected" else 0.0
                     )
                 if now - outage.start >= s.max_outage_s:
                     current = max(slot, math.ceil((now - self._t0) / period))
@@ -1060,7 +1069,7 @@ class ModbusLink(DriveLink):
                         LinkEvent(now - self._t0, "fault", self._fatal.message, axis=failure.axis)
                     )
                     return
-            now = time.monotonic()
+            now = clock.now()
             slot = max(slot + 1, math.ceil((now - self._t0) / period))
             if not self._connected() and next_connect > now:
                 slot = max(slot, math.ceil((next_connect - self._t0) / period))
@@ -1081,7 +1090,7 @@ class ModbusLink(DriveLink):
         )
 
     def _end_outage(self, outage: _Outage, time_s: float) -> None:
-        duration = time.monotonic() - outage.start
+        duration = self.clock.now() - outage.start
         if outage.reconnected:
             self._event(
                 LinkEvent(

@@ -14,10 +14,17 @@ built-in CiA 402 defaults, and:
   boot-up message);
 - on every SYNC, while operational, sends its valid synchronous TPDOs
   (transmission type 1..240) with values of a :class:`~ncmeasure.sim.signals.SignalSource`
-  at time = SYNC count × period, encoded like a real drive: int32
+  at time = SYNC index × period, encoded like a real drive: int32
   increments, int32 velocity units, int16 per mille of the rated current,
   statusword 0x0237 "operation enabled". The period is the communication
   cycle period 0x1006 the master writes, else ``period_s``.
+
+The SYNC index counts the SYNC messages from 0, so it equals the cycle number
+of the CANopen link that produces them, and the sample of link time ``t`` is
+the source's state at ``t``. A SYNC with a one-byte counter (1..240, as the
+link sends it faster than real time) sets the index to the next one that is
+congruent to ``counter - 1`` modulo 240: cycles the link skipped are skipped
+here too, and the numbering stays aligned.
 
 Fault switches for tests, all thread-safe: :meth:`SimulatedDrive.stop_answering`,
 :meth:`~SimulatedDrive.resume`, :meth:`~SimulatedDrive.abort_sdo`,
@@ -74,6 +81,8 @@ OPERATION_ENABLED = 0x0237
 _FAULT_BIT = 0x0008
 
 _PRE_OPERATIONAL, _OPERATIONAL, _STOPPED, _INITIALISING = 127, 5, 4, 0
+#: The SYNC counter runs 1.._SYNC_COUNTER_MAX (the largest overflow value of CiA 301 0x1019).
+_SYNC_COUNTER_MAX = 240
 _NMT_NAMES = {0: "INITIALISING", 4: "STOPPED", 5: "OPERATIONAL", 127: "PRE-OPERATIONAL"}
 
 # SDO abort codes (CiA 301) the server uses.
@@ -543,8 +552,8 @@ class SimulatedDrive:
     def _state_now(self) -> AxisState:
         host = self._host
         assert host is not None
-        count = host.sync_count
-        t = (count - 1) * self._period_s() if count else time.monotonic() - host.started
+        index = host.sync_index
+        t = index * self._period_s() if index >= 0 else time.monotonic() - host.started
         return host.source.state(self.axis, t)
 
     # --- SDO server -------------------------------------------------------------------------
@@ -763,6 +772,7 @@ class SimulatedDrives:
         self._own_bus = own_bus
         self._by_node = {d.node_id: d for d in drives}
         self._sync_count = 0
+        self._sync_index = -1
         self._sync_cond = threading.Condition()
         self._stop = threading.Event()
         self._send_lock = threading.Lock()
@@ -857,6 +867,11 @@ class SimulatedDrives:
         """SYNC messages seen since start."""
         return self._sync_count
 
+    @property
+    def sync_index(self) -> int:
+        """Index of the newest SYNC (its sample time is index × period); -1 before the first."""
+        return self._sync_index
+
     def wait_for_sync(self, count: int, timeout_s: float) -> bool:
         """Wait until ``count`` SYNC messages were seen; False on timeout."""
         with self._sync_cond:
@@ -929,7 +944,7 @@ class SimulatedDrives:
             can_id = msg.arbitration_id
             try:
                 if can_id == 0x080:
-                    self._on_sync()
+                    self._on_sync(bytes(msg.data))
                 elif can_id == 0x000 and len(msg.data) >= 2:
                     for drive in self.drives:
                         if msg.data[1] in (0, drive.node_id):
@@ -941,9 +956,12 @@ class SimulatedDrives:
             except Exception:  # a simulator bug must not kill the bus for the others
                 log.exception("simulated drives: frame 0x%03X not handled", can_id)
 
-    def _on_sync(self) -> None:
+    def _on_sync(self, data: bytes = b"") -> None:
         with self._sync_cond:
-            index = self._sync_count
+            index = self._sync_index + 1
+            if data and 1 <= data[0] <= _SYNC_COUNTER_MAX:
+                index += (data[0] - 1 - index) % _SYNC_COUNTER_MAX
+            self._sync_index = index
             self._sync_count += 1
             self._sync_cond.notify_all()
         frames: list[tuple[int, bytes]] = []

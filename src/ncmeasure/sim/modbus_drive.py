@@ -6,7 +6,11 @@ state and encodes it the way the register map says (data type, word order,
 scale, unit conversion), so a :class:`~ncmeasure.links.modbus.ModbusLink`
 reading them gets the source's values quantised by the map.
 
-Time: by default the state is taken at the server's elapsed time. With
+Time: by default the state is taken at the server's elapsed time. With a
+:class:`~ncmeasure.links.base.LinkClock` (``clock``) the elapsed time is on
+that clock: a virtual machine running faster than real time serves the state
+of its own time, and a :class:`~ncmeasure.links.modbus.ModbusLink` on a clock
+of the same speed stamps its rows with the same time scale. With
 ``step_s`` the server is *deterministic*: the n-th read request a unit
 answers for a register type (counting from 0) gets the state at ``n × step_s``,
 whatever the wall clock says. Requests that are not answered (faults) do not
@@ -45,6 +49,7 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from ncmeasure.errors import ConfigError, LinkError
+from ncmeasure.links.base import LinkClock
 from ncmeasure.links.modbus import (
     RegisterMap,
     encode_value,
@@ -193,6 +198,8 @@ class SimulatedModbusDrive:
         step_s: Deterministic mode: n-th request of a unit and register type
             gets the state at ``n × step_s``. ``None``: elapsed server time.
         faults: Shared fault switches; a new set when ``None``.
+        clock: The clock of the elapsed server time (a virtual machine's,
+            faster than real time); ``None``: wall-clock time.
 
     Raises:
         ConfigError: a unit id twice or out of range, or an invalid register map.
@@ -205,6 +212,7 @@ class SimulatedModbusDrive:
         source: SignalSource | None = None,
         step_s: float | None = None,
         faults: DriveFaults | None = None,
+        clock: LinkClock | None = None,
     ) -> None:
         if not units:
             raise ConfigError("the simulated drive needs at least one unit")
@@ -212,6 +220,7 @@ class SimulatedModbusDrive:
             raise ConfigError("step_s must be positive")
         self.source: SignalSource = source or PatternSource()
         self.step_s = step_s
+        self.clock = clock
         self.faults = faults or DriveFaults()
         self._lock = threading.Lock()
         self._units: dict[int, _UnitRuntime] = {}
@@ -232,7 +241,7 @@ class SimulatedModbusDrive:
                 for signal, entry in reg_map.ordered_signals()
             }
             self._units[unit.unit_id] = _UnitRuntime(unit, reg_map, factors)
-        self._start = time.monotonic()
+        self._start = self._now()
         self._suppress: set[int] = set()
         self._server: ModbusTcpServer | ModbusSerialServer | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -249,12 +258,21 @@ class SimulatedModbusDrive:
             for runtime in self._units.values():
                 runtime.counters = {3: 0, 4: 0}
                 runtime.answered = 0
-            self._start = time.monotonic()
+            self._start = self._now()
 
     def stats(self) -> dict[int, int]:
         """Answered read requests per unit id."""
         with self._lock:
             return {uid: rt.answered for uid, rt in self._units.items()}
+
+    def _now(self) -> float:
+        return self.clock.now() if self.clock is not None else time.monotonic()
+
+    def elapsed_s(self) -> float:
+        """Server time since start or :meth:`reset` on ``clock`` (state time without ``step_s``)."""
+        with self._lock:
+            start = self._start
+        return self._now() - start
 
     def registers(self, unit_id: int, function: str, state: AxisState) -> dict[int, int]:
         """The registers (address -> value) a unit shows for ``state``."""
@@ -278,7 +296,7 @@ class SimulatedModbusDrive:
             start = self._start
         if self.step_s is not None:
             return count * self.step_s
-        return time.monotonic() - start
+        return self._now() - start
 
     def _action(self, unit_id: int) -> Callable[..., Any]:
         runtime = self._units[unit_id]
@@ -499,6 +517,7 @@ def serve(
     faults: DriveFaults | None = None,
     ready: Callable[[ServerInfo], None] | None = None,
     stop: threading.Event | None = None,
+    clock: LinkClock | None = None,
 ) -> None:
     """Run simulated Modbus drives until interrupted (blocking).
 
@@ -525,6 +544,7 @@ def serve(
         faults: Fault switches to control the server from another thread.
         ready: Called with the :class:`ServerInfo` once the server listens.
         stop: Serve until this event is set.
+        clock: Clock of the state time (a virtual machine's); ``None``: wall-clock.
 
     Raises:
         ConfigError: invalid units or register maps.
@@ -543,7 +563,9 @@ def serve(
         )
         for index, (axis, unit_id) in enumerate(unit_map.items())
     ]
-    drive = SimulatedModbusDrive(simulated, source=source, step_s=step_s, faults=faults)
+    drive = SimulatedModbusDrive(
+        simulated, source=source, step_s=step_s, faults=faults, clock=clock
+    )
     drive.serve_forever(
         host=host,
         port=port,
@@ -567,6 +589,7 @@ class _ProcessConfig:
     step_s: float | None
     host: str
     port: int
+    clock: LinkClock | None = None
 
 
 def _child_main(config: _ProcessConfig, conn: Connection) -> None:
@@ -574,7 +597,9 @@ def _child_main(config: _ProcessConfig, conn: Connection) -> None:
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # this process' own console
     stop = threading.Event()
     try:
-        drive = SimulatedModbusDrive(config.units, source=config.source, step_s=config.step_s)
+        drive = SimulatedModbusDrive(
+            config.units, source=config.source, step_s=config.step_s, clock=config.clock
+        )
     except ConfigError as exc:
         conn.send(("error", str(exc)))
         return
@@ -671,6 +696,7 @@ def running_server(
     source: SignalSource | None = None,
     step_s: float | None = None,
     start_timeout_s: float = 30.0,
+    clock: LinkClock | None = None,
 ) -> Iterator[ServerHandle]:
     """A simulated Modbus TCP drive server in another process, for tests and benchmarks.
 
@@ -686,6 +712,8 @@ def running_server(
         source: Axis states (must be picklable); default :class:`PatternSource`.
         step_s: Deterministic mode.
         start_timeout_s: How long to wait for the server to listen.
+        clock: Clock of the state time (a virtual machine's, faster than real
+            time); ``None``: wall-clock. It has the same epoch in both processes.
 
     Raises:
         LinkError: the server did not start (port in use, ...).
@@ -698,7 +726,7 @@ def running_server(
         )
     else:
         unit_list = tuple(units)
-    config = _ProcessConfig(unit_list, source, step_s, host, port)
+    config = _ProcessConfig(unit_list, source, step_s, host, port, clock)
     context = multiprocessing.get_context("spawn")
     parent, child = context.Pipe()
     process = context.Process(
