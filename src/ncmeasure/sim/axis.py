@@ -38,20 +38,27 @@ Assembly variances (:class:`Variation`) change the normal forces:
   path and the larger the force. This reproduces the test rig: a shifted
   loose bearing loads only span ``b``, which is long and soft next to the
   fixed bearing (no change there) and stiffens towards the loose bearing,
-  where ``1/k_s`` caps it, so the rise is nearly linear; a shifted nut loads
-  both spans, so friction rises next to both bearings and is lowest
-  mid-travel, where both spans are long. The default ``k_s`` (1 N/µm) is
-  chosen to give the rig's shapes, not measured. Not modelled: the bending
-  moment carried by the nut and by the fixed bearing pair (its spacing is
-  unknown), and the clamping by the fixed bearing's tilt stiffness
-  (``12EI/a³`` instead of ``3EI/a³``), which would make the fixed span
-  stiffer mid-travel.
-* a misaligned guide rail (a ramp from 0 at the travel minimum to
-  ``rail_misalignment_um`` at the maximum) presses the carriages against
-  their preload with the constraint stiffness of table and carriages: the
-  guide friction follows the rail's deviation;
+  where ``1/k_s`` caps it, so the rise is gradual, not a jump in the last
+  interval; a shifted nut loads both spans, so friction rises next to both
+  bearings and is lowest mid-travel, where both spans are long. Each
+  component turns its constraining force into friction with its own
+  per-newton coefficient (:attr:`Component.constraint_torque_per_newton_nm`),
+  which differs from the preload coefficient where the force meets the
+  rolling contacts at another angle (a radial load on a 60° support bearing).
+  The default ``k_s`` (2.2 N/µm) is calibrated to the rig's shapes and
+  sizes, not measured. Not modelled: the bending moment carried by the nut
+  and by the fixed bearing pair (its spacing is unknown), and the clamping
+  by the fixed bearing's tilt stiffness (``12EI/a³`` instead of ``3EI/a³``),
+  which would make the fixed span stiffer mid-travel.
+* a bowed guide rail (deviation ``δ · 4t(1 − t)``: 0 at both travel ends,
+  ``rail_misalignment_um`` mid-travel) presses the carriages against their
+  preload with the constraint stiffness of table and carriages: the guide
+  friction follows the bow and peaks mid-travel;
 * a sticking cover adds a step of ``cover_step`` × the axis' nominal
   friction beyond a position.
+
+:data:`EXAMPLE_VARIATIONS` holds one variation per assembly cause, of a size
+the analysis recognises on the rig axis.
 
 The motor current is ``(friction + J α + gravity) / k_T`` plus cogging
 ripple (3 and 18 periods per motor revolution), optional Gaussian noise and
@@ -62,7 +69,9 @@ mm/min, accelerations in m/s², torques in Nm, forces in N.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
+from types import MappingProxyType
 from typing import Literal
 
 import numpy as np
@@ -72,6 +81,7 @@ from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError
 
 __all__ = [
+    "EXAMPLE_VARIATIONS",
     "AxisModel",
     "AxisParameters",
     "Component",
@@ -103,8 +113,15 @@ class Component:
         stribeck_velocity_mm_min: Stribeck velocity (axis velocity).
         load_share: Share of Coulomb and Stribeck torque proportional to the
             normal force (the rest is load-independent: seals, lubricant).
-        torque_per_newton_nm: Friction torque per newton of normal force
-            (``μ`` times the effective radius; for a linear guide ``μ h / 2π``).
+        torque_per_newton_nm: Friction torque per newton of preload (``μ`` times
+            the effective radius; for a linear guide ``μ h / 2π``). It fixes the
+            nominal preload force that carries ``load_share``.
+        constraint_torque_per_newton_nm: Friction torque per newton of
+            constraining force from an assembly variation (the radial load a bent
+            screw puts on a bearing or the nut, the lateral load a bowed rail puts
+            on the carriages). ``None``: the same as ``torque_per_newton_nm``. It
+            differs where the constraining force meets the rolling contacts at
+            another angle than the preload does.
     """
 
     coulomb_nm: float
@@ -113,6 +130,7 @@ class Component:
     stribeck_velocity_mm_min: float = 300.0
     load_share: float = 0.0
     torque_per_newton_nm: float = 0.0
+    constraint_torque_per_newton_nm: float | None = None
 
     def __post_init__(self) -> None:
         checks = {
@@ -122,6 +140,8 @@ class Component:
             "stribeck_velocity_mm_min": self.stribeck_velocity_mm_min > 0,
             "load_share": 0 <= self.load_share <= 1,
             "torque_per_newton_nm": self.torque_per_newton_nm >= 0,
+            "constraint_torque_per_newton_nm": self.constraint_torque_per_newton_nm is None
+            or self.constraint_torque_per_newton_nm >= 0,
         }
         bad = [
             f"{key}: {getattr(self, key)!r} is out of range" for key, ok in checks.items() if not ok
@@ -138,30 +158,81 @@ class Component:
             return 0.0
         return self.load_share * self.coulomb_nm / self.torque_per_newton_nm
 
+    @property
+    def constraint_coefficient_nm_per_n(self) -> float:
+        """Friction torque per newton of constraining force (the fallback resolved)."""
+        if self.constraint_torque_per_newton_nm is None:
+            return self.torque_per_newton_nm
+        return self.constraint_torque_per_newton_nm
 
-def _component(coulomb: float, viscous: float, load_share: float, per_n: float) -> Component:
+
+def _component(
+    coulomb: float,
+    viscous: float,
+    load_share: float,
+    per_n: float,
+    constraint_per_n: float | None = None,
+) -> Component:
     return Component(
         coulomb_nm=coulomb,
         viscous_nms_rad=viscous,
         stribeck_nm=0.3 * coulomb,
         load_share=load_share,
         torque_per_newton_nm=per_n,
+        constraint_torque_per_newton_nm=constraint_per_n,
     )
+
+
+# Per-newton friction of the rolling contacts, as torque on the screw shaft.
+#
+# Bearings: angular-contact ball bearing, μ ≈ 0.002 at a 20 mm effective
+# radius (SKF's simplified friction moment M = μ P d / 2 with μ = 0.002 for
+# angular-contact ball bearings): 4·10⁻⁵ Nm/N of axial preload. A radial load
+# meets the balls of a 60° screw-support bearing at the wrong angle: it raises
+# the sum of the contact forces by F_r / (J cos α) with J ≈ 0.8 (a half load
+# zone with the Hertz exponent 1.5: ∫cos^2.5 ψ / ∫cos^1.5 ψ), an axial load by
+# F_a / sin α, so per newton a radial load counts tan 60° / 0.8 ≈ 2.2 times.
+# The rig's loose bearing (type not given; it has the same friction) is taken
+# alike.
+_BEARING_PRELOAD_NM_PER_N = 4.0e-5
+_BEARING_RADIAL_NM_PER_N = 2.2 * _BEARING_PRELOAD_NM_PER_N
+# Nut: the preload drag torque of the ball-screw catalogues (JIS B 1192,
+# e.g. THK's "preload torque"), T_p = 0.05 (tan β)^−0.5 · F_a0 · h / 2π, with
+# tan β = h / (π d) = 20 / (π 40) for the rig's screw: 4.0·10⁻⁴ Nm/N. The
+# rig's 0.25 Nm at load share 0.7 then means a preload of ≈ 440 N, a light
+# preload for a 40 × 20 nut. A radial load on the 45° ball contacts raises
+# the contact forces by about as much per newton (sin 45° = cos 45°), so the
+# constraint coefficient is taken equal; not measured.
+_NUT_NM_PER_N = 0.05 / math.sqrt(20.0 / (math.pi * 40.0)) * 20e-3 / (2 * math.pi)
+# Guides: μ ≈ 0.003 for ball rail guides (catalogue range 0.002–0.005), as
+# screw torque times h / 2π = 3.18 mm. A lateral load on a four-row 45°
+# carriage is taken alike.
+_GUIDE_NM_PER_N = 0.003 * 20e-3 / (2 * math.pi)
 
 
 @dataclass(frozen=True)
 class Components:
-    """The friction components of one feed axis (defaults: the method's test rig)."""
+    """The friction components of one feed axis (defaults: the method's test rig).
+
+    Coulomb and viscous values are the rig's identified ones (method, "Reference
+    numbers"); load shares and per-newton coefficients are explained next to
+    their constants above.
+    """
 
     motor: Component = field(default_factory=lambda: _component(0.72, 0.05, 0.0, 0.0))
-    # Angular-contact bearing: μ ≈ 0.002 at a 20 mm effective radius.
-    fixed_bearing: Component = field(default_factory=lambda: _component(0.09, 0.00048, 0.6, 4.0e-5))
-    loose_bearing: Component = field(default_factory=lambda: _component(0.09, 0.00048, 0.6, 4.0e-5))
-    # Nut: μ ≈ 0.004 at the 20 mm pitch radius.
-    nut: Component = field(default_factory=lambda: _component(0.25, 0.00019, 0.7, 8.0e-5))
-    # Guides: μ ≈ 0.003 as screw torque, times h / 2π = 3.18 mm.
+    fixed_bearing: Component = field(
+        default_factory=lambda: _component(
+            0.09, 0.00048, 0.6, _BEARING_PRELOAD_NM_PER_N, _BEARING_RADIAL_NM_PER_N
+        )
+    )
+    loose_bearing: Component = field(
+        default_factory=lambda: _component(
+            0.09, 0.00048, 0.6, _BEARING_PRELOAD_NM_PER_N, _BEARING_RADIAL_NM_PER_N
+        )
+    )
+    nut: Component = field(default_factory=lambda: _component(0.25, 0.00019, 0.7, _NUT_NM_PER_N))
     guides: Component = field(
-        default_factory=lambda: _component(0.205, 0.000014, 0.8, 0.003 * 20e-3 / (2 * math.pi))
+        default_factory=lambda: _component(0.205, 0.000014, 0.8, _GUIDE_NM_PER_N)
     )
     covers: Component = field(default_factory=lambda: Component(0.0, 0.0))
 
@@ -200,10 +271,24 @@ class AxisParameters:
         bearing_clearance_mm: Distance of each bearing from the nearest travel
             end of the nut centre; the span is travel + 2 × this.
         youngs_modulus_gpa: Young's modulus of the screw.
-        support_stiffness_n_per_um: Contact and housing stiffness in series
-            with the screw's bending (nut and bearings, lateral).
+        support_stiffness_n_per_um: Lateral stiffness of the support chain in
+            series with the screw's bending (bearing housing on its joint, nut
+            flange, carriage). Default 2.2 N/µm: calibrated so that a 500 µm
+            shim under the rig's loose bearing raises friction next to it by
+            ≈ 30 % and a shifted nut gives a mid-travel change of ≈ 1/3 of
+            the change next to the bearings; not measured. It is far below the
+            catalogue stiffness of a support bearing (hundreds of N/µm): it
+            stands for the bolted joints and brackets in the chain, and a stiffer
+            value turns the rise towards a shifted bearing into a sharp jump in
+            the last interval (cubic beam term).
         guide_stiffness_n_per_um: Lateral constraint stiffness of table and
-            carriages against a misaligned rail.
+            carriages against a bowed rail. Default 500 N/µm: preloaded size
+            30–35 ball carriages are several hundred N/µm each; the two carriages
+            on the bowed rail push the table against the two on the straight rail,
+            in series with table and joints. Calibrated so that a 50 µm bow
+            (beyond the parallelism that rail catalogues permit for preloaded
+            carriages, ≈ 10–30 µm) raises friction mid-travel by ≈ 14 %; not
+            measured.
         moved_mass_kg: Table and workpiece mass.
         rotor_inertia_kgm2: Motor rotor inertia (incl. coupling).
         cogging_3_nm: Cogging amplitude, 3 periods per revolution.
@@ -224,8 +309,8 @@ class AxisParameters:
     screw_core_diameter_mm: float = 34.0
     bearing_clearance_mm: float = 80.0
     youngs_modulus_gpa: float = 210.0
-    support_stiffness_n_per_um: float = 1.0
-    guide_stiffness_n_per_um: float = 20.0
+    support_stiffness_n_per_um: float = 2.2
+    guide_stiffness_n_per_um: float = 500.0
     moved_mass_kg: float = 500.0
     rotor_inertia_kgm2: float = 0.0193
     cogging_3_nm: float = 0.06
@@ -326,8 +411,11 @@ class Variation:
         bearing_preload_change: Relative change of both bearings' preload (−0.6 = −60 %).
         nut_preload_change: Relative change of the nut preload.
         carriage_preload_change: Relative change of the carriages' preload.
-        rail_misalignment_um: Rail deviation at the travel maximum; a ramp from 0
-            at the travel minimum.
+        rail_misalignment_um: Bow of a guide rail: its lateral deviation is 0 at
+            both travel ends and this value mid-travel, ``δ · 4t(1 − t)`` with
+            ``t`` the relative position. It presses the carriages against their
+            preload, so guide friction peaks mid-travel (a ramp would look like a
+            shifted bearing to the analysis). The sign does not matter.
         cover_step: Friction step of a sticking cover, relative to the axis'
             nominal friction (0.2 = a 20 % step).
         cover_step_position_mm: Where the step occurs (default: mid-travel).
@@ -358,8 +446,47 @@ class Variation:
         if bad:
             raise ConfigError("invalid assembly variation", bad)
 
+    def as_text(self) -> str:
+        """The variation as ``key=value`` pairs, only the fields that are set (``""`` for none).
+
+        A field is set when it differs from its default: non-zero, and for
+        ``cover_step_position_mm`` any position. :func:`parse_variation` reads
+        the text back to an equal variation, and ``ncmeasure simulate
+        --variation`` takes it as it is.
+        """
+        pairs = []
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if value is None or (f.default is not None and value == f.default):
+                continue
+            short = f"{value:g}"
+            pairs.append(f"{f.name}={short if float(short) == value else repr(float(value))}")
+        return ",".join(pairs)
+
 
 _VARIATION_KEYS = tuple(f.name for f in fields(Variation))
+
+EXAMPLE_VARIATIONS: Mapping[str, Variation] = MappingProxyType(
+    {
+        # Shims of the size the method's rig used (0.5–1 mm): ≈ +30 % next to the
+        # shifted bearing, ≈ +1 % next to the other one.
+        "loose_bearing": Variation(loose_bearing_shift_um=500.0),
+        "fixed_bearing": Variation(fixed_bearing_shift_um=500.0),
+        # ≈ +32 % next to both bearings, ≈ +10 % mid-travel.
+        "screw_nut": Variation(nut_shift_um=500.0),
+        # A 50 µm bow, beyond the permissible rail parallelism: ≈ +14 % mid-travel.
+        "guide_rail": Variation(rail_misalignment_um=50.0),
+        # The sticking telescopic cover of the method: a 20 % step mid-travel.
+        "cover_or_seal": Variation(cover_step=0.2),
+        # A nut one preload class too high (e.g. 2 % → 5 % of C_a, × 2.5): the same
+        # +15 % everywhere, which only a comparison with a reference shows.
+        "preload_or_carriage": Variation(nut_preload_change=1.5),
+    }
+)
+"""One variation per assembly cause (keys: values of
+:data:`~ncmeasure.analysis.results.CauseName`), each of a size that the analysis
+recognises on the rig axis; ``preload_or_carriage`` is a constant offset, which a
+position profile shows as flat."""
 
 
 def parse_variation(text: str) -> Variation:
@@ -443,6 +570,12 @@ class AxisModel:
         from_end = x - low if self.axis.fixed_bearing_end == "min" else high - x
         return np.asarray(self.axis.bearing_clearance_mm + from_end, dtype=np.float64)
 
+    def rail_bow(self, position_mm: ArrayLike) -> FloatArray:
+        """Shape of a bowed rail: ``4t(1 − t)`` over the travel (0 at both ends, 1 mid-travel)."""
+        low, high = self.axis.travel_mm
+        t = np.clip((np.asarray(position_mm, dtype=np.float64) - low) / (high - low), 0.0, 1.0)
+        return np.asarray(4.0 * t * (1.0 - t), dtype=np.float64)
+
     def normal_forces_n(self, position_mm: ArrayLike) -> dict[str, FloatArray]:
         """Constraining forces added to the preloads by the variation, per component.
 
@@ -461,8 +594,7 @@ class AxisModel:
         # in series with the contact and housing compliance.
         fixed_force = (var.fixed_bearing_shift_um * 1e-6 - d_nut) / (a_m**3 / three_ei + compliance)
         loose_force = (var.loose_bearing_shift_um * 1e-6 - d_nut) / (b_m**3 / three_ei + compliance)
-        low, high = ax.travel_mm
-        rail_m = var.rail_misalignment_um * 1e-6 * (x - low) / (high - low)
+        rail_m = var.rail_misalignment_um * 1e-6 * self.rail_bow(x)
         return {
             "fixed_bearing": np.abs(fixed_force),
             "loose_bearing": np.abs(loose_force),
@@ -485,11 +617,13 @@ class AxisModel:
         factors: dict[str, FloatArray] = {}
         for name, comp in self.components.items():
             factor = np.ones_like(x)
-            if comp.coulomb_nm > 0 and comp.torque_per_newton_nm > 0:
-                extra_n = comp.nominal_normal_force_n * preload.get(name, 0.0) + forces.get(
-                    name, np.zeros_like(x)
-                )
-                factor = factor + comp.torque_per_newton_nm * extra_n / comp.coulomb_nm
+            if comp.coulomb_nm > 0 and (
+                comp.torque_per_newton_nm > 0 or comp.constraint_coefficient_nm_per_n > 0
+            ):
+                extra_nm = comp.torque_per_newton_nm * comp.nominal_normal_force_n * preload.get(
+                    name, 0.0
+                ) + comp.constraint_coefficient_nm_per_n * forces.get(name, np.zeros_like(x))
+                factor = factor + extra_nm / comp.coulomb_nm
             factors[name] = factor
         return factors
 

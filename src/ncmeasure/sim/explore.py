@@ -68,10 +68,16 @@ def _grid(axis: AxisConfig, measurement: Measurement, positions: int, velocities
     )
 
 
+def _named(variation: str | Variation) -> tuple[str, Variation]:
+    if isinstance(variation, Variation):
+        return variation.as_text() or "nominal", variation
+    return variation, parse_variation(variation)
+
+
 def study(
     axis: AxisConfig,
     measurement: Measurement,
-    variations: Sequence[str],
+    variations: Sequence[str | Variation],
     *,
     positions: int = 11,
     velocities: int = 12,
@@ -81,7 +87,11 @@ def study(
     Args:
         axis: The axis (travel, bearing end, k_T, lead come from it).
         measurement: Its measurement settings (velocity range, margin).
-        variations: ``key=value`` texts, one scenario each (see :func:`parse_variation`).
+        variations: One scenario each: a ``key=value`` text (see
+            :func:`~ncmeasure.sim.axis.parse_variation`) or a
+            :class:`~ncmeasure.sim.axis.Variation`, named by its
+            :meth:`~ncmeasure.sim.axis.Variation.as_text` (e.g. the values of
+            :data:`~ncmeasure.sim.axis.EXAMPLE_VARIATIONS`).
         positions: Grid points along the usable travel.
         velocities: Grid points over the measured velocity range (geometric).
 
@@ -91,10 +101,7 @@ def study(
     grid = _grid(axis, measurement, positions, velocities)
     scenarios: list[Scenario] = []
     nominal: NDArray[np.float64] | None = None
-    for name, variation in [
-        ("nominal", Variation()),
-        *((text, parse_variation(text)) for text in variations),
-    ]:
+    for name, variation in [("nominal", Variation()), *map(_named, variations)]:
         friction = AxisModel(axis, variation=variation).friction_map(
             grid.positions_mm, grid.velocities_mm_min
         )
