@@ -1,4 +1,4 @@
-"""Comparison of results: lifetime deviation, limits and exit codes, fleet outliers, mismatches."""
+"""Comparison of results: deviation, limits and exit codes, fleet outliers, mismatches, causes."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import pytest
 from pydantic import ValidationError
 
 from ncmeasure.analysis.compare import (
+    AxisChange,
     Comparison,
     ComparisonError,
     Limits,
@@ -48,6 +49,8 @@ def results(
     seed: int = 0,
     quantity: Literal["torque_nm", "current_a"] = "torque_nm",
     created: str = "2026-01-15T08:30:00+00:00",
+    travel_mm: tuple[float, float] | None = None,
+    fixed_bearing_end: Literal["min", "max"] | None = None,
 ) -> Results:
     """Results of a machine whose friction is the healthy curve times ``factor``."""
     rng = np.random.default_rng(seed)
@@ -71,6 +74,8 @@ def results(
             quantity=quantity,
             unit="Nm" if quantity == "torque_nm" else "A",
             torque_constant_nm_per_a=2.1 if quantity == "torque_nm" else None,
+            travel_mm=travel_mm,
+            fixed_bearing_end=fixed_bearing_end,
             window_source="marker",
             windows=len(positions) * 2 * len(speeds),
             samples_used=100 * len(positions) * 2 * len(speeds),
@@ -292,3 +297,145 @@ def test_comparison_json_round_trip() -> None:
     assert again.format == "ncmeasure-comparison" and again.format_version == 1
     with pytest.raises(ValidationError):
         Comparison.model_validate({**comparison.model_dump(), "unexpected": 1})
+
+
+# --------------------------------------------------------------------------- cause of the change
+
+FIVE = [50.0, 212.5, 375.0, 537.5, 700.0]
+TRAVEL = (0.0, 750.0)
+
+
+def change_of(
+    factor: Factor | float,
+    *,
+    base_factor: Factor | float = 1.0,
+    fixed_bearing_end: Literal["min", "max"] = "min",
+    limits: Limits | None = None,
+) -> tuple[Comparison, AxisChange]:
+    """Base and later run on 5 positions with 1 % noise; the change of axis X."""
+
+    def run(f: Factor | float, seed: int, created: str) -> Results:
+        return results(
+            factor=f,
+            noise=0.01,
+            seed=seed,
+            created=created,
+            positions=FIVE,
+            travel_mm=TRAVEL,
+            fixed_bearing_end=fixed_bearing_end,
+        )
+
+    base = run(base_factor, 1, "2026-01-15T08:30:00+00:00")
+    later = run(factor, 2, "2028-01-15T08:30:00+00:00")
+    comparison = compare_results(base, [later], labels=["delivery", "year 3"], limits=limits)
+    assert [(c.label, c.axis) for c in comparison.changes] == [("year 3", "X"), ("year 3", "Y")]
+    return comparison, comparison.changes[0]
+
+
+def along(values: list[float]) -> Factor:
+    return lambda axis, i, direction, v: values[i]
+
+
+def test_global_increase_points_at_preload_or_carriage() -> None:
+    comparison, change = change_of(1.3)
+    assert change.signature == "flat"
+    assert change.mean_change_percent == pytest.approx(30.0, abs=1.0)
+    assert change.points == 2 * 5 * SPEEDS.size
+    assert change.positions_mm == FIVE
+    assert change.change_percent == pytest.approx([30.0] * 5, abs=1.5)
+    assert [c.cause for c in change.causes] == ["preload_or_carriage", "cover_or_seal"]
+    assert 0.5 < change.causes[0].score < 0.9
+    assert "+30" in change.causes[0].evidence and "global offset" in change.causes[0].evidence
+    assert any(
+        "axis X" in line and "likely cause" in line and "preload_or_carriage" in line
+        for line in comparison.findings
+    )
+    assert change.notes == []
+
+
+def test_global_decrease_is_preload_loss_and_scores_grow_with_size() -> None:
+    comparison, change = change_of(0.62)
+    lead = change.causes[0]
+    assert (lead.cause, change.signature) == ("preload_or_carriage", "flat")
+    assert "preload loss" in lead.evidence and "60 %" in lead.evidence
+    assert any("preload loss" in line and "axis X" in line for line in comparison.findings)
+    smaller = change_of(0.75)[1].causes[0]
+    assert smaller.cause == "preload_or_carriage"
+    assert smaller.score < lead.score
+    assert change_of(0.5)[1].causes[0].score == pytest.approx(0.9)  # beyond critical: capped
+
+
+def test_rise_towards_the_loose_bearing_against_the_base() -> None:
+    rise = along([1 + 0.3 * (p - FIVE[0]) / (FIVE[-1] - FIVE[0]) for p in FIVE])
+    comparison, change = change_of(rise)
+    assert change.signature == "rising_to_loose_bearing"
+    assert change.causes[0].cause == "loose_bearing"
+    assert change.causes[0].evidence.startswith("The change against 'delivery'")
+    assert change.change_percent[-1] - change.change_percent[0] == pytest.approx(30.0, abs=2.0)
+    assert any("loose_bearing" in line for line in comparison.findings)
+    # The fixed bearing at the other end: the same rise now runs towards the fixed bearing.
+    _, mirrored = change_of(rise, fixed_bearing_end="max")
+    assert mirrored.causes[0].cause == "fixed_bearing"
+
+
+def test_nut_pattern_step_and_small_change() -> None:
+    assert change_of(along([1.25, 1.08, 1.0, 1.08, 1.25]))[1].causes[0].cause == "screw_nut"
+    step = change_of(along([1.0, 1.0, 1.25, 1.25, 1.25]))[1]
+    assert (step.signature, step.causes[0].cause) == ("step", "cover_or_seal")
+    small = change_of(1.01)[1]
+    assert (small.signature, small.causes[0].cause) == ("flat", "none")
+    assert small.causes[0].score > 0.8
+    # The same +10 % is a global offset once the warning limit is lower.
+    strict = change_of(1.1, limits=Limits(warning_percent=5, critical_percent=15))[1]
+    assert strict.causes[0].cause == "preload_or_carriage"
+
+
+def test_the_machines_own_position_dependency_cancels() -> None:
+    own = along([1.0, 1.075, 1.15, 1.225, 1.3])  # 30 % rise in both runs
+    comparison, change = change_of(own, base_factor=own)
+    assert (change.signature, change.causes[0].cause) == ("flat", "none")
+    assert abs(change.mean_change_percent) < 2.0
+    assert comparison.runs[0].status == "ok"
+
+
+def test_a_local_pattern_on_a_moved_level_names_both() -> None:
+    _, change = change_of(along([1.3 * f for f in (1.25, 1.08, 1.0, 1.08, 1.25)]))
+    assert [c.cause for c in change.causes[:2]] == ["screw_nut", "preload_or_carriage"]
+    assert change.causes[1].score <= change.causes[0].score
+
+
+def test_unknown_bearing_end_and_few_positions_are_noted() -> None:
+    comparison = compare_results(results(), [results(factor=1.3)])  # no travel, no bearing end
+    change = comparison.changes[0]
+    assert change.causes[0].cause == "preload_or_carriage"
+    assert any("fixed-bearing end unknown" in n for n in change.notes)
+    assert any("travel unknown" in n for n in change.notes)
+    two = [50.0, 700.0]
+    comparison = compare_results(results(positions=two), [results(factor=1.3, positions=two)])
+    change = comparison.changes[0]
+    assert change.signature == "insufficient_data"
+    assert [c.cause for c in change.causes] == ["preload_or_carriage", "none"]
+    assert "fewer than 3 positions" in change.causes[0].evidence
+
+
+def test_changes_in_a_fleet_are_per_run() -> None:
+    comparison = compare_results(results("A"), [results("B", 1.3), results("C", 1.02)])
+    leads = {(c.label, c.axis): c.causes[0].cause for c in comparison.changes}
+    assert leads == {
+        ("B", "X"): "preload_or_carriage",
+        ("B", "Y"): "preload_or_carriage",
+        ("C", "X"): "none",
+        ("C", "Y"): "none",
+    }
+
+
+def test_changes_round_trip_and_old_files_load() -> None:
+    comparison, _ = change_of(along([1.0, 1.0, 1.25, 1.25, 1.25]))
+    again = Comparison.model_validate_json(comparison.model_dump_json())
+    assert again == comparison
+    assert again.changes[0].causes[0].cause == "cover_or_seal"
+    old = comparison.model_dump(mode="json")
+    del old["changes"]
+    loaded = Comparison.model_validate(old)
+    assert loaded.changes == []
+    assert loaded.findings == comparison.findings

@@ -206,6 +206,11 @@ def test_report_shows_the_numbers(report: Path, example: Example) -> None:
     assert "service 2027" in page
     assert "preload loss" in page
     assert "critical" in page
+    # and the likely cause of the change per axis
+    causes = page.split("Likely cause of the change", 1)[1].split("</table>", 1)[0]
+    assert "-25.0 %" in causes
+    assert CAUSE_TITLES["preload_or_carriage"] in causes
+    assert CAUSE_TITLES["none"] in causes  # axis Z did not change
 
 
 def test_escapes_names_from_files(example: Example, tmp_path: Path) -> None:

@@ -12,6 +12,12 @@ Points are matched by axis name, position (by index; by position within
 1 mm when the counts differ), direction and velocity (|v| within 0.5 %).
 Every mismatch is reported as one line in :attr:`Comparison.problems`;
 nothing comparable at all raises :class:`ComparisonError`.
+
+Per compared run and axis, :class:`AxisChange` diagnoses the *change*: the
+ratio other/base per velocity and position goes through
+:func:`~ncmeasure.analysis.diagnosis.position_dependency`, so the machine's
+own position dependency cancels; a flat change beyond the warning limit is a
+global offset (preload, guide carriage, lubricant).
 The limits and why they are what they are: :class:`Limits`,
 ``docs/analysis-models.md``.
 """
@@ -29,12 +35,24 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from ncmeasure import __version__
-from ncmeasure.analysis.results import AxisResult, DirectionResult, PositionResult, Results
+from ncmeasure.analysis.diagnosis import ALTERNATIVE_FACTOR, position_dependency
+from ncmeasure.analysis.results import (
+    AxisResult,
+    Cause,
+    CauseName,
+    DirectionResult,
+    PositionResult,
+    Results,
+    Signature,
+)
 from ncmeasure.errors import ComparisonError
 
 __all__ = [
     "COMPARISON_FORMAT",
     "COMPARISON_FORMAT_VERSION",
+    "GLOBAL_SCORE_AT_CRITICAL",
+    "GLOBAL_SCORE_AT_WARNING",
+    "AxisChange",
     "Comparison",
     "ComparisonError",
     "FleetAxis",
@@ -56,6 +74,12 @@ VELOCITY_MATCH_TOLERANCE = 0.005
 
 POSITION_MATCH_TOLERANCE_MM = 1.0
 """Positions matched by index are noted when they differ by more; matched by value within it."""
+
+GLOBAL_SCORE_AT_WARNING = 0.5
+"""Score of ``preload_or_carriage`` for a flat change just beyond the warning limit."""
+
+GLOBAL_SCORE_AT_CRITICAL = 0.9
+"""Score of ``preload_or_carriage`` for a flat change at or beyond the critical limit."""
 
 _MAD_TO_SIGMA = 0.6745
 """Iglewicz & Hoaglin: modified z = 0.6745·(x − median)/MAD."""
@@ -168,6 +192,33 @@ class FleetAxis(_Model):
     outliers: list[str]
 
 
+class AxisChange(_Model):
+    """The change of one axis of one run against the base, and its likely assembly cause.
+
+    The change profile comes from the ratio other/base per (direction,
+    velocity) and position, reduced to one relative profile by
+    :func:`~ncmeasure.analysis.diagnosis.position_dependency`; the rules that
+    turn it into causes are in ``docs/analysis-models.md``.
+    """
+
+    label: str
+    axis: str
+    points: int = Field(description="Matched velocity steps of the axis, both directions.")
+    mean_change_percent: float = Field(
+        description="Mean of (other − base)/base × 100 over the matched points."
+    )
+    positions_mm: list[float] = Field(description="Positions of the change profile (base).")
+    change_percent: list[float] = Field(
+        description="Change along the travel, averaged over velocities and directions."
+    )
+    spread_percent: float = Field(description="(max − min)/mean × 100 of the ratio profile.")
+    signature: Signature = Field(description="Shape of the change along the travel.")
+    causes: list[Cause] = Field(description="Likely causes of the change, best first.")
+    notes: list[str] = Field(
+        default_factory=list, description="Assumptions made (travel, fixed-bearing end)."
+    )
+
+
 class Comparison(_Model):
     """The result of ``compare_results``: the comparison.json."""
 
@@ -187,6 +238,10 @@ class Comparison(_Model):
     fleet: list[FleetAxis]
     problems: list[str] = Field(description="Everything that could not be matched.")
     findings: list[str] = Field(description="What the comparison shows, in words.")
+    changes: list[AxisChange] = Field(
+        default_factory=list,
+        description="Per compared run and axis: the change along the travel and its cause.",
+    )
 
 
 # --------------------------------------------------------------------------- matching
@@ -382,6 +437,243 @@ def _modified_z(values: Sequence[float]) -> list[float]:
     return [0.0] * x.size
 
 
+# --------------------------------------------------------------------------- change diagnosis
+
+
+def _ratio_table(
+    points: Sequence[PointDeviation],
+) -> tuple[list[float], list[float], np.ndarray]:
+    """Positions, signed row velocities and the ratio table other/base of one axis.
+
+    One row per direction and velocity: the directions stay separate rows, so
+    each keeps its own level in the fit and their disagreement counts as
+    scatter. Velocities of different positions share a row when their |v|
+    agree within the matching tolerance.
+    """
+    columns = sorted({(p.position_index, p.position_mm) for p in points})
+    column = {index: k for k, (index, _) in enumerate(columns)}
+    rows: list[tuple[float, dict[int, float]]] = []
+    for direction in ("positive", "negative"):
+        first = len(rows)
+        members = sorted(
+            (p for p in points if p.direction == direction),
+            key=lambda p: abs(p.velocity_mm_min),
+        )
+        for p in members:
+            speed = abs(p.velocity_mm_min)
+            k = column[p.position_index]
+            for reference, cells in rows[first:]:
+                if (
+                    k not in cells
+                    and abs(abs(reference) - speed) / max(abs(reference), speed)
+                    <= VELOCITY_MATCH_TOLERANCE
+                ):
+                    cells[k] = p.value / p.base
+                    break
+            else:
+                rows.append((p.velocity_mm_min, {k: p.value / p.base}))
+    table = np.full((len(rows), len(columns)), np.nan)
+    for j, (_, cells) in enumerate(rows):
+        for k, ratio in cells.items():
+            table[j, k] = ratio
+    return [mm for _, mm in columns], [v for v, _ in rows], table
+
+
+def _global_score(change_percent: float, limits: Limits) -> float:
+    """Grows from the warning score at the warning limit to the critical score at the critical."""
+    room = limits.critical_percent - limits.warning_percent
+    excess = abs(change_percent) - limits.warning_percent
+    share = 1.0 if room <= 0 else float(np.clip(excess / room, 0.0, 1.0))
+    return GLOBAL_SCORE_AT_WARNING + (GLOBAL_SCORE_AT_CRITICAL - GLOBAL_SCORE_AT_WARNING) * share
+
+
+def _global_causes(mean: float, spread: float, base_label: str, limits: Limits) -> list[Cause]:
+    """A flat change beyond the warning limit: a global offset first, then the alternatives."""
+    lead = round(_global_score(mean, limits), 3)
+    head = (
+        f"Friction changed by {mean:+.1f} % against {base_label!r}, alike at every position "
+        f"(the change varies by {spread:.1f} % along the travel), beyond the "
+        f"±{limits.warning_percent:g} % warning limit: a global offset"
+    )
+    if mean > 0:
+        return [
+            Cause(
+                cause="preload_or_carriage",
+                score=lead,
+                evidence=head + ", as from more preload of the bearings or the ball-screw nut, "
+                "a shifted or tilted guide carriage, or a change of lubricant.",
+            ),
+            Cause(
+                cause="cover_or_seal",
+                score=round(ALTERNATIVE_FACTOR * lead, 3),
+                evidence="Covers, wiper seals or the cable chain dragging over the whole travel "
+                "raise friction everywhere as well.",
+            ),
+        ]
+    return [
+        Cause(
+            cause="preload_or_carriage",
+            score=lead,
+            evidence=head + ", as from preload loss of the ball-screw nut or the bearings "
+            "(up to ~60 % over a screw's life), a loosened guide carriage, or a change of "
+            "lubricant.",
+        ),
+        Cause(
+            cause="cover_or_seal",
+            score=round(ALTERNATIVE_FACTOR * lead, 3),
+            evidence="Worn or removed wiper seals, or a cover or cable chain that no longer "
+            "drags, lower friction everywhere as well.",
+        ),
+    ]
+
+
+def _axis_change(
+    label: str,
+    base_label: str,
+    axis: str,
+    base_axis: AxisResult,
+    points: Sequence[PointDeviation],
+    limits: Limits,
+) -> AxisChange:
+    positions, velocities, table = _ratio_table(points)
+    notes = []
+    travel = base_axis.travel_mm
+    if travel is None:
+        travel = (min(positions), max(positions))
+        notes.append(
+            f"travel unknown in the base: taken as the span of the positions "
+            f"({travel[0]:g} to {travel[1]:g} mm)"
+        )
+    fixed_end = base_axis.fixed_bearing_end
+    if fixed_end is None:
+        fixed_end = "min"
+        notes.append("fixed-bearing end unknown in the base: taken as the min end of the travel")
+    dependency = position_dependency(
+        positions, velocities, table, travel_mm=travel, fixed_bearing_end=fixed_end
+    )
+    mean = float(np.mean([p.deviation_percent for p in points]))
+    average = next((p for p in dependency.profiles if p.velocity_mm_min is None), None)
+    profile_mm = average.positions_mm if average else []
+    change = [(value - 1.0) * 100.0 for value in average.values] if average else []
+    spread = dependency.spread_percent
+    within = abs(mean) <= limits.warning_percent
+    prefix = (
+        f"The change against {base_label!r} (ratio {label!r}/{base_label!r}, the machine's "
+        "own position dependency divided out): "
+    )
+    causes: list[Cause]
+    if dependency.signature == "flat" and not within:
+        causes = _global_causes(mean, spread, base_label, limits)
+    elif dependency.signature == "flat":
+        share = abs(mean) / limits.warning_percent
+        causes = [
+            Cause(
+                cause="none",
+                score=round(0.9 - 0.4 * share, 3),
+                evidence=f"Friction changed by {mean:+.1f} % against {base_label!r}, alike at "
+                f"every position (the change varies by {spread:.1f} % along the travel), within "
+                f"the ±{limits.warning_percent:g} % warning limit: no assembly change shows.",
+            ),
+            Cause(
+                cause="preload_or_carriage",
+                score=round(0.1 + 0.3 * share, 3),
+                evidence="A change of preload, guide carriage or lubricant would shift friction "
+                "alike at every position; this one stays within the warning limit.",
+            ),
+        ]
+    else:
+        causes = [c.model_copy(update={"evidence": prefix + c.evidence}) for c in dependency.causes]
+        if dependency.signature == "insufficient_data" and not within:
+            causes.insert(
+                0,
+                Cause(
+                    cause="preload_or_carriage",
+                    score=0.3,
+                    evidence=f"Friction changed by {mean:+.1f} % against {base_label!r} on "
+                    f"average, beyond the ±{limits.warning_percent:g} % warning limit, but "
+                    "with fewer than 3 positions a global offset (preload, guide carriage, "
+                    "lubricant) cannot be told from a local fault.",
+                ),
+            )
+        elif change and (
+            min(change) > limits.warning_percent or max(change) < -limits.warning_percent
+        ):
+            # A local pattern on top of a level that moved beyond the limit everywhere.
+            least = min(change, key=abs)
+            causes.insert(
+                1,
+                Cause(
+                    cause="preload_or_carriage",
+                    score=round(min(_global_score(least, limits), causes[0].score), 3),
+                    evidence=f"Besides the local pattern, friction changed by at least "
+                    f"{least:+.1f} % at every position, beyond the ±"
+                    f"{limits.warning_percent:g} % warning limit: the whole level moved too "
+                    "(preload, guide carriage, lubricant).",
+                ),
+            )
+    return AxisChange(
+        label=label,
+        axis=axis,
+        points=len(points),
+        mean_change_percent=mean,
+        positions_mm=profile_mm,
+        change_percent=change,
+        spread_percent=spread,
+        signature=dependency.signature,
+        causes=causes,
+        notes=notes,
+    )
+
+
+def _axis_changes(
+    label: str,
+    base_label: str,
+    base: Results,
+    points: Sequence[PointDeviation],
+    limits: Limits,
+) -> list[AxisChange]:
+    by_axis: dict[str, list[PointDeviation]] = {}
+    for p in points:
+        by_axis.setdefault(p.axis, []).append(p)
+    return [
+        _axis_change(label, base_label, axis, base.axes[axis], members, limits)
+        for axis, members in sorted(by_axis.items())
+    ]
+
+
+_CHANGE_SHAPE: dict[Signature, str] = {
+    "flat": "alike along the travel",
+    "rising_to_loose_bearing": "rising towards the loose bearing",
+    "rising_to_fixed_bearing": "rising towards the fixed bearing",
+    "high_at_both_ends": "largest at both ends",
+    "step": "a step along the travel",
+    "irregular": "irregular along the travel",
+    "insufficient_data": "shape unknown (too few positions)",
+}
+
+_CAUSE_WORDS: dict[CauseName, str] = {
+    "none": "no assembly change",
+    "preload_or_carriage": "preload of bearings or ball-screw nut, guide carriage or lubricant",
+    "loose_bearing": "loose bearing shifted or tilted",
+    "fixed_bearing": "fixed bearing shifted or tilted",
+    "screw_nut": "ball-screw nut shifted or tilted",
+    "guide_rail": "guide rail misaligned",
+    "cover_or_seal": "a sticking cover, wiper seal or cable chain",
+}
+
+
+def _change_line(change: AxisChange, base_label: str) -> str:
+    lead = change.causes[0]
+    words = _CAUSE_WORDS[lead.cause]
+    if lead.cause == "preload_or_carriage" and change.mean_change_percent < 0:
+        words = "preload loss of ball-screw nut or bearings, guide carriage or lubricant"
+    return (
+        f"{change.label!r} against {base_label!r}, axis {change.axis}: mean change "
+        f"{change.mean_change_percent:+.1f} %, {_CHANGE_SHAPE[change.signature]}; likely "
+        f"cause: {words} ({lead.cause}, score {lead.score:.2f})."
+    )
+
+
 # --------------------------------------------------------------------------- public
 
 
@@ -436,6 +728,7 @@ def compare_results(
     deviations: list[PointDeviation] = []
     groups: list[GroupDeviation] = []
     runs: list[RunSummary] = []
+    changes: list[AxisChange] = []
     base_cells: dict[_Cell, float] = {}
     run_cells: list[dict[_Cell, float]] = []
     empty = []
@@ -450,6 +743,7 @@ def compare_results(
         worst = max(run_groups, key=lambda g: abs(g.median_deviation_percent))
         deviations.extend(points)
         groups.extend(run_groups)
+        changes.extend(_axis_changes(label, base_label, base, points, limits))
         runs.append(
             RunSummary(
                 label=label,
@@ -478,7 +772,7 @@ def compare_results(
     if mode == "fleet":
         fleet = _fleet(base, base_label, other_labels, base_cells, run_cells, limits, problems)
 
-    findings = _findings(mode, base_label, runs, groups, fleet, limits, problems)
+    findings = _findings(mode, base_label, runs, groups, changes, fleet, limits, problems)
     return Comparison(
         mode=mode,
         base=base_label,
@@ -490,6 +784,7 @@ def compare_results(
         fleet=fleet,
         problems=problems,
         findings=findings,
+        changes=changes,
     )
 
 
@@ -540,11 +835,46 @@ def _fleet(
     return out
 
 
+def _global_or_local(label: str, groups: Sequence[GroupDeviation], limits: Limits) -> list[str]:
+    """Lifetime mode: per axis beyond the warning limit, whether the change is global."""
+    lines = []
+    for axis in sorted({g.axis for g in groups if g.label == label}):
+        medians = [
+            g.median_deviation_percent for g in groups if g.label == label and g.axis == axis
+        ]
+        low, high = min(medians), max(medians)
+        if max(abs(low), abs(high)) <= limits.warning_percent:
+            continue
+        span = (
+            f"{low:+.1f} %" if f"{low:.1f}" == f"{high:.1f}" else f"{low:+.1f} % to {high:+.1f} %"
+        )
+        if high < 0 and high - low <= limits.warning_percent:
+            lines.append(
+                f"Axis {axis}: friction lower at every position and direction "
+                f"({span}): a global decrease, as from preload loss "
+                "of the ball-screw nut or bearings (up to ~60 % over a screw's life) or a "
+                "change of lubricant."
+            )
+        elif low > 0 and high - low <= limits.warning_percent:
+            lines.append(
+                f"Axis {axis}: friction higher at every position and direction "
+                f"({span}): a global increase, as from more preload, "
+                "a guide carriage, covers or lubrication."
+            )
+        else:
+            lines.append(
+                f"Axis {axis}: the change differs along the travel ({low:+.1f} % to "
+                f"{high:+.1f} %): a local cause (the diagnosis of the change follows)."
+            )
+    return lines
+
+
 def _findings(
     mode: str,
     base_label: str,
     runs: Sequence[RunSummary],
     groups: Sequence[GroupDeviation],
+    changes: Sequence[AxisChange],
     fleet: Sequence[FleetAxis],
     limits: Limits,
     problems: Sequence[str],
@@ -564,41 +894,9 @@ def _findings(
                 f"{run.label!r} against {base_label!r}: largest change {run.worst}; "
                 f"{run.status} ({band})."
             )
-        if mode != "lifetime":
-            continue
-        for axis in sorted({g.axis for g in groups if g.label == run.label}):
-            medians = [
-                g.median_deviation_percent
-                for g in groups
-                if g.label == run.label and g.axis == axis
-            ]
-            low, high = min(medians), max(medians)
-            if max(abs(low), abs(high)) <= limits.warning_percent:
-                continue
-            span = (
-                f"{low:+.1f} %"
-                if f"{low:.1f}" == f"{high:.1f}"
-                else f"{low:+.1f} % to {high:+.1f} %"
-            )
-            if high < 0 and high - low <= limits.warning_percent:
-                lines.append(
-                    f"Axis {axis}: friction lower at every position and direction "
-                    f"({span}): a global decrease, as from preload loss "
-                    "of the ball-screw nut or bearings (up to ~60 % over a screw's life) or a "
-                    "change of lubricant."
-                )
-            elif low > 0 and high - low <= limits.warning_percent:
-                lines.append(
-                    f"Axis {axis}: friction higher at every position and direction "
-                    f"({span}): a global increase, as from more preload, "
-                    "a guide carriage, covers or lubrication."
-                )
-            else:
-                lines.append(
-                    f"Axis {axis}: the change differs along the travel ({low:+.1f} % to "
-                    f"{high:+.1f} %): a local cause; compare the position dependency of "
-                    "both runs."
-                )
+        if mode == "lifetime":
+            lines.extend(_global_or_local(run.label, groups, limits))
+        lines.extend(_change_line(c, base_label) for c in changes if c.label == run.label)
     for stats_ in fleet:
         text = (
             f"Axis {stats_.axis}: mean friction {stats_.mean:.4g} {stats_.unit} over "

@@ -764,6 +764,37 @@ def _known_comparison(comparison: Comparison, figure: Figure | None) -> Html:
         )
     if figure is not None:
         parts.append(_img(figure))
+    if comparison.changes:
+        rows = [
+            [
+                change.label,
+                change.axis,
+                f"{change.mean_change_percent:+.1f} %",
+                SIGNATURE_SHORT[change.signature],
+                CAUSE_TITLES[change.causes[0].cause],
+                f"{change.causes[0].score:.2f}",
+            ]
+            for change in comparison.changes
+            if change.causes
+        ]
+        parts.append(tag("h3", "Likely cause of the change"))
+        parts.append(
+            _table(
+                ["Run", "Axis", "Mean change", "Change along the travel", "Likely cause", "Score"],
+                rows,
+                numeric=(2, 5),
+            )
+        )
+        parts.append(
+            tag(
+                "p",
+                "From the ratio against the base per velocity and position, so the "
+                "machine's own position dependency cancels; a change alike at every position "
+                "beyond the warning limit is a global offset (preload, guide carriage, "
+                "lubricant).",
+                class_="note",
+            )
+        )
     if comparison.groups:
         rows = [
             [
