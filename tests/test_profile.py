@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from ncmeasure.profile import move_time_s, ramp
+from ncmeasure.profile import move_time_s, ramp, s_curve
 
 
 def _integrate_ramp(v_m_s: float, a: float, j: float) -> tuple[float, float]:
@@ -59,3 +59,40 @@ def test_move_time_long_and_short_moves() -> None:
     assert move_time_s(0.0, 6000, 2.0, 40.0) == 0.0
     times = [move_time_s(d, 6000, 2.0, 40.0) for d in np.linspace(0.01, 50, 40)]
     assert all(b >= a for a, b in itertools.pairwise(times))
+
+
+@pytest.mark.parametrize(
+    ("distance", "v_mm_min", "a", "j"),
+    [
+        (740.0, 15000, 2.0, 40.0),
+        (0.2, 50, 2.0, 40.0),
+        (100.0, 30000, 3.0, 60.0),
+        (5.0, 15000, 2.0, 40.0),
+    ],
+)
+def test_s_curve_is_a_consistent_jerk_limited_move(
+    distance: float, v_mm_min: float, a: float, j: float
+) -> None:
+    curve = s_curve(distance, v_mm_min, a, j)
+    assert curve.duration_s == pytest.approx(move_time_s(distance, v_mm_min, a, j), rel=1e-9)
+    t = np.linspace(-0.1, curve.duration_s + 0.1, 400_001)
+    s, v, acc = curve.at(t)
+    dt = t[1] - t[0]
+    assert s[0] == 0.0 and s[-1] == pytest.approx(distance, abs=1e-9)
+    assert v[0] == v[-1] == 0.0 and acc[0] == acc[-1] == 0.0
+    assert np.all(np.diff(s) >= -1e-12)  # never moves back
+    assert v.max() <= v_mm_min * (1 + 1e-9)
+    assert np.abs(acc).max() <= a * (1 + 1e-9)
+    # velocity is the derivative of the distance, acceleration that of the velocity,
+    # and the jerk stays within its limit
+    assert np.max(np.abs(np.gradient(s, dt) * 60.0 - v)) < 1e-3 * max(v_mm_min, 1.0)
+    assert np.max(np.abs(np.gradient(v / 60_000.0, dt) - acc)[1:-1]) < 1e-3 * a + 1e-4
+    jerk = np.diff(acc) / dt
+    assert np.abs(jerk).max() <= j * (1 + 1e-3)
+
+
+def test_s_curve_of_no_distance_is_standstill() -> None:
+    curve = s_curve(0.0, 1000.0, 2.0, 40.0)
+    assert curve.duration_s == 0.0
+    s, v, a = curve.at(np.array([0.0, 1.0]))
+    assert s.tolist() == v.tolist() == a.tolist() == [0.0, 0.0]

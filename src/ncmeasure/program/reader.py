@@ -45,6 +45,8 @@ class Motion:
     marker: float
     calls: int
     """How many subprogram calls had been made when the move started."""
+    file: str = ""
+    """File name of the program."""
 
 
 @dataclass(frozen=True)
@@ -55,6 +57,7 @@ class Dwell:
     line: int
     seconds: float
     marker: float
+    file: str = ""
 
 
 @dataclass
@@ -273,6 +276,7 @@ class _Interpreter:
             feed_mm_min=self.feed if self.mode == "feed" else None,
             marker=self.marker_value,
             calls=len(self.trace.calls),
+            file=program.file,
         )
         self.trace.motions.append(motion)
         self.trace.steps.append(motion)
@@ -280,7 +284,9 @@ class _Interpreter:
 
     def _dwell(self, program: _Program, number: int, seconds: float) -> None:
         self.trace.dwells_s.append(seconds)
-        self.trace.steps.append(Dwell(program.key, number, seconds, self.marker_value))
+        self.trace.steps.append(
+            Dwell(program.key, number, seconds, self.marker_value, program.file)
+        )
 
     def _accepted(self, address: str, value_text: str) -> bool:
         if address not in "GM":

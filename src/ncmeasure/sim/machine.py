@@ -339,7 +339,8 @@ class VirtualMachine:
             low, high = axis.travel_mm
             if not low - 1e-6 <= value <= high + 1e-6:
                 raise ProgramError(
-                    f"{step.program}:{step.line}: axis {axis.name} would move to {value:g} mm, "
+                    f"{step.file or step.program}:{step.line}: axis {axis.name} would move to "
+                    f"{value:g} mm, "
                     f"outside its travel [{low:g}, {high:g}] mm; the virtual machine stops"
                 )
 

@@ -1,0 +1,159 @@
+"""The virtual machine executes the generated program: its motion is the program's."""
+
+from __future__ import annotations
+
+import pickle
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ncmeasure.config import MachineConfig, parse_machine
+from ncmeasure.errors import ConfigError, ProgramError
+from ncmeasure.examples import demo_machine
+from ncmeasure.plan import Schedule
+from ncmeasure.program import generate_programs
+from ncmeasure.sim.axis import Variation
+from ncmeasure.sim.machine import MachineRun, VirtualMachine
+
+
+def _programs(tmp: Path, controller: str) -> tuple[MachineConfig, Schedule, Path]:
+    config = parse_machine(tomllib.loads(demo_machine(controller, "canopen")))
+    generated = generate_programs(config)
+    folder = tmp / controller
+    generated.write(folder)
+    return config, generated.schedule, folder
+
+
+@pytest.fixture(scope="module")
+def linuxcnc(tmp_path_factory: pytest.TempPathFactory) -> tuple[Schedule, Path, MachineRun]:
+    config, schedule, folder = _programs(tmp_path_factory.mktemp("vm"), "linuxcnc")
+    return schedule, folder, VirtualMachine.from_programs(config, folder).run()
+
+
+def test_marked_spans_are_the_scheduled_windows(
+    linuxcnc: tuple[Schedule, Path, MachineRun],
+) -> None:
+    schedule, _, run = linuxcnc
+    planned = [w for axis in schedule.axes for w in axis.windows]
+    spans = [s for s in run.spans if s.axis]
+    assert len(spans) == len(planned) == 120
+    for span, window in zip(spans, planned, strict=True):
+        assert span.axis == window.axis
+        assert span.marker == window.id
+        assert span.velocity_mm_min == pytest.approx(window.velocity_mm_min, rel=1e-9)
+        length = abs(window.window_end_mm - window.window_start_mm)
+        expected_s = length / abs(window.velocity_mm_min) * 60.0
+        assert span.end_s - span.start_s == pytest.approx(expected_s, abs=1e-6)
+        # at constant velocity: the commanded velocity holds over the whole span
+        axis = run.axes.index(span.axis)
+        inside = slice(int(np.ceil(span.start_s / run.dt_s)), int(np.floor(span.end_s / run.dt_s)))
+        assert np.allclose(run.velocity_cmd_mm_min[axis, inside], span.velocity_mm_min)
+        # and the axis is where the schedule puts the window (the actual position lags
+        # the command by the servo's following error, v · 2ζ/ω)
+        lag = abs(span.velocity_mm_min) / 60.0 * 2 * 0.7 / (2 * np.pi * 20.0)
+        middle = run.position_mm[axis, round((span.start_s + span.end_s) / 2 / run.dt_s)]
+        centre = (window.window_start_mm + window.window_end_mm) / 2
+        assert abs(middle - centre) <= lag * 1.05 + 0.01
+
+
+def test_program_duration_matches_the_planned_estimate(
+    linuxcnc: tuple[Schedule, Path, MachineRun],
+) -> None:
+    schedule, _, run = linuxcnc
+    program_s = run.program_end_s - run.program_start_s
+    assert program_s == pytest.approx(schedule.duration_s, rel=0.05)
+    # the axes stand still before and after the program
+    before = round(run.program_start_s / run.dt_s) - 1
+    assert np.all(run.velocity_cmd_mm_min[:, : before + 1] == 0.0)
+    assert np.all(run.velocity_cmd_mm_min[:, round(run.program_end_s / run.dt_s) + 1 :] == 0.0)
+
+
+def test_axes_stay_inside_their_limits(linuxcnc: tuple[Schedule, Path, MachineRun]) -> None:
+    schedule, _, run = linuxcnc
+    for i, summary in enumerate(schedule.axes):
+        low, high = summary.travel_mm
+        command = run.velocity_cmd_mm_min[i]
+        assert np.abs(command).max() <= summary.max_velocity_mm_min * (1 + 1e-9)
+        position = np.cumsum(command) * run.dt_s / 60.0  # integrated command, relative
+        assert np.ptp(position) <= high - low
+
+
+def test_sinumerik_programs_move_the_machine_exactly_like_linuxcnc_programs(
+    tmp_path: Path, linuxcnc: tuple[Schedule, Path, MachineRun]
+) -> None:
+    config, _, folder = _programs(tmp_path, "sinumerik-840d")
+    sinumerik = VirtualMachine.from_programs(config, folder).run()
+    reference = linuxcnc[2]
+    assert sinumerik.marker.shape == reference.marker.shape
+    assert np.allclose(sinumerik.velocity_cmd_mm_min, reference.velocity_cmd_mm_min)
+    assert np.allclose(sinumerik.position_mm, reference.position_mm, atol=1e-9)
+    assert [(s.marker, s.axis) for s in sinumerik.spans] == [
+        (s.marker, s.axis) for s in reference.spans
+    ]
+
+
+def test_a_wrong_program_gives_wrong_data(tmp_path: Path) -> None:
+    config, _, folder = _programs(tmp_path, "linuxcnc")
+    sub = folder / "friction_x.ngc"
+    text = sub.read_text(encoding="utf-8")
+    # the first window's run-up asks for 100 mm/min; make it 130
+    assert "F100\n" in text
+    sub.write_text(text.replace("F100\n", "F130\n", 1), encoding="utf-8")
+    run = VirtualMachine.from_programs(config, folder).run()
+    first = next(s for s in run.spans if s.axis == "X")
+    assert first.velocity_mm_min == pytest.approx(130.0)
+
+
+def test_a_move_outside_the_travel_stops_the_virtual_machine(tmp_path: Path) -> None:
+    config, _, folder = _programs(tmp_path, "linuxcnc")
+    sub = folder / "friction_x.ngc"
+    text = sub.read_text(encoding="utf-8")
+    sub.write_text(text.replace("G0 X5.000", "G0 X-20.000", 1), encoding="utf-8")
+    with pytest.raises(ProgramError, match=r"friction_x.*axis X would move to -20 mm"):
+        VirtualMachine.from_programs(config, folder)
+
+
+def test_a_variation_for_an_unknown_axis_is_refused(tmp_path: Path) -> None:
+    config, _, folder = _programs(tmp_path, "linuxcnc")
+    with pytest.raises(ConfigError) as info:
+        VirtualMachine.from_programs(config, folder, variations={"Q": Variation(nut_shift_um=10)})
+    assert "axis Q: the machine has no such axis" in str(info.value.problems)
+
+
+def test_runs_are_reproducible_and_pickle(tmp_path: Path) -> None:
+    config, _, folder = _programs(tmp_path, "linuxcnc")
+    first = VirtualMachine.from_programs(config, folder, seed=3).run()
+    again = VirtualMachine.from_programs(config, folder, seed=3).run()
+    other = VirtualMachine.from_programs(config, folder, seed=4).run()
+    assert np.array_equal(first.current_a, again.current_a)
+    assert not np.array_equal(first.current_a, other.current_a)
+    copy = pickle.loads(pickle.dumps(first))
+    t = first.spans[5].start_s + 0.01
+    assert copy.state(1, t) == first.state(1, t)
+    # before the start and after the end: standing still where the machine is
+    assert first.state(0, -5.0).velocity_cmd_mm_min == 0.0
+    end = first.state(0, first.duration_s + 100.0)
+    assert end.velocity_cmd_mm_min == 0.0
+
+
+def test_the_current_carries_friction_gravity_and_inertia(
+    linuxcnc: tuple[Schedule, Path, MachineRun], tmp_path: Path
+) -> None:
+    config, _, folder = _programs(tmp_path, "linuxcnc")
+    vm = VirtualMachine.from_programs(config, folder)
+    run = linuxcnc[2]
+    for span in (s for s in run.spans if s.axis):
+        axis = run.axes.index(span.axis)
+        model = vm.models[span.axis]
+        inside = slice(int(np.ceil(span.start_s / run.dt_s)), int(np.floor(span.end_s / run.dt_s)))
+        current = float(np.median(run.current_a[axis, inside]))
+        # friction, gravity, cogging at the actual positions, inertia 0 at constant velocity
+        noiseless = model.motor_current_a(run.position_mm[axis, inside], span.velocity_mm_min)
+        assert current == pytest.approx(float(np.median(noiseless)), abs=0.012), span
+    # the vertical axis Z holds its load: about 7.4 A at standstill
+    z = run.axes.index("Z")
+    assert float(np.median(run.current_a[z, :100])) == pytest.approx(
+        vm.models["Z"].axis.gravity_torque_nm / 2.1, abs=0.05
+    )
