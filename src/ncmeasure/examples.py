@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["EXAMPLE_TEMPLATE", "example_machine"]
+__all__ = ["DEMO_LINKS", "DEMO_TEMPLATE", "EXAMPLE_TEMPLATE", "demo_machine", "example_machine"]
 
 EXAMPLE_TEMPLATE = """\
 # ncmeasure machine file: one file per machine type; generate the program once
@@ -76,3 +76,91 @@ both_directions = true
 def example_machine(controller: str) -> str:
     """The example machine file for ``controller``."""
     return EXAMPLE_TEMPLATE.format(controller=controller)
+
+
+DEMO_TEMPLATE = """\
+# The machine of `ncmeasure demo`: a virtual machine tool with the feed axis of
+# the method's test rig (X: 750 mm travel, 40 mm ball screw with 20 mm lead,
+# k_T = 2.1 Nm/A) and a vertical axis built alike (Z). Edit it and run
+# `ncmeasure generate` / `ncmeasure simulate` on it like on any machine file.
+
+[machine]
+name = "ncmeasure demo"
+controller = "{controller}"
+program = "FRICTION"
+
+[[axes]]
+name = "X"
+travel_mm = [0.0, 750.0]
+park_mm = 375.0
+max_velocity_mm_min = 30000
+max_acceleration_m_s2 = 3.0
+max_jerk_m_s3 = 60.0
+fixed_bearing_end = "min"
+torque_constant_nm_per_a = 2.1
+rated_current_a = 17.7
+screw_lead_mm = 20.0
+link = {{ {x_link} }}
+
+[[axes]]
+name = "Z"
+travel_mm = [-500.0, 0.0]
+park_mm = -5.0
+max_velocity_mm_min = 24000
+max_acceleration_m_s2 = 3.0
+max_jerk_m_s3 = 60.0
+fixed_bearing_end = "max"
+vertical = true
+torque_constant_nm_per_a = 2.1
+rated_current_a = 17.7
+screw_lead_mm = 20.0
+link = {{ {z_link} }}
+
+# A short measurement: 5 positions (next to the fixed bearing, between, in the
+# middle, between, next to the loose bearing), 6 velocity steps per direction.
+# A machine at delivery would use 30 to 50 steps.
+[measurement]
+positions = 5
+velocity_steps = 6
+min_velocity_mm_min = 100
+max_velocity_mm_min = 12000
+window_samples = 50               # 50 x 4 ms = 0.2 s of constant velocity
+sample_period_ms = 4.0
+warmup_strokes = 1
+
+{link_table}
+"""
+
+_DEMO_LINKS = {
+    "canopen": (
+        "[link]                          # simulated CiA 402 drives on a python-can virtual bus\n"
+        'type = "canopen"\n'
+        'interface = "virtual"\n'
+        'channel = "ncmeasure-demo"\n'
+        "sync_hz = 250",
+        "node_id = {node}, increments_per_rev = 131072, read_velocity_demand = true",
+    ),
+    "modbus": (
+        "[link]                          # a simulated Modbus TCP drive on this computer\n"
+        'type = "modbus"\n'
+        'host = "127.0.0.1"\n'
+        "port = 5020\n"
+        'register_map = "generic"\n'
+        "poll_hz = 125                   # Modbus drives are polled; 125 Hz is a brisk rate",
+        "unit_id = {node}",
+    ),
+}
+
+DEMO_LINKS = tuple(_DEMO_LINKS)
+"""The links ``ncmeasure demo`` can record through."""
+
+
+def demo_machine(controller: str = "linuxcnc", link: str = "canopen") -> str:
+    """The machine file of ``ncmeasure demo`` for ``controller`` and ``link``."""
+    table, axis = _DEMO_LINKS[link]
+    return DEMO_TEMPLATE.format(
+        controller=controller,
+        link_table=table,
+        x_link=axis.format(node=1),
+        z_link=axis.format(node=2),
+    )

@@ -332,9 +332,9 @@ def test_cover_step_is_a_step_of_the_given_size() -> None:
     assert float(negative) == pytest.approx(-1.2 * float(base[-1]), rel=1e-9)
 
 
-def test_cover_step_defaults_to_mid_travel_and_must_be_inside() -> None:
-    model = AxisModel(variation=Variation(cover_step=0.2))
-    below, above = model.friction_torque_nm(np.array([370.0, 380.0]), FEED_MM_MIN)
+def test_cover_step_defaults_to_40_percent_of_the_travel_and_must_be_inside() -> None:
+    model = AxisModel(variation=Variation(cover_step=0.2))  # travel 0..750 mm: step at 300 mm
+    below, above = model.friction_torque_nm(np.array([295.0, 305.0]), FEED_MM_MIN)
     assert above / below == pytest.approx(1.2, rel=1e-9)
     with pytest.raises(ConfigError, match="invalid assembly variation") as info:
         AxisModel(variation=Variation(cover_step=0.2, cover_step_position_mm=900.0))

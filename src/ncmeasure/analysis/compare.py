@@ -35,7 +35,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from ncmeasure import __version__
-from ncmeasure.analysis.diagnosis import ALTERNATIVE_FACTOR, position_dependency
+from ncmeasure.analysis.diagnosis import (
+    ALTERNATIVE_FACTOR,
+    FLAT_THRESHOLD_PERCENT,
+    position_dependency,
+)
 from ncmeasure.analysis.results import (
     AxisResult,
     Cause,
@@ -50,6 +54,7 @@ from ncmeasure.errors import ComparisonError
 __all__ = [
     "COMPARISON_FORMAT",
     "COMPARISON_FORMAT_VERSION",
+    "GLOBAL_CHANGE_PERCENT",
     "GLOBAL_SCORE_AT_CRITICAL",
     "GLOBAL_SCORE_AT_WARNING",
     "AxisChange",
@@ -75,8 +80,16 @@ VELOCITY_MATCH_TOLERANCE = 0.005
 POSITION_MATCH_TOLERANCE_MM = 1.0
 """Positions matched by index are noted when they differ by more; matched by value within it."""
 
+GLOBAL_CHANGE_PERCENT = FLAT_THRESHOLD_PERCENT
+"""A flat change of the mean beyond this is a global offset worth a cause.
+
+The same 5 % below which a profile along the travel counts as flat: above the
+few-percent repeatability of runs (method.md) and independent of the warning
+limit, which says whether the change matters, not what caused it.
+"""
+
 GLOBAL_SCORE_AT_WARNING = 0.5
-"""Score of ``preload_or_carriage`` for a flat change just beyond the warning limit."""
+"""Score of ``preload_or_carriage`` for a flat change just beyond ``GLOBAL_CHANGE_PERCENT``."""
 
 GLOBAL_SCORE_AT_CRITICAL = 0.9
 """Score of ``preload_or_carriage`` for a flat change at or beyond the critical limit."""
@@ -341,6 +354,15 @@ def _match_points(
     return out
 
 
+def _offset(axis: AxisResult) -> float:
+    """The direction-independent part of an axis' values (gravity on a vertical axis).
+
+    Friction is what remains: ``sign · (median − offset)``. Without both
+    directions there is no offset, and nothing is removed.
+    """
+    return axis.offset.value if axis.offset is not None else 0.0
+
+
 def _deviations(
     label: str, base: Results, other: Results, problems: list[str]
 ) -> tuple[list[PointDeviation], dict[_Cell, float], dict[_Cell, float]]:
@@ -372,9 +394,10 @@ def _deviations(
                     continue
                 where = f"{label}: axis {axis} position {bp.position_index} {direction}"
                 sign = _SIGN[direction]
+                b_off, o_off = _offset(ba), _offset(oa)
                 skipped = 0
                 for i, velocity, b_med, o_med in _match_points(where, bd, od, problems):
-                    b_val, o_val = sign * b_med, sign * o_med
+                    b_val, o_val = sign * (b_med - b_off), sign * (o_med - o_off)
                     if not (b_val > 0 and math.isfinite(o_val)):
                         skipped += 1
                         continue
@@ -480,9 +503,10 @@ def _ratio_table(
 
 
 def _global_score(change_percent: float, limits: Limits) -> float:
-    """Grows from the warning score at the warning limit to the critical score at the critical."""
-    room = limits.critical_percent - limits.warning_percent
-    excess = abs(change_percent) - limits.warning_percent
+    """Grows from the warning score at ``GLOBAL_CHANGE_PERCENT`` to the critical score at the
+    critical limit."""
+    room = limits.critical_percent - GLOBAL_CHANGE_PERCENT
+    excess = abs(change_percent) - GLOBAL_CHANGE_PERCENT
     share = 1.0 if room <= 0 else float(np.clip(excess / room, 0.0, 1.0))
     return GLOBAL_SCORE_AT_WARNING + (GLOBAL_SCORE_AT_CRITICAL - GLOBAL_SCORE_AT_WARNING) * share
 
@@ -493,7 +517,7 @@ def _global_causes(mean: float, spread: float, base_label: str, limits: Limits) 
     head = (
         f"Friction changed by {mean:+.1f} % against {base_label!r}, alike at every position "
         f"(the change varies by {spread:.1f} % along the travel), beyond the "
-        f"±{limits.warning_percent:g} % warning limit: a global offset"
+        f"±{GLOBAL_CHANGE_PERCENT:g} % of run-to-run repeatability: a global offset"
     )
     if mean > 0:
         return [
@@ -556,7 +580,7 @@ def _axis_change(
     profile_mm = average.positions_mm if average else []
     change = [(value - 1.0) * 100.0 for value in average.values] if average else []
     spread = dependency.spread_percent
-    within = abs(mean) <= limits.warning_percent
+    within = abs(mean) <= GLOBAL_CHANGE_PERCENT
     prefix = (
         f"The change against {base_label!r} (ratio {label!r}/{base_label!r}, the machine's "
         "own position dependency divided out): "
@@ -565,20 +589,21 @@ def _axis_change(
     if dependency.signature == "flat" and not within:
         causes = _global_causes(mean, spread, base_label, limits)
     elif dependency.signature == "flat":
-        share = abs(mean) / limits.warning_percent
+        share = abs(mean) / GLOBAL_CHANGE_PERCENT
         causes = [
             Cause(
                 cause="none",
                 score=round(0.9 - 0.4 * share, 3),
                 evidence=f"Friction changed by {mean:+.1f} % against {base_label!r}, alike at "
                 f"every position (the change varies by {spread:.1f} % along the travel), within "
-                f"the ±{limits.warning_percent:g} % warning limit: no assembly change shows.",
+                f"±{GLOBAL_CHANGE_PERCENT:g} % (run-to-run repeatability): no assembly change "
+                "shows.",
             ),
             Cause(
                 cause="preload_or_carriage",
                 score=round(0.1 + 0.3 * share, 3),
                 evidence="A change of preload, guide carriage or lubricant would shift friction "
-                "alike at every position; this one stays within the warning limit.",
+                "alike at every position; this one stays within the repeatability.",
             ),
         ]
     else:
@@ -590,13 +615,13 @@ def _axis_change(
                     cause="preload_or_carriage",
                     score=0.3,
                     evidence=f"Friction changed by {mean:+.1f} % against {base_label!r} on "
-                    f"average, beyond the ±{limits.warning_percent:g} % warning limit, but "
+                    f"average, beyond ±{GLOBAL_CHANGE_PERCENT:g} % (run-to-run repeatability), but "
                     "with fewer than 3 positions a global offset (preload, guide carriage, "
                     "lubricant) cannot be told from a local fault.",
                 ),
             )
         elif change and (
-            min(change) > limits.warning_percent or max(change) < -limits.warning_percent
+            min(change) > GLOBAL_CHANGE_PERCENT or max(change) < -GLOBAL_CHANGE_PERCENT
         ):
             # A local pattern on top of a level that moved beyond the limit everywhere.
             least = min(change, key=abs)
@@ -606,8 +631,8 @@ def _axis_change(
                     cause="preload_or_carriage",
                     score=round(min(_global_score(least, limits), causes[0].score), 3),
                     evidence=f"Besides the local pattern, friction changed by at least "
-                    f"{least:+.1f} % at every position, beyond the ±"
-                    f"{limits.warning_percent:g} % warning limit: the whole level moved too "
+                    f"{least:+.1f} % at every position, beyond ±{GLOBAL_CHANGE_PERCENT:g} % "
+                    "(run-to-run repeatability): the whole level moved too "
                     "(preload, guide carriage, lubricant).",
                 ),
             )

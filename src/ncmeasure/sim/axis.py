@@ -55,7 +55,9 @@ Assembly variances (:class:`Variation`) change the normal forces:
   preload with the constraint stiffness of table and carriages: the guide
   friction follows the bow and peaks mid-travel;
 * a sticking cover adds a step of ``cover_step`` × the axis' nominal
-  friction beyond a position.
+  friction beyond a position (default 40 % of the travel from its minimum:
+  between two measuring positions for 3 or 5 evenly spaced ones, so no
+  window straddles the step).
 
 :data:`EXAMPLE_VARIATIONS` holds one variation per assembly cause, of a size
 the analysis recognises on the rig axis.
@@ -400,6 +402,14 @@ class AxisParameters:
         return self.moved_mass_kg * _G_M_S2 * self.screw_lead_mm / 1000.0 / (2 * math.pi)
 
 
+COVER_STEP_DEFAULT = 0.4
+"""Default place of a cover step, as a fraction of the travel from its minimum.
+
+Not mid-travel: with 3 or 5 evenly spaced measuring positions a window sits
+at mid-travel, and a step inside a window is half in, half out.
+"""
+
+
 @dataclass(frozen=True)
 class Variation:
     """Assembly variances of one axis (all zero: a well-assembled axis).
@@ -418,7 +428,8 @@ class Variation:
             shifted bearing to the analysis). The sign does not matter.
         cover_step: Friction step of a sticking cover, relative to the axis'
             nominal friction (0.2 = a 20 % step).
-        cover_step_position_mm: Where the step occurs (default: mid-travel).
+        cover_step_position_mm: Where the step occurs (default: :data:`COVER_STEP_DEFAULT`
+            of the travel from its minimum).
     """
 
     fixed_bearing_shift_um: float = 0.0
@@ -559,7 +570,9 @@ class AxisModel:
                     f"[{low:g}, {high:g}] mm"
                 ],
             )
-        self._cover_step_mm = step_at if step_at is not None else (low + high) / 2
+        self._cover_step_mm = (
+            step_at if step_at is not None else low + COVER_STEP_DEFAULT * (high - low)
+        )
 
     # --- geometry -----------------------------------------------------------------
 

@@ -1,0 +1,500 @@
+"""``ncmeasure demo``: the whole pipeline on a virtual machine, on any computer.
+
+:func:`run_demo` writes the demo machine file, generates its NC programs,
+runs them on the :class:`~ncmeasure.sim.machine.VirtualMachine`, serves the
+drive signals through simulated drives (CiA 402 on a python-can virtual bus,
+or a Modbus TCP server on 127.0.0.1), records them with the real link,
+analyses the recording and writes the HTML report.
+
+With an assembly variation the machine is measured twice, as the machine
+maker would see it: first assembled correctly (the *reference*, the
+fingerprint of the machine type), then with the variation; the comparison
+names the likely cause of the change. A global change such as a preload
+shows only against such a reference. An earlier demo folder without a
+variation can serve as the reference (``reference=``), which saves its run.
+
+The folder it writes::
+
+    machine.toml        the demo machine (edit it, generate, simulate)
+    programs/           the NC programs and schedule.json
+    recording/          the recording of the measured machine
+    results.json        its friction results
+    truth.json          the virtual machine's own friction at every scheduled point
+    report.html         the report (plots in report_plots/)
+    reference/          with a variation: the correctly assembled machine's
+                        recording/, results.json and truth.json
+    comparison.json     with a variation: the change against the reference
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import socket
+import time
+import tomllib
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ncmeasure.acquire import AcquisitionResult, record
+from ncmeasure.analysis.analyze import analyze, load_results, write_results
+from ncmeasure.analysis.compare import Comparison, compare_results
+from ncmeasure.analysis.results import Results
+from ncmeasure.config import MachineConfig, parse_machine
+from ncmeasure.errors import ConfigError, LinkError, OutputError
+from ncmeasure.examples import DEMO_LINKS, demo_machine
+from ncmeasure.links.base import LinkClock
+from ncmeasure.plan import Schedule
+from ncmeasure.program import SCHEDULE_FILE, generate_programs, load_dialect
+from ncmeasure.recording import read_recording
+from ncmeasure.sim.axis import Variation
+from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
+from ncmeasure.sim.machine import MachineRun, VirtualMachine
+from ncmeasure.sim.modbus_drive import running_server
+
+__all__ = ["DEFAULT_SPEED", "AxisAccuracy", "DemoResult", "DemoRun", "accuracy", "run_demo"]
+
+DEFAULT_SPEED = {"canopen": 8.0, "modbus": 5.0}
+"""Machine seconds per wall-clock second, per link: what two cores keep up with
+(CANopen: SYNC at 250 Hz, no sample lost; Modbus TCP: polls at 125 Hz, the
+rate of a real Modbus drive, rarely one lost)."""
+
+_MARKER_FILE = ".ncmeasure-demo"
+_OWN = (
+    "machine.toml",
+    "programs",
+    "recording",
+    "results.json",
+    "truth.json",
+    "report.html",
+    "report_plots",
+    "reference",
+    "comparison.json",
+    _MARKER_FILE,
+)
+
+Progress = Callable[[str, float | None], None]
+"""``progress(stage, fraction)``: a new stage with fraction None, then its fraction done."""
+
+
+@dataclass(frozen=True)
+class AxisAccuracy:
+    """How well the analysis recovered the virtual machine's own friction on one axis.
+
+    Per measured point (position, direction, velocity step), the friction the
+    analysis found (the median, minus the offset on a vertical axis) against
+    the model's friction torque at that position and velocity.
+    """
+
+    axis: str
+    points: int
+    measured_mean_nm: float
+    simulated_mean_nm: float
+    median_error_percent: float
+    """Median of the signed relative errors: a bias."""
+    max_error_percent: float
+    """Largest |relative error| of a single point."""
+
+
+def accuracy(results: Results, vm: VirtualMachine) -> dict[str, AxisAccuracy]:
+    """Compare ``results`` with the friction of the machine ``vm`` that was measured."""
+    found: dict[str, AxisAccuracy] = {}
+    for name, axis in results.axes.items():
+        if name not in vm.models or axis.quantity != "torque_nm":
+            continue
+        model = vm.models[name]
+        offset = axis.offset.value if axis.offset is not None and axis.vertical else 0.0
+        measured: list[float] = []
+        simulated: list[float] = []
+        for position in axis.positions:
+            for direction in position.directions.values():
+                for point in direction.points if direction is not None else ():
+                    measured.append(abs(point.median - offset))
+                    simulated.append(
+                        abs(
+                            float(
+                                model.friction_torque_nm(
+                                    position.position_mm, point.velocity_mm_min
+                                )
+                            )
+                        )
+                    )
+        if not measured:
+            continue
+        m, t = np.array(measured), np.array(simulated)
+        errors = (m - t) / t * 100.0
+        found[name] = AxisAccuracy(
+            axis=name,
+            points=len(measured),
+            measured_mean_nm=float(m.mean()),
+            simulated_mean_nm=float(t.mean()),
+            median_error_percent=float(np.median(errors)),
+            max_error_percent=float(np.abs(errors).max()),
+        )
+    return found
+
+
+@dataclass
+class DemoRun:
+    """One measurement of the virtual machine."""
+
+    label: str
+    variation: Variation
+    directory: Path
+    """Where its recording/, results.json and truth.json are."""
+    results: Results
+    acquisition: AcquisitionResult | None
+    """How the recording went (None for a reused reference)."""
+    machine_time_s: float
+    wall_time_s: float
+    accuracy: dict[str, AxisAccuracy] = field(default_factory=dict)
+    """Per axis: measured against simulated friction (empty for a reused reference)."""
+
+    @property
+    def recording(self) -> Path:
+        """The recording directory."""
+        return self.directory / "recording"
+
+    @property
+    def results_file(self) -> Path:
+        """The results.json."""
+        return self.directory / "results.json"
+
+
+@dataclass
+class DemoResult:
+    """What ``run_demo`` wrote."""
+
+    directory: Path
+    link: str
+    speed: float
+    machine_file: Path
+    programs: Path
+    runs: list[DemoRun] = field(default_factory=list)
+    """The reference first (with a variation), the measured machine last."""
+    report: Path | None = None
+    comparison: Comparison | None = None
+
+    @property
+    def measured(self) -> DemoRun:
+        """The run of the machine with the variation (or the only run)."""
+        return self.runs[-1]
+
+    @property
+    def comparison_file(self) -> Path | None:
+        """comparison.json, when there is a reference."""
+        return self.directory / "comparison.json" if self.comparison is not None else None
+
+
+def _prepare(directory: Path, force: bool) -> None:
+    if directory.exists() and not directory.is_dir():
+        raise OutputError(f"{directory}: exists and is not a directory")
+    if directory.is_dir() and any(directory.iterdir()):
+        if not (directory / _MARKER_FILE).is_file():
+            raise OutputError(
+                f"{directory}: exists and is not empty; name a new folder for the demo"
+            )
+        if not force:
+            raise OutputError(
+                f"{directory}: holds an earlier demo; pass --force to replace it, "
+                "or name a new folder"
+            )
+        for name in _OWN:
+            path = directory / name
+            if path.is_dir():
+                shutil.rmtree(path)
+            elif path.exists():
+                path.unlink()
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / _MARKER_FILE).write_text("written by ncmeasure demo\n", encoding="utf-8")
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def _record(
+    config: MachineConfig,
+    run: MachineRun,
+    schedule: Schedule,
+    out: Path,
+    link: str,
+    speed: float,
+    progress: Progress,
+    label: str,
+) -> AcquisitionResult:
+    """Serve ``run`` through simulated drives and record it with the real link."""
+    clock = LinkClock(speed)
+    axes = {axis.name: axis for axis in config.axes}
+    settings: dict[str, Any] = dict(config.link or {})
+    total = run.duration_s
+
+    def on_progress(p: Any) -> None:
+        progress(label, min(1.0, p.link_time_s / total) if total > 0 else None)
+
+    notes = f"ncmeasure demo: virtual machine, {label}, {speed:g}x real time"
+    if link == "canopen":
+        channel = f"{settings.get('channel', 'ncmeasure-demo')}-{uuid.uuid4().hex[:8]}"
+        nodes = {i: int(axis.link["node_id"]) for i, axis in enumerate(config.axes)}
+        scaling = {
+            i: DriveScaling(
+                increments_per_rev=int(axis.link["increments_per_rev"]),
+                screw_lead_mm=axes[axis.name].screw_lead_mm or 20.0,
+                rated_current_a=axes[axis.name].rated_current_a or 17.7,
+            )
+            for i, axis in enumerate(config.axes)
+        }
+        sync_hz = float(settings.get("sync_hz", 250.0))
+        with SimulatedDrives.start(channel, nodes, run, scaling=scaling, period_s=1.0 / sync_hz):
+            return record(
+                config,
+                out=out,
+                link_settings={"channel": channel},
+                duration_s=total,
+                schedule=schedule,
+                notes=notes,
+                on_progress=on_progress,
+                clock=clock,
+            )
+    units = {axis.name: int(axis.link["unit_id"]) for axis in config.axes}
+    port = _free_port()
+    with running_server(
+        units,
+        host="127.0.0.1",
+        port=port,
+        register_map=str(settings.get("register_map", "generic")),
+        source=run,
+        clock=clock,
+    ) as server:
+        return record(
+            config,
+            out=out,
+            link_settings={"host": "127.0.0.1", "port": server.port},
+            duration_s=total,
+            schedule=schedule,
+            notes=notes,
+            on_progress=on_progress,
+            clock=clock,
+        )
+
+
+def _truth(vm: VirtualMachine, schedule: Schedule) -> dict[str, Any]:
+    """The model's friction torque at every scheduled position and velocity."""
+    axes: dict[str, Any] = {}
+    for summary in schedule.axes:
+        model = vm.models[summary.name]
+        velocities = list(summary.velocities_mm_min)
+        positions = list(summary.nominal_positions_mm)
+        table = model.friction_map(positions, velocities)
+        axes[summary.name] = {
+            "variation": {k: v for k, v in vars(model.variation).items() if v},
+            "positions_mm": positions,
+            "velocities_mm_min": velocities,
+            "friction_nm": [[float(abs(x)) for x in row] for row in table],
+            "gravity_nm": model.axis.gravity_torque_nm,
+        }
+    return {"unit": "Nm", "axes": axes}
+
+
+def _measure(
+    config: MachineConfig,
+    programs: Path,
+    schedule: Schedule,
+    variation: Variation,
+    out: Path,
+    *,
+    label: str,
+    link: str,
+    speed: float,
+    seed: int,
+    progress: Progress,
+) -> DemoRun:
+    started = time.monotonic()
+    progress(f"{label}: simulating the program", None)
+    variations = {axis.name: variation for axis in config.axes}
+    vm = VirtualMachine.from_programs(config, programs, variations=variations, seed=seed)
+    run = vm.run()
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "truth.json").write_text(
+        json.dumps(_truth(vm, schedule), indent=2) + "\n", encoding="utf-8"
+    )
+    stage = (
+        f"{label}: recording {run.duration_s:.0f} s of machine time through {link} "
+        f"at {speed:g}x real time"
+    )
+    progress(stage, None)
+    acquisition = _record(config, run, schedule, out / "recording", link, speed, progress, stage)
+    if acquisition.status != "complete":
+        raise LinkError(
+            f"{label}: the recording ended {acquisition.status}"
+            + (f": {acquisition.error}" if acquisition.error else "")
+        )
+    progress(f"{label}: analysing", None)
+    recording = read_recording(out / "recording")
+    results = analyze(
+        recording,
+        schedule=schedule,
+        machine=config,
+        progress=lambda _stage, fraction: progress(f"{label}: analysing", fraction),
+    )
+    write_results(results, out / "results.json")
+    return DemoRun(
+        label=label,
+        variation=variation,
+        directory=out,
+        results=results,
+        acquisition=acquisition,
+        machine_time_s=run.duration_s,
+        wall_time_s=time.monotonic() - started,
+        accuracy=accuracy(results, vm),
+    )
+
+
+def _reuse_reference(folder: Path, schedule: Schedule) -> DemoRun:
+    """The nominal run of an earlier demo folder, checked against this program."""
+    results_file = folder / "results.json"
+    if not (folder / _MARKER_FILE).is_file() or not results_file.is_file():
+        raise ConfigError(f"{folder}: not the folder of an earlier ncmeasure demo")
+    if (folder / "reference").exists():
+        raise ConfigError(
+            f"{folder}: that demo ran with a variation; a reference must be a demo without one"
+        )
+    results = load_results(results_file)
+    if results.recording.config_hash not in (None, schedule.config_hash):
+        raise ConfigError(
+            f"{folder}: measured with another program (config {results.recording.config_hash}, "
+            f"now {schedule.config_hash}); run the reference again"
+        )
+    return DemoRun(
+        label="reference",
+        variation=Variation(),
+        directory=folder,
+        results=results,
+        acquisition=None,
+        machine_time_s=0.0,
+        wall_time_s=0.0,
+    )
+
+
+def run_demo(
+    directory: str | Path,
+    *,
+    link: str = "canopen",
+    variation: Variation | None = None,
+    controller: str = "linuxcnc",
+    speed: float | None = None,
+    reference: str | Path | None = None,
+    seed: int = 0,
+    force: bool = False,
+    report: bool = True,
+    progress: Progress | None = None,
+) -> DemoResult:
+    """Run the demo into ``directory`` (see the module docstring).
+
+    Args:
+        directory: New or empty folder (or an earlier demo's with ``force``).
+        link: ``canopen`` or ``modbus``.
+        variation: Assembly variation of every axis; None or all zero: none.
+        controller: Dialect of the programs the virtual machine runs
+            (``linuxcnc`` or ``sinumerik-840d``; any dialect the reader knows).
+        speed: Machine seconds per wall-clock second (default per link,
+            :data:`DEFAULT_SPEED`).
+        reference: An earlier demo folder without variation to compare with,
+            instead of measuring the reference again.
+        seed: Seed of the simulated noise.
+        force: Replace an earlier demo in ``directory``.
+        report: Write report.html.
+        progress: ``progress(stage, fraction)`` for a progress display.
+
+    Raises:
+        ConfigError: unknown link, bad speed, unusable reference.
+        OutputError: ``directory`` is not usable.
+        LinkError: the recording failed.
+        NcMeasureError: anything else of the pipeline (programs, analysis).
+    """
+    if link not in DEMO_LINKS:
+        raise ConfigError(f"link {link!r}: the demo records through {' or '.join(DEMO_LINKS)}")
+    speed = DEFAULT_SPEED[link] if speed is None else speed
+    if not 0 < speed <= 50:
+        raise ConfigError(f"speed {speed:g}: must be above 0 and at most 50")
+    variation = variation or Variation()
+    report_progress: Progress = progress or (lambda _stage, _fraction: None)
+    directory = Path(directory)
+    reference_dir = Path(reference) if reference is not None else None
+    if reference_dir is not None and reference_dir.resolve() == directory.resolve():
+        raise ConfigError(f"{directory}: the reference must be another demo folder")
+    load_dialect(controller)  # an unknown controller fails before anything is written
+    _prepare(directory, force)
+
+    report_progress("writing the machine file and the programs", None)
+    text = demo_machine(controller, link)
+    config = parse_machine(tomllib.loads(text))
+    machine_file = directory / "machine.toml"
+    machine_file.write_text(text, encoding="utf-8")
+    generated = generate_programs(config)
+    programs = directory / "programs"
+    generated.write(programs)
+    schedule = generated.schedule
+    assert (programs / SCHEDULE_FILE).is_file()
+
+    result = DemoResult(directory, link, speed, machine_file, programs)
+    varied = variation != Variation()
+    if varied:
+        if reference_dir is not None:
+            result.runs.append(_reuse_reference(reference_dir, schedule))
+        else:
+            result.runs.append(
+                _measure(
+                    config,
+                    programs,
+                    schedule,
+                    Variation(),
+                    directory / "reference",
+                    label="reference (assembled correctly)",
+                    link=link,
+                    speed=speed,
+                    seed=seed + 1,
+                    progress=report_progress,
+                )
+            )
+    result.runs.append(
+        _measure(
+            config,
+            programs,
+            schedule,
+            variation,
+            directory,
+            label="machine with the variation" if varied else "machine",
+            link=link,
+            speed=speed,
+            seed=seed,
+            progress=report_progress,
+        )
+    )
+    if varied:
+        base, measured = result.runs[0], result.runs[-1]
+        result.comparison = compare_results(
+            base.results, [measured.results], labels=["reference", "measured"]
+        )
+        (directory / "comparison.json").write_text(
+            result.comparison.model_dump_json(indent=2) + "\n", encoding="utf-8"
+        )
+    if report:
+        from ncmeasure.report import write_report
+
+        report_progress("writing the report", None)
+        result.report = write_report(
+            result.measured.results,
+            directory / "report.html",
+            recording=read_recording(result.measured.recording),
+            comparison=result.comparison,
+            title="ncmeasure demo: friction of the virtual machine",
+        )
+    return result
