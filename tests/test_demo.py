@@ -2,7 +2,7 @@
 generated program, simulated drives serve it, the link records it, the analysis must
 find the friction the model put in and name the assembly fault that was injected.
 
-Tolerances (also in docs/demo.md): per axis, the median relative error of the
+Tolerances (also in docs/virtual-machine.md): per axis, the median relative error of the
 measured friction against the model's is within ±1.5 % (a bias), every single point
 (position, direction, velocity step) within 10 %; the injected cause ranks first,
 in the single-run diagnosis for the local faults and in the comparison with the
@@ -39,10 +39,11 @@ def assert_recovers_the_simulated_friction(result: DemoResult) -> None:
         expected_rows /= 2  # polled at 125 Hz
     assert measured.acquisition.rows >= 0.95 * expected_rows
     assert set(measured.accuracy) == {"X", "Z"}
+    planned = 5 * 8 * 2  # positions, velocity steps, directions
     for name, axis in measured.results.axes.items():
-        assert axis.windows >= 57, f"axis {name}: only {axis.windows} of 60 windows"
+        assert axis.windows >= 0.95 * planned, f"axis {name}: {axis.windows} of {planned} windows"
         found = measured.accuracy[name]
-        assert found.points >= 57
+        assert found.points >= 0.95 * planned
         assert abs(found.median_error_percent) <= BIAS_PERCENT, found
         assert found.max_error_percent <= POINT_PERCENT, found
     meta = read_recording(measured.recording).meta

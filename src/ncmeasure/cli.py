@@ -7,6 +7,7 @@ options, paths). ``--debug`` shows tracebacks; nobody else ever sees one.
 
 from __future__ import annotations
 
+import inspect
 import json
 import logging
 import signal
@@ -48,7 +49,8 @@ app = typer.Typer(
         "Measure the friction of machine-tool feed axes with the machine's own drives.\n\n"
         "Typical use: `ncmeasure init --controller sinumerik-840d > machine.toml`, edit the "
         "axes, `ncmeasure plan machine.toml` to see how long it takes, then "
-        "`ncmeasure generate machine.toml -o programs/` and `ncmeasure check programs/`."
+        "`ncmeasure generate machine.toml -o programs/` and `ncmeasure check programs/`.\n\n"
+        "New here? `ncmeasure demo` runs the whole pipeline on a virtual machine in about 20 s."
     ),
     no_args_is_help=True,
     add_completion=False,
@@ -1175,7 +1177,8 @@ def demo_command(
     console.print(f"finished in {took:.0f} s. Open [bold]{result.report}[/]")
     console.print(
         f"files: {result.directory}/ (machine.toml, programs/, recording/, results.json"
-        + (", reference/, comparison.json" if result.comparison is not None else "")
+        + (", reference/" if (result.directory / "reference").is_dir() else "")
+        + (", comparison.json" if result.comparison is not None else "")
         + ")"
     )
 
@@ -1186,3 +1189,15 @@ def schema_results() -> None:
     from ncmeasure.analysis.results import Results
 
     sys.stdout.write(json.dumps(Results.model_json_schema(), indent=2) + "\n")
+
+
+def _reflow(text: str) -> str:
+    """Join the lines of each paragraph: the console wraps them to its width."""
+    paragraphs = inspect.cleandoc(text).split("\n\n")
+    return "\n\n".join(" ".join(line.strip() for line in p.splitlines()) for p in paragraphs)
+
+
+for _info in [*app.registered_commands, *schema_app.registered_commands]:
+    _doc = _info.help or (_info.callback.__doc__ if _info.callback else None)
+    if _doc:
+        _info.help = _reflow(_doc)

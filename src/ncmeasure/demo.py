@@ -228,6 +228,7 @@ def _record(
     link: str,
     speed: float,
     progress: Progress,
+    stage: str,
     label: str,
 ) -> AcquisitionResult:
     """Serve ``run`` through simulated drives and record it with the real link."""
@@ -237,7 +238,7 @@ def _record(
     total = run.duration_s
 
     def on_progress(p: Any) -> None:
-        progress(label, min(1.0, p.link_time_s / total) if total > 0 else None)
+        progress(stage, min(1.0, p.link_time_s / total) if total > 0 else None)
 
     notes = f"ncmeasure demo: virtual machine, {label}, {speed:g}x real time"
     if link == "canopen":
@@ -330,7 +331,9 @@ def _measure(
         f"at {speed:g}x real time"
     )
     progress(stage, None)
-    acquisition = _record(config, run, schedule, out / "recording", link, speed, progress, stage)
+    acquisition = _record(
+        config, run, schedule, out / "recording", link, speed, progress, stage, label
+    )
     if acquisition.status != "complete":
         raise LinkError(
             f"{label}: the recording ended {acquisition.status}"
@@ -408,7 +411,8 @@ def run_demo(
             :data:`DEFAULT_SPEED`).
         reference: An earlier demo folder without variation to compare with,
             instead of measuring the reference again.
-        seed: Seed of the simulated noise.
+        seed: Seed of the simulated noise (the machine with a variation gets seed + 1,
+            so it never shares the reference's noise).
         force: Replace an earlier demo in ``directory``.
         report: Write report.html.
         progress: ``progress(stage, fraction)`` for a progress display.
@@ -460,7 +464,7 @@ def run_demo(
                     label="reference (assembled correctly)",
                     link=link,
                     speed=speed,
-                    seed=seed + 1,
+                    seed=seed,
                     progress=report_progress,
                 )
             )
@@ -474,7 +478,7 @@ def run_demo(
             label="machine with the variation" if varied else "machine",
             link=link,
             speed=speed,
-            seed=seed,
+            seed=seed + 1 if varied else seed,  # its own noise, not the reference's
             progress=report_progress,
         )
     )

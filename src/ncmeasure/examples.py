@@ -23,7 +23,7 @@ program = "FRICTION"            # main program name; subprograms are FRICTION_<a
 name = "X"
 travel_mm = [0.0, 750.0]          # soft limits [min, max]
 park_mm = 375.0                   # where X waits while the other axes are measured
-max_velocity_mm_min = 30000
+max_velocity_mm_min = 50000
 max_acceleration_m_s2 = 2.0
 max_jerk_m_s3 = 40.0
 fixed_bearing_end = "min"         # which end carries the screw's fixed bearing
@@ -36,7 +36,7 @@ screw_lead_mm = 20.0
 name = "Y"
 travel_mm = [0.0, 600.0]
 park_mm = 300.0
-max_velocity_mm_min = 30000
+max_velocity_mm_min = 50000
 max_acceleration_m_s2 = 2.0
 max_jerk_m_s3 = 40.0
 fixed_bearing_end = "min"
@@ -48,7 +48,7 @@ screw_lead_mm = 20.0
 name = "Z"
 travel_mm = [-500.0, 0.0]
 park_mm = -5.0                    # retracted: parked first, before X and Y move
-max_velocity_mm_min = 24000
+max_velocity_mm_min = 40000
 max_acceleration_m_s2 = 2.0
 max_jerk_m_s3 = 40.0
 fixed_bearing_end = "max"
@@ -93,9 +93,9 @@ program = "FRICTION"
 name = "X"
 travel_mm = [0.0, 750.0]
 park_mm = 375.0
-max_velocity_mm_min = 30000
-max_acceleration_m_s2 = 3.0
-max_jerk_m_s3 = 60.0
+max_velocity_mm_min = 50000
+max_acceleration_m_s2 = 6.0
+max_jerk_m_s3 = 150.0
 fixed_bearing_end = "min"
 torque_constant_nm_per_a = 2.1
 rated_current_a = 17.7
@@ -106,9 +106,9 @@ link = {{ {x_link} }}
 name = "Z"
 travel_mm = [-500.0, 0.0]
 park_mm = -5.0
-max_velocity_mm_min = 24000
-max_acceleration_m_s2 = 3.0
-max_jerk_m_s3 = 60.0
+max_velocity_mm_min = 40000
+max_acceleration_m_s2 = 6.0
+max_jerk_m_s3 = 150.0
 fixed_bearing_end = "max"
 vertical = true
 torque_constant_nm_per_a = 2.1
@@ -117,12 +117,12 @@ screw_lead_mm = 20.0
 link = {{ {z_link} }}
 
 # A short measurement: 5 positions (next to the fixed bearing, between, in the
-# middle, between, next to the loose bearing), 6 velocity steps per direction.
+# middle, between, next to the loose bearing), 8 velocity steps per direction.
 # A machine at delivery would use 30 to 50 steps.
 [measurement]
 positions = 5
-velocity_steps = 6
-min_velocity_mm_min = 100
+velocity_steps = 8
+min_velocity_mm_min = 20
 max_velocity_mm_min = 12000
 window_samples = 50               # 50 x 4 ms = 0.2 s of constant velocity
 sample_period_ms = 4.0

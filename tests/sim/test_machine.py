@@ -38,7 +38,7 @@ def test_marked_spans_are_the_scheduled_windows(
     schedule, _, run = linuxcnc
     planned = [w for axis in schedule.axes for w in axis.windows]
     spans = [s for s in run.spans if s.axis]
-    assert len(spans) == len(planned) == 120
+    assert len(spans) == len(planned) == 2 * 5 * 8 * 2  # axes, positions, steps, directions
     for span, window in zip(spans, planned, strict=True):
         assert span.axis == window.axis
         assert span.marker == window.id
@@ -95,15 +95,17 @@ def test_sinumerik_programs_move_the_machine_exactly_like_linuxcnc_programs(
 
 
 def test_a_wrong_program_gives_wrong_data(tmp_path: Path) -> None:
-    config, _, folder = _programs(tmp_path, "linuxcnc")
+    config, schedule, folder = _programs(tmp_path, "linuxcnc")
     sub = folder / "friction_x.ngc"
     text = sub.read_text(encoding="utf-8")
-    # the first window's run-up asks for 100 mm/min; make it 130
-    assert "F100\n" in text
-    sub.write_text(text.replace("F100\n", "F130\n", 1), encoding="utf-8")
+    # the first window's run-up asks for the lowest velocity; ask for 30 % more
+    slowest = schedule.axes[0].windows[0].velocity_mm_min
+    feed = f"F{slowest:g}\n"
+    assert feed in text
+    sub.write_text(text.replace(feed, f"F{slowest * 1.3:g}\n", 1), encoding="utf-8")
     run = VirtualMachine.from_programs(config, folder).run()
     first = next(s for s in run.spans if s.axis == "X")
-    assert first.velocity_mm_min == pytest.approx(130.0)
+    assert first.velocity_mm_min == pytest.approx(slowest * 1.3)
 
 
 def test_a_move_outside_the_travel_stops_the_virtual_machine(tmp_path: Path) -> None:
