@@ -44,7 +44,6 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import cont2discrete, lfilter, lfilter_zi
 
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, ProgramError
@@ -55,6 +54,7 @@ from ncmeasure.program.dialect import load_dialect
 from ncmeasure.program.reader import Dwell, Motion, ProgramTrace, read_programs
 from ncmeasure.program.render import SCHEDULE_FILE
 from ncmeasure.sim.axis import AxisModel, Variation
+from ncmeasure.sim.servo import follow, servo
 from ncmeasure.sim.signals import AxisState
 
 __all__ = ["MachineRun", "MarkedSpan", "VirtualMachine"]
@@ -170,22 +170,6 @@ class MachineRun:
                 self.marker[index],
             ]
         return channels, SampleBlock(index * self.dt_s, np.column_stack(columns))
-
-
-def _servo(dt: float, frequency_hz: float, damping: float) -> tuple[FloatArray, FloatArray]:
-    """A discrete second-order low pass (bilinear transform): how the axis follows."""
-    omega = 2 * math.pi * frequency_hz
-    num, den, _ = cont2discrete(
-        ([omega**2], [1.0, 2 * damping * omega, omega**2]), dt, method="bilinear"
-    )
-    return np.asarray(num, dtype=np.float64).ravel(), np.asarray(den, dtype=np.float64)
-
-
-def _follow(b: FloatArray, a: FloatArray, command: FloatArray) -> FloatArray:
-    """The servo's response to ``command``, starting at rest at its first value."""
-    zi = lfilter_zi(b, a) * command[0]
-    out, _ = lfilter(b, a, command, zi=zi)
-    return np.asarray(out, dtype=np.float64)
 
 
 class VirtualMachine:
@@ -430,14 +414,14 @@ class VirtualMachine:
                     begin = edge
             t += duration
         rng = np.random.default_rng(self.seed)
-        b, a_coef = _servo(dt, self.servo_frequency_hz, self.servo_damping)
+        b, a_coef = servo(dt, self.servo_frequency_hz, self.servo_damping)
         actual_position = np.empty_like(position)
         actual_velocity = np.empty_like(velocity)
         current = np.empty_like(position)
         for i, axis in enumerate(axes):
-            actual_position[i] = _follow(b, a_coef, position[i])
-            followed = _follow(b, a_coef, velocity[i])
-            actual_acceleration = _follow(b, a_coef, acceleration[i])
+            actual_position[i] = follow(b, a_coef, position[i])
+            followed = follow(b, a_coef, velocity[i])
+            actual_acceleration = follow(b, a_coef, acceleration[i])
             current[i] = self.models[axis.name].motor_current_a(
                 actual_position[i], followed, actual_acceleration, rng=rng
             )

@@ -45,12 +45,12 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import cont2discrete, lfilter, lfilter_zi
 
 from ncmeasure.config import AxisConfig, MachineConfig, MachineSection
 from ncmeasure.links.base import SIGNAL_UNITS, Channel, SampleBlock
 from ncmeasure.plan import AxisSummary, Schedule, Window
 from ncmeasure.recording import Recording, RecordingWriter
+from ncmeasure.sim.servo import follow, servo
 
 __all__ = [
     "SyntheticAxis",
@@ -337,24 +337,6 @@ class _Program:
         return start_s + t_ramp + (covered - 0.5 * v * t_ramp) / v
 
 
-def _servo(dt: float, frequency_hz: float, damping: float) -> tuple[FloatArray, FloatArray]:
-    """A discrete second-order low pass: how the axis follows its command."""
-    omega = 2 * math.pi * frequency_hz
-    num, den, _ = cont2discrete(
-        ([omega**2], [1.0, 2 * damping * omega, omega**2]), dt, method="bilinear"
-    )
-    return np.asarray(num, dtype=np.float64).ravel(), np.asarray(den, dtype=np.float64)
-
-
-def _follow(b: FloatArray, a: FloatArray, command: FloatArray) -> FloatArray:
-    """The servo's response to ``command``, starting at rest at its first value."""
-    if len(command) == 0:
-        return command
-    zi = lfilter_zi(b, a) * command[0]
-    out, _ = lfilter(b, a, command, zi=zi)
-    return np.asarray(out, dtype=np.float64)
-
-
 def _plan_axis(
     spec: SyntheticAxis,
     program: _Program,
@@ -430,9 +412,9 @@ def _signals(
     rng: np.random.Generator,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Actual position, reported velocity and current of one axis."""
-    b, a = _servo(dt, spec.servo_frequency_hz, spec.servo_damping)
-    position = _follow(b, a, position_cmd)
-    velocity = _follow(b, a, velocity_cmd)
+    b, a = servo(dt, spec.servo_frequency_hz, spec.servo_damping)
+    position = follow(b, a, position_cmd)
+    velocity = follow(b, a, velocity_cmd)
     acceleration_m_s2 = (
         np.gradient(velocity, dt) / 60_000.0 if len(velocity) > 1 else np.zeros_like(velocity)
     )
