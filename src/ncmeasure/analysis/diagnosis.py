@@ -434,8 +434,8 @@ def _diagnose(
         # Name the two positions in ascending order along the travel.
         lo_side, hi_side = (big + 1, big) if flip else (big, big + 1)
         ratio_text = (
-            "all other jumps are zero"
-            if math.isinf(ratio)
+            "all other jumps are negligible (below 0.1 % of it)"
+            if ratio >= 1000.0
             else (f"{ratio:.1f} times the next largest jump")
         )
         causes = [
