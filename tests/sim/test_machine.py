@@ -159,3 +159,39 @@ def test_the_current_carries_friction_gravity_and_inertia(
     assert float(np.median(run.current_a[z, :100])) == pytest.approx(
         vm.models["Z"].axis.gravity_torque_nm / 2.1, abs=0.05
     )
+
+
+def test_the_virtual_machine_moves_through_every_point_linuxcnc_commands(tmp_path: Path) -> None:
+    """LinuxCNC's own interpreter (rs274) reads the same programs: the virtual machine's
+    commanded path passes every end point rs274 emits, in order, at the feed it names,
+    with the marker it sets."""
+    from tests.program.test_rs274 import RS274, run_rs274
+
+    if RS274 is None:
+        pytest.skip("rs274 not installed (apt-get install linuxcnc-uspace); CI installs it")
+    config, schedule, folder = _programs(tmp_path, "linuxcnc")
+    moves = run_rs274(folder, schedule.main_program)
+    run = VirtualMachine.from_programs(config, folder).run()
+    x, z = run.axes.index("X"), run.axes.index("Z")
+    command = run.position_cmd_mm[[x, z]]
+    pointer, checked = 0, 0
+    previous = np.array([[np.nan], [np.nan]])
+    for move in moves:
+        target = np.array([[move.position[0]], [move.position[2]]])
+        # a block end inside a segment is passed at speed: within one grid step of travel
+        tolerance = 1e-4 + (move.feed / 60.0 * run.dt_s if move.kind == "feed" else 0.0)
+        hits = np.flatnonzero(np.all(np.abs(command[:, pointer:] - target) <= tolerance, axis=0))
+        if move.kind == "rapid" and not hits.size and pointer == 0:
+            continue  # a park move of an axis already there: no motion
+        assert hits.size, f"the virtual machine never reaches {move}"
+        end = pointer + int(hits[0])
+        length = float(np.abs(target - previous).max())
+        previous = target
+        if move.kind == "feed" and length > 10 * tolerance:  # long enough to sample inside
+            middle = (pointer + end) // 2
+            speed = float(np.hypot(*run.velocity_cmd_mm_min[[x, z], middle]))
+            assert speed <= move.feed * (1 + 1e-9)
+            assert run.marker[middle] == move.marker, move
+            checked += 1
+        pointer = end
+    assert checked >= 2 * 160  # at least every run-up and window of both axes

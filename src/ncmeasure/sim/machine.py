@@ -123,6 +123,8 @@ class MachineRun:
     """Actual velocity as the drive reports it (with measurement noise)."""
     velocity_cmd_mm_min: FloatArray
     """Commanded velocity (the interpolator's setpoint)."""
+    position_cmd_mm: FloatArray
+    """Commanded position (the interpolator's setpoint)."""
     current_a: FloatArray
     """Motor current."""
     marker: FloatArray
@@ -432,6 +434,7 @@ class VirtualMachine:
             position_mm=actual_position,
             velocity_mm_min=actual_velocity,
             velocity_cmd_mm_min=velocity,
+            position_cmd_mm=position,
             current_a=current,
             marker=marker,
             spans=tuple(spans),
