@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import socket
 import time
 import tomllib
 import uuid
@@ -214,12 +213,6 @@ def _prepare(directory: Path, force: bool) -> None:
     (directory / _MARKER_FILE).write_text("written by ncmeasure demo\n", encoding="utf-8")
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
-
-
 def _record(
     config: MachineConfig,
     run: MachineRun,
@@ -233,7 +226,6 @@ def _record(
 ) -> AcquisitionResult:
     """Serve ``run`` through simulated drives and record it with the real link."""
     clock = LinkClock(speed)
-    axes = {axis.name: axis for axis in config.axes}
     settings: dict[str, Any] = dict(config.link or {})
     total = run.duration_s
 
@@ -247,8 +239,8 @@ def _record(
         scaling = {
             i: DriveScaling(
                 increments_per_rev=int(axis.link["increments_per_rev"]),
-                screw_lead_mm=axes[axis.name].screw_lead_mm or 20.0,
-                rated_current_a=axes[axis.name].rated_current_a or 17.7,
+                screw_lead_mm=axis.screw_lead_mm or 20.0,
+                rated_current_a=axis.rated_current_a or 17.7,
             )
             for i, axis in enumerate(config.axes)
         }
@@ -265,11 +257,10 @@ def _record(
                 clock=clock,
             )
     units = {axis.name: int(axis.link["unit_id"]) for axis in config.axes}
-    port = _free_port()
     with running_server(
         units,
         host="127.0.0.1",
-        port=port,
+        port=0,  # a free port, whatever the machine file says
         register_map=str(settings.get("register_map", "generic")),
         source=run,
         clock=clock,

@@ -274,9 +274,8 @@ class VirtualMachine:
     # --- planning -----------------------------------------------------------------------
 
     def _initial(self) -> FloatArray:
-        """Where the axes stand before the program: where the program first finds them."""
-        position = np.array([axis.park_mm for axis in self.config.axes], dtype=np.float64)
-        return position
+        """Where the axes stand before the program: at their park positions."""
+        return np.array([axis.park_mm for axis in self.config.axes], dtype=np.float64)
 
     def _plan(self) -> list[_Segment | _Pause]:
         axes = [axis.name for axis in self.config.axes]
