@@ -7,12 +7,14 @@ options, paths). ``--debug`` shows tracebacks; nobody else ever sees one.
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import json
 import logging
 import signal
 import sys
 import threading
+import time
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
@@ -801,8 +803,12 @@ def simulate_drive_command(
 # --- analysis ----------------------------------------------------------------------------
 
 
-def _progress_bar(quiet: bool) -> tuple[Any, Any]:
-    """A rich progress bar and a ``progress(stage, fraction)`` callback feeding it."""
+def _progress_bar(quiet: bool, *, stages: bool = False) -> tuple[Any, Any]:
+    """A rich progress bar and a ``progress(stage, fraction)`` callback feeding it.
+
+    ``fraction`` None starts a stage without a figure. With ``stages``, every
+    finished stage stays on the console as a line with its duration.
+    """
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     if quiet:
@@ -814,10 +820,18 @@ def _progress_bar(quiet: bool) -> tuple[Any, Any]:
         console=err_console,
         transient=True,
     )
-    task = bar.add_task("analysing", total=1.0)
+    task = bar.add_task("starting", total=1.0)
+    current: dict[str, Any] = {"stage": None, "since": time.monotonic()}
 
-    def update(stage: str, fraction: float) -> None:
-        bar.update(task, description=stage, completed=max(0.0, min(1.0, fraction)))
+    def update(stage: str, fraction: float | None) -> None:
+        if stage != current["stage"]:
+            if stages and current["stage"] is not None:
+                took = time.monotonic() - current["since"]
+                bar.console.print(f"[green]✓[/] {current['stage']} ({took:.1f} s)")
+            current.update(stage=stage, since=time.monotonic())
+            bar.update(task, description=stage, completed=0.0)
+        if fraction is not None:
+            bar.update(task, completed=max(0.0, min(1.0, fraction)))
 
     return bar, update
 
@@ -1078,41 +1092,17 @@ def demo_command(
     Examples: ncmeasure demo  ·  ncmeasure demo --variation loose_bearing_shift_um=500
     ·  ncmeasure demo demo-modbus --link modbus
     """
-    import time
-
-    from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
-    from rich.progress import Progress as Bar
-
     from ncmeasure.demo import run_demo
 
     try:
         chosen = _variation(variation)
     except NcMeasureError as exc:
         _fail(exc)
-    bar = Bar(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        TimeElapsedColumn(),
-        console=err_console,
-        transient=True,
-        disable=quiet,
-    )
-    task = bar.add_task("starting", total=1.0)
-    current: dict[str, Any] = {"stage": None, "since": time.monotonic()}
-
-    def progress(stage: str, fraction: float | None) -> None:
-        if stage != current["stage"]:
-            if current["stage"] is not None and not quiet:
-                took = time.monotonic() - current["since"]
-                bar.console.print(f"[green]✓[/] {current['stage']} ({took:.1f} s)")
-            current.update(stage=stage, since=time.monotonic())
-            bar.update(task, description=stage, completed=0.0)
-        if fraction is not None:
-            bar.update(task, completed=max(0.0, min(1.0, fraction)))
+    bar, progress = _progress_bar(quiet, stages=True)
 
     started = time.monotonic()
     try:
-        with bar:
+        with bar or contextlib.nullcontext():
             result = run_demo(
                 outdir,
                 link=link,
@@ -1124,7 +1114,8 @@ def demo_command(
                 force=force,
                 progress=progress,
             )
-            progress("done", None)
+            if progress is not None:
+                progress("done", None)
     except NcMeasureError as exc:
         _fail(exc, EXIT_LINK if isinstance(exc, LinkError) else None)
     except KeyboardInterrupt:
