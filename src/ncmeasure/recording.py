@@ -57,6 +57,7 @@ __all__ = [
     "META_FILE",
     "SAMPLES_FILE",
     "ChannelMeta",
+    "ImportSink",
     "Recording",
     "RecordingMeta",
     "RecordingStatus",
@@ -1111,12 +1112,25 @@ def _check_times(
     )
 
 
-class _ImportTarget:
-    """The recording an import writes, made when the first rows arrive.
+class ImportSink:
+    """The recording an import writes, created on disk when the first rows arrive.
 
-    Until then the sample period may still be unknown (it defaults to the
-    median time step). An import that fails removes what it wrote, so it can
-    be retried into the same directory.
+    Until then the sample period may still be unknown: the recording is
+    created once two rows show a time step, with the median step of the rows
+    so far, and closed with the median step of all rows. Rows go to disk
+    chunk by chunk, so an import keeps at most one chunk in memory (and the
+    times, for the period). An import that fails calls :meth:`discard`, which
+    removes what it wrote (never anything that was there before), so it can be
+    retried into the same directory.
+
+    Args:
+        directory: The new recording.
+        channels: Its columns.
+        machine: The machine file, for the axis metadata.
+        nominal_period_s: The sample period; None: inferred from the times.
+        what: How error messages name the input (``the file``, ``the trace``).
+        meta: Further arguments of :meth:`RecordingWriter.create` (source,
+            notes, link, start_utc, ...).
     """
 
     def __init__(
@@ -1126,24 +1140,69 @@ class _ImportTarget:
         *,
         machine: MachineConfig | None,
         nominal_period_s: float | None,
+        what: str = "the file",
         **meta: Any,
     ) -> None:
         self.directory = directory
-        self.channels = channels
+        self.channels = tuple(channels)
         self.machine = machine
         self.nominal_period_s = nominal_period_s
+        self.what = what
         self.meta = meta
         self.existed = directory.exists()
+        self.rows = 0
         self.writer: RecordingWriter | None = None
-        self.times: list[NDArray[np.float64]] = []
+        self._times: list[NDArray[np.float64]] = []
+        self._pending: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
 
     def append(self, time_s: NDArray[np.float64], values: NDArray[np.float64]) -> None:
-        self.times.append(np.array(time_s, dtype=np.float64))
-        writer = self.ensure_writer()
-        writer.append(SampleBlock(time_s, values))
-        writer.flush()
+        """Write rows (times strictly increasing, also across calls; checked by the writer)."""
+        if len(time_s) == 0:
+            return
+        self.rows += len(time_s)
+        self._times.append(np.array(time_s, dtype=np.float64))
+        if self.writer is None:
+            self._pending.append((time_s, values))
+            if self.rows < 2 and self.nominal_period_s is None:
+                return
+            writer = self.ensure_writer()
+            pending, self._pending = self._pending, []
+            for t, v in pending:
+                writer.append(SampleBlock(t, v))
+            writer.flush()
+            return
+        self.writer.append(SampleBlock(time_s, values))
+        self.writer.flush()
+
+    def ensure_writer(self) -> RecordingWriter:
+        """The writer, created on first use (with the period known by then).
+
+        Raises:
+            RecordingError: no period given and fewer than two rows so far.
+        """
+        if self.writer is not None:
+            return self.writer
+        period_s = self.nominal_period_s
+        if period_s is None:
+            period_s = self._median_step_s()
+        self.writer = RecordingWriter.create(
+            self.directory,
+            self.channels,
+            nominal_period_s=period_s,
+            machine=self.machine,
+            flush_interval_s=MAX_FLUSH_INTERVAL_S,
+            **self.meta,
+        )
+        return self.writer
 
     def finish(self, status: RecordingStatus = "complete", **updates: Any) -> Recording:
+        """Close the recording with ``status`` (and metadata ``updates``) and read it back.
+
+        Raises:
+            RecordingError: no rows, or a single row and no sample period.
+        """
+        if self.writer is None and not self._pending:
+            raise RecordingError(f"{self.directory}: {self.what} holds no complete sample")
         writer = self.ensure_writer()
         if self.nominal_period_s is None:
             updates["nominal_period_s"] = self._median_step_s()
@@ -1152,12 +1211,12 @@ class _ImportTarget:
         return Recording.open(self.directory)
 
     def discard(self) -> None:
-        """Remove the files this import wrote (never anything that was there before)."""
+        """Remove the files this import wrote and, if the import made it, the directory."""
         if self.writer is None:
             return
         with contextlib.suppress(RecordingError):
             self.writer.close("failed")
-        for name in (META_FILE, SAMPLES_FILE, EVENTS_FILE):
+        for name in (META_FILE, SAMPLES_FILE, EVENTS_FILE, META_FILE + ".tmp"):
             with contextlib.suppress(OSError):
                 (self.directory / name).unlink()
         if not self.existed:
@@ -1165,28 +1224,13 @@ class _ImportTarget:
                 self.directory.rmdir()
 
     def _median_step_s(self) -> float:
-        times = np.concatenate(self.times) if self.times else np.empty(0)
+        times = np.concatenate(self._times) if self._times else np.empty(0)
         if len(times) < 2:
             raise RecordingError(
-                f"{self.directory}: fewer than two rows, so the sample period cannot be "
-                "inferred; pass nominal_period_s"
+                f"{self.directory}: {self.what} holds a single sample and no sample period; "
+                "a recording needs at least two (or pass nominal_period_s)"
             )
         return float(np.median(np.diff(times)))
-
-    def ensure_writer(self) -> RecordingWriter:
-        """The writer, created on first use (with the period known by then)."""
-        if self.writer is not None:
-            return self.writer
-        period_s = self.nominal_period_s
-        self.writer = RecordingWriter.create(
-            self.directory,
-            self.channels,
-            nominal_period_s=period_s if period_s is not None else self._median_step_s(),
-            machine=self.machine,
-            flush_interval_s=MAX_FLUSH_INTERVAL_S,
-            **self.meta,
-        )
-        return self.writer
 
 
 def import_csv(
@@ -1218,12 +1262,12 @@ def import_csv(
             wrote is removed again then.
     """
     source = Path(path)
-    target: _ImportTarget | None = None
+    target: ImportSink | None = None
     try:
         with source.open("r", encoding="utf-8") as file:
             channels = _parse_csv_header(source, file.readline())
             names = ["time_s", *(c.name for c in channels)]
-            target = _ImportTarget(
+            target = ImportSink(
                 Path(directory),
                 channels,
                 machine=machine,
@@ -1455,7 +1499,7 @@ def import_mdf4(
         start = start_time if isinstance(start_time, dt.datetime) else dt.datetime.now(dt.UTC)
     if start.tzinfo is None:
         start = start.replace(tzinfo=dt.UTC)
-    job = _ImportTarget(
+    job = ImportSink(
         target,
         [c for c, _, _ in found],
         machine=machine,

@@ -3,7 +3,7 @@
 Every importer turns the signals of a controller trace into *candidates*
 (this trace column could be that ncmeasure signal of that controller axis, in
 this unit), lets :func:`plan_channels` decide which become channels of the
-recording, and streams rows into a :class:`RecordingSink`. Two ways of
+recording, and streams rows into a :class:`~ncmeasure.recording.ImportSink`. Two ways of
 building rows exist, matching the two ways controllers write traces:
 
 * :class:`CarryForward` for record-oriented traces (Sinumerik) where a record
@@ -12,12 +12,11 @@ building rows exist, matching the two ways controllers write traces:
 * :func:`merge_series` for column-oriented traces (TwinCAT Scope, TNCscope)
   where every channel has its own timeline, merged on the union of the times.
 
-A failed import removes everything it wrote (:meth:`RecordingSink.discard`).
+A failed import removes everything it wrote (:meth:`~ncmeasure.recording.ImportSink.discard`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import datetime as dt
 import logging
 import math
@@ -32,15 +31,8 @@ from numpy.typing import NDArray
 
 from ncmeasure.config import AXIS_NAME_PATTERN, AxisConfig, MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
-from ncmeasure.links.base import SIGNAL_UNITS, Channel, SampleBlock
-from ncmeasure.recording import (
-    EVENTS_FILE,
-    MAX_FLUSH_INTERVAL_S,
-    META_FILE,
-    SAMPLES_FILE,
-    Recording,
-    RecordingWriter,
-)
+from ncmeasure.links.base import SIGNAL_UNITS, Channel
+from ncmeasure.recording import ImportSink, Recording
 
 __all__ = [
     "CHUNK_ROWS",
@@ -51,7 +43,6 @@ __all__ = [
     "Mapped",
     "Needs",
     "ProgressFn",
-    "RecordingSink",
     "Series",
     "TextLines",
     "TraceImport",
@@ -248,7 +239,7 @@ class ImportJob:
         self.total_bytes = path.stat().st_size
         self.report: list[str] = []
         self.link: dict[str, Any] = {"type": "import", "format": format_name, "file": path.name}
-        self.sink: RecordingSink | None = None
+        self.sink: ImportSink | None = None
 
     def note(self, line: str) -> None:
         """Add a sentence to the report."""
@@ -266,13 +257,14 @@ class ImportJob:
         *,
         nominal_period_s: float | None,
         start_utc: dt.datetime | None = None,
-    ) -> RecordingSink:
+    ) -> ImportSink:
         """The recording the rows go to (created on disk when the first rows arrive)."""
-        self.sink = RecordingSink(
+        self.sink = ImportSink(
             self.directory,
             channels,
             machine=self.machine,
             nominal_period_s=nominal_period_s,
+            what="the trace",
             start_utc=start_utc,
             source=f"import:{self.format_name}",
             notes=f"imported from {self.path.name}",
@@ -285,7 +277,7 @@ class ImportJob:
         if self.sink is None:
             raise RecordingError(f"{self.path}: no samples to import")
         self.link["report"] = list(self.report)
-        recording = self.sink.finish(self.link)
+        recording = self.sink.finish("complete", link=dict(self.link))
         self.tick(self.total_bytes)  # the whole file is done, even if an end marker stopped reading
         return recording
 
@@ -520,104 +512,6 @@ def plan_channels(candidates: Sequence[Candidate], job: ImportJob) -> list[Mappe
 # --- the target recording --------------------------------------------------------------
 
 
-class RecordingSink:
-    """The recording an import writes, created on disk when the first rows arrive.
-
-    Rows are flushed to disk chunk by chunk, so an import keeps at most one
-    chunk in memory. :meth:`discard` removes the files again (never anything
-    that was there before).
-    """
-
-    def __init__(
-        self,
-        directory: Path,
-        channels: Sequence[Channel],
-        *,
-        machine: MachineConfig | None,
-        nominal_period_s: float | None,
-        start_utc: dt.datetime | None,
-        source: str,
-        notes: str,
-        link: Mapping[str, Any],
-    ) -> None:
-        self.directory = directory
-        self.channels = tuple(channels)
-        self.machine = machine
-        self.nominal_period_s = nominal_period_s
-        self.start_utc = start_utc
-        self.source = source
-        self.notes = notes
-        self.link = dict(link)
-        self.existed = directory.exists()
-        self.rows = 0
-        self._writer: RecordingWriter | None = None
-        self._pending: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
-
-    def append(self, time_s: NDArray[np.float64], values: NDArray[np.float64]) -> None:
-        """Write rows (times strictly increasing, also across calls; checked by the writer)."""
-        if len(time_s) == 0:
-            return
-        self.rows += len(time_s)
-        if self._writer is None:
-            self._pending.append((time_s, values))
-            if sum(len(t) for t, _ in self._pending) < 2 and self.nominal_period_s is None:
-                return
-            self._create()
-            pending, self._pending = self._pending, []
-            for t, v in pending:
-                self._write(t, v)
-            return
-        self._write(time_s, values)
-
-    def _write(self, time_s: NDArray[np.float64], values: NDArray[np.float64]) -> None:
-        assert self._writer is not None
-        self._writer.append(SampleBlock(time_s, values))
-        self._writer.flush()
-
-    def _create(self) -> None:
-        period_s = self.nominal_period_s
-        if period_s is None:
-            times = np.concatenate([t for t, _ in self._pending])
-            period_s = float(np.median(np.diff(times)))
-        self._writer = RecordingWriter.create(
-            self.directory,
-            self.channels,
-            nominal_period_s=period_s,
-            machine=self.machine,
-            link=self.link,
-            notes=self.notes,
-            source=self.source,
-            flush_interval_s=MAX_FLUSH_INTERVAL_S,
-            start_utc=self.start_utc,
-        )
-
-    def finish(self, link: Mapping[str, Any]) -> Recording:
-        """Close the recording (status ``complete``) and read it back."""
-        if self._writer is None:
-            if not self._pending:
-                raise RecordingError(f"{self.directory}: the trace holds no complete sample")
-            raise RecordingError(
-                f"{self.directory}: the trace holds a single sample and no sample period; "
-                "a recording needs at least two"
-            )
-        self._writer.close("complete", link=dict(link))
-        log.info("imported into %s: %d samples", self.directory, self._writer.rows_written)
-        return Recording.open(self.directory)
-
-    def discard(self) -> None:
-        """Remove the files of this import and, if the import made it, the directory."""
-        if self._writer is None:
-            return
-        with contextlib.suppress(RecordingError):
-            self._writer.close("failed")
-        for name in (META_FILE, SAMPLES_FILE, EVENTS_FILE, META_FILE + ".tmp"):
-            with contextlib.suppress(OSError):
-                (self.directory / name).unlink()
-        if not self.existed:
-            with contextlib.suppress(OSError):
-                self.directory.rmdir()
-
-
 # --- building rows ---------------------------------------------------------------------
 
 
@@ -631,7 +525,7 @@ class CarryForward:
 
     def __init__(
         self,
-        sink: RecordingSink,
+        sink: ImportSink,
         names: Sequence[str],
         factors: Sequence[float],
         chunk_rows: int = CHUNK_ROWS,
