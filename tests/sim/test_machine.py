@@ -195,3 +195,10 @@ def test_the_virtual_machine_moves_through_every_point_linuxcnc_commands(tmp_pat
             checked += 1
         pointer = end
     assert checked >= 2 * 160  # at least every run-up and window of both axes
+
+
+def test_a_program_for_an_axis_the_machine_lacks_is_refused(tmp_path: Path) -> None:
+    config, _, folder = _programs(tmp_path, "linuxcnc")
+    only_x = config.model_copy(update={"axes": [config.axes[0]]})
+    with pytest.raises(ProgramError, match=r"friction\.ngc:\d+: moves axis Z, which the machine"):
+        VirtualMachine.from_programs(only_x, folder)

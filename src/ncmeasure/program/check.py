@@ -23,11 +23,11 @@ from pydantic import ValidationError
 from ncmeasure.config import format_validation_error
 from ncmeasure.errors import ProgramCheckError, ProgramError
 from ncmeasure.plan import AxisSummary, Schedule
-from ncmeasure.program.dialect import load_dialect
+from ncmeasure.program.dialect import Dialect, load_dialect
 from ncmeasure.program.reader import Motion, ProgramTrace, read_programs
 from ncmeasure.program.render import SCHEDULE_FILE
 
-__all__ = ["CheckReport", "check_programs", "check_trace", "load_schedule"]
+__all__ = ["CheckReport", "check_programs", "check_trace", "load_schedule", "read_generated"]
 
 _TOL_MM = 0.0005
 _TOL_FEED = 0.0005
@@ -183,15 +183,15 @@ def check_trace(schedule: Schedule, trace: ProgramTrace, report: CheckReport) ->
             )
 
 
-def check_programs(directory: str | Path, controllers_dirs: tuple[Path, ...] = ()) -> CheckReport:
-    """Check the generated programs in ``directory`` against their schedule.json.
-
-    Returns:
-        The report; its ``problems`` list is empty when everything holds.
+def read_generated(
+    directory: str | Path, controllers_dirs: tuple[Path, ...] = ()
+) -> tuple[Schedule, Dialect, ProgramTrace]:
+    """Read generated programs the way a controller would, with their schedule.json.
 
     Raises:
-        ProgramError: the folder holds no readable schedule or program.
-        ProgramCheckError: a program leaves its limits or its schedule.
+        ProgramError: not a folder of programs, no readable schedule, a program
+            that cannot be read.
+        DialectError: the schedule's controller is unknown.
     """
     directory = Path(directory)
     if not directory.is_dir():
@@ -205,6 +205,21 @@ def check_programs(directory: str | Path, controllers_dirs: tuple[Path, ...] = (
         {axis.name for axis in schedule.axes},
         schedule.controller_options,
     )
+    return schedule, dialect, trace
+
+
+def check_programs(directory: str | Path, controllers_dirs: tuple[Path, ...] = ()) -> CheckReport:
+    """Check the generated programs in ``directory`` against their schedule.json.
+
+    Returns:
+        The report; its ``problems`` list is empty when everything holds.
+
+    Raises:
+        ProgramError: the folder holds no readable schedule or program.
+        ProgramCheckError: a program leaves its limits or its schedule.
+    """
+    directory = Path(directory)
+    schedule, dialect, trace = read_generated(directory, controllers_dirs)
     report = CheckReport(directory=directory, controller=dialect.name)
     check_trace(schedule, trace, report)
     if report.problems:

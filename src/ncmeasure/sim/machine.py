@@ -48,11 +48,9 @@ from numpy.typing import NDArray
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, ProgramError
 from ncmeasure.links.base import Channel, SampleBlock, channels_for
-from ncmeasure.plan import Schedule
 from ncmeasure.profile import SCurve, s_curve
-from ncmeasure.program.dialect import load_dialect
-from ncmeasure.program.reader import Dwell, Motion, ProgramTrace, read_programs
-from ncmeasure.program.render import SCHEDULE_FILE
+from ncmeasure.program.check import read_generated
+from ncmeasure.program.reader import Dwell, Motion, ProgramTrace
 from ncmeasure.sim.axis import AxisModel, Variation
 from ncmeasure.sim.servo import follow, servo
 from ncmeasure.sim.signals import AxisState
@@ -253,22 +251,7 @@ class VirtualMachine:
             ProgramError: no schedule or a program that cannot be read.
             DialectError: the schedule's controller is unknown.
         """
-        directory = Path(directory)
-        schedule_path = directory / SCHEDULE_FILE
-        try:
-            schedule = Schedule.model_validate_json(schedule_path.read_text(encoding="utf-8"))
-        except FileNotFoundError as exc:
-            raise ProgramError(f"{schedule_path}: not found; generate the programs first") from exc
-        except (OSError, ValueError) as exc:
-            raise ProgramError(f"{schedule_path}: cannot be read ({exc})") from exc
-        dialect = load_dialect(schedule.controller, tuple(controllers_dirs))
-        trace = read_programs(
-            dialect,
-            directory,
-            schedule.main_program,
-            {axis.name for axis in config.axes},
-            schedule.controller_options,
-        )
+        _, _, trace = read_generated(directory, tuple(controllers_dirs))
         return cls(config, trace, **options)  # type: ignore[arg-type]
 
     # --- planning -----------------------------------------------------------------------
@@ -297,6 +280,11 @@ class VirtualMachine:
                 continue
             target = position.copy()
             for name, value in step.target.items():
+                if name not in index:
+                    raise ProgramError(
+                        f"{step.file or step.program}:{step.line}: moves axis {name}, which the "
+                        f"machine lacks (axes: {', '.join(axes)})"
+                    )
                 target[index[name]] = value
             self._check_travel(step, target)
             delta = target - position
