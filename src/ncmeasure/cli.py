@@ -893,7 +893,11 @@ def analyze_command(
     for name, axis in results.axes.items():
         coulombs = []
         for position in axis.positions:
-            fits = [d.fit.coulomb for d in position.directions.values() if d and d.fit]
+            fits = [
+                d.fit.coulomb
+                for d in position.directions.values()
+                if d and d.fit and d.fit.coulomb is not None
+            ]
             coulombs.append(f"{sum(fits) / len(fits):.3g}" if fits else "—")
         line = (
             f"axis {name}: {axis.windows} windows ({axis.window_source}); Coulomb by "

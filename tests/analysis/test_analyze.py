@@ -155,17 +155,23 @@ def test_fits_give_back_the_known_parameters(
         positive, negative = position.directions["positive"], position.directions["negative"]
         assert positive is not None and negative is not None
         assert positive.fit is not None and negative.fit is not None
-        # The fits see T₊ = F + o and −T₋ = F − o: their mean is F, half the difference o.
-        coulomb = (positive.fit.coulomb + negative.fit.coulomb) / 2
-        assert coulomb == pytest.approx(KNOWN.parameter("coulomb", index), rel=COULOMB_REL)
-        assert (positive.fit.coulomb - negative.fit.coulomb) / 2 == pytest.approx(
-            KNOWN.offset, abs=2 * OFFSET_ABS
-        )
+        # The points carry T₊ = F + o and T₋ = −F + o; the fits see friction, the offset
+        # taken out first: both directions give F.
+        for direction in (positive, negative):
+            assert direction.offset_removed == pytest.approx(KNOWN.offset, abs=OFFSET_ABS)
+            assert direction.fit is not None and direction.fit.coulomb is not None
+            assert direction.fit.coulomb == pytest.approx(
+                KNOWN.parameter("coulomb", index), rel=COULOMB_REL
+            )
         for direction in (positive, negative):
             assert direction.fit is not None and direction.stribeck is not None
             assert direction.fit.accepted
             assert direction.fit.viscous_per_mm_min == pytest.approx(2e-4, rel=VISCOUS_REL)
+            # The Stribeck model describes the whole curve; the line holds above its hump.
+            assert direction.model == "stribeck", direction.model_reason
+            assert direction.fit.points_below_range > 0
             parameters = direction.stribeck.parameters
+            assert parameters is not None
             assert parameters["T_S"] - parameters["T_C"] == pytest.approx(0.8, rel=HUMP_REL)
             assert parameters["v_S"] == pytest.approx(60.0, rel=STRIBECK_VELOCITY_REL)
             assert parameters["delta"] == pytest.approx(1.0, abs=DELTA_ABS)
@@ -493,8 +499,8 @@ def test_writing_where_a_file_blocks_the_directory(tmp_path: Path, small_results
         ('{"format": "ncmeasure-schedule"}', "not an ncmeasure results file"),
         ("[1, 2]", "not an ncmeasure results file"),
         ('{"format": "ncmeasure-results", "format_version": 99}', "update ncmeasure"),
-        ('{"format": "ncmeasure-results", "format_version": 0}', "analyse the recording again"),
-        ('{"format": "ncmeasure-results", "format_version": 1}', "not a valid results file"),
+        ('{"format": "ncmeasure-results", "format_version": 1}', "analyse the recording again"),
+        ('{"format": "ncmeasure-results", "format_version": 2}', "not a valid results file"),
     ],
 )
 def test_loading_something_else_is_refused(tmp_path: Path, content: str, message: str) -> None:

@@ -25,6 +25,7 @@ from ncmeasure.analysis.results import (
     PositionResult,
     RecordingInfo,
     Results,
+    Verdict,
 )
 
 SPEEDS = np.geomspace(10.0, 15000.0, 20)
@@ -71,6 +72,7 @@ def results(
 
     axis_results = {
         axis: AxisResult(
+            verdict=Verdict(level="ok", reason="made by the test", action="none"),
             quantity=quantity,
             unit="Nm" if quantity == "torque_nm" else "A",
             torque_constant_nm_per_a=2.1 if quantity == "torque_nm" else None,

@@ -226,10 +226,14 @@ def test_fit_direction_uses_only_points_above_the_stribeck_region(direction: int
     rng = np.random.default_rng(5)
     sigma = 0.01
     magnitude = stribeck(SPEEDS) + rng.normal(0, sigma, SPEEDS.size)
-    linear, strib, extended = fit_direction(points(SPEEDS, magnitude, sigma, direction), direction)  # type: ignore[arg-type]
-    assert strib is not None and strib.identifiable
+    found = fit_direction(points(SPEEDS, magnitude, sigma, direction), direction)  # type: ignore[arg-type]
+    linear, strib, extended = found.fit, found.stribeck, found.extended
+    assert strib is not None and strib.identifiable and strib.parameters is not None
     assert extended is not None
     assert linear is not None
+    assert linear.coulomb is not None and linear.coulomb_stderr is not None
+    assert linear.viscous_per_mm_min is not None and linear.viscous_stderr is not None
+    assert found.model == "stribeck"
     v_s = strib.parameters["v_S"]
     assert linear.velocity_range_mm_min[0] >= 3 * v_s
     assert linear.n_points < SPEEDS.size
@@ -240,18 +244,83 @@ def test_fit_direction_uses_only_points_above_the_stribeck_region(direction: int
     # ... while a line through all points is biased and fails the χ² test.
     everything = fit_linear(SPEEDS, magnitude, np.full(SPEEDS.size, sigma))
     assert everything is not None and not everything.accepted
+    assert everything.coulomb is not None and everything.coulomb_stderr is not None
     assert abs(everything.coulomb - T_C) > 5 * everything.coulomb_stderr
 
 
 def test_fit_direction_uses_all_points_without_a_stribeck_region() -> None:
     rng = np.random.default_rng(9)
     magnitude = T_C + B * SPEEDS + rng.normal(0, 0.01, SPEEDS.size)
-    linear, strib, _ = fit_direction(points(SPEEDS, magnitude, 0.01, -1), -1)
+    found = fit_direction(points(SPEEDS, magnitude, 0.01, -1), -1)
+    linear, strib = found.fit, found.stribeck
     assert strib is None or not strib.identifiable
+    assert strib is None or (strib.parameters is None and strib.reason)
     assert linear is not None
     assert linear.n_points == SPEEDS.size
+    assert linear.points_below_range == 0
     assert linear.velocity_range_mm_min[0] == pytest.approx(10.0)
     assert linear.coulomb == pytest.approx(T_C, abs=0.02)
+    assert found.model == "linear"
+    assert "every point" in found.model_reason
+
+
+def test_linear_fit_holds_above_a_hump_the_stribeck_fit_cannot_resolve() -> None:
+    """Real data: a curve rising at low speed, 8 steps, no identifiable Stribeck fit.
+
+    Fitted over every speed, the line was dragged by the hump (χ²ᵣ 237, Coulomb 10 %
+    off a fit of the linear region). The line is fitted over the range where it holds.
+    """
+    rng = np.random.default_rng(4)
+    speeds = np.array([20.0, 50.0, 120.0, 300.0, 800.0, 2000.0, 5000.0, 12000.0])
+    sigma = 0.004
+    magnitude = 1.5 + 0.6 * np.exp(-speeds / 40.0) + 1e-4 * speeds
+    magnitude = magnitude + rng.normal(0, sigma, speeds.size)
+    found = fit_direction(points(speeds, magnitude, sigma), 1)
+    everything = fit_linear(speeds, magnitude, np.full(speeds.size, sigma))
+    assert everything is not None and not everything.accepted
+    linear = found.fit
+    assert linear is not None and linear.accepted and linear.coulomb is not None
+    assert linear.points_below_range >= 1
+    assert linear.velocity_range_mm_min[0] > 20.0
+    assert linear.coulomb == pytest.approx(1.5, rel=0.01)
+    assert found.model in ("linear", "stribeck")
+    if found.model == "linear":
+        assert "holds from" in found.model_reason
+
+
+def test_a_negative_coulomb_is_published_as_null_with_the_reason() -> None:
+    """Gravity left in the points of the downward direction: 'friction' below zero."""
+    magnitude = -14.0 + 2e-5 * SPEEDS  # F − o with o (gravity) far above F
+    fit = fit_linear(SPEEDS, magnitude, np.full(SPEEDS.size, 0.01))
+    assert fit is not None
+    assert fit.coulomb is None and fit.viscous_per_mm_min is None
+    assert fit.reason is not None and "gravity" in fit.reason
+    assert not fit.accepted
+
+
+def test_a_nonlinear_fit_that_is_not_identifiable_publishes_no_parameters() -> None:
+    rng = np.random.default_rng(2)
+    magnitude = T_C + B * SPEEDS + rng.normal(0, 0.01, SPEEDS.size)  # no hump at all
+    fit = fit_nonlinear(SPEEDS, magnitude, np.full(SPEEDS.size, 0.01), model="stribeck")
+    assert fit is not None and not fit.identifiable
+    assert fit.parameters is None and fit.ci95 is None
+    assert fit.reason and "hump" in fit.reason
+
+
+def test_the_offset_is_taken_out_before_fitting() -> None:
+    gravity = 14.0
+    up = points(SPEEDS, stribeck(SPEEDS), 0.01, 1, offset=gravity)
+    down = points(SPEEDS, stribeck(SPEEDS), 0.01, -1, offset=gravity)
+    offset = separate_offset(up, down)
+    assert offset is not None
+    for sign, pts in ((1, up), (-1, down)):
+        found = fit_direction(pts, sign, offset=offset)  # type: ignore[arg-type]
+        assert found.offset_removed == pytest.approx(gravity)
+        assert found.fit is not None and found.fit.coulomb is not None
+        assert found.fit.coulomb == pytest.approx(T_C, rel=0.02)
+    # Without the offset, the downward direction is no friction: null, never negative.
+    raw = fit_direction(down, -1)
+    assert raw.fit is not None and raw.fit.coulomb is None
 
 
 def test_point_sigma_guards_zero_std_and_empty_windows() -> None:
@@ -265,7 +334,18 @@ def test_point_sigma_guards_zero_std_and_empty_windows() -> None:
     assert sigma is not None
     np.testing.assert_allclose(sigma, np.array([0.01, 0.02, 0.02, 0.03]) * MEDIAN_SE_FACTOR)
     assert point_sigma([Point(velocity_mm_min=1.0, median=1.0, mean=1.0, std=0.0, n=5)]) is None
-    assert fit_direction([], 1) == (None, None, None)
+    empty = fit_direction([], 1)
+    assert empty.fit is None and empty.model is None
+
+
+def test_point_sigma_takes_the_batch_standard_error_where_given() -> None:
+    pts = [
+        Point(velocity_mm_min=10.0, median=1.0, mean=1.0, std=0.1, n=100, stderr=0.05),
+        Point(velocity_mm_min=20.0, median=1.0, mean=1.0, std=0.1, n=100),
+    ]
+    sigma = point_sigma(pts)
+    assert sigma is not None
+    np.testing.assert_allclose(sigma, [0.05, 0.01 * MEDIAN_SE_FACTOR])
 
 
 # --------------------------------------------------------------------------- offset

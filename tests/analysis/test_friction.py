@@ -1,4 +1,4 @@
-"""The friction table against a plain per-group computation, and its sample selection."""
+"""The friction table against a plain per-group computation; quantised and correlated samples."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.friction import friction_table, window_samples
+from ncmeasure.analysis.friction import friction_table, grouped_median, window_samples
 from ncmeasure.analysis.segment import VelocityWindow
 
 
@@ -30,14 +30,11 @@ def _window(
     )
 
 
-def _random_case(
-    seed: int,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], list[VelocityWindow]]:
+def _random_case(seed: int) -> tuple[NDArray[np.float64], list[VelocityWindow]]:
     """Windows of 3 steps × 2 positions × 2 directions, two repetitions each, shuffled."""
     rng = np.random.default_rng(seed)
     n = 20_000
     current = rng.normal(1.0, 0.3, n)
-    velocity = np.zeros(n)
     windows = []
     start = 10
     for _ in range(2):
@@ -52,27 +49,22 @@ def _random_case(
                             direction=sign, v=v,
                         )
                     )  # fmt: skip
-                    velocity[start : start + length] = direction * v
                     start += length + int(rng.integers(1, 50))
-    # Some samples fall out of the velocity band; one current is missing.
-    off = rng.choice(start, 300, replace=False)
-    velocity[off] *= 1.5
-    current[windows[3].start + 2] = np.nan
+    current[windows[3].start + 2] = np.nan  # one current is missing
     order = rng.permutation(len(windows))
-    return current, velocity, [windows[i] for i in order]
+    return current, [windows[i] for i in order]
 
 
 def _plain(
-    current: NDArray[np.float64], velocity: NDArray[np.float64], windows: list[VelocityWindow]
+    current: NDArray[np.float64], windows: list[VelocityWindow]
 ) -> dict[tuple[int, int, int], tuple[float, float, float, int, int]]:
     """The same statistics, one group at a time, the obvious way."""
     groups: dict[tuple[int, int, int], list[NDArray[np.float64]]] = {}
     for w in windows:
         samples = current[w.start : w.stop]
-        v = velocity[w.start : w.stop]
-        tolerance = max(0.03 * abs(w.level_mm_min), 2.0)
-        keep = (np.abs(v - w.level_mm_min) <= tolerance) & np.isfinite(samples)
-        groups.setdefault((w.position_index, w.direction, w.step), []).append(samples[keep])
+        groups.setdefault((w.position_index, w.direction, w.step), []).append(
+            samples[np.isfinite(samples)]
+        )
     result = {}
     for key, parts in groups.items():
         values = np.concatenate(parts)
@@ -88,9 +80,9 @@ def _plain(
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_table_equals_the_plain_per_group_statistics(seed: int) -> None:
-    current, velocity, windows = _random_case(seed)
-    table = friction_table("X", current, windows, velocity_mm_min=velocity)
-    expected = _plain(current, velocity, windows)
+    current, windows = _random_case(seed)
+    table = friction_table("X", current, windows)
+    expected = _plain(current, windows)
     assert len(table) == len(expected) == 12
     for i in range(len(table)):
         key = (int(table.position_index[i]), int(table.direction[i]), int(table.step[i]))
@@ -100,14 +92,17 @@ def test_table_equals_the_plain_per_group_statistics(seed: int) -> None:
         assert table.std[i] == pytest.approx(std, rel=1e-9)
         assert table.n[i] == n
         assert table.windows[i] == count == 2
+        # Independent samples: the batches agree with √(π/2)·std/√n, never below it.
+        independent = math.sqrt(math.pi / 2) * std / math.sqrt(n)
+        assert independent * (1 - 1e-12) <= table.stderr[i] < 3 * independent
     assert table.samples == sum(e[3] for e in expected.values())
     assert table.quantity == "current_a"
     assert table.unit == "A"
 
 
 def test_rows_are_sorted_by_position_direction_step() -> None:
-    current, velocity, windows = _random_case(0)
-    table = friction_table("X", current, windows, velocity_mm_min=velocity)
+    current, windows = _random_case(0)
+    table = friction_table("X", current, windows)
     keys = list(
         zip(table.position_index.tolist(), table.direction.tolist(), table.step.tolist(),
             strict=True)
@@ -116,48 +111,65 @@ def test_rows_are_sorted_by_position_direction_step() -> None:
 
 
 def test_torque_constant_turns_the_table_into_torque() -> None:
-    current, velocity, windows = _random_case(1)
-    amps = friction_table("X", current, windows, velocity_mm_min=velocity)
-    torque = friction_table(
-        "X", current, windows, velocity_mm_min=velocity, torque_constant_nm_per_a=2.1
-    )
+    current, windows = _random_case(1)
+    amps = friction_table("X", current, windows)
+    torque = friction_table("X", current, windows, torque_constant_nm_per_a=2.1)
     assert torque.quantity == "torque_nm"
     assert torque.unit == "Nm"
     assert torque.torque_constant_nm_per_a == 2.1
     np.testing.assert_allclose(torque.median, 2.1 * amps.median)
     np.testing.assert_allclose(torque.mean, 2.1 * amps.mean)
     np.testing.assert_allclose(torque.std, 2.1 * amps.std)
+    np.testing.assert_allclose(torque.stderr, 2.1 * amps.stderr)
     np.testing.assert_array_equal(torque.n, amps.n)
 
 
-def test_samples_outside_the_velocity_band_do_not_count() -> None:
-    current = np.concatenate([np.full(50, 1.0), np.full(50, 9.0)])
-    velocity = np.concatenate([np.full(50, 1000.0), np.full(50, 1100.0)])  # 10 % off
-    windows = [_window(0, 100, step=0, position=0, direction=1, v=1000.0)]
-    table = friction_table("X", current, windows, velocity_mm_min=velocity)
-    assert table.n.tolist() == [50]
-    assert table.median.tolist() == [1.0]
-    everything = friction_table("X", current, windows)
-    assert everything.n.tolist() == [100]
-    assert everything.median.tolist() == [5.0]
+def test_every_sample_of_a_window_counts() -> None:
+    """The window was checked as a whole; samples are never picked by their velocity."""
+    current = np.concatenate([np.full(50, 1.0), np.full(51, 9.0)])
+    windows = [_window(0, 101, step=0, position=0, direction=1, v=1000.0)]
+    table = friction_table("X", current, windows)
+    assert table.n.tolist() == [101]
+    assert table.median.tolist() == [9.0]
 
 
-def test_floor_of_the_velocity_band_applies_at_low_speed() -> None:
-    velocity = np.array([10.0, 11.5, 8.5, 12.5, 7.0])  # band 10 ± 2 (floor), not ± 0.3
-    current = np.arange(5.0)
-    windows = [_window(0, 5, step=0, position=0, direction=1, v=10.0)]
-    table = friction_table("X", current, windows, velocity_mm_min=velocity)
-    assert table.n.tolist() == [3]
-    assert table.mean.tolist() == [1.0]
+def test_grouped_median_resolves_a_level_between_the_counts_of_a_quantised_current() -> None:
+    """A drive reports its current in counts; noise dithers the reading between two."""
+    rng = np.random.default_rng(7)
+    count = 0.0177  # A: one per mille of a 17.7 A rated current (CiA 402 0x6078)
+    true = 0.8 + 0.3 * count  # between two counts
+    readings = np.round((true + rng.normal(0, 0.4 * count, 4000)) / count) * count
+    assert len(np.unique(readings)) <= 4
+    assert abs(float(np.median(readings)) - true) > 0.25 * count  # the plain median snaps
+    assert grouped_median(readings, count) == pytest.approx(true, abs=0.05 * count)
+    assert grouped_median(readings, 0.0) == float(np.median(readings))
+    windows = [_window(0, 4000, step=0, position=0, direction=1, v=100.0)]
+    table = friction_table("X", readings, windows, current_quantum_a=count)
+    assert table.median[0] == pytest.approx(true, abs=0.05 * count)
+
+
+def test_correlated_samples_widen_the_standard_error() -> None:
+    """Cogging and the servo loop make neighbouring samples alike: √n would overstate
+    the precision. Batches of a window carry the slow part of the ripple."""
+    rng = np.random.default_rng(1)
+    n = 500
+    slow = 0.05 * np.sin(np.linspace(0, 3 * np.pi, n))  # a ripple slower than a batch
+    current = 2.0 + slow + rng.normal(0, 0.01, n)
+    windows = [_window(0, n, step=0, position=0, direction=1, v=10.0)]
+    table = friction_table("X", current, windows)
+    independent = math.sqrt(math.pi / 2) * float(table.std[0]) / math.sqrt(n)
+    assert table.batches.tolist() == [5]
+    assert table.stderr[0] > 3 * independent
 
 
 def test_points_of_a_position_and_direction_slowest_first() -> None:
-    current, velocity, windows = _random_case(2)
-    table = friction_table("X", current, windows, velocity_mm_min=velocity)
+    current, windows = _random_case(2)
+    table = friction_table("X", current, windows)
     points = table.points(1, -1)
     assert [p.velocity_mm_min for p in points] == [-10.0, -100.0, -1000.0]
     assert [p.step for p in points] == [0, 1, 2]
     assert all(p.windows == 2 for p in points)
+    assert all(p.stderr is not None and p.stderr > 0 for p in points)
     assert table.points(5, 1) == []
 
 

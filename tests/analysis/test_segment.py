@@ -317,11 +317,11 @@ def test_plateaus_of_a_foreign_program_touching_levels_apart() -> None:
     rng = np.random.default_rng(3)
     levels = [100.0, 200.0, 400.0, -300.0, -150.0]
     dt = 0.002
-    velocity = _stairs(levels, hold_s=0.6, dt=dt)
-    velocity = velocity + rng.normal(0, 0.5, len(velocity))
-    velocity[rng.integers(0, len(velocity), 10)] += 80.0  # spikes
+    true = _stairs(levels, hold_s=0.6, dt=dt)
+    velocity = true + rng.normal(0, 0.5, len(true))
+    velocity[rng.integers(0, len(velocity), 10)] += 80.0  # spikes of the reading, not motion
     time_s = np.arange(len(velocity), dtype=np.float64) * dt
-    seg = find_windows("X", time_s, velocity, position_mm=np.cumsum(velocity) * dt / 60)
+    seg = find_windows("X", time_s, velocity, position_mm=np.cumsum(true) * dt / 60)
     assert seg.source == "plateau"
     found = [w.level_mm_min for w in seg.windows]
     assert found == pytest.approx(levels, abs=0.5)
@@ -363,4 +363,4 @@ def test_standstill_says_what_was_tried() -> None:
 
 def test_forcing_a_method_that_has_no_data_fails_clearly(signals: Signals) -> None:
     with pytest.raises(RecordingError, match="marker: not recorded"):
-        _find(signals, "command", settings=SegmentSettings(method="marker"))
+        _find(signals, "command", settings=SegmentSettings(window_method="marker"))

@@ -38,7 +38,9 @@ from ncmeasure.analysis.results import (
     RecordingInfo,
     Results,
     VelocityProfile,
+    Verdict,
 )
+from ncmeasure.analysis.verdict import axis_verdict
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.examples import example_machine
 from ncmeasure.links.base import SampleBlock, channels_for
@@ -285,15 +287,17 @@ def build_results(
         positions = []
         all_positive: list[Point] = []
         all_negative: list[Point] = []
+        for points in per_position:
+            for p in points:
+                (all_positive if p.velocity_mm_min > 0 else all_negative).append(p)
+        offset = separate_offset(all_positive, all_negative)
         for index, points in enumerate(per_position):
             directions: dict[Literal["positive", "negative"], DirectionResult | None] = {}
             for name, sign in (("positive", 1), ("negative", -1)):
                 chosen = [p for p in points if np.sign(p.velocity_mm_min) == sign]
-                linear, stribeck, extended = fit_direction(chosen, 1 if sign > 0 else -1)
-                directions["positive" if name == "positive" else "negative"] = DirectionResult(
-                    points=chosen, fit=linear, stribeck=stribeck, extended=extended
+                directions["positive" if name == "positive" else "negative"] = fit_direction(
+                    chosen, 1 if sign > 0 else -1, offset=offset
                 )
-                (all_positive if sign > 0 else all_negative).extend(chosen)
             positions.append(
                 PositionResult(
                     position_mm=model.positions_mm[index],
@@ -301,13 +305,13 @@ def build_results(
                     directions=directions,
                 )
             )
-        offset = separate_offset(all_positive, all_negative)
         warnings = []
         if model.name == "Z":
             warnings.append(
                 "vertical axis: the points include the weight's torque (see the offset)"
             )
-        axes[model.name] = AxisResult(
+        result = AxisResult(
+            verdict=Verdict(level="ok", reason="", action=""),
             quantity="torque_nm",
             unit="Nm",
             torque_constant_nm_per_a=TORQUE_CONSTANT,
@@ -319,6 +323,7 @@ def build_results(
             position_dependency=_dependency(model, positions),
             warnings=warnings,
         )
+        axes[model.name] = result.model_copy(update={"verdict": axis_verdict(result)})
     return Results(
         created_utc="2026-01-15T09:05:00.000+00:00",
         recording=RecordingInfo(

@@ -29,13 +29,14 @@ import json
 import logging
 import math
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from numpy.typing import NDArray
+from pydantic import ValidationError
 
 from ncmeasure.analysis.diagnosis import position_dependency
 from ncmeasure.analysis.fit import fit_direction, separate_offset
@@ -51,12 +52,15 @@ from ncmeasure.analysis.results import (
     PositionResult,
     RecordingInfo,
     Results,
+    Verdict,
 )
-from ncmeasure.analysis.segment import Segmentation, SegmentSettings, windows_of
+from ncmeasure.analysis.segment import Segmentation, SegmentSettings, find_windows, quantum
+from ncmeasure.analysis.verdict import axis_verdict
 from ncmeasure.config import MachineConfig, format_validation_error
 from ncmeasure.errors import ConfigError, OutputError, RecordingError
 from ncmeasure.plan import AxisSummary, Schedule
 from ncmeasure.recording import Recording
+from ncmeasure.validity import Implausible
 
 __all__ = [
     "AnalysisSettings",
@@ -71,119 +75,22 @@ log = logging.getLogger(__name__)
 
 Progress = Callable[[str, float], None]
 
-_DEFAULT = SegmentSettings()
+FloatArray = NDArray[np.float64]
 _DIRECTIONS: tuple[tuple[Literal[1, -1], Literal["positive", "negative"]], ...] = (
     (1, "positive"),
     (-1, "negative"),
 )
 #: Standard error of a median of normal samples, relative to std/√n.
-_MEDIAN_SE_FACTOR = math.sqrt(math.pi / 2)
 
 
-class AnalysisSettings(BaseModel):
-    """How the analysis finds windows and which samples it keeps.
+class AnalysisSettings(SegmentSettings):
+    """How the analysis finds windows: every setting of :class:`SegmentSettings`.
 
-    The defaults suit ncmeasure's own programs (windows of 0.4 s, settle
-    0.1 s, 1 to 4 ms sampling, lowest step about 10 mm/min). They are written
-    into ``results.json`` (``settings``), so a result says how it was made.
+    The defaults suit ncmeasure's own programs and foreign recordings from 1 to
+    100 ms per sample. They are written into ``results.json`` (``settings``),
+    so a result says how it was made. ``ncmeasure analyze --set key=value``
+    sets any of them by the same names.
     """
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    velocity_tolerance: float = Field(
-        default=_DEFAULT.velocity_tolerance,
-        gt=0,
-        lt=1,
-        description="A sample counts where |actual − commanded velocity| ≤ this fraction of "
-        "the commanded one (or velocity_floor_mm_min, whichever is larger). Also the "
-        "flatness a plateau must keep.",
-    )
-    velocity_floor_mm_min: float = Field(
-        default=_DEFAULT.velocity_floor_mm_min,
-        ge=0,
-        description="Absolute floor of the velocity tolerance in mm/min: at low speed the "
-        "relative tolerance would be smaller than the velocity signal's noise.",
-    )
-    settle_s: float = Field(
-        default=_DEFAULT.settle_s,
-        ge=0,
-        description="Samples until this long after the actual velocity entered the "
-        "tolerance band are cut from each window (acceleration transient, overshoot).",
-    )
-    min_window_samples: int = Field(
-        default=_DEFAULT.min_window_samples,
-        ge=2,
-        description="A window with fewer samples after the cut is dropped.",
-    )
-    plateau_min_s: float = Field(
-        default=_DEFAULT.plateau_min_s,
-        gt=0,
-        description="Shortest plateau of constant actual velocity that counts as a window "
-        "(only without marker and commanded velocity).",
-    )
-    plateau_filter_s: float = Field(
-        default=_DEFAULT.plateau_filter_s,
-        ge=0,
-        description="Width of the rolling median that smooths the actual velocity before "
-        "plateaus and the end of transients are detected.",
-    )
-    standstill_mm_min: float = Field(
-        default=_DEFAULT.standstill_mm_min,
-        ge=0,
-        description="Velocities below this are standstill, never a window.",
-    )
-    step_tolerance: float = Field(
-        default=_DEFAULT.step_tolerance,
-        gt=0,
-        description="Without a schedule: windows whose velocities differ by less than this "
-        "fraction (or step_floor_mm_min) belong to the same velocity step.",
-    )
-    step_floor_mm_min: float = Field(
-        default=_DEFAULT.step_floor_mm_min,
-        ge=0,
-        description="Absolute floor of step_tolerance in mm/min.",
-    )
-    position_gap_mm: float = Field(
-        default=_DEFAULT.position_gap_mm,
-        gt=0,
-        description="Without a schedule: window centres further apart than this (or "
-        "position_gap_fraction of their span) belong to different measuring positions.",
-    )
-    position_gap_fraction: float = Field(
-        default=_DEFAULT.position_gap_fraction,
-        ge=0,
-        lt=1,
-        description="Relative part of the position gap.",
-    )
-    max_velocity_mm_min: float | None = Field(
-        default=_DEFAULT.max_velocity_mm_min,
-        gt=0,
-        description="Windows faster than this are rapid traverse. Default: the schedule's "
-        "top step; without a schedule, rapids are recognised by their count and duration.",
-    )
-    duration_outlier_factor: float = Field(
-        default=_DEFAULT.duration_outlier_factor,
-        gt=1,
-        description="Without a schedule: windows lasting this many times longer than the "
-        "trend of window duration over velocity are traverses or warm-up strokes.",
-    )
-    rapid_count_factor: float = Field(
-        default=_DEFAULT.rapid_count_factor,
-        gt=1,
-        description="Without a schedule: the fastest velocity level is rapid traverse when "
-        "it holds this many times more windows than a typical level.",
-    )
-    window_method: Literal["auto", "marker", "command", "plateau"] = Field(
-        default=_DEFAULT.method,
-        description="auto: marker, else commanded velocity, else plateaus. The others force "
-        "one way.",
-    )
-
-    def segment_settings(self) -> SegmentSettings:
-        """The same settings as :mod:`~ncmeasure.analysis.segment` takes them."""
-        data = self.model_dump()
-        data["method"] = data.pop("window_method")
-        return SegmentSettings(**data)
 
 
 @dataclass
@@ -196,11 +103,24 @@ class AxisFacts:
     travel_mm: tuple[float, float] | None = None
     fixed_bearing_end: Literal["min", "max"] | None = None
     vertical: bool | None = None
+    rated_current_a: float | None = None
+    max_velocity_mm_min: float | None = None
     warnings: list[str] = field(default_factory=list)
 
 
 def _quiet(stage: str, fraction: float) -> None:
     """The progress callback that reports nothing."""
+
+
+_FACT_KEYS = (
+    "torque_constant_nm_per_a",
+    "screw_lead_mm",
+    "travel_mm",
+    "fixed_bearing_end",
+    "vertical",
+    "rated_current_a",
+    "max_velocity_mm_min",
+)
 
 
 def _axis_facts(
@@ -221,14 +141,7 @@ def _axis_facts(
                 sources.append(("the machine file", axis.model_dump()))
     if summary is not None:
         sources.append(("the schedule", summary.model_dump()))
-    keys = (
-        "torque_constant_nm_per_a",
-        "screw_lead_mm",
-        "travel_mm",
-        "fixed_bearing_end",
-        "vertical",
-    )
-    for key in keys:
+    for key in _FACT_KEYS:
         found: list[tuple[str, Any]] = [
             (where, data[key]) for where, data in sources if data.get(key) is not None
         ]
@@ -238,6 +151,8 @@ def _axis_facts(
         if key == "travel_mm":
             value = (float(value[0]), float(value[1]))
         setattr(facts, key, value)
+        if key in ("rated_current_a", "max_velocity_mm_min"):
+            continue  # limits for plausibility only: the first source is enough
         for other, other_value in found[1:]:
             if key == "travel_mm":
                 other_value = (float(other_value[0]), float(other_value[1]))
@@ -288,12 +203,23 @@ def _dependency(
     segmentation: Segmentation,
     facts: AxisFacts,
     position_mm: dict[int, float],
-) -> PositionDependency | None:
-    """Position dependency over positions × velocity steps of friction magnitudes."""
+    offset: OffsetResult | None,
+) -> tuple[PositionDependency | None, list[str]]:
+    """Position dependency over positions × velocity steps of friction magnitudes.
+
+    Every cell is friction, free of the offset: the half difference
+    (T₊ − T₋)/2 where both directions were measured, else the one direction's
+    magnitude with the axis' offset taken out, direction × (T − o). Without an
+    offset a cell of one direction is left out when other cells have both (it
+    would mix gravity into some cells only) or the axis is vertical (gravity
+    would pass for friction); it is kept only where no cell has both directions
+    on a horizontal axis, all cells then of one kind.
+    """
+    notes: list[str] = []
     positions = sorted(position_mm)
     steps = sorted({int(s) for s in table.step})
     if len(positions) < 2 or not steps:
-        return None
+        return None, notes
     pos_col = {p: k for k, p in enumerate(positions)}
     step_row = {s: k for k, s in enumerate(steps)}
     shape = (len(steps), len(positions))
@@ -304,21 +230,37 @@ def _dependency(
         k = pos_col[int(table.position_index[i])]
         sign = int(table.direction[i])
         median[sign][j, k] = table.median[i]
-        n = max(int(table.n[i]), 1)
-        std = table.std[i] if np.isfinite(table.std[i]) else np.nan
-        error[sign][j, k] = _MEDIAN_SE_FACTOR * std / math.sqrt(n)
+        error[sign][j, k] = table.stderr[i] if np.isfinite(table.stderr[i]) else np.nan
     both = np.isfinite(median[1]) & np.isfinite(median[-1])
-    # Both directions: the half difference, free of any offset; else the magnitude.
-    values = np.where(
-        both,
-        (median[1] - median[-1]) / 2,
-        np.where(np.isfinite(median[1]), median[1], -median[-1]),
-    )
-    noise = np.where(
-        both,
-        0.5 * np.sqrt(error[1] ** 2 + error[-1] ** 2),
-        np.where(np.isfinite(median[1]), error[1], error[-1]),
-    )
+    single_pos = np.isfinite(median[1]) & ~both
+    single_neg = np.isfinite(median[-1]) & ~both
+    values = np.where(both, (median[1] - median[-1]) / 2, np.nan)
+    noise = np.where(both, 0.5 * np.sqrt(error[1] ** 2 + error[-1] ** 2), np.nan)
+    singles = int(np.count_nonzero(single_pos | single_neg))
+    if offset is not None:
+        shift_se = offset.stderr or 0.0
+        values = np.where(single_pos, median[1] - offset.value, values)
+        values = np.where(single_neg, offset.value - median[-1], values)
+        noise = np.where(single_pos, np.hypot(error[1], shift_se), noise)
+        noise = np.where(single_neg, np.hypot(error[-1], shift_se), noise)
+        if singles and both.any():
+            notes.append(
+                f"{singles} cell(s) measured in one direction only: the offset "
+                f"({offset.value:.4g}) taken out of them for the position dependency"
+            )
+    elif facts.vertical and singles:
+        notes.append(
+            f"{singles} cell(s) measured in one direction only on a vertical axis without a "
+            "separated offset: left out of the position dependency (gravity)"
+        )
+    elif both.any() and singles:
+        notes.append(
+            f"{singles} cell(s) measured in one direction only: left out of the position "
+            "dependency (without an offset they would not compare with the others)"
+        )
+    elif singles:
+        values = np.where(single_pos, median[1], np.where(single_neg, -median[-1], values))
+        noise = np.where(single_pos, error[1], np.where(single_neg, error[-1], noise))
     velocities = []
     for s in steps:
         speeds = np.abs(table.velocity_mm_min[table.step == s])
@@ -328,7 +270,7 @@ def _dependency(
         centres = [c.centre for c in segmentation.positions]
         travel = (min(centres), max(centres))
     noise_arg = noise if np.isfinite(noise[np.isfinite(values)]).all() else None
-    return position_dependency(
+    dependency = position_dependency(
         [position_mm[p] for p in positions],
         velocities,
         values,
@@ -336,6 +278,44 @@ def _dependency(
         fixed_bearing_end=facts.fixed_bearing_end or "min",
         noise=noise_arg,
     )
+    return dependency, notes
+
+
+_SIGNALS_CHECKED = ("current_a", "velocity_mm_min", "position_mm", "velocity_cmd_mm_min")
+
+
+def _signals(
+    recording: Recording, axis: str, facts: AxisFacts
+) -> tuple[dict[str, FloatArray], dict[str, int], list[str]]:
+    """The axis' channels with the values no drive can report (no-value codes) as NaN."""
+    names = {
+        f"{axis}_{signal}": signal
+        for signal in (*_SIGNALS_CHECKED, "marker")
+        if f"{axis}_{signal}" in recording.channel_names
+    }
+    limits = {"rated_current_a": facts.rated_current_a, "max_velocity_mm_min": None}
+    if facts.max_velocity_mm_min is not None:
+        limits["max_velocity_mm_min"] = facts.max_velocity_mm_min
+    checker = Implausible.for_channels(names, dict.fromkeys(names, limits))
+    cleaned = {
+        signal: checker.clean(name, recording.time_s, recording.column(name))
+        for name, signal in names.items()
+    }
+    return cleaned, dict(checker.counts), checker.lines()
+
+
+def _dead_channel(axis: str, signal: str, values: FloatArray, unit: str) -> str | None:
+    """Why a channel holds no information (all NaN, or one value in every row), else None."""
+    finite = values[np.isfinite(values)]
+    name = f"{axis}_{signal}"
+    if len(finite) == 0:
+        return f"{name} holds no valid value: the channel is empty"
+    if len(values) > 1 and float(finite.min()) == float(finite.max()):
+        return (
+            f"{name} is {float(finite[0]):g} {unit} in every row: a dead channel (the drive "
+            "does not report it, or the wrong object or register is read)"
+        )
+    return None
 
 
 def analyze_axis(
@@ -346,13 +326,16 @@ def analyze_axis(
     machine: MachineConfig | None = None,
     settings: AnalysisSettings | None = None,
     progress: Progress | None = None,
+    gap_share: float = 0.0,
 ) -> AxisResult:
     """Analyse one axis of a recording; see :func:`analyze`.
 
     ``progress`` is called with (stage, fraction of this axis done).
 
     Raises:
-        RecordingError: The axis lacks current or velocity, or no window was found.
+        RecordingError: The axis cannot be analysed: it lacks current or
+            velocity, a channel is dead (one value in every row), it did not
+            move, or no window was found. The message says why in words.
     """
     settings = settings or AnalysisSettings()
     report: Progress = progress or _quiet
@@ -364,37 +347,59 @@ def analyze_axis(
     ]
     if missing:
         raise RecordingError(
-            f"{recording.directory}: axis {axis} cannot be analysed without "
-            f"{' and '.join(missing)}; the friction analysis needs the motor current and "
-            f"the actual velocity of every axis (recorded: {', '.join(channels)})"
+            f"axis {axis} cannot be analysed without {' and '.join(missing)}; the friction "
+            "analysis needs the motor current and the actual velocity of every axis "
+            f"(recorded: {', '.join(channels)})"
         )
     summary = None
     if schedule is not None:
         summary = next((a for a in schedule.axes if a.name == axis), None)
     facts = _axis_facts(axis, recording, machine, summary)
+    signals, implausible_counts, implausible_lines = _signals(recording, axis, facts)
+    current = signals["current_a"]
+    velocity = signals["velocity_mm_min"]
+    position = signals.get("position_mm")
+    dead = _dead_channel(axis, "velocity_mm_min", velocity, "mm/min")
+    moving = position is not None and _dead_channel(axis, "position_mm", position, "mm") is None
+    if dead is not None:
+        finite = velocity[np.isfinite(velocity)]
+        # One value in every row: dead, unless it is 0 and nothing moves (a standstill).
+        if moving or len(finite) == 0 or finite[0] != 0.0:
+            raise RecordingError(dead)
     report(f"axis {axis}: windows", 0.0)
-    try:
-        segmentation = windows_of(
-            recording, axis, schedule=schedule, settings=settings.segment_settings()
-        )
-    except RecordingError as exc:
-        raise RecordingError(f"{recording.directory}: {exc.message}", exc.problems) from exc
+    segmentation = find_windows(
+        axis,
+        recording.time_s,
+        velocity,
+        position_mm=position,
+        command_mm_min=signals.get("velocity_cmd_mm_min"),
+        marker=signals.get("marker"),
+        schedule=schedule,
+        settings=settings,
+    )
+    dead = _dead_channel(axis, "current_a", current, "A")
+    if dead is None:
+        in_windows = np.concatenate([current[w.start : w.stop] for w in segmentation.windows])
+        dead = _dead_channel(axis, "current_a", in_windows, "A")
+        if dead is not None:
+            dead = dead.replace("in every row", "in every window")
+    if dead is not None:
+        raise RecordingError(dead)
     report(f"axis {axis}: friction table", 0.1)
+    current_quantum = quantum(current)
     table = friction_table(
         axis,
-        recording.column(f"{axis}_current_a"),
+        current,
         segmentation.windows,
-        velocity_mm_min=recording.column(f"{axis}_velocity_mm_min"),
-        velocity_tolerance=settings.velocity_tolerance,
-        velocity_floor_mm_min=settings.velocity_floor_mm_min,
         torque_constant_nm_per_a=facts.torque_constant_nm_per_a,
+        current_quantum_a=current_quantum,
     )
     if len(table) == 0:
         raise RecordingError(
-            f"{recording.directory}: axis {axis}: {len(segmentation.windows)} windows found, "
-            "but no sample in them has a finite current and a velocity within the tolerance"
+            f"axis {axis}: {len(segmentation.windows)} windows found, but no finite current "
+            "in any of them"
         )
-    warnings = [*segmentation.warnings, *facts.warnings]
+    warnings = [*segmentation.warnings, *implausible_lines, *facts.warnings]
     if facts.torque_constant_nm_per_a is None:
         warnings.append("no torque constant (recording, machine file or schedule): friction in A")
     if facts.fixed_bearing_end is None:
@@ -402,47 +407,51 @@ def analyze_axis(
     if facts.travel_mm is None:
         warnings.append("travel unknown: taken as the span of the measuring positions")
 
-    position_mm = {c.index: c.centre for c in segmentation.positions}
-    positions: list[PositionResult] = []
+    position_mm = {c.index: c.centre for c in segmentation.positions if c.windows > 0}
+    empty = [c.centre for c in segmentation.positions if c.windows == 0]
+    points: dict[int, dict[int, list[Point]]] = {
+        index: {sign: table.points(index, sign) for sign, _ in _DIRECTIONS}
+        for index in sorted(position_mm)
+    }
     offsets: list[tuple[float, OffsetResult]] = []
-    for number, index in enumerate(sorted(position_mm)):
-        report(
-            f"axis {axis}: fits at {position_mm[index]:g} mm",
-            0.15 + 0.8 * number / len(position_mm),
-        )
-        directions: dict[Literal["positive", "negative"], DirectionResult | None] = {}
-        points: dict[int, list[Point]] = {}
-        for sign, key in _DIRECTIONS:
-            points[sign] = table.points(index, sign)
-            if not points[sign]:
-                directions[key] = None
-                continue
-            linear, stribeck, extended = fit_direction(points[sign], sign)
-            directions[key] = DirectionResult(
-                points=points[sign], fit=linear, stribeck=stribeck, extended=extended
-            )
-        if not points[1] and not points[-1]:
-            continue
-        if points[1] and points[-1]:
-            offset = separate_offset(points[1], points[-1])
-            if offset is not None:
-                offsets.append((position_mm[index], offset))
-        positions.append(
-            PositionResult(
-                position_mm=position_mm[index], position_index=index, directions=directions
-            )
-        )
+    for index, by_sign in points.items():
+        if by_sign[1] and by_sign[-1]:
+            found = separate_offset(by_sign[1], by_sign[-1])
+            if found is not None:
+                offsets.append((position_mm[index], found))
     offset = _combine_offsets(offsets, facts.vertical)
     if facts.vertical and offset is None:
         warnings.append(
             "vertical axis measured in one direction only: gravity is not separated from "
             "friction (measure both directions)"
         )
+    positions: list[PositionResult] = []
+    for number, (index, by_sign) in enumerate(points.items()):
+        report(
+            f"axis {axis}: fits at {position_mm[index]:g} mm",
+            0.15 + 0.8 * number / len(points),
+        )
+        if not by_sign[1] and not by_sign[-1]:
+            empty.append(position_mm[index])
+            continue
+        directions: dict[Literal["positive", "negative"], DirectionResult | None] = {
+            key: fit_direction(by_sign[sign], sign, offset=offset, coarse=segmentation.coarse)
+            if by_sign[sign]
+            else None
+            for sign, key in _DIRECTIONS
+        }
+        positions.append(
+            PositionResult(
+                position_mm=position_mm[index], position_index=index, directions=directions
+            )
+        )
     report(f"axis {axis}: position dependency", 0.95)
-    dependency = _dependency(table, segmentation, facts, position_mm)
+    dependency, notes = _dependency(table, segmentation, facts, position_mm, offset)
+    warnings.extend(notes)
     if dependency is None:
         warnings.append("a single measuring position: no position dependency")
-    return AxisResult(
+    result = AxisResult(
+        verdict=Verdict(level="ok", reason="", action=""),
         quantity=table.quantity,
         unit=table.unit,
         torque_constant_nm_per_a=facts.torque_constant_nm_per_a,
@@ -453,11 +462,35 @@ def analyze_axis(
         window_source=segmentation.source,
         windows=len(segmentation.windows),
         samples_used=table.samples,
+        sample_period_s=segmentation.sample_period_s,
+        velocity_quantum_mm_min=segmentation.velocity_quantum_mm_min,
+        current_quantum_a=current_quantum,
+        coarse=segmentation.coarse,
+        implausible_values=implausible_counts,
         positions=positions,
         offset=offset,
         position_dependency=dependency,
         warnings=list(dict.fromkeys(warnings)),
     )
+    verdict = axis_verdict(result, gap_share=gap_share, empty_positions=empty)
+    return result.model_copy(update={"verdict": verdict})
+
+
+def recording_gaps(recording: Recording) -> tuple[int, int, int]:
+    """Gaps of a recording: holes in its time axis, samples lost in them, gap events.
+
+    A hole is a time step longer than 1.5 nominal periods; it lost
+    round(step / period) − 1 samples. Where the link reported more lost samples
+    in its gap events than the time axis shows (a gap at the very end), the
+    larger count is taken.
+    """
+    period = recording.meta.nominal_period_s
+    steps = np.diff(recording.time_s)
+    holes = steps > 1.5 * period
+    lost = int(np.sum(np.round(steps[holes] / period) - 1)) if holes.any() else 0
+    events = [e for e in recording.events if e.kind == "gap"]
+    reported = sum(e.lost_samples for e in events)
+    return max(int(np.count_nonzero(holes)), len(events)), max(lost, reported), len(events)
 
 
 def analyze(
@@ -466,9 +499,14 @@ def analyze(
     schedule: Schedule | None = None,
     machine: MachineConfig | None = None,
     settings: AnalysisSettings | None = None,
+    axes: Sequence[str] | None = None,
     progress: Progress | None = None,
 ) -> Results:
     """Analyse every axis of a recording: friction per position, direction and velocity.
+
+    An axis that cannot be analysed (a missing or dead channel, an axis that
+    did not move, no window) does not stop the others: it is listed in
+    ``skipped`` with the reason.
 
     Args:
         recording: The recording (recorded, imported or synthetic).
@@ -478,20 +516,28 @@ def analyze(
         machine: The machine file: torque constant, screw lead, travel,
             fixed-bearing end and vertical axes where the recording lacks them.
         settings: How windows are found; :class:`AnalysisSettings` defaults.
+        axes: Analyse only these axes (default: every recorded axis).
         progress: Called with (stage, fraction done in 0..1).
 
     Returns:
         The results, ready for :func:`write_results`.
 
     Raises:
-        RecordingError: The recording has no axis with current and velocity,
-            an axis lacks one of them, or no window is found on an axis (the
-            message says what was tried).
+        RecordingError: No axis could be analysed (the message lists why, axis
+            by axis), or ``axes`` names an axis that was not recorded.
     """
     settings = settings or AnalysisSettings()
-    axes = recording.axes
-    if not axes:
+    recorded = recording.axes
+    if not recorded:
         raise RecordingError(f"{recording.directory}: the recording has no channels")
+    if axes is not None:
+        unknown = [a for a in axes if a not in recorded]
+        if unknown:
+            raise RecordingError(
+                f"{recording.directory}: axis {', '.join(unknown)} not recorded "
+                f"(recorded: {', '.join(recorded)})"
+            )
+    chosen = tuple(dict.fromkeys(axes)) if axes is not None else recorded
     report: Progress = progress or _quiet
     common: list[str] = []
     if (
@@ -505,29 +551,51 @@ def analyze(
         )
     if schedule is not None:
         planned = {a.name for a in schedule.axes}
-        for name in axes:
+        for name in chosen:
             if name not in planned:
                 common.append(f"axis {name} is not in the schedule")
+    gaps, gap_samples, gap_events = recording_gaps(recording)
+    total = len(recording) + gap_samples
+    gap_share = gap_samples / total if total else 0.0
+    if gaps:
+        common.append(
+            f"{gap_samples} samples lost in {gaps} gap(s) ({gap_share * 100:.2g} % of the "
+            "recording): windows in them are shorter or missing"
+        )
     results: dict[str, AxisResult] = {}
-    for number, name in enumerate(axes):
+    skipped: dict[str, str] = {}
+    details: list[str] = []
+    for number, name in enumerate(chosen):
         log.info("analysing axis %s of %s", name, recording.directory)
 
         def axis_progress(stage: str, fraction: float, number: int = number) -> None:
-            report(stage, (number + fraction) / len(axes))
+            report(stage, (number + fraction) / len(chosen))
 
-        result = analyze_axis(
-            recording,
-            name,
-            schedule=schedule,
-            machine=machine,
-            settings=settings,
-            progress=axis_progress,
-        )
+        try:
+            result = analyze_axis(
+                recording,
+                name,
+                schedule=schedule,
+                machine=machine,
+                settings=settings,
+                progress=axis_progress,
+                gap_share=gap_share,
+            )
+        except RecordingError as exc:
+            reason = exc.message.removeprefix(f"axis {name}: ")
+            skipped[name] = reason
+            details.append(f"axis {name}: {reason}")
+            details.extend(f"  {line}" for line in exc.problems)
+            log.warning("axis %s not analysed: %s", name, reason)
+            continue
         if common:
             result = result.model_copy(update={"warnings": [*common, *result.warnings]})
         results[name] = result
+    if not results:
+        raise RecordingError(f"{recording.directory}: no axis could be analysed", details)
     report("done", 1.0)
     meta = recording.meta
+    duration = float(recording.time_s[-1] - recording.time_s[0]) if len(recording) else 0.0
     return Results(
         created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         recording=RecordingInfo(
@@ -536,9 +604,17 @@ def analyze(
             start_utc=meta.start_utc,
             config_hash=meta.config_hash,
             source=meta.source,
+            status=meta.status,
+            samples=len(recording),
+            duration_s=duration,
+            gaps=gaps,
+            gap_samples=gap_samples,
+            gap_share=gap_share,
+            gap_events=gap_events,
         ),
         settings=settings.model_dump(),
         axes=results,
+        skipped=skipped,
     )
 
 

@@ -33,12 +33,20 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import optimize, stats
 
-from ncmeasure.analysis.results import LinearFit, NonlinearFit, OffsetResult, Point
+from ncmeasure.analysis.results import (
+    DirectionResult,
+    LinearFit,
+    ModelName,
+    NonlinearFit,
+    OffsetResult,
+    Point,
+)
 
 __all__ = [
     "EXTENDED_PARAMETERS",
     "LINEAR_REGION_DECAY",
     "MEDIAN_SE_FACTOR",
+    "MIN_LINEAR_POINTS",
     "MIN_LINEAR_POINTS_ABOVE_STRIBECK",
     "SPEED_MATCH_TOLERANCE",
     "STRIBECK_PARAMETERS",
@@ -80,6 +88,9 @@ LINEAR_REGION_DECAY = 0.01
 
 MIN_LINEAR_POINTS_ABOVE_STRIBECK = 5
 """Fewest points above the Stribeck region for a linear fit restricted to them."""
+
+MIN_LINEAR_POINTS = 4
+"""Fewest points a linear fit keeps when the slowest are left out to find its range."""
 
 SPEED_MATCH_TOLERANCE = 0.005
 """Relative tolerance when speeds of the two directions are paired (0.5 %)."""
@@ -201,6 +212,22 @@ def fit_linear(
     stderr = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     if not (np.all(np.isfinite(coef)) and np.all(np.isfinite(stderr)) and math.isfinite(chi2)):
         return None
+    span = (float(v.min()), float(v.max()))
+    if coef[1] < 0:
+        # Friction is a positive magnitude: a negative intercept says the points are not
+        # friction (an offset such as gravity not taken out) or not a line at all.
+        return LinearFit(
+            coulomb=None,
+            viscous_per_mm_min=None,
+            coulomb_stderr=None,
+            viscous_stderr=None,
+            chi2_reduced=chi2,
+            accepted=False,
+            n_points=int(n),
+            velocity_range_mm_min=span,
+            reason=f"the line through the points crosses zero ({coef[1]:.4g} at standstill): "
+            "they do not describe friction (an offset such as gravity not separated?)",
+        )
     return LinearFit(
         coulomb=float(coef[1]),
         viscous_per_mm_min=float(coef[0]),
@@ -209,7 +236,7 @@ def fit_linear(
         chi2_reduced=chi2,
         accepted=bool(chi2 <= k_accept),
         n_points=int(n),
-        velocity_range_mm_min=(float(v.min()), float(v.max())),
+        velocity_range_mm_min=span,
     )
 
 
@@ -486,16 +513,33 @@ def fit_nonlinear(
     }
     hump = params["T_S"] - params["T_C"]
     hump_se = math.sqrt(max(float(cov[0, 0] + cov[1, 1] - 2 * cov[0, 1]), 0.0))
-    narrow = all(hi - lo < abs(params[name]) for name, (lo, hi) in ci.items())
-    on_bound = bool(np.any(best.active_mask != 0))
-    identifiable = narrow and not on_bound and hump - t * hump_se > 0
+    wide = [name for name, (lo, hi) in ci.items() if not hi - lo < abs(params[name])]
+    bound = [name for name, active in zip(names, best.active_mask, strict=True) if active != 0]
     if not all(math.isfinite(x) for pair in ci.values() for x in pair):
         return None
+    reasons = []
+    if wide:
+        reasons.append(f"{', '.join(wide)} not determined (95 % interval wider than the value)")
+    if bound:
+        reasons.append(f"{', '.join(bound)} at the bound of its range")
+    if not hump - t * hump_se > 0:
+        reasons.append("no Stribeck hump beyond its uncertainty")
+    if params["T_C"] <= 0:
+        reasons.append(f"T_C {params['T_C']:.4g} is not a friction")
+    if reasons:
+        return NonlinearFit(
+            model=model,
+            parameters=None,
+            ci95=None,
+            identifiable=False,
+            chi2_reduced=chi2,
+            reason="; ".join(reasons),
+        )
     return NonlinearFit(
         model=model,
         parameters=params,
         ci95=ci,
-        identifiable=bool(identifiable),
+        identifiable=True,
         chi2_reduced=chi2,
         stribeck_velocity_mm_min=params["v_S"],
     )
@@ -505,20 +549,23 @@ def fit_nonlinear(
 
 
 def point_sigma(points: Sequence[Point]) -> FloatArray | None:
-    """σ per point: the standard error of its median, √(π/2)·std/√n.
+    """σ per point: the standard error of its median.
 
-    std/√n is the standard error of the mean of n independent samples; the
-    point is their median, whose standard error is √(π/2) ≈ 1.25 times larger
-    for normal samples (the same factor the position table uses).
+    The point's own ``stderr`` where the friction table gave one (the scatter
+    of batch medians: samples of a window are correlated, batches nearly
+    not), else √(π/2)·std/√n, the standard error of the median of n
+    independent normal samples.
 
-    Guards: a point with n < 1 or a non-finite or zero std gets the median σ
-    of the others; any σ below 0.1 × that median is raised to it (a current
-    quantised to a constant reading has std 0, not infinite precision).
-    None when no point has a usable σ.
+    Guards: a point without a usable figure gets the median σ of the others;
+    any σ below 0.1 × that median is raised to it (a current quantised to a
+    constant reading has std 0, not infinite precision). None when no point
+    has a usable σ.
     """
     raw = np.array(
         [
-            MEDIAN_SE_FACTOR * p.std / math.sqrt(p.n) if p.n >= 1 and p.std > 0 else math.nan
+            p.stderr
+            if p.stderr is not None and p.stderr > 0
+            else (MEDIAN_SE_FACTOR * p.std / math.sqrt(p.n) if p.n >= 1 and p.std > 0 else math.nan)
             for p in points
         ],
         dtype=np.float64,
@@ -531,47 +578,181 @@ def point_sigma(points: Sequence[Point]) -> FloatArray | None:
     return np.asarray(np.maximum(sigma, SIGMA_FLOOR_FRACTION * typical), dtype=np.float64)
 
 
+def _linear_region(
+    speed: FloatArray,
+    magnitude: FloatArray,
+    sigma: FloatArray | None,
+    first: int,
+) -> tuple[LinearFit | None, int]:
+    """The linear fit over the widest range of speeds, from the top down, where it holds.
+
+    Points are sorted by speed. Starting with the points from ``first`` on,
+    the slowest point is left out as long as the fit is rejected and at least
+    :data:`MIN_LINEAR_POINTS` remain: the hump of a Stribeck curve lifts the
+    slow points, and a line through them describes neither region. Returns the
+    first accepted fit, else the fit over all points from ``first``, and the
+    number of points below its range.
+    """
+    n = speed.size
+    widest = fit_linear(speed[first:], magnitude[first:], None if sigma is None else sigma[first:])
+    if widest is None or widest.accepted or sigma is None:
+        return widest, first
+    for start in range(first + 1, n - MIN_LINEAR_POINTS + 1):
+        candidate = fit_linear(speed[start:], magnitude[start:], sigma[start:])
+        if candidate is not None and candidate.accepted:
+            return candidate, start
+    return widest, first
+
+
+def _better_extended(stribeck: NonlinearFit, extended: NonlinearFit, points: int) -> bool:
+    """True when the rolling term lowers χ² significantly (F-test at 1 %)."""
+    extra = len(EXTENDED_PARAMETERS) - len(STRIBECK_PARAMETERS)
+    dof = points - len(EXTENDED_PARAMETERS)
+    if dof <= 0:
+        return False
+    rss_s = stribeck.chi2_reduced * (points - len(STRIBECK_PARAMETERS))
+    rss_e = extended.chi2_reduced * dof
+    if rss_e <= 0:
+        return rss_s > 0
+    statistic = (rss_s - rss_e) / extra / (rss_e / dof)
+    return bool(stats.f.sf(statistic, extra, dof) < 0.01)
+
+
 def fit_direction(
-    points: Sequence[Point], direction: Literal[1, -1]
-) -> tuple[LinearFit | None, NonlinearFit | None, NonlinearFit | None]:
-    """All fits of one position and direction.
+    points: Sequence[Point],
+    direction: Literal[1, -1],
+    *,
+    offset: OffsetResult | None = None,
+    coarse: bool = False,
+    k_accept: float = 10.0,
+) -> DirectionResult:
+    """All fits of one position and direction, and the model that describes the curve.
 
     Points carry signed velocities and signed medians (the negative direction
-    has negative friction); the fits see speed |v| and magnitude
-    ``direction × median``, with σ from :func:`point_sigma`.
+    has negative friction). The fits see speed |v| and the friction magnitude
+    ``direction × (median − offset)``: the axis' offset (gravity on a vertical
+    axis, a bias of the current) is taken out first, so that both directions
+    describe friction. σ per point from :func:`point_sigma`.
 
-    The Stribeck and extended models are fitted to all points. Where the
-    Stribeck fit is identifiable, the linear Coulomb + viscous fit uses only
-    the points above the Stribeck region: speeds where the hump has decayed
-    to 1 % of its height, v ≥ v_S·(ln 100)^(1/δ), and at least 3·v_S,
-    provided at least 5 points remain; otherwise all points. The linear fit's
-    ``velocity_range_mm_min`` shows which speeds it used.
+    The Stribeck and extended models are fitted to all points. The linear
+    Coulomb + viscous fit is fitted where the line holds: above the Stribeck
+    region where the Stribeck fit is identifiable (speeds where the hump has
+    decayed to 1 % of its height, v ≥ v_S·(ln 100)^(1/δ), and at least 3·v_S,
+    when at least 5 points remain), and from there leaving out the slowest
+    points as long as the line is rejected (:func:`_linear_region`). Its
+    ``velocity_range_mm_min`` and ``points_below_range`` say where it holds.
+
+    The model that describes the curve is the simplest that fits every point
+    (linear, else Stribeck, else extended where its rolling term is
+    significant), else the linear model over its range; on coarse data the
+    Stribeck models are not trusted. ``model`` is None when none fits.
 
     Returns:
-        (linear, stribeck, extended); each may be None.
+        The direction's result with its points as given.
     """
     if not points:
-        return None, None, None
-    speed = np.abs(np.array([p.velocity_mm_min for p in points], dtype=np.float64))
-    magnitude = direction * np.array([p.median for p in points], dtype=np.float64)
-    sigma = point_sigma(points)
+        return DirectionResult(points=[], fit=None, model=None, model_reason="no points")
+    order = np.argsort(np.abs([p.velocity_mm_min for p in points]), kind="stable")
+    ordered = [points[i] for i in order]
+    speed = np.abs(np.array([p.velocity_mm_min for p in ordered], dtype=np.float64))
+    shift = offset.value if offset is not None else 0.0
+    magnitude = direction * (np.array([p.median for p in ordered], dtype=np.float64) - shift)
+    sigma = point_sigma(ordered)
     stribeck = fit_nonlinear(speed, magnitude, sigma, model="stribeck")
     extended = fit_nonlinear(speed, magnitude, sigma, model="extended")
-    use = np.ones(speed.size, dtype=bool)
-    if stribeck is not None and stribeck.identifiable:
+    if coarse:
+        stribeck, extended = (
+            None
+            if fit is None
+            else fit.model_copy(
+                update={
+                    "parameters": None,
+                    "ci95": None,
+                    "identifiable": False,
+                    "stribeck_velocity_mm_min": None,
+                    "reason": "the data is too coarse for a Stribeck curve (few samples per "
+                    "window)",
+                }
+            )
+            for fit in (stribeck, extended)
+        )
+    first = 0
+    if stribeck is not None and stribeck.parameters is not None:
         vs, delta = stribeck.parameters["v_S"], stribeck.parameters["delta"]
         cut = max(3.0 * vs, vs * math.log(1.0 / LINEAR_REGION_DECAY) ** (1.0 / delta))
-        above = speed >= cut
-        if np.count_nonzero(above) >= MIN_LINEAR_POINTS_ABOVE_STRIBECK:
-            use = above
+        above = int(np.searchsorted(speed, cut))
+        if speed.size - above >= MIN_LINEAR_POINTS_ABOVE_STRIBECK:
+            first = above
         else:
             log.debug(
-                "only %d points above the Stribeck region (%.4g mm/min): linear fit on all",
-                np.count_nonzero(above),
-                cut,
+                "only %d points above the Stribeck region (%.4g mm/min)", speed.size - above, cut
             )
-    linear = fit_linear(speed[use], magnitude[use], None if sigma is None else sigma[use])
-    return linear, stribeck, extended
+    linear, below = _linear_region(speed, magnitude, sigma, first)
+    if linear is not None:
+        updates: dict[str, object] = {"points_below_range": below}
+        if offset is not None and offset.stderr and linear.coulomb_stderr is not None:
+            # The offset shifts every point alike: it moves the Coulomb friction only.
+            updates["coulomb_stderr"] = math.hypot(linear.coulomb_stderr, offset.stderr)
+        linear = linear.model_copy(update=updates)
+    model, reason = _choose_model(linear, stribeck, extended, speed.size, k_accept)
+    return DirectionResult(
+        points=list(points),
+        fit=linear,
+        stribeck=stribeck,
+        extended=extended,
+        offset_removed=offset.value if offset is not None else None,
+        model=model,
+        model_reason=reason,
+    )
+
+
+def _choose_model(
+    linear: LinearFit | None,
+    stribeck: NonlinearFit | None,
+    extended: NonlinearFit | None,
+    points: int,
+    k_accept: float,
+) -> tuple[ModelName | None, str]:
+    """The simplest model that describes the curve, and why, in one sentence."""
+    linear_ok = linear is not None and linear.accepted and linear.coulomb is not None
+    if linear_ok and linear is not None and linear.points_below_range == 0:
+        return "linear", (
+            f"Coulomb + viscous friction describes every point (χ²ᵣ {linear.chi2_reduced:.2g})."
+        )
+    s_ok = stribeck is not None and stribeck.identifiable and stribeck.chi2_reduced <= k_accept
+    e_ok = extended is not None and extended.identifiable and extended.chi2_reduced <= k_accept
+    if s_ok and stribeck is not None:
+        if e_ok and extended is not None and _better_extended(stribeck, extended, points):
+            return "extended", (
+                f"The extended Stribeck model describes every point (χ²ᵣ "
+                f"{extended.chi2_reduced:.2g}); its rolling term is significant."
+            )
+        return "stribeck", (
+            f"The Stribeck model describes every point (χ²ᵣ {stribeck.chi2_reduced:.2g}): "
+            "friction rises towards standstill."
+        )
+    if e_ok and extended is not None:
+        return "extended", (
+            f"The extended Stribeck model describes every point (χ²ᵣ {extended.chi2_reduced:.2g})."
+        )
+    if linear_ok and linear is not None:
+        low, high = linear.velocity_range_mm_min
+        return "linear", (
+            f"Coulomb + viscous friction holds from {low:.4g} to {high:.4g} mm/min (χ²ᵣ "
+            f"{linear.chi2_reduced:.2g}); the {linear.points_below_range} slower point(s) rise "
+            "above the line (Stribeck region) and no Stribeck model is determined by them."
+        )
+    why = []
+    if linear is None:
+        why.append("too few points for a line")
+    elif linear.reason:
+        why.append(f"linear: {linear.reason}")
+    else:
+        why.append(f"linear: χ²ᵣ {linear.chi2_reduced:.3g} over its best range")
+    for fit in (stribeck, extended):
+        if fit is not None:
+            why.append(f"{fit.model}: {fit.reason or f'χ²ᵣ {fit.chi2_reduced:.3g}'}")
+    return None, "No model describes the points (" + "; ".join(why) + ")."
 
 
 # --------------------------------------------------------------------------- offset
@@ -608,7 +789,11 @@ def separate_offset(positive: Sequence[Point], negative: Sequence[Point]) -> Off
         q = neg[j]
         offsets.append(0.5 * (p.median + q.median))
         speeds.append(speed)
-        se = [MEDIAN_SE_FACTOR * x.std / math.sqrt(x.n) for x in (p, q) if x.n >= 1 and x.std > 0]
+        se = [
+            x.stderr if x.stderr else MEDIAN_SE_FACTOR * x.std / math.sqrt(x.n)
+            for x in (p, q)
+            if x.n >= 1 and (x.std > 0 or x.stderr)
+        ]
         pair_se.append(0.5 * math.sqrt(sum(e * e for e in se)) if len(se) == 2 else math.nan)
     if not offsets:
         return None

@@ -3,26 +3,49 @@
 For every (position, direction, velocity step) of an axis the table pools
 the samples of all windows of that step (repetitions included) and gives the
 **median** (robust against outliers, the figure the fits use), the mean, the
-sample standard deviation (ddof = 1, NaN for a single sample) and the sample
-count. A sample counts only where the actual velocity is within the
-tolerance of its window's velocity (``level_mm_min``) and the current is
-finite: the method keeps "only samples inside a window where the actual
-velocity is within a tolerance of the commanded one".
+sample standard deviation (ddof = 1, NaN for a single sample), the sample
+count, and the **standard error** of the median.
+
+Every sample of a window counts. The window itself was checked against the
+axis' velocity (:mod:`~ncmeasure.analysis.segment`: after settling, its
+velocity agrees with the commanded one within the signal's noise and
+resolution); selecting samples one by one by their velocity reading would
+select by the noise, and at low speed, where one velocity count exceeds any
+band, it would select nearly none.
+
+Two properties of real drive data shape the statistics:
+
+* **A quantised current.** Drives report the current in counts (CiA 402: per
+  mille of the rated current), so at constant velocity most samples sit on
+  two or three levels. The plain median is then one of those levels; the
+  median of grouped data (the level's lower edge plus the count up to the
+  middle, interpolated over the level: ``L − q/2 + q·(n/2 − below)/at``)
+  resolves friction between the counts the way the noise dithers them. With
+  a continuous current it is the plain median.
+* **Correlated samples.** The servo loop and the motor's cogging make
+  neighbouring samples alike, so ``std/√n`` understates the uncertainty. The
+  unit of replication is a *batch*: each window is cut into up to
+  :data:`BATCHES_PER_WINDOW` consecutive stretches of at least
+  :data:`MIN_BATCH_SAMPLES` samples (a short window is one batch); the
+  standard error is the scatter of the batch medians over √batches, and never
+  less than the independent-sample figure √(π/2)·std/√n.
 
 With a torque constant the table is in Nm (T = k_T · I), else in A.
 
 This is the hot path of the analysis (an hour at 1 kHz is 3.6 M rows), so it
 is vectorised: the windows are sorted by group, the sample indices of all
 windows are built at once (``np.repeat`` of the window offsets), sums come
-from ``np.bincount``, and medians from one ``np.median`` per group on its
-contiguous slice. Python loops run over windows and groups, never samples.
+from ``np.bincount``, and medians from one ``np.partition`` per group or
+batch on its contiguous slice. Python loops run over windows, batches and
+groups, never samples.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Final, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,10 +53,25 @@ from numpy.typing import NDArray
 from ncmeasure.analysis.results import Point
 from ncmeasure.analysis.segment import VelocityWindow
 
-__all__ = ["FrictionTable", "friction_table", "window_samples"]
+__all__ = [
+    "BATCHES_PER_WINDOW",
+    "MIN_BATCH_SAMPLES",
+    "FrictionTable",
+    "friction_table",
+    "grouped_median",
+    "window_samples",
+]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
+
+BATCHES_PER_WINDOW: Final = 5
+"""A window is cut into at most this many batches for the standard error."""
+
+MIN_BATCH_SAMPLES: Final = 5
+"""A batch holds at least this many samples (a shorter window is one batch)."""
+
+_MEDIAN_SE_FACTOR: Final = math.sqrt(math.pi / 2)
 
 
 @dataclass(frozen=True)
@@ -41,6 +79,7 @@ class FrictionTable:
     """One axis' friction table: one row per (position, direction, step), columns as arrays.
 
     Rows are sorted by position index, then direction (−1 before +1), then step.
+    ``stderr`` is the standard error of ``median`` (batches, see the module).
     """
 
     axis: str
@@ -54,8 +93,10 @@ class FrictionTable:
     median: FloatArray
     mean: FloatArray
     std: FloatArray
+    stderr: FloatArray
     n: IntArray
     windows: IntArray
+    batches: IntArray
 
     def __len__(self) -> int:
         return int(self.step.shape[0])
@@ -77,6 +118,7 @@ class FrictionTable:
                 median=float(self.median[i]),
                 mean=float(self.mean[i]),
                 std=float(self.std[i]) if self.n[i] > 1 else 0.0,
+                stderr=float(self.stderr[i]) if math.isfinite(self.stderr[i]) else None,
                 n=int(self.n[i]),
                 step=int(self.step[i]),
                 windows=int(self.windows[i]),
@@ -85,45 +127,48 @@ class FrictionTable:
         ]
 
 
-def _medians(values: FloatArray, bounds: IntArray) -> FloatArray:
-    """Median of every contiguous group ``values[bounds[g]:bounds[g + 1]]``; NaN when empty.
+def grouped_median(values: FloatArray, quantum: float = 0.0) -> float:
+    """The median of ``values``, interpolated within one count when they are quantised.
 
-    The same numbers as ``np.median`` per group (the middle value, or the mean
-    of the two middle values), with one ``np.partition`` per group and none
-    of ``np.median``'s per-call overhead: the groups are few (steps ×
-    positions × directions), the samples many.
+    For a quantum q > 0 the values are read as grouped data with classes of
+    width q centred on the counts: with L the count holding the middle sample,
+    ``below`` the samples under L and ``at`` those on L, the median is
+    L − q/2 + q·(n/2 − below)/at. Where noise dithers the signal between two
+    counts, it moves between them in proportion to the samples on each, where
+    the plain median jumps from count to count. With q = 0 it is the plain
+    median. NaN when empty.
     """
-    result = np.full(len(bounds) - 1, np.nan)
-    for g in range(len(bounds) - 1):
-        part = values[bounds[g] : bounds[g + 1]]
-        count = len(part)
-        if count == 0:
-            continue
-        half = count // 2
+    count = len(values)
+    if count == 0:
+        return math.nan
+    lower = (count - 1) // 2
+    if quantum <= 0:
         if count % 2:
-            result[g] = np.partition(part, half)[half]
-        else:
-            low, high = np.partition(part, (half - 1, half))[half - 1 : half + 1]
-            result[g] = (low + high) / 2
-    return result
+            return float(np.partition(values, lower)[lower])
+        low, high = np.partition(values, (lower, lower + 1))[lower : lower + 2]
+        return float((low + high) / 2)
+    level = float(np.partition(values, lower)[lower])
+    half = 0.5 * quantum
+    below = int(np.count_nonzero(values < level - half))
+    at = int(np.count_nonzero(np.abs(values - level) <= half))
+    if at == 0:  # not on the lattice after all
+        return level
+    return level - half + quantum * (0.5 * count - below) / at
 
 
-def window_samples(
-    windows: Sequence[VelocityWindow],
-    *,
-    velocity_mm_min: FloatArray | None = None,
-    velocity_tolerance: float = 0.03,
-    velocity_floor_mm_min: float = 2.0,
-) -> tuple[IntArray, IntArray]:
+def _medians(values: FloatArray, bounds: IntArray, quantum: float) -> FloatArray:
+    """:func:`grouped_median` of every contiguous group ``values[bounds[g]:bounds[g + 1]]``."""
+    return np.array(
+        [
+            grouped_median(values[bounds[g] : bounds[g + 1]], quantum)
+            for g in range(len(bounds) - 1)
+        ],
+        dtype=np.float64,
+    )
+
+
+def window_samples(windows: Sequence[VelocityWindow]) -> tuple[IntArray, IntArray]:
     """The sample indices of all windows and the window each belongs to, vectorised.
-
-    Args:
-        windows: The windows (any order).
-        velocity_mm_min: The actual velocity; when given, samples outside
-            ``max(velocity_tolerance·|level|, velocity_floor_mm_min)`` of their
-            window's ``level_mm_min`` are left out.
-        velocity_tolerance: Relative velocity tolerance.
-        velocity_floor_mm_min: Its absolute floor.
 
     Returns:
         ``(index, window)``: sample indices, and for each the position of its
@@ -136,15 +181,18 @@ def window_samples(
     total = int(lengths.sum())
     owner = np.repeat(np.arange(len(windows), dtype=np.intp), lengths)
     index = np.arange(total, dtype=np.intp) + np.repeat(starts - offsets, lengths)
-    if velocity_mm_min is not None and total:
-        levels = np.fromiter(
-            (w.level_mm_min for w in windows), dtype=np.float64, count=len(windows)
-        )
-        tolerance = np.maximum(velocity_tolerance * np.abs(levels), velocity_floor_mm_min)
-        error = np.abs(velocity_mm_min[index] - levels[owner])
-        keep = error <= tolerance[owner]
-        index, owner = index[keep], owner[keep]
     return index, owner
+
+
+def _batch_bounds(window_bounds: IntArray) -> IntArray:
+    """Cut each window ``[b[w], b[w + 1])`` into up to BATCHES_PER_WINDOW equal batches."""
+    cuts = [int(window_bounds[0])] if len(window_bounds) else []
+    for w in range(len(window_bounds) - 1):
+        start, stop = int(window_bounds[w]), int(window_bounds[w + 1])
+        count = max(1, min(BATCHES_PER_WINDOW, (stop - start) // MIN_BATCH_SAMPLES))
+        edges = np.linspace(start, stop, count + 1).round().astype(np.intp)
+        cuts.extend(int(e) for e in edges[1:])
+    return np.asarray(cuts, dtype=np.intp)
 
 
 def friction_table(
@@ -152,25 +200,21 @@ def friction_table(
     current_a: FloatArray,
     windows: Sequence[VelocityWindow],
     *,
-    velocity_mm_min: FloatArray | None = None,
-    velocity_tolerance: float = 0.03,
-    velocity_floor_mm_min: float = 2.0,
     torque_constant_nm_per_a: float | None = None,
+    current_quantum_a: float = 0.0,
 ) -> FrictionTable:
-    """Median, mean, std and count of the current per (position, direction, step).
+    """Median, standard error, mean, std and count of the current per (position, direction, step).
 
     Args:
         axis: The axis name.
         current_a: The motor current of the axis, all samples (n,).
         windows: Its labelled windows (:func:`~ncmeasure.analysis.segment.find_windows`).
-        velocity_mm_min: The actual velocity (n,), to keep only samples within
-            the tolerance of their window's velocity; None keeps every sample.
-        velocity_tolerance: Relative velocity tolerance.
-        velocity_floor_mm_min: Its absolute floor.
         torque_constant_nm_per_a: k_T; the table is in Nm when given, else in A.
+        current_quantum_a: One count of a quantised current (0: continuous);
+            medians are then medians of grouped data (:func:`grouped_median`).
 
     Returns:
-        The table; rows without a single usable sample are left out.
+        The table; rows without a single finite sample are left out.
     """
     quantity: Literal["torque_nm", "current_a"] = (
         "torque_nm" if torque_constant_nm_per_a is not None else "current_a"
@@ -199,27 +243,41 @@ def friction_table(
         group_of_window = np.zeros(0, dtype=np.intp)
     groups = int(first.sum())
 
-    index, owner = window_samples(
-        ordered,
-        velocity_mm_min=velocity_mm_min,
-        velocity_tolerance=velocity_tolerance,
-        velocity_floor_mm_min=velocity_floor_mm_min,
-    )
+    index, owner = window_samples(ordered)
     values = current[index]
     finite = np.isfinite(values)
     if not finite.all():
         values, owner = values[finite], owner[finite]
     group = group_of_window[owner]
     n = np.bincount(group, minlength=groups)
-    has_samples = np.bincount(owner, minlength=len(windows)) > 0
-    used_windows = np.bincount(group_of_window[has_samples], minlength=groups)
+    per_window = np.bincount(owner, minlength=len(windows))
+    used_windows = np.bincount(group_of_window[per_window > 0], minlength=groups)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.bincount(group, weights=values, minlength=groups) / n
         deviation = values - mean[group]
         variance = np.bincount(group, weights=deviation * deviation, minlength=groups) / (n - 1)
     std = np.where(n > 1, np.sqrt(np.maximum(variance, 0.0)), np.nan)
     bounds = np.concatenate(([0], np.cumsum(n)))
-    median = _medians(values, bounds)
+    median = _medians(values, bounds, current_quantum_a)
+
+    # Batches: consecutive stretches of every window; their medians scatter by what
+    # correlates the samples (servo loop, cogging), unlike the samples themselves.
+    window_bounds = np.concatenate(([0], np.cumsum(per_window)))
+    batch_bounds = _batch_bounds(window_bounds)
+    filled = np.diff(batch_bounds) > 0
+    batch_median = _medians(values, batch_bounds, current_quantum_a)[filled]
+    batch_group = group[batch_bounds[:-1][filled]]
+    count = np.bincount(batch_group, minlength=groups)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        batch_mean = np.bincount(batch_group, weights=batch_median, minlength=groups) / count
+        spread = batch_median - batch_mean[batch_group]
+        batch_var = np.bincount(batch_group, weights=spread * spread, minlength=groups) / (
+            count - 1
+        )
+        by_batches = np.sqrt(np.maximum(batch_var, 0.0) / count)
+        independent = _MEDIAN_SE_FACTOR * std / np.sqrt(n)
+    stderr = np.where(count > 1, np.fmax(by_batches, independent), independent)
+
     group_velocity = np.full(groups, np.nan)
     if groups:
         # All windows of a group share the step velocity; take its first window's.
@@ -238,6 +296,8 @@ def friction_table(
         median=median[rows] * scale,
         mean=mean[rows] * scale,
         std=std[rows] * scale,
+        stderr=stderr[rows] * scale,
         n=n[rows].astype(np.intp),
         windows=used_windows[rows].astype(np.intp),
+        batches=count[rows].astype(np.intp),
     )

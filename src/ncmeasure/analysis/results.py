@@ -2,18 +2,26 @@
 
 ``ncmeasure schema results`` prints the JSON Schema. The shape, per axis::
 
+    recording                            source, samples, gaps, gap_samples, gap_share
+    skipped.<AXIS>                       why an axis could not be analysed, in words
+    axes.<AXIS>.verdict                  level ok / check / fault, reason, action
     axes.<AXIS>.quantity                 "torque_nm" (with a torque constant) or "current_a"
     axes.<AXIS>.positions[]              one entry per measuring position
         .position_mm
         .directions.positive / .negative  (null where not measured)
-            .points[]                    velocity_mm_min (signed), median, mean, std, n
-            .fit                         Coulomb + viscous, linear least squares
-            .stribeck / .extended        nonlinear fits, or null
+            .points[]                    velocity_mm_min (signed), median, stderr, mean, std, n
+            .model, .model_reason        which fit describes the curve, and why
+            .fit                         Coulomb + viscous over its linear range
+            .stribeck / .extended        nonlinear fits (parameters null when not identifiable)
     axes.<AXIS>.offset                   with both directions: bias (gravity, torque offset)
     axes.<AXIS>.position_dependency      spread_percent, signature, causes[] best first
 
 Friction values are in the axis' ``quantity``: Nm when the torque constant is
-known (T = k_T · I), else A. ``coulomb`` is a magnitude in both directions.
+known (T = k_T · I), else A. The points are the measured values, offset
+included; the fits describe friction, a positive magnitude in both
+directions, with the axis' offset (``offset_removed``) taken out first. A fit
+that the data do not determine publishes ``null`` parameters and its
+``reason``, never a number that is not friction.
 """
 
 from __future__ import annotations
@@ -32,6 +40,7 @@ __all__ = [
     "CauseName",
     "DirectionResult",
     "LinearFit",
+    "ModelName",
     "NonlinearFit",
     "OffsetResult",
     "Point",
@@ -41,10 +50,12 @@ __all__ = [
     "Results",
     "Signature",
     "VelocityProfile",
+    "Verdict",
+    "VerdictLevel",
 ]
 
 RESULTS_FORMAT = "ncmeasure-results"
-RESULTS_FORMAT_VERSION = 1
+RESULTS_FORMAT_VERSION = 2
 
 CauseName = Literal[
     "none",
@@ -68,6 +79,12 @@ Signature = Literal[
 ]
 """How friction changes along the travel."""
 
+ModelName = Literal["linear", "stribeck", "extended"]
+"""The friction models: Coulomb + viscous, Stribeck, extended Stribeck."""
+
+VerdictLevel = Literal["ok", "check", "fault"]
+"""An axis at a glance: fine, worth a look (or a new measurement), or an assembly fault."""
+
 
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -77,7 +94,14 @@ class Point(_Model):
     """Friction at one velocity step: robust and plain statistics of the window samples."""
 
     velocity_mm_min: float = Field(description="Signed velocity of the step.")
-    median: float = Field(description="Median friction, the robust figure.")
+    median: float = Field(
+        description="Median friction, the robust figure (of grouped data for a quantised current)."
+    )
+    stderr: float | None = Field(
+        default=None,
+        description="Standard error of the median: the scatter of the medians of consecutive "
+        "stretches of the windows (correlated samples), at least √(π/2)·std/√n.",
+    )
     mean: float
     std: float
     n: int = Field(description="Samples in the windows of this step.")
@@ -90,18 +114,28 @@ class LinearFit(_Model):
 
     Linear least squares with regressor rows [v, 1]; standard errors from
     σ²(HᵀH)⁻¹ with σ the scatter of the points; reduced χ² accepted for k < 10
-    (Σ ê² ≤ k (n − m) σ²).
+    (Σ ê² ≤ k (n − m) σ²). Fitted over the range of speeds where the line
+    holds (above the Stribeck region): ``velocity_range_mm_min``.
     """
 
-    coulomb: float = Field(description="Coulomb friction as a magnitude.")
-    viscous_per_mm_min: float = Field(description="Viscous coefficient per mm/min.")
-    coulomb_stderr: float
-    viscous_stderr: float
+    coulomb: float | None = Field(
+        description="Coulomb friction as a magnitude; null when the fit does not determine it "
+        "(see reason)."
+    )
+    viscous_per_mm_min: float | None = Field(description="Viscous coefficient per mm/min.")
+    coulomb_stderr: float | None
+    viscous_stderr: float | None
     chi2_reduced: float
     accepted: bool
     n_points: int
     velocity_range_mm_min: tuple[float, float] = Field(
         description="Smallest and largest |v| of the points the fit used."
+    )
+    points_below_range: int = Field(
+        default=0, description="Slower points left out: the line does not hold there."
+    )
+    reason: str | None = Field(
+        default=None, description="Why the parameters are null, when they are."
     )
 
 
@@ -113,15 +147,20 @@ class NonlinearFit(_Model):
     """
 
     model: Literal["stribeck", "extended"]
-    parameters: dict[str, float]
-    ci95: dict[str, tuple[float, float]] = Field(
-        description="95 % confidence interval per parameter."
+    parameters: dict[str, float] | None = Field(
+        description="The parameters; null when the fit is not identifiable (see reason)."
+    )
+    ci95: dict[str, tuple[float, float]] | None = Field(
+        description="95 % confidence interval per parameter (null with the parameters)."
     )
     identifiable: bool = Field(
         description="True when every interval excludes zero and is narrower than the value."
     )
     chi2_reduced: float
     stribeck_velocity_mm_min: float | None = None
+    reason: str | None = Field(
+        default=None, description="Why the fit is not identifiable, when it is not."
+    )
 
 
 class DirectionResult(_Model):
@@ -131,6 +170,15 @@ class DirectionResult(_Model):
     fit: LinearFit | None
     stribeck: NonlinearFit | None = None
     extended: NonlinearFit | None = None
+    offset_removed: float | None = Field(
+        default=None,
+        description="The axis' offset (gravity, bias) taken out of the points before fitting: "
+        "the fits see direction × (median − offset).",
+    )
+    model: ModelName | None = Field(
+        default=None, description="The model that describes this curve; null when none does."
+    )
+    model_reason: str = Field(default="", description="Why that model, in one sentence.")
 
 
 class PositionResult(_Model):
@@ -183,9 +231,18 @@ class PositionDependency(_Model):
     causes: list[Cause] = Field(description="Likely causes, best first.")
 
 
+class Verdict(_Model):
+    """An axis at a glance, for the person at the machine."""
+
+    level: VerdictLevel
+    reason: str = Field(description="Why, in one sentence.")
+    action: str = Field(description="What to do.")
+
+
 class AxisResult(_Model):
     """Everything found for one axis."""
 
+    verdict: Verdict
     quantity: Literal["torque_nm", "current_a"]
     unit: Literal["Nm", "A"]
     torque_constant_nm_per_a: float | None
@@ -198,6 +255,21 @@ class AxisResult(_Model):
     window_source: Literal["marker", "command", "plateau", "schedule"]
     windows: int
     samples_used: int
+    sample_period_s: float | None = Field(default=None, description="Median time step.")
+    velocity_quantum_mm_min: float = Field(
+        default=0.0, description="One count of the velocity signal (0: continuous)."
+    )
+    current_quantum_a: float = Field(
+        default=0.0, description="One count of the current signal in A (0: continuous)."
+    )
+    coarse: bool = Field(
+        default=False,
+        description="Windows hold few samples: points are uncertain, no Stribeck curve.",
+    )
+    implausible_values: dict[str, int] = Field(
+        default_factory=dict,
+        description="Values left out per channel as not physically possible ('no value' codes).",
+    )
     positions: list[PositionResult]
     offset: OffsetResult | None = None
     position_dependency: PositionDependency | None = None
@@ -212,6 +284,13 @@ class RecordingInfo(_Model):
     start_utc: str | None
     config_hash: str | None
     source: str
+    status: str | None = Field(default=None, description="How the recording ended.")
+    samples: int | None = Field(default=None, description="Rows in the recording.")
+    duration_s: float | None = None
+    gaps: int = Field(default=0, description="Holes in the time axis (lost samples).")
+    gap_samples: int = Field(default=0, description="Samples lost in them.")
+    gap_share: float = Field(default=0.0, description="gap_samples / (samples + gap_samples).")
+    gap_events: int = Field(default=0, description="Gap events the link reported.")
 
 
 class Results(_Model):
@@ -224,3 +303,6 @@ class Results(_Model):
     recording: RecordingInfo
     settings: dict[str, float | str | bool | None]
     axes: dict[str, AxisResult]
+    skipped: dict[str, str] = Field(
+        default_factory=dict, description="Axes that could not be analysed, with the reason."
+    )

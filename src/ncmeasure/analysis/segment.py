@@ -51,10 +51,11 @@ import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import Final, Literal
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
 from scipy.ndimage import maximum_filter1d, median_filter, minimum_filter1d
 from scipy.stats import theilslopes
 
@@ -64,6 +65,8 @@ from ncmeasure.plan import Window as ScheduledWindow
 from ncmeasure.recording import Recording
 
 __all__ = [
+    "COARSE_WINDOW_SAMPLES",
+    "MIN_WINDOW_SAMPLES",
     "Cluster",
     "SegmentSettings",
     "Segmentation",
@@ -71,6 +74,8 @@ __all__ = [
     "WindowSource",
     "cluster_gaps",
     "find_windows",
+    "noise_sigma",
+    "quantum",
     "windows_of",
 ]
 
@@ -83,32 +88,134 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
 BoolArray = NDArray[np.bool_]
 
+MIN_WINDOW_SAMPLES: Final = 3
+"""No window keeps fewer samples, whatever ``min_window_s``: a median and a spread need 3."""
 
-@dataclass(frozen=True)
-class SegmentSettings:
-    """How windows are found; :class:`~ncmeasure.analysis.analyze.AnalysisSettings` documents each.
+COARSE_WINDOW_SAMPLES: Final = 20
+"""Windows holding fewer samples than this (median over the axis) make the data coarse:
+their medians are uncertain and the Stribeck curve at low speed is not resolved."""
 
-    The defaults suit recordings of ncmeasure's own programs at 1 to 4 ms.
+LATTICE_SHARE: Final = 0.95
+"""A signal is quantised when this share of its sample-to-sample steps are whole
+multiples of its smallest step."""
+
+DISPLACEMENT_QUANTA: Final = 2.0
+"""A window's displacement is known to this many position counts (one at each end)."""
+
+_NOISE_BAND_FACTOR: Final = 3.0
+"""The tolerance band is at least this many standard errors of the smoothed velocity."""
+
+
+class SegmentSettings(BaseModel):
+    """How windows are found and which samples they keep.
+
+    The defaults suit ncmeasure's own programs (windows of 0.2 to 0.4 s,
+    settle 0.1 s, 1 to 4 ms sampling, lowest step about 10 mm/min) and hold
+    for foreign recordings down to 100 ms sampling: every duration is in
+    seconds, and the sample counts follow from the sample period. They are
+    written into ``results.json`` (``settings``), so a result says how it was
+    made. :class:`~ncmeasure.analysis.analyze.AnalysisSettings` is this model.
     """
 
-    velocity_tolerance: float = 0.03
-    velocity_floor_mm_min: float = 2.0
-    settle_s: float = 0.1
-    min_window_samples: int = 10
-    plateau_min_s: float = 0.2
-    plateau_filter_s: float = 0.02
-    standstill_mm_min: float = 1.0
-    step_tolerance: float = 0.01
-    step_floor_mm_min: float = 0.5
-    position_gap_mm: float = 20.0
-    position_gap_fraction: float = 0.05
-    max_velocity_mm_min: float | None = None
-    duration_outlier_factor: float = 4.0
-    rapid_count_factor: float = 3.0
-    method: Method = "auto"
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    velocity_tolerance: float = Field(
+        default=0.03,
+        gt=0,
+        lt=1,
+        description="A window's velocity must agree with its commanded (or scheduled) one "
+        "within this fraction, or velocity_floor_mm_min, or the velocity signal's resolution "
+        "(one count, its noise), whichever is largest. Also the flatness a plateau must keep.",
+    )
+    velocity_floor_mm_min: float = Field(
+        default=2.0,
+        ge=0,
+        description="Absolute floor of the velocity tolerance in mm/min: at low speed the "
+        "relative tolerance would be smaller than the velocity signal's noise.",
+    )
+    settle_s: float = Field(
+        default=0.1,
+        ge=0,
+        description="Samples until this long after the actual velocity entered the "
+        "tolerance band are cut from each window (acceleration transient, overshoot).",
+    )
+    min_window_s: float = Field(
+        default=0.1,
+        gt=0,
+        description="A window shorter than this after the cut is dropped; it keeps at least "
+        f"{MIN_WINDOW_SAMPLES} samples whatever the sample period.",
+    )
+    plateau_min_s: float = Field(
+        default=0.2,
+        gt=0,
+        description="Shortest plateau of constant actual velocity that counts as a window "
+        "(only without marker and commanded velocity).",
+    )
+    plateau_filter_s: float = Field(
+        default=0.02,
+        ge=0,
+        description="Width of the rolling median that smooths the actual velocity before "
+        "plateaus and the end of transients are detected.",
+    )
+    standstill_mm_min: float = Field(
+        default=1.0,
+        ge=0,
+        description="Velocities below this are standstill, never a window. A velocity of "
+        "one count of the velocity signal or less is standstill too.",
+    )
+    step_tolerance: float = Field(
+        default=0.01,
+        gt=0,
+        description="Without a schedule: windows whose velocities differ by less than this "
+        "fraction (or step_floor_mm_min) belong to the same velocity step.",
+    )
+    step_floor_mm_min: float = Field(
+        default=0.5,
+        ge=0,
+        description="Absolute floor of step_tolerance in mm/min.",
+    )
+    position_gap_mm: float = Field(
+        default=20.0,
+        gt=0,
+        description="Without a schedule: window centres further apart than this (or "
+        "position_gap_fraction of their span) belong to different measuring positions.",
+    )
+    position_gap_fraction: float = Field(
+        default=0.05,
+        ge=0,
+        lt=1,
+        description="Relative part of the position gap.",
+    )
+    max_velocity_mm_min: float | None = Field(
+        default=None,
+        gt=0,
+        description="Windows faster than this are rapid traverse. Default: the schedule's "
+        "top step; without a schedule, rapids are recognised by their count and duration.",
+    )
+    duration_outlier_factor: float = Field(
+        default=4.0,
+        gt=1,
+        description="Without a schedule: windows lasting this many times longer than the "
+        "trend of window duration over velocity are traverses or warm-up strokes.",
+    )
+    rapid_count_factor: float = Field(
+        default=3.0,
+        gt=1,
+        description="Without a schedule: the fastest velocity level is rapid traverse when "
+        "it holds this many times more windows than a typical level.",
+    )
+    window_method: Method = Field(
+        default="auto",
+        description="auto: marker, else commanded velocity, else plateaus. The others force "
+        "one way.",
+    )
 
     def tolerance_mm_min(self, velocity_mm_min: float | FloatArray) -> FloatArray:
-        """The accepted |actual − target| at a target velocity: relative with a floor."""
+        """The accepted |actual − target| at a target velocity: relative with a floor.
+
+        The segmentation widens it further by the resolution of the velocity
+        signal it finds in the data (:attr:`Segmentation.velocity_resolution_mm_min`).
+        """
         return np.maximum(
             self.velocity_tolerance * np.abs(np.asarray(velocity_mm_min, dtype=np.float64)),
             self.velocity_floor_mm_min,
@@ -195,6 +302,18 @@ class Segmentation:
     positions: list[Cluster]
     warnings: list[str] = field(default_factory=list)
     tried: list[str] = field(default_factory=list)
+    sample_period_s: float = math.nan
+    velocity_quantum_mm_min: float = 0.0
+    velocity_resolution_mm_min: float = 0.0
+    position_quantum_mm: float = 0.0
+    coarse: bool = False
+
+    @property
+    def median_window_samples(self) -> float:
+        """Median samples per window (NaN without windows)."""
+        if not self.windows:
+            return math.nan
+        return float(np.median([w.samples for w in self.windows]))
 
 
 @dataclass
@@ -261,6 +380,51 @@ def _align(ok: BoolArray) -> list[int | None]:
 def _odd(count: float) -> int:
     size = max(1, round(count))
     return size if size % 2 else size + 1
+
+
+def quantum(values: FloatArray) -> float:
+    """The resolution of a quantised signal (one count), or 0 for a continuous one.
+
+    A signal is quantised when nearly all (:data:`LATTICE_SHARE`) of its
+    non-zero sample-to-sample steps are whole multiples of the smallest one:
+    a velocity read in counts of 8.5 mm/min, a current in per mille of the
+    rated current. Steps below 10⁻⁹ of the signal's range are rounding noise
+    of the unit conversion, not steps.
+    """
+    data = np.asarray(values, dtype=np.float64)
+    data = data[np.isfinite(data)]
+    if len(data) < 3:
+        return 0.0
+    steps = np.abs(np.diff(data))
+    scale = float(np.max(np.abs(data)))
+    steps = steps[steps > 1e-9 * scale]
+    if len(steps) < 10:
+        return 0.0
+    smallest = float(steps.min())
+    ratio = steps / smallest
+    on_lattice = np.abs(ratio - np.round(ratio)) <= 0.02
+    if np.count_nonzero(on_lattice) < LATTICE_SHARE * len(steps):
+        return 0.0
+    # The smallest step of a lattice may be a rounding-noise variant of the count.
+    counts = np.round(ratio[on_lattice])
+    return float(np.sum(steps[on_lattice]) / np.sum(counts))
+
+
+def noise_sigma(values: FloatArray) -> float:
+    """Robust standard deviation of a signal's sample-to-sample noise.
+
+    From second differences (zero on a constant level and on a ramp), scaled
+    by the median absolute deviation: v[i+1] − 2v[i] + v[i−1] of white noise
+    of σ has the standard deviation √6·σ. Ramp corners and spikes are too few
+    to move the median.
+    """
+    data = np.asarray(values, dtype=np.float64)
+    data = data[np.isfinite(data)]
+    if len(data) < 5:
+        return 0.0
+    second = np.diff(data, n=2)
+    mad = float(np.median(np.abs(second - np.median(second))))
+    return 1.4826 * mad / math.sqrt(6.0)
 
 
 def cluster_gaps(values: Sequence[float] | FloatArray, gaps: FloatArray | float) -> IntArray:
@@ -355,8 +519,58 @@ class _Finder:
                 self.warnings.append(
                     "the schedule has no windows for this axis: windows clustered instead"
                 )
+        self.t = time_s
+        self.detect_resolution = 0.0
         self.settle_n = round(settings.settle_s / self.dt)
         self.filter_n = _odd(settings.plateau_filter_s / self.dt)
+        self.min_n = max(MIN_WINDOW_SAMPLES, math.ceil(settings.min_window_s / self.dt - 1e-9))
+        self.plateau_n = max(MIN_WINDOW_SAMPLES, round(settings.plateau_min_s / self.dt))
+        # What the velocity signal can resolve: one count, and the noise of the
+        # rolling median over filter_n samples (√(π/2)·σ/√n).
+        self.v_quantum = quantum(velocity)
+        self.x_quantum = quantum(position) if position is not None else 0.0
+        sigma = noise_sigma(velocity)
+        smoothed_noise = math.sqrt(math.pi / 2) * sigma / math.sqrt(self.filter_n)
+        self.resolution = max(self.v_quantum, _NOISE_BAND_FACTOR * smoothed_noise)
+        # A velocity signal coarser than the tolerance floor cannot tell the slow steps
+        # apart: find and measure windows by the position instead, where recorded.
+        self.from_position = (
+            self.positions_known and self.resolution > settings.velocity_floor_mm_min
+        )
+        self.v_detect = self._position_velocity() if self.from_position else velocity
+        if self.from_position:
+            self.warnings.append(
+                f"the velocity signal resolves {self.resolution:.3g} mm/min"
+                + (f" (one count is {self.v_quantum:.3g} mm/min)" if self.v_quantum else "")
+                + ": windows are found and measured by the position (displacement over time)"
+            )
+            self.standstill = max(settings.standstill_mm_min, self.detect_resolution)
+        else:
+            self.standstill = max(settings.standstill_mm_min, self.v_quantum * (1 + 1e-6))
+
+    def _position_velocity(self) -> FloatArray:
+        """Velocity from the position by central differences over ±h samples, in mm/min.
+
+        h is long enough that a position count moves the estimate by at most a
+        quarter of the tolerance floor, and at most a quarter of a plateau.
+        """
+        floor = max(self.settings.velocity_floor_mm_min, 1e-9)
+        wanted = math.ceil(60.0 * self.x_quantum / (0.25 * floor * 2 * self.dt))
+        h = int(min(max(1, wanted), max(1, self.plateau_n // 4)))
+        self.detect_resolution = 60.0 * self.x_quantum / (2 * h * self.dt)
+        x = self.x
+        n = self.n
+        ahead = np.minimum(np.arange(n) + h, n - 1)
+        behind = np.maximum(np.arange(n) - h, 0)
+        span = self.t[ahead] - self.t[behind]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            velocity = np.where(span > 0, (x[ahead] - x[behind]) / span * 60.0, 0.0)
+        return np.asarray(velocity, dtype=np.float64)
+
+    def band(self, level: float | FloatArray) -> FloatArray:
+        """The accepted |velocity − level|: the settings' tolerance, at least the resolution."""
+        resolution = self.detect_resolution if self.from_position else self.resolution
+        return np.maximum(self.settings.tolerance_mm_min(level), resolution)
 
     # -- detection ---------------------------------------------------------------------
 
@@ -373,11 +587,14 @@ class _Finder:
         if len(starts) == 0:
             self.tried.append("marker: recorded but never set")
             return []
-        reference = self.command if self.command is not None else self.v
+        reference = self.command if self.command is not None else self.v_detect
+        standstill = (
+            self.settings.standstill_mm_min if self.command is not None else self.standstill
+        )
         result = []
         for start, stop in zip(starts.tolist(), stops.tolist(), strict=True):
             level = float(np.nanmedian(reference[start:stop]))
-            if not abs(level) >= self.settings.standstill_mm_min:
+            if not abs(level) >= standstill:
                 continue
             result.append(_Candidate(start, stop, level, marker_value=float(marker[start])))
         if not result:
@@ -401,41 +618,41 @@ class _Finder:
         ends = np.append(begins[1:], self.n)
         lengths = ends - begins
         moving = np.abs(command[begins]) >= settings.standstill_mm_min
-        keep = moving & (lengths >= settings.min_window_samples)
+        keep = moving & (lengths >= self.min_n)
         result = [
             _Candidate(int(b), int(e), float(command[b]))
             for b, e in zip(begins[keep].tolist(), ends[keep].tolist(), strict=True)
         ]
         if not result:
             self.tried.append(
-                f"commanded velocity: no constant stretch of {settings.min_window_samples} "
-                f"samples above {settings.standstill_mm_min:g} mm/min"
+                f"commanded velocity: no constant stretch of {self.min_n} samples "
+                f"({settings.min_window_s:g} s) above {settings.standstill_mm_min:g} mm/min"
             )
         return result
 
     def plateau_candidates(self) -> list[_Candidate]:
         settings = self.settings
-        length = max(2, round(settings.plateau_min_s / self.dt))
+        length = self.plateau_n
         if self.n < length:
             self.tried.append(
                 "plateaus: the recording is shorter than plateau_min_s "
                 f"({settings.plateau_min_s:g} s)"
             )
             return []
-        finite = np.where(np.isfinite(self.v), self.v, 0.0)
+        finite = np.where(np.isfinite(self.v_detect), self.v_detect, 0.0)
         smooth = median_filter(finite, size=self.filter_n, mode="nearest")
         # ok[j]: the smoothed velocity stays within the tolerance over [j, j + length).
         low = minimum_filter1d(smooth, length, mode="nearest", origin=-(length // 2))
         high = maximum_filter1d(smooth, length, mode="nearest", origin=-(length // 2))
         slowest = minimum_filter1d(np.abs(smooth), length, mode="nearest", origin=-(length // 2))
-        ok = (high - low) <= settings.tolerance_mm_min(smooth)
-        ok &= slowest >= settings.standstill_mm_min
+        ok = (high - low) <= self.band(smooth)
+        ok &= slowest >= self.standstill
         ok[self.n - length + 1 :] = False
         # Samples covered by any good span of `length` samples.
         covered = maximum_filter1d(ok.astype(np.int8), length, origin=(length - 1) // 2) > 0
         # Two levels that touch without a ramp between them are two plateaus.
         jump = np.zeros(self.n, dtype=np.bool_)
-        jump[1:] = np.abs(np.diff(smooth)) > 0.5 * settings.tolerance_mm_min(smooth[1:])
+        jump[1:] = np.abs(np.diff(smooth)) > 0.5 * self.band(smooth[1:])
         starts, stops = _runs(covered & ~jump)
         result = []
         for start, stop in zip(starts.tolist(), stops.tolist(), strict=True):
@@ -446,8 +663,8 @@ class _Finder:
             self.tried.append(
                 f"plateaus: no stretch of {settings.plateau_min_s:g} s where the actual velocity "
                 f"stays within {100 * settings.velocity_tolerance:g} % "
-                f"(at least {settings.velocity_floor_mm_min:g} mm/min) above "
-                f"{settings.standstill_mm_min:g} mm/min"
+                f"(at least {float(self.band(0.0)):.3g} mm/min) above "
+                f"{self.standstill:.3g} mm/min"
             )
         return result
 
@@ -463,14 +680,13 @@ class _Finder:
         smoothing width: the rolling median sees a deceleration that much late,
         and the current (the controller's torque) leads the velocity.
         """
-        settings = self.settings
         width = self.filter_n
         low = max(0, start - self.settle_n - width)
         high = min(self.n, stop + width)
-        chunk = self.v[low:high]
+        chunk = self.v_detect[low:high]
         chunk = np.where(np.isfinite(chunk), chunk, np.inf)
         smooth = median_filter(chunk, size=width, mode="nearest") if width > 1 else chunk
-        inside = np.abs(smooth - level) <= settings.tolerance_mm_min(level)
+        inside = np.abs(smooth - level) <= self.band(level)
         a, b = start - low, stop - low
         good = inside[a:b]
         if not good.any():
@@ -485,7 +701,7 @@ class _Finder:
         if outside.any():
             j = c0 + len(outside) - 1 - int(np.argmax(outside[::-1]))
             begin = max(first, j + 1 + self.settle_n)
-        if last - begin < settings.min_window_samples:
+        if last - begin < self.min_n:
             return None
         return low + begin, low + last
 
@@ -499,7 +715,6 @@ class _Finder:
         planned = self.summary.windows
         if not planned or not candidates:
             return [None] * len(candidates)
-        settings = self.settings
         sched_v = np.array([w.velocity_mm_min for w in planned])
         run_lo = np.array([min(w.start_mm, w.stop_mm) for w in planned])
         run_hi = np.array([max(w.start_mm, w.stop_mm) for w in planned])
@@ -510,7 +725,7 @@ class _Finder:
         cand_x = np.array([float(np.nanmean(self.x[c.start : c.stop])) for c in candidates])
         cand_s = np.array([(c.stop - c.start) * self.dt for c in candidates])
         ok = np.sign(cand_v)[:, None] == np.sign(sched_v)[None, :]
-        ok &= np.abs(cand_v[:, None] - sched_v[None, :]) <= 2 * settings.tolerance_mm_min(sched_v)
+        ok &= np.abs(cand_v[:, None] - sched_v[None, :]) <= 2 * self.band(sched_v)
         if by_position:
             ok &= (cand_x[:, None] >= run_lo - margin) & (cand_x[:, None] <= run_hi + margin)
         # A window never lasts longer than its run (plus a generous slack: controllers
@@ -589,7 +804,7 @@ class _Finder:
                 hi = max(window.window_start_mm, window.window_end_mm)
                 x = self.x[candidate.start : candidate.stop]
                 inside = np.flatnonzero((x >= lo) & (x <= hi))
-                if len(inside) < self.settings.min_window_samples:
+                if len(inside) < self.min_n:
                     cut_by_position.append(None)
                     continue
                 cut_by_position.append(
@@ -618,7 +833,7 @@ class _Finder:
             begin = candidate.start + round((window.t_window_start_s - window.t_start_s) / self.dt)
             end = candidate.start + round((window.t_window_end_s - window.t_start_s) / self.dt)
             end = min(end, candidate.stop)
-            if end - begin >= self.settings.min_window_samples:
+            if end - begin >= self.min_n:
                 result.append(replace(candidate, start=begin, stop=end))
         return result
 
@@ -630,7 +845,7 @@ class _Finder:
             top = max(self.summary.velocities_mm_min)
         if top is None:
             return candidates
-        limit = top + float(self.settings.tolerance_mm_min(top))
+        limit = top + float(self.band(top))
         kept = [c for c in candidates if abs(c.level_mm_min) <= limit]
         if len(kept) < len(candidates):
             self.warnings.append(
@@ -735,7 +950,7 @@ class _Finder:
                     repetition=planned.repetition,
                 )
             )
-            tolerance = float(self.settings.tolerance_mm_min(planned.velocity_mm_min))
+            tolerance = float(self.band(planned.velocity_mm_min))
             if abs(candidate.level_mm_min - planned.velocity_mm_min) > tolerance:
                 off_schedule.append(planned.id)
         if off_schedule:
@@ -866,20 +1081,141 @@ class _Finder:
         if not trimmed:
             self.tried.append(
                 f"{name}: {len(candidates)} stretches, in none does the actual velocity stay "
-                f"within the tolerance for {settings.min_window_samples} samples after "
-                f"settle_s ({settings.settle_s:g} s)"
+                f"within the tolerance for {self.min_n} samples ({settings.min_window_s:g} s) "
+                f"after settle_s ({settings.settle_s:g} s)"
             )
             del self.warnings[noted:]
             return None
         if len(trimmed) < len(candidates):
             self.warnings.append(
-                f"{len(candidates) - len(trimmed)} windows shorter than "
-                f"{settings.min_window_samples} samples after the settling time: dropped"
+                f"{len(candidates) - len(trimmed)} windows shorter than {self.min_n} samples "
+                f"({settings.min_window_s:g} s) after the settling time: dropped"
             )
-        return source, trimmed, labelled
+        commanded = method == "command" or (method == "marker" and self.command is not None)
+        measured = self.measure(trimmed, commanded=commanded)
+        if not measured:
+            self.tried.append(
+                f"{name}: {len(trimmed)} stretches, in none does the position move as the "
+                "velocity says"
+            )
+            del self.warnings[noted:]
+            return None
+        return source, measured, labelled
+
+    def measure(self, candidates: Sequence[_Candidate], *, commanded: bool) -> list[_Candidate]:
+        """Check every window against the position; measure its velocity by displacement.
+
+        At constant velocity the position moves by v·Δt. A window whose
+        displacement disagrees with its velocity (beyond the tolerance band,
+        one velocity count and two position counts over its duration) is not
+        a window of steady motion: a frozen velocity reading at standstill, or
+        an axis that did not follow its command. It is dropped. Where the
+        velocity comes from the readings (plateaus, a marker without command),
+        the window's velocity becomes its displacement over its duration: the
+        readings' median sits on one of their counts, the displacement does not.
+
+        When most windows disagree, the position is not comparable with the
+        velocity (another unit, another axis' position): nothing is dropped,
+        the readings keep the say, and a warning tells.
+        """
+        if not self.positions_known or not candidates:
+            return list(candidates)
+        failed = 0
+        still = 0
+        kept: list[_Candidate] = []
+        for candidate in candidates:
+            t = self.t[candidate.start : candidate.stop]
+            x = self.x[candidate.start : candidate.stop]
+            ok = np.isfinite(t) & np.isfinite(x)
+            if np.count_nonzero(ok) < 2:
+                kept.append(candidate)
+                continue
+            t, x = t[ok], x[ok]
+            duration = float(t[-1] - t[0])
+            centred = t - t.mean()
+            slope = float(centred @ (x - x.mean()) / (centred @ centred)) * 60.0
+            resolution = 60.0 * DISPLACEMENT_QUANTA * self.x_quantum / duration
+            if commanded or self.from_position:
+                reference = candidate.level_mm_min
+            else:
+                readings = self.v[candidate.start : candidate.stop]
+                reference = float(np.nanmedian(readings))
+            allowed = max(float(self.band(reference)), self.v_quantum, resolution)
+            if abs(slope - reference) > allowed:
+                failed += 1
+                continue
+            if not commanded:
+                if abs(slope) < max(self.settings.standstill_mm_min, resolution):
+                    still += 1
+                    continue
+                # The transient is cut again against the measured velocity.
+                cut = self.trim(candidate.start, candidate.stop, slope)
+                if cut is None:
+                    continue
+                candidate = replace(candidate, start=cut[0], stop=cut[1], level_mm_min=slope)
+            kept.append(candidate)
+        if failed > 0.5 * len(candidates) and len(candidates) >= 4:
+            self.warnings.append(
+                f"the recorded position does not move as the velocity says in {failed} of "
+                f"{len(candidates)} windows (another unit, or another axis' position?): "
+                "windows are measured by the velocity readings alone"
+            )
+            return list(candidates)
+        if failed:
+            self.warnings.append(
+                f"{failed} windows dropped: the position did not move as the velocity says "
+                + (
+                    "(the axis did not follow its command)"
+                    if commanded
+                    else "(a velocity reading frozen at standstill?)"
+                )
+            )
+        if still:
+            self.warnings.append(
+                f"{still} windows dropped: by their displacement the axis stood still"
+            )
+        return kept
+
+    def still(self) -> str | None:
+        """Why the axis did not move at all, or None when it moved.
+
+        It did not move when its velocity never stays above the standstill
+        threshold (at least one velocity count) for a window's length and, where
+        a position was recorded, the position creeps by less than that speed
+        over the whole recording.
+        """
+        if self.n < 2:
+            return "the recording holds fewer than 2 samples"
+        smooth = np.abs(np.where(np.isfinite(self.v_detect), self.v_detect, 0.0))
+        if self.filter_n > 1:
+            smooth = median_filter(smooth, size=self.filter_n, mode="nearest")
+        starts, stops = _runs(smooth >= self.standstill)
+        if len(starts) and int((stops - starts).max()) >= self.min_n:
+            return None
+        duration_s = float(self.t[-1] - self.t[0])
+        threshold = self.standstill
+        count = (
+            f" (one count of the velocity signal is {self.v_quantum:.3g} mm/min)"
+            if self.v_quantum and self.v_quantum * (1 + 1e-6) >= threshold
+            else ""
+        )
+        if self.positions_known:
+            finite = self.x[np.isfinite(self.x)]
+            span_mm = float(np.ptp(finite)) if len(finite) else 0.0
+            if duration_s > 0 and span_mm / duration_s * 60.0 > threshold:
+                return None
+            return (
+                f"the axis did not move: its position stays within {span_mm * 1000:.3g} µm "
+                f"over {duration_s:.3g} s and its velocity never stays above "
+                f"{threshold:.3g} mm/min{count}"
+            )
+        return (
+            f"the axis did not move: its velocity never stays above {threshold:.3g} mm/min"
+            f"{count} over {duration_s:.3g} s (no position recorded)"
+        )
 
     def run(self) -> Segmentation:
-        method = self.settings.method
+        method = self.settings.window_method
         order: tuple[Method, ...] = (
             ("marker", "command", "plateau") if method == "auto" else (method,)
         )
@@ -888,10 +1224,12 @@ class _Finder:
             if found is not None:
                 break
         else:
+            still = self.still()
             raise RecordingError(
-                f"axis {self.axis}: no window of constant velocity found",
+                f"axis {self.axis}: no window of constant velocity found"
+                + (f": {still}" if still else ""),
                 [*self.tried, "settings: velocity_tolerance, velocity_floor_mm_min, "
-                 "standstill_mm_min, plateau_min_s, min_window_samples, settle_s"],
+                 "standstill_mm_min, plateau_min_s, min_window_s, settle_s"],
             )  # fmt: skip
         source, candidates, labelled = found
         if method == "auto" and way != "marker":
@@ -926,6 +1264,15 @@ class _Finder:
         else:
             windows, steps, positions = self.label_by_clusters(candidates, source)
         windows.sort(key=lambda w: w.start)
+        typical = float(np.median([w.samples for w in windows]))
+        coarse = typical < COARSE_WINDOW_SAMPLES
+        if coarse:
+            self.warnings.append(
+                f"coarse data: at {self.dt * 1000:.3g} ms per sample a window holds a median "
+                f"of {typical:.0f} samples (fewer than {COARSE_WINDOW_SAMPLES}): each point is "
+                "uncertain and the Stribeck curve at low speed is not resolved; the friction is "
+                "described by the linear model over its range"
+            )
         log.debug(
             "axis %s: %d %s windows, %d steps, %d positions",
             self.axis,
@@ -943,6 +1290,11 @@ class _Finder:
             positions=positions,
             warnings=list(dict.fromkeys(self.warnings)),
             tried=self.tried,
+            sample_period_s=self.dt,
+            velocity_quantum_mm_min=self.v_quantum,
+            velocity_resolution_mm_min=self.resolution,
+            position_quantum_mm=self.x_quantum,
+            coarse=coarse,
         )
 
 

@@ -48,6 +48,8 @@ def stribeck_magnitude(fit: NonlinearFit, speed_mm_min: FloatArray) -> FloatArra
     """
     names = EXTENDED_PARAMETERS if fit.model == "extended" else STRIBECK_PARAMETERS
     p = fit.parameters
+    if p is None:
+        return None
     if not all(name in p and math.isfinite(p[name]) for name in names) or p["v_S"] <= 0:
         return None
     v = np.abs(np.asarray(speed_mm_min, dtype=np.float64))
@@ -98,6 +100,8 @@ def linear_curve(
     """
 
     def magnitude(v: FloatArray) -> FloatArray:
+        if fit.coulomb is None or fit.viscous_per_mm_min is None:
+            return np.full(np.shape(v), np.nan)
         result: FloatArray = fit.coulomb + fit.viscous_per_mm_min * np.abs(v)
         return result
 

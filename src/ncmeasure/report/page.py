@@ -222,14 +222,14 @@ def _mean(values: Sequence[float]) -> float | None:
 
 
 def _coulomb_per_position(result: AxisResult) -> list[float]:
-    """Coulomb friction per position, the mean of its directions.
-
-    On an axis with an offset (gravity) the fit of each direction may carry
-    it, +o in one direction and −o in the other; the mean of both cancels it.
-    """
+    """Coulomb friction per position, the mean of its directions (offset taken out)."""
     values = []
     for position in result.positions:
-        found = [d.fit.coulomb for d in position.directions.values() if d and d.fit]
+        found = [
+            d.fit.coulomb
+            for d in position.directions.values()
+            if d and d.fit and d.fit.coulomb is not None
+        ]
         if found:
             values.append(sum(found) / len(found))
     return values
@@ -247,27 +247,15 @@ def coulomb_headline(result: AxisResult) -> str:
     return text
 
 
-def _fits_carry_offset(result: AxisResult) -> bool:
-    """True when the per-direction Coulomb values differ by about twice the offset."""
-    offset = result.offset
-    if offset is None or offset.value == 0:
-        return False
-    if offset.stderr is not None and abs(offset.value) < 2 * offset.stderr:
-        return False
-    halves = []
-    for position in result.positions:
-        pos, neg = position.directions.get("positive"), position.directions.get("negative")
-        if pos is not None and neg is not None and pos.fit is not None and neg.fit is not None:
-            halves.append((pos.fit.coulomb - neg.fit.coulomb) / 2)
-    if not halves:
-        return False
-    typical = sorted(halves)[len(halves) // 2]
-    return abs(typical - offset.value) < 0.3 * abs(offset.value)
-
-
 def viscous_headline(result: AxisResult) -> str:
     """Mean viscous friction per m/min."""
-    mean = _mean([fit.viscous_per_mm_min * 1000 for _, _, fit in _fits(result)])
+    mean = _mean(
+        [
+            fit.viscous_per_mm_min * 1000
+            for _, _, fit in _fits(result)
+            if fit.viscous_per_mm_min is not None
+        ]
+    )
     if mean is None:
         return "–"
     return f"{format_number(mean)} {result.unit} per m/min"
@@ -441,13 +429,19 @@ def _linear_rows(result: AxisResult) -> list[list[object]]:
             if fit is None:
                 rows.append([where, direction, "no fit", "", "", "", str(len(found.points)), ""])
                 continue
+            if fit.coulomb is None or fit.viscous_per_mm_min is None:
+                rows.append([where, direction, fit.reason or "not determined", "", "", "",
+                             str(fit.n_points), ""])  # fmt: skip
+                continue
             low, high = fit.velocity_range_mm_min
             rows.append(
                 [
                     where,
                     direction,
                     format_with_error(fit.coulomb, fit.coulomb_stderr),
-                    format_with_error(fit.viscous_per_mm_min * 1000, fit.viscous_stderr * 1000),
+                    format_with_error(
+                        fit.viscous_per_mm_min * 1000, (fit.viscous_stderr or 0.0) * 1000
+                    ),
                     format_number(fit.chi2_reduced),
                     _yes_no(fit.accepted),
                     str(fit.n_points),
@@ -459,10 +453,10 @@ def _linear_rows(result: AxisResult) -> list[list[object]]:
 
 def _parameter(fit: NonlinearFit, name: str, scale: float = 1.0) -> str:
     """A parameter as value ± half its 95 % interval, or a dash when the model lacks it."""
-    if name not in fit.parameters:
+    if fit.parameters is None or name not in fit.parameters:
         return "–"
     value = fit.parameters[name] * scale
-    interval = fit.ci95.get(name)
+    interval = fit.ci95.get(name) if fit.ci95 is not None else None
     if interval is None:
         return format_number(value)
     return format_with_error(value, (interval[1] - interval[0]) / 2 * scale)
@@ -534,20 +528,6 @@ def _fit_tables(result: AxisResult) -> Html:
                 class_="note",
             )
         )
-        if _fits_carry_offset(result):
-            parts.append(
-                tag(
-                    "div",
-                    tag(
-                        "p",
-                        f"The Coulomb values of each direction include the offset of "
-                        f"{format_number(result.offset.value if result.offset else None)} "
-                        f"{unit}: raised in one direction, lowered in the other. The mean of "
-                        "both directions is the friction (as in the summary).",
-                    ),
-                    class_="box warn",
-                )
-            )
     else:
         parts.append(tag("p", "No fits in the results.", class_="note"))
     nonlinear = _nonlinear_rows(result)

@@ -49,8 +49,8 @@ def find_window_times(
         RecordingError: The axis has no velocity channel or no window is found.
     """
     try:
-        segment = AnalysisSettings.model_validate(dict(settings or {})).segment_settings()
+        segment = AnalysisSettings.model_validate(dict(settings or {}))
     except ValidationError as exc:
         log.debug("results settings do not parse (%s): default window settings", exc)
-        segment = AnalysisSettings().segment_settings()
+        segment = AnalysisSettings()
     return window_times(recording, windows_of(recording, axis, settings=segment).windows)

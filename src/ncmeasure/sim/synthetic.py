@@ -29,7 +29,11 @@ The physics, per sample:
   stretches half-way to its neighbours), offset direction-independent
   (gravity on a vertical axis), cogging ``A·sin(2π x / period)``;
 * the current is torque / k_T, plus Gaussian noise and rare outliers; the
-  reported velocity carries Gaussian noise too.
+  reported velocity carries Gaussian noise too;
+* as real drives do, the velocity fluctuation can be real motion the speed
+  controller counters (``velocity_coupling``: torque falls as the velocity
+  rises above its command), and velocity and current can be reported in
+  counts (``velocity_quantum_mm_min``, ``current_quantum``).
 
 Everything is seeded: the same spec and seed give the same samples.
 """
@@ -104,6 +108,11 @@ class SyntheticAxis:
         inertia_per_m_s2: Torque (in ``unit``) per m/s² of axis acceleration.
         cogging_amplitude: Amplitude of the position-periodic ripple.
         cogging_period_mm: Its period along the travel.
+        velocity_coupling: Torque (in ``unit``) the speed controller takes off per
+            mm/min the velocity fluctuates above its command (0: the velocity
+            noise is measurement noise only).
+        velocity_quantum_mm_min: One count of the reported velocity (0: continuous).
+        current_quantum: One count of the reported current, in A (0: continuous).
         outlier_fraction: Share of samples with a current spike.
         outlier_amplitude: Size of a spike (random sign).
         acceleration_m_s2: Acceleration limit of the commanded profile.
@@ -141,6 +150,9 @@ class SyntheticAxis:
     inertia_per_m_s2: float = 1.5
     cogging_amplitude: float = 0.02
     cogging_period_mm: float = 20.0 / 18.0
+    velocity_coupling: float = 0.0
+    velocity_quantum_mm_min: float = 0.0
+    current_quantum: float = 0.0
     outlier_fraction: float = 0.002
     outlier_amplitude: float = 3.0
     acceleration_m_s2: float = 2.0
@@ -427,9 +439,15 @@ def _signals(
     )
     spikes = rng.random(len(velocity)) < spec.outlier_fraction
     torque[spikes] += spec.outlier_amplitude * rng.choice([-1.0, 1.0], int(spikes.sum()))
+    fluctuation = rng.normal(0.0, spec.velocity_noise_mm_min, len(velocity))
+    torque -= spec.velocity_coupling * fluctuation
     scale = spec.torque_constant_nm_per_a if spec.unit == "Nm" else None
     current = torque / scale if scale else torque
-    reported = velocity + rng.normal(0.0, spec.velocity_noise_mm_min, len(velocity))
+    reported = velocity + fluctuation
+    if spec.velocity_quantum_mm_min > 0:
+        reported = np.round(reported / spec.velocity_quantum_mm_min) * spec.velocity_quantum_mm_min
+    if spec.current_quantum > 0:
+        current = np.round(current / spec.current_quantum) * spec.current_quantum
     return position, reported, current
 
 
