@@ -277,6 +277,7 @@ def _dependency(
         travel_mm=travel,
         fixed_bearing_end=facts.fixed_bearing_end or "min",
         noise=noise_arg,
+        numbers=[p + 1 for p in positions],
     )
     return dependency, notes
 

@@ -86,6 +86,7 @@ class _Profile:
     """The averaged relative profile and what the statistics say about it."""
 
     positions_mm: FloatArray  # ascending
+    numbers: list[int]  # the measuring-position number of each
     relative: FloatArray  # mean 1
     level: float  # mean fitted friction over the grid
     cov_log: FloatArray | None  # covariance of the centred log profile, or None
@@ -106,7 +107,7 @@ def _as_table(values: ArrayLike, n_velocities: int, n_positions: int, name: str)
 
 
 def _fit_profile(
-    positions: FloatArray, table: FloatArray, noise: FloatArray | None
+    positions: FloatArray, numbers: Sequence[int], table: FloatArray, noise: FloatArray | None
 ) -> _Profile | None:
     """Fit ln T = α_j + β_k over the valid cells; None with fewer than 2 usable positions."""
     usable = np.isfinite(table) & (table > 0)
@@ -181,6 +182,7 @@ def _fit_profile(
     level = float(np.mean(np.exp(alpha[:, None] + beta[None, :])))
     return _Profile(
         positions_mm=positions[cols],
+        numbers=[int(numbers[c]) for c in cols],
         relative=relative,
         level=level,
         cov_log=cov_log,
@@ -190,7 +192,7 @@ def _fit_profile(
 
 
 def _profiles(
-    positions: FloatArray, velocities: FloatArray, table: FloatArray
+    positions: FloatArray, numbers: Sequence[int], velocities: FloatArray, table: FloatArray
 ) -> list[VelocityProfile]:
     out = []
     for j, velocity in enumerate(velocities):
@@ -202,6 +204,7 @@ def _profiles(
             VelocityProfile(
                 velocity_mm_min=float(velocity),
                 positions_mm=[float(x) for x in positions[ok]],
+                position_numbers=[int(n) for n, keep in zip(numbers, ok, strict=True) if keep],
                 values=[float(x) for x in vals],
                 spread_percent=float((vals.max() - vals.min()) / vals.mean() * 100.0),
             )
@@ -255,6 +258,7 @@ def position_dependency(
     travel_mm: tuple[float, float],
     fixed_bearing_end: Literal["min", "max"],
     noise: ArrayLike | None = None,
+    numbers: Sequence[int] | None = None,
 ) -> PositionDependency:
     """Describe how friction changes along the travel and rank the likely causes.
 
@@ -270,6 +274,9 @@ def position_dependency(
             the significance test uses the stated noise (or the observed
             scatter when that is larger); without it only the observed
             scatter between velocities.
+        numbers: The number of each measuring position as the report shows it
+            (1 = the lowest scheduled position); default 1, 2, ... in
+            ascending order. Evidence names positions as "position 2 (375 mm)".
 
     Returns:
         Profiles (the average first, ``velocity_mm_min`` None, then one per
@@ -290,9 +297,15 @@ def position_dependency(
     positions, table = positions[order], table[:, order]
     if noise_table is not None:
         noise_table = noise_table[:, order]
+    if numbers is None:
+        labels = list(range(1, positions.size + 1))
+    else:
+        if len(numbers) != positions.size:
+            raise ValueError(f"numbers has {len(numbers)} entries for {positions.size} positions")
+        labels = [int(numbers[i]) for i in order]
 
-    profiles = _profiles(positions, velocities, table)
-    fit = _fit_profile(positions, table, noise_table)
+    profiles = _profiles(positions, labels, velocities, table)
+    fit = _fit_profile(positions, labels, table, noise_table)
     if fit is None:
         return PositionDependency(
             spread_percent=0.0,
@@ -315,6 +328,7 @@ def position_dependency(
     average = VelocityProfile(
         velocity_mm_min=None,
         positions_mm=[float(p) for p in x],
+        position_numbers=list(fit.numbers),
         values=[float(r * fit.level) for r in rel],
         spread_percent=spread * 100.0,
     )
@@ -352,13 +366,14 @@ def _diagnose(
     flip = fixed_bearing_end == "max"
     q = fit.relative[::-1] if flip else fit.relative
     x = fit.positions_mm[::-1] if flip else fit.positions_mm
+    numbers = fit.numbers[::-1] if flip else fit.numbers
     cov = None if fit.cov_log is None else (fit.cov_log[::-1, ::-1] if flip else fit.cov_log)
     low_end, high_end = travel_mm
     length = (high_end - low_end) or 1.0
     t = np.abs(x - (high_end if flip else low_end)) / abs(length)  # 0 fixed end, 1 loose end
 
     def at(i: int) -> str:
-        return f"{x[i]:.0f} mm"
+        return f"position {numbers[i]} ({x[i]:.0f} mm)"
 
     strength = min(1.0, spread_pct / FULL_STRENGTH_PERCENT)
     if fit.p_value is None:
@@ -519,8 +534,10 @@ def _diagnose(
             f"Friction varies by {spread_pct:.1f} % over {n} positions without a bearing, "
             "nut or step pattern (relative to the mean: "
             + ", ".join(
-                f"{pos:.0f} mm {val:.2f}"
-                for pos, val in zip(fit.positions_mm, fit.relative, strict=True)
+                f"{number}: {pos:.0f} mm {val:.2f}"
+                for number, pos, val in zip(
+                    fit.numbers, fit.positions_mm, fit.relative, strict=True
+                )
             )
             + f"{p_text}): a misaligned guide rail follows its own deviation.",
         ),

@@ -206,6 +206,11 @@ class VelocityProfile(_Model):
 
     velocity_mm_min: float | None = Field(description="None for the average over velocities.")
     positions_mm: list[float]
+    position_numbers: list[int] = Field(
+        default_factory=list,
+        description="The number of each measuring position (1 = the lowest), as the report "
+        "shows it.",
+    )
     values: list[float]
     spread_percent: float = Field(description="(max − min) / mean × 100.")
 
