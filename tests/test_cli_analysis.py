@@ -88,3 +88,41 @@ def test_analysis_bad_input(tmp_path: Path) -> None:
     assert (
         code == 0 and "position_dependency" in json.loads(out)["$defs"]["AxisResult"]["properties"]
     )
+
+
+def test_analyze_skips_a_dead_axis_and_takes_settings_and_axes(tmp_path: Path) -> None:
+    """Real data: the Z current reads 0.0 A in every row. X is analysed, Z is named."""
+    from tests.analysis.real_data import measure, write
+
+    axes = [
+        SyntheticAxis(name=name, velocities_mm_min=geometric_velocities(20.0, 6000.0, 6))
+        for name in ("X", "Z")
+    ]
+    data = measure(axes)
+    data = data.set("Z_current_a", 0.0 * data.column("Z_current_a"))
+    run_dir = tmp_path / "run"
+    write(run_dir, data, axes)
+    code, out, err = run("analyze", run_dir, "--set", "settle_s=0.15")
+    assert code == 0, err
+    assert "axis Z: not analysed: Z_current_a is 0 A in every row" in out
+    results = load_results(tmp_path / "run.results.json")
+    assert list(results.axes) == ["X"]
+    assert "dead channel" in results.skipped["Z"]
+    assert results.settings["settle_s"] == 0.15
+    code, out, err = run("analyze", run_dir, "--axis", "X", "-o", tmp_path / "x.json", "-q")
+    assert code == 0, err
+    only = load_results(tmp_path / "x.json")
+    assert list(only.axes) == ["X"] and only.skipped == {}
+    code, out, err = run("analyze", run_dir, "--axis", "Z", "-o", tmp_path / "z.json")
+    assert code == 2
+    assert "no axis could be analysed" in err and "dead channel" in err
+    assert not (tmp_path / "z.json").exists()
+    for bad, message in (
+        ("settle_s=soon", "settle_s"),
+        ("nonsense=1", "nonsense"),
+        ("settle_s", "expected KEY=VALUE"),
+    ):
+        code, _, err = run("analyze", run_dir, "--set", bad)
+        assert code == 2 and message in err and "Traceback" not in err, err
+    code, _, err = run("analyze", run_dir, "--axis", "Q")
+    assert code == 2 and "axis Q not recorded" in err

@@ -71,10 +71,20 @@ def test_demo_without_variation(nominals: Callable[[str], DemoResult], link: str
     assert_recovers_the_simulated_friction(nominal)
     assert nominal.speed == DEFAULT_SPEED[nominal.link]
     assert len(nominal.runs) == 1 and nominal.comparison is None
-    for axis in nominal.measured.results.axes.values():
+    results = nominal.measured.results
+    assert results.skipped == {}
+    for axis in results.axes.values():
         dependency = axis.position_dependency
         assert dependency is not None
         assert dependency.signature == "flat" and dependency.causes[0].cause == "none"
+        # The healthy machine looks healthy: no alarm, and every curve says which model
+        # describes it (the Stribeck hump is friction, not a fault).
+        assert axis.verdict.level == "ok", axis.verdict
+        for position in axis.positions:
+            for direction in position.directions.values():
+                assert direction is not None and direction.model_reason
+                fit = direction.fit
+                assert fit is not None and fit.coulomb is not None and fit.coulomb > 0
     assert nominal.measured.results.axes["Z"].offset is not None
     # gravity on the vertical axis: 500 kg, 20 mm lead
     assert nominal.measured.results.axes["Z"].offset.value == pytest.approx(15.6, rel=0.02)
@@ -115,6 +125,7 @@ def test_demo_with_each_variation(
         single = [c.cause for c in dependency.causes]
         if cause in LOCAL:
             assert single[0] == cause, f"axis {name}, single run: {single}"
+            assert axis.verdict.level in ("check", "fault"), axis.verdict
         else:  # a global offset: invisible in one run
             assert dependency.signature == "flat"
             assert changes[name].mean_change_percent > 5.0

@@ -660,6 +660,7 @@ def import_command(
         config = load_machine(machine) if machine else None
         if fmt == "mdf4" or (fmt is None and file.suffix.lower() in (".mf4", ".mdf")):
             recording = import_mdf4(file, output)
+            report = list(recording.meta.link.get("report", []))
         else:
             fmt = fmt or detect_format(file)
             bar = (
@@ -856,17 +857,40 @@ def analyze_command(
         typer.Option("--output", "-o", help="results.json to write (default: RUN.results.json)."),
     ] = None,
     report: Annotated[Path | None, typer.Option(help="Also write this HTML report.")] = None,
+    axis: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--axis", help="Analyse only this axis (repeat for several; default: every axis)."
+        ),
+    ] = None,
+    set_: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            help="An analysis setting, KEY=VALUE, e.g. --set settle_s=0.2 --set "
+            "window_method=command (names: `ncmeasure schema results`, settings; "
+            "docs/analysis.md).",
+        ),
+    ] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress, no summary.")] = False,
 ) -> None:
-    """Friction per position, direction and velocity; fits; position diagnosis.
+    """Friction per position, direction and velocity; fits; position diagnosis; a verdict.
 
     Windows come from the marker when recorded, else from commanded vs actual velocity,
-    else from constant-velocity plateaus. Example:
-    ncmeasure analyze run1 --schedule programs/schedule.json --report run1.html
+    else from constant-velocity plateaus. An axis that cannot be analysed (a dead
+    channel, no motion) is skipped with the reason; the others are analysed (exit 0).
+    Example: ncmeasure analyze run1 --schedule programs/schedule.json --report run1.html
     """
-    from ncmeasure.analysis.analyze import analyze, write_results
+    from pydantic import ValidationError
+
+    from ncmeasure.analysis.analyze import AnalysisSettings, analyze, write_results
+    from ncmeasure.config import format_validation_error
 
     target = output or run.with_name(run.name + ".results.json")
+    try:
+        settings = AnalysisSettings.model_validate(_settings(set_ or []))
+    except ValidationError as exc:
+        _fail(ConfigError("--set: not valid analysis settings", format_validation_error(exc)))
     try:
         recording = read_recording(run)
         plan_schedule = load_schedule(schedule) if schedule else None
@@ -875,7 +899,14 @@ def analyze_command(
         if bar is not None:
             bar.start()
         try:
-            results = analyze(recording, schedule=plan_schedule, machine=config, progress=update)
+            results = analyze(
+                recording,
+                schedule=plan_schedule,
+                machine=config,
+                settings=settings,
+                axes=axis or None,
+                progress=update,
+            )
         finally:
             if bar is not None:
                 bar.stop()
@@ -911,7 +942,9 @@ def analyze_command(
                 line += f" → likely cause {cause.cause} ({cause.score:.2f})"
         console.print(line)
         for warning in axis.warnings:
-            err_console.print(f"[yellow]warning:[/] axis {name}: {warning}")
+            err_console.print(f"[yellow]warning:[/] axis {name}: {warning}", markup=False)
+    for name, reason in results.skipped.items():
+        console.print(f"axis {name}: not analysed: {reason}", markup=False)
     console.print(f"wrote {target}" + (f" and {report}" if report else ""))
 
 

@@ -46,6 +46,7 @@ from ncmeasure import __version__
 from ncmeasure.config import AXIS_NAME_PATTERN, AxisConfig, MachineConfig, format_validation_error
 from ncmeasure.errors import DependencyError, LinkError, RecordingError
 from ncmeasure.links.base import SIGNAL_UNITS, Channel, EventKind, LinkEvent, SampleBlock
+from ncmeasure.validity import Implausible
 
 __all__ = [
     "EVENTS_FILE",
@@ -179,17 +180,28 @@ def axis_metadata(axis: AxisConfig) -> dict[str, Any]:
 
     Returns:
         A JSON-ready dict: name, travel_mm, vertical, fixed_bearing_end,
-        torque_constant_nm_per_a, rated_current_a, screw_lead_mm.
+        torque_constant_nm_per_a, rated_current_a, screw_lead_mm,
+        max_velocity_mm_min, rapid_velocity_mm_min (the last two tell rapids and
+        impossible values apart).
     """
     return {
         "name": axis.name,
         "travel_mm": list(axis.travel_mm),
+        "max_velocity_mm_min": axis.max_velocity_mm_min,
+        "rapid_velocity_mm_min": axis.rapid_mm_min,
         "vertical": axis.vertical,
         "fixed_bearing_end": axis.fixed_bearing_end,
         "torque_constant_nm_per_a": axis.torque_constant_nm_per_a,
         "rated_current_a": axis.rated_current_a,
         "screw_lead_mm": axis.screw_lead_mm,
     }
+
+
+def machine_axis(machine: MachineConfig | None, name: str) -> AxisConfig | None:
+    """The axis ``name`` of the machine file, or None (no machine file, no such axis)."""
+    if machine is None:
+        return None
+    return next((axis for axis in machine.axes if axis.name == name), None)
 
 
 def channel_from_name(name: str) -> Channel | None:
@@ -1123,6 +1135,12 @@ class ImportSink:
     removes what it wrote (never anything that was there before), so it can be
     retried into the same directory.
 
+    Every value is checked on the way in (:mod:`ncmeasure.validity`): a "no
+    value" code such as −999999, or a value beyond what the axis can do (its
+    rated current and maximum velocity from the machine file, else fixed
+    bounds), is stored as NaN and counted; :meth:`validity_lines` says so, and
+    :meth:`finish` adds it to the report in ``meta.json`` (``link.report``).
+
     Args:
         directory: The new recording.
         channels: Its columns.
@@ -1152,6 +1170,15 @@ class ImportSink:
         self.existed = directory.exists()
         self.rows = 0
         self.writer: RecordingWriter | None = None
+        facts: dict[str, dict[str, Any]] = {}
+        for channel in self.channels:
+            axis = machine_axis(machine, channel.axis)
+            if axis is not None:
+                facts[channel.name] = {
+                    "rated_current_a": axis.rated_current_a,
+                    "max_velocity_mm_min": axis.max_velocity_mm_min,
+                }
+        self.validity = Implausible.for_channels({c.name: c.signal for c in self.channels}, facts)
         self._times: list[NDArray[np.float64]] = []
         self._pending: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
 
@@ -1159,6 +1186,15 @@ class ImportSink:
         """Write rows (times strictly increasing, also across calls; checked by the writer)."""
         if len(time_s) == 0:
             return
+        values = np.asarray(values, dtype=np.float64)
+        copied = False
+        for column, channel in enumerate(self.channels):
+            original = values[:, column]
+            cleaned = self.validity.clean(channel.name, time_s, original)
+            if cleaned is not original:
+                if not copied:
+                    values, copied = values.copy(), True
+                values[:, column] = cleaned
         self.rows += len(time_s)
         self._times.append(np.array(time_s, dtype=np.float64))
         if self.writer is None:
@@ -1206,9 +1242,20 @@ class ImportSink:
         writer = self.ensure_writer()
         if self.nominal_period_s is None:
             updates["nominal_period_s"] = self._median_step_s()
+        lines = self.validity_lines()
+        if lines:
+            link = dict(updates.get("link", self.meta.get("link") or {}))
+            report = list(link.get("report", []))
+            link["report"] = report + [line for line in lines if line not in report]
+            link["implausible"] = dict(self.validity.counts)
+            updates["link"] = link
         writer.close(status, **updates)
         log.info("imported into %s: %d samples", self.directory, writer.rows_written)
         return Recording.open(self.directory)
+
+    def validity_lines(self) -> list[str]:
+        """One sentence per channel whose values were left out as not physically possible."""
+        return self.validity.lines()
 
     def discard(self) -> None:
         """Remove the files this import wrote and, if the import made it, the directory."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -175,3 +176,44 @@ def test_progress_ends_at_the_file_size(tmp_path: Path, name: str) -> None:
     assert calls, "progress was never called"
     assert calls[-1] == (size, size)
     assert [a for a, _ in calls] == sorted(a for a, _ in calls)
+
+
+@pytest.mark.parametrize(
+    ("name", "old", "new", "channel"),
+    [
+        ("recording_export.csv", "0.001,1.75,", "0.001,-999999,", "X_current_a"),
+        ("sinumerik_trace.xml", 'f1="1.75"', 'f1="-999999"', "X_current_a"),
+        ("sinumerik_trace.xml", 'f1="1.75"', 'f1="99999999"', "X_current_a"),
+    ],
+)
+def test_no_value_codes_are_left_out_of_every_import(
+    tmp_path: Path, machine: MachineConfig, name: str, old: str, new: str, channel: str
+) -> None:
+    """A logger writes −999999 (or another row of nines) where it has no value: never a
+    measurement. (9.9E37 and larger codes a Sinumerik trace already marks invalid.)"""
+    text = (FIXTURES / name).read_text(encoding="utf-8")
+    assert old in text
+    path = tmp_path / name
+    path.write_text(text.replace(old, new, 1), encoding="utf-8")
+    result = import_trace(path, tmp_path / "rec", machine=machine)
+    values = result.recording.column(channel)
+    assert np.isnan(values).sum() >= 1
+    assert np.nanmin(np.abs(values)) < 1000
+    lines = [line for line in result.report if line.startswith(f"{channel}: 1 value(s)")]
+    assert len(lines) == 1, result.report
+    assert "not physically possible" in lines[0]
+    assert result.recording.meta.link["implausible"] == {channel: 1}
+
+
+def test_a_current_beyond_ten_times_the_rated_current_is_not_real(
+    tmp_path: Path, make_config: Callable[..., MachineConfig]
+) -> None:
+    machine = make_config()
+    rated = machine.axes[0].rated_current_a
+    assert rated is not None
+    text = (FIXTURES / "recording_export.csv").read_text(encoding="utf-8")
+    path = tmp_path / "x.csv"
+    path.write_text(text.replace("0.001,1.75,", f"0.001,{11 * rated},", 1), encoding="utf-8")
+    result = import_trace(path, tmp_path / "rec", machine=machine)
+    assert np.isnan(result.recording.column("X_current_a")).sum() == 1
+    assert any(f"beyond ±{10 * rated:g}" in line for line in result.report)

@@ -105,6 +105,7 @@ class AxisFacts:
     vertical: bool | None = None
     rated_current_a: float | None = None
     max_velocity_mm_min: float | None = None
+    rapid_velocity_mm_min: float | None = None
     warnings: list[str] = field(default_factory=list)
 
 
@@ -120,6 +121,7 @@ _FACT_KEYS = (
     "vertical",
     "rated_current_a",
     "max_velocity_mm_min",
+    "rapid_velocity_mm_min",
 )
 
 
@@ -138,7 +140,12 @@ def _axis_facts(
     if machine is not None:
         for axis in machine.axes:
             if axis.name == name:
-                sources.append(("the machine file", axis.model_dump()))
+                sources.append(
+                    (
+                        "the machine file",
+                        {**axis.model_dump(), "rapid_velocity_mm_min": axis.rapid_mm_min},
+                    )
+                )
     if summary is not None:
         sources.append(("the schedule", summary.model_dump()))
     for key in _FACT_KEYS:
@@ -151,7 +158,7 @@ def _axis_facts(
         if key == "travel_mm":
             value = (float(value[0]), float(value[1]))
         setattr(facts, key, value)
-        if key in ("rated_current_a", "max_velocity_mm_min"):
+        if key in ("rated_current_a", "max_velocity_mm_min", "rapid_velocity_mm_min"):
             continue  # limits for plausibility only: the first source is enough
         for other, other_value in found[1:]:
             if key == "travel_mm":
@@ -377,6 +384,7 @@ def analyze_axis(
         marker=signals.get("marker"),
         schedule=schedule,
         settings=settings,
+        rapid_mm_min=facts.rapid_velocity_mm_min,
     )
     dead = _dead_channel(axis, "current_a", current, "A")
     if dead is None:

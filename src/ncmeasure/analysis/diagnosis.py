@@ -182,7 +182,7 @@ def _fit_profile(
     level = float(np.mean(np.exp(alpha[:, None] + beta[None, :])))
     return _Profile(
         positions_mm=positions[cols],
-        numbers=[int(numbers[c]) for c in cols],
+        numbers=[int(numbers[int(c)]) for c in cols],
         relative=relative,
         level=level,
         cov_log=cov_log,

@@ -483,8 +483,10 @@ class _Finder:
         marker: FloatArray | None,
         schedule: Schedule | None,
         settings: SegmentSettings,
+        rapid_mm_min: float | None = None,
     ) -> None:
         self.axis = axis
+        self.rapid_mm_min = rapid_mm_min
         self.settings = settings
         self.v = velocity
         self.n = len(velocity)
@@ -843,6 +845,16 @@ class _Finder:
         top = self.settings.max_velocity_mm_min
         if top is None and self.summary is not None and self.summary.velocities_mm_min:
             top = max(self.summary.velocities_mm_min)
+        if top is None and self.rapid_mm_min is not None:
+            # At the machine's rapid traverse velocity a move is a rapid, not a measurement.
+            rapid = self.rapid_mm_min
+            kept = [c for c in candidates if abs(c.level_mm_min) < rapid - float(self.band(rapid))]
+            if len(kept) < len(candidates):
+                self.warnings.append(
+                    f"{len(candidates) - len(kept)} windows at the rapid traverse velocity "
+                    f"({rapid:g} mm/min, machine file): dropped"
+                )
+            return kept
         if top is None:
             return candidates
         limit = top + float(self.band(top))
@@ -1308,6 +1320,7 @@ def find_windows(
     marker: FloatArray | None = None,
     schedule: Schedule | None = None,
     settings: SegmentSettings | None = None,
+    rapid_mm_min: float | None = None,
 ) -> Segmentation:
     """Find and label the constant-velocity windows of one axis.
 
@@ -1320,6 +1333,8 @@ def find_windows(
         marker: The program's marker (n,), where recorded.
         schedule: The schedule.json of the program, to label the windows.
         settings: How windows are found.
+        rapid_mm_min: The axis' rapid traverse velocity (machine file): without
+            a schedule or ``max_velocity_mm_min``, windows at it are rapids.
 
     Returns:
         The windows with their labels, the steps and positions, and warnings.
@@ -1336,6 +1351,7 @@ def find_windows(
         None if marker is None else np.asarray(marker, dtype=np.float64),
         schedule,
         settings or SegmentSettings(),
+        rapid_mm_min,
     )
     return finder.run()
 

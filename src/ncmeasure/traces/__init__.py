@@ -198,4 +198,5 @@ def _import_recording_csv(
         f"{c.name} [{c.unit}]: from column {c.name} (ncmeasure CSV, no conversion)"
         for c in recording.channels
     ]
+    report.extend(recording.meta.link.get("report", []))
     return TraceImport(recording, report)

@@ -29,10 +29,10 @@ from typing import Any, Final, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.config import AXIS_NAME_PATTERN, AxisConfig, MachineConfig
+from ncmeasure.config import AXIS_NAME_PATTERN, MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.links.base import SIGNAL_UNITS, Channel
-from ncmeasure.recording import ImportSink, Recording
+from ncmeasure.recording import ImportSink, Recording, machine_axis
 
 __all__ = [
     "CHUNK_ROWS",
@@ -276,6 +276,8 @@ class ImportJob:
         """Close the recording with the complete report and read it back."""
         if self.sink is None:
             raise RecordingError(f"{self.path}: no samples to import")
+        for line in self.sink.validity_lines():
+            self.note(line)
         self.link["report"] = list(self.report)
         recording = self.sink.finish("complete", link=dict(self.link))
         self.tick(self.total_bytes)  # the whole file is done, even if an end marker stopped reading
@@ -427,15 +429,6 @@ def resolve_axes(
     return result
 
 
-def _machine_axis(machine: MachineConfig | None, name: str) -> AxisConfig | None:
-    if machine is None:
-        return None
-    try:
-        return machine.axis(name)
-    except KeyError:
-        return None
-
-
 def plan_channels(candidates: Sequence[Candidate], job: ImportJob) -> list[Mapped]:
     """Decide which candidates become channels; report every decision.
 
@@ -464,7 +457,7 @@ def plan_channels(candidates: Sequence[Candidate], job: ImportJob) -> list[Mappe
             continue
         factor = cand.factor
         conversion = cand.conversion or "no unit conversion"
-        axis_config = _machine_axis(job.machine, axis)
+        axis_config = machine_axis(job.machine, axis)
         where = "of the machine file" if job.machine is not None else "(no machine file given)"
         if cand.needs == "screw_lead":
             lead = axis_config.screw_lead_mm if axis_config is not None else None
