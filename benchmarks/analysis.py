@@ -8,16 +8,17 @@ recording with :class:`~ncmeasure.recording.RecordingWriter` into a
 temporary directory, then reads it back. The windows are found once (marker
 and schedule; the time is printed). Then, in the same run, the table
 (median, mean, standard deviation and count of the current per axis,
-position, direction and step, keeping only samples whose velocity is within
-the tolerance of the window's) is built twice from the same windows:
+position, direction and step, over every sample of the windows) is built
+from the same windows:
 
-* ncmeasure: :func:`~ncmeasure.analysis.friction.friction_table`, one call per axis;
-* pandas: one DataFrame per window (current, velocity and its labels),
-  ``pd.concat``, the velocity filter, and
-  ``groupby([axis, position, direction, step]).agg(median, mean, std, count)``;
+* ncmeasure: :func:`~ncmeasure.analysis.friction.friction_table`, one call per
+  axis (which also computes the batch standard errors: more work than the
+  baselines do);
+* pandas: one DataFrame per window (current and its labels), ``pd.concat``,
+  and ``groupby([axis, position, direction, step]).agg(median, mean, std, count)``;
 * pandas again, with the per-sample label columns built by ``np.repeat``
-  (as ncmeasure builds them) so that only the filter and the groupby are
-  pandas': the floor for any pandas version of the table.
+  (as ncmeasure builds them) so that only the groupby is pandas': the floor
+  for any pandas version of the table.
 
 Both are timed from the windows to the finished table (best of several
 runs) and reported as recording rows per second. Last, the two tables are
@@ -83,9 +84,6 @@ def ncmeasure_tables(
             axis,
             recording.axis_signal(axis, "current_a"),
             seg.windows,
-            velocity_mm_min=recording.axis_signal(axis, "velocity_mm_min"),
-            velocity_tolerance=SETTINGS.velocity_tolerance,
-            velocity_floor_mm_min=SETTINGS.velocity_floor_mm_min,
         )
         for axis, seg in segmentations.items()
     ]
@@ -95,7 +93,6 @@ def pandas_table(recording: Recording, segmentations: dict[str, Segmentation]) -
     frames = []
     for axis, seg in segmentations.items():
         current = recording.axis_signal(axis, "current_a")
-        velocity = recording.axis_signal(axis, "velocity_mm_min")
         for w in seg.windows:
             frames.append(
                 pd.DataFrame(
@@ -104,18 +101,12 @@ def pandas_table(recording: Recording, segmentations: dict[str, Segmentation]) -
                         "position": w.position_index,
                         "direction": w.direction,
                         "step": w.step,
-                        "level": w.level_mm_min,
                         "current": current[w.start : w.stop],
-                        "velocity": velocity[w.start : w.stop],
                     }
                 )
             )
     samples = pd.concat(frames, ignore_index=True)
-    tolerance = np.maximum(
-        SETTINGS.velocity_tolerance * samples["level"].abs(), SETTINGS.velocity_floor_mm_min
-    )
-    kept = samples[((samples["velocity"] - samples["level"]).abs() <= tolerance)]
-    kept = kept[np.isfinite(kept["current"])]
+    kept = samples[np.isfinite(samples["current"])]
     return (
         kept.groupby(["axis", "position", "direction", "step"])["current"]
         .agg(["median", "mean", "std", "count"])
@@ -128,11 +119,10 @@ def pandas_table_prebuilt(
 ) -> pd.DataFrame:
     names = list(segmentations)
     columns: dict[str, list[np.ndarray]] = {
-        k: [] for k in ("axis", "position", "direction", "step", "level", "current", "velocity")
+        k: [] for k in ("axis", "position", "direction", "step", "current")
     }
     for number, (axis, seg) in enumerate(segmentations.items()):
         current = recording.axis_signal(axis, "current_a")
-        velocity = recording.axis_signal(axis, "velocity_mm_min")
         starts = np.array([w.start for w in seg.windows])
         lengths = np.array([w.samples for w in seg.windows])
         offsets = np.cumsum(lengths) - lengths
@@ -141,21 +131,15 @@ def pandas_table_prebuilt(
             ("position", [w.position_index for w in seg.windows]),
             ("direction", [w.direction for w in seg.windows]),
             ("step", [w.step for w in seg.windows]),
-            ("level", [w.level_mm_min for w in seg.windows]),
         ):
             columns[name].append(np.repeat(np.asarray(values), lengths))
         columns["axis"].append(np.full(len(index), number))
         columns["current"].append(current[index])
-        columns["velocity"].append(velocity[index])
     data = {k: np.concatenate(v) for k, v in columns.items()}
     samples = pd.DataFrame(
         {**data, "axis": pd.Categorical.from_codes(data["axis"], categories=names)}
     )
-    tolerance = np.maximum(
-        SETTINGS.velocity_tolerance * samples["level"].abs(), SETTINGS.velocity_floor_mm_min
-    )
-    kept = samples[((samples["velocity"] - samples["level"]).abs() <= tolerance)]
-    kept = kept[np.isfinite(kept["current"])]
+    kept = samples[np.isfinite(samples["current"])]
     return (
         kept.groupby(["axis", "position", "direction", "step"], observed=True)["current"]
         .agg(["median", "mean", "std", "count"])

@@ -19,11 +19,27 @@ Three ways are tried, in this order; the first that yields windows wins:
     where the smoothed velocity stays within the tolerance of its level for
     at least ``plateau_min_s`` (and above the standstill floor) is a plateau.
 
-Every window then loses its acceleration transient: the samples up to
+Real data sets the rules (``docs/analysis.md``, section 1):
+
+* every rule is a duration; sample counts follow from the sample period
+  (``min_window_s``, at least :data:`MIN_WINDOW_SAMPLES`), so 100 ms data of a
+  data collector is analysed like 4 ms data, and called *coarse* when its
+  windows hold fewer than :data:`COARSE_WINDOW_SAMPLES` samples;
+* the velocity signal's count (:func:`quantum`) and noise (:func:`noise_sigma`)
+  widen every tolerance band and raise the standstill threshold to at least
+  one count; where they exceed ``velocity_floor_mm_min`` and a position was
+  recorded, windows are found and measured by the position;
+* every window must agree with its displacement (v·Δt): a velocity reading
+  frozen at standstill, or an axis that did not follow its command, is no
+  window; where the velocity comes from the readings, the window's velocity
+  is its displacement over its duration.
+
+Every window loses its acceleration transient: the samples up to
 ``settle_s`` after the (smoothed) actual velocity entered the tolerance band
 of the window's velocity. A window that the NC program already started
 ``settle_s`` after the run-up loses nothing. Windows shorter than
-``min_window_samples`` after that are dropped.
+``min_window_s`` after that are dropped. When nothing is found, the error
+says what was tried and whether the axis moved at all.
 
 Labelling: with a schedule, each window gets the step, position index,
 direction and repetition of the scheduled window it belongs to: by marker
