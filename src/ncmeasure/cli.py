@@ -857,7 +857,7 @@ def analyze_command(
         typer.Option("--output", "-o", help="results.json to write (default: RUN.results.json)."),
     ] = None,
     report: Annotated[Path | None, typer.Option(help="Also write this HTML report.")] = None,
-    axis: Annotated[
+    only: Annotated[
         list[str] | None,
         typer.Option(
             "--axis", help="Analyse only this axis (repeat for several; default: every axis)."
@@ -904,7 +904,7 @@ def analyze_command(
                 schedule=plan_schedule,
                 machine=config,
                 settings=settings,
-                axes=axis or None,
+                axes=only or None,
                 progress=update,
             )
         finally:
