@@ -481,7 +481,10 @@ def analyze_axis(
         position_dependency=dependency,
         warnings=list(dict.fromkeys(warnings)),
     )
-    verdict = axis_verdict(result, gap_share=gap_share, empty_positions=empty)
+    planned = len(summary.windows) if summary is not None else None
+    verdict = axis_verdict(
+        result, planned_windows=planned, gap_share=gap_share, empty_positions=empty
+    )
     return result.model_copy(update={"verdict": verdict})
 
 

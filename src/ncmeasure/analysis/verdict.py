@@ -15,13 +15,16 @@ where there is one) and says:
     fault threshold; a comparison beyond its warning limit; or a measurement
     that cannot show the assembly (fewer than 3 positions with data, gravity
     not separated on a vertical axis, a measuring position without a single
-    window, or more than :data:`GAP_SHARE_CHECK` of the samples lost).
+    window, or fewer than :data:`MIN_WINDOW_SHARE` of the scheduled windows
+    kept).
 ``ok``
     Nothing of that: friction along the travel is flat or within the noise.
 
 How well a model fits the curve is not part of the verdict: a Stribeck hump
 is friction, not a fault, and the report states per curve which model
-describes it.
+describes it. Nor are lost samples as such: they are counted and shown
+(results.json, summary, report header); the verdict asks only whether what
+was kept still covers the measurement.
 """
 
 from __future__ import annotations
@@ -32,14 +35,14 @@ from typing import Final, Literal
 from ncmeasure.analysis.diagnosis import FLAT_THRESHOLD_PERCENT
 from ncmeasure.analysis.results import AxisResult, PositionDependency, Verdict
 
-__all__ = ["FAULT_SPREAD_PERCENT", "GAP_SHARE_CHECK", "axis_verdict", "comparison_verdict"]
+__all__ = ["FAULT_SPREAD_PERCENT", "MIN_WINDOW_SHARE", "axis_verdict", "comparison_verdict"]
 
 FAULT_SPREAD_PERCENT: Final = 15.0
 """A local pattern this strong is a fault: three times the flat threshold, three times the
 few-percent repeatability of runs, below the ~20 % step of a sticking cover (method.md)."""
 
-GAP_SHARE_CHECK: Final = 0.05
-"""More than this share of samples lost: the measurement should be repeated."""
+MIN_WINDOW_SHARE: Final = 0.5
+"""Fewer than this share of the scheduled windows kept: the measurement should be repeated."""
 
 _CAUSE_WORDS: Final = {
     "loose_bearing": "a shifted or tilted loose bearing",
@@ -69,6 +72,7 @@ def _significant(dependency: PositionDependency) -> bool:
 def axis_verdict(
     result: AxisResult,
     *,
+    planned_windows: int | None = None,
     gap_share: float = 0.0,
     empty_positions: Sequence[float] = (),
 ) -> Verdict:
@@ -76,7 +80,9 @@ def axis_verdict(
 
     Args:
         result: The axis' results (its own ``verdict`` is ignored).
-        gap_share: Share of the recording's samples lost.
+        planned_windows: Windows the schedule planned for the axis, when known.
+        gap_share: Share of the recording's samples lost (named in the reason
+            when the kept windows do not cover the measurement).
         empty_positions: Scheduled measuring positions (mm) without a window.
     """
     dependency = result.position_dependency
@@ -96,7 +102,7 @@ def axis_verdict(
             reason=f"A moderate pattern: {text}.",
             action=f"Measure again to confirm; if it repeats, {action}.",
         )
-    concerns = _measurement_concerns(result, gap_share, empty_positions)
+    concerns = _measurement_concerns(result, planned_windows, gap_share, empty_positions)
     if concerns:
         return Verdict(
             level="check",
@@ -124,7 +130,10 @@ def axis_verdict(
 
 
 def _measurement_concerns(
-    result: AxisResult, gap_share: float, empty_positions: Sequence[float]
+    result: AxisResult,
+    planned_windows: int | None,
+    gap_share: float,
+    empty_positions: Sequence[float],
 ) -> list[str]:
     concerns = []
     dependency = result.position_dependency
@@ -139,8 +148,11 @@ def _measurement_concerns(
     if empty_positions:
         listed = ", ".join(f"{x:g} mm" for x in empty_positions)
         concerns.append(f"no valid window at {listed}")
-    if gap_share > GAP_SHARE_CHECK:
-        concerns.append(f"{gap_share * 100:.0f} % of the samples were lost")
+    if planned_windows and result.windows < MIN_WINDOW_SHARE * planned_windows:
+        lost = f" ({gap_share * 100:.0f} % of the samples were lost)" if gap_share else ""
+        concerns.append(
+            f"only {result.windows} of the {planned_windows} scheduled windows were kept{lost}"
+        )
     return concerns
 
 
