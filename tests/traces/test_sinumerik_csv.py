@@ -149,3 +149,48 @@ def test_a_column_that_stays_empty(tmp_path: Path) -> None:
     )
     with pytest.raises(RecordingError, match=r"A1_position_mm never has a value in 2 rows"):
         import_trace(path, tmp_path / "rec")
+
+
+def test_840d_signals_take_position_and_velocity_from_the_commanded_measuring_system(
+    tmp_path: Path, machine: MachineConfig
+) -> None:
+    """The CSV export shares the XML's signal table and choice of the measuring system."""
+    names = [
+        "nckServoDataCmdPos2ndEnc64",
+        "nckServoDataActPos1stEnc64",
+        "nckServoDataActPos2ndEnc64",
+        "nckServoDataCmdVelCtrlIn64",
+        "nckServoDataActVel1stEnc64",
+        "nckServoDataActVel2ndEnc64",
+        "nckServoDataActCurr64",
+        "nckServoDataCmdTorque64",
+    ]
+    header = ",".join(["time"] + [f"+/Nck/!SD/{n} [u1; 1]" for n in names])
+    rows = [
+        "0,-300.0,-1100.174,-300.0,0.0,0.0,0.0,0.25,0.45",
+        "0.002,-299.999,-1100.173,-300.0,30.0,30.0,0.0,2.5,4.5",
+        "0.004,-299.997,-1100.171,-299.999,60.0,60.0,30.0,2.625,4.7",
+        "0.006,-299.994,-1100.168,-299.997,90.0,90.0,60.0,,",  # empty: the last value holds
+    ]
+    path = tmp_path / "x_840d.csv"
+    path.write_text("\n".join([header, *rows]) + "\n", encoding="utf-8")
+    result = import_trace(path, tmp_path / "rec", machine=machine, axis_names={"1": "X"})
+    rec = result.recording
+    assert rec.meta.source == "import:sinumerik-csv"
+    assert rec.channel_names == ("X_current_a", "X_velocity_mm_min", "X_position_mm")
+    np.testing.assert_array_equal(rec.column("X_position_mm"), [-300.0, -300.0, -299.999, -299.997])
+    np.testing.assert_array_equal(rec.column("X_velocity_mm_min"), [0.0, 0.0, 30.0, 60.0])
+    np.testing.assert_array_equal(rec.column("X_current_a"), [0.25, 2.5, 2.625, 2.625])
+    assert (
+        "axis X: position and velocity from measuring system 2 "
+        "(the command position nckServoDataCmdPos2ndEnc64 refers to it)"
+    ) in result.report
+    assert any(
+        line.startswith("/Nck/!SD/nckServoDataCmdVelCtrlIn64 [u1; 1]: not imported (")
+        and "unit not verified" in line
+        for line in result.report
+    )
+    assert (
+        "/Nck/!SD/nckServoDataActPos1stEnc64 [u1; 1]: not imported (X_position_mm already "
+        "comes from /Nck/!SD/nckServoDataActPos2ndEnc64 [u1; 1])"
+    ) in result.report

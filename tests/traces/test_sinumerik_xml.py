@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime as dt
+import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from pathlib import Path
 
@@ -292,3 +293,273 @@ def test_failure_after_rows_reached_the_disk_removes_them(
         import_trace(write(tmp_path, trace(recs)), target)
     assert on_disk and on_disk[0] > 0
     assert_nothing_left(target)
+
+
+# --- SINUMERIK 840D sl: velocities of the measuring systems, the active system ----------
+
+MOVING = FIXTURES / "sinumerik_840d_moving.xml"
+HOLDING = FIXTURES / "sinumerik_840d_holding.xml"
+SYSTEM_2 = (
+    "position and velocity from measuring system 2 "
+    "(the command position nckServoDataCmdPos2ndEnc64 refers to it)"
+)
+
+
+def carried(path: Path, signal_id: str) -> list[float]:
+    """The values of ``signal_id`` record by record, a left-out value kept (read independently)."""
+    values: list[float] = []
+    last = NAN
+    for rec in ET.parse(path).getroot().iter("rec"):
+        last = float(rec.get(signal_id, last))
+        values.append(last)
+    return values
+
+
+def test_840d_moving_axis_position_and_velocity_come_from_measuring_system_2(
+    tmp_path: Path, machine: MachineConfig
+) -> None:
+    """The real header (traceCaptureSetup_V20 then traceCaptureSetup) and the real signal set.
+
+    The fixture's header comment says which of its properties are taken from a
+    real trace and which are made up.
+    """
+    assert "<traceCaptureSetup_V20>" in MOVING.read_text(encoding="utf-8")
+    result = import_trace(MOVING, tmp_path / "rec", machine=machine, axis_names={"1": "X"})
+    rec = result.recording
+    assert rec.channel_names == ("X_current_a", "X_velocity_mm_min", "X_position_mm")
+    position = rec.column("X_position_mm")
+    velocity = rec.column("X_velocity_mm_min")
+    # machine coordinates: measuring system 2 (f3, -300 mm), not system 1 (f2, -1100.174 mm)
+    np.testing.assert_array_equal(position, carried(MOVING, "f3"))
+    assert position[0] == -300.0
+    assert position[-1] == pytest.approx(-298.59, abs=1e-9)
+    assert np.all(np.abs(np.array(carried(MOVING, "f2")) - position + 800.174) < 0.001)
+    # mm/min as written, no conversion: the ActVel2ndEnc64 figures (f6)
+    np.testing.assert_array_equal(velocity, carried(MOVING, "f6"))
+    np.testing.assert_array_equal(velocity[9:13], [0.0, 30.0, 60.0, 90.0])
+    assert velocity[30] == 600.3  # rec time=0.060000 f6="600.300000"
+    # ... which is the slope of the imported position in mm/min, as system 1's is of its own
+    np.testing.assert_allclose(velocity[1:], np.diff(position) / 0.002 * 60, rtol=0, atol=1e-6)
+    slope_1 = np.diff(carried(MOVING, "f2")) / 0.002 * 60
+    np.testing.assert_allclose(carried(MOVING, "f5")[1:], slope_1, rtol=0, atol=1e-6)
+    assert np.max(np.abs(velocity[1:] - slope_1)) > 1.0  # so the two systems differ
+    np.testing.assert_array_equal(rec.column("X_current_a"), carried(MOVING, "f9"))
+    assert f"axis X: {SYSTEM_2}" in result.report
+    assert rec.meta.link["session"] == "FRICTION_X"
+    assert rec.meta.link["trace_version"] == "01.00.03.02"
+    assert rec.meta.start_utc == "2025-03-14T09:26:53.589+00:00"
+    assert rec.meta.nominal_period_s == 0.002
+
+
+def test_840d_signals_that_are_not_imported_say_why(tmp_path: Path, machine: MachineConfig) -> None:
+    report = import_trace(MOVING, tmp_path / "rec", machine=machine).report
+    reasons = {
+        line.split(" [u1, 1]: ")[0].rsplit("/", 1)[1]: line.split(": not imported ", 1)[1]
+        for line in report
+        if ": not imported " in line
+    }
+    assert reasons["nckServoDataCmdVelCtrlIn64"].startswith(
+        "(velocity setpoint at the speed controller input: unit not verified"
+    )
+    assert reasons["nckServoDataDrvLoad64"] == (
+        "(drive load in % of the torque limit: ncmeasure has no such signal)"
+    )
+    assert reasons["nckServoDataCtrlDev64"] == (
+        "(control deviation in mm: ncmeasure has no such signal)"
+    )
+    assert "ncmeasure records no command position" in reasons["nckServoDataCmdPos2ndEnc64"]
+    assert reasons["nckServoDataActPos1stEnc64"] == (
+        "(X_position_mm already comes from /Nck/!SD/nckServoDataActPos2ndEnc64 [u1, 1])"
+    )
+    assert reasons["nckServoDataActVel1stEnc64"] == (
+        "(X_velocity_mm_min already comes from /Nck/!SD/nckServoDataActVel2ndEnc64 [u1, 1])"
+    )
+    assert reasons["nckServoDataCmdTorque64"] == (
+        "(X_current_a already comes from /Nck/!SD/nckServoDataActCurr64 [u1, 1])"
+    )
+
+
+def test_840d_holding_axis_imports_position_velocity_and_current(tmp_path: Path) -> None:
+    """An axis that holds: measuring system 2 creeps by less than one velocity count.
+
+    Only traceCaptureSetup_V20 holds the session settings. The import must
+    succeed; that the axis did not move is for the analysis to say.
+    """
+    text = HOLDING.read_text(encoding="utf-8")
+    assert "<traceCaptureSetup_V20>" in text and "<traceCaptureSetup>" not in text
+    result = import_trace(HOLDING, tmp_path / "rec")
+    rec = result.recording
+    assert rec.channel_names == ("A1_current_a", "A1_velocity_mm_min", "A1_position_mm")
+    assert len(rec.time_s) == 200
+    position = rec.column("A1_position_mm")
+    velocity = rec.column("A1_velocity_mm_min")
+    np.testing.assert_array_equal(position, carried(HOLDING, "f3"))
+    assert position[0] == -300.0
+    assert 0.2e-3 < position.max() - position.min() < 0.4e-3  # a few tenths of a um
+    assert set(np.unique(velocity)) == {-0.292969, 0.0, 0.292969}  # 0 or one count
+    # positions are rounded to 1e-6 mm: their slope matches to within 1e-6 / 0.002 x 60
+    slope = np.diff(position) / 0.002 * 60
+    assert np.max(np.abs(velocity[1:] - slope)) <= 0.03 + 1e-9
+    np.testing.assert_array_equal(rec.column("A1_current_a"), carried(HOLDING, "f9"))
+    assert f"axis A1: {SYSTEM_2}" in result.report
+    assert rec.meta.link["session"] == "HOLD_X"
+
+
+def servo(variable: str, sid: str, axis: int = 1) -> str:
+    return f'<dataSignal id="{sid}" name="/Nck/!SD/{variable} [u1, {axis}]" interval="0.002"/>'
+
+
+def systems_trace(tmp_path: Path, variables: list[str], values: list[list[float]]) -> Path:
+    """A trace with the servo ``variables`` of axis 1 and one record per row of ``values``."""
+    signals = "".join(servo(v, f"f{i + 1}") for i, v in enumerate(variables))
+    recs = "".join(
+        f'<rec time="{k * 0.002!r}" '
+        + " ".join(f'f{i + 1}="{x!r}"' for i, x in enumerate(row))
+        + "/>"
+        for k, row in enumerate(values)
+    )
+    return write(tmp_path, trace(recs, signals))
+
+
+BOTH_SYSTEMS = [
+    "nckServoDataActCurr64",
+    "nckServoDataActPos1stEnc64",
+    "nckServoDataActPos2ndEnc64",
+    "nckServoDataActVel1stEnc64",
+    "nckServoDataActVel2ndEnc64",
+]
+BOTH_ROWS = [[1.0, -1100.0, -300.0, 0.0, 0.0], [1.5, -1099.99, -299.98, 300.0, 600.0]]
+
+
+@pytest.mark.parametrize(
+    ("command", "system"),
+    [("nckServoDataCmdPos2ndEnc64", 2), ("nckServoDataCmdPos1stEnc32", 1)],
+)
+def test_the_command_position_names_the_measuring_system(
+    tmp_path: Path, command: str, system: int
+) -> None:
+    path = systems_trace(tmp_path, [command, *BOTH_SYSTEMS], [[-300.0, *row] for row in BOTH_ROWS])
+    result = import_trace(path, tmp_path / "rec")
+    rec = result.recording
+    assert rec.channel_names == ("A1_current_a", "A1_velocity_mm_min", "A1_position_mm")
+    index = {1: (1, 3), 2: (2, 4)}[system]
+    np.testing.assert_array_equal(rec.column("A1_position_mm"), [r[index[0]] for r in BOTH_ROWS])
+    np.testing.assert_array_equal(
+        rec.column("A1_velocity_mm_min"), [r[index[1]] for r in BOTH_ROWS]
+    )
+    assert (
+        f"axis A1: position and velocity from measuring system {system} "
+        f"(the command position {command} refers to it)"
+    ) in result.report
+
+
+def test_without_a_command_position_measuring_system_1_is_taken_and_the_report_says_so(
+    tmp_path: Path,
+) -> None:
+    result = import_trace(systems_trace(tmp_path, BOTH_SYSTEMS, BOTH_ROWS), tmp_path / "rec")
+    np.testing.assert_array_equal(result.recording.column("A1_position_mm"), [-1100.0, -1099.99])
+    np.testing.assert_array_equal(result.recording.column("A1_velocity_mm_min"), [0.0, 300.0])
+    assert (
+        "axis A1: position and velocity from measuring system 1 (no command position "
+        "(nckServoDataCmdPos1stEnc/2ndEnc) in the trace tells which measuring system the "
+        "axis is controlled on; measuring system 1 by default)"
+    ) in result.report
+
+
+def test_position_and_velocity_are_never_taken_from_two_measuring_systems(
+    tmp_path: Path,
+) -> None:
+    variables = [
+        "nckServoDataCmdPos2ndEnc64",
+        "nckServoDataActCurr64",
+        "nckServoDataActPos2ndEnc64",
+        "nckServoDataActVel1stEnc64",  # the velocity of the other system only
+    ]
+    path = systems_trace(
+        tmp_path, variables, [[-300.0, 1.0, -300.0, 0.0], [-300.0, 1.0, -300.0, 3.0]]
+    )
+    result = import_trace(path, tmp_path / "rec")
+    assert result.recording.channel_names == ("A1_current_a", "A1_position_mm")
+    assert (
+        "/Nck/!SD/nckServoDataActVel1stEnc64 [u1, 1]: not imported (axis A1 takes its values "
+        "from measuring system 2; this is measuring system 1, and the two are not mixed)"
+    ) in result.report
+    assert (
+        "axis A1: position from measuring system 2 (the command position "
+        "nckServoDataCmdPos2ndEnc64 refers to it); the trace has no velocity of measuring "
+        "system 2, and that of another measuring system is not mixed in"
+    ) in result.report
+
+
+def test_measuring_system_1_when_the_commanded_one_is_not_traced_is_a_warning(
+    tmp_path: Path,
+) -> None:
+    variables = [
+        "nckServoDataCmdPos2ndEnc64",
+        "nckServoDataActCurr32",
+        "nckServoDataActPos1stEnc32",
+        "nckServoDataActVel1stEnc32",
+    ]
+    rows = [[-300.0, 1.0, -1100.0, 0.0], [-300.0, 1.0, -1100.0, 0.0]]
+    result = import_trace(systems_trace(tmp_path, variables, rows), tmp_path / "rec")
+    np.testing.assert_array_equal(result.recording.column("A1_position_mm"), [-1100.0, -1100.0])
+    assert (
+        "axis A1: position and velocity from measuring system 1 (the command position "
+        "nckServoDataCmdPos2ndEnc64 refers to measuring system 2, of which the trace has no "
+        "position or velocity; the positions may be offset from machine coordinates)"
+    ) in result.report
+
+
+def test_velocity_of_a_measuring_system_wins_over_the_motor_speed(
+    tmp_path: Path, machine: MachineConfig
+) -> None:
+    variables = [
+        "nckServoDataActCurr64",
+        "nckServoDataActVelMot64",
+        "nckServoDataActPos2ndEnc64",
+        "nckServoDataActVel2ndEnc32",
+    ]
+    rows = [[1.0, 30.0, -300.0, 0.0], [1.0, 31.0, -299.99, 600.0]]
+    path = systems_trace(tmp_path, variables, rows)
+    result = import_trace(path, tmp_path / "rec", machine=machine, axis_names={"1": "X"})
+    np.testing.assert_array_equal(result.recording.column("X_velocity_mm_min"), [0.0, 600.0])
+    assert (
+        "/Nck/!SD/nckServoDataActVelMot64 [u1, 1]: not imported (X_velocity_mm_min already "
+        "comes from /Nck/!SD/nckServoDataActVel2ndEnc32 [u1, 1])"
+    ) in result.report
+    assert (
+        "X_velocity_mm_min [mm/min]: from /Nck/!SD/nckServoDataActVel2ndEnc32 [u1, 1] "
+        "(mm/min of measuring system 2, no conversion)"
+    ) in result.report
+    assert any(
+        line.startswith("axis X: position and velocity from measuring system 2 (no ")
+        for line in result.report
+    )
+
+
+def test_axes_choose_their_measuring_systems_independently(tmp_path: Path) -> None:
+    signals = "".join(
+        [
+            servo("nckServoDataCmdPos2ndEnc64", "f1", axis=1),
+            servo("nckServoDataActPos1stEnc64", "f2", axis=1),
+            servo("nckServoDataActPos2ndEnc64", "f3", axis=1),
+            servo("nckServoDataActPos1stEnc64", "f4", axis=2),
+            servo("nckServoDataActPos2ndEnc64", "f5", axis=2),
+        ]
+    )
+    recs = '<rec time="0" f1="-300" f2="-1100" f3="-300" f4="50" f5="-750"/>'
+    result = import_trace(write(tmp_path, trace(recs, signals)), tmp_path / "rec")
+    assert result.recording.channel_names == ("A1_position_mm", "A2_position_mm")
+    np.testing.assert_array_equal(result.recording.values, [[-300.0, 50.0]])
+
+
+def test_session_settings_outside_the_capture_setup_are_not_the_session(tmp_path: Path) -> None:
+    text = trace('<rec time="0" f1="1" f2="2"/>').replace(
+        '<traceData dataFrames="1">',
+        '<traceDisplaySetup_V20><sessionSettings sessionName="WRONG"/></traceDisplaySetup_V20>'
+        '<traceCaptureSetup_V20><sessionSettings sessionName="RIGHT"/></traceCaptureSetup_V20>'
+        '<traceCaptureSetup><sessionSettings sessionName="LATER"/></traceCaptureSetup>'
+        '<traceData dataFrames="1">',
+    )
+    rec = import_trace(write(tmp_path, text), tmp_path / "rec").recording
+    assert rec.meta.link["session"] == "RIGHT"

@@ -316,8 +316,18 @@ class Candidate:
         factor: Multiplies the trace values into ncmeasure units (before ``needs``).
         needs: Machine data the conversion needs: ``screw_lead`` (motor rpm
             to mm/min) or ``torque_constant`` (Nm to A).
-        rank: Lower wins when several signals give the same channel.
+        rank: Lower wins when several signals give the same channel; it
+            also decides the measuring system of an axis (see below).
         conversion: How the unit is converted, for the report.
+        measuring_system: The measuring system (encoder) whose value this
+            is, e.g. ``"measuring system 2"``; empty for a value tied to
+            none (a current, a motor speed). The channels of one axis that
+            come from a measuring system all come from the same one: that of
+            the best-ranked such candidate that is imported. A candidate of
+            another measuring system of that axis is not imported.
+        measuring_system_reason: Why this measuring system is the one to use
+            if it is chosen, for the report ("the command position ... refers
+            to it").
     """
 
     source: str
@@ -327,6 +337,8 @@ class Candidate:
     needs: Needs = ""
     rank: int = 0
     conversion: str = ""
+    measuring_system: str = ""
+    measuring_system_reason: str = ""
 
 
 @dataclass(frozen=True)
@@ -443,6 +455,8 @@ def plan_channels(candidates: Sequence[Candidate], job: ImportJob) -> list[Mappe
     ids = list(dict.fromkeys(c.axis_id for c in candidates))
     axis_map = resolve_axes(ids, job.machine, job.axis_names, job.report)
     chosen: dict[Channel, Mapped] = {}
+    # axis -> the candidate that decided the axis' measuring system
+    systems: dict[str, Candidate] = {}
     for cand in sorted(candidates, key=lambda c: c.rank):
         axis = axis_map.get(cand.axis_id)
         if axis is None:
@@ -453,6 +467,18 @@ def plan_channels(candidates: Sequence[Candidate], job: ImportJob) -> list[Mappe
             job.note(
                 f"{cand.source}: not imported ({channel.name} already comes from "
                 f"{chosen[channel].candidate.source})"
+            )
+            continue
+        decided = systems.get(axis)
+        if (
+            cand.measuring_system
+            and decided is not None
+            and decided.measuring_system != cand.measuring_system
+        ):
+            job.note(
+                f"{cand.source}: not imported (axis {axis} takes its values from "
+                f"{decided.measuring_system}; this is {cand.measuring_system}, and the two "
+                "are not mixed)"
             )
             continue
         factor = cand.factor
@@ -483,6 +509,8 @@ def plan_channels(candidates: Sequence[Candidate], job: ImportJob) -> list[Mappe
             factor /= k_t
             conversion = f"torque Nm / torque constant {k_t:g} Nm/A = A"
         chosen[channel] = Mapped(cand, channel, factor, conversion)
+        if cand.measuring_system and decided is None:
+            systems[axis] = cand
     axis_order = list(dict.fromkeys(axis_map[i] for i in ids if i in axis_map))
     if job.machine is not None:
         names = [a.name for a in job.machine.axes]
@@ -492,6 +520,9 @@ def plan_channels(candidates: Sequence[Candidate], job: ImportJob) -> list[Mappe
         chosen.values(),
         key=lambda m: (axis_order.index(m.channel.axis), signal_order.index(m.channel.signal)),
     )
+    for axis in axis_order:
+        if axis in systems:
+            job.note(_measuring_system_sentence(axis, systems[axis], mapped, candidates, axis_map))
     for m in mapped:
         job.note(f"{m.channel.name} [{m.channel.unit}]: from {m.candidate.source} ({m.conversion})")
     if not mapped:
@@ -500,6 +531,42 @@ def plan_channels(candidates: Sequence[Candidate], job: ImportJob) -> list[Mappe
             job.report,
         )
     return mapped
+
+
+def _quantity(signal: str) -> str:
+    """``position_mm`` -> ``position``: the word for a signal in a report sentence."""
+    return re.sub(r"_(mm_min|mm|a)$", "", signal).replace("_", " ")
+
+
+def _measuring_system_sentence(
+    axis: str,
+    decider: Candidate,
+    mapped: Sequence[Mapped],
+    candidates: Sequence[Candidate],
+    axis_map: Mapping[str, str],
+) -> str:
+    """``axis X: position and velocity from measuring system 2 (reason)``, and what it lacks."""
+    system = decider.measuring_system
+    taken = [
+        m.channel.signal
+        for m in mapped
+        if m.channel.axis == axis and m.candidate.measuring_system == system
+    ]
+    offered = list(
+        dict.fromkeys(
+            c.signal for c in candidates if c.measuring_system and axis_map.get(c.axis_id) == axis
+        )
+    )
+    lacking = [s for s in offered if s not in taken]
+    taken.sort(key=lambda s: s != "position_mm")  # "position and velocity"
+    words = " and ".join(_quantity(s) for s in taken)
+    sentence = f"axis {axis}: {words} from {system} ({decider.measuring_system_reason})"
+    if lacking:
+        sentence += (
+            f"; the trace has no {' and no '.join(_quantity(s) for s in lacking)} of {system}, "
+            "and that of another measuring system is not mixed in"
+        )
+    return sentence
 
 
 # --- the target recording --------------------------------------------------------------

@@ -23,6 +23,10 @@ is the point, or the comma where the separator is not a comma; it is fixed by
 the first number that shows one, and a number written the other way is an
 error. An empty cell means the signal has no new sample at that instant: it
 keeps its last value (as in the XML). Invalid-sample markers become NaN.
+
+Which signals become channels, in which unit, and from which measuring system
+an axis' position and velocity come, is decided as for the XML
+(:func:`~ncmeasure.traces.sinumerik_xml.sinumerik_candidates`).
 """
 
 from __future__ import annotations

@@ -1,15 +1,24 @@
 """Sinumerik Operate / SinuCom trace XML: servo signals of the NCK, read as a stream.
 
-The layout, as verified against public parsers of real traces::
+The layout, as verified against public parsers of real traces and a real
+SINUMERIK 840D sl trace (``<traceSession version="01.00.03.02">``)::
 
     <traceSession version="...">
-      <traceCaptureSetup> <sessionSettings sessionName="..."/> ... </traceCaptureSetup>
+      <traceCaptureSetup_V20>                      newer traces; older ones and
+        <collectionSettings .../>                  the same file again after the
+        <sessionSettings sessionName="..."/>       V20 elements: <traceCaptureSetup>
+        <sampleRateSettings servoSampleRate="0.002" .../>
+        <signalSettings> <signal key="s1" name="..." unitsType="posn" .../> ...
+        <triggerSettings> ... </triggerSettings>
+      </traceCaptureSetup_V20>
+      <traceDisplaySetup_V20> ... </traceDisplaySetup_V20>
+      <traceCaptureSetup> ... </traceCaptureSetup>
       <traceDisplaySetup> ... </traceDisplaySetup>
       <traceData dataFrames="1">
         <dataFrame>
           <frameHeader startTime="..." startTriggerInc=".." stopTriggerInc=".."
                        stopInc=".." dropOuts="0"/>
-          <dataSignal id="f1" key="..." name="/Nck/!SD/nckServoDataActCurr64 [u1, 1]"
+          <dataSignal id="f1" key="s1" name="/Nck/!SD/nckServoDataActCurr64 [u1, 1]"
                       description="..." interval="0.002" datapointCount=".."  .../>
           ...
           <rec time="0" f1="1.25" f2="..."/>      one element per instant
@@ -25,19 +34,51 @@ The layout, as verified against public parsers of real traces::
   which lists the ``dataSignal`` and ``frameHeader`` attributes; a public
   checker of a 7199-record Sinumerik trace that verifies time, interval and
   the carrying forward of values a record leaves out).
-* Signals sampled at different rates leave attributes out; a left-out signal
-  keeps its last value (the public ``SinumerikTraceHandler.read_decoded_xml``
+* The setup elements before ``traceData`` are not needed to read the data; only
+  ``sessionSettings/@sessionName`` is kept, from the first ``traceCaptureSetup*``
+  element (``traceCaptureSetup_V20`` in the real 840D sl trace
+  ``X_BK300_1.xml``, public in Yaaaaqing/mcep-cloud-edge-platform
+  ``public/data/raw/``, which holds the V20 and the plain elements one after
+  the other; ``traceCaptureSetup`` in the public ``SinumerikTraceHandler``).
+* Signals sampled at different rates leave attributes out, and so does a signal
+  whose value did not change (``X_BK300_1.xml``: a signal at 2 ms left out of
+  913 of 7199 records while its value stood still); a left-out signal keeps its
+  last value (the public ``SinumerikTraceHandler.read_decoded_xml``
   forward-fills; the checker above "inherits the previous value").
 * An invalid sample holds the bit pattern of +inf read as an integer, about
   9.2188e18 (Trace-Tools treats every value above 9218868437227405000 as
   invalid). ncmeasure stores NaN until the next valid value and reports it.
 * Signal names such as ``/Nck/!SD/nckServoDataActCurr64 [u1, 1]``: the number
-  after ``u1`` is the axis index. Units, as listed by a public importer of such
-  traces: ``nckServoDataActCurr64`` torque-generating actual current [A],
-  ``nckServoDataActPos1stEnc64`` actual position of measuring system 1 [mm],
-  ``nckServoDataActVelMot64`` actual motor speed [rpm, m/s for linear motors],
-  ``nckServoDataCmdTorque64`` torque setpoint [Nm]; the ``...32`` variants are
-  the same signals in 32 bit.
+  after ``u1`` is the axis index; the ``...32`` variants are the same signals
+  in 32 bit. Meanings and units, as listed by a public importer of such
+  traces (``ImportData``, German descriptions) and by the ``dataSignal``
+  descriptions of ``X_BK300_1.xml``:
+  ``nckServoDataActCurr64`` torque-generating actual current i(q) [A];
+  ``nckServoDataActPos1stEnc64`` / ``...2ndEnc64`` actual position of measuring
+  system 1 / 2 [mm]; ``nckServoDataActVelMot64`` actual motor speed [rpm, m/s
+  for linear motors]; ``nckServoDataCmdTorque64`` torque setpoint [Nm];
+  ``nckServoDataCtrlDev64`` control deviation [mm]; ``nckServoDataDrvLoad64``
+  load m_set/m_set,limit [%].
+* ``nckServoDataActVel1stEnc64`` / ``...2ndEnc64`` ("Velocity act. value meas.
+  system 1 / 2", ``unitsType="velo"``) are mm/min: in ``X_BK300_1.xml`` each
+  equals the change of the position of its measuring system over the 2 ms
+  interval x 60 (backward difference) to within the rounding of the positions
+  to 1e-6 mm (largest difference 0.029 mm/min, rounding bound 0.03 mm/min).
+* The position setpoint is named after the measuring system it refers to:
+  ``nckServoDataCmdPos2ndEnc64`` ("Position setpoint") in ``X_BK300_1.xml``,
+  where it stays within 0.012 mm of ``ActPos2ndEnc64`` (-300 mm) while
+  ``ActPos1stEnc64`` reads -1100.17 mm. The SINUMERIK Operate commissioning
+  manual (service display axis/spindle) gives both actual positions in the
+  machine coordinate system and "Active measuring system: 1 or 2". ncmeasure
+  therefore takes position and velocity of an axis from the measuring system
+  its command position names, else from measuring system 1, and never mixes
+  the two (see :func:`sinumerik_candidates`).
+* Not imported because the unit is not verified: ``nckServoDataCmdVelCtrlIn64``
+  ("Velocity setpoint controller input", ``unitsType="velo"``). In
+  ``X_BK300_1.xml`` it follows the slope of the position setpoint in mm/min
+  (least-squares ratio 0.98, correlation 0.995), but no public document gives
+  its unit (a speed controller setpoint may be in motor rpm), and it is not
+  the commanded velocity alone: it reads -0.13 while the setpoint stands still.
 
 The file is parsed with :func:`xml.etree.ElementTree.iterparse`; each ``rec``
 is cleared and detached once read, so memory does not grow with the trace.
@@ -50,7 +91,7 @@ import logging
 import math
 import re
 import xml.etree.ElementTree as ET
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -99,45 +140,170 @@ def parse_signal_name(name: str) -> SinumerikSignal | None:
     return SinumerikSignal(name.strip().lstrip("+").strip(), match["var"], int(match["index"]))
 
 
-# (ncmeasure signal, needs, rank): the 64-bit variant wins over the 32-bit one,
-# measuring system 1 over 2, measured current over current from torque.
-_SERVO_SIGNALS: Final[dict[str, tuple[str, Needs, int, str]]] = {
-    "nckServoDataActCurr64": ("current_a", "", 0, "A, no conversion"),
-    "nckServoDataActCurr32": ("current_a", "", 1, "A, no conversion"),
-    "nckServoDataActPos1stEnc64": ("position_mm", "", 0, "mm, no conversion"),
-    "nckServoDataActPos1stEnc32": ("position_mm", "", 1, "mm, no conversion"),
-    "nckServoDataActPos2ndEnc64": ("position_mm", "", 2, "mm of measuring system 2"),
-    "nckServoDataActPos2ndEnc32": ("position_mm", "", 3, "mm of measuring system 2"),
-    "nckServoDataActVelMot64": ("velocity_mm_min", "screw_lead", 0, ""),
-    "nckServoDataActVelMot32": ("velocity_mm_min", "screw_lead", 1, ""),
-    "nckServoDataCmdTorque64": ("current_a", "torque_constant", 10, ""),
-    "nckServoDataCmdTorque32": ("current_a", "torque_constant", 11, ""),
+@dataclass(frozen=True)
+class _Servo:
+    """What an NCK servo signal becomes: its channel, conversion and measuring system."""
+
+    signal: str
+    conversion: str
+    needs: Needs = ""
+    #: 1 or 2 for a value of measuring system 1 or 2, 0 for none.
+    system: int = 0
+    #: Among the signals of one channel, lower wins; the 32-bit variant ranks one more.
+    rank: int = 0
+
+
+#: The servo signals ncmeasure imports, by variable without its ``64``/``32`` suffix (the
+#: 64-bit variant wins over the 32-bit one). Position and velocity of the measuring
+#: system that the command position refers to rank 0, those of the other system 2,
+#: the motor speed (which needs the screw lead) 4; measured current wins over
+#: current from torque.
+_SERVO_SIGNALS: Final[Mapping[str, _Servo]] = {
+    "nckServoDataActCurr": _Servo("current_a", "A, no conversion"),
+    "nckServoDataCmdTorque": _Servo("current_a", "", needs="torque_constant", rank=10),
+    "nckServoDataActPos1stEnc": _Servo(
+        "position_mm", "mm of measuring system 1, no conversion", system=1
+    ),
+    "nckServoDataActPos2ndEnc": _Servo(
+        "position_mm", "mm of measuring system 2, no conversion", system=2
+    ),
+    "nckServoDataActVel1stEnc": _Servo(
+        "velocity_mm_min", "mm/min of measuring system 1, no conversion", system=1
+    ),
+    "nckServoDataActVel2ndEnc": _Servo(
+        "velocity_mm_min", "mm/min of measuring system 2, no conversion", system=2
+    ),
+    "nckServoDataActVelMot": _Servo("velocity_mm_min", "", needs="screw_lead", rank=4),
 }
+_OTHER_SYSTEM_RANK: Final = 2
+
+#: The position setpoint, named after the measuring system it refers to.
+_COMMAND_POSITIONS: Final[Mapping[str, int]] = {
+    "nckServoDataCmdPos1stEnc": 1,
+    "nckServoDataCmdPos2ndEnc": 2,
+}
+
+#: Servo signals that are known but not imported, and why.
+_NOT_IMPORTED: Final[Mapping[str, str]] = {
+    "nckServoDataCmdPos1stEnc": (
+        "position setpoint; ncmeasure records no command position: it tells which "
+        "measuring system the axis is controlled on"
+    ),
+    "nckServoDataCmdPos2ndEnc": (
+        "position setpoint; ncmeasure records no command position: it tells which "
+        "measuring system the axis is controlled on"
+    ),
+    "nckServoDataCmdVelCtrlIn": (
+        "velocity setpoint at the speed controller input: unit not verified (mm/min or "
+        "motor rpm), so it does not become velocity_cmd_mm_min"
+    ),
+    "nckServoDataCtrlDev": "control deviation in mm: ncmeasure has no such signal",
+    "nckServoDataDrvLoad": "drive load in % of the torque limit: ncmeasure has no such signal",
+}
+
+_WIDTH = re.compile(r"^(?P<stem>\w+?)(?P<bits>64|32)$")
+
+
+def _stem(variable: str) -> tuple[str, int]:
+    """``nckServoDataActCurr64`` -> (``nckServoDataActCurr``, 0), ``...32`` -> (..., 1).
+
+    A name without the suffix gives ``("", 0)``: no servo signal that ncmeasure knows.
+    """
+    match = _WIDTH.match(variable)
+    if match is None:
+        return "", 0
+    return match["stem"], 0 if match["bits"] == "64" else 1
+
+
+@dataclass(frozen=True)
+class _AxisSystems:
+    """Which measuring system an axis' position and velocity come from, and why."""
+
+    preferred: int
+    reasons: Mapping[int, str]
+
+
+def _axis_systems(signals: Sequence[SinumerikSignal]) -> dict[int, _AxisSystems]:
+    """Per axis: the measuring system that the command position refers to, else system 1."""
+    commands: dict[int, dict[int, str]] = {}
+    for sig in signals:
+        system = _COMMAND_POSITIONS.get(_stem(sig.variable)[0])
+        if system is not None:
+            commands.setdefault(sig.axis_index, {}).setdefault(system, sig.variable)
+    result: dict[int, _AxisSystems] = {}
+    for axis in {s.axis_index for s in signals}:
+        found = commands.get(axis, {})
+        if len(found) == 1:
+            ((system, variable),) = found.items()
+            other = 3 - system
+            result[axis] = _AxisSystems(
+                system,
+                {
+                    system: f"the command position {variable} refers to it",
+                    other: (
+                        f"the command position {variable} refers to measuring system "
+                        f"{system}, of which the trace has no position or velocity; the "
+                        "positions may be offset from machine coordinates"
+                    ),
+                },
+            )
+            continue
+        if found:
+            why = "the trace has command positions of both measuring systems"
+        else:
+            why = (
+                "no command position (nckServoDataCmdPos1stEnc/2ndEnc) in the trace tells "
+                "which measuring system the axis is controlled on"
+            )
+        result[axis] = _AxisSystems(
+            1,
+            {
+                1: f"{why}; measuring system 1 by default",
+                2: f"{why}, and it has no position or velocity of measuring system 1",
+            },
+        )
+    return result
 
 
 def sinumerik_candidates(names: Sequence[str], job: ImportJob) -> list[Candidate | None]:
-    """A candidate for every signal name that ncmeasure uses, None (and a report line) else."""
+    """A candidate for every signal name that ncmeasure uses, None (and a report line) else.
+
+    Position and velocity candidates name their measuring system; those of the
+    system that the axis' command position refers to (else system 1) rank first,
+    so :func:`~ncmeasure.traces._common.plan_channels` takes both from it.
+    """
+    parsed = [parse_signal_name(name) for name in names]
+    systems = _axis_systems([p for p in parsed if p is not None])
     result: list[Candidate | None] = []
-    for name in names:
-        parsed = parse_signal_name(name)
-        if parsed is None:
+    for name, sig in zip(names, parsed, strict=True):
+        if sig is None:
             job.note(f"{name}: not imported (not an axis signal of the form <name> [u1, <axis>])")
             result.append(None)
             continue
-        known = _SERVO_SIGNALS.get(parsed.variable)
+        stem, width_rank = _stem(sig.variable)
+        known = _SERVO_SIGNALS.get(stem)
         if known is None:
-            job.note(f"{parsed.name}: not imported (no ncmeasure signal for {parsed.variable})")
+            reason = _NOT_IMPORTED.get(stem, f"no ncmeasure signal for {sig.variable}")
+            job.note(f"{sig.name}: not imported ({reason})")
             result.append(None)
             continue
-        signal, needs, rank, conversion = known
+        rank, system, why = known.rank + width_rank, "", ""
+        if known.system:
+            axis = systems[sig.axis_index]
+            if known.system != axis.preferred:
+                rank += _OTHER_SYSTEM_RANK
+            system = f"measuring system {known.system}"
+            why = axis.reasons[known.system]
         result.append(
             Candidate(
-                source=parsed.name,
-                axis_id=str(parsed.axis_index),
-                signal=signal,
-                needs=needs,
+                source=sig.name,
+                axis_id=str(sig.axis_index),
+                signal=known.signal,
+                needs=known.needs,
                 rank=rank,
-                conversion=conversion,
+                conversion=known.conversion,
+                measuring_system=system,
+                measuring_system_reason=why,
             )
         )
     return result
@@ -317,11 +483,14 @@ def import_sinumerik_xml(job: ImportJob) -> Recording:
             for event, elem in ET.iterparse(source, events=("start", "end")):
                 tag = _local(elem.tag)
                 if event == "start":
-                    if not stack and tag != "traceSession":
-                        raise RecordingError(
-                            f"{job.path}: the root element is <{tag}>, not <traceSession>: "
-                            "not a Sinumerik trace"
-                        )
+                    if not stack:
+                        if tag != "traceSession":
+                            raise RecordingError(
+                                f"{job.path}: the root element is <{tag}>, not <traceSession>: "
+                                "not a Sinumerik trace"
+                            )
+                        if elem.get("version"):
+                            job.link["trace_version"] = elem.get("version")
                     stack.append(elem)
                     if tag == "dataFrame":
                         reader.frames += 1
@@ -342,7 +511,12 @@ def import_sinumerik_xml(job: ImportJob) -> Recording:
                     reader.data_signal(elem.attrib)
                 elif tag == "frameHeader":
                     reader.frame_header = dict(elem.attrib)
-                elif tag == "sessionSettings":
+                elif (
+                    tag == "sessionSettings"
+                    and reader.session_name is None
+                    and _local(stack[-1].tag).startswith("traceCaptureSetup")
+                ):
+                    # traceCaptureSetup_V20 and traceCaptureSetup both hold it; the first wins
                     reader.session_name = elem.attrib.get("sessionName")
     except ET.ParseError as exc:
         line, column = exc.position
