@@ -144,6 +144,21 @@ def test_an_axis_holding_position_did_not_move(tmp_path: Path) -> None:
     assert "missing" not in text and "without" not in text
 
 
+def test_a_sinumerik_trace_of_an_axis_holding_position_did_not_move(tmp_path: Path) -> None:
+    """The 840D sl trace layout (measuring system 2, velocity in counts of 0.29 mm/min):
+    an axis in position control creeps by 0.3 µm. Not a missing signal: no motion."""
+    from ncmeasure.traces import import_trace
+
+    fixture = Path(__file__).parents[1] / "traces" / "fixtures" / "sinumerik_840d_holding.xml"
+    recording = import_trace(fixture, tmp_path / "rec").recording
+    assert {c.signal for c in recording.channels} >= {"current_a", "velocity_mm_min"}
+    with pytest.raises(RecordingError) as caught:
+        analyze(recording)
+    text = str(caught.value)
+    assert "the axis did not move" in text
+    assert "without" not in text and "no velocity" not in text
+
+
 # --- 5. a velocity reading frozen at standstill -------------------------------------------
 
 QUANTISED = SyntheticAxis(

@@ -598,7 +598,7 @@ def analyze(
             skipped[name] = reason
             details.append(f"axis {name}: {reason}")
             details.extend(f"  {line}" for line in exc.problems)
-            log.warning("axis %s not analysed: %s", name, reason)
+            log.info("axis %s not analysed: %s", name, reason)
             continue
         if common:
             result = result.model_copy(update={"warnings": [*common, *result.warnings]})
