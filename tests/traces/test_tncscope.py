@@ -92,6 +92,8 @@ def test_torque_and_dsp_debug_current(tmp_path: Path, machine: MachineConfig) ->
         ),
         ("%DIMENSION=id(222)", "%DIMENSION=id(10)"),
         ("%CHANNELTYPE=DSP-Debug\n%AXISTYPE=X", "%CHANNELTYPE=DSP-Debug\n%AXISTYPE=Z"),
+        # currents a drive of the example machine (17.7 A rated) can carry
+        *((f";{5000 + k};", f";{5 + k / 1000:.3f};") for k in range(6)),
     )
     rec = import_trace(path, tmp_path / "rec", machine=machine).recording
     assert rec.channel_names == ("X_velocity_mm_min", "X_position_mm", "Y_current_a", "Z_current_a")
@@ -100,7 +102,21 @@ def test_torque_and_dsp_debug_current(tmp_path: Path, machine: MachineConfig) ->
         [1.5 / 2.1, 1.5 / 2.1, 1.75 / 2.1, 1.75 / 2.1, 2 / 2.1],
         rtol=1e-15,
     )
-    np.testing.assert_array_equal(rec.column("Z_current_a"), [5000, 5001, 5002, 5003, 5004])
+    np.testing.assert_array_equal(rec.column("Z_current_a"), [5.0, 5.001, 5.002, 5.003, 5.004])
+
+
+def test_a_dsp_debug_current_beyond_the_drive_is_left_out(
+    tmp_path: Path, machine: MachineConfig
+) -> None:
+    """5000 A on a 17.7 A motor is no current: left out as not physically possible."""
+    path = edited(
+        tmp_path,
+        ("%DIMENSION=id(222)", "%DIMENSION=id(10)"),
+        ("%CHANNELTYPE=DSP-Debug\n%AXISTYPE=X", "%CHANNELTYPE=DSP-Debug\n%AXISTYPE=Z"),
+    )
+    result = import_trace(path, tmp_path / "rec", machine=machine)
+    assert np.isnan(result.recording.column("Z_current_a")).all()
+    assert any(line.startswith("Z_current_a: ") and "beyond ±177" in line for line in result.report)
 
 
 def test_missing_dimension_assumes_the_manual_unit(tmp_path: Path) -> None:
