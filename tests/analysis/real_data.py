@@ -18,8 +18,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.links.base import Channel, SampleBlock
-from ncmeasure.plan import Schedule
+from ncmeasure.links.base import SampleBlock
 from ncmeasure.recording import Recording, RecordingWriter
 from ncmeasure.sim.synthetic import SyntheticAxis, SyntheticData, machine_config, simulate
 
@@ -27,13 +26,8 @@ FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
-class Data:
-    """Rows of a recording in memory: times, channels, values, and the program's schedule."""
-
-    time_s: FloatArray
-    channels: tuple[Channel, ...]
-    values: FloatArray
-    schedule: Schedule
+class Data(SyntheticData):
+    """Rows of a recording in memory (times, channels, values, the program's schedule)."""
 
     @classmethod
     def of(cls, data: SyntheticData) -> Data:
