@@ -24,7 +24,7 @@ import re
 from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final, Literal
+from typing import Any, BinaryIO, Final, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -72,6 +72,7 @@ CHUNK_ROWS: Final = 8192
 #: Bytes read before the progress callback is called again.
 PROGRESS_STEP_BYTES: Final = 1 << 20
 _SNIFF_BYTES: Final = 1 << 16
+_READ_BYTES: Final = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -156,7 +157,9 @@ class TextLines:
     """The lines of a text file, read once, with their numbers and a byte count for progress.
 
     UTF-8 (with or without BOM) is tried first; a file that is not UTF-8 is
-    read as Windows-1252, the code page of the controllers' Windows PCs. Use
+    read as Windows-1252, the code page of the controllers' Windows PCs. A
+    line ends with LF, CRLF or a bare CR (old Mac-style exports still occur);
+    the file is read in blocks, so a file without LF is not read whole. Use
     it as a context manager, so the file is closed when an import stops early.
     """
 
@@ -187,11 +190,22 @@ class TextLines:
     def __exit__(self, *exc_info: object) -> None:
         self._lines.close()
 
+    def _raw_lines(self, file: BinaryIO) -> Iterator[bytes]:
+        """The lines of ``file`` with their endings; bytes.splitlines knows LF, CRLF and CR."""
+        rest = b""
+        while block := file.read(_READ_BYTES):
+            lines = (rest + block).splitlines(keepends=True)
+            # the last line may continue in the next block (a CR may be half of a CRLF)
+            rest = b"" if lines[-1].endswith(b"\n") else lines.pop()
+            yield from lines
+        if rest:
+            yield rest
+
     def _read(self) -> Generator[str, None, None]:
         bytes_read = 0
         reported = 0
         with self.path.open("rb") as file:
-            for raw in file:
+            for raw in self._raw_lines(file):
                 self.line_number += 1
                 bytes_read += len(raw)
                 if bytes_read - reported >= PROGRESS_STEP_BYTES:
