@@ -40,7 +40,14 @@ from typing import Final
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.recording import Recording, import_csv
-from ncmeasure.traces._common import ImportJob, ProgressFn, TraceImport, check_target
+from ncmeasure.traces._common import (
+    ImportJob,
+    ProgressFn,
+    TraceImport,
+    check_source,
+    check_target,
+    run_import,
+)
 from ncmeasure.traces.sinumerik_csv import import_sinumerik_csv
 from ncmeasure.traces.sinumerik_xml import import_sinumerik_xml
 from ncmeasure.traces.tncscope import import_tncscope
@@ -155,26 +162,13 @@ def import_trace(
     target = Path(directory)
     if format is not None and format not in FORMATS:
         raise ConfigError(f"unknown trace format {format!r}; one of {', '.join(FORMATS)}")
-    if not source.is_file():
-        if source.is_dir():
-            raise RecordingError(f"{source}: is a directory, expected a trace file")
-        raise RecordingError(f"{source}: no such file")
+    check_source(source)
     name = format if format is not None else detect_format(source)
     if name == "csv":
         return _import_recording_csv(source, target, machine, axis_names, progress)
     check_target(target)
     job = ImportJob(source, target, name, machine=machine, axis_names=axis_names, progress=progress)
-    try:
-        recording = _IMPORTERS[name](job)
-    except BaseException as exc:
-        job.discard()
-        if isinstance(exc, UnicodeDecodeError):
-            raise RecordingError(f"{source}: not a text file") from exc
-        if isinstance(exc, OSError) and not isinstance(exc, RecordingError):
-            raise RecordingError(f"{source}: cannot be read ({exc.strerror or exc})") from exc
-        raise
-    log.info("imported %s (%s) into %s: %d samples", source, name, target, len(recording))
-    return TraceImport(recording, job.report)
+    return run_import(job, _IMPORTERS[name])
 
 
 def _import_recording_csv(

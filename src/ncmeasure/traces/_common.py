@@ -17,6 +17,7 @@ A failed import removes everything it wrote (:meth:`~ncmeasure.recording.ImportS
 
 from __future__ import annotations
 
+import csv
 import datetime as dt
 import logging
 import math
@@ -46,6 +47,7 @@ __all__ = [
     "Series",
     "TextLines",
     "TraceImport",
+    "check_source",
     "check_target",
     "decimal_mark",
     "filetime_to_datetime",
@@ -55,6 +57,7 @@ __all__ = [
     "parse_number",
     "plan_channels",
     "resolve_axes",
+    "run_import",
     "unit_factor",
 ]
 
@@ -299,6 +302,45 @@ class ImportJob:
         """Remove what this import wrote."""
         if self.sink is not None:
             self.sink.discard()
+
+
+def check_source(path: Path) -> None:
+    """Fail with a clear message when ``path`` is not a file that can be imported."""
+    if not path.is_file():
+        if path.is_dir():
+            raise RecordingError(f"{path}: is a directory, expected a trace file")
+        raise RecordingError(f"{path}: no such file")
+
+
+def run_import(job: ImportJob, read: Callable[[ImportJob], Recording]) -> TraceImport:
+    """Run an importer on ``job``; on any failure remove what it wrote.
+
+    Returns:
+        The recording ``read`` finished and the job's report.
+
+    Raises:
+        RecordingError: What ``read`` raised, or a read error of the file
+            (not text, cannot be read) turned into one.
+    """
+    try:
+        recording = read(job)
+    except BaseException as exc:
+        job.discard()
+        if isinstance(exc, UnicodeDecodeError):
+            raise RecordingError(f"{job.path}: not a text file") from exc
+        if isinstance(exc, csv.Error):
+            raise RecordingError(f"{job.path}: cannot be split into cells ({exc})") from exc
+        if isinstance(exc, OSError) and not isinstance(exc, RecordingError):
+            raise RecordingError(f"{job.path}: cannot be read ({exc.strerror or exc})") from exc
+        raise
+    log.info(
+        "imported %s (%s) into %s: %d samples",
+        job.path,
+        job.format_name,
+        job.directory,
+        len(recording),
+    )
+    return TraceImport(recording, job.report)
 
 
 def check_target(directory: Path) -> None:
