@@ -732,8 +732,12 @@ def test_csv_with_crlf_bom_and_blank_lines(tmp_path: Path) -> None:
         ("time_s,X_current_a\n0,1\n0.001,\n", 3, "column X_current_a: '' is not a number"),
         ("time_s,X_current_a\n0,1\n0.001,2,3\n", 3, "3 cells, expected 2"),
         ("time_s,X_current_a\n0,1\n0.001\n", 3, "1 cells, expected 2"),
-        ("time_s,X_current_a\n0,1\n0.002,2\n\n0.001,3\n", 5, "not later than the row before"),
-        ("time_s,X_current_a\n0,1\nnan,2\n", 3, "not a finite number"),
+        (
+            "time_s,X_current_a\n0,1\n0.002,2\n\n0.001,3\n",
+            5,
+            "time_s 0.001 is not later than the row before (0.002)",
+        ),
+        ("time_s,X_current_a\n0,1\nnan,2\n", 3, "time_s nan is not a finite number"),
     ],
 )
 def test_csv_import_errors_name_file_and_line(

@@ -637,12 +637,22 @@ def import_command(
         list[str] | None,
         typer.Option(help="Map a trace's axis to a machine axis, e.g. --axis 1=X --axis 2=Y."),
     ] = None,
+    columns: Annotated[
+        Path | None,
+        typer.Option(
+            "--columns",
+            help="Column map (TOML): read FILE as any CSV whose columns it names "
+            "(channel = column, scale, offset; period_s or a time column). "
+            "Not with --format or --axis.",
+        ),
+    ] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress, no report.")] = False,
 ) -> None:
     """Turn a controller trace or an exported CSV/MDF4 file into a recording.
 
     Reads SINUMERIK trace XML and CSV, TwinCAT Scope CSV, TNCscope text and the
-    CSV of `ncmeasure export`; reports what was mapped, converted and left out.
+    CSV of `ncmeasure export`, and any CSV through a column map (--columns);
+    reports what was mapped, converted and left out.
     Example: ncmeasure import trace.xml --machine machine.toml --axis 1=X -o run1
     """
     from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
@@ -658,11 +668,14 @@ def import_command(
     report: list[str] = []
     try:
         config = load_machine(machine) if machine else None
-        if fmt == "mdf4" or (fmt is None and file.suffix.lower() in (".mf4", ".mdf")):
+        if columns is None and (
+            fmt == "mdf4" or (fmt is None and file.suffix.lower() in (".mf4", ".mdf"))
+        ):
             recording = import_mdf4(file, output)
             report = list(recording.meta.link.get("report", []))
         else:
-            fmt = fmt or detect_format(file)
+            if columns is None:
+                fmt = fmt or detect_format(file)
             bar = (
                 None
                 if quiet
@@ -690,6 +703,7 @@ def import_command(
                     machine=config,
                     axis_names=axis_names or None,
                     progress=progress,
+                    columns=columns,
                 )
             finally:
                 if bar is not None:

@@ -17,7 +17,7 @@ import hashlib
 import json
 import re
 import tomllib
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Collection, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -368,19 +368,27 @@ class MachineConfig(_Model):
         return Measurement.model_validate(merged)
 
 
-def _loc_text(loc: Iterable[int | str]) -> str:
+def _loc_text(loc: Iterable[int | str], tables: Collection[str] = ()) -> str:
     text = ""
+    previous: int | str | None = None
     for part in loc:
         if isinstance(part, int):
             text += f"[{part}]"
+        elif isinstance(previous, str) and previous in tables:
+            # a key the user chose (X_current_a), not a field name: kept as written
+            text += f".{part}" if re.fullmatch(r"\w+", part) else f"[{part!r}]"
         elif re.fullmatch(r"[a-z_][a-z0-9_]*", part) and part not in {"int", "float", "list"}:
             text += f".{part}" if text else part
         # union branch tags such as 'list[float]' or 'function-after[...]' add nothing
+        previous = part
     return text or "(file)"
 
 
 def format_validation_error(
-    exc: ValidationError, prefix: str = "", schema_hint: str = ""
+    exc: ValidationError,
+    prefix: str = "",
+    schema_hint: str = "",
+    tables: Collection[str] = (),
 ) -> list[str]:
     """Turn a pydantic error into ``location: message`` lines, one per problem.
 
@@ -388,10 +396,12 @@ def format_validation_error(
         exc: The validation error.
         prefix: Location the error's locations are relative to (``link``).
         schema_hint: Where the valid keys are listed, added to unknown-key messages.
+        tables: Fields that are tables keyed by names the user chose (such as
+            channel names); their keys stay in the location as written.
     """
     lines: list[str] = []
     for error in exc.errors(include_url=False):
-        loc = _loc_text(error["loc"])
+        loc = _loc_text(error["loc"], tables)
         if prefix:
             loc = prefix if loc == "(file)" else f"{prefix}.{loc}"
         message = error["msg"]

@@ -65,6 +65,7 @@ __all__ = [
     "RecordingWriter",
     "axis_metadata",
     "channel_from_name",
+    "check_times",
     "export_csv",
     "export_mdf4",
     "import_csv",
@@ -1102,12 +1103,20 @@ def _csv_where(path: Path, lines: Sequence[str], first_line: int) -> Callable[[i
     return where
 
 
-def _check_times(
+def check_times(
     time_s: NDArray[np.float64], previous_s: float, where: Callable[[int], str]
 ) -> None:
     """Raise unless ``time_s`` is finite and increases strictly from ``previous_s`` on.
 
-    ``where(index)`` names the place of row ``index`` in the source, for the message.
+    Args:
+        time_s: The times of a block of rows, in seconds.
+        previous_s: The last time before the block (``-inf`` for the first block).
+        where: ``where(index)`` names the place of row ``index`` in the source
+            (``file:line``), for the message.
+
+    Raises:
+        RecordingError: ``<where>: problem`` for the first time that is not
+            finite or not later than the one before.
     """
     bad = ~np.isfinite(time_s)
     steps = np.diff(time_s, prepend=previous_s)
@@ -1115,11 +1124,12 @@ def _check_times(
     if not (bad.any() or backwards.any()):
         return
     index = int(np.flatnonzero(bad | backwards)[0])
+    value = float(time_s[index])  # a Python float: numpy 2 shows np.float64(...) in repr
     if bad[index]:
-        raise RecordingError(f"{where(index)}: time_s {time_s[index]!r} is not a finite number")
-    before = time_s[index - 1] if index else previous_s
+        raise RecordingError(f"{where(index)}: time_s {value!r} is not a finite number")
+    before = float(time_s[index - 1]) if index else previous_s
     raise RecordingError(
-        f"{where(index)}: time_s {time_s[index]!r} is not later than the row before "
+        f"{where(index)}: time_s {value!r} is not later than the row before "
         f"({before!r}); times must increase strictly"
     )
 
@@ -1337,7 +1347,7 @@ def import_csv(
                     continue
                 if data.shape[1] != len(names):
                     raise RecordingError(_csv_line_error(source, lines, first_line, names))
-                _check_times(data[:, 0], previous_s, _csv_where(source, lines, first_line))
+                check_times(data[:, 0], previous_s, _csv_where(source, lines, first_line))
                 previous_s = float(data[-1, 0])
                 target.append(data[:, 0], data[:, 1:])
         return target.finish()
@@ -1555,7 +1565,7 @@ def import_mdf4(
         **meta,
     )
     try:
-        _check_times(time_s, -np.inf, lambda i: f"{source}: sample {i}")
+        check_times(time_s, -np.inf, lambda i: f"{source}: sample {i}")
         for begin in range(0, len(time_s), _IMPORT_CHUNK_ROWS):
             end = begin + _IMPORT_CHUNK_ROWS
             job.append(time_s[begin:end], values[begin:end])

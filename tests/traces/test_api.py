@@ -54,6 +54,21 @@ def test_every_fixture_imports_with_the_detected_format(
     assert result.report
 
 
+@pytest.mark.parametrize("name", sorted(n for n in DETECTED if not n.endswith(".xml")))
+@pytest.mark.parametrize("newline", [b"\r\n", b"\r"], ids=["CRLF", "CR"])
+def test_text_fixtures_read_the_same_with_any_line_ending(
+    tmp_path: Path, machine: MachineConfig, name: str, newline: bytes
+) -> None:
+    lines = (FIXTURES / name).read_bytes().splitlines()
+    assert len(lines) > 3
+    path = tmp_path / name
+    path.write_bytes(b"".join(line + newline for line in lines))
+    expected = import_trace(FIXTURES / name, tmp_path / "lf", machine=machine).recording
+    result = import_trace(path, tmp_path / "other", machine=machine).recording
+    np.testing.assert_array_equal(result.time_s, expected.time_s)
+    np.testing.assert_array_equal(result.values, expected.values)
+
+
 @pytest.mark.parametrize(
     ("content", "message"),
     [

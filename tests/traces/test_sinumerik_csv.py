@@ -194,3 +194,13 @@ def test_840d_signals_take_position_and_velocity_from_the_commanded_measuring_sy
         "/Nck/!SD/nckServoDataActPos1stEnc64 [u1; 1]: not imported (X_position_mm already "
         "comes from /Nck/!SD/nckServoDataActPos2ndEnc64 [u1; 1])"
     ) in result.report
+
+
+def test_a_quote_that_is_never_closed(tmp_path: Path) -> None:
+    # the csv module joins every following line into one cell until its field limit
+    path = tmp_path / "quote.csv"
+    rows = "".join(f"0.{k:06d},1\n" for k in range(1, 20_000))
+    path.write_text(f'time,/Nck/!SD/nckServoDataActCurr64 [u1; 1]\n0,"1\n{rows}', encoding="utf-8")
+    with pytest.raises(RecordingError, match=r"quote\.csv: cannot be split into cells \(field"):
+        import_trace(path, tmp_path / "rec")
+    assert not (tmp_path / "rec").exists()

@@ -20,6 +20,11 @@ Formats (:data:`FORMATS`):
 ``tncscope``       Heidenhain TNCscope text export (``.sco``)           :mod:`.tncscope`
 ``csv``            the layout of ``ncmeasure export`` (``recording.import_csv``)
 
+Any other delimited text file (a data collector's CSV, a PLC log) imports
+through a column map that names the column of each channel:
+:func:`import_columns` (or ``import_trace(..., columns="map.toml")``),
+:mod:`.columns`.
+
 Each importer maps the controller's axes (an index or a name) to axis names
 (``axis_names``, else the machine file's axes, else a default name), converts
 units into ncmeasure's (A, mm/min, mm), and reports every decision in
@@ -40,13 +45,29 @@ from typing import Final
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.recording import Recording, import_csv
-from ncmeasure.traces._common import ImportJob, ProgressFn, TraceImport, check_target
+from ncmeasure.traces._common import (
+    ImportJob,
+    ProgressFn,
+    TraceImport,
+    check_source,
+    check_target,
+    run_import,
+)
+from ncmeasure.traces.columns import ColumnMap, import_columns, load_column_map
 from ncmeasure.traces.sinumerik_csv import import_sinumerik_csv
 from ncmeasure.traces.sinumerik_xml import import_sinumerik_xml
 from ncmeasure.traces.tncscope import import_tncscope
 from ncmeasure.traces.twincat_csv import import_twincat_csv
 
-__all__ = ["FORMATS", "TraceImport", "detect_format", "import_trace"]
+__all__ = [
+    "FORMATS",
+    "ColumnMap",
+    "TraceImport",
+    "detect_format",
+    "import_columns",
+    "import_trace",
+    "load_column_map",
+]
 
 log = logging.getLogger(__name__)
 
@@ -125,6 +146,7 @@ def import_trace(
     machine: MachineConfig | None = None,
     axis_names: Mapping[str, str] | None = None,
     progress: ProgressFn | None = None,
+    columns: ColumnMap | str | os.PathLike[str] | None = None,
 ) -> TraceImport:
     """Make a recording from a controller trace export.
 
@@ -140,41 +162,48 @@ def import_trace(
             name) to axis name, e.g. ``{"1": "X", "2": "Y"}``. Controller axes
             left out are not imported.
         progress: Called now and then with ``(bytes_read, total_bytes)``.
+        columns: A column map (or the path of its TOML file): read ``path`` as
+            delimited text whose columns the map names (:func:`import_columns`);
+            ``format`` and ``axis_names`` do not apply then.
 
     Returns:
-        The recording (source ``import:<format>``) and the report.
+        The recording (source ``import:<format>``, ``import:columns`` with a
+        column map) and the report.
 
     Raises:
         RecordingError: The file cannot be read or is not valid in its format
             (the message names ``file:line`` or the element), no signal can be
             imported, or the recording cannot be written. Nothing is left in
             ``directory`` then.
-        ConfigError: ``format`` is unknown, or ``axis_names`` does not fit.
+        ConfigError: ``format`` is unknown, ``axis_names`` does not fit, the
+            column map is not valid, or ``columns`` comes with ``format`` or
+            ``axis_names``.
     """
     source = Path(path)
     target = Path(directory)
+    if columns is not None:
+        if format is not None:
+            raise ConfigError(
+                f"a column map and format {format!r} exclude each other: the column map says "
+                "how to read the file (leave the format out)"
+            )
+        if axis_names:
+            raise ConfigError(
+                "axis_names does not apply with a column map: its channel names "
+                "(X_current_a, ...) already name the axes"
+            )
+        return import_columns(source, target, columns, machine=machine, progress=progress)
+    if format == "columns":
+        raise ConfigError("the columns format needs a column map (columns=MAP.toml, --columns)")
     if format is not None and format not in FORMATS:
         raise ConfigError(f"unknown trace format {format!r}; one of {', '.join(FORMATS)}")
-    if not source.is_file():
-        if source.is_dir():
-            raise RecordingError(f"{source}: is a directory, expected a trace file")
-        raise RecordingError(f"{source}: no such file")
+    check_source(source)
     name = format if format is not None else detect_format(source)
     if name == "csv":
         return _import_recording_csv(source, target, machine, axis_names, progress)
     check_target(target)
     job = ImportJob(source, target, name, machine=machine, axis_names=axis_names, progress=progress)
-    try:
-        recording = _IMPORTERS[name](job)
-    except BaseException as exc:
-        job.discard()
-        if isinstance(exc, UnicodeDecodeError):
-            raise RecordingError(f"{source}: not a text file") from exc
-        if isinstance(exc, OSError) and not isinstance(exc, RecordingError):
-            raise RecordingError(f"{source}: cannot be read ({exc.strerror or exc})") from exc
-        raise
-    log.info("imported %s (%s) into %s: %d samples", source, name, target, len(recording))
-    return TraceImport(recording, job.report)
+    return run_import(job, _IMPORTERS[name])
 
 
 def _import_recording_csv(

@@ -17,6 +17,7 @@ A failed import removes everything it wrote (:meth:`~ncmeasure.recording.ImportS
 
 from __future__ import annotations
 
+import csv
 import datetime as dt
 import logging
 import math
@@ -24,7 +25,7 @@ import re
 from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final, Literal
+from typing import Any, BinaryIO, Final, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,6 +47,7 @@ __all__ = [
     "Series",
     "TextLines",
     "TraceImport",
+    "check_source",
     "check_target",
     "decimal_mark",
     "filetime_to_datetime",
@@ -55,6 +57,7 @@ __all__ = [
     "parse_number",
     "plan_channels",
     "resolve_axes",
+    "run_import",
     "unit_factor",
 ]
 
@@ -72,6 +75,7 @@ CHUNK_ROWS: Final = 8192
 #: Bytes read before the progress callback is called again.
 PROGRESS_STEP_BYTES: Final = 1 << 20
 _SNIFF_BYTES: Final = 1 << 16
+_READ_BYTES: Final = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -156,7 +160,9 @@ class TextLines:
     """The lines of a text file, read once, with their numbers and a byte count for progress.
 
     UTF-8 (with or without BOM) is tried first; a file that is not UTF-8 is
-    read as Windows-1252, the code page of the controllers' Windows PCs. Use
+    read as Windows-1252, the code page of the controllers' Windows PCs. A
+    line ends with LF, CRLF or a bare CR (old Mac-style exports still occur);
+    the file is read in blocks, so a file without LF is not read whole. Use
     it as a context manager, so the file is closed when an import stops early.
     """
 
@@ -187,11 +193,22 @@ class TextLines:
     def __exit__(self, *exc_info: object) -> None:
         self._lines.close()
 
+    def _raw_lines(self, file: BinaryIO) -> Iterator[bytes]:
+        """The lines of ``file`` with their endings; bytes.splitlines knows LF, CRLF and CR."""
+        rest = b""
+        while block := file.read(_READ_BYTES):
+            lines = (rest + block).splitlines(keepends=True)
+            # the last line may continue in the next block (a CR may be half of a CRLF)
+            rest = b"" if lines[-1].endswith(b"\n") else lines.pop()
+            yield from lines
+        if rest:
+            yield rest
+
     def _read(self) -> Generator[str, None, None]:
         bytes_read = 0
         reported = 0
         with self.path.open("rb") as file:
-            for raw in file:
+            for raw in self._raw_lines(file):
                 self.line_number += 1
                 bytes_read += len(raw)
                 if bytes_read - reported >= PROGRESS_STEP_BYTES:
@@ -287,6 +304,45 @@ class ImportJob:
         """Remove what this import wrote."""
         if self.sink is not None:
             self.sink.discard()
+
+
+def check_source(path: Path) -> None:
+    """Fail with a clear message when ``path`` is not a file that can be imported."""
+    if not path.is_file():
+        if path.is_dir():
+            raise RecordingError(f"{path}: is a directory, expected a trace file")
+        raise RecordingError(f"{path}: no such file")
+
+
+def run_import(job: ImportJob, read: Callable[[ImportJob], Recording]) -> TraceImport:
+    """Run an importer on ``job``; on any failure remove what it wrote.
+
+    Returns:
+        The recording ``read`` finished and the job's report.
+
+    Raises:
+        RecordingError: What ``read`` raised, or a read error of the file
+            (not text, cannot be read) turned into one.
+    """
+    try:
+        recording = read(job)
+    except BaseException as exc:
+        job.discard()
+        if isinstance(exc, UnicodeDecodeError):
+            raise RecordingError(f"{job.path}: not a text file") from exc
+        if isinstance(exc, csv.Error):
+            raise RecordingError(f"{job.path}: cannot be split into cells ({exc})") from exc
+        if isinstance(exc, OSError) and not isinstance(exc, RecordingError):
+            raise RecordingError(f"{job.path}: cannot be read ({exc.strerror or exc})") from exc
+        raise
+    log.info(
+        "imported %s (%s) into %s: %d samples",
+        job.path,
+        job.format_name,
+        job.directory,
+        len(recording),
+    )
+    return TraceImport(recording, job.report)
 
 
 def check_target(directory: Path) -> None:

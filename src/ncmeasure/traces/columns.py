@@ -1,0 +1,575 @@
+"""Any delimited text file, read through a column map: the file's columns become channels.
+
+Data collectors, PLC loggers and spreadsheets write CSV files with their own
+column names, units and number formats. A column map (a small TOML file) says
+which column holds which ncmeasure channel and how to convert it, so such a
+file imports without a script::
+
+    period_s = 0.1                      # no time column: row k is at k x 0.1 s
+    # time = { column = "t", scale = 0.001 }   # or: a time column (here ms)
+    [channels]
+    X_current_a = { column = "X1_CurrentFeedback" }
+    X_velocity_mm_min = { column = "X1_ActualVelocity", scale = 60 }   # mm/s -> mm/min
+
+Every value becomes ``raw x scale + offset``. The separator (comma,
+semicolon, tab) is the one whose split of the header finds the mapped
+columns, the decimal mark (point or comma) is fixed by the first mapped
+number with a fraction; ``delimiter`` and ``decimal`` force either. Lines may
+end with LF, CRLF or CR; quoted cells are read as the :mod:`csv` module reads
+them. Columns the map does not name are never parsed (text columns are
+fine) and are listed in the report; an empty cell becomes NaN and is
+counted. The file is read as a stream: rows go to the recording in chunks of
+:data:`~ncmeasure.traces._common.CHUNK_ROWS`.
+
+Reference of every key: ``docs/traces.md``, section "Any CSV with a column map".
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import math
+import os
+import tomllib
+from array import array
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Final, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+)
+from pydantic_core import PydanticCustomError
+
+from ncmeasure.config import MachineConfig, format_validation_error
+from ncmeasure.errors import ConfigError, RecordingError
+from ncmeasure.links.base import SIGNAL_UNITS, Channel
+from ncmeasure.recording import Recording, channel_from_name, check_times
+from ncmeasure.traces._common import (
+    CHUNK_ROWS,
+    ImportJob,
+    ProgressFn,
+    TextLines,
+    TraceImport,
+    check_source,
+    check_target,
+    decimal_mark,
+    parse_number,
+    run_import,
+)
+
+__all__ = ["ChannelColumn", "ColumnMap", "TimeColumn", "import_columns", "load_column_map"]
+
+log = logging.getLogger(__name__)
+
+#: The name of the format in ``meta.json`` (``link.format``) and the recording's source.
+FORMAT_NAME: Final = "columns"
+_SEPARATORS: Final = (",", ";", "\t")
+_SEPARATOR_NAMES: Final = {",": "comma", ";": "semicolon", "\t": "tab"}
+
+_Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+def _nonzero(value: float) -> float:
+    if value == 0:
+        raise PydanticCustomError("scale", "must not be 0 (every value would become the offset)")
+    return value
+
+
+def _channel_name(name: str) -> str:
+    if channel_from_name(name) is None:
+        raise PydanticCustomError(
+            "channel_name",
+            "{name} is not an ncmeasure channel name: <AXIS>_<signal> with signal one of "
+            "{signals} (e.g. X_current_a)",
+            {"name": name, "signals": ", ".join(SIGNAL_UNITS)},
+        )
+    return name
+
+
+_ChannelName = Annotated[str, AfterValidator(_channel_name)]
+
+
+class ChannelColumn(_Model):
+    """Where one channel comes from: ``{ column = "...", scale = 60, offset = 0 }``."""
+
+    column: Annotated[str, Field(min_length=1)] = Field(
+        description="The column's name in the file's header row (exactly as written)."
+    )
+    scale: _Finite = Field(
+        default=1.0, description="Multiplies the raw value into the channel's unit (mm/s -> 60)."
+    )
+    offset: _Finite = Field(default=0.0, description="Added after scaling, in the channel's unit.")
+
+    _check_scale = field_validator("scale")(classmethod(lambda cls, v: _nonzero(v)))
+
+
+class TimeColumn(_Model):
+    """The time column: ``{ column = "t", scale = 0.001 }`` for milliseconds."""
+
+    column: Annotated[str, Field(min_length=1)] = Field(
+        description="The column's name in the file's header row."
+    )
+    scale: Annotated[_Finite, Field(gt=0)] = Field(
+        default=1.0, description="Multiplies the raw time into seconds (ms -> 0.001)."
+    )
+    offset: _Finite = Field(default=0.0, description="Added after scaling, in seconds.")
+
+
+class ColumnMap(_Model):
+    """A column map: how the columns of a delimited text file become channels.
+
+    Exactly one of ``period_s`` and ``time`` is given. ``channels`` maps
+    ncmeasure channel names (``<AXIS>_<signal>``, e.g. ``X_current_a``) to
+    columns of the file.
+    """
+
+    period_s: Annotated[_Finite, Field(gt=0)] | None = Field(
+        default=None,
+        description="Sample period when the file has no time column: row k is at k x period_s.",
+    )
+    time: TimeColumn | None = Field(
+        default=None, description="The time column, when the file has one."
+    )
+    channels: dict[_ChannelName, ChannelColumn] = Field(
+        min_length=1, description="Channel name (<AXIS>_<signal>) -> column."
+    )
+    delimiter: Literal[",", ";", "\t"] | None = Field(
+        default=None, description="Force the separator; detected from the header when not given."
+    )
+    decimal: Literal[".", ","] | None = Field(
+        default=None,
+        description="Force the decimal mark; detected from the first mapped number with a "
+        "fraction when not given.",
+    )
+    skip_lines: Annotated[int, Field(ge=0)] = Field(
+        default=0, description="Lines before the header row (a preamble) that are skipped."
+    )
+
+    @field_validator("time")
+    @classmethod
+    def _one_time_base(cls, value: TimeColumn | None, info: ValidationInfo) -> TimeColumn | None:
+        if "period_s" not in info.data:
+            return value  # period_s itself is invalid and reported
+        if value is None and info.data["period_s"] is None:
+            raise PydanticCustomError(
+                "time_base",
+                "the map needs a time base: period_s = <seconds> when the file has no time "
+                'column, or time = { column = "<name>" }',
+            )
+        if value is not None and info.data["period_s"] is not None:
+            raise PydanticCustomError(
+                "time_base", "give either period_s or time, not both (time comes from one of them)"
+            )
+        return value
+
+    @field_validator("decimal")
+    @classmethod
+    def _decimal_not_delimiter(cls, value: str | None, info: ValidationInfo) -> str | None:
+        if value == "," and info.data.get("delimiter") == ",":
+            raise PydanticCustomError(
+                "decimal", "a decimal comma does not work with delimiter = ','"
+            )
+        return value
+
+
+def load_column_map(path: str | os.PathLike[str]) -> ColumnMap:
+    """Read and validate a column map (TOML).
+
+    Raises:
+        ConfigError: The file is missing, is not TOML, or is not a valid
+            column map; one ``MAP.toml: location: message`` line per problem.
+    """
+    source = Path(path)
+    try:
+        text = source.read_text(encoding="utf-8")
+    except FileNotFoundError as exc:
+        raise ConfigError(f"{source}: no such file") from exc
+    except IsADirectoryError as exc:
+        raise ConfigError(f"{source}: is a directory, expected a column map (.toml)") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{source}: not a text file (UTF-8 expected)") from exc
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot be read ({exc.strerror or exc})") from exc
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: invalid TOML: {exc}") from exc
+    try:
+        return ColumnMap.model_validate(data)
+    except ValidationError as exc:
+        lines = format_validation_error(
+            exc, schema_hint="docs/traces.md, column map", tables={"channels"}
+        )
+        raise ConfigError(
+            f"{source} is not a valid column map", [f"{source}: {line}" for line in lines]
+        ) from exc
+
+
+def import_columns(
+    path: str | os.PathLike[str],
+    directory: str | os.PathLike[str],
+    mapping: ColumnMap | str | os.PathLike[str],
+    *,
+    machine: MachineConfig | None = None,
+    progress: ProgressFn | None = None,
+) -> TraceImport:
+    """Make a recording from a delimited text file through a column map.
+
+    Args:
+        path: The text file (comma, semicolon or tab separated, with a header row).
+        directory: The new recording (must not exist or be empty).
+        mapping: The column map, or the path of its TOML file (:func:`load_column_map`).
+        machine: The machine file: the mapped axes must be its axes; their
+            data go into ``meta.json``.
+        progress: Called now and then with ``(bytes_read, total_bytes)``.
+
+    Returns:
+        The recording (source ``import:columns``) and the report: which column
+        became which channel, separator and decimal mark, the columns left
+        out, empty cells.
+
+    Raises:
+        ConfigError: The column map is not valid, or names an axis the
+            machine does not have.
+        RecordingError: ``file:line: problem`` for a mapped column missing
+            from the header, a cell that is not a number, a time that does
+            not increase, or a recording that cannot be written. Nothing is
+            left in ``directory`` then.
+    """
+    if isinstance(mapping, ColumnMap):
+        column_map, map_label, map_file = mapping, "the column map", None
+    else:
+        column_map, map_label, map_file = load_column_map(mapping), str(mapping), Path(mapping).name
+    _check_axes(column_map, machine, map_label)
+    source, target = Path(path), Path(directory)
+    check_source(source)
+    check_target(target)
+    job = ImportJob(
+        source, target, FORMAT_NAME, machine=machine, axis_names=None, progress=progress
+    )
+    job.link["mapping"] = map_file
+    job.link["column_map"] = column_map.model_dump(mode="json", exclude_none=True)
+
+    def read(job: ImportJob) -> Recording:
+        with TextLines(job.path, job) as lines:
+            try:
+                return _Reader(job, column_map, map_label, lines).read()
+            except csv.Error as exc:
+                raise RecordingError(
+                    f"{lines.where()}: the line cannot be split into cells ({exc}; a quote "
+                    '" that is never closed joins all lines after it into one cell)'
+                ) from exc
+
+    return run_import(job, read)
+
+
+def _check_axes(mapping: ColumnMap, machine: MachineConfig | None, map_label: str) -> None:
+    if machine is None:
+        return
+    known = [axis.name for axis in machine.axes]
+    problems = []
+    for name in mapping.channels:
+        channel = channel_from_name(name)
+        if channel is not None and channel.axis not in known:
+            problems.append(
+                f"{map_label}: channels.{name}: axis {channel.axis} is not an "
+                f"axis of machine {machine.machine.name!r} ({', '.join(known)})"
+            )
+    if problems:
+        raise ConfigError("the column map does not fit the machine file", problems)
+
+
+@dataclass(frozen=True)
+class _Column:
+    """A column the map reads: its place in the row and how its values convert."""
+
+    name: str
+    index: int
+    scale: float
+    offset: float
+    target: str
+
+
+def _conversion(scale: float, offset: float) -> str:
+    parts = [f"x {scale:.10g}"] if scale != 1 else []
+    if offset:
+        parts.append(f"{'+' if offset > 0 else '-'} {abs(offset):.10g}")
+    return " ".join(parts) if parts else "no conversion"
+
+
+class _Reader:
+    """One pass over the file: header, then rows in chunks to the recording."""
+
+    def __init__(self, job: ImportJob, mapping: ColumnMap, map_name: str, lines: TextLines) -> None:
+        self.job = job
+        self.mapping = mapping
+        self.map_name = map_name
+        self.lines = lines
+        self.rows: Iterator[str] = iter(lines)
+
+    def read(self) -> Recording:
+        header_text = self._header_line()
+        header_line = self.lines.line_number
+        wanted = list(
+            dict.fromkeys(
+                ([self.mapping.time.column] if self.mapping.time else [])
+                + [c.column for c in self.mapping.channels.values()]
+            )
+        )
+        separator = self.mapping.delimiter or _detect_separator(
+            header_text, wanted, self.mapping.decimal
+        )
+        header = [c.strip() for c in next(csv.reader([header_text], delimiter=separator), [])]
+        index = self._column_indices(header, wanted, header_line)
+        channels = _ordered_channels(self.mapping, self.job.machine)
+        columns = [
+            _Column(spec.column, index[spec.column], spec.scale, spec.offset, channel.name)
+            for channel, spec in ((c, self.mapping.channels[c.name]) for c in channels)
+        ]
+        time_spec = self.mapping.time
+        time_column = (
+            _Column(
+                time_spec.column,
+                index[time_spec.column],
+                time_spec.scale,
+                time_spec.offset,
+                "time_s",
+            )
+            if time_spec is not None
+            else None
+        )
+        self._report_header(separator, header, header_line, channels, columns, time_column)
+        sink = self.job.open_sink(channels, nominal_period_s=self.mapping.period_s)
+        decimal = self._read_rows(
+            csv.reader(self.rows, delimiter=separator),
+            separator,
+            header,
+            header_line,
+            columns,
+            time_column,
+            sink.append,
+        )
+        if decimal is not None:
+            how = "from the column map" if self.mapping.decimal else "detected"
+            self.job.note(f"numbers use a decimal {'comma' if decimal == ',' else 'point'} ({how})")
+        return self.job.finish()
+
+    def _header_line(self) -> str:
+        skip = self.mapping.skip_lines
+        for _ in range(skip):
+            if next(self.rows, None) is None:
+                raise RecordingError(
+                    f"{self.job.path}: the file ends after {self.lines.line_number} line(s), "
+                    f"before the header (skip_lines = {skip} in {self.map_name})"
+                )
+        if skip:
+            self.job.note(f"{skip} line(s) before the header skipped (skip_lines)")
+        for line in self.rows:
+            if line.strip():
+                return line
+        if self.lines.line_number == 0:
+            raise RecordingError(f"{self.job.path}: the file is empty")
+        raise RecordingError(f"{self.job.path}: no header row (only blank lines)")
+
+    def _column_indices(
+        self, header: Sequence[str], wanted: Sequence[str], header_line: int
+    ) -> dict[str, int]:
+        where = f"{self.job.path}:{header_line}"
+        missing = [name for name in wanted if name not in header]
+        if missing:
+            problems = [f"the header has: {', '.join(map(repr, header))}"]
+            if not self.mapping.skip_lines:
+                problems.append("if the header is not the first line, set skip_lines")
+            raise RecordingError(
+                f"{where}: column(s) named in {self.map_name} not in the header: "
+                f"{', '.join(map(repr, missing))}",
+                problems,
+            )
+        repeated = [name for name in wanted if header.count(name) > 1]
+        if repeated:
+            raise RecordingError(
+                f"{where}: the header has more than one column named "
+                f"{', '.join(map(repr, repeated))}; the column map cannot tell them apart"
+            )
+        return {name: header.index(name) for name in wanted}
+
+    def _report_header(
+        self,
+        separator: str,
+        header: Sequence[str],
+        header_line: int,
+        channels: Sequence[Channel],
+        columns: Sequence[_Column],
+        time_column: _Column | None,
+    ) -> None:
+        note = self.job.note
+        if len(header) == 1:
+            note(f"header at line {header_line}: one column")
+        else:
+            how = "from the column map" if self.mapping.delimiter else "detected"
+            note(
+                f"header at line {header_line}: {len(header)} columns separated by "
+                f"{_SEPARATOR_NAMES[separator]} ({how})"
+            )
+        if time_column is not None:
+            note(
+                f"time_s [s]: from column {time_column.name!r} "
+                f"({_conversion(time_column.scale, time_column.offset)})"
+            )
+        else:
+            note(f"time_s [s]: no time column; row k is at k x {self.mapping.period_s:.10g} s")
+        for channel, column in zip(channels, columns, strict=True):
+            note(
+                f"{channel.name} [{channel.unit}]: from column {column.name!r} "
+                f"({_conversion(column.scale, column.offset)})"
+            )
+        used = {c.index for c in columns} | ({time_column.index} if time_column else set())
+        ignored = [name for i, name in enumerate(header) if i not in used and name]
+        if ignored:
+            note(
+                f"{len(ignored)} column(s) not in the column map, not imported: "
+                f"{', '.join(map(repr, ignored))}"
+            )
+
+    def _read_rows(
+        self,
+        reader: Iterator[list[str]],
+        separator: str,
+        header: Sequence[str],
+        header_line: int,
+        columns: Sequence[_Column],
+        time_column: _Column | None,
+        append: Callable[[NDArray[np.float64], NDArray[np.float64]], None],
+    ) -> str | None:
+        """Parse, convert and hand on the rows; returns the decimal mark seen (if any)."""
+        path = self.job.path
+        decimal: str | None = self.mapping.decimal or ("." if separator == "," else None)
+        read = ([time_column] if time_column is not None else []) + list(columns)
+        indices = [c.index for c in read]
+        needed = max(indices) + 1
+        width = len(header)
+        scales = np.array([c.scale for c in columns], dtype=np.float64)
+        offsets = np.array([c.offset for c in columns], dtype=np.float64)
+        empty = [0] * len(read)
+        first_empty: list[str | None] = [None] * len(read)
+        raw: array[float] = array("d")
+        line_numbers: array[int] = array("q")
+        period_s = self.mapping.period_s if time_column is None else None
+        rows = 0  # rows handed on before the current chunk
+        previous_s = -math.inf
+
+        def flush() -> None:
+            nonlocal rows, previous_s
+            count = len(line_numbers)
+            if not count:
+                return
+            block = np.array(raw, dtype=np.float64).reshape(count, len(read))
+            if period_s is not None:
+                time_s = np.arange(rows, rows + count, dtype=np.float64) * period_s
+                values = block
+            elif time_column is not None:
+                time_s = block[:, 0] * time_column.scale + time_column.offset
+                numbers = line_numbers.tolist()
+                check_times(time_s, previous_s, lambda i: f"{path}:{numbers[i]}")
+                previous_s = float(time_s[-1])
+                values = block[:, 1:]
+            append(time_s, values * scales + offsets)
+            rows += count
+            del raw[:], line_numbers[:]
+
+        for cells in reader:
+            if not any(cell.strip() for cell in cells):
+                continue
+            line = self.lines.line_number
+            if len(cells) < needed:
+                short = next(c for c in read if c.index >= len(cells))
+                raise RecordingError(
+                    f"{path}:{line}: {len(cells)} cell(s); column {short.name!r} is cell "
+                    f"{short.index + 1} of {width} in the header (line {header_line})"
+                )
+            if len(cells) > width and any(cell.strip() for cell in cells[width:]):
+                hint = " (a decimal comma in a comma-separated file?)" if separator == "," else ""
+                raise RecordingError(
+                    f"{path}:{line}: {len(cells)} cells, the header (line {header_line}) "
+                    f"has {width}{hint}"
+                )
+            if decimal is None:
+                decimal = decimal_mark([cells[i] for i in indices])
+            for k, column in enumerate(read):
+                cell = cells[column.index].strip()
+                if not cell:
+                    if k == 0 and time_column is not None:
+                        raise RecordingError(
+                            f"{path}:{line}: the time column {column.name!r} is empty"
+                        )
+                    empty[k] += 1
+                    if first_empty[k] is None:
+                        first_empty[k] = f"{path}:{line}"
+                    raw.append(math.nan)
+                    continue
+                try:
+                    raw.append(parse_number(cell, decimal or "."))
+                except ValueError as exc:
+                    other_mark = ("," if decimal != "," else ".") in cell
+                    reason = f" ({exc})" if other_mark else ""
+                    raise RecordingError(
+                        f"{path}:{line}: column {column.name!r}: {cell!r} is not a number{reason}"
+                    ) from exc
+            line_numbers.append(line)
+            if len(line_numbers) >= CHUNK_ROWS:
+                flush()
+        flush()
+        if rows == 0:
+            raise RecordingError(f"{path}: no data rows after the header (line {header_line})")
+        if rows == 1 and period_s is None:
+            raise RecordingError(
+                f"{path}: a single data row; the sample period needs at least two rows "
+                "(or period_s in the column map instead of a time column)"
+            )
+        for column, count, first in zip(read, empty, first_empty, strict=True):
+            if count:
+                self.job.note(
+                    f"{column.target}: {count} empty cell(s) in column {column.name!r} stored "
+                    f"as NaN; first at {first}"
+                )
+        return decimal
+
+
+def _detect_separator(line: str, wanted: Sequence[str], decimal: str | None) -> str:
+    """The separator that splits the header into the most mapped columns (then the most cells)."""
+    candidates = [s for s in _SEPARATORS if not (s == "," and decimal == ",")]
+
+    def score(separator: str) -> tuple[int, int]:
+        cells = [c.strip() for c in next(csv.reader([line], delimiter=separator), [])]
+        return sum(name in cells for name in wanted), len(cells)
+
+    best = max(candidates, key=score)  # the first of equals: comma, semicolon, tab
+    if score(best)[1] == 1:
+        # One column: no separator shows; take one that cannot clash with a decimal comma.
+        return "\t"
+    return best
+
+
+def _ordered_channels(mapping: ColumnMap, machine: MachineConfig | None) -> list[Channel]:
+    """The channels in the order the other importers use: by axis, then by signal."""
+    channels = [c for c in map(channel_from_name, mapping.channels) if c is not None]
+    axes = list(dict.fromkeys(c.axis for c in channels))
+    if machine is not None:
+        names = [a.name for a in machine.axes]
+        axes.sort(key=lambda a: names.index(a) if a in names else len(names))
+    signals = list(SIGNAL_UNITS)
+    return sorted(channels, key=lambda c: (axes.index(c.axis), signals.index(c.signal)))
