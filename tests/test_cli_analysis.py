@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from ncmeasure.analysis.analyze import load_results
@@ -126,3 +127,58 @@ def test_analyze_skips_a_dead_axis_and_takes_settings_and_axes(tmp_path: Path) -
         assert code == 2 and message in err and "Traceback" not in err, err
     code, _, err = run("analyze", run_dir, "--axis", "Q")
     assert code == 2 and "axis Q not recorded" in err
+
+
+def test_a_data_collector_csv_is_imported_and_analysed(tmp_path: Path) -> None:
+    """A CNC data collector's CSV: its own column names, mm/s, no time column (100 ms),
+    three significant digits, a text column. Imported with a column map, then analysed
+    with the defaults: every window is found, and the data is called coarse."""
+    from tests.analysis.real_data import decimate, measure
+
+    spec = SyntheticAxis(
+        velocities_mm_min=(300.0, 600.0, 1200.0, 2400.0, 4800.0), window_s=0.8, stribeck=0.3
+    )
+    data = decimate(measure([spec], with_marker=False), 25)
+    current = data.column("X_current_a")
+    velocity = data.column("X_velocity_mm_min") / 60.0
+    command = data.column("X_velocity_cmd_mm_min") / 60.0
+    position = data.column("X_position_mm")
+    lines = ["Timestamp,X1_CurrentFeedback,X1_ActualVelocity,X1_ActualPosition,X1_CommandVelocity"]
+    for k in range(len(current)):
+        lines.append(
+            f"2024-03-05 10:{k // 600:02d}:{k % 600 / 10:04.1f},{current[k]:.2E},"
+            f"{velocity[k]:.2E},{position[k]:.2E},{command[k]:.2E}"
+        )
+    csv_path = tmp_path / "collector.csv"
+    csv_path.write_text("\r\n".join(lines) + "\r\n", encoding="utf-8")
+    mapping = tmp_path / "collector.toml"
+    mapping.write_text(
+        "period_s = 0.1\n[channels]\n"
+        'X_current_a = { column = "X1_CurrentFeedback" }\n'
+        'X_velocity_mm_min = { column = "X1_ActualVelocity", scale = 60 }\n'
+        'X_position_mm = { column = "X1_ActualPosition" }\n'
+        'X_velocity_cmd_mm_min = { column = "X1_CommandVelocity", scale = 60 }\n',
+        encoding="utf-8",
+    )
+    code, _, err = run("import", csv_path, "--columns", mapping, "-o", tmp_path / "run")
+    assert code == 0, err
+    assert "Timestamp" in err  # the ignored text column is reported
+    # The program's top feed tells its steps from the rapids between them.
+    code, _, err = run("analyze", tmp_path / "run", "-q", "--set", "max_velocity_mm_min=5000")
+    assert code == 0, err
+    x = load_results(tmp_path / "run.results.json").axes["X"]
+    assert x.window_source == "command"
+    assert x.coarse and x.sample_period_s == pytest.approx(0.1)
+    speeds = sorted(
+        {round(abs(p.velocity_mm_min)) for pos in x.positions for d in pos.directions.values()
+         if d for p in d.points}
+    )  # fmt: skip
+    assert speeds == [300, 600, 1200, 2400, 4800]
+    assert len(x.positions) == 3
+    for position in x.positions:
+        for direction in position.directions.values():
+            assert direction is not None and direction.fit is not None
+            # No machine file: friction stays motor current, k_T = 2.1 Nm/A.
+            truth = spec.parameter("coulomb", position.position_index) / 2.1
+            assert x.unit == "A"
+            assert direction.fit.coulomb == pytest.approx(truth, rel=0.05)
