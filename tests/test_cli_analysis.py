@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
 from ncmeasure.analysis.analyze import load_results
+from ncmeasure.analysis.summary import axis_headline
 from ncmeasure.cli import app
 from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
+from tests.report.example import DEAD_Y_REASON, healthy_recording
 
 runner = CliRunner()
 P3 = (50.0, 375.0, 700.0)
@@ -50,7 +53,41 @@ def test_analyze_writes_results_and_report(tmp_path: Path) -> None:
     html = (tmp_path / "report.html").read_text()
     assert "data:image/png;base64," in html and "loose" in html
     code, out, _ = run("analyze", run_dir, "-o", tmp_path / "r2.json")
-    assert code == 0 and "rising_to_loose_bearing" in out and "loose_bearing" in out
+    assert code == 0
+    line = next(line for line in out.splitlines() if line.startswith("axis X:"))
+    assert line.startswith(f"axis X: {x.verdict.level} · Coulomb friction ")
+    assert x.verdict.level == "fault" and "rising towards the loose bearing" in line
+    assert "likely a shifted or tilted loose bearing" in line
+    assert "What to do: Check the alignment" in line
+
+
+def test_console_line_is_the_report_headline(tmp_path: Path) -> None:
+    """Verdict first, then exactly the Coulomb figure the report shows; skipped axes after."""
+    _, schedule = healthy_recording(tmp_path / "run")
+    schedule_file = tmp_path / "schedule.json"
+    schedule_file.write_text(schedule.model_dump_json())
+    report = tmp_path / "report.html"
+    code, out, err = run(
+        "analyze", tmp_path / "run", "--schedule", schedule_file, "--report", report
+    )
+    assert code == 0, err  # one axis analysed is a success
+    results = load_results(tmp_path / "run.results.json")
+    assert set(results.axes) == {"X"} and set(results.skipped) == {"Y"}
+    headline = axis_headline(results.axes["X"])
+    assert headline.verdict.level == "ok" and headline.coulomb is not None
+    assert abs(headline.coulomb - 2.0) < 0.05  # the synthetic axis' Coulomb friction
+    lines = out.splitlines()
+    assert lines[0] == (
+        f"axis X: ok · Coulomb friction {headline.coulomb_text}; {headline.travel_text}. "
+        f"{headline.verdict.reason}"
+    )
+    assert lines[1].startswith(f"axis Y: not analysed · {DEAD_Y_REASON}")
+    html = report.read_text(encoding="utf-8")
+    assert f'<span class="headline">Coulomb friction {headline.coulomb_text}</span>' in html
+    verdicts = html.split('<table class="verdicts">', 1)[1].split("</table>", 1)[0]
+    assert f'<td class="num">{headline.coulomb_text}</td>' in verdicts
+    assert '<span class="badge level-skipped">not analysed</span>' in verdicts
+    assert DEAD_Y_REASON in verdicts
 
 
 def test_compare_lifetime_exit_codes(tmp_path: Path) -> None:
@@ -64,6 +101,12 @@ def test_compare_lifetime_exit_codes(tmp_path: Path) -> None:
     assert code == 0, out
     code, out, _ = run("compare", base, tmp_path / "worn.results.json", "-o", tmp_path / "cmp.json")
     assert code == 3, out
+    worn = load_results(tmp_path / "worn.results.json").axes["X"]
+    figure = axis_headline(worn).coulomb_text
+    assert f"worn.results: axis X: fault · Coulomb friction {figure};" in out
+    assert re.search(r"Against the reference: friction -\d+\.\d % on average, alike along the "
+                     r"travel; at most -\d+\.\d % at position \d \(\d+ mm\), \w+, beyond the "
+                     r"critical limit\.", out), out  # fmt: skip
     assert json.loads((tmp_path / "cmp.json").read_text())["format"] == "ncmeasure-comparison"
     code, out, _ = run(
         "compare",
@@ -105,7 +148,7 @@ def test_analyze_skips_a_dead_axis_and_takes_settings_and_axes(tmp_path: Path) -
     write(run_dir, data, axes)
     code, out, err = run("analyze", run_dir, "--set", "settle_s=0.15")
     assert code == 0, err
-    assert "axis Z: not analysed: Z_current_a is 0 A in every row" in out
+    assert "axis Z: not analysed · Z_current_a is 0 A in every row" in out
     results = load_results(tmp_path / "run.results.json")
     assert list(results.axes) == ["X"]
     assert "dead channel" in results.skipped["Z"]

@@ -149,7 +149,11 @@ def test_demo_command(nominals: Callable[[str], DemoResult], tmp_path: Path) -> 
     )
     assert result.exit_code == 0, result.output
     assert "Open" in result.output and str(out / "report.html") in result.output
-    assert "loose_bearing" in result.output
+    # the verdict per axis first, then the likely cause of the change against the reference
+    for axis in ("X", "Z"):
+        assert f"axis {axis}: fault · Coulomb friction " in result.output
+    assert "likely a shifted or tilted loose bearing" in result.output
+    assert "Likely cause of the change: Loose bearing shifted or tilted" in result.output
     assert (out / "comparison.json").is_file() and (out / "report.html").is_file()
     # a second run into the same folder needs --force; nothing is replaced without it
     again = runner.invoke(app, ["demo", str(out)])

@@ -17,12 +17,13 @@ import threading
 import time
 import tomllib
 from pathlib import Path
-from typing import Annotated, Any, NoReturn
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
 import typer
 from rich.console import Console
 from rich.live import Live
 from rich.table import Table
+from rich.text import Text
 
 from ncmeasure import __version__
 from ncmeasure.acquire import Progress, record
@@ -38,6 +39,11 @@ from ncmeasure.program import (
     load_schedule,
 )
 from ncmeasure.recording import export_csv, export_mdf4, import_mdf4, read_recording
+
+if TYPE_CHECKING:
+    from ncmeasure.analysis.compare import Comparison
+    from ncmeasure.analysis.results import Results
+    from ncmeasure.analysis.summary import AxisComparison, Headline
 
 __all__ = ["app", "main"]
 
@@ -933,33 +939,89 @@ def analyze_command(
         _fail(exc)
     if quiet:
         return
-    for problem in recording.problems:
-        err_console.print(f"[yellow]warning:[/] {problem}")
-    for name, axis in results.axes.items():
-        coulombs = []
-        for position in axis.positions:
-            fits = [
-                d.fit.coulomb
-                for d in position.directions.values()
-                if d and d.fit and d.fit.coulomb is not None
-            ]
-            coulombs.append(f"{sum(fits) / len(fits):.3g}" if fits else "—")
-        line = (
-            f"axis {name}: {axis.windows} windows ({axis.window_source}); Coulomb by "
-            f"position {' / '.join(coulombs)} {axis.unit}"
-        )
-        dependency = axis.position_dependency
-        if dependency is not None:
-            line += f"; spread {dependency.spread_percent:.0f} %, {dependency.signature}"
-            if dependency.causes:
-                cause = dependency.causes[0]
-                line += f" → likely cause {cause.cause} ({cause.score:.2f})"
-        console.print(line)
-        for warning in axis.warnings:
-            err_console.print(f"[yellow]warning:[/] axis {name}: {warning}", markup=False)
-    for name, reason in results.skipped.items():
-        console.print(f"axis {name}: not analysed: {reason}", markup=False)
+    _print_verdicts(results)
+    _print_warnings(results, recording.problems)
     console.print(f"wrote {target}" + (f" and {report}" if report else ""))
+
+
+_LEVEL_STYLE = {"ok": "bold green", "check": "bold yellow", "fault": "bold red"}
+
+
+def _verdict_line(name: str, headline: Headline) -> Text:
+    """``axis X: fault · Coulomb friction 1.58 Nm (...); spread ...; why; what to do``.
+
+    The Coulomb figure is :attr:`Headline.coulomb_text`, the report's headline.
+    """
+    verdict = headline.verdict
+    line = Text(f"axis {name}: ")
+    line.append(verdict.level, style=_LEVEL_STYLE.get(verdict.level, "bold"))
+    line.append(
+        f" · Coulomb friction {headline.coulomb_text}; {headline.travel_text}. {verdict.reason}"
+    )
+    if verdict.level != "ok":
+        action = verdict.action.rstrip(".")
+        line.append(f" What to do: {action[:1].upper()}{action[1:]}.")
+    return line
+
+
+def _print_verdicts(
+    results: Results, comparison: Comparison | None = None, indent: str = ""
+) -> None:
+    """One line per analysed axis, verdict first; then the axes not analysed and why.
+
+    With a comparison, the verdict is combined with the axis' change against
+    its base (the last compared run's, as the report shows it).
+    """
+    for name in results.axes:
+        _print_verdict(results, name, comparison, indent)
+    _print_skipped(results, indent)
+
+
+def _print_verdict(
+    results: Results, name: str, comparison: Comparison | None = None, indent: str = ""
+) -> None:
+    from ncmeasure.analysis.summary import axis_comparison, axis_headline
+
+    against = axis_comparison(comparison, name) if comparison is not None else None
+    headline = axis_headline(results.axes[name], against)
+    line = Text(indent).append_text(_verdict_line(name, headline))
+    if against is not None:
+        _append_change(line, headline, against)
+    console.print(line)
+
+
+def _append_change(line: Text, headline: Headline, against: AxisComparison) -> None:
+    """The change against the base, unless the verdict says it already, and its likely cause."""
+    from ncmeasure.report.words import CAUSE_TITLES
+
+    if against.change not in headline.verdict.reason:
+        line.append(f" Against {against.base!r}: {against.status}, {against.change}.")
+    if against.cause is not None and against.cause.cause != "none":
+        title = CAUSE_TITLES.get(against.cause.cause, against.cause.cause)
+        line.append(f" Likely cause of the change: {title} (score {against.cause.score:.2f}).")
+
+
+def _print_skipped(results: Results, indent: str = "") -> None:
+    for name, reason in results.skipped.items():
+        line = Text(f"{indent}axis {name}: ")
+        line.append("not analysed", style="bold")
+        line.append(f" · {reason}")
+        console.print(line)
+
+
+def _print_warnings(results: Results, problems: list[str]) -> None:
+    """Recording problems and analysis warnings on stderr; one shared by every axis once."""
+    for problem in problems:
+        err_console.print(Text.assemble(("warning:", "yellow"), f" {problem}"))
+    lists = [axis.warnings for axis in results.axes.values()]
+    shared = set.intersection(*(set(w) for w in lists)) if len(lists) > 1 else set()
+    for warning in lists[0] if lists else []:
+        if warning in shared:
+            err_console.print(Text.assemble(("warning:", "yellow"), f" {warning}"))
+    for name, axis in results.axes.items():
+        for warning in axis.warnings:
+            if warning not in shared:
+                err_console.print(Text.assemble(("warning:", "yellow"), f" axis {name}: {warning}"))
 
 
 @app.command("compare")
@@ -1019,10 +1081,41 @@ def compare_command(
         except NcMeasureError as exc:
             _fail(exc)
         console.print(f"wrote {report}")
-    for line in comparison.findings:
-        console.print(line)
+    _print_comparison(comparison, runs)
     code = comparison_exit_code(comparison)
     raise typer.Exit(code)
+
+
+def _print_comparison(comparison: Comparison, runs: list[Results]) -> None:
+    """Per compared run and axis: its verdict with the change, the report's headline figure."""
+    from ncmeasure.analysis.summary import axis_comparison, axis_headline, format_number
+
+    for label, results in zip(comparison.others, runs, strict=True):
+        for name, axis in results.axes.items():
+            against = axis_comparison(comparison, name, label)
+            headline = axis_headline(axis, against)
+            line = Text(f"{label}: ").append_text(_verdict_line(name, headline))
+            if against is None:
+                line.append(f" Not compared with {comparison.base}.")
+            else:
+                _append_change(line, headline, against)
+            console.print(line)
+        for name, reason in results.skipped.items():
+            console.print(Text(f"{label}: axis {name}: not analysed · {reason}"))
+    for fleet in comparison.fleet:
+        outliers = ", ".join(fleet.outliers) or "none"
+        console.print(
+            Text(
+                f"fleet, axis {fleet.axis}: mean friction {format_number(fleet.mean)} "
+                f"{fleet.unit} over {len(fleet.runs)} runs, spread {fleet.spread_percent:.1f} %, "
+                f"outliers: {outliers}"
+            )
+        )
+    if comparison.problems:
+        console.print(
+            f"{len(comparison.problems)} matching problem(s): not every point was compared "
+            "(the comparison file and the report list them)"
+        )
 
 
 @app.command("simulate")
@@ -1189,32 +1282,19 @@ def demo_command(
             f"{run.label}: {run.machine_time_s:.0f} s of machine time in "
             f"{run.wall_time_s:.0f} s, {acquisition.rows} samples{gaps}"
         )
-        for name, axis in run.results.axes.items():
-            line = f"  axis {name}: {axis.windows} windows"
+        compared = result.comparison if run is result.measured else None
+        for name in run.results.axes:
+            _print_verdict(run.results, name, compared, indent="  ")
             found = run.accuracy.get(name)
             if found is not None:
-                line += (
-                    f"; friction {found.measured_mean_nm:.3f} Nm measured, "
-                    f"{found.simulated_mean_nm:.3f} Nm simulated "
-                    f"(bias {found.median_error_percent:+.1f} %, "
-                    f"worst point {found.max_error_percent:.1f} %)"
-                )
-            dependency = axis.position_dependency
-            if dependency is not None and dependency.causes:
-                cause = dependency.causes[0]
-                line += (
-                    f"; along the travel {dependency.signature} → {cause.cause} ({cause.score:.2f})"
-                )
-            console.print(line)
-    if result.comparison is not None:
-        for change in result.comparison.changes:
-            if change.causes:
-                cause = change.causes[0]
                 console.print(
-                    f"change of axis {change.axis} against the reference: "
-                    f"{change.mean_change_percent:+.1f} % on average, {change.signature} "
-                    f"→ likely cause {cause.cause} ({cause.score:.2f})"
+                    f"    axis {name} against the virtual machine's own friction (mean over "
+                    f"{found.points} points, all velocities): {found.measured_mean_nm:.3f} Nm "
+                    f"measured, {found.simulated_mean_nm:.3f} Nm simulated (bias "
+                    f"{found.median_error_percent:+.1f} %, worst point "
+                    f"{found.max_error_percent:.1f} %)"
                 )
+        _print_skipped(run.results, indent="  ")
     took = time.monotonic() - started
     console.print(f"finished in {took:.0f} s. Open [bold]{result.report}[/]")
     console.print(

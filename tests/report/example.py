@@ -10,6 +10,11 @@ viscous ≈ 0.09 Nm per m/min) measured at 3 positions and 10 velocities in both
 directions, sampled every 4 ms like a Sinumerik trace. The results are built
 from the pydantic models; the fits come from :mod:`ncmeasure.analysis.fit`.
 
+:func:`healthy_recording` is the other side: a correctly assembled axis X
+whose friction is the same along the travel (with a Stribeck hump at low
+speed, which is friction and not a fault) and an axis Y whose current
+channel is dead, so the analysis skips it.
+
 ``python -m tests.report.example OUT_DIR`` writes the example report (used for
 ``docs/report-screenshot.png``).
 """
@@ -26,7 +31,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.analyze import AnalysisSettings
+from ncmeasure.analysis.analyze import AnalysisSettings, recording_gaps
 from ncmeasure.analysis.fit import fit_direction, separate_offset
 from ncmeasure.analysis.results import (
     AxisResult,
@@ -44,7 +49,14 @@ from ncmeasure.analysis.verdict import axis_verdict
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.examples import example_machine
 from ncmeasure.links.base import SampleBlock, channels_for
+from ncmeasure.plan import Schedule
 from ncmeasure.recording import Recording, RecordingWriter
+from ncmeasure.sim.synthetic import (
+    SyntheticAxis,
+    geometric_velocities,
+    machine_config,
+)
+from ncmeasure.sim.synthetic import simulate as simulate_synthetic
 
 FloatArray = NDArray[np.float64]
 
@@ -324,6 +336,7 @@ def build_results(
             warnings=warnings,
         )
         axes[model.name] = result.model_copy(update={"verdict": axis_verdict(result)})
+    gaps, lost, events = recording_gaps(recording)
     return Results(
         created_utc="2026-01-15T09:05:00.000+00:00",
         recording=RecordingInfo(
@@ -332,10 +345,56 @@ def build_results(
             start_utc=recording.meta.start_utc,
             config_hash="3f9c2a41d7e0",
             source=recording.meta.source,
+            status=recording.meta.status,
+            samples=len(recording),
+            duration_s=float(recording.time_s[-1] - recording.time_s[0]),
+            gaps=gaps,
+            gap_samples=lost,
+            gap_share=lost / (len(recording) + lost),
+            gap_events=events,
         ),
         settings=AnalysisSettings().model_dump(),
         axes=axes,
     )
+
+
+HEALTHY_X = SyntheticAxis(
+    name="X",
+    positions_mm=(50.0, 375.0, 700.0),
+    coulomb=2.0,
+    stribeck=0.8,
+    velocities_mm_min=geometric_velocities(10.0, 15000.0, 20),
+)
+DEAD_Y = SyntheticAxis(
+    name="Y",
+    positions_mm=(50.0, 375.0, 700.0),
+    velocities_mm_min=geometric_velocities(100.0, 5000.0, 3),
+)
+DEAD_Y_REASON = "Y_current_a is 0 A in every row: a dead channel"
+
+
+def healthy_recording(directory: Path, seed: int = 0) -> tuple[Recording, Schedule]:
+    """A correctly assembled X (flat along the travel) and a Y with a dead current channel.
+
+    Returns:
+        The recording written to ``directory`` and the schedule of its program.
+    """
+    axes = [HEALTHY_X, DEAD_Y]
+    data = simulate_synthetic(axes, seed=seed)
+    names = [c.name for c in data.channels]
+    values = data.values.copy()
+    values[:, names.index("Y_current_a")] = 0.0  # the drive does not report it
+    with RecordingWriter.create(
+        directory,
+        data.channels,
+        nominal_period_s=PERIOD_S,
+        machine=machine_config(axes, name="healthy machine"),
+        config_hash=data.schedule.config_hash,
+        source="synthetic",
+        faster_than_real_time=True,
+    ) as writer:
+        writer.append(SampleBlock(data.time_s, values))
+    return Recording.open(directory), data.schedule
 
 
 def cut_windows(windows: dict[str, list[Window]]) -> dict[str, list[tuple[float, float]]]:

@@ -1,8 +1,10 @@
-"""The HTML report: self-contained, complete, escaped, and rendered by a real browser.
+"""The HTML report: the verdict first, self-contained, complete, escaped, rendered by a browser.
 
 The example (tests/report/example.py) is a simulated recording of two axes
 with results built from the pydantic models: X with friction rising towards
-the loose bearing, Z vertical with a gravity offset.
+the loose bearing, Z vertical with a gravity offset. The healthy machine is
+a synthetic recording analysed for real: X flat along the travel with a
+Stribeck hump, Y with a dead current channel (skipped).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import numpy as np
 import pytest
 from pydantic import BaseModel
 
+from ncmeasure.analysis.analyze import analyze
 from ncmeasure.analysis.compare import Comparison, compare_results
 from ncmeasure.analysis.results import (
     AxisResult,
@@ -29,6 +32,7 @@ from ncmeasure.analysis.results import (
     RecordingInfo,
     Results,
 )
+from ncmeasure.analysis.summary import axis_headline
 from ncmeasure.recording import Recording
 from ncmeasure.report import (
     PALETTE,
@@ -40,7 +44,14 @@ from ncmeasure.report import (
 )
 from ncmeasure.report.curves import linear_curve
 from ncmeasure.report.words import CAUSE_TITLES, format_mm, format_number, format_with_error
-from tests.report.example import Window, build_results, cut_windows, simulate
+from tests.report.example import (
+    DEAD_Y_REASON,
+    Window,
+    build_results,
+    cut_windows,
+    healthy_recording,
+    simulate,
+)
 
 CHROMIUM = Path("/usr/bin/chromium")
 _SIDES: tuple[tuple[Literal["positive", "negative"], float], ...] = (
@@ -88,7 +99,10 @@ def _scaled(axis: AxisResult, factor: float) -> AxisResult:
             for name, found in position.directions.items()
         }
         positions.append(position.model_copy(update={"directions": directions}))
-    return axis.model_copy(update={"positions": positions})
+    offset = axis.offset
+    if offset is not None:  # the offset is part of the medians: it scales with them
+        offset = offset.model_copy(update={"value": offset.value * factor})
+    return axis.model_copy(update={"positions": positions, "offset": offset})
 
 
 @pytest.fixture(scope="module")
@@ -103,8 +117,68 @@ def report(example: Example, tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
 
 
+@pytest.fixture(scope="module")
+def healthy(tmp_path_factory: pytest.TempPathFactory) -> Results:
+    """A correctly assembled machine, analysed: X ok, Y skipped (dead current channel).
+
+    One curve of X is made to look like the demo's: the straight line over all
+    speeds rejected (χ²ᵣ 138) because of the Stribeck hump, which the Stribeck
+    model describes. That is friction, not a fault.
+    """
+    directory = tmp_path_factory.mktemp("healthy") / "run"
+    recording, schedule = healthy_recording(directory)
+    results = analyze(recording, schedule=schedule)
+    x = results.axes["X"]
+    first = x.positions[0]
+    found = first.directions["positive"]
+    assert found is not None and found.fit is not None
+    rejected = found.model_copy(
+        update={
+            "fit": found.fit.model_copy(update={"chi2_reduced": 138.3, "accepted": False}),
+            "model": "stribeck",
+        }
+    )
+    positions = [
+        first.model_copy(update={"directions": {**first.directions, "positive": rejected}}),
+        *x.positions[1:],
+    ]
+    return results.model_copy(update={"axes": {"X": x.model_copy(update={"positions": positions})}})
+
+
 def _text(path: Path) -> str:
     return path.read_text(encoding="utf-8")
+
+
+ALARM_CLASSES = {
+    "no",
+    "level-check",
+    "level-fault",
+    "verdict-check",
+    "verdict-fault",
+    "status-warning",
+    "status-critical",
+    "lost-many",
+}
+"""Classes that colour something amber or red."""
+
+
+def _classes(page: str) -> set[str]:
+    return {c for found in re.findall(r'class="([^"]*)"', page) for c in found.split()}
+
+
+def _before_first_axis(page: str) -> str:
+    return page.split('<section class="axis"', 1)[0]
+
+
+def _verdict_rows(page: str) -> dict[str, str]:
+    """The rows of the verdict table by axis name (the HTML of each row)."""
+    table = page.split('<table class="verdicts">', 1)[1].split("</table>", 1)[0]
+    rows = re.findall(r"<tr><td>(.*?)</tr>", table, re.DOTALL)
+    return {re.sub(r"<[^>]+>", "", row.split("</td>", 1)[0]): row for row in rows}
+
+
+def _without_details(page: str) -> str:
+    return re.sub(r"<details.*?</details>", "", page, flags=re.DOTALL)
 
 
 # --- the file --------------------------------------------------------------------------
@@ -149,17 +223,18 @@ def test_embedded_images_are_the_pngs_beside_the_report(report: Path) -> None:
 def test_report_has_every_section(report: Path) -> None:
     page = _text(report)
     for heading in (
+        "<h2>Verdict</h2>",
         "<h2>Summary</h2>",
-        "<h2>Axis X</h2>",
-        "<h2>Axis Z</h2>",
+        '<h2>Axis X <span class="badge level-fault">fault</span></h2>',
+        '<h2>Axis Z <span class="badge level-ok">ok</span></h2>',
         "<h3>Friction over velocity</h3>",
         "<h3>Friction along the travel</h3>",
         "<h3>Diagnosis</h3>",
         "<h3>Offset (gravity or bias)</h3>",
-        "<h3>Fits</h3>",
+        "<h3>Which model describes each curve</h3>",
         "<h3>Raw data</h3>",
         "<h2>Comparison</h2>",
-        "<h3>Analysis settings</h3>",
+        "<summary>Analysis settings (",
     ):
         assert heading in page, heading
     assert page.count("<h3>Friction over velocity</h3>") == 2
@@ -188,7 +263,8 @@ def test_report_shows_the_numbers(report: Path, example: Example) -> None:
     assert f"{dependency.spread_percent:.0f} % spread, rises towards the loose bearing" in page
     assert "Friction rises as the nut moves towards the loose bearing." in page
     titles = [CAUSE_TITLES[c.cause] for c in dependency.causes]
-    found_at = [page.index(t) for t in titles]
+    x_section = page.split('id="axis-1"', 1)[1].split("</section>", 1)[0]
+    found_at = [x_section.index(t) for t in titles]
     assert found_at == sorted(found_at), "causes best first"
     assert "the highest value is at 690 mm" in page
     assert "fixed bearing at the min end (0 mm), loose bearing at the max end (750 mm)" in page
@@ -243,7 +319,7 @@ def test_escapes_names_from_files(example: Example, tmp_path: Path) -> None:
     assert "<script" not in page.lower()
     assert "<img src=x" not in page and "<b>" not in page and "<i>" not in page
     assert "&lt;script&gt;alert(1)&lt;/script&gt;" in page
-    assert "rises &quot;a lot&quot; &lt;b&gt;&amp; more&lt;/b&gt;" in page
+    assert "rises &#34;a lot&#34; &lt;b&gt;&amp; more&lt;/b&gt;" in page
     assert "Axis A$1&lt;&amp;&gt;" in page
     names = sorted(p.name for p in (tmp_path / "evil_plots").iterdir())
     assert names == ["01_A_1_stribeck.png", "01_A_1_travel.png"]
@@ -354,6 +430,171 @@ def test_numbers_for_technicians() -> None:
     assert format_mm(-0.04) == "0"
 
 
+# --- the verdict first -----------------------------------------------------------------
+
+
+def test_healthy_machine_reads_ok_without_alarm(healthy: Results, tmp_path: Path) -> None:
+    page = _text(write_report(healthy, tmp_path / "healthy.html"))
+    # the verdict comes before anything else: right after the title
+    assert page.index('<section class="verdict">') < page.index('<dl class="facts">')
+    rows = _verdict_rows(page)
+    assert set(rows) == {"X", "Y"}
+    assert '<span class="badge level-ok">ok</span>' in rows["X"]
+    assert "No assembly fault shows" in rows["X"] and "What to do: None." in rows["X"]
+    # the skipped axis, with its reason
+    assert '<span class="badge level-skipped">not analysed</span>' in rows["Y"]
+    assert DEAD_Y_REASON in rows["Y"]
+    # nothing amber or red, no "no" anywhere: the rejected straight line of a Stribeck
+    # curve is not a failure
+    assert not _classes(page) & ALARM_CLASSES, _classes(page) & ALARM_CLASSES
+    assert not re.search(r">\s*no\s*<", page)
+    assert "Accepted" not in page and "Fits accepted" not in page
+    models = page.split("<h3>Which model describes each curve</h3>", 1)[1].split("</table>")[0]
+    assert models.count("<strong>Stribeck</strong>") == 6
+    assert "138" in models  # the line's χ²ᵣ is shown, plainly
+
+
+def test_faulty_axis_reads_fault_with_reason(report: Path, example: Example) -> None:
+    page = _text(report)
+    x = example.results.axes["X"]
+    assert x.verdict.level == "fault"
+    top = _before_first_axis(page)
+    row = _verdict_rows(top)["X"]
+    assert '<span class="badge level-fault">fault</span>' in row
+    assert x.verdict.reason in row
+    assert f"What to do: {x.verdict.action}" in row
+    assert "level-fault" in _classes(page)  # the alarm check above can fail
+
+
+def test_comparison_comes_first_and_combines_the_verdict(example: Example, tmp_path: Path) -> None:
+    """Z is fine on its own but lost 30 % against the reference: check, for that reason."""
+    results = example.results
+    later = results.model_copy(
+        update={"axes": {**results.axes, "Z": _scaled(results.axes["Z"], 0.7)}}
+    )
+    comparison = compare_results(results, [later], labels=["delivery", "service 2027"])
+    page = _text(write_report(later, tmp_path / "r.html", comparison=comparison))
+    verdict = page.index('<section class="verdict">')
+    compared = page.index('<section class="comparison">')
+    summary = page.index('<section class="summary">')
+    first_axis = page.index('<section class="axis"')
+    assert verdict < compared < summary < first_axis
+    rows = _verdict_rows(page)
+    assert later.axes["Z"].verdict.level == "ok"
+    assert '<span class="badge level-check">check</span>' in rows["Z"]
+    assert re.search(
+        r"Against the reference: friction -30\.0 % on average, alike along the travel; "
+        r"at most -30\.0 % at position \d \(-?\d+ mm\), \w+, beyond the warning limit\.",
+        rows["Z"],
+    ), rows["Z"]
+    assert '<span class="status-warning">warning</span>' in rows["Z"]
+    # X's own fault stays the verdict; its comparison is within the limits
+    assert '<span class="badge level-fault">fault</span>' in rows["X"]
+    assert '<span class="status-ok">ok</span>' in rows["X"]
+    # the axis section says the same as the verdict table
+    z_section = page.split('id="axis-2"', 1)[1]
+    assert '<h2>Axis Z <span class="badge level-check">check</span></h2>' in z_section
+
+
+def test_gaps_are_visible_in_the_header(healthy: Results, tmp_path: Path) -> None:
+    info = healthy.recording
+    assert info.gaps == 0 and info.status == "complete"
+    page = _text(write_report(healthy, tmp_path / "r.html"))
+    assert "<dt>Status</dt><dd>complete, no sample lost</dd>" in _before_first_axis(page)
+    samples = info.samples
+    assert samples is not None and info.duration_s is not None
+    assert f"<dt>Samples</dt><dd>{samples} over {info.duration_s:.0f} s</dd>" in page
+    lossy = healthy.model_copy(
+        update={
+            "recording": info.model_copy(
+                update={"gaps": 27, "gap_samples": 324, "gap_share": 324 / (samples + 324)}
+            )
+        }
+    )
+    page = _text(write_report(lossy, tmp_path / "r.html"))
+    share = 324 / (samples + 324) * 100
+    header = _without_details(_before_first_axis(page))
+    assert f"<dd>complete, 27 gaps: 324 samples, {share:.1f} % lost</dd>" in header
+    many = healthy.model_copy(
+        update={
+            "recording": info.model_copy(
+                update={"gaps": 300, "gap_samples": 5000, "gap_share": 0.18}
+            )
+        }
+    )
+    page = _text(write_report(many, tmp_path / "r.html"))
+    assert '<span class="lost-many">complete, 300 gaps: 5000 samples, 18.0 % lost</span>' in page
+
+
+def test_notes_are_folded_away_with_their_count(report: Path, example: Example) -> None:
+    page = _text(report)
+    blocks = re.findall(r"<details([^>]*)><summary>(.*?)</summary>(.*?)</details>", page, re.S)
+    assert blocks
+    assert all("open" not in attributes for attributes, _, _ in blocks), "closed by default"
+    summaries = {summary: body for _, summary, body in blocks}
+    z_notes = next(body for summary, body in summaries.items() if "Notes on axis Z" in summary)
+    counted = re.search(r"Notes on axis Z \((\d+)\)", " ".join(summaries))
+    assert counted is not None
+    assert int(counted[1]) == z_notes.count("<li>") >= 1
+    assert any(summary.startswith("Analysis settings (") for summary in summaries)
+    # every warning is in the page, but only inside a closed block
+    outside = _without_details(page)
+    for axis in example.results.axes.values():
+        for warning in axis.warnings:
+            escaped = warning.replace("'", "&#39;")
+            assert escaped in page
+            assert escaped not in outside
+
+
+def test_positions_are_numbered_alike(healthy: Results, tmp_path: Path) -> None:
+    page = _text(write_report(healthy, tmp_path / "r.html"))
+    x = healthy.axes["X"]
+    labels = {p.position_index + 1: p.position_mm for p in x.positions}
+    assert labels == {1: 50.0, 2: 375.0, 3: 700.0}
+    models = page.split("<h3>Which model describes each curve</h3>", 1)[1].split("</table>")[0]
+    for number, mm in labels.items():
+        label = f"{number}:\u00a0{format_mm(mm)}\u00a0mm"
+        assert models.count(label) == 2, label  # both directions
+        assert label in page.split("<dt>Positions</dt>", 1)[1].split("</dd>", 1)[0]
+    # the diagnosis' evidence names them the same way: "position 2 (375 mm)"
+    assert x.position_dependency is not None
+    mentioned = re.findall(r"position (\d+) \((-?[\d.]+) mm\)", page)
+    assert mentioned
+    for number, mm in mentioned:
+        assert abs(labels[int(number)] - float(mm)) < 1, (number, mm)
+    # and the plot along the travel
+    figure = plot_travel("X", x, bearing_layout("X", result=x))
+    ticks = [t.get_text() for t in figure.axes[0].get_xticklabels()]
+    assert ticks == ["1: 50 mm", "2: 375 mm", "3: 700 mm"]
+    numbers = [t.get_text() for t in figure.axes[0].texts if t.get_text().isdigit()]
+    assert numbers == ["1", "2", "3"]
+
+
+def test_comparison_numbers_positions_alike(report: Path, example: Example) -> None:
+    page = _text(report)
+    section = page.split('<section class="comparison">', 1)[1].split("</section>", 1)[0]
+    for group in example.comparison.groups:
+        label = f"{group.position_index + 1}:\u00a0{format_mm(group.position_mm)}\u00a0mm"
+        assert label in section
+    places = {
+        (p.position_index + 1, p.position_mm)
+        for axis in example.results.axes.values()
+        for p in axis.positions
+    }
+    mentioned = re.findall(r"position (\d+) \((-?[\d.]+) mm\)", section)
+    assert mentioned  # the change in words: "at most -25.0 % at position 3 (690 mm), ..."
+    for number, mm in mentioned:
+        assert any(n == int(number) and abs(x - float(mm)) < 1 for n, x in places), (number, mm)
+
+
+def test_report_headline_is_the_summary_function(report: Path, example: Example) -> None:
+    page = _text(report)
+    for name, axis in example.results.axes.items():
+        figure = axis_headline(axis).coulomb_text
+        assert figure in _verdict_rows(page)[name]
+        assert f'<span class="headline">Coulomb friction {figure}</span>' in page
+
+
 # --- in a browser ----------------------------------------------------------------------
 
 
@@ -395,8 +636,20 @@ def _pixels_like(image: np.ndarray, colour: str, tolerance: float = 0.06) -> int
     return int(np.count_nonzero(np.all(np.abs(image - target) <= tolerance, axis=2)))
 
 
-def test_chromium_renders_the_plots(report: Path, tmp_path: Path) -> None:
-    image = _screenshot(report, tmp_path, 2400)
+@pytest.fixture(scope="module")
+def plain_report(example: Example, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The example's report without a comparison: the first axis follows the summary."""
+    out = tmp_path_factory.mktemp("plain")
+    return write_report(
+        example.results,
+        out / "friction.html",
+        recording=example.recording,
+        windows=cut_windows(example.windows),
+    )
+
+
+def test_chromium_renders_the_plots(plain_report: Path, tmp_path: Path) -> None:
+    image = _screenshot(plain_report, tmp_path, 2400)
     assert image.shape == (2400, 1280, 3)
     ink = np.any(image < 0.94, axis=2)
     assert ink.mean() > 0.04, f"only {ink.mean():.1%} of the page is not white: blank?"
@@ -404,18 +657,20 @@ def test_chromium_renders_the_plots(report: Path, tmp_path: Path) -> None:
     # the average along the travel (the page's own CSS uses none of them)
     for colour in PALETTE[:3]:
         assert _pixels_like(image, colour) > 400, colour
-    # the first axis' plots are inside the first 2400 px, side by side with the text
+    # the first axis' Stribeck plot is inside the first 2400 px, below the verdict,
+    # the recording and the summary, and it is a plot (hundreds of rows), not a stray pixel
     rows_with_blue = np.flatnonzero(
         np.all(np.abs(image - np.array([0x1F, 0x5F, 0xA8]) / 255) <= 0.06, axis=2).any(axis=1)
     )
-    assert rows_with_blue.min() < 1400 < rows_with_blue.max()
+    assert 600 < rows_with_blue.min() < 1900
+    assert rows_with_blue.max() - rows_with_blue.min() > 300
 
 
-def test_chromium_without_images_has_no_plot_colours(report: Path, tmp_path: Path) -> None:
+def test_chromium_without_images_has_no_plot_colours(plain_report: Path, tmp_path: Path) -> None:
     """The colour check above is not fooled by the page itself: without images it fails."""
     bare = tmp_path / "bare.html"
     bare.write_text(
-        re.sub(r'<img src="data:[^"]*"', '<img src=""', _text(report)), encoding="utf-8"
+        re.sub(r'<img src="data:[^"]*"', '<img src=""', _text(plain_report)), encoding="utf-8"
     )
     image = _screenshot(bare, tmp_path, 2400)
     assert all(_pixels_like(image, colour) < 50 for colour in PALETTE[:3])

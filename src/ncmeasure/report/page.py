@@ -1,33 +1,52 @@
-"""The report as one HTML page: inline CSS, images as data URIs, every name escaped.
+"""The report as one HTML page: a Jinja template over a frozen view model.
 
-The page is built from small functions that return HTML text. Anything that
-comes from a file (machine and axis names, evidence, warnings, settings) goes
-through :func:`esc`; only the :class:`Html` strings built here pass unescaped.
-No script, no external resource: the file opens offline and prints as is.
+:func:`render_page` turns the results (and a comparison) into a
+:class:`PageView` of plain text, numbers formatted and every decision
+(which verdict, which note, which cell says what) taken here in Python; the
+template ``templates/report.html.j2`` only lays it out. Jinja's autoescape
+escapes every value, so names, evidence and warnings from files cannot
+inject markup; the only markup is the template's. The CSS is inline, the
+images are data URIs, there is no script: the file opens offline and prints
+as is.
+
+Reading order, for the person at the machine: the verdict per axis first
+(with a comparison, combined with it), the recording, the comparison, the
+numbers per axis, then each axis in detail. Notes (recording problems,
+analysis warnings, settings) are folded away in ``<details>`` with their
+count. Measuring positions are numbered as everywhere else: ``2: 375 mm``,
+the position index + 1.
 """
 
 from __future__ import annotations
 
 import base64
-import html
+import functools
 import json
-import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Final
 
+import jinja2
+from jinja2.sandbox import SandboxedEnvironment
 from pydantic import BaseModel
 
 from ncmeasure import __version__
-from ncmeasure.analysis.compare import Comparison
+from ncmeasure.analysis.analyze import recording_gaps
+from ncmeasure.analysis.compare import Comparison, GroupDeviation
 from ncmeasure.analysis.results import (
     AxisResult,
     DirectionResult,
     LinearFit,
+    ModelName,
     NonlinearFit,
-    PositionDependency,
     PositionResult,
     Results,
+)
+from ncmeasure.analysis.summary import (
+    AxisComparison,
+    Headline,
+    axis_comparison,
+    axis_headline,
 )
 from ncmeasure.recording import Recording
 from ncmeasure.report.bearings import BearingLayout
@@ -43,35 +62,11 @@ from ncmeasure.report.words import (
     format_with_error,
 )
 
-__all__ = ["AxisSection", "Figure", "Html", "esc", "render_page"]
+__all__ = ["AxisSection", "Figure", "PageView", "page_view", "render_page"]
 
-
-class Html(str):
-    """Text that is already HTML and must not be escaped again."""
-
-    __slots__ = ()
-
-
-def esc(value: object) -> Html:
-    """Any value as HTML text: ``Html`` as is, everything else escaped (quotes too)."""
-    if isinstance(value, Html):
-        return value
-    return Html(html.escape(str(value), quote=True))
-
-
-def join(parts: Iterable[object], separator: str = "\n") -> Html:
-    """Escape and join parts."""
-    return Html(separator.join(esc(p) for p in parts))
-
-
-def tag(name: str, content: object = "", **attributes: object) -> Html:
-    """``<name attr="...">content</name>``; attribute values escaped, ``class_`` for class."""
-    attrs = "".join(
-        f' {key.rstrip("_").replace("_", "-")}="{esc(value)}"'
-        for key, value in attributes.items()
-        if value is not None
-    )
-    return Html(f"<{name}{attrs}>{esc(content)}</{name}>")
+GAP_SHARE_HIGHLIGHT = 0.05
+"""Lost samples beyond this share are highlighted in the header (a measurement worth
+repeating, though the verdict judges only whether the kept windows cover it)."""
 
 
 @dataclass(frozen=True)
@@ -98,177 +93,354 @@ class AxisSection:
     raw_note: str | None = None
 
 
-CSS: Final = """
-:root { --ink: #1d1d1f; --muted: #5b5b60; --rule: #d0d0d4; --soft: #f4f5f7;
-        --accent: #3b5875; --ok: #13602a; --bad: #b3261e; --warn: #8a5a00; }
-* { box-sizing: border-box; }
-html { background: #ffffff; }
-body { margin: 0 auto; max-width: 1100px; padding: 28px 22px 40px;
-       font: 15px/1.45 "DejaVu Sans", "Segoe UI", Arial, Helvetica, sans-serif;
-       color: var(--ink); }
-h1 { font-size: 26px; margin: 0 0 4px; letter-spacing: 0.2px; }
-h1 .machine { color: var(--accent); }
-h2 { font-size: 21px; margin: 36px 0 10px; padding-bottom: 6px;
-     border-bottom: 2px solid var(--ink); }
-h3 { font-size: 16.5px; margin: 26px 0 8px; }
-p { margin: 6px 0 10px; }
-.subtitle { color: var(--muted); margin: 0 0 18px; }
-dl.facts { display: grid; grid-template-columns: max-content 1fr; gap: 3px 18px;
-           margin: 10px 0 18px; padding: 12px 16px; background: var(--soft);
-           border: 1px solid var(--rule); border-radius: 4px; }
-dl.facts dt { color: var(--muted); }
-dl.facts dd { margin: 0; overflow-wrap: anywhere; }
-table { border-collapse: collapse; width: 100%; margin: 8px 0 14px; font-size: 14px; }
-th, td { border: 1px solid var(--rule); padding: 5px 8px; text-align: left;
-         vertical-align: top; }
-th { background: var(--soft); font-weight: 600; }
-td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; }
-td.num { white-space: nowrap; }
-table.compact { font-size: 12.5px; }
-table.compact th, table.compact td { padding: 4px 5px; }
-tbody tr:nth-child(even) td { background: #fafafb; }
-.yes, .status-ok { color: var(--ok); font-weight: 600; }
-.status-warning { color: var(--warn); font-weight: 700; }
-.status-critical { color: var(--bad); font-weight: 700; }
-.no { color: var(--bad); font-weight: 600; }
-.note { color: var(--muted); font-size: 13.5px; }
-.box { border: 1px solid var(--rule); border-left: 5px solid var(--accent);
-       padding: 10px 14px; margin: 10px 0 14px; background: #fbfcfe; }
-.box.warn { border-left-color: var(--warn); background: #fffaf0; }
-.box p:first-child { margin-top: 0; } .box p:last-child { margin-bottom: 0; }
-.headline { font-size: 16px; font-weight: 600; }
-.bar { display: inline-block; width: 90px; height: 10px; background: #e6e8ec;
-       border: 1px solid #c4c8d0; vertical-align: middle; margin-right: 6px; }
-.bar span { display: block; height: 100%; background: var(--accent); }
-figure { margin: 10px 0 18px; break-inside: avoid; page-break-inside: avoid; }
-figure img { display: block; width: 100%; height: auto; border: 1px solid var(--rule); }
-figcaption { color: var(--muted); font-size: 13.5px; margin-top: 5px; }
-figcaption .file { font-family: "DejaVu Sans Mono", Consolas, monospace; font-size: 12px; }
-nav.contents { margin: 6px 0 0; font-size: 14px; }
-nav.contents a { color: var(--accent); margin-right: 14px; }
-footer { margin-top: 40px; padding-top: 8px; border-top: 1px solid var(--rule);
-         color: var(--muted); font-size: 12.5px; }
-code { font-family: "DejaVu Sans Mono", Consolas, monospace; font-size: 13px; }
-@page { size: A4; margin: 14mm 12mm; }
-@media print {
-  body { max-width: none; padding: 0; font-size: 11pt; }
-  section.axis, section.comparison { break-before: page; page-break-before: always; }
-  h2, h3 { break-after: avoid; page-break-after: avoid; }
-  table, .box { break-inside: avoid; page-break-inside: avoid; }
-  nav.contents { display: none; }
-  a { color: inherit; text-decoration: none; }
+# --- the view model ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One table cell: text and how it is shown.
+
+    Attributes:
+        text: The text.
+        note: A second, smaller line (muted).
+        strong: Bold text.
+        muted: Muted text.
+        numeric: Right-aligned figures.
+        level: A verdict badge (``ok``, ``check``, ``fault``, ``skipped``).
+        status: A comparison status word (``ok``, ``warning``, ``critical``).
+        link: An anchor inside the page.
+        bar_percent: A likelihood bar before the text, 0–100.
+        colspan: Columns the cell spans.
+    """
+
+    text: str = ""
+    note: str = ""
+    strong: bool = False
+    muted: bool = False
+    numeric: bool = False
+    level: str | None = None
+    status: str | None = None
+    link: str | None = None
+    bar_percent: int | None = None
+    colspan: int = 1
+
+
+@dataclass(frozen=True)
+class Table:
+    """A table: header cells and rows of cells."""
+
+    headers: tuple[Cell, ...]
+    rows: tuple[tuple[Cell, ...], ...]
+    css: str = ""
+
+
+@dataclass(frozen=True)
+class Fact:
+    """One line of a facts list."""
+
+    label: str
+    value: str
+    code: bool = False
+    css: str = ""
+
+
+@dataclass(frozen=True)
+class Folded:
+    """A block closed by default (``<details>``): a summary line, then items and/or a table."""
+
+    summary: str
+    items: tuple[str, ...] = ()
+    table: Table | None = None
+    note: str = ""
+    css: str = "notes"
+
+
+@dataclass(frozen=True)
+class Image:
+    """An embedded plot."""
+
+    src: str
+    alt: str
+    caption: str
+    filename: str
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """The pattern along the travel and its likely causes."""
+
+    pattern: str
+    text: str
+    causes: Table | None
+
+
+@dataclass(frozen=True)
+class Offset:
+    """The direction-independent part of an axis."""
+
+    value: str
+    explanation: str
+
+
+@dataclass(frozen=True)
+class AxisView:
+    """One axis' section."""
+
+    name: str
+    anchor: str
+    level: str
+    level_text: str
+    reason: str
+    action: str
+    coulomb: str
+    viscous: str
+    travel: str
+    facts: tuple[Fact, ...]
+    notes: Folded | None
+    stribeck: Image | None
+    travel_figure: Image | None
+    diagnosis: Diagnosis | None
+    offset: Offset | None
+    models: Table | None
+    models_note: str
+    nonlinear: Folded | None
+    raw: Image | None
+    raw_note: str
+
+
+@dataclass(frozen=True)
+class ComparisonPart:
+    """One piece of the comparison section, shown in this order: heading, text, table, plot."""
+
+    heading: str = ""
+    headline: str = ""
+    items: tuple[str, ...] = ()
+    table: Table | None = None
+    figure: Image | None = None
+    note: str = ""
+    folded: Folded | None = None
+
+
+@dataclass(frozen=True)
+class ComparisonView:
+    """The comparison section."""
+
+    intro: tuple[str, ...]
+    facts: tuple[Fact, ...]
+    parts: tuple[ComparisonPart, ...]
+
+
+@dataclass(frozen=True)
+class PageView:
+    """Everything the template shows, as text."""
+
+    title: str
+    subtitle: str
+    verdicts: Table
+    verdict_note: str
+    facts: tuple[Fact, ...]
+    comparison: ComparisonView | None
+    summary: Table
+    summary_note: str
+    notes: Folded | None
+    axes: tuple[AxisView, ...]
+    settings: Folded | None
+    footer: str
+    headlines: Mapping[str, Headline] = field(default_factory=dict)
+
+
+# --- words ---------------------------------------------------------------------------------
+
+LEVEL_TEXT: Final = {"ok": "ok", "check": "check", "fault": "fault", "skipped": "not analysed"}
+"""The badge text of each verdict level."""
+
+MODEL_NAMES: Final[dict[ModelName | None, str]] = {
+    "linear": "Coulomb + viscous",
+    "stribeck": "Stribeck",
+    "extended": "extended Stribeck",
+    None: "none",
 }
-"""
+"""The friction models by the name the report gives them."""
+
+_SKIPPED_ACTION: Final = (
+    "Check the axis' channels and its part of the program, then measure it again."
+)
 
 
-def _img(figure: Figure) -> Html:
+def _c(text: object = "", **kwargs: Any) -> Cell:
+    return Cell(text=str(text), **kwargs)
+
+
+def _n(text: object) -> Cell:
+    return Cell(text=str(text), numeric=True)
+
+
+def _table(headers: Sequence[str | Cell], rows: Iterable[Sequence[Cell]], css: str = "") -> Table:
+    head = tuple(h if isinstance(h, Cell) else Cell(text=h) for h in headers)
+    return Table(head, tuple(tuple(row) for row in rows), css)
+
+
+def _plural(count: int, noun: str) -> str:
+    return f"{count} {noun if count == 1 else noun + 's'}"
+
+
+def _where(position: PositionResult) -> str:
+    """``2: 375 mm``, kept on one line."""
+    return _numbered(position.position_index, position.position_mm)
+
+
+def _numbered(index: int, position_mm: float) -> str:
+    return f"{index + 1}:\u00a0{format_mm(position_mm)}\u00a0mm"
+
+
+def _image(figure: Figure) -> Image:
     data = base64.b64encode(figure.png).decode("ascii")
-    image = Html(f'<img src="data:image/png;base64,{data}" alt="{esc(figure.alt)}">')
-    caption = tag(
-        "figcaption",
-        Html(esc(figure.caption) + " " + tag("span", f"({figure.filename})", class_="file")),
+    return Image(
+        src=f"data:image/png;base64,{data}",
+        alt=figure.alt,
+        caption=figure.caption,
+        filename=figure.filename,
     )
-    return tag("figure", Html(image + caption))
 
 
-def _table(
-    headers: Sequence[object],
-    rows: Iterable[Sequence[object]],
-    numeric: Sequence[int] = (),
-    css_class: str | None = None,
-) -> Html:
-    """A table; columns listed in ``numeric`` align right."""
+def _percent(share: float) -> str:
+    percent = share * 100
+    return f"{percent:.1f} %" if percent >= 0.1 or percent == 0 else f"{percent:.1g} %"
 
-    def cells(name: str, row: Sequence[object]) -> Html:
-        return join(
-            (tag(name, c, class_="num" if i in numeric else None) for i, c in enumerate(row)), ""
+
+# --- the top: verdict and recording --------------------------------------------------------
+
+
+def _verdict_rows(
+    sections: Sequence[AxisSection],
+    headlines: Mapping[str, Headline],
+    skipped: Mapping[str, str],
+    comparison: BaseModel | None,
+) -> tuple[Table, str]:
+    base = comparison.base if isinstance(comparison, Comparison) else None
+    compared = base is not None
+    rows = []
+    for section in sections:
+        headline = headlines[section.name]
+        verdict = headline.verdict
+        row = [
+            _c(section.name, link=section.anchor),
+            _c(LEVEL_TEXT[verdict.level], level=verdict.level),
+            _c(verdict.reason, note=f"What to do: {verdict.action}"),
+            _c(headline.coulomb_text, numeric=True),
+        ]
+        if compared:
+            row.append(_against_cell(headline.against))
+        rows.append(row)
+    for name, reason in skipped.items():
+        row = [
+            _c(name, strong=True),
+            _c(LEVEL_TEXT["skipped"], level="skipped"),
+            _c(reason, note=f"What to do: {_SKIPPED_ACTION}"),
+            _c("–", numeric=True),
+        ]
+        if compared:
+            row.append(_c("not analysed", muted=True))
+        rows.append(row)
+    headers = ["Axis", "Verdict", "Why, and what to do", "Coulomb friction"]
+    if compared:
+        headers.append(f"Against {base}")
+    note = (
+        "ok: no assembly fault shows. check: worth a look, or the measurement cannot show "
+        "the assembly fully. fault: an assembly fault; find it before the machine is shipped "
+        "or used. Coulomb friction: the mean over the measuring positions and both "
+        "directions, the lowest and highest position in brackets."
+    )
+    if compared:
+        note += (
+            " With a comparison the verdict is the worse of the axis' own and its change "
+            "against the reference."
         )
-
-    body = join(tag("tr", cells("td", row)) for row in rows)
-    head = cells("th", headers)
-    opening = Html("<table>") if css_class is None else Html(f'<table class="{esc(css_class)}">')
-    return Html(f"{opening}<thead><tr>{head}</tr></thead><tbody>\n{body}\n</tbody></table>")
+    return _table(headers, rows, css="verdicts"), note
 
 
-def _facts(items: Iterable[tuple[str, object]]) -> Html:
-    parts = join((Html(tag("dt", k) + tag("dd", v)) for k, v in items), "")
-    return tag("dl", parts, class_="facts")
+def _against_cell(against: AxisComparison | None) -> Cell:
+    if against is None:
+        return _c("not compared", muted=True)
+    return _c(against.status, status=against.status, note=against.change)
 
 
-def _yes_no(value: bool) -> Html:
-    return tag("span", "yes" if value else "no", class_="yes" if value else "no")
+def _recording_facts(results: Results, recording: Recording | None) -> list[Fact]:
+    """Samples, duration, how the recording ended and what it lost: never hidden."""
+    info = results.recording
+    samples, duration_s, status = info.samples, info.duration_s, info.status
+    gaps, lost, share, events = info.gaps, info.gap_samples, info.gap_share, info.gap_events
+    if samples is None and recording is not None:
+        samples = len(recording)
+        duration_s = float(recording.time_s[-1] - recording.time_s[0]) if samples else 0.0
+        status = recording.meta.status
+        gaps, lost, events = recording_gaps(recording)
+        total = samples + lost
+        share = lost / total if total else 0.0
+    facts = []
+    if samples is not None:
+        text = f"{samples}"
+        if duration_s is not None:
+            text += f" over {duration_s:.0f} s"
+        facts.append(Fact("Samples", text))
+    if samples is not None or status is not None:
+        if gaps:
+            loss = (
+                f"{_plural(gaps, 'gap')}: {_plural(lost, 'sample')}, {_percent(share)} lost"
+                if lost
+                else _plural(gaps, "gap")
+            )
+        else:
+            loss = "no sample lost"
+        text = f"{status or 'status unknown'}, {loss}"
+        if events and events != gaps:
+            text += f" (the link reported {_plural(events, 'gap event')})"
+        facts.append(Fact("Status", text, css="lost-many" if share > GAP_SHARE_HIGHLIGHT else ""))
+    return facts
 
 
-def _bar(score: float) -> Html:
-    width = max(0.0, min(1.0, score)) * 100
-    return Html(f'<span class="bar"><span style="width:{width:.0f}%"></span></span>')
-
-
-# --- numbers of an axis ----------------------------------------------------------------
-
-
-def _fits(result: AxisResult) -> list[tuple[float, str, LinearFit]]:
-    return [
-        (position.position_mm, direction, found.fit)
-        for position in result.positions
-        for direction, found in sorted(position.directions.items())
-        if found is not None and found.fit is not None
+def _facts(results: Results, recording: Recording | None) -> tuple[Fact, ...]:
+    info = results.recording
+    machine = info.machine or (recording.meta.machine if recording is not None else None)
+    facts = [
+        Fact("Machine", machine or "not named"),
+        Fact("Recording", info.directory),
+        Fact("Recorded", format_date(info.start_utc)),
+        Fact("Analysed", format_date(results.created_utc)),
+        Fact("Source", info.source or "–"),
+        *_recording_facts(results, recording),
     ]
-
-
-def _mean(values: Sequence[float]) -> float | None:
-    finite = [v for v in values if math.isfinite(v)]
-    return sum(finite) / len(finite) if finite else None
-
-
-def _coulomb_per_position(result: AxisResult) -> list[float]:
-    """Coulomb friction per position, the mean of its directions (offset taken out)."""
-    values = []
-    for position in result.positions:
-        found = [
-            d.fit.coulomb
-            for d in position.directions.values()
-            if d and d.fit and d.fit.coulomb is not None
-        ]
-        if found:
-            values.append(sum(found) / len(found))
-    return values
-
-
-def coulomb_headline(result: AxisResult) -> str:
-    """Mean Coulomb friction over positions (both directions), with its range over positions."""
-    values = _coulomb_per_position(result)
-    mean = _mean(values)
-    if mean is None:
-        return "–"
-    text = f"{format_number(mean)} {result.unit}"
-    if len(values) > 1:
-        text += f" ({format_number(min(values))}–{format_number(max(values))})"
-    return text
-
-
-def viscous_headline(result: AxisResult) -> str:
-    """Mean viscous friction per m/min."""
-    mean = _mean(
-        [
-            fit.viscous_per_mm_min * 1000
-            for _, _, fit in _fits(result)
-            if fit.viscous_per_mm_min is not None
-        ]
+    if info.config_hash:
+        facts.append(Fact("Program (config hash)", info.config_hash, code=True))
+    facts.append(
+        Fact("ncmeasure", f"{results.ncmeasure_version} (results format {results.format_version})")
     )
-    if mean is None:
-        return "–"
-    return f"{format_number(mean)} {result.unit} per m/min"
+    return tuple(facts)
 
 
-def _top_cause(dependency: PositionDependency | None) -> str:
+# --- summary -------------------------------------------------------------------------------
+
+
+def _models_count(result: AxisResult) -> str:
+    counts: dict[ModelName | None, int] = {}
+    for position in result.positions:
+        for found in position.directions.values():
+            if found is not None:
+                counts[found.model] = counts.get(found.model, 0) + 1
+    order: tuple[ModelName | None, ...] = ("linear", "stribeck", "extended", None)
+    return ", ".join(f"{MODEL_NAMES[m]} {counts[m]}" for m in order if counts.get(m)) or "–"
+
+
+def _top_cause(result: AxisResult) -> str:
+    dependency = result.position_dependency
     if dependency is None or not dependency.causes:
         return "–"
     cause = dependency.causes[0]
     return f"{CAUSE_TITLES.get(cause.cause, cause.cause)} ({cause.score * 100:.0f} %)"
 
 
-def _travel_headline(dependency: PositionDependency | None) -> str:
+def _travel_short(result: AxisResult) -> str:
+    dependency = result.position_dependency
     if dependency is None:
         return "–"
     short = SIGNATURE_SHORT.get(dependency.signature, dependency.signature)
@@ -283,57 +455,21 @@ def _offset_text(result: AxisResult) -> str:
     return f"{format_with_error(result.offset.value, result.offset.stderr)} {result.unit}"
 
 
-# --- sections --------------------------------------------------------------------------
-
-
-def _header(results: Results, recording: Recording | None, title: str) -> Html:
-    info = results.recording
-    machine = info.machine or (recording.meta.machine if recording is not None else None)
-    items: list[tuple[str, object]] = [
-        ("Machine", machine or "not named"),
-        ("Recording", info.directory),
-        ("Recorded", format_date(info.start_utc)),
-        ("Analysed", format_date(results.created_utc)),
-        ("Source", info.source or "–"),
+def _summary(
+    sections: Sequence[AxisSection], headlines: Mapping[str, Headline]
+) -> tuple[Table, str]:
+    rows = [
+        [
+            _c(section.name, link=section.anchor),
+            _c(headlines[section.name].coulomb_text),
+            _c(headlines[section.name].viscous_text),
+            _c(_travel_short(section.result)),
+            _c(_top_cause(section.result)),
+            _c(_offset_text(section.result)),
+            _c(_models_count(section.result)),
+        ]
+        for section in sections
     ]
-    if recording is not None:
-        duration = float(recording.time_s[-1] - recording.time_s[0]) if len(recording) else 0.0
-        items.append(
-            ("Samples", f"{len(recording)} over {duration:.0f} s ({recording.meta.status})")
-        )
-    if info.config_hash:
-        items.append(("Program (config hash)", Html(tag("code", info.config_hash))))
-    items.append(
-        ("ncmeasure", f"{results.ncmeasure_version} (results format {results.format_version})")
-    )
-    heading = tag("h1", title)
-    subtitle = tag(
-        "p",
-        "Friction of the feed axes, measured with the machine's own drives at constant "
-        "velocities in short windows at a few positions per axis.",
-        class_="subtitle",
-    )
-    return Html(heading + subtitle + _facts(items))
-
-
-def _summary(sections: Sequence[AxisSection], recording: Recording | None) -> Html:
-    rows = []
-    for section in sections:
-        result = section.result
-        dependency = result.position_dependency
-        fits = _fits(result)
-        accepted = sum(1 for _, _, fit in fits if fit.accepted)
-        rows.append(
-            [
-                Html(f'<a href="#{esc(section.anchor)}">{esc(section.name)}</a>'),
-                coulomb_headline(result),
-                viscous_headline(result),
-                _travel_headline(dependency),
-                _top_cause(dependency),
-                _offset_text(result),
-                f"{accepted} of {len(fits)}" if fits else "–",
-            ]
-        )
     table = _table(
         [
             "Axis",
@@ -342,295 +478,331 @@ def _summary(sections: Sequence[AxisSection], recording: Recording | None) -> Ht
             "Along the travel",
             "Most likely cause",
             "Offset",
-            "Fits accepted",
+            "Curves described by",
         ],
         rows,
     )
-    parts = [tag("h2", "Summary"), table]
-    parts.append(
-        tag(
-            "p",
-            "Coulomb friction is the velocity-independent part, viscous friction the rise "
-            "per m/min of feed. Spread along the travel is (max − min) / mean of the friction "
-            "averaged over all velocities.",
-            class_="note",
-        )
+    note = (
+        "Coulomb friction is the velocity-independent part, viscous friction the rise per "
+        "m/min of feed, both from the straight line fitted above the Stribeck region with the "
+        "offset taken out. Spread along the travel is (max − min) / mean of the friction "
+        "averaged over all velocities. The last column counts the curves (position × "
+        "direction) each friction model describes."
     )
-    warnings = [
-        f"Axis {section.name}: {text}" for section in sections for text in section.result.warnings
-    ]
-    if recording is not None:
-        warnings = [f"Recording: {p}" for p in recording.problems] + warnings
-    if warnings:
-        items = join(tag("li", w) for w in warnings)
-        parts.append(
-            tag("div", Html(tag("p", tag("strong", "Notes")) + tag("ul", items)), class_="box warn")
+    return table, note
+
+
+def _notes(sections: Sequence[AxisSection], recording: Recording | None) -> Folded | None:
+    """Recording problems, then the warnings of the analysis: each shared one once."""
+    warnings: list[str] = [f"Recording: {p}" for p in recording.problems] if recording else []
+    shared = set.intersection(*(set(s.result.warnings) for s in sections)) if sections else set()
+    if len(sections) > 1:
+        ordered = [w for w in sections[0].result.warnings if w in shared]
+        warnings.extend(f"All axes: {w}" for w in ordered)
+    else:
+        shared = set()
+    for section in sections:
+        warnings.extend(
+            f"Axis {section.name}: {w}" for w in section.result.warnings if w not in shared
         )
-    nav = join((Html(f'<a href="#{esc(s.anchor)}">Axis {esc(s.name)}</a>') for s in sections), " ")
-    parts.insert(1, tag("nav", nav, class_="contents"))
-    return tag("section", join(parts), class_="summary")
+    if not warnings:
+        return None
+    return Folded(
+        summary=f"Notes of the recording and the analysis ({len(warnings)})",
+        items=tuple(warnings),
+    )
 
 
-def _diagnosis(section: AxisSection) -> Html:
+# --- one axis ------------------------------------------------------------------------------
+
+
+def _axis_notes(section: AxisSection) -> Folded | None:
     result = section.result
-    dependency = result.position_dependency
-    parts: list[Html] = [tag("h3", "Diagnosis")]
+    items = list(result.warnings)
+    if result.coarse:
+        items.append(
+            "few samples per window: the points are uncertain and no Stribeck curve is fitted"
+        )
+    if result.velocity_quantum_mm_min > 0:
+        items.append(
+            f"the velocity is reported in steps of {format_number(result.velocity_quantum_mm_min)}"
+            " mm/min"
+        )
+    if result.current_quantum_a > 0:
+        items.append(
+            f"the current is reported in steps of {format_number(result.current_quantum_a)} A"
+        )
+    for channel, count in sorted(result.implausible_values.items()):
+        items.append(
+            f"{_plural(count, 'value')} of {channel} left out as physically impossible "
+            "(a drive's 'no value' code)"
+        )
+    if not items:
+        return None
+    return Folded(summary=f"Notes on axis {section.name} ({len(items)})", items=tuple(items))
+
+
+def _diagnosis(section: AxisSection) -> Diagnosis | None:
+    dependency = section.result.position_dependency
     if dependency is None:
-        parts.append(
-            tag(
-                "p",
-                "No position dependency in the results (one position measured, or too few "
-                "points): the assembly cannot be judged from this measurement.",
+        return None
+    trend = dependency.trend_per_100mm
+    text = (
+        f"Friction varies by {dependency.spread_percent:.0f} % along the travel "
+        f"(max − min relative to the mean); the trend is {trend:+.1f} % per 100 mm "
+        "(positive: rising towards the max end). "
+        f"Bearings: {section.bearings.describe()}."
+    )
+    causes = None
+    if dependency.causes:
+        causes = _table(
+            ["#", "Cause and what to check", _c("Likelihood", numeric=True), "Evidence"],
+            [
+                [
+                    _c(rank),
+                    _c(
+                        CAUSE_TITLES.get(cause.cause, cause.cause),
+                        strong=True,
+                        note=CAUSE_CHECKS.get(cause.cause, ""),
+                    ),
+                    _c(
+                        f"{cause.score * 100:.0f} %",
+                        numeric=True,
+                        bar_percent=round(max(0.0, min(1.0, cause.score)) * 100),
+                    ),
+                    _c(cause.evidence),
+                ]
+                for rank, cause in enumerate(dependency.causes, start=1)
+            ],
+        )
+    return Diagnosis(
+        pattern=SIGNATURE_TEXT.get(dependency.signature, dependency.signature),
+        text=text,
+        causes=causes,
+    )
+
+
+def _linear_cells(fit: LinearFit | None, points: int) -> list[Cell]:
+    """Coulomb, viscous, |v| range and χ²ᵣ of the line; a null parameter shows its reason."""
+    if fit is None:
+        return [_c("no straight-line fit", muted=True, colspan=4, note=_plural(points, "point"))]
+    reason = fit.reason or "not determined by the points"
+    cells: list[Cell] = []
+    if fit.coulomb is None and fit.viscous_per_mm_min is None:
+        cells.append(_c(reason, muted=True, colspan=2))
+    else:
+        cells.append(
+            _c(reason, muted=True)
+            if fit.coulomb is None
+            else _n(format_with_error(fit.coulomb, fit.coulomb_stderr))
+        )
+        cells.append(
+            _c(reason, muted=True)
+            if fit.viscous_per_mm_min is None
+            else _n(
+                format_with_error(
+                    fit.viscous_per_mm_min * 1000,
+                    fit.viscous_stderr * 1000 if fit.viscous_stderr is not None else None,
+                )
             )
         )
-        return join(parts)
-    signature = SIGNATURE_TEXT.get(dependency.signature, dependency.signature)
-    trend = dependency.trend_per_100mm
-    lines = [
-        tag("p", signature, class_="headline"),
-        tag(
-            "p",
-            f"Friction varies by {dependency.spread_percent:.0f} % along the travel "
-            f"(max − min relative to the mean); the trend is {trend:+.1f} % per 100 mm "
-            "(positive: rising towards the max end). "
-            f"Bearings: {section.bearings.describe()}.",
-        ),
-    ]
-    parts.append(tag("div", join(lines), class_="box"))
-    if dependency.causes:
-        rows = [
-            [
-                str(rank),
-                Html(
-                    tag("strong", CAUSE_TITLES.get(cause.cause, cause.cause))
-                    + Html("<br>")
-                    + tag("span", CAUSE_CHECKS.get(cause.cause, ""), class_="note")
-                ),
-                Html(_bar(cause.score) + esc(f"{cause.score * 100:.0f} %")),
-                cause.evidence,
-            ]
-            for rank, cause in enumerate(dependency.causes, start=1)
-        ]
-        parts.append(tag("p", "Likely causes, best first:"))
-        parts.append(
-            _table(["#", "Cause and what to check", "Likelihood", "Evidence"], rows, numeric=(2,))
-        )
-    return join(parts)
+    low, high = fit.velocity_range_mm_min
+    note = _plural(fit.n_points, "point")
+    if fit.points_below_range:
+        note += f"; {fit.points_below_range} slower left out"
+    cells.append(_c(f"{format_number(low)} – {format_number(high)}", numeric=True, note=note))
+    cells.append(_n(format_number(fit.chi2_reduced)))
+    return cells
 
 
-def _linear_rows(result: AxisResult) -> list[list[object]]:
-    rows: list[list[object]] = []
+def _models(result: AxisResult) -> Table | None:
+    unit = result.unit
+    rows = []
     for position in result.positions:
         for direction, found in sorted(position.directions.items()):
             if found is None:
                 continue
-            fit = found.fit
-            where = _where(position)
-            if fit is None:
-                rows.append([where, direction, "no fit", "", "", "", str(len(found.points)), ""])
-                continue
-            if fit.coulomb is None or fit.viscous_per_mm_min is None:
-                rows.append([where, direction, fit.reason or "not determined", "", "", "",
-                             str(fit.n_points), ""])  # fmt: skip
-                continue
-            low, high = fit.velocity_range_mm_min
+            model = _c(
+                MODEL_NAMES[found.model],
+                strong=found.model is not None,
+                muted=found.model is None,
+                note=found.model_reason,
+            )
             rows.append(
                 [
-                    where,
-                    direction,
-                    format_with_error(fit.coulomb, fit.coulomb_stderr),
-                    format_with_error(
-                        fit.viscous_per_mm_min * 1000, (fit.viscous_stderr or 0.0) * 1000
-                    ),
-                    format_number(fit.chi2_reduced),
-                    _yes_no(fit.accepted),
-                    str(fit.n_points),
-                    f"{low:g} – {high:g}",
+                    _c(_where(position)),
+                    _c(direction),
+                    model,
+                    *_linear_cells(found.fit, len(found.points)),
                 ]
             )
-    return rows
+    if not rows:
+        return None
+    return _table(
+        [
+            "Position",
+            "Direction",
+            "Model, and why",
+            _c(f"Coulomb [{unit}]", numeric=True),
+            _c(f"Viscous [{unit} per m/min]", numeric=True),
+            _c("over |v| [mm/min]", numeric=True),
+            _c("χ²ᵣ", numeric=True),
+        ],
+        rows,
+    )
 
 
-def _parameter(fit: NonlinearFit, name: str, scale: float = 1.0) -> str:
+_MODELS_NOTE: Final = (
+    "The model that describes the curve's points within their scatter: Coulomb + viscous "
+    "friction (a straight line over speed), the Stribeck model (friction rising towards "
+    "standstill) or the extended Stribeck model; 'none' when no model does. A Stribeck hump "
+    "is friction, not a fault. Coulomb and viscous friction are those of the straight line, "
+    "fitted by least squares over the speeds given (above the Stribeck region), ± one "
+    "standard error, with the axis' offset taken out; χ²ᵣ is its reduced χ² (the line "
+    "describes the points for χ²ᵣ below 10)."
+)
+
+
+def _parameter(fit: NonlinearFit, name: str, scale: float = 1.0) -> Cell:
     """A parameter as value ± half its 95 % interval, or a dash when the model lacks it."""
     if fit.parameters is None or name not in fit.parameters:
-        return "–"
+        return _n("–")
     value = fit.parameters[name] * scale
     interval = fit.ci95.get(name) if fit.ci95 is not None else None
     if interval is None:
-        return format_number(value)
-    return format_with_error(value, (interval[1] - interval[0]) / 2 * scale)
+        return _n(format_number(value))
+    return _n(format_with_error(value, (interval[1] - interval[0]) / 2 * scale))
 
 
-def _nonlinear_rows(result: AxisResult) -> list[list[object]]:
-    rows: list[list[object]] = []
+_NONLINEAR_PARAMETERS: Final = (
+    ("T_C", 1.0),
+    ("T_S", 1.0),
+    ("v_S", 1.0),
+    ("delta", 1.0),
+    ("b", 1000.0),
+    ("f_w", 1.0),
+    ("k", 1.0),
+)
+
+
+def _nonlinear_fits(found: DirectionResult) -> list[NonlinearFit]:
+    return [fit for fit in (found.stribeck, found.extended) if fit is not None]
+
+
+def _nonlinear(result: AxisResult) -> Folded | None:
+    unit = result.unit
+    rows = []
     for position in result.positions:
         for direction, found in sorted(position.directions.items()):
             if found is None:
                 continue
-            for fit in _nonlinear(found):
+            for fit in _nonlinear_fits(found):
+                name = MODEL_NAMES[fit.model]
+                if fit.parameters is None:
+                    values = [
+                        _c(
+                            fit.reason or "not identifiable",
+                            muted=True,
+                            colspan=len(_NONLINEAR_PARAMETERS),
+                        )
+                    ]
+                    model = _c(name)
+                else:
+                    values = [_parameter(fit, p, scale) for p, scale in _NONLINEAR_PARAMETERS]
+                    model = _c(
+                        name,
+                        note="" if fit.identifiable else f"not drawn: {fit.reason or 'uncertain'}",
+                    )
                 rows.append(
                     [
-                        _where(position),
-                        direction,
-                        fit.model,
-                        _parameter(fit, "T_C"),
-                        _parameter(fit, "T_S"),
-                        _parameter(fit, "v_S"),
-                        _parameter(fit, "delta"),
-                        _parameter(fit, "b", 1000.0),
-                        _parameter(fit, "f_w"),
-                        _parameter(fit, "k"),
-                        format_number(fit.chi2_reduced),
-                        _yes_no(fit.identifiable),
+                        _c(_where(position)),
+                        _c(direction),
+                        model,
+                        *values,
+                        _n(format_number(fit.chi2_reduced)),
                     ]
                 )
-    return rows
+    if not rows:
+        return None
+    table = _table(
+        [
+            "Position",
+            "Direction",
+            "Model",
+            _c(f"T_C [{unit}]", numeric=True),
+            _c(f"T_S [{unit}]", numeric=True),
+            _c("v_S [mm/min]", numeric=True),
+            _c("δ", numeric=True),
+            _c(f"b [{unit} per m/min]", numeric=True),
+            _c(f"f_w [{unit}]", numeric=True),
+            _c("k", numeric=True),
+            _c("χ²ᵣ", numeric=True),
+        ],
+        rows,
+        css="compact",
+    )
+    return Folded(
+        summary=f"Stribeck model fits ({_plural(len(rows), 'fit')})",
+        table=table,
+        note="Stribeck model T = T_C + (T_S − T_C)·exp(−(|v|/v_S)^δ) + b·|v| with T_C the "
+        "Coulomb friction, T_S the static (breakaway) friction and v_S the Stribeck velocity; "
+        "the extended model adds a rolling term f_w·(|v| / 1 m/min)^k. ± half the 95 % "
+        "confidence interval. A fit the points do not determine shows why instead of "
+        "parameters; only identifiable fits are drawn in the plot.",
+        css="fits",
+    )
 
 
-def _where(position: PositionResult) -> str:
-    """``2: 375 mm``, kept on one line."""
-    return f"{position.position_index + 1}: {format_mm(position.position_mm)}\u00a0mm"
-
-
-def _nonlinear(found: DirectionResult) -> list[NonlinearFit]:
-    return [fit for fit in (found.stribeck, found.extended) if fit is not None]
-
-
-def _fit_tables(result: AxisResult) -> Html:
-    unit = result.unit
-    parts: list[Html] = [tag("h3", "Fits")]
-    linear = _linear_rows(result)
-    if linear:
-        parts.append(
-            _table(
-                [
-                    "Position",
-                    "Direction",
-                    f"Coulomb [{unit}]",
-                    f"Viscous [{unit} per m/min]",
-                    "χ² reduced",
-                    "Accepted",
-                    "Points",
-                    "|v| range [mm/min]",
-                ],
-                linear,
-                numeric=(2, 3, 4, 6, 7),
-            )
-        )
-        parts.append(
-            tag(
-                "p",
-                "Coulomb + viscous friction by linear least squares, ± one standard error. "
-                "A fit is accepted when its reduced χ² stays below 10 (the straight line "
-                "describes the points within their scatter); a rejected fit at low speed "
-                "usually means a pronounced Stribeck effect.",
-                class_="note",
-            )
-        )
-    else:
-        parts.append(tag("p", "No fits in the results.", class_="note"))
-    nonlinear = _nonlinear_rows(result)
-    if nonlinear:
-        parts.append(
-            _table(
-                [
-                    "Position",
-                    "Direction",
-                    "Model",
-                    f"T_C [{unit}]",
-                    f"T_S [{unit}]",
-                    "v_S [mm/min]",
-                    "δ",
-                    f"b [{unit} per m/min]",
-                    f"f_w [{unit}]",
-                    "k",
-                    "χ² reduced",
-                    "Identifiable",
-                ],
-                nonlinear,
-                numeric=tuple(range(3, 11)),
-                css_class="compact",
-            )
-        )
-        parts.append(
-            tag(
-                "p",
-                "Stribeck model T = T_C + (T_S − T_C)·exp(−(|v|/v_S)^δ) + b·|v| with T_C the "
-                "Coulomb friction, T_S the static (breakaway) friction and v_S the Stribeck "
-                "velocity; the extended model adds a rolling term f_w·(|v| / 1 m/min)^k. "
-                "± half the 95 % confidence interval. Only identifiable fits (every interval "
-                "narrower than its value, no parameter at a bound) are drawn in the plot.",
-                class_="note",
-            )
-        )
-    return join(parts)
-
-
-def _axis(section: AxisSection) -> Html:
+def _axis(section: AxisSection, headline: Headline) -> AxisView:
     result = section.result
-    facts: list[tuple[str, object]] = [
-        ("Quantity", "friction torque in Nm" if result.unit == "Nm" else "motor current in A"),
-        (
+    verdict = headline.verdict
+    positions = ", ".join(_where(p) for p in result.positions) or "–"
+    facts = (
+        Fact("Quantity", "friction torque in Nm" if result.unit == "Nm" else "motor current in A"),
+        Fact(
             "Torque constant",
             f"{result.torque_constant_nm_per_a:g} Nm/A"
             if result.torque_constant_nm_per_a is not None
             else "not known (values are motor current)",
         ),
-        ("Positions", ", ".join(f"{format_mm(p.position_mm)} mm" for p in result.positions) or "–"),
-        ("Windows", f"{result.windows} ({result.window_source}), {result.samples_used} samples"),
-        ("Bearings", section.bearings.describe()),
-    ]
-    parts: list[Html] = [
-        tag("h2", f"Axis {section.name}"),
-        _facts(facts),
-        tag(
-            "p",
-            Html(
-                tag("span", "Coulomb friction ", class_="headline")
-                + tag("span", coulomb_headline(result), class_="headline")
-                + esc(" · viscous " + viscous_headline(result))
-                + esc(" · along the travel: " + _travel_headline(result.position_dependency))
-            ),
+        Fact("Positions", positions),
+        Fact(
+            "Windows", f"{result.windows} ({result.window_source}), {result.samples_used} samples"
         ),
-    ]
-    if result.warnings:
-        items = join(tag("li", w) for w in result.warnings)
-        parts.append(tag("div", tag("ul", items), class_="box warn"))
-    parts.append(tag("h3", "Friction over velocity"))
-    if section.stribeck is not None:
-        parts.append(_img(section.stribeck))
-    parts.append(tag("h3", "Friction along the travel"))
-    if section.travel is not None:
-        parts.append(_img(section.travel))
-    else:
-        parts.append(tag("p", "Only one position measured: no profile along the travel."))
-    parts.append(_diagnosis(section))
+        Fact("Bearings", section.bearings.describe()),
+    )
+    offset = None
     if result.offset is not None:
-        parts.append(tag("h3", "Offset (gravity or bias)"))
-        offset = result.offset
-        parts.append(
-            tag(
-                "div",
-                Html(
-                    tag(
-                        "p",
-                        f"{format_with_error(offset.value, offset.stderr)} {result.unit}"
-                        + ("" if offset_is_significant(offset) else " (not significant)"),
-                        class_="headline",
-                    )
-                    + tag("p", offset.explanation)
-                ),
-                class_="box",
-            )
+        offset = Offset(
+            value=f"{format_with_error(result.offset.value, result.offset.stderr)} {result.unit}"
+            + ("" if offset_is_significant(result.offset) else " (not significant)"),
+            explanation=result.offset.explanation,
         )
-    parts.append(_fit_tables(result))
-    parts.append(tag("h3", "Raw data"))
-    if section.raw is not None:
-        parts.append(_img(section.raw))
-    if section.raw_note:
-        parts.append(tag("p", section.raw_note, class_="note"))
-    return tag("section", join(parts), class_="axis", id=section.anchor)
+    return AxisView(
+        name=section.name,
+        anchor=section.anchor,
+        level=verdict.level,
+        level_text=LEVEL_TEXT[verdict.level],
+        reason=verdict.reason,
+        action=verdict.action,
+        coulomb=headline.coulomb_text,
+        viscous=headline.viscous_text,
+        travel=headline.travel_text,
+        facts=facts,
+        notes=_axis_notes(section),
+        stribeck=_image(section.stribeck) if section.stribeck else None,
+        travel_figure=_image(section.travel) if section.travel else None,
+        diagnosis=_diagnosis(section),
+        offset=offset,
+        models=_models(result),
+        models_note=_MODELS_NOTE,
+        nonlinear=_nonlinear(result),
+        raw=_image(section.raw) if section.raw else None,
+        raw_note=section.raw_note or "",
+    )
+
+
+# --- comparison ----------------------------------------------------------------------------
 
 
 def _value_text(value: Any) -> str:
@@ -644,56 +816,58 @@ def _value_text(value: Any) -> str:
     return "–" if value is None else str(value)
 
 
-def _model_table(model: BaseModel, skip: Sequence[str] = ()) -> Html:
+def _model_table(model: BaseModel, skip: Sequence[str] = ()) -> Table | None:
     rows = [
-        [name.replace("_", " "), _value_text(getattr(model, name))]
+        [_c(name.replace("_", " ")), _c(_value_text(getattr(model, name)))]
         for name in type(model).model_fields
         if name not in skip
     ]
-    return _table(["Item", "Value"], rows) if rows else Html("")
+    return _table(["Item", "Value"], rows) if rows else None
 
 
-def _findings(findings: Sequence[Any]) -> Html:
-    models = [f for f in findings if isinstance(f, BaseModel)]
-    if models and len(models) == len(findings):
-        columns: list[str] = []
-        for model in models:
-            for name in type(model).model_fields:
-                if name not in columns:
-                    columns.append(name)
-        rows = [[_value_text(getattr(m, c, None)) for c in columns] for m in models]
-        return _table([c.replace("_", " ") for c in columns], rows)
-    return tag("ul", join(tag("li", _value_text(f)) for f in findings))
-
-
-def _generic_comparison(comparison: BaseModel) -> Html:
+def _generic_comparison(comparison: BaseModel) -> ComparisonView:
     """Any other comparison model: its summary and findings first, the rest as a table."""
-    parts: list[Html] = []
+    parts: list[ComparisonPart] = []
     summary = getattr(comparison, "summary", None)
     if isinstance(summary, str):
-        parts.append(tag("div", tag("p", summary, class_="headline"), class_="box"))
+        parts.append(ComparisonPart(headline=summary))
     elif isinstance(summary, BaseModel):
-        parts.append(_model_table(summary))
+        parts.append(ComparisonPart(table=_model_table(summary)))
     elif isinstance(summary, Sequence) and summary:
-        items = join(tag("li", _value_text(s)) for s in summary)
-        parts.append(tag("div", tag("ul", items), class_="box"))
+        parts.append(ComparisonPart(items=tuple(_value_text(s) for s in summary)))
     findings = getattr(comparison, "findings", None)
     if isinstance(findings, Sequence) and not isinstance(findings, str) and findings:
-        parts.append(tag("h3", "Findings"))
-        parts.append(_findings(findings))
-    parts.append(tag("h3", "Details"))
-    parts.append(_model_table(comparison, skip=("summary", "findings")))
-    return join(parts)
+        models = [f for f in findings if isinstance(f, BaseModel)]
+        if models and len(models) == len(findings):
+            columns: list[str] = []
+            for found in models:
+                columns.extend(n for n in type(found).model_fields if n not in columns)
+            table = _table(
+                [c.replace("_", " ") for c in columns],
+                [[_c(_value_text(getattr(m, c, None))) for c in columns] for m in models],
+            )
+            parts.append(ComparisonPart(heading="Findings", table=table))
+        else:
+            parts.append(
+                ComparisonPart(heading="Findings", items=tuple(_value_text(f) for f in findings))
+            )
+    parts.append(
+        ComparisonPart(heading="Details", table=_model_table(comparison, ("summary", "findings")))
+    )
+    return ComparisonView(intro=(), facts=(), parts=tuple(parts))
 
 
-def _status(status: str) -> Html:
-    return tag("span", status, class_=f"status-{status}")
+def _group_where(group: GroupDeviation) -> str:
+    where = _numbered(group.position_index, group.position_mm)
+    return f"axis {group.axis}, {where}, {group.direction}"
 
 
 _MAX_PROBLEMS = 15
 
 
-def _known_comparison(comparison: Comparison, figure: Figure | None) -> Html:
+def _known_comparison(
+    comparison: Comparison, figure: Figure | None, axes: Sequence[str]
+) -> ComparisonView:
     limits = comparison.limits
     if comparison.mode == "lifetime":
         intro = (
@@ -705,158 +879,243 @@ def _known_comparison(comparison: Comparison, figure: Figure | None) -> Html:
             f"Machines of one type against {comparison.base!r}: the change per position "
             "and direction, and the spread of the fleet."
         )
-    parts: list[Html] = [
-        tag("p", intro),
-        _facts(
-            [
-                ("Base", comparison.base),
-                ("Compared", ", ".join(comparison.others)),
-                (
-                    "Limits",
-                    f"warning beyond ±{limits.warning_percent:g} %, critical beyond "
-                    f"±{limits.critical_percent:g} % (median change over the velocities)",
-                ),
-                ("Compared on", format_date(comparison.created_utc)),
-            ]
+    facts = (
+        Fact("Base", comparison.base),
+        Fact("Compared", ", ".join(comparison.others)),
+        Fact(
+            "Limits",
+            f"warning beyond ±{limits.warning_percent:g} %, critical beyond "
+            f"±{limits.critical_percent:g} % (median change over the velocities)",
         ),
-    ]
-    if comparison.findings:
-        items = join(tag("li", f) for f in comparison.findings)
-        parts.append(tag("div", tag("ul", items), class_="box"))
-    if comparison.runs:
-        rows = [
-            [
-                run.label,
-                run.machine or "–",
-                str(run.points),
-                f"{run.max_abs_deviation_percent:.1f} %",
-                run.worst or "–",
-                _status(run.status),
-            ]
-            for run in comparison.runs
-        ]
-        parts.append(
-            _table(
-                ["Run", "Machine", "Points", "Largest change", "Where", "Status"],
-                rows,
-                numeric=(2, 3),
+        Fact("Compared on", format_date(comparison.created_utc)),
+    )
+    parts: list[ComparisonPart] = []
+    rows = []
+    names = list(dict.fromkeys([*axes, *(g.axis for g in comparison.groups)]))
+    for label in comparison.others:
+        for axis in names:
+            found = axis_comparison(comparison, axis, label)
+            if found is None:
+                continue
+            change = next(
+                (c for c in comparison.changes if c.label == label and c.axis == axis), None
             )
-        )
-    if figure is not None:
-        parts.append(_img(figure))
-    if comparison.changes:
-        rows = [
-            [
-                change.label,
-                change.axis,
-                f"{change.mean_change_percent:+.1f} %",
-                SIGNATURE_SHORT[change.signature],
-                CAUSE_TITLES[change.causes[0].cause],
-                f"{change.causes[0].score:.2f}",
-            ]
-            for change in comparison.changes
-            if change.causes
-        ]
-        parts.append(tag("h3", "Likely cause of the change"))
-        parts.append(
-            _table(
-                ["Run", "Axis", "Mean change", "Change along the travel", "Likely cause", "Score"],
-                rows,
-                numeric=(2, 5),
+            cause = change.causes[0] if change is not None and change.causes else None
+            rows.append(
+                [
+                    _c(label),
+                    _c(axis),
+                    _c(found.status, status=found.status),
+                    _c(found.change),
+                    _c(
+                        CAUSE_TITLES.get(cause.cause, cause.cause) if cause else "–",
+                        strong=cause is not None,
+                        note=f"{cause.evidence} (score {cause.score:.2f})" if cause else "",
+                    ),
+                ]
             )
-        )
+    if rows:
         parts.append(
-            tag(
-                "p",
-                "From the ratio against the base per velocity and position, so the "
+            ComparisonPart(
+                heading="Change per axis and likely cause",
+                table=_table(
+                    ["Run", "Axis", "Status", "Change", "Likely cause of the change"], rows
+                ),
+                note="The status is the worst of the axis' positions and directions. The "
+                "cause comes from the ratio against the base per velocity and position, so the "
                 "machine's own position dependency cancels; a change alike at every position "
                 "beyond the warning limit is a global offset (preload, guide carriage, "
                 "lubricant).",
-                class_="note",
             )
         )
+    if comparison.runs:
+        run_rows = []
+        for run in comparison.runs:
+            groups = [g for g in comparison.groups if g.label == run.label]
+            worst = max(groups, key=lambda g: abs(g.median_deviation_percent), default=None)
+            where = (
+                f"{_group_where(worst)}: {worst.median_deviation_percent:+.1f} %"
+                if worst is not None
+                else "–"
+            )
+            run_rows.append(
+                [
+                    _c(run.label),
+                    _c(run.machine or "–"),
+                    _n(run.points),
+                    _n(f"{run.max_abs_deviation_percent:.1f} %"),
+                    _c(where),
+                    _c(run.status, status=run.status),
+                ]
+            )
+        parts.append(
+            ComparisonPart(
+                heading="Runs",
+                table=_table(
+                    [
+                        "Run",
+                        "Machine",
+                        _c("Points", numeric=True),
+                        _c("Largest change", numeric=True),
+                        "Where",
+                        "Status",
+                    ],
+                    run_rows,
+                ),
+            )
+        )
+    if figure is not None:
+        parts.append(ComparisonPart(figure=_image(figure)))
     if comparison.groups:
-        rows = [
+        group_rows = [
             [
-                group.label,
-                group.axis,
-                f"{group.position_index + 1}: {format_mm(group.position_mm)}\u00a0mm",
-                group.direction,
-                str(group.points),
-                f"{group.median_deviation_percent:+.1f} %",
-                f"{group.max_abs_point_deviation_percent:.1f} %",
-                _status(group.status),
+                _c(group.label),
+                _c(group.axis),
+                _c(_numbered(group.position_index, group.position_mm)),
+                _c(group.direction),
+                _n(group.points),
+                _n(f"{group.median_deviation_percent:+.1f} %"),
+                _n(f"{group.max_abs_point_deviation_percent:.1f} %"),
+                _c(group.status, status=group.status),
             ]
             for group in comparison.groups
         ]
-        parts.append(tag("h3", "Change per position and direction"))
         parts.append(
-            _table(
-                [
-                    "Run",
-                    "Axis",
-                    "Position",
-                    "Direction",
-                    "Velocities",
-                    "Median change",
-                    "Largest single change",
-                    "Status",
-                ],
-                rows,
-                numeric=(4, 5, 6),
+            ComparisonPart(
+                heading="Change per position and direction",
+                table=_table(
+                    [
+                        "Run",
+                        "Axis",
+                        "Position",
+                        "Direction",
+                        _c("Velocities", numeric=True),
+                        _c("Median change", numeric=True),
+                        _c("Largest single change", numeric=True),
+                        "Status",
+                    ],
+                    group_rows,
+                ),
             )
         )
     for fleet in comparison.fleet:
-        parts.append(tag("h3", f"Fleet, axis {fleet.axis}"))
-        rows = [
+        fleet_rows = [
             [
-                run,
-                f"{format_number(mean)} {fleet.unit}",
-                f"{z:+.1f}",
-                "outlier" if run in fleet.outliers else "",
+                _c(run),
+                _n(f"{format_number(mean)} {fleet.unit}"),
+                _n(f"{z:+.1f}"),
+                _c("outlier" if run in fleet.outliers else ""),
             ]
             for run, mean, z in zip(fleet.runs, fleet.mean_friction, fleet.modified_z, strict=False)
         ]
-        parts.append(_table(["Run", "Mean friction", "Modified z-score", ""], rows, numeric=(1, 2)))
         parts.append(
-            tag(
-                "p",
-                f"Mean {format_number(fleet.mean)} {fleet.unit}, spread "
+            ComparisonPart(
+                heading=f"Fleet, axis {fleet.axis}",
+                table=_table(
+                    [
+                        "Run",
+                        _c("Mean friction", numeric=True),
+                        _c("Modified z-score", numeric=True),
+                        "",
+                    ],
+                    fleet_rows,
+                ),
+                note=f"Mean {format_number(fleet.mean)} {fleet.unit}, spread "
                 f"{fleet.spread_percent:.1f} % (max − min over the mean), standard deviation "
                 f"{format_number(fleet.std)} {fleet.unit}, over {fleet.common_points} points "
                 "measured in every run.",
-                class_="note",
             )
         )
     if comparison.problems:
-        shown = comparison.problems[:_MAX_PROBLEMS]
-        notes = [tag("li", problem) for problem in shown]
+        shown = list(comparison.problems[:_MAX_PROBLEMS])
         if len(comparison.problems) > len(shown):
-            notes.append(tag("li", f"… and {len(comparison.problems) - len(shown)} more"))
+            shown.append(f"… and {len(comparison.problems) - len(shown)} more")
         parts.append(
-            tag(
-                "div",
-                Html(tag("p", tag("strong", "Not compared")) + tag("ul", join(notes))),
-                class_="box warn",
+            ComparisonPart(
+                folded=Folded(
+                    summary=f"Not compared ({len(comparison.problems)})", items=tuple(shown)
+                )
             )
         )
-    return join(parts)
+    return ComparisonView(intro=(intro,), facts=facts, parts=tuple(parts))
 
 
-def _comparison(comparison: BaseModel, figure: Figure | None) -> Html:
-    body = (
-        _known_comparison(comparison, figure)
-        if isinstance(comparison, Comparison)
-        else _generic_comparison(comparison)
-    )
-    return tag("section", Html(tag("h2", "Comparison") + body), class_="comparison")
+# --- the page ------------------------------------------------------------------------------
 
 
-def _settings(settings: Mapping[str, object]) -> Html:
+def _settings(settings: Mapping[str, object]) -> Folded | None:
     if not settings:
-        return Html("")
-    rows = [[key, _value_text(value)] for key, value in sorted(settings.items())]
-    return join([tag("h3", "Analysis settings"), _table(["Setting", "Value"], rows)])
+        return None
+    rows = [[_c(key), _c(_value_text(value))] for key, value in sorted(settings.items())]
+    return Folded(
+        summary=f"Analysis settings ({len(rows)})",
+        table=_table(["Setting", "Value"], rows),
+        css="settings",
+    )
+
+
+def page_view(
+    results: Results,
+    sections: Sequence[AxisSection],
+    *,
+    title: str,
+    recording: Recording | None = None,
+    comparison: BaseModel | None = None,
+    comparison_figure: Figure | None = None,
+) -> PageView:
+    """What the page shows, as text: the view model :func:`render_page` renders.
+
+    With a :class:`~ncmeasure.analysis.compare.Comparison`, each axis' verdict
+    is combined with its change against the base (the last compared run's:
+    the run the report shows).
+    """
+    headlines: dict[str, Headline] = {}
+    for section in sections:
+        against = (
+            axis_comparison(comparison, section.name)
+            if isinstance(comparison, Comparison)
+            else None
+        )
+        headlines[section.name] = axis_headline(section.result, against)
+    verdicts, verdict_note = _verdict_rows(sections, headlines, results.skipped, comparison)
+    summary, summary_note = _summary(sections, headlines)
+    compared: ComparisonView | None = None
+    if isinstance(comparison, Comparison):
+        compared = _known_comparison(
+            comparison, comparison_figure, [section.name for section in sections]
+        )
+    elif comparison is not None:
+        compared = _generic_comparison(comparison)
+    return PageView(
+        title=title,
+        subtitle="Friction of the feed axes, measured with the machine's own drives at constant "
+        "velocities in short windows at a few positions per axis.",
+        verdicts=verdicts,
+        verdict_note=verdict_note,
+        facts=_facts(results, recording),
+        comparison=compared,
+        summary=summary,
+        summary_note=summary_note,
+        notes=_notes(sections, recording),
+        axes=tuple(_axis(section, headlines[section.name]) for section in sections),
+        settings=_settings(results.settings),
+        footer=f"Written by ncmeasure {__version__} from results of ncmeasure "
+        f"{results.ncmeasure_version}, analysed {format_date(results.created_utc)}.",
+        headlines=headlines,
+    )
+
+
+@functools.cache
+def _template() -> jinja2.Template:
+    environment = SandboxedEnvironment(
+        loader=jinja2.PackageLoader("ncmeasure.report", "templates"),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+        keep_trailing_newline=True,
+    )
+    return environment.get_template("report.html.j2")
 
 
 def render_page(
@@ -868,26 +1127,13 @@ def render_page(
     comparison: BaseModel | None = None,
     comparison_figure: Figure | None = None,
 ) -> str:
-    """The whole report as one HTML document."""
-    body = [
-        _header(results, recording, title),
-        _summary(sections, recording),
-        *(_axis(section) for section in sections),
-    ]
-    if comparison is not None:
-        body.append(_comparison(comparison, comparison_figure))
-    body.append(tag("section", _settings(results.settings), class_="settings"))
-    body.append(
-        tag(
-            "footer",
-            f"Written by ncmeasure {__version__} from results of ncmeasure "
-            f"{results.ncmeasure_version}, analysed {format_date(results.created_utc)}.",
-        )
+    """The whole report as one HTML document (see the module for what it shows)."""
+    view = page_view(
+        results,
+        sections,
+        title=title,
+        recording=recording,
+        comparison=comparison,
+        comparison_figure=comparison_figure,
     )
-    return (
-        "<!DOCTYPE html>\n"
-        '<html lang="en">\n<head>\n<meta charset="utf-8">\n'
-        '<meta name="viewport" content="width=device-width, initial-scale=1">\n'
-        f"<title>{esc(title)}</title>\n<style>{CSS}</style>\n</head>\n<body>\n"
-        f"{join(body)}\n</body>\n</html>\n"
-    )
+    return _template().render(page=view)

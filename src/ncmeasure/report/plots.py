@@ -31,7 +31,7 @@ from matplotlib.ticker import FuncFormatter
 from numpy.typing import NDArray
 
 from ncmeasure.analysis.compare import Comparison
-from ncmeasure.analysis.results import AxisResult, DirectionResult, NonlinearFit
+from ncmeasure.analysis.results import AxisResult, DirectionResult, NonlinearFit, VelocityProfile
 from ncmeasure.errors import OutputError
 from ncmeasure.recording import Recording
 from ncmeasure.report.bearings import BearingLayout
@@ -359,11 +359,43 @@ def _mark_bearings(ax: Axes, bearings: BearingLayout, positions: Sequence[float]
         )
 
 
+def _number_positions(ax: Axes, result: AxisResult, averages: Sequence[VelocityProfile]) -> None:
+    """Ticks at the measuring positions, ``1: 5 mm``, and the numbers on the average's points.
+
+    The numbers are the ones the tables and the diagnosis use (position index + 1).
+    """
+    numbered = {p.position_mm: p.position_index + 1 for p in result.positions}
+    for profile in averages:
+        numbers = profile.position_numbers or [numbered.get(x, 0) for x in profile.positions_mm]
+        for number, x, y in zip(numbers, profile.positions_mm, profile.values, strict=False):
+            ax.annotate(
+                str(number),
+                (x, abs(y)),
+                xytext=(0, 9),
+                textcoords="offset points",
+                ha="center",
+                va="bottom",
+                fontsize=9,
+                fontweight="bold",
+                color=INK,
+                bbox={"boxstyle": "round,pad=0.15", "facecolor": "white", "edgecolor": "none"},
+                zorder=5,
+            )
+    if numbered:
+        places = sorted(numbered)
+        many = len(places) > 7
+        ax.set_xticks(
+            places,
+            [f"{numbered[x]}" if many else f"{numbered[x]}: {format_mm(x)} mm" for x in places],
+        )
+
+
 @_styled
 def plot_travel(axis: str, result: AxisResult, bearings: BearingLayout) -> Figure:
     """Friction along the travel: one thin line per velocity, the average bold.
 
-    The travel ends carry the fixed and loose bearing. Values are friction
+    The travel ends carry the fixed and loose bearing; the measuring positions
+    are numbered as in the report's tables (``1: 5 mm``). Values are friction
     magnitudes (the sign of the direction removed).
 
     Args:
@@ -412,6 +444,7 @@ def plot_travel(axis: str, result: AxisResult, bearings: BearingLayout) -> Figur
         )
     positions = [x for p in dependency.profiles for x in p.positions_mm]
     _mark_bearings(ax, bearings, positions)
+    _number_positions(ax, result, averages)
     low, high = ax.get_ylim()
     ax.set_ylim(min(0.0, low), high * 1.08)
     if speeds:
@@ -419,7 +452,7 @@ def plot_travel(axis: str, result: AxisResult, bearings: BearingLayout) -> Figur
         bar = figure.colorbar(mappable, ax=ax, pad=0.01, fraction=0.035)
         bar.set_label("velocity of the thin lines [mm/min]", fontsize=8.5)
         bar.ax.tick_params(labelsize=8)
-    ax.set_xlabel("position along the travel [mm]")
+    ax.set_xlabel("measuring position (number: place along the travel)")
     ax.set_ylabel(_unit_label(result))
     ax.set_title(
         _plain(f"Axis {axis}: friction along the travel"),

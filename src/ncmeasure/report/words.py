@@ -12,6 +12,7 @@ import math
 from typing import Final
 
 from ncmeasure.analysis.results import CauseName, Signature
+from ncmeasure.analysis.summary import format_number
 
 __all__ = [
     "CAUSE_CHECKS",
@@ -87,29 +88,6 @@ CAUSE_CHECKS: Final[dict[CauseName, str]] = {
     ),
 }
 """What a cause does to friction and what to check, per cause."""
-
-
-def format_number(value: float | None, digits: int = 3) -> str:
-    """A number for a technician: about ``digits`` significant figures, no exponent.
-
-    Args:
-        value: The number; ``None`` or NaN give an en dash.
-        digits: Significant figures for ordinary magnitudes.
-
-    Returns:
-        E.g. ``1.62``, ``12.4``, ``7500``, ``0.0123``; ``-`` signs as usual.
-    """
-    if value is None or not math.isfinite(value):
-        return "–"
-    if value == 0:
-        return "0"
-    magnitude = math.floor(math.log10(abs(value)))
-    if magnitude >= digits - 1:
-        return f"{value:.0f}"
-    if magnitude < -4:
-        return f"{value:.{digits - 1}e}"
-    decimals = digits - 1 - magnitude
-    return f"{value:.{decimals}f}"
 
 
 def _decimals(value: float, significant: int) -> int:

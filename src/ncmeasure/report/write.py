@@ -79,11 +79,14 @@ def write_report(
 ) -> Path:
     """Write the friction report as one self-contained HTML file, PNGs beside it.
 
-    Per axis: Stribeck curves per position and direction with the fits,
-    friction along the travel with the bearings marked, the diagnosis in plain
-    words, the offset, the fit tables and (with a recording) a stretch of raw
-    data with the cut windows shaded; a summary at the top; the comparison at
-    the end when one is given.
+    At the top the verdict per axis (ok / check / fault, why and what to do;
+    with a comparison, combined with the axis' change against the reference)
+    and the recording (samples, status, gaps), then the comparison when one
+    is given, a summary of the numbers, and per axis: Stribeck curves per
+    position and direction with the fits, friction along the travel with the
+    bearings marked, the diagnosis in plain words, the offset, which model
+    describes each curve and (with a recording) a stretch of raw data with the
+    cut windows shaded. Notes and settings are folded away.
 
     Args:
         results: The analysis results.
@@ -95,9 +98,11 @@ def write_report(
             analysis used (see :func:`~ncmeasure.report.windows.window_times`);
             shaded in the raw data. An axis missing here has its windows found
             again in the recording with the settings in ``results.settings``.
-        comparison: A comparison with earlier results (any pydantic model; a
-            ``summary`` and ``findings`` are shown first, the other fields in
-            a table).
+        comparison: A comparison with earlier results:
+            :func:`~ncmeasure.analysis.compare.compare_results`' result, of
+            which ``results`` is the last compared run; or any pydantic model
+            (its ``summary`` and ``findings`` are shown first, the other
+            fields in a table).
         title: The page title; default ``Friction report: <machine>``.
         on_progress: Called with a :class:`ReportProgress` after every step.
 
