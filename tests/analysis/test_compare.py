@@ -149,7 +149,7 @@ def test_local_change_is_reported_as_local() -> None:
 
     comparison = compare_results(results(), [results(factor=stuck_cover)])
     assert comparison.runs[0].status == "warning"
-    assert "axis X position 2 (700 mm)" in (comparison.runs[0].worst or "")
+    assert "axis X position 3 (700 mm)" in (comparison.runs[0].worst or "")
     assert any("local cause" in line for line in comparison.findings)
     groups = {(g.axis, g.position_index, g.direction): g for g in comparison.groups}
     assert groups["X", 2, "negative"].median_deviation_percent == pytest.approx(30.0)
@@ -265,7 +265,7 @@ def test_shifted_positions_are_compared_by_index_with_a_note() -> None:
     other = results(factor=0.9, positions=[60.0, 375.0, 690.0])
     comparison = compare_results(results(), [other])
     assert len(comparison.deviations) == 2 * 3 * 2 * SPEEDS.size
-    assert any("position 0 is at 60 mm, the base's at 50 mm" in p for p in comparison.problems)
+    assert any("position 1 is at 60 mm, the base's at 50 mm" in p for p in comparison.problems)
 
 
 def test_missing_axis_and_other_quantity() -> None:

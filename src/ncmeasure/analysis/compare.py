@@ -297,11 +297,11 @@ def _match_positions(
 ) -> list[tuple[PositionResult, PositionResult]]:
     if len(base.positions) == len(other.positions):
         pairs = list(zip(base.positions, other.positions, strict=True))
-        for i, (b, o) in enumerate(pairs):
+        for b, o in pairs:
             if abs(b.position_mm - o.position_mm) > POSITION_MATCH_TOLERANCE_MM:
                 problems.append(
-                    f"{label}: axis {axis} position {i} is at {o.position_mm:g} mm, the base's "
-                    f"at {b.position_mm:g} mm; compared by index"
+                    f"{label}: axis {axis} position {b.position_index + 1} is at "
+                    f"{o.position_mm:g} mm, the base's at {b.position_mm:g} mm; compared by index"
                 )
         return pairs
     pairs = []
@@ -388,11 +388,11 @@ def _deviations(
                 if bd is None or od is None:
                     if (bd is None) != (od is None):
                         problems.append(
-                            f"{label}: axis {axis} position {bp.position_index} {direction} "
+                            f"{label}: axis {axis} position {bp.position_index + 1} {direction} "
                             f"direction measured in only one of the runs"
                         )
                     continue
-                where = f"{label}: axis {axis} position {bp.position_index} {direction}"
+                where = f"{label}: axis {axis} position {bp.position_index + 1} {direction}"
                 sign = _SIGN[direction]
                 b_off, o_off = _offset(ba), _offset(oa)
                 skipped = 0
@@ -465,8 +465,8 @@ def _modified_z(values: Sequence[float]) -> list[float]:
 
 def _ratio_table(
     points: Sequence[PointDeviation],
-) -> tuple[list[float], list[float], np.ndarray]:
-    """Positions, signed row velocities and the ratio table other/base of one axis.
+) -> tuple[list[float], list[int], list[float], np.ndarray]:
+    """Positions, their numbers, signed row velocities and the ratio table other/base of one axis.
 
     One row per direction and velocity: the directions stay separate rows, so
     each keeps its own level in the fit and their disagreement counts as
@@ -499,7 +499,7 @@ def _ratio_table(
     for j, (_, cells) in enumerate(rows):
         for k, ratio in cells.items():
             table[j, k] = ratio
-    return [mm for _, mm in columns], [v for v, _ in rows], table
+    return [mm for _, mm in columns], [i + 1 for i, _ in columns], [v for v, _ in rows], table
 
 
 def _global_score(change_percent: float, limits: Limits) -> float:
@@ -559,7 +559,7 @@ def _axis_change(
     points: Sequence[PointDeviation],
     limits: Limits,
 ) -> AxisChange:
-    positions, velocities, table = _ratio_table(points)
+    positions, numbers, velocities, table = _ratio_table(points)
     notes = []
     travel = base_axis.travel_mm
     if travel is None:
@@ -573,7 +573,12 @@ def _axis_change(
         fixed_end = "min"
         notes.append("fixed-bearing end unknown in the base: taken as the min end of the travel")
     dependency = position_dependency(
-        positions, velocities, table, travel_mm=travel, fixed_bearing_end=fixed_end
+        positions,
+        velocities,
+        table,
+        travel_mm=travel,
+        fixed_bearing_end=fixed_end,
+        numbers=numbers,
     )
     mean = float(np.mean([p.deviation_percent for p in points]))
     average = next((p for p in dependency.profiles if p.velocity_mm_min is None), None)
@@ -776,7 +781,7 @@ def compare_results(
                 points=len(points),
                 max_abs_deviation_percent=abs(worst.median_deviation_percent),
                 worst=(
-                    f"axis {worst.axis} position {worst.position_index} "
+                    f"axis {worst.axis} position {worst.position_index + 1} "
                     f"({worst.position_mm:g} mm) {worst.direction}: "
                     f"{worst.median_deviation_percent:+.1f} % (median of {worst.points} "
                     "velocities)"

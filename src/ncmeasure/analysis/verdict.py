@@ -91,12 +91,12 @@ def axis_verdict(
         words = _CAUSE_WORDS.get(cause, cause)
         spread = dependency.spread_percent
         text = (
-            f"friction changes by {spread:.0f} % along the travel "
+            f"friction changes by {_percent(spread)} along the travel "
             f"({dependency.signature.replace('_', ' ')}): likely {words}"
         )
         action = _CAUSE_ACTION.get(cause, "check the assembly of the axis")
         if spread >= FAULT_SPREAD_PERCENT:
-            return Verdict(level="fault", reason=text[0].upper() + text[1:] + ".", action=action)
+            return Verdict(level="fault", reason=_sentence(text), action=_sentence(action))
         return Verdict(
             level="check",
             reason=f"A moderate pattern: {text}.",
@@ -112,7 +112,7 @@ def axis_verdict(
     if dependency is None:
         spread_text = "one measuring position"
     else:
-        spread_text = f"friction varies by {dependency.spread_percent:.0f} % along the travel"
+        spread_text = f"friction varies by {_percent(dependency.spread_percent)} along the travel"
     return Verdict(
         level="ok",
         reason=f"No assembly fault shows: {spread_text}"
@@ -172,8 +172,7 @@ def comparison_verdict(
             reason=f"Against the reference: {change}, beyond the critical limit.",
             action=verdict.action
             if verdict.level == "fault"
-            else "Find the cause of the change "
-            "before the machine is shipped or used: " + _first_lower(verdict.reason),
+            else "Find the cause of the change before the machine is shipped or used again.",
         )
     if status == "warning" and verdict.level == "ok":
         return Verdict(
@@ -190,5 +189,14 @@ def comparison_verdict(
     return verdict
 
 
-def _first_lower(text: str) -> str:
-    return text[:1].lower() + text[1:] if text else text
+def _sentence(text: str) -> str:
+    """``text`` with a capital first letter and a full stop."""
+    text = text.strip()
+    if not text:
+        return text
+    return text[0].upper() + text[1:] + ("" if text.endswith(".") else ".")
+
+
+def _percent(value: float) -> str:
+    """A spread in %, with one decimal where it is small (0.6 %, not 0 %)."""
+    return f"{value:.1f} %" if abs(value) < 10 else f"{value:.0f} %"
