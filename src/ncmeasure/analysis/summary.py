@@ -30,7 +30,7 @@ from typing import Final, Literal
 
 from ncmeasure.analysis.compare import AxisChange, Comparison, GroupDeviation
 from ncmeasure.analysis.results import AxisResult, Cause, Signature, Verdict
-from ncmeasure.analysis.verdict import comparison_verdict
+from ncmeasure.analysis.verdict import comparison_verdict, percent_text
 
 __all__ = [
     "SIGNATURE_WORDS",
@@ -230,7 +230,7 @@ class Headline:
         if self.spread_percent is None or self.signature is None:
             return "no profile along the travel"
         return (
-            f"spread {self.spread_percent:.0f} % along the travel, "
+            f"spread {percent_text(self.spread_percent)} along the travel, "
             f"{SIGNATURE_WORDS.get(self.signature, self.signature)}"
         )
 

@@ -35,7 +35,13 @@ from typing import Final, Literal
 from ncmeasure.analysis.diagnosis import FLAT_THRESHOLD_PERCENT
 from ncmeasure.analysis.results import AxisResult, PositionDependency, Verdict
 
-__all__ = ["FAULT_SPREAD_PERCENT", "MIN_WINDOW_SHARE", "axis_verdict", "comparison_verdict"]
+__all__ = [
+    "FAULT_SPREAD_PERCENT",
+    "MIN_WINDOW_SHARE",
+    "axis_verdict",
+    "comparison_verdict",
+    "percent_text",
+]
 
 FAULT_SPREAD_PERCENT: Final = 15.0
 """A local pattern this strong is a fault: three times the flat threshold, three times the
@@ -91,7 +97,7 @@ def axis_verdict(
         words = _CAUSE_WORDS.get(cause, cause)
         spread = dependency.spread_percent
         text = (
-            f"friction changes by {_percent(spread)} along the travel "
+            f"friction changes by {percent_text(spread)} along the travel "
             f"({dependency.signature.replace('_', ' ')}): likely {words}"
         )
         action = _CAUSE_ACTION.get(cause, "check the assembly of the axis")
@@ -112,7 +118,9 @@ def axis_verdict(
     if dependency is None:
         spread_text = "one measuring position"
     else:
-        spread_text = f"friction varies by {_percent(dependency.spread_percent)} along the travel"
+        spread_text = (
+            f"friction varies by {percent_text(dependency.spread_percent)} along the travel"
+        )
     return Verdict(
         level="ok",
         reason=f"No assembly fault shows: {spread_text}"
@@ -197,6 +205,6 @@ def _sentence(text: str) -> str:
     return text[0].upper() + text[1:] + ("" if text.endswith(".") else ".")
 
 
-def _percent(value: float) -> str:
+def percent_text(value: float) -> str:
     """A spread in %, with one decimal where it is small (0.6 %, not 0 %)."""
     return f"{value:.1f} %" if abs(value) < 10 else f"{value:.0f} %"
