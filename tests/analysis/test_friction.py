@@ -208,3 +208,21 @@ def test_window_samples_are_the_concatenated_ranges() -> None:
     index, owner = window_samples(windows)
     assert index.tolist() == [5, 6, 7, 20, 21, 0, 1]
     assert owner.tolist() == [0, 0, 0, 1, 1, 2, 2]
+
+
+def test_repeated_windows_that_disagree_widen_the_standard_error() -> None:
+    """Two repetitions of a step whose levels differ (drift, the cogging phase at the
+    window's place): each window is one draw of that difference, whatever its samples."""
+    rng = np.random.default_rng(3)
+    first = 2.00 + rng.normal(0, 0.005, 300)
+    second = 2.10 + rng.normal(0, 0.005, 300)
+    current = np.concatenate([first, second])
+    windows = [
+        _window(0, 300, step=0, position=0, direction=1, v=100.0),
+        _window(300, 600, step=0, position=0, direction=1, v=100.0),
+    ]
+    table = friction_table("X", current, windows)
+    assert table.windows.tolist() == [2]
+    # The scatter of the two window medians over √2: about 0.05, not the 0.0003 the
+    # samples would claim, nor the 0.017 of ten batches, five on each level.
+    assert table.stderr[0] == pytest.approx(0.05, rel=0.1)

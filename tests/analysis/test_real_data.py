@@ -330,3 +330,103 @@ def test_no_value_codes_are_left_out_and_counted(tmp_path: Path) -> None:
             for point, ref in zip(direction.points, other.points, strict=True):
                 assert math.isfinite(point.median)
                 assert abs(point.median - ref.median) <= 3 * (ref.stderr or 0.0) + 1e-9
+
+
+# --- what a review of the rules found on data like this ----------------------------------
+
+
+def test_an_idle_axis_with_a_frozen_reading_did_not_move(tmp_path: Path) -> None:
+    """While X is measured, Z holds: its reading sits at −3 mm/min and drops to 0 now and
+    then (many plateaus), its position does not move. No window, and Z did not move."""
+    data = measure(TWO)
+    rng = np.random.default_rng(5)
+    n = len(data.time_s)
+    frozen = np.full(n, -3.0)
+    for start in rng.choice(n - 300, 12, replace=False):
+        frozen[start : start + 200] = 0.0
+    data = (
+        data.set("Z_velocity_mm_min", frozen)
+        .set("Z_position_mm", np.full(n, -250.0))
+        .set("Z_velocity_cmd_mm_min", np.zeros(n))
+        .set("Z_marker", np.zeros(n))
+    )
+    results = analyze(write(tmp_path / "rec", data, TWO))  # no schedule: plateaus too
+    assert list(results.axes) == ["X"]
+    assert "the axis did not move" in results.skipped["Z"]
+
+
+def test_a_held_axis_reading_exactly_zero_did_not_move(tmp_path: Path) -> None:
+    """Velocity 0.0 in every row, the position drifting by a fraction of a micrometre:
+    an axis holding position, not a dead velocity channel."""
+    data = measure(TWO)
+    n = len(data.time_s)
+    drift = -250.0 + np.linspace(0.0, 4e-4, n)
+    data = (
+        data.set("Z_velocity_mm_min", np.zeros(n))
+        .set("Z_position_mm", drift)
+        .set("Z_velocity_cmd_mm_min", np.zeros(n))
+        .set("Z_marker", np.zeros(n))
+    )
+    results = analyze(write(tmp_path / "rec", data, TWO), schedule=data.schedule)
+    assert "the axis did not move" in results.skipped["Z"]
+    assert "dead channel" not in results.skipped["Z"]
+
+
+def test_a_position_in_inches_is_not_taken_for_millimetres(tmp_path: Path) -> None:
+    """A counted velocity would be measured by the position, but this position is in
+    inches: the readings keep the say, with a warning, and no step is invented."""
+    data = measure([COUNTS], with_marker=False, with_command=False)
+    data = data.set("X_position_mm", data.column("X_position_mm") / 25.4)
+    axis = analyze(write(tmp_path / "rec", data, [COUNTS])).axes["X"]
+    assert any("does not move as the velocity says" in w for w in axis.warnings)
+    fast = [
+        abs(p.velocity_mm_min)
+        for pos in axis.positions
+        for d in pos.directions.values()
+        if d
+        for p in d.points
+        if abs(p.velocity_mm_min) > 100
+    ]
+    assert fast and all(min(abs(v - s) for s in (200.0, 600.0)) < 10.0 for v in fast)
+
+
+def test_a_position_in_another_unit_keeps_its_windows(tmp_path: Path) -> None:
+    """Every window's displacement is 1/25.4 of what the velocity says: one factor, a
+    unit (inches), not frozen readings. The windows stay, with a warning."""
+    spec = TWO[0]
+    data = measure([spec], with_marker=False, with_command=False)
+    data = data.set("X_position_mm", data.column("X_position_mm") / 25.4)
+    axis = analyze(write(tmp_path / "rec", data, [spec])).axes["X"]
+    assert any("0.03937 times as far" in w and "another unit" in w for w in axis.warnings)
+    assert axis.windows == 6 * 3 * 2
+
+
+def test_a_position_without_values_does_not_stop_the_analysis(tmp_path: Path) -> None:
+    """A logger wrote −999999 for every position sample: left out, the position is then
+    unknown, and the windows are clustered on the integrated velocity."""
+    data = measure(TWO)
+    data = data.set("Z_position_mm", np.full(len(data.time_s), -999999.0))
+    results = analyze(write(tmp_path / "rec", data, TWO))  # no schedule
+    assert set(results.axes) == {"X", "Z"}
+    z = results.axes["Z"]
+    assert z.implausible_values["Z_position_mm"] == len(data.time_s)
+    assert any("position channel holds a value in fewer than half" in w for w in z.warnings)
+    assert len(z.positions) == 3
+
+
+def test_no_value_codes_left_out_at_the_import_are_counted_in_the_results(
+    tmp_path: Path,
+) -> None:
+    from ncmeasure.recording import export_csv, import_csv
+
+    spec = TWO[0]
+    data = measure([spec], seed=6)
+    current = data.column("X_current_a").copy()
+    current[::500] = -999999.0
+    recording = write(tmp_path / "rec", data.set("X_current_a", current), [spec])
+    imported = import_csv(export_csv(recording, tmp_path / "x.csv"), tmp_path / "imported")
+    expected = len(current[::500])
+    assert imported.meta.link["implausible"] == {"X_current_a": expected}
+    axis = analyze(imported, schedule=data.schedule).axes["X"]
+    assert axis.implausible_values == {"X_current_a": expected}
+    assert any("left out at the import" in w for w in axis.warnings)

@@ -183,7 +183,9 @@ def _combine_offsets(
     if np.all(np.isfinite(errors) & (errors > 0)):
         weight = 1.0 / errors**2
         value = float(np.sum(weight * values) / np.sum(weight))
-        stderr: float | None = float(1.0 / math.sqrt(float(np.sum(weight))))
+        # Positions scattering more than their errors say widen the error accordingly.
+        chi2 = float(np.sum(weight * (values - value) ** 2)) / (len(values) - 1)
+        stderr: float | None = float(math.sqrt(max(1.0, chi2) / float(np.sum(weight))))
         how = "weighted by their standard errors"
     else:
         value = float(values.mean())
@@ -211,12 +213,15 @@ def _dependency(
     facts: AxisFacts,
     position_mm: dict[int, float],
     offset: OffsetResult | None,
+    own: Mapping[int, OffsetResult],
 ) -> tuple[PositionDependency | None, list[str]]:
     """Position dependency over positions × velocity steps of friction magnitudes.
 
     Every cell is friction, free of the offset: the half difference
     (T₊ − T₋)/2 where both directions were measured, else the one direction's
-    magnitude with the axis' offset taken out, direction × (T − o). Without an
+    magnitude with the offset taken out, direction × (T − o): the position's own
+    offset where it was measured in both directions at other speeds, else the
+    axis' offset. Without an
     offset a cell of one direction is left out when other cells have both (it
     would mix gravity into some cells only) or the axis is vertical (gravity
     would pass for friction); it is kept only where no cell has both directions
@@ -245,9 +250,11 @@ def _dependency(
     noise = np.where(both, 0.5 * np.sqrt(error[1] ** 2 + error[-1] ** 2), np.nan)
     singles = int(np.count_nonzero(single_pos | single_neg))
     if offset is not None:
-        shift_se = offset.stderr or 0.0
-        values = np.where(single_pos, median[1] - offset.value, values)
-        values = np.where(single_neg, offset.value - median[-1], values)
+        chosen = [own.get(p, offset) for p in positions]
+        shift = np.array([o.value for o in chosen])[None, :]
+        shift_se = np.array([o.stderr or 0.0 for o in chosen])[None, :]
+        values = np.where(single_pos, median[1] - shift, values)
+        values = np.where(single_neg, shift - median[-1], values)
         noise = np.where(single_pos, np.hypot(error[1], shift_se), noise)
         noise = np.where(single_neg, np.hypot(error[-1], shift_se), noise)
         if singles and both.any():
@@ -309,7 +316,28 @@ def _signals(
         signal: checker.clean(name, recording.time_s, recording.column(name))
         for name, signal in names.items()
     }
-    return cleaned, dict(checker.counts), checker.lines()
+    counts = dict(checker.counts)
+    lines = checker.lines()
+    # An import already left such values out (NaN): its count travels in meta.json.
+    imported = recording.meta.link.get("implausible")
+    if isinstance(imported, dict):
+        for name, count in imported.items():
+            if name in names and isinstance(count, int) and count > 0:
+                counts[name] = counts.get(name, 0) + count
+                lines.append(
+                    f"{name}: {count} value(s) left out at the import as not physically "
+                    "possible (a 'no value' code such as -999999, or beyond the axis' range)"
+                )
+    return cleaned, counts, lines
+
+
+def _creep_mm_min(time_s: FloatArray, position_mm: FloatArray) -> float:
+    """How fast the position's whole span would be covered over the recording, in mm/min."""
+    finite = np.isfinite(position_mm)
+    duration = float(time_s[-1] - time_s[0]) if len(time_s) > 1 else 0.0
+    if duration <= 0 or not finite.any():
+        return 0.0
+    return float(np.ptp(position_mm[finite])) / duration * 60.0
 
 
 def _dead_channel(axis: str, signal: str, values: FloatArray, unit: str) -> str | None:
@@ -368,7 +396,9 @@ def analyze_axis(
     velocity = signals["velocity_mm_min"]
     position = signals.get("position_mm")
     dead = _dead_channel(axis, "velocity_mm_min", velocity, "mm/min")
-    moving = position is not None and _dead_channel(axis, "position_mm", position, "mm") is None
+    moving = position is not None and _creep_mm_min(recording.time_s, position) > (
+        settings.standstill_mm_min
+    )
     if dead is not None:
         finite = velocity[np.isfinite(velocity)]
         # One value in every row: dead, unless it is 0 and nothing moves (a standstill).
@@ -387,7 +417,7 @@ def analyze_axis(
         rapid_mm_min=facts.rapid_velocity_mm_min,
     )
     dead = _dead_channel(axis, "current_a", current, "A")
-    if dead is None:
+    if dead is None and segmentation.windows:
         in_windows = np.concatenate([current[w.start : w.stop] for w in segmentation.windows])
         dead = _dead_channel(axis, "current_a", in_windows, "A")
         if dead is not None:
@@ -422,13 +452,13 @@ def analyze_axis(
         index: {sign: table.points(index, sign) for sign, _ in _DIRECTIONS}
         for index in sorted(position_mm)
     }
-    offsets: list[tuple[float, OffsetResult]] = []
+    own: dict[int, OffsetResult] = {}
     for index, by_sign in points.items():
         if by_sign[1] and by_sign[-1]:
             found = separate_offset(by_sign[1], by_sign[-1])
             if found is not None:
-                offsets.append((position_mm[index], found))
-    offset = _combine_offsets(offsets, facts.vertical)
+                own[index] = found
+    offset = _combine_offsets([(position_mm[i], o) for i, o in own.items()], facts.vertical)
     if facts.vertical and offset is None:
         warnings.append(
             "vertical axis measured in one direction only: gravity is not separated from "
@@ -443,8 +473,11 @@ def analyze_axis(
         if not by_sign[1] and not by_sign[-1]:
             empty.append(position_mm[index])
             continue
+        # A position's own offset where both directions were measured there (gravity of
+        # a counterbalanced axis may change along the stroke), else the axis' offset.
+        here = own.get(index, offset)
         directions: dict[Literal["positive", "negative"], DirectionResult | None] = {
-            key: fit_direction(by_sign[sign], sign, offset=offset, coarse=segmentation.coarse)
+            key: fit_direction(by_sign[sign], sign, offset=here, coarse=segmentation.coarse)
             if by_sign[sign]
             else None
             for sign, key in _DIRECTIONS
@@ -455,7 +488,7 @@ def analyze_axis(
             )
         )
     report(f"axis {axis}: position dependency", 0.95)
-    dependency, notes = _dependency(table, segmentation, facts, position_mm, offset)
+    dependency, notes = _dependency(table, segmentation, facts, position_mm, offset, own)
     warnings.extend(notes)
     if dependency is None:
         warnings.append("a single measuring position: no position dependency")
@@ -599,6 +632,16 @@ def analyze(
             details.append(f"axis {name}: {reason}")
             details.extend(f"  {line}" for line in exc.problems)
             log.info("axis %s not analysed: %s", name, reason)
+            continue
+        except (ValueError, IndexError, ArithmeticError) as exc:
+            # Data this analysis did not foresee must not take the other axes with it.
+            log.debug("axis %s failed", name, exc_info=True)
+            reason = (
+                f"the analysis failed on this axis' data ({type(exc).__name__}: {exc}); "
+                "please report it with the recording (--debug shows where)"
+            )
+            skipped[name] = reason
+            details.append(f"axis {name}: {reason}")
             continue
         if common:
             result = result.model_copy(update={"warnings": [*common, *result.warnings]})

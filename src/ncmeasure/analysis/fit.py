@@ -583,6 +583,7 @@ def _linear_region(
     magnitude: FloatArray,
     sigma: FloatArray | None,
     first: int,
+    k_accept: float,
 ) -> tuple[LinearFit | None, int]:
     """The linear fit over the widest range of speeds, from the top down, where it holds.
 
@@ -594,11 +595,16 @@ def _linear_region(
     number of points below its range.
     """
     n = speed.size
-    widest = fit_linear(speed[first:], magnitude[first:], None if sigma is None else sigma[first:])
+    widest = fit_linear(
+        speed[first:],
+        magnitude[first:],
+        None if sigma is None else sigma[first:],
+        k_accept=k_accept,
+    )
     if widest is None or widest.accepted or sigma is None:
         return widest, first
     for start in range(first + 1, n - MIN_LINEAR_POINTS + 1):
-        candidate = fit_linear(speed[start:], magnitude[start:], sigma[start:])
+        candidate = fit_linear(speed[start:], magnitude[start:], sigma[start:], k_accept=k_accept)
         if candidate is not None and candidate.accepted:
             return candidate, start
     return widest, first
@@ -687,7 +693,7 @@ def fit_direction(
             log.debug(
                 "only %d points above the Stribeck region (%.4g mm/min)", speed.size - above, cut
             )
-    linear, below = _linear_region(speed, magnitude, sigma, first)
+    linear, below = _linear_region(speed, magnitude, sigma, first, k_accept)
     if linear is not None:
         updates: dict[str, object] = {"points_below_range": below}
         if offset is not None and offset.stderr and linear.coulomb_stderr is not None:

@@ -28,7 +28,11 @@ Two properties of real drive data shape the statistics:
   :data:`BATCHES_PER_WINDOW` consecutive stretches of at least
   :data:`MIN_BATCH_SAMPLES` samples (a short window is one batch); the
   standard error is the scatter of the batch medians over √batches, and never
-  less than the independent-sample figure √(π/2)·std/√n.
+  less than the independent-sample figure √(π/2)·std/√n. Where a step has
+  several windows (repetitions), what differs between them (drift, the
+  cogging phase at the window's place) is sampled once per window: the
+  scatter of the window medians over √windows then counts too, and the
+  largest of the three figures is the standard error.
 
 With a torque constant the table is in Nm (T = k_T · I), else in A.
 
@@ -277,6 +281,18 @@ def friction_table(
         by_batches = np.sqrt(np.maximum(batch_var, 0.0) / count)
         independent = _MEDIAN_SE_FACTOR * std / np.sqrt(n)
     stderr = np.where(count > 1, np.fmax(by_batches, independent), independent)
+    # Repeated windows of a step: their medians' scatter over √windows.
+    filled_windows = per_window > 0
+    window_median = _medians(values, window_bounds, current_quantum_a)[filled_windows]
+    window_group = group_of_window[filled_windows]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w_mean = np.bincount(window_group, weights=window_median, minlength=groups) / used_windows
+        w_spread = window_median - w_mean[window_group]
+        w_var = np.bincount(window_group, weights=w_spread * w_spread, minlength=groups) / (
+            used_windows - 1
+        )
+        by_windows = np.sqrt(np.maximum(w_var, 0.0) / used_windows)
+    stderr = np.where(used_windows > 1, np.fmax(stderr, by_windows), stderr)
 
     group_velocity = np.full(groups, np.nan)
     if groups:

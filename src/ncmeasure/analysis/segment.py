@@ -426,6 +426,66 @@ def quantum(values: FloatArray) -> float:
     return float(np.sum(steps[on_lattice]) / np.sum(counts))
 
 
+def _bridge(
+    values: FloatArray, time_s: FloatArray, *, hold: bool = False
+) -> tuple[FloatArray, int]:
+    """``values`` with NaN samples filled from their neighbours, and how many were filled.
+
+    Linear interpolation over time (``hold``: the last value, for a step signal
+    such as the commanded velocity); NaN at the ends takes the nearest value.
+    A channel without any finite value is returned as it is.
+    """
+    bad = ~np.isfinite(values)
+    count = int(np.count_nonzero(bad))
+    if count == 0 or count == len(values):
+        return values, 0
+    good = np.flatnonzero(~bad)
+    filled = np.array(values, dtype=np.float64, copy=True)
+    if hold:
+        last = np.maximum.accumulate(np.where(bad, 0, np.arange(len(values))))
+        filled = filled[last]
+        filled[: good[0]] = values[good[0]]
+    else:
+        filled[bad] = np.interp(time_s[bad], time_s[good], values[good])
+    return filled, count
+
+
+def _span(values: FloatArray) -> float:
+    """max − min of the finite values (0 without any)."""
+    finite = values[np.isfinite(values)]
+    return float(np.ptp(finite)) if len(finite) else 0.0
+
+
+def _unit_factor(ratios: Sequence[float]) -> float | None:
+    """The common factor of position rate over velocity, when the ratios share one.
+
+    A position in another unit moves every window by the same factor (25.4, 1000,
+    0.001); frozen readings at standstill give ratios near 0, and an axis that
+    did not follow its command gives scattered ones: no factor then.
+    """
+    values = np.array([r for r in ratios if math.isfinite(r) and r > 0], dtype=np.float64)
+    if len(values) < max(2, 0.8 * len(ratios)):
+        return None
+    logs = np.log(values)
+    centre = float(np.median(logs))
+    if abs(centre) < math.log(1.2) or float(np.max(np.abs(logs - centre))) > math.log(1.1):
+        return None
+    return math.exp(centre)
+
+
+def _agreement(derived: FloatArray, readings: FloatArray, above: float) -> float | None:
+    """The median ratio derived/readings where the readings exceed ``above``, or None.
+
+    Where the axis moves fast, one velocity count is small against the
+    velocity, so the ratio says whether the position moves as the velocity
+    readings say (1) or is in another unit.
+    """
+    fast = np.isfinite(derived) & np.isfinite(readings) & (np.abs(readings) > above)
+    if np.count_nonzero(fast) < MIN_WINDOW_SAMPLES:
+        return None
+    return float(np.median(derived[fast] / readings[fast]))
+
+
 def noise_sigma(values: FloatArray) -> float:
     """Robust standard deviation of a signal's sample-to-sample noise.
 
@@ -510,10 +570,25 @@ class _Finder:
         self.dt = float(np.median(steps)) if len(steps) else 1.0
         if not self.dt > 0:
             raise RecordingError(f"axis {axis}: the sample times do not increase")
-        self.command = command
         self.marker = marker
         self.warnings: list[str] = []
         self.tried: list[str] = []
+        if position is not None and np.count_nonzero(np.isfinite(position)) < 0.5 * len(position):
+            self.warnings.append(
+                "the position channel holds a value in fewer than half of the rows: not used"
+            )
+            position = None
+        velocity, bridged = _bridge(velocity, time_s)
+        if bridged:
+            self.warnings.append(
+                f"{bridged} velocity samples without a value (NaN) bridged by their neighbours "
+                "to find the windows"
+            )
+        if position is not None:
+            position, _ = _bridge(position, time_s)
+        if command is not None:
+            command, _ = _bridge(command, time_s, hold=True)
+        self.command = command
         self.positions_known = position is not None
         if position is None:
             # Relative positions are enough to tell measuring positions apart.
@@ -537,6 +612,7 @@ class _Finder:
                 self.warnings.append(
                     "the schedule has no windows for this axis: windows clustered instead"
                 )
+        self.v = velocity
         self.t = time_s
         self.detect_resolution = 0.0
         self.settle_n = round(settings.settle_s / self.dt)
@@ -555,7 +631,22 @@ class _Finder:
         self.from_position = (
             self.positions_known and self.resolution > settings.velocity_floor_mm_min
         )
-        self.v_detect = self._position_velocity() if self.from_position else velocity
+        self.v_detect = velocity
+        if self.from_position:
+            by_position = self._position_velocity()
+            ratio = _agreement(by_position, velocity, 5 * self.resolution)
+            if ratio is None or not 0.9 <= ratio <= 1.1:
+                self.warnings.append(
+                    "the velocity signal is coarse, but the position does not move as the "
+                    "velocity says"
+                    + (f" (its rate is {ratio:.3g} × the velocity)" if ratio is not None else "")
+                    + ": windows are found by the velocity readings (another unit of the "
+                    "position?)"
+                )
+                self.from_position = False
+                self.detect_resolution = 0.0
+            else:
+                self.v_detect = by_position
         if self.from_position:
             self.warnings.append(
                 f"the velocity signal resolves {self.resolution:.3g} mm/min"
@@ -569,13 +660,17 @@ class _Finder:
     def _position_velocity(self) -> FloatArray:
         """Velocity from the position by central differences over ±h samples, in mm/min.
 
-        h is long enough that a position count moves the estimate by at most a
-        quarter of the tolerance floor, and at most a quarter of a plateau.
+        h is long enough that a position count, or the position's noise, moves
+        the estimate by at most a quarter of the tolerance floor, and at most a
+        quarter of a plateau. The resolution of the estimate (one position count
+        over the span, three standard errors of its smoothed noise) widens the
+        tolerance band like the velocity readings' resolution does.
         """
         floor = max(self.settings.velocity_floor_mm_min, 1e-9)
-        wanted = math.ceil(60.0 * self.x_quantum / (0.25 * floor * 2 * self.dt))
+        sigma_x = noise_sigma(self.x)
+        step = max(self.x_quantum, 2.0 * sigma_x)
+        wanted = math.ceil(60.0 * step / (0.25 * floor * 2 * self.dt))
         h = int(min(max(1, wanted), max(1, self.plateau_n // 4)))
-        self.detect_resolution = 60.0 * self.x_quantum / (2 * h * self.dt)
         x = self.x
         n = self.n
         ahead = np.minimum(np.arange(n) + h, n - 1)
@@ -583,6 +678,11 @@ class _Finder:
         span = self.t[ahead] - self.t[behind]
         with np.errstate(invalid="ignore", divide="ignore"):
             velocity = np.where(span > 0, (x[ahead] - x[behind]) / span * 60.0, 0.0)
+        # The estimate's noise: two position samples of σ_x over 2h samples.
+        noise = 60.0 * math.sqrt(2.0) * sigma_x / (2 * h * self.dt)
+        self.detect_resolution = max(
+            60.0 * self.x_quantum / (2 * h * self.dt), _NOISE_BAND_FACTOR * noise
+        )
         return np.asarray(velocity, dtype=np.float64)
 
     def band(self, level: float | FloatArray) -> FloatArray:
@@ -1148,7 +1248,7 @@ class _Finder:
         """
         if not self.positions_known or not candidates:
             return list(candidates)
-        failed = 0
+        failed: list[float] = []  # slope / reference of each window that disagrees
         still = 0
         kept: list[_Candidate] = []
         for candidate in candidates:
@@ -1170,7 +1270,7 @@ class _Finder:
                 reference = float(np.nanmedian(readings))
             allowed = max(float(self.band(reference)), self.v_quantum, resolution)
             if abs(slope - reference) > allowed:
-                failed += 1
+                failed.append(slope / reference if reference else math.nan)
                 continue
             if not commanded:
                 if abs(slope) < max(self.settings.standstill_mm_min, resolution):
@@ -1182,16 +1282,17 @@ class _Finder:
                     continue
                 candidate = replace(candidate, start=cut[0], stop=cut[1], level_mm_min=slope)
             kept.append(candidate)
-        if failed > 0.5 * len(candidates) and len(candidates) >= 4:
+        factor = _unit_factor(failed)
+        if len(failed) > 0.5 * len(candidates) and len(candidates) >= 4 and factor is not None:
             self.warnings.append(
-                f"the recorded position does not move as the velocity says in {failed} of "
-                f"{len(candidates)} windows (another unit, or another axis' position?): "
+                f"the recorded position moves {factor:.4g} times as far as the velocity says in "
+                f"{len(failed)} of {len(candidates)} windows (another unit of the position?): "
                 "windows are measured by the velocity readings alone"
             )
             return list(candidates)
         if failed:
             self.warnings.append(
-                f"{failed} windows dropped: the position did not move as the velocity says "
+                f"{len(failed)} windows dropped: the position did not move as the velocity says "
                 + (
                     "(the axis did not follow its command)"
                     if commanded
@@ -1207,19 +1308,15 @@ class _Finder:
     def still(self) -> str | None:
         """Why the axis did not move at all, or None when it moved.
 
-        It did not move when its velocity never stays above the standstill
-        threshold (at least one velocity count) for a window's length and, where
-        a position was recorded, the position creeps by less than that speed
-        over the whole recording.
+        Where a position was recorded it decides: the axis did not move when
+        its position creeps by less than the standstill speed over the whole
+        recording, whatever the velocity reads (a reading frozen at −3 mm/min
+        moves nothing). Without a position, when its velocity never stays above
+        the standstill threshold (at least one velocity count) for a window's
+        length.
         """
         if self.n < 2:
             return "the recording holds fewer than 2 samples"
-        smooth = np.abs(np.where(np.isfinite(self.v_detect), self.v_detect, 0.0))
-        if self.filter_n > 1:
-            smooth = median_filter(smooth, size=self.filter_n, mode="nearest")
-        starts, stops = _runs(smooth >= self.standstill)
-        if len(starts) and int((stops - starts).max()) >= self.min_n:
-            return None
         duration_s = float(self.t[-1] - self.t[0])
         threshold = self.standstill
         count = (
@@ -1228,15 +1325,19 @@ class _Finder:
             else ""
         )
         if self.positions_known:
-            finite = self.x[np.isfinite(self.x)]
-            span_mm = float(np.ptp(finite)) if len(finite) else 0.0
-            if duration_s > 0 and span_mm / duration_s * 60.0 > threshold:
+            span_mm = _span(self.x)
+            if duration_s > 0 and span_mm / duration_s * 60.0 > self.settings.standstill_mm_min:
                 return None
             return (
                 f"the axis did not move: its position stays within {span_mm * 1000:.3g} µm "
-                f"over {duration_s:.3g} s and its velocity never stays above "
-                f"{threshold:.3g} mm/min{count}"
+                f"over {duration_s:.3g} s (whatever its velocity signal reads)"
             )
+        smooth = np.abs(np.where(np.isfinite(self.v_detect), self.v_detect, 0.0))
+        if self.filter_n > 1:
+            smooth = median_filter(smooth, size=self.filter_n, mode="nearest")
+        starts, stops = _runs(smooth >= threshold)
+        if len(starts) and int((stops - starts).max()) >= self.min_n:
+            return None
         return (
             f"the axis did not move: its velocity never stays above {threshold:.3g} mm/min"
             f"{count} over {duration_s:.3g} s (no position recorded)"

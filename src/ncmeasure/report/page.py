@@ -48,6 +48,7 @@ from ncmeasure.analysis.summary import (
     axis_comparison,
     axis_headline,
 )
+from ncmeasure.analysis.verdict import percent_text
 from ncmeasure.recording import Recording
 from ncmeasure.report.bearings import BearingLayout
 from ncmeasure.report.curves import offset_is_significant
@@ -518,11 +519,8 @@ def _notes(sections: Sequence[AxisSection], recording: Recording | None) -> Fold
 
 def _axis_notes(section: AxisSection) -> Folded | None:
     result = section.result
+    # The warnings already say when the data is coarse and which values were left out.
     items = list(result.warnings)
-    if result.coarse:
-        items.append(
-            "few samples per window: the points are uncertain and no Stribeck curve is fitted"
-        )
     if result.velocity_quantum_mm_min > 0:
         items.append(
             f"the velocity is reported in steps of {format_number(result.velocity_quantum_mm_min)}"
@@ -531,11 +529,6 @@ def _axis_notes(section: AxisSection) -> Folded | None:
     if result.current_quantum_a > 0:
         items.append(
             f"the current is reported in steps of {format_number(result.current_quantum_a)} A"
-        )
-    for channel, count in sorted(result.implausible_values.items()):
-        items.append(
-            f"{_plural(count, 'value')} of {channel} left out as physically impossible "
-            "(a drive's 'no value' code)"
         )
     if not items:
         return None
@@ -548,7 +541,7 @@ def _diagnosis(section: AxisSection) -> Diagnosis | None:
         return None
     trend = dependency.trend_per_100mm
     text = (
-        f"Friction varies by {dependency.spread_percent:.0f} % along the travel "
+        f"Friction varies by {percent_text(dependency.spread_percent)} along the travel "
         f"(max − min relative to the mean); the trend is {trend:+.1f} % per 100 mm "
         "(positive: rising towards the max end). "
         f"Bearings: {section.bearings.describe()}."
