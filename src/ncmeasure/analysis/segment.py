@@ -1242,9 +1242,10 @@ class _Finder:
         the window's velocity becomes its displacement over its duration: the
         readings' median sits on one of their counts, the displacement does not.
 
-        When most windows disagree, the position is not comparable with the
-        velocity (another unit, another axis' position): nothing is dropped,
-        the readings keep the say, and a warning tells.
+        When most windows disagree by one common factor, the position is in
+        another unit (:func:`_unit_factor`): nothing is dropped, the readings
+        keep the say, and a warning names the factor. Displacements near zero
+        or scattered share no factor: those windows are dropped, however many.
         """
         if not self.positions_known or not candidates:
             return list(candidates)
