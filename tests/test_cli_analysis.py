@@ -225,3 +225,15 @@ def test_a_data_collector_csv_is_imported_and_analysed(tmp_path: Path) -> None:
             truth = spec.parameter("coulomb", position.position_index) / 2.1
             assert x.unit == "A"
             assert direction.fit.coulomb == pytest.approx(truth, rel=0.05)
+
+
+def test_analyze_help_lists_every_setting() -> None:
+    from ncmeasure.analysis.analyze import AnalysisSettings
+    from ncmeasure.cli import ANALYSIS_SETTINGS
+
+    assert tuple(AnalysisSettings.model_fields) == ANALYSIS_SETTINGS
+    code, out, _ = run("analyze", "--help")
+    assert code == 0
+    words = set(out.replace("│", " ").replace(",", " ").split())
+    for name in ANALYSIS_SETTINGS:
+        assert name in words

@@ -47,6 +47,26 @@ if TYPE_CHECKING:
 
 __all__ = ["app", "main"]
 
+ANALYSIS_SETTINGS = (
+    "velocity_tolerance",
+    "velocity_floor_mm_min",
+    "settle_s",
+    "min_window_s",
+    "plateau_min_s",
+    "plateau_filter_s",
+    "standstill_mm_min",
+    "step_tolerance",
+    "step_floor_mm_min",
+    "position_gap_mm",
+    "position_gap_fraction",
+    "max_velocity_mm_min",
+    "duration_outlier_factor",
+    "rapid_count_factor",
+    "window_method",
+)
+"""The names ``analyze --set`` takes (those of AnalysisSettings; a test keeps them equal),
+listed here so that ``--help`` need not import the analysis."""
+
 EXIT_OK = 0
 EXIT_CHECK_FAILED = 1
 EXIT_BAD_INPUT = 2
@@ -888,8 +908,8 @@ def analyze_command(
         typer.Option(
             "--set",
             help="An analysis setting, KEY=VALUE, e.g. --set settle_s=0.2 --set "
-            "window_method=command (names: `ncmeasure schema results`, settings; "
-            "docs/analysis.md).",
+            f"window_method=command. Settings: {', '.join(ANALYSIS_SETTINGS)} "
+            "(docs/analysis.md, Settings).",
         ),
     ] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress, no summary.")] = False,

@@ -42,6 +42,7 @@ __all__ = [
     "format_validation_error",
     "load_machine",
     "parse_machine",
+    "read_toml",
 ]
 
 # Characters that would break out of a comment or a program name in one of
@@ -503,11 +504,12 @@ def parse_machine(data: Mapping[str, Any], source: str = "machine file") -> Mach
     return config
 
 
-def load_machine(path: str | Path) -> MachineConfig:
-    """Read and validate a machine file.
+def read_toml(path: str | Path, what: str) -> dict[str, Any]:
+    """The tables of a TOML file, or a ``ConfigError`` that names the file and the problem.
 
-    Raises:
-        ConfigError: the file is missing, is not TOML, or does not describe a valid machine.
+    Args:
+        path: The file.
+        what: What the file should be, for the message (``a machine file``).
     """
     path = Path(path)
     try:
@@ -515,16 +517,24 @@ def load_machine(path: str | Path) -> MachineConfig:
     except FileNotFoundError as exc:
         raise ConfigError(f"{path}: no such file") from exc
     except IsADirectoryError as exc:
-        raise ConfigError(f"{path}: is a directory, expected a machine file (.toml)") from exc
+        raise ConfigError(f"{path}: is a directory, expected {what} (.toml)") from exc
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{path}: not a text file (UTF-8 expected)") from exc
     except OSError as exc:
-        raise ConfigError(f"{path}: cannot be read ({exc.strerror})") from exc
+        raise ConfigError(f"{path}: cannot be read ({exc.strerror or exc})") from exc
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: invalid TOML: {exc}") from exc
-    return parse_machine(data, str(path))
+
+
+def load_machine(path: str | Path) -> MachineConfig:
+    """Read and validate a machine file.
+
+    Raises:
+        ConfigError: the file is missing, is not TOML, or does not describe a valid machine.
+    """
+    return parse_machine(read_toml(path, "a machine file"), str(path))
 
 
 def config_hash(config: MachineConfig) -> str:

@@ -30,7 +30,6 @@ import csv
 import logging
 import math
 import os
-import tomllib
 from array import array
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -50,7 +49,7 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
-from ncmeasure.config import MachineConfig, format_validation_error
+from ncmeasure.config import MachineConfig, format_validation_error, read_toml
 from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.links.base import SIGNAL_UNITS, Channel
 from ncmeasure.recording import Recording, channel_from_name, check_times
@@ -194,20 +193,7 @@ def load_column_map(path: str | os.PathLike[str]) -> ColumnMap:
             column map; one ``MAP.toml: location: message`` line per problem.
     """
     source = Path(path)
-    try:
-        text = source.read_text(encoding="utf-8")
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{source}: no such file") from exc
-    except IsADirectoryError as exc:
-        raise ConfigError(f"{source}: is a directory, expected a column map (.toml)") from exc
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{source}: not a text file (UTF-8 expected)") from exc
-    except OSError as exc:
-        raise ConfigError(f"{source}: cannot be read ({exc.strerror or exc})") from exc
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{source}: invalid TOML: {exc}") from exc
+    data = read_toml(source, "a column map")
     try:
         return ColumnMap.model_validate(data)
     except ValidationError as exc:
