@@ -199,6 +199,21 @@ def _batch_bounds(window_bounds: IntArray) -> IntArray:
     return np.asarray(cuts, dtype=np.intp)
 
 
+def _scatter_over_root_n(
+    values: FloatArray, group: IntArray, groups: int
+) -> tuple[FloatArray, IntArray]:
+    """Per group: the standard deviation of ``values`` over √count (NaN below 2), and count.
+
+    The standard error of a mean of independent units: batch or window medians.
+    """
+    count = np.bincount(group, minlength=groups)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.bincount(group, weights=values, minlength=groups) / count
+        spread = values - mean[group]
+        variance = np.bincount(group, weights=spread * spread, minlength=groups) / (count - 1)
+        return np.sqrt(np.maximum(variance, 0.0) / count), count
+
+
 def friction_table(
     axis: str,
     current_a: FloatArray,
@@ -271,27 +286,14 @@ def friction_table(
     filled = np.diff(batch_bounds) > 0
     batch_median = _medians(values, batch_bounds, current_quantum_a)[filled]
     batch_group = group[batch_bounds[:-1][filled]]
-    count = np.bincount(batch_group, minlength=groups)
+    by_batches, count = _scatter_over_root_n(batch_median, batch_group, groups)
     with np.errstate(invalid="ignore", divide="ignore"):
-        batch_mean = np.bincount(batch_group, weights=batch_median, minlength=groups) / count
-        spread = batch_median - batch_mean[batch_group]
-        batch_var = np.bincount(batch_group, weights=spread * spread, minlength=groups) / (
-            count - 1
-        )
-        by_batches = np.sqrt(np.maximum(batch_var, 0.0) / count)
         independent = _MEDIAN_SE_FACTOR * std / np.sqrt(n)
     stderr = np.where(count > 1, np.fmax(by_batches, independent), independent)
     # Repeated windows of a step: their medians' scatter over √windows.
     filled_windows = per_window > 0
     window_median = _medians(values, window_bounds, current_quantum_a)[filled_windows]
-    window_group = group_of_window[filled_windows]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        w_mean = np.bincount(window_group, weights=window_median, minlength=groups) / used_windows
-        w_spread = window_median - w_mean[window_group]
-        w_var = np.bincount(window_group, weights=w_spread * w_spread, minlength=groups) / (
-            used_windows - 1
-        )
-        by_windows = np.sqrt(np.maximum(w_var, 0.0) / used_windows)
+    by_windows, _ = _scatter_over_root_n(window_median, group_of_window[filled_windows], groups)
     stderr = np.where(used_windows > 1, np.fmax(stderr, by_windows), stderr)
 
     group_velocity = np.full(groups, np.nan)
