@@ -52,6 +52,7 @@ from ncmeasure.analysis.results import (
 from ncmeasure.errors import ComparisonError
 
 __all__ = [
+    "CHANGE_SHAPE",
     "COMPARISON_FORMAT",
     "COMPARISON_FORMAT_VERSION",
     "GLOBAL_CHANGE_PERCENT",
@@ -671,7 +672,7 @@ def _axis_changes(
     ]
 
 
-_CHANGE_SHAPE: dict[Signature, str] = {
+CHANGE_SHAPE: dict[Signature, str] = {
     "flat": "alike along the travel",
     "rising_to_loose_bearing": "rising towards the loose bearing",
     "rising_to_fixed_bearing": "rising towards the fixed bearing",
@@ -680,6 +681,7 @@ _CHANGE_SHAPE: dict[Signature, str] = {
     "irregular": "irregular along the travel",
     "insufficient_data": "shape unknown (too few positions)",
 }
+"""How a change is spread along the travel, in a few words (findings, console, report)."""
 
 _CAUSE_WORDS: dict[CauseName, str] = {
     "none": "no assembly change",
@@ -699,7 +701,7 @@ def _change_line(change: AxisChange, base_label: str) -> str:
         words = "preload loss of ball-screw nut or bearings, guide carriage or lubricant"
     return (
         f"{change.label!r} against {base_label!r}, axis {change.axis}: mean change "
-        f"{change.mean_change_percent:+.1f} %, {_CHANGE_SHAPE[change.signature]}; likely "
+        f"{change.mean_change_percent:+.1f} %, {CHANGE_SHAPE[change.signature]}; likely "
         f"cause: {words} ({lead.cause}, score {lead.score:.2f})."
     )
 

@@ -28,7 +28,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final, Literal
 
-from ncmeasure.analysis.compare import AxisChange, Comparison, GroupDeviation
+from ncmeasure.analysis.compare import CHANGE_SHAPE, AxisChange, Comparison, GroupDeviation
 from ncmeasure.analysis.results import AxisResult, Cause, Signature, Verdict
 from ncmeasure.analysis.verdict import comparison_verdict, percent_text
 
@@ -55,16 +55,6 @@ SIGNATURE_WORDS: Final[dict[Signature, str]] = {
     "insufficient_data": "too few positions to tell",
 }
 """A few words per pattern along the travel."""
-
-_CHANGE_SHAPE: Final[dict[Signature, str]] = {
-    "flat": "alike along the travel",
-    "rising_to_loose_bearing": "rising towards the loose bearing",
-    "rising_to_fixed_bearing": "rising towards the fixed bearing",
-    "high_at_both_ends": "largest at both ends",
-    "step": "a step along the travel",
-    "irregular": "irregular along the travel",
-    "insufficient_data": "shape unknown",
-}
 
 
 def format_number(value: float | None, digits: int = 3) -> str:
@@ -150,7 +140,7 @@ def axis_comparison(
     if change is not None:
         text = (
             f"friction {change.mean_change_percent:+.1f} % on average, "
-            f"{_CHANGE_SHAPE[change.signature]}; "
+            f"{CHANGE_SHAPE[change.signature]}; "
             + ("at most " if len(groups) > 1 else "")
             + at_worst
         )
