@@ -214,6 +214,9 @@ def controllers(
                     marker += "\noptions: " + ", ".join(
                         f"{k}={v}" for k, v in dialect.options.items()
                     )
+                marker += f"\nprogram memory: {dialect.memory.program_kb} kB"
+                if dialect.memory.note:
+                    marker += f" ({dialect.memory.note})"
                 if dialect.left_out:
                     marker += "\nleft out: " + "; ".join(dialect.left_out)
             table.add_row(name, dialect.title, files, marker)
@@ -231,6 +234,7 @@ def _print_plan(schedule: Schedule) -> None:
         "mm/min",
         "run-up",
         "windows",
+        "blocks",
         "time",
         "full travel",
     ):
@@ -244,6 +248,7 @@ def _print_plan(schedule: Schedule) -> None:
             f"{velocities[0]:g} … {velocities[-1]:g}",
             f"{axis.runup_at_max_velocity_mm:g}mm",
             str(len(axis.windows)),
+            str(axis.blocks),
             _duration(axis.duration_s),
             _duration(axis.full_travel_duration_s),
         )
@@ -253,8 +258,8 @@ def _print_plan(schedule: Schedule) -> None:
     console.print(table)
     saving = 1 - schedule.duration_s / schedule.full_travel_duration_s
     console.print(
-        f"total {_duration(schedule.duration_s)} (full travel at every step: "
-        f"{_duration(schedule.full_travel_duration_s)}, saving {saving:.0%})"
+        f"total {_duration(schedule.duration_s)}, {schedule.blocks} blocks (full travel at "
+        f"every step: {_duration(schedule.full_travel_duration_s)}, saving {saving:.0%})"
     )
     for axis in schedule.axes:
         if axis.shifted_positions_mm:
@@ -335,7 +340,11 @@ def generate(
     for path in written:
         console.print(f"wrote {path}")
     _print_plan(result.schedule)
-    console.print(f"next: [bold]ncmeasure check {output}[/]")
+    console.print(
+        "checked before writing: every position inside the soft limits, every feed within "
+        "the maximum, every window as planned"
+    )
+    console.print(f"next: [bold]ncmeasure check {output}[/] (again after copying or editing)")
 
 
 @app.command()

@@ -34,6 +34,7 @@ from ncmeasure.errors import ConfigError
 
 __all__ = [
     "AxisConfig",
+    "Limits",
     "MachineConfig",
     "MachineSection",
     "Measurement",
@@ -323,12 +324,29 @@ class AxisConfig(_Model):
         return self.rapid_velocity_mm_min or self.max_velocity_mm_min
 
 
+class Limits(_Model):
+    """The ``[limits]`` table: how large a measurement program may become."""
+
+    max_duration_h: Annotated[float, Field(ge=0.01, le=720)] = Field(
+        default=8.0,
+        description="Longest planned measurement accepted, in hours (default: one shift). "
+        "A longer plan is refused before anything is rendered.",
+    )
+    max_program_kb: Annotated[int, Field(ge=1, le=1_000_000)] | None = Field(
+        default=None,
+        description="Largest set of program files accepted, in kB (1 kB = 1024 bytes). "
+        "Default: the program memory the controller definition assumes "
+        "(`ncmeasure controllers --details`).",
+    )
+
+
 class MachineConfig(_Model):
     """A whole machine file."""
 
     machine: MachineSection
     axes: Annotated[list[AxisConfig], Field(min_length=1, max_length=32)]
     measurement: Measurement = Field(default_factory=Measurement)
+    limits: Limits = Field(default_factory=Limits)
     link: dict[str, Any] | None = Field(
         default=None,
         description="The drive link: type = 'canopen' | 'modbus' | 'replay' and its settings; "
@@ -544,7 +562,10 @@ def config_hash(config: MachineConfig) -> str:
     hash whatever their layout or comments, so programs, schedules and
     recordings can be matched.
     """
-    # The link settings say how to record, not what the program does: they stay out.
-    data = config.model_dump(mode="json", exclude={"link": True, "axes": {"__all__": {"link"}}})
+    # The link settings say how to record and the limits how large a program may be,
+    # not what the program does: they stay out.
+    data = config.model_dump(
+        mode="json", exclude={"link": True, "limits": True, "axes": {"__all__": {"link"}}}
+    )
     canonical = json.dumps(data, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(canonical.encode("utf-8")).hexdigest()[:16]

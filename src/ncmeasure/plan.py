@@ -36,6 +36,7 @@ from ncmeasure.errors import PlanError
 from ncmeasure.profile import move_time_s, ramp
 
 __all__ = [
+    "SMALLER",
     "AxisPlan",
     "Comment",
     "Dwell",
@@ -44,7 +45,9 @@ __all__ = [
     "Rapid",
     "Run",
     "Schedule",
+    "SizeLimit",
     "Window",
+    "move_blocks",
     "plan_axis",
     "plan_machine",
     "velocity_steps",
@@ -202,6 +205,8 @@ class AxisSummary(BaseModel):
     t_start_s: float
     duration_s: float
     full_travel_duration_s: float
+    blocks: int = 0
+    """Motion and dwell blocks of the axis' measurement (a run is three feed blocks)."""
     windows: list[Window]
 
 
@@ -221,9 +226,14 @@ class Schedule(BaseModel):
     """Estimated duration of the whole program (parking, warm-up, runs, rapids)."""
     full_travel_duration_s: float
     """The same measurement driving the full usable travel at every step."""
+    blocks: int = 0
+    """Motion, dwell and call blocks of all programs together: what the control must store."""
     warnings: list[str]
     main_program: str = ""
     """File name of the main program (set when programs are generated)."""
+    program_files: list[str] = []
+    """Every program file of the generated set, the main program first; ``check``
+    refuses a program file in the folder that is not listed here."""
     marker_scope: Literal["window", "run", "none"] = "window"
     """What the marker brackets in the generated programs (see the dialect)."""
     marker_values: Literal["window_id", "flag"] = "window_id"
@@ -358,21 +368,23 @@ def _full_travel_time_s(
     return total * meas.repetitions
 
 
-def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> AxisPlan:
-    """Plan the subprogram of one axis, starting at its park position at time ``start_s``.
+@dataclass
+class _Steps:
+    """The velocity steps of one axis that fit its usable travel, and their geometry."""
 
-    Raises:
-        PlanError: a velocity step cannot fit in the usable travel and
-            ``unfit_steps`` is ``"error"``.
-    """
-    meas = config.measurement_for(axis)
-    warnings: list[str] = []
+    low_um: int
+    high_um: int
+    velocities: list[float]
+    dropped: list[float]
+    geometry: dict[float, _RunGeometry]
+    warnings: list[str]
+
+
+def _fitting_steps(axis: AxisConfig, meas: Measurement) -> _Steps:
     low_um = _ceil_um(axis.travel_mm[0] + meas.margin_mm)
     high_um = _floor_um(axis.travel_mm[1] - meas.margin_mm)
     available_um = high_um - low_um
-    nominal = nominal_positions_um(meas, low_um, high_um)
-    directions: tuple[Literal[1, -1], ...] = (1, -1) if meas.both_directions else (1,)
-
+    warnings: list[str] = []
     velocities: list[float] = []
     dropped: list[float] = []
     geometry: dict[float, _RunGeometry] = {}
@@ -412,6 +424,25 @@ def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> 
         geometry[v] = geo
     if not velocities:
         raise PlanError(f"axis {axis.name}: no velocity step fits in the usable travel")
+
+    return _Steps(low_um, high_um, velocities, dropped, geometry, warnings)
+
+
+def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> AxisPlan:
+    """Plan the subprogram of one axis, starting at its park position at time ``start_s``.
+
+    Raises:
+        PlanError: a velocity step cannot fit in the usable travel and
+            ``unfit_steps`` is ``"error"``.
+    """
+    meas = config.measurement_for(axis)
+    steps = _fitting_steps(axis, meas)
+    warnings = steps.warnings
+    low_um, high_um = steps.low_um, steps.high_um
+    available_um = high_um - low_um
+    velocities, dropped, geometry = steps.velocities, steps.dropped, steps.geometry
+    nominal = nominal_positions_um(meas, low_um, high_um)
+    directions: tuple[Literal[1, -1], ...] = (1, -1) if meas.both_directions else (1,)
 
     park_um = park_position_um(axis)
     clock = _Clock(axis, start_s, _mm(park_um))
@@ -520,11 +551,17 @@ def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> 
         t_start_s=round(start_s, 4),
         duration_s=round(clock.t_s - start_s, 3),
         full_travel_duration_s=round(full_s, 3),
+        blocks=move_blocks(clock.moves),
         windows=windows,
     )
     return AxisPlan(
         axis=axis, measurement=meas, moves=clock.moves, summary=summary, warnings=warnings
     )
+
+
+def move_blocks(moves: Sequence[Move]) -> int:
+    """Blocks the moves take in a program: one per rapid, feed and dwell, three per run."""
+    return sum(3 if move.kind == "run" else 0 if move.kind == "comment" else 1 for move in moves)
 
 
 def park_position_um(axis: AxisConfig) -> int:
@@ -539,16 +576,88 @@ def park_time_s(axis: AxisConfig) -> float:
     return move_time_s(distance, axis.rapid_mm_min, axis.max_acceleration_m_s2, axis.max_jerk_m_s3)
 
 
-def plan_machine(config: MachineConfig) -> tuple[Schedule, list[AxisPlan]]:
+SMALLER = (
+    "measure fewer positions (measurement.positions), fewer velocity steps "
+    "(measurement.velocity_steps), fewer repetitions or warm-up strokes; or raise the "
+    "limit in the machine file's [limits] table if the control and the shift allow more"
+)
+"""What to change when a plan or its programs are too large."""
+
+
+@dataclass(frozen=True)
+class SizeLimit:
+    """How large a plan may become: its duration, and the blocks the program memory holds."""
+
+    max_duration_s: float
+    max_blocks: int | None = None
+    memory: str = ""
+    """What bounds the blocks, for the message (``512 kB of program memory ...``)."""
+
+
+def _duration_text(seconds: float) -> str:
+    hours = seconds / 3600
+    if hours >= 48:
+        return f"{hours / 24:.1f} days"
+    return f"{hours:.1f} h" if hours >= 1 else f"{seconds / 60:.0f} min"
+
+
+def _refuse_oversized(blocks: int, duration_s: float, limit: SizeLimit, at_least: bool) -> None:
+    least = "at least " if at_least else ""
+    problems = []
+    if duration_s > limit.max_duration_s:
+        problems.append(
+            f"limits.max_duration_h: the measurement would take {least}"
+            f"{_duration_text(duration_s)}, more than {limit.max_duration_s / 3600:g} h"
+        )
+    if limit.max_blocks is not None and blocks > limit.max_blocks:
+        problems.append(
+            f"limits.max_program_kb: {least}{blocks} blocks, more than the "
+            f"{limit.max_blocks} that {limit.memory} can hold"
+        )
+    if problems:
+        raise PlanError(
+            f"the plan is too large ({least}{blocks} blocks, {least}"
+            f"{_duration_text(duration_s)}); nothing was written",
+            [*problems, SMALLER],
+        )
+
+
+def _lower_bounds(config: MachineConfig) -> tuple[int, float]:
+    """Blocks and seconds the plan takes at least, found without planning a single window."""
+    blocks, duration_s = 0, 0.0
+    for axis in config.axes:
+        meas = config.measurement_for(axis)
+        steps = _fitting_steps(axis, meas)
+        positions = len(meas.positions) if isinstance(meas.positions, list) else meas.positions
+        runs = meas.repetitions * positions * (2 if meas.both_directions else 1)
+        blocks += 3 * runs * len(steps.velocities) + 2 * meas.warmup_strokes
+        duration_s += runs * sum(
+            _run_time_s(steps.geometry[v], v, axis)[2] for v in steps.velocities
+        )
+    return blocks, duration_s
+
+
+def plan_machine(
+    config: MachineConfig, limit: SizeLimit | None = None
+) -> tuple[Schedule, list[AxisPlan]]:
     """Plan the whole measurement program of a machine.
+
+    Args:
+        config: The machine.
+        limit: How long the plan may run and how many blocks it may have; default:
+            the machine file's ``limits.max_duration_h`` and no block limit.
 
     Returns:
         The schedule (what schedule.json holds) and the per-axis plans the
         program renderer turns into subprograms.
 
     Raises:
-        PlanError: a step does not fit, with the axis, velocity and lengths.
+        PlanError: a step does not fit, with the axis, velocity and lengths; or the
+            plan is beyond the limits, with its size and what to change (checked
+            first from lower bounds, before any window is planned).
     """
+    limit = limit or SizeLimit(config.limits.max_duration_h * 3600)
+    _refuse_oversized(*_lower_bounds(config), limit, at_least=True)
     t_s = sum(park_time_s(axis) for axis in config.park_sequence())
     plans: list[AxisPlan] = []
     for axis in config.measure_sequence():
@@ -564,7 +673,10 @@ def plan_machine(config: MachineConfig) -> tuple[Schedule, list[AxisPlan]]:
         program=config.machine.program,
         duration_s=round(t_s, 3),
         full_travel_duration_s=round(full_s, 3),
+        # parking, one call per axis, the axes' blocks
+        blocks=2 * len(plans) + sum(p.summary.blocks for p in plans),
         warnings=[w for p in plans for w in p.warnings],
         axes=[p.summary for p in plans],
     )
+    _refuse_oversized(schedule.blocks, schedule.duration_s, limit, at_least=False)
     return schedule, plans

@@ -61,8 +61,11 @@ def test_broken_template_is_a_dialect_error(make_config: Make, tmp_path: Path) -
     own = tmp_path / "linuxcnc"
     own.mkdir()
     (own / "main.j2").write_text("G0 {{ v.no_such_thing }}\n")
+    result = generate_programs(make_config("linuxcnc", small=True), templates_dirs=[tmp_path])
     with pytest.raises(DialectError, match=r"template .*main.j2.*no_such_thing"):
-        generate_programs(make_config("linuxcnc", small=True), templates_dirs=[tmp_path])
+        result.write(tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["linuxcnc"], "no staging folder is left"
 
 
 def test_source_date_epoch_fixes_the_header_date(monkeypatch: pytest.MonkeyPatch) -> None:

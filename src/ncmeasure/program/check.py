@@ -183,6 +183,30 @@ def check_trace(schedule: Schedule, trace: ProgramTrace, report: CheckReport) ->
             )
 
 
+def _file_problems(directory: Path, schedule: Schedule, dialect: Dialect) -> list[str]:
+    """Program files in the folder that schedule.json does not name, and named ones missing."""
+    if not schedule.program_files:
+        return [
+            f"{SCHEDULE_FILE} names no program files (written by an older ncmeasure): "
+            "generate the programs again"
+        ]
+    named = set(schedule.program_files)
+    problems = [
+        f"{path.name}: a program file that {SCHEDULE_FILE} does not name (left from another "
+        "generation?); remove it or generate into an empty folder"
+        for path in sorted(directory.iterdir())
+        if path.is_file()
+        and path.suffix.lower() in dialect.program_extensions
+        and path.name not in named
+    ]
+    problems += [
+        f"{name}: named in {SCHEDULE_FILE} but missing"
+        for name in schedule.program_files
+        if not (directory / name).is_file()
+    ]
+    return problems
+
+
 def read_generated(
     directory: str | Path, controllers_dirs: tuple[Path, ...] = ()
 ) -> tuple[Schedule, Dialect, ProgramTrace]:
@@ -221,6 +245,7 @@ def check_programs(directory: str | Path, controllers_dirs: tuple[Path, ...] = (
     directory = Path(directory)
     schedule, dialect, trace = read_generated(directory, controllers_dirs)
     report = CheckReport(directory=directory, controller=dialect.name)
+    report.problems.extend(_file_problems(directory, schedule, dialect))
     check_trace(schedule, trace, report)
     if report.problems:
         listed = report.problems[:_MAX_LISTED]

@@ -146,6 +146,15 @@ class Reader(_Strict):
     """Address letters that are parameters of another word in the same block."""
 
 
+class Memory(_Strict):
+    """How much program text the control is assumed to hold."""
+
+    program_kb: int = Field(2048, ge=1, le=1_000_000)
+    """Default of the machine file's ``limits.max_program_kb``."""
+    note: str = ""
+    """Where the figure comes from, or why it is a conservative assumption."""
+
+
 class Dialect(_Strict):
     """One controller dialect."""
 
@@ -164,6 +173,7 @@ class Dialect(_Strict):
     blocks: Blocks = Blocks()
     comments: Comments = Comments()
     marker: Marker
+    memory: Memory = Memory()
     options: dict[str, int | bool] = Field(default_factory=dict)
     """Machine-specific settings with their defaults; a machine file may override them
     in [machine.controller_options]."""
@@ -182,6 +192,14 @@ class Dialect(_Strict):
         if self.names.case == "lower":
             return name.lower()
         return name
+
+    @property
+    def program_extensions(self) -> set[str]:
+        """File extensions of the dialect's program files, lower case (``.nc``)."""
+        return {
+            Path(self.names.main_file).suffix.lower(),
+            Path(self.names.sub_file).suffix.lower(),
+        }
 
 
 def _search_path(user_dirs: Iterable[Path]) -> list[Path]:

@@ -9,12 +9,15 @@ before the built-in ones.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
+import functools
+import io
 import os
 import re
 import shutil
 import tempfile
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,8 +26,8 @@ from jinja2.sandbox import SandboxedEnvironment
 
 from ncmeasure import __version__
 from ncmeasure.config import MachineConfig, config_hash
-from ncmeasure.errors import DialectError, OutputError
-from ncmeasure.plan import AxisPlan, Move, Schedule, plan_machine
+from ncmeasure.errors import DialectError, OutputError, PlanError, ProgramError
+from ncmeasure.plan import SMALLER, AxisPlan, Move, Schedule, SizeLimit, plan_machine
 from ncmeasure.program.dialect import (
     Dialect,
     dialect_warnings,
@@ -79,53 +82,266 @@ class ProgramView:
     marker_values: str
 
 
+class _Output:
+    """Counts the bytes of every program file against the program-memory limit."""
+
+    def __init__(self, limit_bytes: int, what: str) -> None:
+        self.limit_bytes = limit_bytes
+        self.what = what
+        self.bytes = 0
+
+    def add(self, data: bytes) -> bytes:
+        self.bytes += len(data)
+        if self.bytes > self.limit_bytes:
+            raise PlanError(
+                f"the programs grow beyond {self.what}; nothing was written",
+                [SMALLER],
+            )
+        return data
+
+
+class _BlockNumbers:
+    """Adds block numbers line by line to streamed program text (dialects that number blocks)."""
+
+    def __init__(self, dialect: Dialect) -> None:
+        self.blocks = dialect.blocks
+        self.skip = re.compile(self.blocks.skip)
+        self.number = self.blocks.start
+        self.pending = ""
+
+    def _line(self, line: str) -> str:
+        if line and not self.skip.search(line):
+            line = f"N{self.number} {line}"
+            self.number += self.blocks.step
+        return line
+
+    def feed(self, chunk: str) -> str:
+        if not self.blocks.numbered:
+            return chunk
+        *lines, self.pending = (self.pending + chunk).split("\n")
+        return "".join(self._line(line) + "\n" for line in lines)
+
+    def close(self) -> str:
+        rest, self.pending = self.pending, ""
+        return self._line(rest) if self.blocks.numbered else rest
+
+
 @dataclass
 class GeneratedPrograms:
-    """The files of one generated measurement program, in memory until written."""
+    """A planned measurement program, rendered when it is written.
+
+    :meth:`write` streams every file into a staging folder, checks the result
+    with ncmeasure's own checker and only then moves it into place; ``files``
+    renders the same text into memory (for small programs and tests).
+    """
 
     dialect: Dialect
     schedule: Schedule
     plans: list[AxisPlan]
-    files: dict[str, str] = field(default_factory=dict)
     main_file: str = ""
+    _renders: list[tuple[str, Callable[[], Iterator[str]]]] = field(
+        default_factory=list, repr=False
+    )
+    _limit_bytes: int = 0
+    _limit_what: str = ""
+    _controllers_dirs: tuple[Path, ...] = ()
+    _files: dict[str, str] | None = field(default=None, repr=False)
 
-    def write(self, directory: str | Path) -> list[Path]:
-        """Write every file into ``directory`` (created if missing).
+    @property
+    def program_files(self) -> list[str]:
+        """File names of the programs, the main program first."""
+        return [name for name, _ in self._renders]
 
-        The files are first written into a temporary folder beside the target
-        and then moved into place, so a failure leaves no partial program.
+    @property
+    def files(self) -> dict[str, str]:
+        """The program texts by file name, rendered into memory on first use.
 
         Raises:
-            OutputError: the directory cannot be created or written.
+            DialectError: a template fails or breaks one of its limits.
+            PlanError: the programs exceed the program-memory limit.
+        """
+        if self._files is None:
+            output = _Output(self._limit_bytes, self._limit_what)
+            files = {}
+            for name, render in self._renders:
+                buffer = io.StringIO()
+                self._stream(render, output, buffer.write)
+                files[name] = buffer.getvalue()
+            self._files = files
+        return self._files
+
+    def _stream(
+        self,
+        render: Callable[[], Iterator[str]],
+        output: _Output,
+        write: Callable[[str], object],
+    ) -> None:
+        numbers = _BlockNumbers(self.dialect)
+        try:
+            for chunk in render():
+                text = numbers.feed(chunk)
+                output.add(text.encode("utf-8"))
+                write(text)
+            text = numbers.close()
+            output.add(text.encode("utf-8"))
+            write(text)
+        except jinja2.TemplateError as exc:
+            raise DialectError(f"template {_template_place(exc, self.dialect)}: {exc}") from exc
+
+    def _render_into(self, folder: Path) -> None:
+        schedule = self.schedule.model_dump_json(indent=2) + "\n"
+        (folder / SCHEDULE_FILE).write_text(schedule, encoding="utf-8", newline="\n")
+        del schedule
+        output = _Output(self._limit_bytes, self._limit_what)
+        for name, render in self._renders:
+            with (folder / name).open("w", encoding="utf-8", newline="\n") as file:
+                self._stream(render, output, file.write)
+
+    def _check(self, folder: Path) -> None:
+        # Imported here: the checker reads schedule.json with this module's file name.
+        from ncmeasure.program.check import check_programs
+
+        try:
+            check_programs(folder, self._controllers_dirs)
+        except ProgramError as exc:
+            raise DialectError(
+                "the rendered programs fail ncmeasure's own check, so nothing was written "
+                "(a template or the controller definition writes what check refuses)",
+                [exc.message, *exc.problems],
+            ) from exc
+
+    def write(self, directory: str | Path) -> list[Path]:
+        """Render, check and write every file into ``directory`` (created if missing).
+
+        The files are streamed into a staging folder beside the target, checked
+        with :func:`~ncmeasure.program.check.check_programs`, and only then
+        moved into place, replacing the files of an earlier generation (those
+        its schedule.json names) and nothing else. Any failure leaves
+        ``directory`` as it was.
+
+        Raises:
+            OutputError: the directory cannot be created or written, or it holds
+                program files no schedule names.
+            DialectError: a template fails, or the rendered programs fail the check.
+            PlanError: the programs exceed the program-memory limit.
         """
         directory = Path(directory)
         if directory.exists() and not directory.is_dir():
             raise OutputError(f"{directory}: exists and is not a directory")
+        new = [*self.program_files, SCHEDULE_FILE]
+        previous = _previous_generation(directory, self.dialect, new)
+        anchor = directory.absolute().parent
+        while not anchor.is_dir():
+            anchor = anchor.parent
         try:
-            directory.mkdir(parents=True, exist_ok=True)
-            staging = Path(tempfile.mkdtemp(prefix=".ncmeasure-", dir=directory))
+            staging = Path(tempfile.mkdtemp(prefix=f".{directory.name}.ncmeasure-", dir=anchor))
         except OSError as exc:
-            raise OutputError(
-                f"{directory}: cannot create output directory ({exc.strerror})"
-            ) from exc
-        written: list[Path] = []
+            raise OutputError(f"{anchor}: cannot create a staging folder ({exc.strerror})") from exc
         try:
-            for name, text in self.all_files().items():
-                (staging / name).write_text(text, encoding="utf-8", newline="\n")
-            for name in self.all_files():
-                target = directory / name
-                (staging / name).replace(target)
-                written.append(target)
-        except OSError as exc:
-            raise OutputError(f"{directory}: cannot write programs ({exc.strerror})") from exc
+            try:
+                self._render_into(staging)
+            except OSError as exc:
+                raise OutputError(f"{staging}: cannot write programs ({exc.strerror})") from exc
+            self._check(staging)
+            return _move_into_place(staging, directory, previous, new)
         finally:
             shutil.rmtree(staging, ignore_errors=True)
-        return written
 
     def all_files(self) -> dict[str, str]:
-        """Program files plus schedule.json, by file name."""
+        """Program files plus schedule.json, by file name (rendered into memory)."""
         schedule = self.schedule.model_dump_json(indent=2) + "\n"
         return {**self.files, SCHEDULE_FILE: schedule}
+
+
+def _previous_generation(directory: Path, dialect: Dialect, new: list[str]) -> list[str]:
+    """Files of an earlier generation in ``directory`` that the new one replaces.
+
+    Raises:
+        OutputError: the folder holds program files that no schedule.json names,
+            or a file the new generation would overwrite that is not ncmeasure's.
+    """
+    if not directory.is_dir():
+        return []
+    present = {path.name for path in directory.iterdir() if path.is_file()}
+    previous: set[str] = set()
+    schedule_path = directory / SCHEDULE_FILE
+    if SCHEDULE_FILE in present:
+        # Imported here: check imports this module.
+        from ncmeasure.program.check import load_schedule
+
+        try:
+            old = load_schedule(schedule_path)
+        except ProgramError as exc:
+            raise OutputError(
+                f"{schedule_path}: not a readable schedule, so the programs beside it cannot "
+                "be told from others; remove the folder's programs or choose another folder",
+                [exc.message],
+            ) from exc
+        previous.add(SCHEDULE_FILE)
+        if old.program_files:
+            previous.update(old.program_files)
+        else:  # written before schedules listed their files: every program file is theirs
+            previous.update(
+                name for name in present if Path(name).suffix.lower() in dialect.program_extensions
+            )
+    foreign = sorted(
+        name
+        for name in present - previous
+        if name in new or Path(name).suffix.lower() in dialect.program_extensions
+    )
+    if foreign:
+        shown = ", ".join(foreign[:5]) + (
+            f" and {len(foreign) - 5} more" if len(foreign) > 5 else ""
+        )
+        raise OutputError(
+            f"{directory}: holds program files that no schedule.json there names ({shown}); "
+            "check would refuse the folder. Move them away or choose another folder",
+        )
+    return sorted(previous & present)
+
+
+def _move_into_place(
+    staging: Path, directory: Path, previous: list[str], new: list[str]
+) -> list[Path]:
+    """Replace the earlier generation's files in ``directory`` by the staged ones."""
+    if not directory.exists():
+        try:
+            directory.parent.mkdir(parents=True, exist_ok=True)
+            staging.rename(directory)
+        except OSError as exc:
+            raise OutputError(
+                f"{directory}: cannot create the output folder ({exc.strerror})"
+            ) from exc
+        return [directory / name for name in new]
+    try:
+        backup = Path(tempfile.mkdtemp(prefix=".ncmeasure-old-", dir=directory))
+    except OSError as exc:
+        raise OutputError(f"{directory}: cannot write programs ({exc.strerror})") from exc
+    moved_old: list[str] = []
+    moved_new: list[str] = []
+    try:
+        # schedule.json goes first and comes last: programs never sit beside a stale schedule
+        for name in sorted(previous, key=lambda n: n != SCHEDULE_FILE):
+            (directory / name).replace(backup / name)
+            moved_old.append(name)
+        for name in new:
+            (staging / name).replace(directory / name)
+            moved_new.append(name)
+    except OSError as exc:
+        for name in reversed(moved_new):
+            with contextlib.suppress(OSError):
+                (directory / name).replace(staging / name)
+        for name in reversed(moved_old):
+            with contextlib.suppress(OSError):
+                (backup / name).replace(directory / name)
+        raise OutputError(f"{directory}: cannot write programs ({exc.strerror})") from exc
+    finally:
+        if len(moved_new) == len(new):
+            shutil.rmtree(backup, ignore_errors=True)
+        else:
+            with contextlib.suppress(OSError):
+                backup.rmdir()  # stays (with the old files) only if restoring failed
+    return [directory / name for name in new]
 
 
 def generation_time() -> dt.datetime:
@@ -209,21 +425,6 @@ def _template_place(exc: jinja2.TemplateError, dialect: Dialect) -> str:
     return f"{place}:{line}" if line else place
 
 
-def _number_blocks(text: str, dialect: Dialect) -> str:
-    blocks = dialect.blocks
-    if not blocks.numbered:
-        return text
-    skip = re.compile(blocks.skip)
-    number = blocks.start
-    lines = []
-    for line in text.split("\n"):
-        if line and not skip.search(line):
-            line = f"N{number} {line}"
-            number += blocks.step
-        lines.append(line)
-    return "\n".join(lines)
-
-
 def generate_programs(
     config: MachineConfig,
     *,
@@ -242,7 +443,20 @@ def generate_programs(
     """
     dialect = load_dialect(config.machine.controller, controllers_dirs)
     options = validate_for_dialect(config, dialect)
-    schedule, plans = plan_machine(config)
+    limit_kb = config.limits.max_program_kb or dialect.memory.program_kb
+    if config.limits.max_program_kb:
+        memory = f"limits.max_program_kb = {limit_kb}"
+    else:
+        memory = (
+            f"the {limit_kb} kB of program memory assumed for {dialect.title} "
+            "(limits.max_program_kb; `ncmeasure controllers --details`)"
+        )
+    # Every block holds at least an axis word (letter, number with the dialect's decimals)
+    # and a line end: a floor no rendered program stays under.
+    decimals = dialect.numbers.decimals
+    block_floor = 3 + decimals + (1 if decimals else 0)
+    limit = SizeLimit(config.limits.max_duration_h * 3600, limit_kb * 1024 // block_floor, memory)
+    schedule, plans = plan_machine(config, limit)
     names = dialect.names
     program = config.machine.program
     number = config.machine.program_number
@@ -289,29 +503,36 @@ def generate_programs(
         marker_values=dialect.marker.values,
     )
     env = _environment(dialect, templates_dirs)
+    renders: list[tuple[str, Callable[[], Iterator[str]]]] = [
+        (main.file_name, functools.partial(_generate, env, "main.j2", v=view))
+    ]
+    if dialect.subprograms:
+        for axis_view in view.measure:
+            assert axis_view.sub is not None
+            sub = functools.partial(_generate, env, "sub.j2", v=view, axis=axis_view)
+            renders.append((axis_view.sub.file_name, sub))
     schedule = schedule.model_copy(
         update={
             "main_program": main.file_name,
+            "program_files": [name for name, _ in renders],
             "marker_scope": marker_scope(dialect, options),
             "controller_options": options,
             "marker_values": dialect.marker.values,
             "warnings": [*schedule.warnings, *dialect_warnings(dialect, options)],
         }
     )
-    result = GeneratedPrograms(
-        dialect=dialect, schedule=schedule, plans=plans, main_file=main.file_name
+    return GeneratedPrograms(
+        dialect=dialect,
+        schedule=schedule,
+        plans=plans,
+        main_file=main.file_name,
+        _renders=renders,
+        _limit_bytes=limit_kb * 1024,
+        _limit_what=memory,
+        _controllers_dirs=tuple(controllers_dirs),
     )
-    try:
-        result.files[main.file_name] = _number_blocks(
-            env.get_template("main.j2").render(v=view), dialect
-        )
-        if dialect.subprograms:
-            sub_template = env.get_template("sub.j2")
-            for axis_view in view.measure:
-                assert axis_view.sub is not None
-                result.files[axis_view.sub.file_name] = _number_blocks(
-                    sub_template.render(v=view, axis=axis_view), dialect
-                )
-    except jinja2.TemplateError as exc:
-        raise DialectError(f"template {_template_place(exc, dialect)}: {exc}") from exc
-    return result
+
+
+def _generate(env: jinja2.Environment, name: str, **context: object) -> Iterator[str]:
+    """The text of one template, chunk by chunk (nothing is held in memory)."""
+    return env.get_template(name).generate(**context)
