@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import datetime as dt
+import json
+import re
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
@@ -63,3 +65,37 @@ def machine_file(tmp_path: Path) -> Callable[[str], Path]:
         return path
 
     return write
+
+
+def _toml_key(key: str) -> str:
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else json.dumps(key)
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)  # a JSON string is a TOML basic string
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return (
+            "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items()) + " }"
+        )
+    return repr(value)  # ints and floats, inf and nan included, are TOML as Python writes them
+
+
+def machine_toml(data: dict[str, Any]) -> str:
+    """A machine dict as TOML text: top-level tables, then one [[axes]] table per axis."""
+    lines = []
+    for key, value in data.items():
+        if isinstance(value, dict):
+            lines.append(f"[{_toml_key(key)}]")
+            lines += [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items()]
+        elif key != "axes" or not isinstance(value, list):
+            lines.insert(0, f"{_toml_key(key)} = {_toml_value(value)}")
+    for axis in data.get("axes", []) if isinstance(data.get("axes"), list) else []:
+        lines.append("[[axes]]")
+        if isinstance(axis, dict):
+            lines += [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in axis.items()]
+    return "\n".join(lines) + "\n"

@@ -234,7 +234,6 @@ def _print_plan(schedule: Schedule) -> None:
         "mm/min",
         "run-up",
         "windows",
-        "blocks",
         "time",
         "full travel",
     ):
@@ -248,7 +247,6 @@ def _print_plan(schedule: Schedule) -> None:
             f"{velocities[0]:g} … {velocities[-1]:g}",
             f"{axis.runup_at_max_velocity_mm:g}mm",
             str(len(axis.windows)),
-            str(axis.blocks),
             _duration(axis.duration_s),
             _duration(axis.full_travel_duration_s),
         )

@@ -23,7 +23,7 @@ from ncmeasure.errors import DialectError, OutputError, PlanError, ProgramCheckE
 from ncmeasure.program import GeneratedPrograms, check_programs, generate_programs
 from ncmeasure.program.reader import read_programs
 from ncmeasure.resources import builtin_dir
-from tests.conftest import DIALECTS, FIXED_TIME, example_data, small_data
+from tests.conftest import DIALECTS, FIXED_TIME, example_data, machine_toml, small_data
 
 Make = Callable[..., MachineConfig]
 runner = CliRunner()
@@ -64,36 +64,11 @@ def test_a_week_long_plan_is_refused_before_rendering(tmp_path: Path) -> None:
     assert "measurement.positions" in text and "measurement.velocity_steps" in text
 
     machine = tmp_path / "m.toml"
-    machine.write_text(_toml(data), encoding="utf-8")
+    machine.write_text(machine_toml(data), encoding="utf-8")
     code, _, stderr = run("generate", machine, "-o", tmp_path / "out")
     assert code == 2 and "limits.max_duration_h" in stderr and "Traceback" not in stderr
     assert not (tmp_path / "out").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.toml"], "no staging folder left"
-
-
-def _toml(data: dict[str, Any]) -> str:
-    """A machine dict as TOML (enough for the example's tables)."""
-
-    def value(v: Any) -> str:
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, str):
-            return json.dumps(v)
-        if isinstance(v, list | tuple):
-            return "[" + ", ".join(value(x) for x in v) + "]"
-        if isinstance(v, dict):
-            return "{ " + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + " }"
-        return repr(v)
-
-    lines = []
-    for table in ("machine", "measurement", "limits", "link"):
-        if data.get(table):
-            lines.append(f"[{table}]")
-            lines += [f"{k} = {value(v)}" for k, v in data[table].items()]
-    for axis in data["axes"]:
-        lines.append("[[axes]]")
-        lines += [f"{k} = {value(v)}" for k, v in axis.items()]
-    return "\n".join(lines) + "\n"
 
 
 def test_the_duration_limit_is_configurable() -> None:
@@ -128,7 +103,7 @@ def test_the_plan_states_its_blocks_and_they_are_the_programs_blocks(
 
 def test_plan_prints_blocks_and_size(tmp_path: Path) -> None:
     machine = tmp_path / "m.toml"
-    machine.write_text(_toml(example_data("fanuc")), encoding="utf-8")
+    machine.write_text(machine_toml(example_data("fanuc")), encoding="utf-8")
     code, out, _ = run("plan", machine)
     assert code == 0
     assert "blocks" in out
@@ -236,7 +211,7 @@ def test_programs_check_refuses_are_not_written(tmp_path: Path) -> None:
     assert snapshot(out) == before
 
     machine = tmp_path / "m.toml"
-    machine.write_text(_toml(small_data("linuxcnc")))
+    machine.write_text(machine_toml(small_data("linuxcnc")))
     code, _, stderr = run("generate", machine, "-o", out, "--templates-dir", templates)
     assert code == 2 and "fail ncmeasure's own check" in stderr and "Traceback" not in stderr
     assert snapshot(out) == before
@@ -327,3 +302,15 @@ def test_a_failure_while_moving_into_place_restores_the_earlier_programs(
     assert snapshot(out) == before
     assert check_programs(out).ok
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_a_new_output_folder_gets_the_usual_permissions(tmp_path: Path) -> None:
+    """The staging folder is private while it is filled; the output folder is not."""
+    out = tmp_path / "new" / "programs"
+    generate_programs(config_of(small_data("linuxcnc"))).write(out)
+    probe = tmp_path / "probe"
+    probe.mkdir()
+    assert out.stat().st_mode & 0o777 == probe.stat().st_mode & 0o777
+    file = tmp_path / "probe.txt"
+    file.write_text("")
+    assert (out / "friction.ngc").stat().st_mode & 0o777 == file.stat().st_mode & 0o777

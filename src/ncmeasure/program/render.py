@@ -307,6 +307,9 @@ def _move_into_place(
     if not directory.exists():
         try:
             directory.parent.mkdir(parents=True, exist_ok=True)
+            umask = os.umask(0)
+            os.umask(umask)
+            staging.chmod(0o777 & ~umask)  # as mkdir would have made it, not private
             staging.rename(directory)
         except OSError as exc:
             raise OutputError(

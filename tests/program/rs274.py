@@ -1,0 +1,117 @@
+"""LinuxCNC's standalone interpreter rs274 (package linuxcnc-uspace), as the tests use it.
+
+``run_rs274`` runs a program and returns the canonical moves it emits;
+``check_against_schedule`` holds them against the soft limits, the feeds and
+the windows of schedule.json.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+
+from ncmeasure.plan import Schedule
+
+RS274 = shutil.which("rs274")
+AXES = ("X", "Y", "Z", "A", "B", "C")
+"""The axes rs274 prints, in its order (it knows no U, V, W without a configuration)."""
+_CALL = re.compile(r"^\s*\d+ N\S* (?P<name>[A-Z_]+)\((?P<args>.*)\)\s*$")
+
+
+@dataclass(frozen=True)
+class Canon:
+    kind: str  # "rapid" | "feed"
+    position: tuple[float, ...]
+    feed: float
+    marker: float
+
+
+def run_rs274(folder: Path, main: str) -> list[Canon]:
+    assert RS274 is not None
+    home = folder / "home"
+    home.mkdir(exist_ok=True)
+    done = subprocess.run(
+        [RS274, "-g", main],
+        cwd=folder,
+        env={**os.environ, "HOME": str(home)},
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    output = done.stdout + done.stderr
+    assert "PROGRAM_END()" in output, output[-2000:]
+    moves: list[Canon] = []
+    feed, marker = 0.0, 0.0
+    for line in output.splitlines():
+        match = _CALL.match(line)
+        if not match:
+            assert not re.search(r"error|failed|unknown", line, re.I), line
+            continue
+        name, args = match.group("name"), match.group("args")
+        if name == "SET_FEED_RATE":
+            feed = float(args)
+        elif name == "SET_MOTION_OUTPUT_VALUE":
+            marker = float(args.split(",")[1])
+        elif name == "SET_MOTION_OUTPUT_BIT" and marker == 0:
+            marker = 1.0
+        elif name in ("STRAIGHT_TRAVERSE", "STRAIGHT_FEED"):
+            values = tuple(float(v) for v in args.split(",")[: len(AXES)])
+            kind = "rapid" if name == "STRAIGHT_TRAVERSE" else "feed"
+            moves.append(Canon(kind, values, feed, marker))
+    return moves
+
+
+def check_against_schedule(moves: list[Canon], schedule: Schedule, markers: bool) -> None:
+    axes = {a.name: a for a in schedule.axes}
+    previous: tuple[float, ...] = (0.0,) * len(AXES)
+    windows = {name: list(a.windows) for name, a in axes.items()}
+    found = dict.fromkeys(axes, 0)
+    started: set[str] = set()  # rs274 starts every axis at 0: limits hold from its first move
+    for move in moves:
+        moved = [AXES[i] for i in range(len(AXES)) if abs(move.position[i] - previous[i]) > 1e-9]
+        assert len(moved) <= 1, f"several axes move at once: {move}"
+        started.update(moved)
+        for i, name in enumerate(AXES):
+            if name not in axes:
+                assert move.position[i] == 0.0, f"{name} moves, which the schedule lacks"
+                continue
+            if name not in started:
+                continue
+            low, high = axes[name].travel_mm
+            assert low <= move.position[i] <= high, f"{name} {move.position[i]} outside limits"
+        if moved and move.kind == "feed":
+            name = moved[0]
+            i = AXES.index(name)
+            assert move.feed <= axes[name].max_velocity_mm_min
+            pending = windows[name]
+            if pending:
+                w = pending[0]
+                is_window = (
+                    abs(previous[i] - w.window_start_mm) < 5e-4
+                    and abs(move.position[i] - w.window_end_mm) < 5e-4
+                    and abs(move.feed - abs(w.velocity_mm_min)) < 5e-4
+                )
+                if is_window:
+                    pending.pop(0)
+                    found[name] += 1
+                if markers:
+                    assert move.marker == (w.id if is_window else 0), (move, w)
+        previous = move.position
+    for name, axis in axes.items():
+        assert found[name] == len(axis.windows)
+
+
+def fanuc_as_one_file(folder: Path, program_files: list[str], name: str = "all.ngc") -> str:
+    """FANUC programs (one O-number per file) joined into one file, as rs274 reads them."""
+    combined = ["%"]
+    for file in program_files:  # the main program first, then its subprograms
+        text = (folder / file).read_text(encoding="utf-8")
+        combined += [line for line in text.splitlines() if line != "%"]
+    combined.append("%")
+    (folder / name).write_text("\n".join(combined) + "\n", encoding="utf-8")
+    return name
