@@ -90,7 +90,7 @@ BAD_MACHINES: dict[str, tuple[Callable[[str], str], str]] = {
     ),
     "wrong unit or range": (
         lambda t: t.replace("max_velocity_mm_min = 30000\n", "max_velocity_mm_min = -30000\n", 1),
-        "axes[0].max_velocity_mm_min: Input should be greater than 0",
+        "axes[0].max_velocity_mm_min: Input should be greater than or equal to 0.01",
     ),
     "wrong type": (
         lambda t: t.replace("max_acceleration_m_s2 = 2.0", 'max_acceleration_m_s2 = "2 m/s2"', 1),

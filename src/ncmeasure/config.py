@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import re
 import tomllib
 from collections.abc import Collection, Iterable, Iterator, Mapping
@@ -23,6 +24,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import (
     BaseModel,
+    BeforeValidator,
     ConfigDict,
     Field,
     ValidationError,
@@ -52,6 +54,21 @@ _FORBIDDEN_TEXT = re.compile(r"[\x00-\x1f\x7f;()%$/\\*\"'{}\[\]]|\.\.")
 AXIS_NAME_PATTERN = r"^[A-Z][A-Z0-9]{0,7}$"
 PROGRAM_NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]{0,23}$"
 
+# Physical ranges of the machine file's numbers. Positions: what controls accept
+# (HEIDENHAIN TNC 640 ISO manual §19.3 p.631: ±99 999.9999 mm). Feeds: programs write
+# them with 0.001 mm/min resolution, so the lowest must stay well above that; the highest
+# is far beyond any feed axis.
+MAX_POSITION_MM = 100_000.0
+MIN_FEED = 0.01
+MAX_FEED = 1_000_000.0
+MAX_WINDOW_S = 600.0
+Position = Annotated[float, Field(ge=-MAX_POSITION_MM, le=MAX_POSITION_MM)]
+
+
+def _tuple(value: object) -> object:
+    """TOML has arrays, not tuples: a list becomes the tuple it stands for."""
+    return tuple(value) if isinstance(value, list) else value
+
 
 def _safe_text(value: str) -> str:
     match = _FORBIDDEN_TEXT.search(value)
@@ -74,7 +91,9 @@ def _check_pattern(value: str, pattern: str, rule: str) -> str:
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, validate_default=True, strict=True, allow_inf_nan=False
+    )
 
 
 class MachineSection(_Model):
@@ -131,7 +150,7 @@ class MachineSection(_Model):
 class Measurement(_Model):
     """The ``[measurement]`` table: what to measure on every axis."""
 
-    positions: int | list[float] = Field(
+    positions: int | list[Position] = Field(
         default=3,
         description="Measuring positions: a count, spread evenly over the usable travel "
         "(3: next to the fixed bearing, middle, next to the loose bearing), or a list in mm.",
@@ -139,15 +158,15 @@ class Measurement(_Model):
     velocity_steps: Annotated[int, Field(ge=1, le=500)] = Field(
         default=50, description="Number of constant-velocity steps per direction."
     )
-    min_velocity_mm_min: Annotated[float, Field(gt=0)] = Field(
+    min_velocity_mm_min: Annotated[float, Field(ge=MIN_FEED, le=MAX_FEED)] = Field(
         default=10.0, description="Lowest measured velocity in mm/min."
     )
-    max_velocity_mm_min: Annotated[float, Field(gt=0)] | None = Field(
+    max_velocity_mm_min: Annotated[float, Field(ge=MIN_FEED, le=MAX_FEED)] | None = Field(
         default=None,
         description="Highest measured velocity in mm/min. "
         "Default: max_velocity_fraction × the axis' maximum velocity.",
     )
-    max_velocity_fraction: Annotated[float, Field(gt=0, le=1)] = Field(
+    max_velocity_fraction: Annotated[float, Field(ge=0.001, le=1)] = Field(
         default=0.5,
         description="Fraction of the axis maximum velocity used when max_velocity_mm_min "
         "is not given.",
@@ -157,7 +176,7 @@ class Measurement(_Model):
         description="Velocity step spacing: geometric puts more steps at low speed, where "
         "friction is nonlinear (Stribeck region); linear spaces them evenly.",
     )
-    window_s: Annotated[float, Field(gt=0, le=600)] | None = Field(
+    window_s: Annotated[float, Field(ge=0.001, le=MAX_WINDOW_S)] | None = Field(
         default=None,
         description="Minimum duration of constant velocity per window in s. "
         "Default: window_samples × sample_period_ms.",
@@ -165,7 +184,7 @@ class Measurement(_Model):
     window_samples: Annotated[int, Field(ge=1, le=1_000_000)] = Field(
         default=100, description="Samples per window when window_s is not given."
     )
-    sample_period_ms: Annotated[float, Field(gt=0, le=1000)] = Field(
+    sample_period_ms: Annotated[float, Field(ge=0.01, le=1000)] = Field(
         default=4.0,
         description="Sample period of the recording in ms (e.g. the interpolation cycle).",
     )
@@ -179,7 +198,7 @@ class Measurement(_Model):
         description="Factor on the jerk-limited run-up and stopping distances, covering "
         "controllers that ramp more gently than the axis limits allow.",
     )
-    margin_mm: Annotated[float, Field(ge=0)] = Field(
+    margin_mm: Annotated[float, Field(ge=0, le=MAX_POSITION_MM)] = Field(
         default=5.0,
         description="Distance kept from both soft limits by every move of the measurement.",
     )
@@ -188,7 +207,7 @@ class Measurement(_Model):
         description="Back-and-forth strokes over the usable travel before measuring, so "
         "the lubrication film forms and the first window is not an outlier.",
     )
-    warmup_velocity_mm_min: Annotated[float, Field(gt=0)] | None = Field(
+    warmup_velocity_mm_min: Annotated[float, Field(ge=MIN_FEED, le=MAX_FEED)] | None = Field(
         default=None,
         description="Feed of the warm-up strokes in mm/min. Default: the highest "
         "measured velocity.",
@@ -209,6 +228,15 @@ class Measurement(_Model):
         description="A velocity step whose run-up, window and stop do not fit in the usable "
         "travel: 'error' stops with the numbers, 'drop' leaves the step out with a warning.",
     )
+
+    @field_validator("dwell_s")
+    @classmethod
+    def _check_dwell(cls, value: float) -> float:
+        if 0 < value < 0.001:
+            raise PydanticCustomError(
+                "dwell", "a dwell is 0 or at least 0.001 s (programs write whole milliseconds)"
+            )
+        return value
 
     @field_validator("positions")
     @classmethod
@@ -264,24 +292,24 @@ class AxisConfig(_Model):
         description="Axis address as the controller writes it (X, Y, Z, Z1, ...). "
         "The dialect decides which names it allows.",
     )
-    travel_mm: tuple[float, float] = Field(
+    travel_mm: Annotated[tuple[Position, Position], BeforeValidator(_tuple)] = Field(
         description="Soft limits [min, max] in mm. No program position ever leaves them."
     )
-    park_mm: float = Field(
+    park_mm: Position = Field(
         description="Where the axis waits while the other axes are measured, in mm."
     )
-    max_velocity_mm_min: Annotated[float, Field(gt=0, le=1_000_000)] = Field(
+    max_velocity_mm_min: Annotated[float, Field(ge=MIN_FEED, le=MAX_FEED)] = Field(
         description="Maximum axis velocity in mm/min. No feed exceeds it."
     )
-    rapid_velocity_mm_min: Annotated[float, Field(gt=0, le=1_000_000)] | None = Field(
+    rapid_velocity_mm_min: Annotated[float, Field(ge=MIN_FEED, le=MAX_FEED)] | None = Field(
         default=None,
         description="Rapid traverse velocity in mm/min, for the duration estimate. "
         "Default: max_velocity_mm_min.",
     )
-    max_acceleration_m_s2: Annotated[float, Field(gt=0, le=200)] = Field(
+    max_acceleration_m_s2: Annotated[float, Field(ge=0.001, le=200)] = Field(
         description="Maximum axis acceleration in m/s²."
     )
-    max_jerk_m_s3: Annotated[float, Field(gt=0, le=100_000)] = Field(
+    max_jerk_m_s3: Annotated[float, Field(ge=0.001, le=100_000)] = Field(
         description="Maximum axis jerk in m/s³."
     )
     fixed_bearing_end: Literal["min", "max"] = Field(
@@ -290,13 +318,13 @@ class AxisConfig(_Model):
     vertical: bool = Field(
         default=False, description="A vertical axis (gravity acts on the motor torque)."
     )
-    torque_constant_nm_per_a: Annotated[float, Field(gt=0)] | None = Field(
+    torque_constant_nm_per_a: Annotated[float, Field(gt=0, le=1000)] | None = Field(
         default=None, description="Motor torque constant k_T in Nm/A (for the analysis)."
     )
-    rated_current_a: Annotated[float, Field(gt=0)] | None = Field(
+    rated_current_a: Annotated[float, Field(gt=0, le=10_000)] | None = Field(
         default=None, description="Motor rated current in A (drives report current in ‰ of it)."
     )
-    screw_lead_mm: Annotated[float, Field(gt=0)] | None = Field(
+    screw_lead_mm: Annotated[float, Field(gt=0, le=1000)] | None = Field(
         default=None, description="Ball-screw lead in mm per revolution."
     )
     measurement: MeasurementOverride | None = Field(
@@ -387,6 +415,29 @@ class MachineConfig(_Model):
         return Measurement.model_validate(merged)
 
 
+_BRANCH_TAGS = {"int", "float", "bool", "str", "list", "tuple", "dict", "none"}
+"""Names pydantic gives the branches of a union in an error's location."""
+_TYPE_ERRORS = {
+    "int_type": "an integer",
+    "float_type": "a number",
+    "bool_type": "true/false",
+    "string_type": "text in quotes",
+    "tuple_type": "a list",
+    "list_type": "a list",
+    "dict_type": "a table",
+}
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, str):
+        return f"the text {value!r}"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, list | tuple | dict):
+        return "a list" if not isinstance(value, dict) else "a table"
+    return repr(value)
+
+
 def _loc_text(loc: Iterable[int | str], tables: Collection[str] = ()) -> str:
     text = ""
     previous: int | str | None = None
@@ -396,7 +447,7 @@ def _loc_text(loc: Iterable[int | str], tables: Collection[str] = ()) -> str:
         elif isinstance(previous, str) and previous in tables:
             # a key the user chose (X_current_a), not a field name: kept as written
             text += f".{part}" if re.fullmatch(r"\w+", part) else f"[{part!r}]"
-        elif re.fullmatch(r"[a-z_][a-z0-9_]*", part) and part not in {"int", "float", "list"}:
+        elif re.fullmatch(r"[a-z_][a-z0-9_]*", part) and part not in _BRANCH_TAGS:
             text += f".{part}" if text else part
         # union branch tags such as 'list[float]' or 'function-after[...]' add nothing
         previous = part
@@ -421,6 +472,12 @@ def format_validation_error(
     lines: list[str] = []
     for error in exc.errors(include_url=False):
         loc = _loc_text(error["loc"], tables)
+        if error["type"] == "extra_forbidden" and error["loc"]:
+            # the last part is the user's own key, kept as written (Park_mm, park-mm)
+            parent, key = error["loc"][:-1], str(error["loc"][-1])
+            loc = _loc_text(parent, tables) if parent else ""
+            shown = f".{key}" if re.fullmatch(r"\w+", key) else f"[{key!r}]"
+            loc = (loc + shown).lstrip(".") if loc != "(file)" else shown.lstrip(".")
         if prefix:
             loc = prefix if loc == "(file)" else f"{prefix}.{loc}"
         message = error["msg"]
@@ -430,9 +487,17 @@ def format_validation_error(
             )
         elif error["type"] == "missing":
             message = "required key is missing"
-        line = f"{loc}: {message}"
-        if line not in lines:
-            lines.append(line)
+        elif error["type"] in _TYPE_ERRORS:
+            # strict types: "40" is no number and "no" no boolean; say what was given
+            message = f"expected {_TYPE_ERRORS[error['type']]}, got {_shown(error['input'])}"
+        for number, line in enumerate(lines):  # a union's branches: one line per place
+            if line.startswith(f"{loc}: expected ") and message.startswith("expected "):
+                lines[number] = f"{line.split(', got ')[0]} or {message.removeprefix('expected ')}"
+                break
+        else:
+            line = f"{loc}: {message}"
+            if line not in lines:
+                lines.append(line)
     return lines
 
 
@@ -493,7 +558,28 @@ def _cross_checks(config: MachineConfig) -> Iterator[str]:
                 f"{where}.margin_mm: {meas.margin_mm:g} mm from both ends leaves no usable "
                 f"travel on axis {axis.name} (travel {high - low:g} mm)"
             )
+        if meas.window_duration_s > MAX_WINDOW_S:
+            yield (
+                f"{where}.window_samples: {meas.window_samples} samples of "
+                f"{meas.sample_period_ms:g} ms make a window of {meas.window_duration_s:g} s, "
+                f"more than {MAX_WINDOW_S:g} s"
+            )
+        usable_um = math.floor((high - low - 2 * meas.margin_mm) * 1000)
+        count = len(meas.positions) if isinstance(meas.positions, list) else meas.positions
+        if count > 1 and usable_um < count - 1:
+            yield (
+                f"{where}.positions: {count} positions need at least {count - 1} µm of usable "
+                f"travel; axis {axis.name} has {max(usable_um, 0)} µm"
+            )
         if isinstance(meas.positions, list):
+            micrometres = [round(p * 1000) for p in meas.positions]
+            for number in range(1, len(micrometres)):
+                if micrometres[number] == micrometres[number - 1]:
+                    yield (
+                        f"{where}.positions[{number}]: {meas.positions[number]:g} mm and "
+                        f"{meas.positions[number - 1]:g} mm are the same micrometre; the "
+                        "programs place positions on whole micrometres"
+                    )
             for number, position in enumerate(meas.positions):
                 if not low + meas.margin_mm <= position <= high - meas.margin_mm:
                     yield (
@@ -514,7 +600,9 @@ def parse_machine(data: Mapping[str, Any], source: str = "machine file") -> Mach
     except ValidationError as exc:
         raise ConfigError(
             f"{source} is not valid",
-            format_validation_error(exc, schema_hint="`ncmeasure schema machine`"),
+            format_validation_error(
+                exc, schema_hint="`ncmeasure schema machine`", tables=("controller_options",)
+            ),
         ) from exc
     problems = list(dict.fromkeys(_cross_checks(config)))  # one line per problem
     if problems:

@@ -22,7 +22,6 @@ will cut out of the recording, with their expected times.
 
 from __future__ import annotations
 
-import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -52,8 +51,6 @@ __all__ = [
     "plan_machine",
     "velocity_steps",
 ]
-
-log = logging.getLogger(__name__)
 
 SCHEDULE_FORMAT = "ncmeasure-schedule"
 SCHEDULE_FORMAT_VERSION = 1
@@ -267,10 +264,7 @@ def velocity_steps(meas: Measurement, axis: AxisConfig) -> list[float]:
         values = [low * ratio ** (k / (count - 1)) for k in range(count)]
     else:
         values = [low + (top - low) * k / (count - 1) for k in range(count)]
-    steps = sorted({_floor_feed(v) for v in values})
-    if len(steps) < len(values):
-        log.warning("axis %s: velocity steps closer than 0.001 mm/min merged", axis.name)
-    return steps
+    return sorted({_floor_feed(v) for v in values})
 
 
 def nominal_positions_um(meas: Measurement, low_um: int, high_um: int) -> list[int]:
@@ -349,6 +343,7 @@ class _Clock:
         self.moves.append(Feed(self.axis.name, target, feed_mm_min))
 
     def dwell(self, seconds: float) -> None:
+        seconds = round(seconds, 3)  # what the program writes: whole milliseconds
         if seconds > 0:
             self.t_s += seconds
             self.moves.append(Dwell(seconds))
@@ -385,10 +380,17 @@ def _fitting_steps(axis: AxisConfig, meas: Measurement) -> _Steps:
     high_um = _floor_um(axis.travel_mm[1] - meas.margin_mm)
     available_um = high_um - low_um
     warnings: list[str] = []
+    steps = velocity_steps(meas, axis)
+    if len(steps) < meas.velocity_steps:
+        warnings.append(
+            f"axis {axis.name}: {meas.velocity_steps} velocity steps between "
+            f"{steps[0]:g} and {steps[-1]:g} mm/min are closer than the 0.001 mm/min a "
+            f"program can write; {len(steps)} distinct steps remain"
+        )
     velocities: list[float] = []
     dropped: list[float] = []
     geometry: dict[float, _RunGeometry] = {}
-    for v in velocity_steps(meas, axis):
+    for v in steps:
         geo = _geometry(v, axis, meas)
         needed = geo.window_um + (
             2 * geo.runup_um if meas.both_directions else geo.runup_um + geo.runout_um
