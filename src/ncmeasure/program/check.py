@@ -23,11 +23,23 @@ from pydantic import ValidationError
 from ncmeasure.config import format_validation_error
 from ncmeasure.errors import ProgramCheckError, ProgramError
 from ncmeasure.plan import AxisSummary, Schedule
-from ncmeasure.program.dialect import Dialect, load_dialect
-from ncmeasure.program.reader import Motion, ProgramTrace, read_programs
+from ncmeasure.program.dialect import (
+    Dialect,
+    load_dialect,
+    marker_m_functions,
+    option_problems,
+)
+from ncmeasure.program.reader import CodeUse, Motion, ProgramTrace, read_programs, scan_codes
 from ncmeasure.program.render import SCHEDULE_FILE
 
-__all__ = ["CheckReport", "check_programs", "check_trace", "load_schedule", "read_generated"]
+__all__ = [
+    "CheckReport",
+    "check_programs",
+    "check_trace",
+    "code_problems",
+    "load_schedule",
+    "read_generated",
+]
 
 _TOL_MM = 0.0005
 _TOL_FEED = 0.0005
@@ -207,6 +219,60 @@ def _file_problems(directory: Path, schedule: Schedule, dialect: Dialect) -> lis
     return problems
 
 
+def code_problems(
+    schedule: Schedule, dialect: Dialect, uses: list[CodeUse], directory: Path | None = None
+) -> list[str]:
+    """M functions, variables and outputs the dialect does not allow, and non-ASCII text.
+
+    Every M word must be one of the dialect's own or a marker option's value that
+    passes the dialect's rules; every variable or output must be its option's value.
+    """
+    codes = dialect.codes
+    options = schedule.controller_options
+    problems = [
+        f"{SCHEDULE_FILE}: {p}" for p in option_problems(dialect, options, "controller_options")
+    ]
+    marker_m = marker_m_functions(dialect, options) if not problems else set()
+    allowed_m = set(codes.program_m) | marker_m
+    for use in uses:
+        where = f"{use.file}:{use.line}"
+        if use.kind == "m":
+            if use.number not in allowed_m:
+                meaning = codes.meaning(use.number)
+                does = f" ({meaning})" if meaning else ""
+                reserved = " is reserved" if codes.reserved(use.number) else " is not allowed"
+                problems.append(
+                    f"{where}: M{use.number}{does}{reserved}: {dialect.title} programs of "
+                    f"ncmeasure use only M{', M'.join(str(m) for m in sorted(allowed_m))}"
+                )
+            continue
+        rule = codes.options[use.kind]
+        value = options.get(use.kind)
+        if not any(low <= use.number <= high for low, high in rule.allowed):
+            allowed = ", ".join(f"{low}-{high}" for low, high in rule.allowed)
+            problems.append(
+                f"{where}: {rule.meaning} {use.number} is not one {dialect.title} allows "
+                f"({allowed})"
+            )
+        elif use.number != value:
+            problems.append(
+                f"{where}: {rule.meaning} {use.number} is written, but the marker is "
+                f"controller_options.{use.kind} = {value}"
+            )
+    if codes.ascii_only and directory is not None:
+        for name in schedule.program_files:
+            path = directory / name
+            if not path.is_file():
+                continue
+            for number, line in enumerate(path.read_bytes().splitlines(), start=1):
+                if not line.isascii():
+                    problems.append(
+                        f"{name}:{number}: not ASCII; {dialect.title} reads ISO/EIA code only"
+                    )
+                    break
+    return problems
+
+
 def read_generated(
     directory: str | Path, controllers_dirs: tuple[Path, ...] = ()
 ) -> tuple[Schedule, Dialect, ProgramTrace]:
@@ -243,10 +309,23 @@ def check_programs(directory: str | Path, controllers_dirs: tuple[Path, ...] = (
         ProgramCheckError: a program leaves its limits or its schedule.
     """
     directory = Path(directory)
-    schedule, dialect, trace = read_generated(directory, controllers_dirs)
+    if not directory.is_dir():
+        raise ProgramError(f"{directory}: not a directory of generated programs")
+    schedule = load_schedule(directory / SCHEDULE_FILE)
+    dialect = load_dialect(schedule.controller, controllers_dirs)
     report = CheckReport(directory=directory, controller=dialect.name)
     report.problems.extend(_file_problems(directory, schedule, dialect))
-    check_trace(schedule, trace, report)
+    uses = scan_codes(dialect, directory, schedule.controller_options)
+    report.problems.extend(code_problems(schedule, dialect, uses, directory))
+    try:
+        _, _, trace = read_generated(directory, controllers_dirs)
+    except ProgramError as exc:
+        if not report.problems:
+            raise
+        # a block the reader cannot follow, beside what the scan already found
+        report.problems.append(exc.message)
+    else:
+        check_trace(schedule, trace, report)
     if report.problems:
         listed = report.problems[:_MAX_LISTED]
         more = len(report.problems) - len(listed)

@@ -11,11 +11,18 @@ from __future__ import annotations
 
 import re
 import tomllib
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from ncmeasure.config import MachineConfig, format_validation_error
 from ncmeasure.errors import ConfigError, DialectError
@@ -26,7 +33,9 @@ __all__ = [
     "available_dialects",
     "dialect_warnings",
     "load_dialect",
+    "marker_m_functions",
     "marker_scope",
+    "option_problems",
     "validate_for_dialect",
 ]
 
@@ -146,6 +155,51 @@ class Reader(_Strict):
     """Address letters that are parameters of another word in the same block."""
 
 
+class OptionRule(_Strict):
+    """What a numeric controller option is, and which values the control allows for it."""
+
+    kind: Literal["m", "variable", "output"]
+    """An M function, a variable the program writes, or an output it sets."""
+    meaning: str
+    """What the option is, for messages (``common macro variable``)."""
+    allowed: Sequence[tuple[int, int]]
+    """Allowed values as inclusive ranges."""
+    zero_is_off: bool = False
+    """0 means "not used" and is always allowed."""
+    uses: Sequence[str] = ()
+    """Patterns (group 'n') that find where a program uses a number of this kind;
+    for kind 'm' every M word is found anyway."""
+    source: str = ""
+
+    _check = field_validator("uses")(classmethod(lambda cls, v: [_regex(p) for p in v]))
+
+
+class Codes(_Strict):
+    """The M functions, variables and outputs a program of the dialect may use."""
+
+    program_m: Sequence[int]
+    """M functions the programs write for their own structure (end, call, return, outputs)."""
+    reserved_m: Sequence[tuple[int, int]] = ()
+    """M functions with a fixed meaning on every control of the kind: never a marker."""
+    m_meaning: dict[str, str] = Field(default_factory=dict)
+    """What reserved M functions do, by number, for messages."""
+    m_range: tuple[int, int] = (0, 99)
+    """M numbers the control reads at all."""
+    ascii_only: bool = False
+    """The control reads ISO/EIA code only: every character of a program is ASCII."""
+    sources: Sequence[str] = ()
+    options: dict[str, OptionRule] = Field(default_factory=dict)
+    """One rule per numeric controller option."""
+
+    def reserved(self, number: int) -> bool:
+        """True for an M function with a fixed meaning."""
+        return any(low <= number <= high for low, high in self.reserved_m)
+
+    def meaning(self, number: int) -> str:
+        """What an M function does, where the dialect says."""
+        return self.m_meaning.get(str(number), "")
+
+
 class Memory(_Strict):
     """How much program text the control is assumed to hold."""
 
@@ -173,6 +227,7 @@ class Dialect(_Strict):
     blocks: Blocks = Blocks()
     comments: Comments = Comments()
     marker: Marker
+    codes: Codes
     memory: Memory = Memory()
     options: dict[str, int | bool] = Field(default_factory=dict)
     """Machine-specific settings with their defaults; a machine file may override them
@@ -181,6 +236,20 @@ class Dialect(_Strict):
     option_warnings: dict[str, str] = Field(default_factory=dict)
     """Warning shown when an option is left at 0 / false."""
     reader: Reader = Reader()
+
+    @model_validator(mode="after")
+    def _every_option_has_a_rule(self) -> Dialect:
+        for key, value in self.options.items():
+            if (
+                isinstance(value, int)
+                and not isinstance(value, bool)
+                and key not in self.codes.options
+            ):
+                raise ValueError(f"option {key} has no rule in [codes.options.{key}]")
+        for key in self.codes.options:
+            if key not in self.options:
+                raise ValueError(f"[codes.options.{key}] names no option of the dialect")
+        return self
 
     def program_name(self, template: str, program: str, axis: str = "", number: int = 0) -> str:
         """A program name in the dialect's spelling."""
@@ -302,9 +371,69 @@ def validate_for_dialect(config: MachineConfig, dialect: Dialect) -> dict[str, i
     for key, value in options.items():
         if isinstance(value, int) and not isinstance(value, bool) and value < 0:
             problems.append(f"machine.controller_options.{key}: must not be negative")
+    problems += option_problems(dialect, options)
     if problems:
         raise ConfigError(f"the machine does not fit controller {dialect.name}", problems)
     return options
+
+
+def _ranges(ranges: Sequence[tuple[int, int]]) -> str:
+    return ", ".join(f"{low}" if low == high else f"{low}-{high}" for low, high in ranges)
+
+
+def option_problems(
+    dialect: Dialect, options: Mapping[str, int | bool], place: str = "machine.controller_options"
+) -> list[str]:
+    """What is wrong with numeric controller options, judged by the dialect's [codes].
+
+    Every value must be one the control allows for its kind; an M function must not
+    be reserved or one of the program's own; the marker's M functions must differ.
+    """
+    codes = dialect.codes
+    problems: list[str] = []
+    m_values: dict[int, str] = {}
+    for key, rule in codes.options.items():
+        value = options.get(key)
+        if value is None or isinstance(value, bool) or (value == 0 and rule.zero_is_off):
+            continue
+        where = f"{place}.{key}"
+        source = f"; {rule.source}" if rule.source else ""
+        shown = f"M{value}" if rule.kind == "m" else str(value)
+        if not any(low <= value <= high for low, high in rule.allowed):
+            problems.append(
+                f"{where}: {shown} is not a {rule.meaning} {dialect.title} allows "
+                f"({_ranges(rule.allowed)}{' or 0 for none' if rule.zero_is_off else ''}{source})"
+            )
+            continue
+        if rule.kind != "m":
+            continue
+        meaning = codes.meaning(value)
+        does = f" ({meaning})" if meaning else ""
+        if codes.reserved(value):
+            problems.append(
+                f"{where}: M{value} is reserved on {dialect.title}{does}; use an M function "
+                "the machine builder set aside for the marker"
+            )
+        elif value in codes.program_m:
+            problems.append(
+                f"{where}: M{value} is one the programs use themselves{does}; use another"
+            )
+        elif value in m_values:
+            problems.append(
+                f"{where}: M{value} is also {place}.{m_values[value]}: the marker's M "
+                "functions must differ"
+            )
+        m_values.setdefault(value, key)
+    return problems
+
+
+def marker_m_functions(dialect: Dialect, options: Mapping[str, int | bool]) -> set[int]:
+    """M functions the options make part of the program (the marker's, when set)."""
+    return {
+        int(options[key])
+        for key, rule in dialect.codes.options.items()
+        if rule.kind == "m" and not isinstance(options.get(key), bool) and options.get(key)
+    }
 
 
 def marker_scope(dialect: Dialect, options: dict[str, int | bool]) -> str:

@@ -22,7 +22,7 @@ from typing import Literal
 from ncmeasure.errors import ProgramError
 from ncmeasure.program.dialect import Dialect
 
-__all__ = ["Dwell", "Motion", "ProgramTrace", "read_programs"]
+__all__ = ["CodeUse", "Dwell", "Motion", "ProgramTrace", "read_programs", "scan_codes"]
 
 _NUMBER = r"[+-]?(?:\d+\.?\d*|\.\d+)"
 _WORD = re.compile(
@@ -58,6 +58,21 @@ class Dwell:
     seconds: float
     marker: float
     file: str = ""
+
+
+@dataclass(frozen=True)
+class CodeUse:
+    """An M function, or a number of a controller option's kind, written in a program."""
+
+    kind: str
+    """'m', or the name of the controller option whose kind the number is."""
+    number: int
+    file: str
+    line: int
+
+
+# An M word: 'M', spaces allowed, digits; not inside a name (FRICTION_M3, o<m3_x>, %M3).
+_M_WORD = re.compile(r"(?<![A-Z0-9_<%$.\[])M\s*(?P<n>\d+)", re.I)
 
 
 @dataclass
@@ -147,6 +162,23 @@ class _Interpreter:
         self.feed: float | None = None
         self.marker_value = 0.0
         self.trace = ProgramTrace()
+
+    def scan(self, uses: Mapping[str, list[re.Pattern[str]]]) -> list[CodeUse]:
+        """Every M word and option-kind number of every line, run or not."""
+        found: list[CodeUse] = []
+        for program in self.programs.values():
+            for number, raw in program.lines:
+                text = self._clean(raw)
+                if self.call and (match := self.call.search(text)):
+                    # the called program's name is a name, not words
+                    text = text[: match.start("key")] + " " + text[match.end("key") :]
+                for match in _M_WORD.finditer(text):
+                    found.append(CodeUse("m", int(match.group("n")), program.file, number))
+                for key, patterns in uses.items():
+                    for pattern in patterns:
+                        for match in pattern.finditer(text):
+                            found.append(CodeUse(key, int(match.group("n")), program.file, number))
+        return found
 
     def _error(self, program: _Program, line: int, message: str) -> ProgramError:
         return ProgramError(f"{program.file}:{line}: {message}")
@@ -299,6 +331,27 @@ class _Interpreter:
         return bool(candidates & self.accepted)
 
 
+def _interpreter(
+    dialect: Dialect,
+    directory: Path,
+    axes: set[str],
+    options: Mapping[str, int | bool] | None,
+    main_file: str = "",
+) -> tuple[_Interpreter, str]:
+    programs: dict[str, _Program] = {}
+    main_key = ""
+    for path in sorted(directory.iterdir()):
+        if path.is_file() and path.suffix.lower() in dialect.program_extensions:
+            found = _split_programs(dialect, path)
+            for program in found:
+                programs[program.key] = program
+            if path.name == main_file:
+                main_key = found[0].key
+    effective = dict(dialect.options)
+    effective.update(options or {})
+    return _Interpreter(dialect, programs, axes, effective), main_key
+
+
 def read_programs(
     dialect: Dialect,
     directory: str | Path,
@@ -323,19 +376,22 @@ def read_programs(
     main_path = directory / main_file
     if not main_path.is_file():
         raise ProgramError(f"{main_path}: main program not found")
-    extensions = {
-        Path(dialect.names.main_file).suffix.lower(),
-        Path(dialect.names.sub_file).suffix.lower(),
-    }
-    programs: dict[str, _Program] = {}
-    main_key = ""
-    for path in sorted(directory.iterdir()):
-        if path.is_file() and path.suffix.lower() in extensions:
-            found = _split_programs(dialect, path)
-            for program in found:
-                programs[program.key] = program
-            if path.name == main_file:
-                main_key = found[0].key
-    effective = dict(dialect.options)
-    effective.update(options or {})
-    return _Interpreter(dialect, programs, axes, effective).run(main_key)
+    interpreter, main_key = _interpreter(dialect, directory, axes, options, main_file)
+    return interpreter.run(main_key)
+
+
+def scan_codes(
+    dialect: Dialect, directory: str | Path, options: Mapping[str, int | bool] | None = None
+) -> list[CodeUse]:
+    """Every M word, variable and output written in the program files of ``directory``.
+
+    Every line counts, whether it runs or not (after the program end, in a skipped
+    block); comments and the names of called programs do not.
+    """
+    interpreter, _ = _interpreter(dialect, Path(directory), set(), options)
+    return interpreter.scan(
+        {
+            key: [re.compile(pattern, re.I) for pattern in rule.uses]
+            for key, rule in dialect.codes.options.items()
+        }
+    )

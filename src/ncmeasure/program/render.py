@@ -17,6 +17,7 @@ import os
 import re
 import shutil
 import tempfile
+import unicodedata
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,7 +27,13 @@ from jinja2.sandbox import SandboxedEnvironment
 
 from ncmeasure import __version__
 from ncmeasure.config import MachineConfig, config_hash
-from ncmeasure.errors import DialectError, OutputError, PlanError, ProgramError
+from ncmeasure.errors import (
+    DialectError,
+    OutputError,
+    PlanError,
+    ProgramCheckError,
+    ProgramError,
+)
 from ncmeasure.plan import SMALLER, AxisPlan, Move, Schedule, SizeLimit, plan_machine
 from ncmeasure.program.dialect import (
     Dialect,
@@ -204,10 +211,11 @@ class GeneratedPrograms:
         try:
             check_programs(folder, self._controllers_dirs)
         except ProgramError as exc:
+            found = [*exc.problems] if isinstance(exc, ProgramCheckError) else [exc.message]
             raise DialectError(
                 "the rendered programs fail ncmeasure's own check, so nothing was written "
                 "(a template or the controller definition writes what check refuses)",
-                [exc.message, *exc.problems],
+                [line.replace(f"{folder}{os.sep}", "") for line in found],
             ) from exc
 
     def write(self, directory: str | Path) -> list[Path]:
@@ -404,7 +412,10 @@ def _environment(dialect: Dialect, template_dirs: Iterable[Path]) -> SandboxedEn
             raise DialectError(
                 f"{dialect.name}: a template writes a comment, but the dialect has none"
             )
-        clean = "".join(c for c in str(text) if c not in comments.forbidden and c.isprintable())
+        clean = str(text)
+        if dialect.codes.ascii_only:  # ISO/EIA code: "Fräse" becomes "Frase", "机床" nothing
+            clean = unicodedata.normalize("NFKD", clean).encode("ascii", "ignore").decode()
+        clean = "".join(c for c in clean if c not in comments.forbidden and c.isprintable())
         if comments.upper:
             clean = clean.upper()
         return f"{comments.open}{clean}{comments.close}"
