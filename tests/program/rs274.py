@@ -106,16 +106,22 @@ def check_against_schedule(moves: list[Canon], schedule: Schedule, markers: bool
         assert found[name] == len(axis.windows)
 
 
-def fanuc_as_one_file(folder: Path, program_files: list[str], name: str = "all.ngc") -> str:
+def fanuc_as_one_file(
+    folder: Path, program_files: list[str], name: str = "all.ngc", sync_m: int = 0
+) -> str:
     """FANUC programs (one O-number per file) joined into one file, as rs274 reads them.
 
     LinuxCNC reads a dwell only as G4 P<seconds>; FANUC's G04 X<seconds> is the same
-    dwell and is rewritten so (FANUC's own P would be milliseconds).
+    dwell and is rewritten so (FANUC's own P would be milliseconds). The marker's
+    non-buffered M code ``sync_m`` is a PLC function of the machine, unknown to
+    LinuxCNC, and moves nothing: its blocks are left out.
     """
     combined = ["%"]
     for file in program_files:  # the main program first, then its subprograms
         text = (folder / file).read_text(encoding="utf-8")
         text = re.sub(r"^G04 X", "G4 P", text, flags=re.M)
+        if sync_m:
+            text = re.sub(rf"^M{sync_m}\n", "", text, flags=re.M)
         combined += [line for line in text.splitlines() if line != "%"]
     combined.append("%")
     (folder / name).write_text("\n".join(combined) + "\n", encoding="utf-8")

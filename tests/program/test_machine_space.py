@@ -226,7 +226,8 @@ def test_generate_refuses_cleanly_or_writes_programs_check_accepts(data: dict[st
         if schedule.controller in ("linuxcnc", "fanuc") and axes <= set(AXES) and RS274:
             main = schedule.main_program
             if schedule.controller == "fanuc":
-                main = fanuc_as_one_file(out, schedule.program_files)
+                sync_m = int(schedule.controller_options.get("marker_sync_m", 0))
+                main = fanuc_as_one_file(out, schedule.program_files, sync_m=sync_m)
             moves = run_rs274(out, main)
             check_against_schedule(moves, schedule, markers=schedule.marker_scope == "window")
 

@@ -21,9 +21,9 @@ import unicodedata
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 
 import jinja2
-from jinja2.sandbox import SandboxedEnvironment
 
 from ncmeasure import __version__
 from ncmeasure.config import MachineConfig, config_hash
@@ -42,6 +42,7 @@ from ncmeasure.program.dialect import (
     marker_scope,
     validate_for_dialect,
 )
+from ncmeasure.program.sandbox import TemplateSandbox
 from ncmeasure.resources import builtin_dir
 
 __all__ = ["GeneratedPrograms", "ProgramRef", "generate_programs", "generation_time"]
@@ -192,8 +193,11 @@ class GeneratedPrograms:
             text = numbers.close()
             output.add(text.encode("utf-8"))
             write(text)
-        except jinja2.TemplateError as exc:
-            raise DialectError(f"template {_template_place(exc, self.dialect)}: {exc}") from exc
+        except (jinja2.TemplateError, RecursionError, MemoryError, OverflowError) as exc:
+            what = str(exc) if not isinstance(exc, MemoryError) else "out of memory"
+            if isinstance(exc, RecursionError):
+                what = "macros call themselves too deep"
+            raise DialectError(f"template {_template_place(exc, self.dialect)}: {what}") from exc
 
     def _render_into(self, folder: Path) -> None:
         schedule = self.schedule.model_dump_json(indent=2) + "\n"
@@ -372,12 +376,12 @@ def _number(value: float, decimals: int, plus: bool) -> str:
     return text
 
 
-def _environment(dialect: Dialect, template_dirs: Iterable[Path]) -> SandboxedEnvironment:
+def _environment(dialect: Dialect, template_dirs: Iterable[Path]) -> TemplateSandbox:
     loaders: list[jinja2.BaseLoader] = [
         jinja2.FileSystemLoader(str(Path(d) / dialect.name)) for d in template_dirs
     ]
     loaders.append(jinja2.FileSystemLoader(str(builtin_dir("templates") / dialect.name)))
-    env = SandboxedEnvironment(
+    env = TemplateSandbox(
         loader=jinja2.ChoiceLoader(loaders),
         undefined=jinja2.StrictUndefined,
         trim_blocks=True,
@@ -424,7 +428,7 @@ def _environment(dialect: Dialect, template_dirs: Iterable[Path]) -> SandboxedEn
     return env
 
 
-def _template_place(exc: jinja2.TemplateError, dialect: Dialect) -> str:
+def _template_place(exc: BaseException, dialect: Dialect) -> str:
     """'file:line' of the template a rendering error comes from."""
     filename = getattr(exc, "filename", None)
     line = getattr(exc, "lineno", None)
@@ -512,18 +516,20 @@ def generate_programs(
         main=main,
         park=tuple(view_of(a.name) for a in config.park_sequence()),
         measure=tuple(view_of(a.name) for a in config.measure_sequence()),
-        options=options,
+        options=MappingProxyType(dict(options)),
         marker_scope=marker_scope(dialect, options),
         marker_values=dialect.marker.values,
     )
     env = _environment(dialect, templates_dirs)
+    total_moves = sum(len(plan.moves) for plan in plans)
     renders: list[tuple[str, Callable[[], Iterator[str]]]] = [
-        (main.file_name, functools.partial(_generate, env, "main.j2", v=view))
+        (main.file_name, functools.partial(_generate, env, "main.j2", total_moves, v=view))
     ]
     if dialect.subprograms:
         for axis_view in view.measure:
             assert axis_view.sub is not None
-            sub = functools.partial(_generate, env, "sub.j2", v=view, axis=axis_view)
+            moves = len(axis_view.moves)
+            sub = functools.partial(_generate, env, "sub.j2", moves, v=view, axis=axis_view)
             renders.append((axis_view.sub.file_name, sub))
     schedule = schedule.model_copy(
         update={
@@ -547,6 +553,11 @@ def generate_programs(
     )
 
 
-def _generate(env: jinja2.Environment, name: str, **context: object) -> Iterator[str]:
-    """The text of one template, chunk by chunk (nothing is held in memory)."""
-    return env.get_template(name).generate(**context)
+def _generate(env: TemplateSandbox, name: str, moves: int, **context: object) -> Iterator[str]:
+    """The text of one template, chunk by chunk (nothing is held in memory).
+
+    The sandbox's step budget starts afresh for each file, sized by its planned moves.
+    """
+    template = env.get_template(name)
+    env.start(moves)
+    return template.generate(**context)
