@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from ncmeasure.config import MachineConfig
+from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.errors import ConfigError, ProgramCheckError, ProgramError
 from ncmeasure.program import check_programs, generate_programs, load_dialect
 from ncmeasure.program.reader import read_programs
-from tests.conftest import DIALECTS, FIXED_TIME
+from tests.conftest import DIALECTS, FIXED_TIME, small_data
 
 Make = Callable[..., MachineConfig]
 
@@ -152,3 +152,12 @@ def test_missing_schedule_or_folder(tmp_path: Path) -> None:
         check_programs(tmp_path / "none")
     with pytest.raises(ProgramError, match="no schedule here"):
         check_programs(tmp_path)
+
+
+def test_fanuc_calls_a_numbered_program_without_its_leading_zeros(tmp_path: Path) -> None:
+    """O0002 is called as M98 P2: the same program on a FANUC control."""
+    data = small_data("fanuc")
+    data["machine"]["program_number"] = 1
+    generate_programs(parse_machine(data), generated=FIXED_TIME).write(tmp_path)
+    assert "M98 P2" in (tmp_path / "O0001.nc").read_text()
+    assert check_programs(tmp_path).ok

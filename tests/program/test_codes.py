@@ -238,3 +238,18 @@ def test_a_dialect_option_without_a_rule_is_a_broken_dialect(tmp_path: Path) -> 
     (tmp_path / "linuxcnc.toml").write_text(text)
     with pytest.raises(DialectError, match=r"option marker_extra has no rule"):
         load_dialect("linuxcnc", [tmp_path])
+
+
+@pytest.mark.parametrize("dialect", DIALECTS)
+def test_the_documented_codes_are_the_dialects(dialect: str) -> None:
+    """docs/controllers.md lists what each controller definition says."""
+    docs = (Path(__file__).parents[2] / "docs" / "controllers.md").read_text(encoding="utf-8")
+    row = next(line for line in docs.splitlines() if line.startswith(f"| `{dialect}` | M"))
+    codes = load_dialect(dialect).codes
+    assert row.split(" | ")[1] == ", ".join(f"M{m}" for m in codes.program_m)
+    reserved = ", ".join(f"{a}" if a == b else f"{a}–{b}" for a, b in codes.reserved_m)
+    assert row.split(" | ")[2] == reserved
+    for key, rule in codes.options.items():
+        assert f"`{key}`" in row
+        allowed = ", ".join(f"{a}" if a == b else f"{a}–{b}" for a, b in rule.allowed)
+        assert allowed in row, (key, allowed)

@@ -94,6 +94,12 @@ class _Program:
     lines: list[tuple[int, str]]
 
 
+def _program_key(name: str) -> str:
+    """How a program is looked up: names in capitals, numbers without leading zeros
+    (FANUC's M98 P2 calls O0002)."""
+    return str(int(name)) if name.isdigit() else name.upper()
+
+
 def _split_programs(dialect: Dialect, path: Path) -> list[_Program]:
     reader = dialect.reader
     try:
@@ -101,12 +107,12 @@ def _split_programs(dialect: Dialect, path: Path) -> list[_Program]:
     except (OSError, UnicodeDecodeError) as exc:
         raise ProgramError(f"{path}: cannot be read ({exc})") from exc
     default_key = path.stem if reader.program_key == "stem" else path.name
-    programs = [_Program(default_key.upper(), path.name, [])]
+    programs = [_Program(_program_key(default_key), path.name, [])]
     start = re.compile(reader.program_start, re.I) if reader.program_start else None
     for number, line in enumerate(raw, start=1):
         match = start.search(line.strip()) if start else None
         if match:
-            programs.append(_Program(match.group("key").upper(), path.name, []))
+            programs.append(_Program(_program_key(match.group("key")), path.name, []))
             continue
         programs[-1].lines.append((number, line))
     if start:
@@ -201,7 +207,7 @@ class _Interpreter:
             if not text or any(p.search(text) for p in self.ignore):
                 continue
             if self.call and (match := self.call.search(text)):
-                key = match.group("key").upper()
+                key = _program_key(match.group("key"))
                 if key not in self.programs:
                     raise self._error(program, number, f"calls {key}, which is not among the files")
                 if len(stack) > 16:
