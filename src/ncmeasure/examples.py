@@ -70,6 +70,10 @@ margin_mm = 5.0                   # kept from both soft limits
 warmup_strokes = 2                # back-and-forth strokes before measuring
 repetitions = 1
 both_directions = true
+
+# [limits]                        # larger plans are refused before anything is written
+# max_duration_h = 8.0            # one shift
+# max_program_kb = 512            # default: the controller's program memory (controllers --details)
 """
 
 
