@@ -225,7 +225,8 @@ class GeneratedPrograms:
     def write(self, directory: str | Path) -> list[Path]:
         """Render, check and write every file into ``directory`` (created if missing).
 
-        The files are streamed into a staging folder beside the target, checked
+        The files are streamed into a hidden staging folder (inside ``directory``,
+        or beside it while it does not exist), checked
         with :func:`~ncmeasure.program.check.check_programs`, and only then
         moved into place, replacing the files of an earlier generation (those
         its schedule.json names) and nothing else. Any failure leaves
@@ -242,11 +243,13 @@ class GeneratedPrograms:
             raise OutputError(f"{directory}: exists and is not a directory")
         new = [*self.program_files, SCHEDULE_FILE]
         previous = _previous_generation(directory, self.dialect, new)
-        anchor = directory.absolute().parent
+        # Staged inside the folder when it exists (same file system, nothing needed
+        # beside it), else beside it in the nearest folder that exists.
+        anchor = directory.absolute()
         while not anchor.is_dir():
             anchor = anchor.parent
         try:
-            staging = Path(tempfile.mkdtemp(prefix=f".{directory.name}.ncmeasure-", dir=anchor))
+            staging = Path(tempfile.mkdtemp(prefix=".ncmeasure-new-", dir=anchor))
         except OSError as exc:
             raise OutputError(f"{anchor}: cannot create a staging folder ({exc.strerror})") from exc
         try:

@@ -29,6 +29,7 @@ reports with the template's file and line.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Iterable, Iterator, Mapping
 from typing import Any
@@ -89,6 +90,11 @@ _LOOP_FIELDS = {
     "cycle",
     "changed",
 }
+
+
+@functools.cache
+def _field_names(cls: type) -> frozenset[str]:
+    return frozenset(f.name for f in dataclasses.fields(cls))
 
 
 class TemplateLimitError(jinja2.TemplateRuntimeError):
@@ -210,7 +216,7 @@ class TemplateSandbox(ImmutableSandboxedEnvironment):
         if isinstance(obj, LoopContext):
             return attr in _LOOP_FIELDS
         if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-            return attr in {f.name for f in dataclasses.fields(obj)}
+            return attr in _field_names(type(obj))
         if isinstance(obj, Mapping):
             return attr in _MAPPING_METHODS
         return False
