@@ -1,8 +1,11 @@
 """NC programs: dialects, rendering through templates, and the program reader and checker.
 
-``generate_programs(config)`` plans and renders; ``check_programs(dir)``
-re-reads what was written, independently of the templates, and holds it
-against the soft limits, the maximum feeds and the schedule.
+``generate_programs(config)`` plans (and refuses a plan beyond the machine
+file's limits); its ``write(dir)`` renders the templates in a sandbox,
+streaming into a staging folder, checks the result and moves it into place.
+``check_programs(dir)`` re-reads what was written, independently of the
+templates, and holds it against the soft limits, the maximum feeds, the
+schedule and the dialect's allowed codes.
 """
 
 from ncmeasure.program.check import CheckReport, check_programs, load_schedule
