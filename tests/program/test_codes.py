@@ -253,3 +253,11 @@ def test_the_documented_codes_are_the_dialects(dialect: str) -> None:
         assert f"`{key}`" in row
         allowed = ", ".join(f"{a}" if a == b else f"{a}–{b}" for a, b in rule.allowed)
         assert allowed in row, (key, allowed)
+
+
+def test_a_marker_rule_beyond_the_m_range_is_a_broken_dialect(tmp_path: Path) -> None:
+    text = (builtin_dir("controllers") / "twincat.toml").read_text()
+    text = text.replace("m_range = [0, 999]", "m_range = [0, 99]", 1)
+    (tmp_path / "twincat.toml").write_text(text)
+    with pytest.raises(DialectError, match=r"allows M functions outside m_range 0-99"):
+        load_dialect("twincat", [tmp_path])

@@ -246,9 +246,14 @@ class Dialect(_Strict):
                 and key not in self.codes.options
             ):
                 raise ValueError(f"option {key} has no rule in [codes.options.{key}]")
-        for key in self.codes.options:
+        low, high = self.codes.m_range
+        for key, rule in self.codes.options.items():
             if key not in self.options:
                 raise ValueError(f"[codes.options.{key}] names no option of the dialect")
+            if rule.kind == "m" and any(a < low or b > high for a, b in rule.allowed):
+                raise ValueError(
+                    f"[codes.options.{key}] allows M functions outside m_range {low}-{high}"
+                )
         return self
 
     def program_name(self, template: str, program: str, axis: str = "", number: int = 0) -> str:
