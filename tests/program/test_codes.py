@@ -43,7 +43,7 @@ REFUSED = {
     "heidenhain beyond M999": (
         "heidenhain-iso",
         {"marker_m_on": 1250, "marker_m_off": 251},
-        ["marker_m_on: M1250 is not a M function"],
+        ["marker_m_on: M1250 is not an M function"],
     ),
     "twincat spindle on": ("twincat", {"marker_m": 3}, ["marker_m: M3 is reserved"]),
     "twincat on equals off": (
@@ -81,7 +81,7 @@ REFUSED = {
     "sinumerik R beyond the default count": (
         "sinumerik-840d",
         {"marker_r": 99999},
-        ["marker_r: 99999 is not a R parameter"],
+        ["marker_r: 99999 is not an R parameter"],
     ),
     "linuxcnc output beyond 63": (
         "linuxcnc",
@@ -91,7 +91,7 @@ REFUSED = {
     "linuxcnc analog beyond 63": (
         "linuxcnc",
         {"marker_analog": 99},
-        ["marker_analog: 99 is not a analog output"],
+        ["marker_analog: 99 is not an analog output"],
     ),
 }
 

@@ -382,6 +382,13 @@ def validate_for_dialect(config: MachineConfig, dialect: Dialect) -> dict[str, i
     return options
 
 
+def _article(noun: str) -> str:
+    """'a' or 'an' as the noun is spoken: an M function, an R parameter, an analog output."""
+    first = noun.split()[0] if noun.strip() else noun
+    spoken_vowel = first[:1].lower() in "aeiou" or (len(first) == 1 and first in "AEFHILMNORSX")
+    return f"{'an' if spoken_vowel else 'a'} {noun}"
+
+
 def _ranges(ranges: Sequence[tuple[int, int]]) -> str:
     return ", ".join(f"{low}" if low == high else f"{low}-{high}" for low, high in ranges)
 
@@ -406,7 +413,7 @@ def option_problems(
         shown = f"M{value}" if rule.kind == "m" else str(value)
         if not any(low <= value <= high for low, high in rule.allowed):
             problems.append(
-                f"{where}: {shown} is not a {rule.meaning} {dialect.title} allows "
+                f"{where}: {shown} is not {_article(rule.meaning)} {dialect.title} allows "
                 f"({_ranges(rule.allowed)}{' or 0 for none' if rule.zero_is_off else ''}{source})"
             )
             continue
