@@ -13,17 +13,9 @@ import pytest
 from ncmeasure.acquire import Progress, acquire, record
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.errors import LinkError
-from ncmeasure.links.base import (
-    AxisBinding,
-    AxisLinkSettings,
-    Channel,
-    DriveLink,
-    LinkEvent,
-    LinkSettings,
-    SampleBlock,
-    channels_for,
-)
+from ncmeasure.links.base import AxisBinding, AxisLinkSettings, DriveLink, LinkSettings
 from ncmeasure.recording import RecordingWriter, read_recording
+from ncmeasure.samples import Channel, LinkEvent, SampleBlock, channels_for
 from tests.conftest import example_data
 
 PERIOD_S = 0.004

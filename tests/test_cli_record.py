@@ -10,8 +10,8 @@ from typer.testing import CliRunner
 from ncmeasure.cli import app
 from ncmeasure.config import parse_machine
 from ncmeasure.examples import example_machine
-from ncmeasure.links.base import LinkEvent, SampleBlock, channels_for
 from ncmeasure.recording import RecordingWriter, read_recording
+from ncmeasure.samples import LinkEvent, SampleBlock, channels_for
 from tests.conftest import example_data
 
 runner = CliRunner()

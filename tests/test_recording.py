@@ -26,7 +26,6 @@ import ncmeasure
 from ncmeasure import recording as recording_module
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import DependencyError, LinkError, RecordingError
-from ncmeasure.links.base import SIGNAL_UNITS, Channel, LinkEvent, SampleBlock, channels_for
 from ncmeasure.recording import (
     EVENTS_FILE,
     FRAME_HEADER,
@@ -43,6 +42,7 @@ from ncmeasure.recording import (
     import_mdf4,
     read_recording,
 )
+from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent, SampleBlock, channels_for
 
 Make = Callable[..., MachineConfig]
 
@@ -268,7 +268,7 @@ RECORDER = textwrap.dedent(
     """
     import sys, time
     import numpy as np
-    from ncmeasure.links.base import Channel, SampleBlock
+    from ncmeasure.samples import Channel, SampleBlock
     from ncmeasure.recording import RecordingWriter
 
     channels = [Channel("X", "current_a", "A"), Channel("X", "position_mm", "mm")]

@@ -24,8 +24,7 @@ The public API is re-exported here::
 
 from __future__ import annotations
 
-__version__ = "0.1.0"
-
+from ncmeasure._version import __version__
 from ncmeasure.acquire import record
 from ncmeasure.config import MachineConfig, config_hash, load_machine
 from ncmeasure.errors import (

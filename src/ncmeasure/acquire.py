@@ -30,9 +30,9 @@ import numpy as np
 from ncmeasure.config import MachineConfig, load_machine
 from ncmeasure.errors import ConfigError, LinkError
 from ncmeasure.links import DriveLink, make_link
-from ncmeasure.links.base import LinkClock, LinkEvent, SampleBlock
 from ncmeasure.plan import Schedule
 from ncmeasure.recording import RecordingWriter
+from ncmeasure.samples import LinkClock, LinkEvent, SampleBlock
 
 __all__ = ["AcquisitionResult", "Progress", "acquire", "link_time_scale", "record"]
 

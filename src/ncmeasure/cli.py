@@ -25,7 +25,7 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
-from ncmeasure import __version__
+from ncmeasure._version import __version__
 from ncmeasure.acquire import Progress, record
 from ncmeasure.config import MachineConfig, load_machine
 from ncmeasure.errors import ConfigError, LinkError, NcMeasureError, OutputError, ProgramCheckError

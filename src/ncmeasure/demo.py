@@ -47,10 +47,10 @@ from ncmeasure.analysis.results import Results
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.errors import ConfigError, LinkError, OutputError
 from ncmeasure.examples import DEMO_LINKS, demo_machine
-from ncmeasure.links.base import LinkClock
 from ncmeasure.plan import Schedule
 from ncmeasure.program import SCHEDULE_FILE, generate_programs, load_dialect
 from ncmeasure.recording import read_recording
+from ncmeasure.samples import LinkClock
 from ncmeasure.sim.axis import Variation
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
 from ncmeasure.sim.machine import MachineRun, VirtualMachine

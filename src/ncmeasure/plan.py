@@ -29,7 +29,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict
 
-from ncmeasure import __version__
+from ncmeasure._version import __version__
 from ncmeasure.config import AxisConfig, MachineConfig, Measurement, config_hash
 from ncmeasure.errors import PlanError
 from ncmeasure.profile import move_time_s, ramp

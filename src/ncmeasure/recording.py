@@ -6,7 +6,7 @@ A recording is a directory of three files::
     samples.bin    append-only frames of float64 rows: time_s, then one column per channel
     events.jsonl   one LinkEvent per line: gaps, faults, reboots, reconnects
 
-:class:`RecordingWriter` takes the :class:`~ncmeasure.links.base.SampleBlock` objects
+:class:`RecordingWriter` takes the :class:`~ncmeasure.samples.SampleBlock` objects
 of a drive link. A background thread writes the buffered rows as one checksummed
 frame and fsyncs it at least every ``flush_interval_s`` (at most 0.5 s), so a
 recorder killed with ``kill -9`` or by a power cut loses at most its last half
@@ -42,10 +42,10 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from ncmeasure import __version__
+from ncmeasure._version import __version__
 from ncmeasure.config import AXIS_NAME_PATTERN, AxisConfig, MachineConfig, format_validation_error
 from ncmeasure.errors import DependencyError, LinkError, RecordingError
-from ncmeasure.links.base import SIGNAL_UNITS, Channel, EventKind, LinkEvent, SampleBlock
+from ncmeasure.samples import SIGNAL_UNITS, Channel, EventKind, LinkEvent, SampleBlock
 from ncmeasure.validity import Implausible
 
 __all__ = [

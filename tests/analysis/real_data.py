@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.links.base import SampleBlock
 from ncmeasure.recording import Recording, RecordingWriter
+from ncmeasure.samples import SampleBlock
 from ncmeasure.sim.synthetic import SyntheticAxis, SyntheticData, machine_config, simulate
 
 FloatArray = NDArray[np.float64]

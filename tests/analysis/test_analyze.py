@@ -36,9 +36,9 @@ from pydantic import ValidationError
 from ncmeasure.analysis.analyze import AnalysisSettings, analyze, load_results, write_results
 from ncmeasure.analysis.results import RESULTS_FORMAT_VERSION, AxisResult, Results
 from ncmeasure.errors import ConfigError, OutputError, RecordingError
-from ncmeasure.links.base import SIGNAL_UNITS, Channel, SampleBlock
 from ncmeasure.plan import Schedule
 from ncmeasure.recording import Recording, RecordingWriter
+from ncmeasure.samples import SIGNAL_UNITS, Channel, SampleBlock
 from ncmeasure.sim.synthetic import (
     SyntheticAxis,
     geometric_velocities,

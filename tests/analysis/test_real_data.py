@@ -18,7 +18,7 @@ import pytest
 
 from ncmeasure.analysis.analyze import analyze
 from ncmeasure.errors import RecordingError
-from ncmeasure.links.base import Channel
+from ncmeasure.samples import Channel
 from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities
 from tests.analysis.real_data import Data, decimate, measure, window_rows, write
 

@@ -22,7 +22,6 @@ import pytest
 from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
 from ncmeasure.links import REAL_TIME, LinkClock, make_link
-from ncmeasure.links.base import LinkEvent
 from ncmeasure.links.canopen import (
     CanOpenLink,
     CycleAssembler,
@@ -32,6 +31,7 @@ from ncmeasure.links.canopen import (
     load_object_map,
     sdo_error_text,
 )
+from ncmeasure.samples import LinkEvent
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
 from ncmeasure.sim.signals import AxisState, PatternSource
 

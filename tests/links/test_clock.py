@@ -15,8 +15,8 @@ import ncmeasure.links as links
 from ncmeasure.config import parse_machine
 from ncmeasure.errors import LinkError
 from ncmeasure.links import REAL_TIME, LinkClock, link_class
-from ncmeasure.links.base import SampleBlock, channels_for
 from ncmeasure.recording import RecordingWriter
+from ncmeasure.samples import SampleBlock, channels_for
 from tests.conftest import example_data
 
 

@@ -23,8 +23,9 @@ import pytest
 from ncmeasure.config import AxisConfig, parse_machine
 from ncmeasure.errors import ConfigError, LinkError
 from ncmeasure.links import REAL_TIME, LinkClock, available_links, link_class
-from ncmeasure.links.base import SIGNAL_UNITS, DriveLink, SampleBlock, channels_for
+from ncmeasure.links.base import DriveLink
 from ncmeasure.recording import RecordingWriter
+from ncmeasure.samples import SIGNAL_UNITS, SampleBlock, channels_for
 from ncmeasure.sim.signals import PatternSource
 from tests.conftest import example_data
 

@@ -27,7 +27,6 @@ from hypothesis import strategies as st
 from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
 from ncmeasure.links import LinkClock, link_class
-from ncmeasure.links.base import LinkEvent, SampleBlock
 from ncmeasure.links.modbus import (
     EXCEPTION_MEANINGS,
     ModbusLink,
@@ -36,6 +35,7 @@ from ncmeasure.links.modbus import (
     encode_value,
     load_register_map,
 )
+from ncmeasure.samples import LinkEvent, SampleBlock
 from ncmeasure.sim.modbus_drive import (
     Fault,
     ServerHandle,

@@ -48,9 +48,9 @@ from ncmeasure.analysis.results import (
 from ncmeasure.analysis.verdict import axis_verdict
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.examples import example_machine
-from ncmeasure.links.base import SampleBlock, channels_for
 from ncmeasure.plan import Schedule
 from ncmeasure.recording import Recording, RecordingWriter
+from ncmeasure.samples import SampleBlock, channels_for
 from ncmeasure.sim.synthetic import (
     SyntheticAxis,
     geometric_velocities,

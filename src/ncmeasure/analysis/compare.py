@@ -34,7 +34,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from ncmeasure import __version__
+from ncmeasure._version import __version__
 from ncmeasure.analysis.diagnosis import (
     ALTERNATIVE_FACTOR,
     FLAT_THRESHOLD_PERCENT,

@@ -30,7 +30,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from ncmeasure import __version__
+from ncmeasure._version import __version__
 
 __all__ = [
     "RESULTS_FORMAT",

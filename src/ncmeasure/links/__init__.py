@@ -16,17 +16,8 @@ from typing import Any
 
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, DependencyError
-from ncmeasure.links.base import (
-    REAL_TIME,
-    AxisBinding,
-    AxisLinkSettings,
-    Channel,
-    DriveLink,
-    LinkClock,
-    LinkEvent,
-    LinkSettings,
-    SampleBlock,
-)
+from ncmeasure.links.base import AxisBinding, AxisLinkSettings, DriveLink, LinkSettings
+from ncmeasure.samples import REAL_TIME, Channel, LinkClock, LinkEvent, SampleBlock
 
 __all__ = [
     "REAL_TIME",

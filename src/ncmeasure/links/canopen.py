@@ -18,7 +18,7 @@ How it works, in the order :meth:`CanOpenLink.open` does it:
    master). A row of samples is complete when every PDO of every node for one
    SYNC cycle has arrived; ``time_s`` is the cycle number × period.
 
-The SYNC producer keeps time by the link's :class:`~ncmeasure.links.base.LinkClock`:
+The SYNC producer keeps time by the link's :class:`~ncmeasure.samples.LinkClock`:
 real time for real drives, or the clock of a virtual machine running faster
 than real time with simulated drives (:mod:`ncmeasure.sim.cia402`). Its
 period is ``1 / sync_hz`` rounded to whole microseconds, the unit of the
@@ -67,16 +67,8 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 
 from ncmeasure.config import format_validation_error
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError, OutputError
-from ncmeasure.links.base import (
-    SIGNAL_UNITS,
-    AxisBinding,
-    AxisLinkSettings,
-    Channel,
-    DriveLink,
-    LinkEvent,
-    LinkSettings,
-    SampleBlock,
-)
+from ncmeasure.links.base import AxisBinding, AxisLinkSettings, DriveLink, LinkSettings
+from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent, SampleBlock
 
 __all__ = [
     "DATA_TYPES",

@@ -21,7 +21,7 @@ as ``gap`` events with their number. A dropped TCP connection is re-opened
 with their meaning; after ``max_outage_s`` without a complete cycle the link
 gives up with :class:`~ncmeasure.errors.LinkError`. See ``docs/modbus.md``.
 
-Time is kept by the link's :class:`~ncmeasure.links.base.LinkClock`: the
+Time is kept by the link's :class:`~ncmeasure.samples.LinkClock`: the
 poll period, the time stamps, outage durations and ``max_outage_s`` are on
 that clock (real time for real drives, machine time for simulated drives of
 a virtual machine running faster than real time); the request timeout, the
@@ -54,16 +54,8 @@ from pymodbus.pdu import ModbusPDU
 
 from ncmeasure.config import format_validation_error
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
-from ncmeasure.links.base import (
-    SIGNAL_UNITS,
-    AxisBinding,
-    AxisLinkSettings,
-    Channel,
-    DriveLink,
-    LinkEvent,
-    LinkSettings,
-    SampleBlock,
-)
+from ncmeasure.links.base import AxisBinding, AxisLinkSettings, DriveLink, LinkSettings
+from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent, SampleBlock
 
 __all__ = [
     "EXCEPTION_MEANINGS",

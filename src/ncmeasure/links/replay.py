@@ -21,15 +21,9 @@ import numpy as np
 from pydantic import Field
 
 from ncmeasure.errors import ConfigError, LinkError, RecordingError
-from ncmeasure.links.base import (
-    AxisLinkSettings,
-    Channel,
-    DriveLink,
-    LinkEvent,
-    LinkSettings,
-    SampleBlock,
-)
+from ncmeasure.links.base import AxisLinkSettings, DriveLink, LinkSettings
 from ncmeasure.recording import Recording, read_recording
+from ncmeasure.samples import Channel, LinkEvent, SampleBlock
 
 __all__ = ["ReplayAxis", "ReplayLink", "ReplaySettings", "replay_can_log"]
 

@@ -25,7 +25,7 @@ from types import MappingProxyType
 
 import jinja2
 
-from ncmeasure import __version__
+from ncmeasure._version import __version__
 from ncmeasure.config import MachineConfig, config_hash
 from ncmeasure.errors import (
     DialectError,

@@ -30,7 +30,7 @@ import jinja2
 from jinja2.sandbox import SandboxedEnvironment
 from pydantic import BaseModel
 
-from ncmeasure import __version__
+from ncmeasure._version import __version__
 from ncmeasure.analysis.analyze import recording_gaps
 from ncmeasure.analysis.compare import Comparison, GroupDeviation
 from ncmeasure.analysis.results import (

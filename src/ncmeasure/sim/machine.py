@@ -47,10 +47,10 @@ from numpy.typing import NDArray
 
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, ProgramError
-from ncmeasure.links.base import Channel, SampleBlock, channels_for
 from ncmeasure.profile import SCurve, s_curve
 from ncmeasure.program.check import read_generated
 from ncmeasure.program.reader import Dwell, Motion, ProgramTrace
+from ncmeasure.samples import Channel, SampleBlock, channels_for
 from ncmeasure.sim.axis import AxisModel, Variation
 from ncmeasure.sim.servo import follow, servo
 from ncmeasure.sim.signals import AxisState

@@ -7,7 +7,7 @@ scale, unit conversion), so a :class:`~ncmeasure.links.modbus.ModbusLink`
 reading them gets the source's values quantised by the map.
 
 Time: by default the state is taken at the server's elapsed time. With a
-:class:`~ncmeasure.links.base.LinkClock` (``clock``) the elapsed time is on
+:class:`~ncmeasure.samples.LinkClock` (``clock``) the elapsed time is on
 that clock: a virtual machine running faster than real time serves the state
 of its own time, and a :class:`~ncmeasure.links.modbus.ModbusLink` on a clock
 of the same speed stamps its rows with the same time scale. With
@@ -49,13 +49,13 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from ncmeasure.errors import ConfigError, LinkError
-from ncmeasure.links.base import LinkClock
 from ncmeasure.links.modbus import (
     RegisterMap,
     encode_value,
     load_register_map,
     signal_factor,
 )
+from ncmeasure.samples import LinkClock
 from ncmeasure.sim.signals import AxisState, PatternSource, SignalSource
 
 __all__ = [

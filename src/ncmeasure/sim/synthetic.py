@@ -51,9 +51,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ncmeasure.config import AxisConfig, MachineConfig, MachineSection
-from ncmeasure.links.base import SIGNAL_UNITS, Channel, SampleBlock
 from ncmeasure.plan import AxisSummary, Schedule, Window
 from ncmeasure.recording import Recording, RecordingWriter
+from ncmeasure.samples import SIGNAL_UNITS, Channel, SampleBlock
 from ncmeasure.sim.servo import follow, servo
 
 __all__ = [

@@ -32,8 +32,8 @@ from numpy.typing import NDArray
 
 from ncmeasure.config import AXIS_NAME_PATTERN, MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
-from ncmeasure.links.base import SIGNAL_UNITS, Channel
 from ncmeasure.recording import ImportSink, Recording, machine_axis
+from ncmeasure.samples import SIGNAL_UNITS, Channel
 
 __all__ = [
     "CHUNK_ROWS",

@@ -51,8 +51,8 @@ from typing import Final
 import numpy as np
 
 from ncmeasure.errors import RecordingError
-from ncmeasure.links.base import SIGNAL_UNITS
 from ncmeasure.recording import Recording
+from ncmeasure.samples import SIGNAL_UNITS
 from ncmeasure.traces._common import (
     Candidate,
     ImportJob,

@@ -56,8 +56,8 @@ from typing import Final
 import numpy as np
 
 from ncmeasure.errors import RecordingError
-from ncmeasure.links.base import SIGNAL_UNITS
 from ncmeasure.recording import Recording, channel_from_name
+from ncmeasure.samples import SIGNAL_UNITS
 from ncmeasure.traces._common import (
     Candidate,
     ImportJob,
