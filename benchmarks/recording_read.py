@@ -26,8 +26,9 @@ from typing import TypeVar
 
 import numpy as np
 
-from ncmeasure.recording import SAMPLES_FILE, Recording, RecordingWriter, export_csv
+from ncmeasure.recording import SAMPLES_FILE, Recording, RecordingWriter
 from ncmeasure.samples import SIGNAL_UNITS, SampleBlock, channels_for
+from ncmeasure.traces.csv import export_csv
 
 RATE_HZ = 1000
 ROWS_PER_FRAME = 250  # 4 frames/s, as the writer's flush thread writes them at 1 kHz

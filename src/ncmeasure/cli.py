@@ -38,7 +38,9 @@ from ncmeasure.program import (
     load_dialect,
     load_schedule,
 )
-from ncmeasure.recording import export_csv, export_mdf4, import_mdf4, read_recording
+from ncmeasure.recording import read_recording
+from ncmeasure.traces.csv import export_csv
+from ncmeasure.traces.mdf4 import export_mdf4, import_mdf4
 
 if TYPE_CHECKING:
     from ncmeasure.analysis.compare import Comparison

@@ -417,7 +417,7 @@ def test_a_position_without_values_does_not_stop_the_analysis(tmp_path: Path) ->
 def test_no_value_codes_left_out_at_the_import_are_counted_in_the_results(
     tmp_path: Path,
 ) -> None:
-    from ncmeasure.recording import export_csv, import_csv
+    from ncmeasure.traces.csv import export_csv, import_csv
 
     spec = TWO[0]
     data = measure([spec], seed=6)

@@ -18,7 +18,7 @@ Formats (:data:`FORMATS`):
 ``sinumerik-csv``  its CSV export                                       :mod:`.sinumerik_csv`
 ``twincat-csv``    TwinCAT Scope CSV export                             :mod:`.twincat_csv`
 ``tncscope``       Heidenhain TNCscope text export (``.sco``)           :mod:`.tncscope`
-``csv``            the layout of ``ncmeasure export`` (``recording.import_csv``)
+``csv``            the layout of ``ncmeasure export`` (``traces.csv.import_csv``)
 
 Any other delimited text file (a data collector's CSV, a PLC log) imports
 through a column map that names the column of each channel:
@@ -44,7 +44,7 @@ from typing import Final
 
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
-from ncmeasure.recording import Recording, import_csv
+from ncmeasure.recording import Recording
 from ncmeasure.traces._common import (
     ImportJob,
     ProgressFn,
@@ -54,6 +54,7 @@ from ncmeasure.traces._common import (
     run_import,
 )
 from ncmeasure.traces.columns import ColumnMap, import_columns, load_column_map
+from ncmeasure.traces.csv import import_csv
 from ncmeasure.traces.sinumerik_csv import import_sinumerik_csv
 from ncmeasure.traces.sinumerik_xml import import_sinumerik_xml
 from ncmeasure.traces.tncscope import import_tncscope

@@ -1,0 +1,238 @@
+"""The recording format on disk: file names, frame layout, metadata and event lines.
+
+A recording is a directory of three files::
+
+    meta.json      what was recorded: machine, axes, link, channels, status (RecordingMeta)
+    samples.bin    append-only frames of float64 rows: time_s, then one column per channel
+    events.jsonl   one LinkEvent per line: gaps, faults, reboots, reconnects
+
+The format is described byte by byte in ``docs/recording-format.md``; the
+writer (:mod:`.writer`) and the reader (:mod:`.reader`) share what is here.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import logging
+import os
+import re
+import struct
+from pathlib import Path
+from typing import Any, Final, Literal, Self
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from ncmeasure._version import __version__
+from ncmeasure.config import AXIS_NAME_PATTERN, AxisConfig, MachineConfig
+from ncmeasure.errors import RecordingError
+from ncmeasure.samples import SIGNAL_UNITS, Channel, EventKind, LinkEvent
+
+log = logging.getLogger(__name__)
+
+PathArg = str | os.PathLike[str]
+
+FORMAT_NAME: Final = "ncmeasure-recording"
+FORMAT_VERSION: Final = 1
+META_FILE = "meta.json"
+SAMPLES_FILE = "samples.bin"
+EVENTS_FILE = "events.jsonl"
+
+#: Frame header: magic, row count, CRC32 of the payload, frame sequence number.
+FRAME_HEADER = struct.Struct("<4sIII")
+FRAME_MAGIC = b"NCMF"
+#: The longest a writer may keep rows in memory before they are on disk.
+MAX_FLUSH_INTERVAL_S = 0.5
+#: Rows per frame at most; a larger flush is split (the row count is a uint32).
+MAX_FRAME_ROWS = 1 << 20
+ROW_DTYPE = np.dtype("<f8")
+IMPORT_CHUNK_ROWS = 100_000
+
+RecordingStatus = Literal["recording", "complete", "interrupted", "link_lost", "failed"]
+
+
+# --- metadata --------------------------------------------------------------------------
+
+
+class ChannelMeta(BaseModel):
+    """One sample column in ``meta.json``: its name, axis, signal and unit."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str
+    axis: str = Field(min_length=1)
+    signal: str = Field(min_length=1)
+    unit: str
+
+    @model_validator(mode="after")
+    def _check_name(self) -> Self:
+        if self.name != f"{self.axis}_{self.signal}":
+            raise ValueError(
+                f"name {self.name!r} must be <axis>_<signal> ({self.axis}_{self.signal})"
+            )
+        return self
+
+    @classmethod
+    def from_channel(cls, channel: Channel) -> ChannelMeta:
+        """The metadata entry of a link channel."""
+        return cls(name=channel.name, axis=channel.axis, signal=channel.signal, unit=channel.unit)
+
+    def to_channel(self) -> Channel:
+        """The link channel this entry describes."""
+        return Channel(self.axis, self.signal, self.unit)
+
+
+class RecordingMeta(BaseModel):
+    """The contents of ``meta.json``: what was recorded, how, and how it ended."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    format: Literal["ncmeasure-recording"] = FORMAT_NAME
+    format_version: Literal[1] = FORMAT_VERSION
+    ncmeasure_version: str = __version__
+    machine: str | None = None
+    axes: list[dict[str, Any]] = Field(default_factory=list)
+    link: dict[str, Any] = Field(default_factory=dict)
+    channels: list[ChannelMeta] = Field(min_length=1)
+    nominal_period_s: float = Field(gt=0, allow_inf_nan=False)
+    start_utc: str
+    config_hash: str | None = None
+    notes: str = ""
+    source: str = ""
+    faster_than_real_time: bool = False
+    time_scale: float = Field(default=1.0, ge=0, allow_inf_nan=False)
+    """Seconds of ``time_s`` per wall-clock second while recording: the link clock's
+    speed or the replay speed (0: a replay as fast as possible); 1 is real time."""
+    status: RecordingStatus = "recording"
+    end_utc: str | None = None
+    samples: int | None = Field(default=None, ge=0)
+
+    @model_validator(mode="after")
+    def _check_unique_channels(self) -> Self:
+        names = [c.name for c in self.channels]
+        doubled = sorted({n for n in names if names.count(n) > 1})
+        if doubled:
+            raise ValueError(f"channels appear twice: {', '.join(doubled)}")
+        return self
+
+
+def axis_metadata(axis: AxisConfig) -> dict[str, Any]:
+    """The facts about an axis that the analysis of a recording needs.
+
+    Args:
+        axis: An axis of the machine file.
+
+    Returns:
+        A JSON-ready dict: name, travel_mm, vertical, fixed_bearing_end,
+        torque_constant_nm_per_a, rated_current_a, screw_lead_mm,
+        max_velocity_mm_min, rapid_velocity_mm_min (the last two tell rapids and
+        impossible values apart).
+    """
+    return {
+        "name": axis.name,
+        "travel_mm": list(axis.travel_mm),
+        "max_velocity_mm_min": axis.max_velocity_mm_min,
+        "rapid_velocity_mm_min": axis.rapid_mm_min,
+        "vertical": axis.vertical,
+        "fixed_bearing_end": axis.fixed_bearing_end,
+        "torque_constant_nm_per_a": axis.torque_constant_nm_per_a,
+        "rated_current_a": axis.rated_current_a,
+        "screw_lead_mm": axis.screw_lead_mm,
+    }
+
+
+def machine_axis(machine: MachineConfig | None, name: str) -> AxisConfig | None:
+    """The axis ``name`` of the machine file, or None (no machine file, no such axis)."""
+    if machine is None:
+        return None
+    return next((axis for axis in machine.axes if axis.name == name), None)
+
+
+def channel_from_name(name: str) -> Channel | None:
+    """The channel a column name such as ``X_velocity_cmd_mm_min`` stands for.
+
+    The signal is the longest known suffix (see ``SIGNAL_UNITS``), the axis
+    the part before it, which must be a valid axis name.
+
+    Returns:
+        The channel with the unit of its signal, or ``None`` when the name does
+        not follow ``<AXIS>_<signal>``.
+    """
+    for signal in sorted(SIGNAL_UNITS, key=len, reverse=True):
+        suffix = f"_{signal}"
+        if name.endswith(suffix):
+            axis = name[: -len(suffix)]
+            if re.fullmatch(AXIS_NAME_PATTERN, axis):
+                return Channel(axis, signal, SIGNAL_UNITS[signal])
+            return None
+    return None
+
+
+def now_utc() -> str:
+    return dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
+
+
+def fsync_directory(directory: Path) -> None:
+    """Make a new or renamed entry of ``directory`` survive a power cut (POSIX)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:  # Windows cannot open a directory; NTFS journals the entry
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def write_meta(directory: Path, meta: RecordingMeta) -> None:
+    """Replace ``meta.json`` atomically: a reader sees the old or the new file, whole."""
+    path = directory / META_FILE
+    tmp = directory / (META_FILE + ".tmp")
+    text = json.dumps(meta.model_dump(mode="json"), indent=2, ensure_ascii=False, default=str)
+    try:
+        with tmp.open("w", encoding="utf-8") as file:
+            file.write(text + "\n")
+            file.flush()
+            os.fsync(file.fileno())
+        tmp.replace(path)
+    except OSError as exc:
+        raise RecordingError(f"{path}: cannot be written ({exc.strerror or exc})") from exc
+    fsync_directory(directory)
+
+
+def event_line(event: LinkEvent) -> bytes:
+    record = {
+        "time_s": float(event.time_s),
+        "kind": event.kind,
+        "message": event.message,
+        "axis": event.axis,
+        "lost_samples": int(event.lost_samples),
+        "details": dict(event.details),
+    }
+    return (json.dumps(record, ensure_ascii=False, default=str) + "\n").encode("utf-8")
+
+
+class EventRecord(BaseModel):
+    """One line of ``events.jsonl`` (unknown keys from newer writers are ignored)."""
+
+    model_config = ConfigDict(extra="ignore")
+
+    time_s: float
+    kind: EventKind
+    message: str
+    axis: str | None = None
+    lost_samples: int = 0
+    details: dict[str, Any] = Field(default_factory=dict)
+
+    def to_event(self) -> LinkEvent:
+        return LinkEvent(
+            time_s=self.time_s,
+            kind=self.kind,
+            message=self.message,
+            axis=self.axis,
+            lost_samples=self.lost_samples,
+            details=self.details,
+        )

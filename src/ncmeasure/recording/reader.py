@@ -1,0 +1,319 @@
+"""Reading a recording back: one pass over ``samples.bin``, straight into a numpy array.
+
+A frame that was cut short or damaged, and everything after it, is reported in
+:attr:`Recording.problems` and never misread.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import os
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import ValidationError
+
+from ncmeasure.config import format_validation_error
+from ncmeasure.errors import RecordingError
+from ncmeasure.recording.format import (
+    EVENTS_FILE,
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    FRAME_HEADER,
+    FRAME_MAGIC,
+    META_FILE,
+    ROW_DTYPE,
+    SAMPLES_FILE,
+    EventRecord,
+    PathArg,
+    RecordingMeta,
+)
+from ncmeasure.samples import Channel, LinkEvent
+
+try:  # advisory locks tell a reader that a writer is still at work (POSIX only)
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
+
+log = logging.getLogger(__name__)
+
+
+def _read_exactly(file: io.FileIO, target: memoryview) -> int:
+    got = 0
+    while got < len(target):
+        count = file.readinto(target[got:])
+        if not count:
+            break
+        got += count
+    return got
+
+
+def _read_frames(path: Path, columns: int) -> tuple[NDArray[np.float64], list[str]]:
+    """Read every intact frame of ``samples.bin`` straight into one array.
+
+    Returns:
+        The rows of the intact frames (n, columns), and the problems found.
+    """
+    problems: list[str] = []
+    row_bytes = 8 * columns
+    with path.open("rb", buffering=0) as file:
+        size = os.fstat(file.fileno()).st_size  # a live writer may append more: ignored
+        raw = np.empty(size // row_bytes * row_bytes, dtype=np.uint8)  # pages are touched lazily
+        buffer = raw.data
+        header = bytearray(FRAME_HEADER.size)
+        offset = rows = frame = 0
+        while offset < size:
+            rest = size - offset
+            where = f"after frame {frame - 1}" if frame else "at the start of samples.bin"
+            if rest < FRAME_HEADER.size or _read_exactly(file, memoryview(header)) < len(header):
+                problems.append(f"torn tail: {rest} bytes {where} ignored (incomplete frame)")
+                break
+            magic, count, crc, sequence = FRAME_HEADER.unpack(header)
+            if magic != FRAME_MAGIC:
+                problems.append(
+                    f"torn tail: {rest} bytes {where} ignored (no frame header at byte {offset})"
+                )
+                break
+            if sequence != frame:
+                problems.append(
+                    f"frame {frame} at byte {offset} carries sequence number {sequence}: "
+                    f"it and everything after it ignored ({rest} bytes)"
+                )
+                break
+            payload_bytes = count * row_bytes
+            if payload_bytes > rest - FRAME_HEADER.size:
+                problems.append(f"torn tail: {rest} bytes {where} ignored (incomplete frame)")
+                break
+            target = buffer[rows * row_bytes : rows * row_bytes + payload_bytes]
+            if _read_exactly(file, target) < payload_bytes:
+                problems.append(f"torn tail: {rest} bytes {where} ignored (file shrank)")
+                break
+            if zlib.crc32(target) != crc:
+                problems.append(
+                    f"frame {frame} fails its checksum: it and everything after it "
+                    f"ignored ({rest} bytes)"
+                )
+                break
+            offset += FRAME_HEADER.size + payload_bytes
+            rows += count
+            frame += 1
+    data: NDArray[np.float64] = raw[: rows * row_bytes].view(ROW_DTYPE).reshape(rows, columns)
+    return data, problems
+
+
+def _read_events(path: Path, problems: list[str]) -> list[LinkEvent]:
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        problems.append(f"{EVENTS_FILE} is missing: no events")
+        return []
+    except OSError as exc:
+        problems.append(f"{EVENTS_FILE} cannot be read ({exc.strerror or exc}): no events")
+        return []
+    lines = raw.split(b"\n")
+    tail = lines.pop()  # the part after the last newline: empty unless torn
+    events: list[LinkEvent] = []
+    for number, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        try:
+            events.append(EventRecord.model_validate_json(line).to_event())
+        except ValidationError as exc:
+            reason = exc.errors(include_url=False)[0]["msg"]
+            problems.append(f"{EVENTS_FILE} line {number} is not a valid event ({reason}): ignored")
+    if tail.strip():
+        try:
+            events.append(EventRecord.model_validate_json(tail).to_event())
+        except ValidationError:
+            problems.append(
+                f"{EVENTS_FILE}: torn last line ({len(tail)} bytes, line {len(lines) + 1}) ignored"
+            )
+    return events
+
+
+def _read_meta(directory: Path) -> RecordingMeta:
+    if not directory.exists():
+        raise RecordingError(f"{directory}: no such recording directory")
+    if not directory.is_dir():
+        raise RecordingError(f"{directory}: not a recording (a recording is a directory)")
+    path = directory / META_FILE
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError as exc:
+        raise RecordingError(f"{directory}: not a recording ({META_FILE} is missing)") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RecordingError(f"{path}: cannot be read ({exc})") from exc
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise RecordingError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(data, dict) or data.get("format") != FORMAT_NAME:
+        found = data.get("format") if isinstance(data, dict) else type(data).__name__
+        raise RecordingError(
+            f"{path}: not an ncmeasure recording (format is {found!r}, expected {FORMAT_NAME!r})"
+        )
+    version = data.get("format_version")
+    if isinstance(version, int) and version > FORMAT_VERSION:
+        raise RecordingError(
+            f"{path}: format_version {version} is newer than this ncmeasure reads "
+            f"({FORMAT_VERSION}); update ncmeasure"
+        )
+    try:
+        return RecordingMeta.model_validate(data)
+    except ValidationError as exc:
+        raise RecordingError(f"{path}: invalid metadata", format_validation_error(exc)) from exc
+
+
+def _is_being_written(path: Path) -> bool | None:
+    """True while a writer holds ``samples.bin``; None where that cannot be told."""
+    if fcntl is None:  # pragma: no cover - Windows
+        return None
+    try:
+        with path.open("rb") as file:
+            try:
+                fcntl.flock(file.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return True
+            except OSError:
+                return None
+            fcntl.flock(file.fileno(), fcntl.LOCK_UN)
+            return False
+    except OSError:
+        return None
+
+
+@dataclass(frozen=True, eq=False)
+class Recording:
+    """A recording read into memory.
+
+    ``values`` is a view into one array that also holds ``time_s`` as its
+    first column; :meth:`column` returns views as well (no copies).
+
+    Attributes:
+        directory: Where the recording lives.
+        meta: The contents of ``meta.json``.
+        channels: The sample columns, in order.
+        time_s: Time of every row (n,), seconds on the link's clock.
+        values: The samples (n, channels).
+        events: The link events, in file order.
+        problems: What was wrong with the files (damaged tail, unfinished
+            recording, ...), one sentence each; empty for a clean recording.
+    """
+
+    directory: Path
+    meta: RecordingMeta
+    channels: tuple[Channel, ...]
+    time_s: NDArray[np.float64]
+    values: NDArray[np.float64]
+    events: list[LinkEvent]
+    problems: list[str]
+
+    @classmethod
+    def open(cls, directory: PathArg) -> Recording:
+        """Read a recording directory.
+
+        A damaged or incomplete end of ``samples.bin`` or ``events.jsonl`` is
+        not an error: the intact part is returned, and every problem is listed
+        in :attr:`problems` and logged as a warning.
+
+        Raises:
+            RecordingError: The directory does not exist, is not a recording,
+                or its ``meta.json`` is missing or invalid.
+        """
+        path = Path(directory)
+        meta = _read_meta(path)
+        channels = tuple(c.to_channel() for c in meta.channels)
+        samples_path = path / SAMPLES_FILE
+        try:
+            data, problems = _read_frames(samples_path, 1 + len(channels))
+        except FileNotFoundError as exc:
+            raise RecordingError(f"{path}: not a recording ({SAMPLES_FILE} is missing)") from exc
+        except OSError as exc:
+            raise RecordingError(f"{samples_path}: cannot be read ({exc.strerror or exc})") from exc
+        rows = len(data)
+        events = _read_events(path / EVENTS_FILE, problems)
+        if meta.status == "recording":
+            if _is_being_written(samples_path):
+                problems.insert(
+                    0, f"still being recorded (status 'recording'): {rows} samples so far"
+                )
+            else:
+                problems.insert(
+                    0,
+                    "not closed cleanly (status 'recording'): the recorder stopped "
+                    f"unexpectedly; {rows} samples recovered",
+                )
+        elif meta.samples is not None and meta.samples != rows:
+            problems.append(
+                f"{META_FILE} says {meta.samples} samples, {SAMPLES_FILE} holds {rows} "
+                "readable samples"
+            )
+        for problem in problems:
+            log.warning("recording %s: %s", path, problem)
+        return cls(
+            directory=path,
+            meta=meta,
+            channels=channels,
+            time_s=np.ascontiguousarray(data[:, 0]),
+            values=data[:, 1:],
+            events=events,
+            problems=problems,
+        )
+
+    def __len__(self) -> int:
+        return int(self.time_s.shape[0])
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        """The recorded axes, in channel order."""
+        return tuple(dict.fromkeys(c.axis for c in self.channels))
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """The column names (``X_current_a``, ...), in order."""
+        return tuple(c.name for c in self.channels)
+
+    def column(self, name: str) -> NDArray[np.float64]:
+        """The samples of one channel, by name (``time_s`` gives the times).
+
+        Raises:
+            RecordingError: The recording has no such channel.
+        """
+        if name == "time_s":
+            return self.time_s
+        for index, channel in enumerate(self.channels):
+            if channel.name == name:
+                column: NDArray[np.float64] = self.values[:, index]
+                return column
+        raise RecordingError(
+            f"{self.directory}: no channel {name!r} (channels: {', '.join(self.channel_names)})"
+        )
+
+    def axis_signal(self, axis: str, signal: str) -> NDArray[np.float64]:
+        """The samples of ``signal`` (e.g. ``current_a``) of ``axis``.
+
+        Raises:
+            RecordingError: The recording has no such channel.
+        """
+        return self.column(f"{axis}_{signal}")
+
+
+def read_recording(directory: PathArg) -> Recording:
+    """Read a recording directory; see :meth:`Recording.open`."""
+    return Recording.open(directory)
+
+
+def as_recording(recording: Recording | PathArg) -> Recording:
+    return recording if isinstance(recording, Recording) else Recording.open(recording)
+
+
+def frame_rows(recording: Recording, start: int, stop: int) -> NDArray[np.float64]:
+    rows = np.empty((stop - start, 1 + len(recording.channels)), dtype=np.float64)
+    rows[:, 0] = recording.time_s[start:stop]
+    rows[:, 1:] = recording.values[start:stop]
+    return rows

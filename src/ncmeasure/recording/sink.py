@@ -1,0 +1,221 @@
+"""Where imports write: a recording created when the first rows arrive, checked on the way in.
+
+Every importer (CSV, MDF4, controller traces, column maps, CAN logs) streams its
+rows into an :class:`ImportSink`; :func:`check_times` is the shared rule that
+times are finite and strictly increasing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ncmeasure.config import MachineConfig
+from ncmeasure.errors import RecordingError
+from ncmeasure.recording.format import (
+    EVENTS_FILE,
+    MAX_FLUSH_INTERVAL_S,
+    META_FILE,
+    SAMPLES_FILE,
+    RecordingStatus,
+    machine_axis,
+)
+from ncmeasure.recording.reader import Recording
+from ncmeasure.recording.writer import RecordingWriter
+from ncmeasure.samples import Channel, SampleBlock
+from ncmeasure.validity import Implausible
+
+log = logging.getLogger(__name__)
+
+
+def check_times(
+    time_s: NDArray[np.float64], previous_s: float, where: Callable[[int], str]
+) -> None:
+    """Raise unless ``time_s`` is finite and increases strictly from ``previous_s`` on.
+
+    Args:
+        time_s: The times of a block of rows, in seconds.
+        previous_s: The last time before the block (``-inf`` for the first block).
+        where: ``where(index)`` names the place of row ``index`` in the source
+            (``file:line``), for the message.
+
+    Raises:
+        RecordingError: ``<where>: problem`` for the first time that is not
+            finite or not later than the one before.
+    """
+    bad = ~np.isfinite(time_s)
+    steps = np.diff(time_s, prepend=previous_s)
+    backwards = ~(steps > 0) & ~bad
+    if not (bad.any() or backwards.any()):
+        return
+    index = int(np.flatnonzero(bad | backwards)[0])
+    value = float(time_s[index])  # a Python float: numpy 2 shows np.float64(...) in repr
+    if bad[index]:
+        raise RecordingError(f"{where(index)}: time_s {value!r} is not a finite number")
+    before = float(time_s[index - 1]) if index else previous_s
+    raise RecordingError(
+        f"{where(index)}: time_s {value!r} is not later than the row before "
+        f"({before!r}); times must increase strictly"
+    )
+
+
+class ImportSink:
+    """The recording an import writes, created on disk when the first rows arrive.
+
+    Until then the sample period may still be unknown: the recording is
+    created once two rows show a time step, with the median step of the rows
+    so far, and closed with the median step of all rows. Rows go to disk
+    chunk by chunk, so an import keeps at most one chunk in memory (and the
+    times, for the period). An import that fails calls :meth:`discard`, which
+    removes what it wrote (never anything that was there before), so it can be
+    retried into the same directory.
+
+    Every value is checked on the way in (:mod:`ncmeasure.validity`): a "no
+    value" code such as −999999, or a value beyond what the axis can do (its
+    rated current and maximum velocity from the machine file, else fixed
+    bounds), is stored as NaN and counted; :meth:`validity_lines` says so, and
+    :meth:`finish` adds it to the report in ``meta.json`` (``link.report``).
+
+    Args:
+        directory: The new recording.
+        channels: Its columns.
+        machine: The machine file, for the axis metadata.
+        nominal_period_s: The sample period; None: inferred from the times.
+        what: How error messages name the input (``the file``, ``the trace``).
+        meta: Further arguments of :meth:`RecordingWriter.create` (source,
+            notes, link, start_utc, ...).
+    """
+
+    def __init__(
+        self,
+        directory: Path,
+        channels: Sequence[Channel],
+        *,
+        machine: MachineConfig | None,
+        nominal_period_s: float | None,
+        what: str = "the file",
+        **meta: Any,
+    ) -> None:
+        self.directory = directory
+        self.channels = tuple(channels)
+        self.machine = machine
+        self.nominal_period_s = nominal_period_s
+        self.what = what
+        self.meta = meta
+        self.existed = directory.exists()
+        self.rows = 0
+        self.writer: RecordingWriter | None = None
+        facts: dict[str, dict[str, Any]] = {}
+        for channel in self.channels:
+            axis = machine_axis(machine, channel.axis)
+            if axis is not None:
+                facts[channel.name] = {
+                    "rated_current_a": axis.rated_current_a,
+                    "max_velocity_mm_min": axis.max_velocity_mm_min,
+                }
+        self.validity = Implausible.for_channels({c.name: c.signal for c in self.channels}, facts)
+        self._times: list[NDArray[np.float64]] = []
+        self._pending: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
+
+    def append(self, time_s: NDArray[np.float64], values: NDArray[np.float64]) -> None:
+        """Write rows (times strictly increasing, also across calls; checked by the writer)."""
+        if len(time_s) == 0:
+            return
+        values = np.asarray(values, dtype=np.float64)
+        copied = False
+        for column, channel in enumerate(self.channels):
+            original = values[:, column]
+            cleaned = self.validity.clean(channel.name, time_s, original)
+            if cleaned is not original:
+                if not copied:
+                    values, copied = values.copy(), True
+                values[:, column] = cleaned
+        self.rows += len(time_s)
+        self._times.append(np.array(time_s, dtype=np.float64))
+        if self.writer is None:
+            self._pending.append((time_s, values))
+            if self.rows < 2 and self.nominal_period_s is None:
+                return
+            writer = self.ensure_writer()
+            pending, self._pending = self._pending, []
+            for t, v in pending:
+                writer.append(SampleBlock(t, v))
+            writer.flush()
+            return
+        self.writer.append(SampleBlock(time_s, values))
+        self.writer.flush()
+
+    def ensure_writer(self) -> RecordingWriter:
+        """The writer, created on first use (with the period known by then).
+
+        Raises:
+            RecordingError: no period given and fewer than two rows so far.
+        """
+        if self.writer is not None:
+            return self.writer
+        period_s = self.nominal_period_s
+        if period_s is None:
+            period_s = self._median_step_s()
+        self.writer = RecordingWriter.create(
+            self.directory,
+            self.channels,
+            nominal_period_s=period_s,
+            machine=self.machine,
+            flush_interval_s=MAX_FLUSH_INTERVAL_S,
+            **self.meta,
+        )
+        return self.writer
+
+    def finish(self, status: RecordingStatus = "complete", **updates: Any) -> Recording:
+        """Close the recording with ``status`` (and metadata ``updates``) and read it back.
+
+        Raises:
+            RecordingError: no rows, or a single row and no sample period.
+        """
+        if self.writer is None and not self._pending:
+            raise RecordingError(f"{self.directory}: {self.what} holds no complete sample")
+        writer = self.ensure_writer()
+        if self.nominal_period_s is None:
+            updates["nominal_period_s"] = self._median_step_s()
+        lines = self.validity_lines()
+        if lines:
+            link = dict(updates.get("link", self.meta.get("link") or {}))
+            report = list(link.get("report", []))
+            link["report"] = report + [line for line in lines if line not in report]
+            link["implausible"] = dict(self.validity.counts)
+            updates["link"] = link
+        writer.close(status, **updates)
+        log.info("imported into %s: %d samples", self.directory, writer.rows_written)
+        return Recording.open(self.directory)
+
+    def validity_lines(self) -> list[str]:
+        """One sentence per channel whose values were left out as not physically possible."""
+        return self.validity.lines()
+
+    def discard(self) -> None:
+        """Remove the files this import wrote and, if the import made it, the directory."""
+        if self.writer is None:
+            return
+        with contextlib.suppress(RecordingError):
+            self.writer.close("failed")
+        for name in (META_FILE, SAMPLES_FILE, EVENTS_FILE, META_FILE + ".tmp"):
+            with contextlib.suppress(OSError):
+                (self.directory / name).unlink()
+        if not self.existed:
+            with contextlib.suppress(OSError):
+                self.directory.rmdir()
+
+    def _median_step_s(self) -> float:
+        times = np.concatenate(self._times) if self._times else np.empty(0)
+        if len(times) < 2:
+            raise RecordingError(
+                f"{self.directory}: {self.what} holds a single sample and no sample period; "
+                "a recording needs at least two (or pass nominal_period_s)"
+            )
+        return float(np.median(np.diff(times)))

@@ -1,0 +1,492 @@
+"""The crash-safe recording writer.
+
+:class:`RecordingWriter` takes the :class:`~ncmeasure.samples.SampleBlock` objects
+of a drive link. A background thread writes the buffered rows as one checksummed
+frame and fsyncs it at least every ``flush_interval_s`` (at most 0.5 s), so a
+recorder killed with ``kill -9`` or by a power cut loses at most its last half
+second.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import logging
+import os
+import threading
+import zlib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any, Self, get_args
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import ValidationError
+
+from ncmeasure.config import MachineConfig, format_validation_error
+from ncmeasure.errors import LinkError, RecordingError
+from ncmeasure.recording.format import (
+    EVENTS_FILE,
+    FRAME_HEADER,
+    FRAME_MAGIC,
+    MAX_FLUSH_INTERVAL_S,
+    MAX_FRAME_ROWS,
+    ROW_DTYPE,
+    SAMPLES_FILE,
+    ChannelMeta,
+    PathArg,
+    RecordingMeta,
+    RecordingStatus,
+    axis_metadata,
+    event_line,
+    fsync_directory,
+    now_utc,
+    write_meta,
+)
+from ncmeasure.samples import Channel, LinkEvent, SampleBlock
+
+try:  # advisory locks tell a reader that a writer is still at work (POSIX only)
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
+
+log = logging.getLogger(__name__)
+
+_STATUSES: tuple[str, ...] = get_args(RecordingStatus)
+# Fields that describe the data itself; close() must not change them.
+_FIXED_FIELDS = frozenset(
+    {"format", "format_version", "channels", "status", "samples", "ncmeasure_version"}
+)
+
+
+def _write_all(file: IO[bytes], data: bytes | memoryview) -> None:
+    view = memoryview(data).cast("B")
+    while view:
+        written = file.write(view)
+        if not written:
+            raise OSError("the file accepted no more bytes")
+        view = view[written:]
+
+
+class RecordingWriter:
+    """Appends sample blocks and link events to a new recording, crash-safe.
+
+    Make one with :meth:`create` and use it as a context manager; leaving the
+    ``with`` block closes it with status ``complete``, or ``interrupted``
+    (Ctrl-C, ``sys.exit``), ``link_lost`` (a :class:`~ncmeasure.errors.LinkError`) or
+    ``failed`` (any other exception)::
+
+        with RecordingWriter.create("rec/", link.channels,
+                                    nominal_period_s=link.nominal_period_s,
+                                    machine=config, link=link.describe()) as writer:
+            while (block := link.read(timeout_s=1.0)) is not None:
+                writer.append(block)
+                for event in link.events():
+                    writer.add_event(event)
+
+    Rows wait in memory until a flush writes them as one frame and fsyncs the
+    file; a daemon thread flushes every ``flush_interval_s``. All methods are
+    thread-safe.
+    """
+
+    def __init__(
+        self,
+        directory: Path,
+        meta: RecordingMeta,
+        samples_file: IO[bytes],
+        events_file: IO[bytes],
+        flush_interval_s: float,
+    ) -> None:
+        """Use :meth:`create`; this takes over files that it opened."""
+        self.directory = directory
+        self._meta = meta
+        self._channels = tuple(c.to_channel() for c in meta.channels)
+        self._samples = samples_file
+        self._events = events_file
+        self._flush_interval_s = flush_interval_s
+        self._lock = threading.Lock()
+        self._pending_rows: list[NDArray[np.float64]] = []
+        self._pending_count = 0
+        self._pending_events: list[bytes] = []
+        self._last_time_s = -np.inf
+        self._rows_appended = 0
+        self._rows_written = 0
+        self._frames = 0
+        self._samples_size = 0
+        self._events_size = 0
+        self._closed = False
+        self._error: RecordingError | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(
+            target=self._flush_loop, name=f"recording-flush:{directory.name}", daemon=True
+        )
+        self._thread.start()
+
+    @classmethod
+    def create(
+        cls,
+        directory: PathArg,
+        channels: Sequence[Channel],
+        *,
+        nominal_period_s: float,
+        machine: MachineConfig | None = None,
+        link: Mapping[str, Any] | None = None,
+        config_hash: str | None = None,
+        notes: str = "",
+        source: str = "",
+        faster_than_real_time: bool = False,
+        time_scale: float = 1.0,
+        flush_interval_s: float = 0.25,
+        start_utc: dt.datetime | None = None,
+    ) -> RecordingWriter:
+        """Start a new recording in ``directory`` (created with its parents).
+
+        Args:
+            directory: A directory that does not exist yet or is empty.
+            channels: The sample columns, in the order of the blocks' values.
+            nominal_period_s: The intended time between two rows.
+            machine: The machine file; its name and the recorded axes' data go
+                into ``meta.json``. Every channel's axis must be one of its axes.
+            link: What :meth:`DriveLink.describe` returns.
+            config_hash: The schedule's config hash, to match the recording
+                with the program that was run.
+            notes: Free text.
+            source: Where the samples come from: ``canopen``, ``replay``, ``import:csv``...
+            faster_than_real_time: True when a replay or simulation ran faster
+                than the machine would.
+            time_scale: Seconds of ``time_s`` per wall-clock second: the link
+                clock's speed (a virtual machine), the replay speed (0: as fast
+                as possible), 1 for real time.
+            flush_interval_s: Longest time rows stay in memory, at most 0.5 s.
+            start_utc: When the recording began; now when not given.
+
+        Raises:
+            RecordingError: The directory exists and is not empty, cannot be
+                created, or a channel's axis is not in ``machine``.
+            ValueError: An argument is out of range.
+        """
+        if not channels:
+            raise ValueError("a recording needs at least one channel")
+        if not 0 < flush_interval_s <= MAX_FLUSH_INTERVAL_S:
+            raise ValueError(
+                f"flush_interval_s must be in (0, {MAX_FLUSH_INTERVAL_S}] s, "
+                f"not {flush_interval_s!r}"
+            )
+        if not (np.isfinite(nominal_period_s) and nominal_period_s > 0):
+            raise ValueError(f"nominal_period_s must be positive, not {nominal_period_s!r}")
+        if not (np.isfinite(time_scale) and time_scale >= 0):
+            raise ValueError(f"time_scale must be 0 or positive, not {time_scale!r}")
+        path = Path(directory)
+        axes: list[dict[str, Any]] = []
+        if machine is not None:
+            known = {a.name: a for a in machine.axes}
+            for name in dict.fromkeys(c.axis for c in channels):
+                if name not in known:
+                    raise RecordingError(
+                        f"{path}: channel axis {name} is not an axis of machine "
+                        f"{machine.machine.name!r} ({', '.join(known)})"
+                    )
+                axes.append(axis_metadata(known[name]))
+        start = (start_utc or dt.datetime.now(dt.UTC)).astimezone(dt.UTC)
+        try:
+            meta = RecordingMeta(
+                machine=machine.machine.name if machine is not None else None,
+                axes=axes,
+                link=dict(link or {}),
+                channels=[ChannelMeta.from_channel(c) for c in channels],
+                nominal_period_s=nominal_period_s,
+                start_utc=start.isoformat(timespec="milliseconds"),
+                config_hash=config_hash,
+                notes=notes,
+                source=source,
+                faster_than_real_time=faster_than_real_time,
+                time_scale=time_scale,
+            )
+        except ValidationError as exc:
+            raise RecordingError(
+                f"{path}: invalid recording metadata", format_validation_error(exc)
+            ) from exc
+
+        if path.exists():
+            if not path.is_dir():
+                raise RecordingError(f"{path}: exists and is not a directory")
+            if any(path.iterdir()):
+                raise RecordingError(
+                    f"{path}: directory is not empty; a recording needs a new or empty directory"
+                )
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+            write_meta(path, meta)
+            samples = (path / SAMPLES_FILE).open("ab", buffering=0)
+        except OSError as exc:
+            raise RecordingError(f"{path}: cannot create a recording here ({exc})") from exc
+        try:
+            events = (path / EVENTS_FILE).open("ab", buffering=0)
+        except OSError as exc:
+            samples.close()
+            raise RecordingError(f"{path}: cannot create a recording here ({exc})") from exc
+        if fcntl is not None:
+            with contextlib.suppress(OSError):  # only a hint for readers
+                fcntl.flock(samples.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        fsync_directory(path)
+        log.info(
+            "recording to %s: %d channels, nominal period %g s",
+            path,
+            len(channels),
+            nominal_period_s,
+        )
+        return cls(path, meta, samples, events, flush_interval_s)
+
+    # --- properties -------------------------------------------------------------------
+
+    @property
+    def meta(self) -> RecordingMeta:
+        """The metadata as last written to ``meta.json``."""
+        return self._meta
+
+    @property
+    def channels(self) -> tuple[Channel, ...]:
+        """The sample columns, in order."""
+        return self._channels
+
+    @property
+    def rows_written(self) -> int:
+        """Rows on disk (fsynced)."""
+        return self._rows_written
+
+    @property
+    def rows_appended(self) -> int:
+        """Rows handed to :meth:`append`, on disk or still in memory."""
+        return self._rows_appended
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` has finished."""
+        return self._closed
+
+    # --- writing ----------------------------------------------------------------------
+
+    def append(self, block: SampleBlock) -> None:
+        """Buffer the rows of ``block``; the next flush writes them.
+
+        Raises:
+            RecordingError: The block's column count differs from the channels,
+                a time is not finite or not later than the row before it, the
+                writer is closed, or the last background flush failed.
+        """
+        values = np.asarray(block.values, dtype=np.float64)
+        time_s = np.asarray(block.time_s, dtype=np.float64)
+        if values.ndim != 2 or values.shape[1] != len(self._channels):
+            columns = values.shape[1] if values.ndim == 2 else values.ndim
+            raise RecordingError(
+                f"{self.directory}: a block with {columns} value columns does not fit a "
+                f"recording of {len(self._channels)} channels "
+                f"({', '.join(c.name for c in self._channels)})"
+            )
+        count = len(time_s)
+        if count and not np.isfinite(time_s).all():
+            index = int(np.flatnonzero(~np.isfinite(time_s))[0])
+            raise RecordingError(
+                f"{self.directory}: row {index} of the block has time_s {time_s[index]!r}"
+            )
+        if count > 1:
+            steps = np.diff(time_s)
+            if not (steps > 0).all():
+                index = int(np.flatnonzero(~(steps > 0))[0]) + 1
+                raise RecordingError(
+                    f"{self.directory}: time_s does not increase inside the block: row {index} "
+                    f"is at {time_s[index]!r} s after {time_s[index - 1]!r} s"
+                )
+        rows = np.empty((count, 1 + len(self._channels)), dtype=np.float64)
+        rows[:, 0] = time_s
+        rows[:, 1:] = values
+        with self._lock:
+            self._check_usable()
+            if count == 0:
+                return
+            if not time_s[0] > self._last_time_s:
+                raise RecordingError(
+                    f"{self.directory}: time_s goes backwards: the block starts at "
+                    f"{time_s[0]!r} s, the row before it is at {self._last_time_s!r} s"
+                )
+            self._pending_rows.append(rows)
+            self._pending_count += count
+            self._rows_appended += count
+            self._last_time_s = float(time_s[-1])
+
+    def add_event(self, event: LinkEvent) -> None:
+        """Buffer a link event; the next flush appends it to ``events.jsonl``.
+
+        Raises:
+            RecordingError: The writer is closed or the last background flush failed.
+        """
+        line = event_line(event)
+        with self._lock:
+            self._check_usable()
+            self._pending_events.append(line)
+
+    def flush(self) -> None:
+        """Write the buffered rows as one frame and the buffered events, then fsync.
+
+        Raises:
+            RecordingError: The writer is closed, or the disk refused the data
+                (the files are cut back to their last good state and the rows
+                stay buffered for the next attempt).
+        """
+        with self._lock:
+            if self._closed:
+                raise RecordingError(f"{self.directory}: the recording is closed")
+            self._flush_locked()
+
+    def close(self, status: RecordingStatus = "complete", **meta_updates: Any) -> None:
+        """Flush, stop the flush thread and finish ``meta.json``. Safe to call twice.
+
+        Args:
+            status: How the recording ended: ``complete``, ``interrupted``,
+                ``link_lost`` or ``failed``.
+            **meta_updates: Other ``meta.json`` fields to change, e.g. ``notes``
+                or ``nominal_period_s`` (not the format, channels, status or samples).
+
+        Raises:
+            RecordingError: An update is not a valid metadata field or value
+                (nothing is closed then), or the final flush failed (the
+                recording is closed with status ``failed``).
+        """
+        if self._closed:
+            return
+        if status not in _STATUSES or status == "recording":
+            raise RecordingError(
+                f"{self.directory}: cannot close with status {status!r} "
+                "(complete, interrupted, link_lost or failed)"
+            )
+        fixed = sorted(_FIXED_FIELDS.intersection(meta_updates))
+        if fixed:
+            raise RecordingError(
+                f"{self.directory}: close() cannot change {', '.join(fixed)} in meta.json"
+            )
+        try:
+            RecordingMeta.model_validate({**self._meta.model_dump(), **meta_updates})
+        except ValidationError as exc:
+            raise RecordingError(
+                f"{self.directory}: invalid metadata update", format_validation_error(exc)
+            ) from exc
+
+        self._stop.set()
+        if self._thread is not threading.current_thread():
+            self._thread.join()
+        error: RecordingError | None = None
+        with self._lock:
+            if self._closed:  # closed by another thread meanwhile
+                return
+            try:
+                self._flush_locked()
+            except RecordingError as exc:
+                error = exc
+                status = "failed"
+            self._closed = True
+            for file in (self._samples, self._events):
+                try:
+                    file.close()  # also releases the writer's lock
+                except OSError:
+                    log.exception("closing %s", getattr(file, "name", file))
+            self._meta = RecordingMeta.model_validate(
+                {
+                    **self._meta.model_dump(),
+                    **meta_updates,
+                    "status": status,
+                    "end_utc": now_utc(),
+                    "samples": self._rows_written,
+                }
+            )
+            write_meta(self.directory, self._meta)
+        log.info("recording %s closed: %s, %d samples", self.directory, status, self._rows_written)
+        if error is not None:
+            raise error
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if exc is None:
+            self.close("complete")
+            return
+        status: RecordingStatus = "failed"
+        if isinstance(exc, KeyboardInterrupt | SystemExit):
+            status = "interrupted"
+        elif isinstance(exc, LinkError):
+            status = "link_lost"
+        try:
+            self.close(status)
+        except RecordingError:  # the exception in flight matters more
+            log.exception("closing recording %s after an error", self.directory)
+
+    # --- internals --------------------------------------------------------------------
+
+    def _check_usable(self) -> None:
+        if self._closed:
+            raise RecordingError(f"{self.directory}: the recording is closed")
+        if self._error is not None:
+            raise RecordingError(
+                f"{self.directory}: the recording cannot be written: {self._error.message}"
+            ) from self._error
+
+    def _flush_locked(self) -> None:
+        if not self._pending_rows and not self._pending_events:
+            return
+        frames = self._frames
+        try:
+            if self._pending_rows:
+                rows = (
+                    self._pending_rows[0]
+                    if len(self._pending_rows) == 1
+                    else np.concatenate(self._pending_rows)
+                )
+                for start in range(0, len(rows), MAX_FRAME_ROWS):
+                    payload = np.ascontiguousarray(rows[start : start + MAX_FRAME_ROWS], ROW_DTYPE)
+                    header = FRAME_HEADER.pack(
+                        FRAME_MAGIC, len(payload), zlib.crc32(payload.data), frames
+                    )
+                    _write_all(self._samples, header)
+                    _write_all(self._samples, payload.data)
+                    frames += 1
+                os.fsync(self._samples.fileno())
+            if self._pending_events:
+                _write_all(self._events, b"".join(self._pending_events))
+                os.fsync(self._events.fileno())
+        except OSError as exc:
+            # Cut partial writes away, so the next frame follows a whole one.
+            for file, size in (
+                (self._samples, self._samples_size),
+                (self._events, self._events_size),
+            ):
+                with contextlib.suppress(OSError):
+                    file.truncate(size)
+            raise RecordingError(
+                f"{self.directory}: cannot write samples ({exc.strerror or exc})"
+            ) from exc
+        self._frames = frames
+        self._rows_written += self._pending_count
+        self._samples_size = self._samples.tell()
+        self._events_size = self._events.tell()
+        self._pending_rows.clear()
+        self._pending_count = 0
+        self._pending_events.clear()
+        self._error = None
+
+    def _flush_loop(self) -> None:
+        while not self._stop.wait(self._flush_interval_s):
+            with self._lock:
+                if self._closed:
+                    return
+                try:
+                    self._flush_locked()
+                except RecordingError as exc:
+                    if self._error is None:
+                        log.error("%s (retrying every %g s)", exc, self._flush_interval_s)
+                    self._error = exc

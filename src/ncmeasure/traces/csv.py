@@ -1,0 +1,196 @@
+"""ncmeasure's own CSV exchange: a recording as one bit-exact CSV file and back.
+
+:func:`export_csv` writes ``time_s`` and the channels with the shortest float
+repr that reads back to the same float64; :func:`import_csv` reads such a file
+(or any file in that layout) into a new recording.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import logging
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ncmeasure.config import MachineConfig
+from ncmeasure.errors import RecordingError
+from ncmeasure.recording.format import (
+    IMPORT_CHUNK_ROWS,
+    PathArg,
+    channel_from_name,
+)
+from ncmeasure.recording.reader import Recording, as_recording, frame_rows
+from ncmeasure.recording.sink import ImportSink, check_times
+from ncmeasure.samples import SIGNAL_UNITS, Channel
+
+log = logging.getLogger(__name__)
+
+_CSV_CHUNK_ROWS = 20_000
+
+
+def export_csv(recording: Recording | PathArg, path: PathArg) -> Path:
+    """Write a recording as one CSV file: ``time_s`` and the channels, bit-exact.
+
+    The header row names the columns (``time_s,X_current_a,...``); every value
+    is written as Python's shortest repr that reads back to the same float64
+    (``0.1``, ``1e-300``, ``-0.0``, ``nan``), so :func:`import_csv` restores the
+    samples bit for bit. The file is written in chunks and renamed into place
+    when complete.
+
+    Args:
+        recording: A recording, or the directory of one.
+        path: The CSV file to write (replaced if it exists).
+
+    Returns:
+        The path written.
+
+    Raises:
+        RecordingError: The recording cannot be read or the file cannot be written.
+    """
+    rec = as_recording(recording)
+    target = Path(path)
+    tmp = target.with_name(target.name + ".tmp")
+    try:
+        with tmp.open("w", encoding="utf-8", newline="\n") as file:
+            file.write(",".join(["time_s", *rec.channel_names]) + "\n")
+            for start in range(0, len(rec), _CSV_CHUNK_ROWS):
+                rows = frame_rows(rec, start, min(start + _CSV_CHUNK_ROWS, len(rec)))
+                # float.__repr__ is the shortest text that round-trips exactly.
+                file.write("".join([",".join(map(repr, row)) + "\n" for row in rows.tolist()]))
+        tmp.replace(target)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise RecordingError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
+    log.info("exported %d samples of %s to %s", len(rec), rec.directory, target)
+    return target
+
+
+def _parse_csv_header(path: Path, line: str) -> list[Channel]:
+    if not line:
+        raise RecordingError(f"{path}:1: the file is empty; expected a header row")
+    cells = [cell.strip() for cell in line.lstrip("\ufeff").rstrip("\r\n").split(",")]
+    if cells[0] != "time_s":
+        raise RecordingError(f"{path}:1: the first column must be time_s, not {cells[0]!r}")
+    if len(cells) < 2:
+        raise RecordingError(f"{path}:1: no channel columns after time_s")
+    channels: list[Channel] = []
+    for number, name in enumerate(cells[1:], start=2):
+        channel = channel_from_name(name)
+        if channel is None:
+            raise RecordingError(
+                f"{path}:1: column {number} {name!r} is not <AXIS>_<signal> with a known "
+                f"signal ({', '.join(SIGNAL_UNITS)})"
+            )
+        if channel in channels:
+            raise RecordingError(f"{path}:1: column {number} {name!r} appears twice")
+        channels.append(channel)
+    return channels
+
+
+def _csv_line_error(path: Path, lines: Sequence[str], first_line: int, names: Sequence[str]) -> str:
+    """Find the first bad line of a chunk the fast parser refused, as ``file:line: problem``."""
+    for offset, line in enumerate(lines):
+        text = line.rstrip("\r\n")
+        if not text.strip():
+            continue
+        cells = text.split(",")
+        where = f"{path}:{first_line + offset}"
+        if len(cells) != len(names):
+            return f"{where}: {len(cells)} cells, expected {len(names)} ({', '.join(names)})"
+        for name, cell in zip(names, cells, strict=True):
+            try:
+                float(cell)
+            except ValueError:
+                return f"{where}: column {name}: {cell.strip()!r} is not a number"
+    return f"{path}:{first_line}-{first_line + len(lines) - 1}: cannot be read as numbers"
+
+
+def _line_numbers(lines: Sequence[str], first_line: int) -> list[int]:
+    """File line number of every data row of a chunk (blank lines hold no row)."""
+    return [first_line + i for i, line in enumerate(lines) if line.strip()]
+
+
+def _csv_where(path: Path, lines: Sequence[str], first_line: int) -> Callable[[int], str]:
+    """``file:line`` of the data row at an index of a chunk (blank lines hold no row)."""
+
+    def where(index: int) -> str:
+        return f"{path}:{_line_numbers(lines, first_line)[index]}"
+
+    return where
+
+
+def import_csv(
+    path: PathArg,
+    directory: PathArg,
+    *,
+    machine: MachineConfig | None = None,
+    nominal_period_s: float | None = None,
+) -> Recording:
+    """Make a recording from a CSV file in the layout of :func:`export_csv`.
+
+    The header names ``time_s`` and the channels (``<AXIS>_<signal>``, e.g.
+    ``X_current_a``; units follow from the signal). The file is read in chunks
+    with numpy's parser, which reads the shortest float reprs back bit-exact.
+
+    Args:
+        path: The CSV file.
+        directory: The new recording (must not exist or be empty).
+        machine: The machine file, for the axis data in ``meta.json``.
+        nominal_period_s: The sample period; the median time step when not given.
+
+    Returns:
+        The new recording, read back.
+
+    Raises:
+        RecordingError: ``file:line: problem`` for a bad header, a row with the
+            wrong number of cells, a cell that is not a number, or times that do
+            not increase; or the recording cannot be written. What the import
+            wrote is removed again then.
+    """
+    source = Path(path)
+    target: ImportSink | None = None
+    try:
+        with source.open("r", encoding="utf-8") as file:
+            channels = _parse_csv_header(source, file.readline())
+            names = ["time_s", *(c.name for c in channels)]
+            target = ImportSink(
+                Path(directory),
+                channels,
+                machine=machine,
+                nominal_period_s=nominal_period_s,
+                source="import:csv",
+                notes=f"imported from {source.name}",
+            )
+            line_number = 1
+            previous_s = -np.inf
+            while lines := list(itertools.islice(file, IMPORT_CHUNK_ROWS)):
+                first_line = line_number + 1
+                line_number += len(lines)
+                try:
+                    data = np.loadtxt(
+                        lines, delimiter=",", comments=None, dtype=np.float64, ndmin=2
+                    )
+                except ValueError as exc:
+                    raise RecordingError(_csv_line_error(source, lines, first_line, names)) from exc
+                if data.shape[0] == 0:
+                    continue
+                if data.shape[1] != len(names):
+                    raise RecordingError(_csv_line_error(source, lines, first_line, names))
+                check_times(data[:, 0], previous_s, _csv_where(source, lines, first_line))
+                previous_s = float(data[-1, 0])
+                target.append(data[:, 0], data[:, 1:])
+        return target.finish()
+    except BaseException as exc:
+        if target is not None:
+            target.discard()
+        if isinstance(exc, FileNotFoundError) and target is None:
+            raise RecordingError(f"{source}: no such file") from exc
+        if isinstance(exc, UnicodeDecodeError):
+            raise RecordingError(f"{source}: not a text file (UTF-8 expected)") from exc
+        if isinstance(exc, OSError) and not isinstance(exc, RecordingError):
+            raise RecordingError(f"{source}: cannot be read ({exc.strerror or exc})") from exc
+        raise
