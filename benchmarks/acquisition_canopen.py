@@ -35,7 +35,7 @@ from pathlib import Path
 import can
 
 from ncmeasure.config import AxisConfig
-from ncmeasure.links.canopen import CanOpenLink
+from ncmeasure.links.canopen.link import CanOpenLink
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
 from ncmeasure.sim.signals import PatternSource
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pymodbus.client import ModbusTcpClient
 
 from ncmeasure.config import AxisConfig
-from ncmeasure.links.modbus import ModbusLink
+from ncmeasure.links.modbus.link import ModbusLink
 from ncmeasure.sim.modbus_drive import ServerHandle, running_server
 
 AXES = {"X": 1, "Y": 2, "Z": 3}

@@ -171,7 +171,7 @@ def test_link_bad_input_from_the_command_line(tmp_path: Path) -> None:
     # a register map with overlapping entries
     bad_map = tmp_path / "overlap.toml"
     bad_map.write_text(
-        (Path(__file__).parents[1] / "src/ncmeasure/links/registermaps/generic.toml")
+        (Path(__file__).parents[1] / "src/ncmeasure/links/modbus/registermaps/generic.toml")
         .read_text()
         .replace("address = 2", "address = 1", 1)
     )

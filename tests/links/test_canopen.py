@@ -22,15 +22,10 @@ import pytest
 from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
 from ncmeasure.links import REAL_TIME, LinkClock, make_link
-from ncmeasure.links.canopen import (
-    CanOpenLink,
-    CycleAssembler,
-    bus_load,
-    emcy_text,
-    frame_bits,
-    load_object_map,
-    sdo_error_text,
-)
+from ncmeasure.links.canopen.busload import bus_load, frame_bits
+from ncmeasure.links.canopen.cycles import CycleAssembler
+from ncmeasure.links.canopen.link import CanOpenLink
+from ncmeasure.links.canopen.objects import emcy_text, load_object_map, sdo_error_text
 from ncmeasure.samples import LinkEvent
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
 from ncmeasure.sim.signals import AxisState, PatternSource
@@ -704,7 +699,15 @@ def test_object_maps_are_checked(tmp_path: Path) -> None:
         load_object_map("nope")
     custom = tmp_path / "drive.toml"
     custom.write_text(
-        (Path(__file__).parents[2] / "src" / "ncmeasure" / "links" / "objectmaps" / "cia402.toml")
+        (
+            Path(__file__).parents[2]
+            / "src"
+            / "ncmeasure"
+            / "links"
+            / "canopen"
+            / "objectmaps"
+            / "cia402.toml"
+        )
         .read_text(encoding="utf-8")
         .replace('["velocity", "current"]', '["velocity", "current", "velocity_demand"]')
         .replace('    ["velocity_demand"],\n', ""),

@@ -27,9 +27,9 @@ from hypothesis import strategies as st
 from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
 from ncmeasure.links import LinkClock, link_class
-from ncmeasure.links.modbus import (
+from ncmeasure.links.modbus.link import ModbusLink
+from ncmeasure.links.modbus.registers import (
     EXCEPTION_MEANINGS,
-    ModbusLink,
     builtin_register_maps,
     decode_words,
     encode_value,

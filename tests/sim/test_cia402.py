@@ -19,7 +19,7 @@ import pytest
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from ncmeasure.errors import ConfigError
-from ncmeasure.links.canopen import load_object_map
+from ncmeasure.links.canopen.objects import load_object_map
 from ncmeasure.sim.cia402 import (
     OPERATION_ENABLED,
     DriveScaling,

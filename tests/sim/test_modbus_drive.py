@@ -19,7 +19,7 @@ from pymodbus.exceptions import ConnectionException, ModbusIOException
 
 from ncmeasure.errors import ConfigError, LinkError
 from ncmeasure.links import LinkClock
-from ncmeasure.links.modbus import decode_words
+from ncmeasure.links.modbus.registers import decode_words
 from ncmeasure.sim.modbus_drive import (
     DriveFaults,
     Fault,

@@ -38,8 +38,8 @@ ENTRY_POINT_GROUP = "ncmeasure.links"
 
 #: name -> (module, class, pip extra that brings its dependencies, or None)
 BUILTIN_LINKS: dict[str, tuple[str, str, str | None]] = {
-    "canopen": ("ncmeasure.links.canopen", "CanOpenLink", None),
-    "modbus": ("ncmeasure.links.modbus", "ModbusLink", None),
+    "canopen": ("ncmeasure.links.canopen.link", "CanOpenLink", None),
+    "modbus": ("ncmeasure.links.modbus.link", "ModbusLink", None),
     "replay": ("ncmeasure.links.replay", "ReplayLink", None),
 }
 

@@ -53,7 +53,7 @@ from typing import Any, Self
 import can
 from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable
 
-from ncmeasure.links.canopen import (
+from ncmeasure.links.canopen.objects import (
     MapObject,
     ObjectMap,
     build_dictionary,

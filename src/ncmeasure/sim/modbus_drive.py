@@ -3,13 +3,13 @@
 Each served unit id stands for one axis. When a client reads its registers,
 the unit asks a :class:`~ncmeasure.sim.signals.SignalSource` for the axis'
 state and encodes it the way the register map says (data type, word order,
-scale, unit conversion), so a :class:`~ncmeasure.links.modbus.ModbusLink`
+scale, unit conversion), so a :class:`~ncmeasure.links.modbus.link.ModbusLink`
 reading them gets the source's values quantised by the map.
 
 Time: by default the state is taken at the server's elapsed time. With a
 :class:`~ncmeasure.samples.LinkClock` (``clock``) the elapsed time is on
 that clock: a virtual machine running faster than real time serves the state
-of its own time, and a :class:`~ncmeasure.links.modbus.ModbusLink` on a clock
+of its own time, and a :class:`~ncmeasure.links.modbus.link.ModbusLink` on a clock
 of the same speed stamps its rows with the same time scale. With
 ``step_s`` the server is *deterministic*: the n-th read request a unit
 answers for a register type (counting from 0) gets the state at ``n × step_s``,
@@ -49,7 +49,7 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from ncmeasure.errors import ConfigError, LinkError
-from ncmeasure.links.modbus import (
+from ncmeasure.links.modbus.registers import (
     RegisterMap,
     encode_value,
     load_register_map,

@@ -43,14 +43,11 @@ import functools
 import logging
 import math
 import queue
-import re
 import struct
 import threading
 import time
-import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any, ClassVar, Literal, cast
 
@@ -58,592 +55,40 @@ import can
 import canopen
 import numpy as np
 from canopen.emcy import EmcyError
-from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable
+from canopen.objectdictionary import ObjectDictionary
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 from numpy.typing import NDArray
-from pydantic import BaseModel as _BaseModel
-from pydantic import ConfigDict as _ConfigDict
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import Field, field_validator
 
-from ncmeasure.config import format_validation_error
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError, OutputError
 from ncmeasure.links.base import AxisBinding, AxisLinkSettings, DriveLink, LinkSettings
+from ncmeasure.links.canopen.busload import BusLoad, bus_load
+from ncmeasure.links.canopen.cycles import CycleAssembler, LostCycle
+from ncmeasure.links.canopen.objects import (
+    DATA_TYPES,
+    SIGNAL_BY_ROLE,
+    TYPE_BY_CODE,
+    DataTypeName,
+    MapObject,
+    VelocityUnit,
+    build_dictionary,
+    emcy_text,
+    load_eds,
+    load_object_map,
+    od_variable,
+    position_scale_mm,
+    sdo_error_text,
+    velocity_scale_mm_min,
+)
 from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent, SampleBlock
 
 __all__ = [
-    "DATA_TYPES",
-    "VELOCITY_UNITS",
-    "BusLoad",
     "CanOpenAxis",
     "CanOpenLink",
     "CanOpenSettings",
-    "CycleAssembler",
-    "LostCycle",
-    "MapObject",
-    "ObjectMap",
-    "available_object_maps",
-    "build_dictionary",
-    "bus_load",
-    "emcy_text",
-    "frame_bits",
-    "load_eds",
-    "load_object_map",
-    "position_scale_mm",
-    "sdo_error_text",
-    "velocity_scale_mm_min",
 ]
 
 log = logging.getLogger(__name__)
-
-# --- data types, units ----------------------------------------------------------------
-
-DataTypeName = Literal["int8", "int16", "int32", "uint8", "uint16", "uint32"]
-
-#: Object data types a map may use: name -> (CiA 301 data type code, struct code).
-DATA_TYPES: Mapping[str, tuple[int, str]] = {
-    "int8": (0x02, "b"),
-    "int16": (0x03, "h"),
-    "int32": (0x04, "i"),
-    "uint8": (0x05, "B"),
-    "uint16": (0x06, "H"),
-    "uint32": (0x07, "I"),
-}
-_TYPE_BY_CODE = {code: name for name, (code, _) in DATA_TYPES.items()}
-
-VelocityUnit = Literal["inc_per_s", "rpm", "0.1rpm", "0.01rpm", "0.001rpm"]
-
-#: Velocity units of 0x606C/0x606B the link converts, with their meaning.
-VELOCITY_UNITS: Mapping[str, str] = {
-    "inc_per_s": "position increments per second (CiA 402 default without a factor group)",
-    "rpm": "motor revolutions per minute",
-    "0.1rpm": "0.1 motor revolutions per minute",
-    "0.01rpm": "0.01 motor revolutions per minute",
-    "0.001rpm": "0.001 motor revolutions per minute",
-}
-_RPM_FACTOR = {"rpm": 1.0, "0.1rpm": 0.1, "0.01rpm": 0.01, "0.001rpm": 0.001}
-
-ObjectUnit = Literal[
-    "inc", "velocity", "permille_rated_current", "permille_rated_torque", "mA", "bits"
-]
-Role = Literal["statusword", "position", "velocity", "velocity_demand", "current"]
-_UNITS_BY_ROLE: Mapping[str, frozenset[str]] = {
-    "statusword": frozenset({"bits"}),
-    "position": frozenset({"inc"}),
-    "velocity": frozenset({"velocity"}),
-    "velocity_demand": frozenset({"velocity"}),
-    "current": frozenset({"permille_rated_current", "permille_rated_torque", "mA"}),
-    "rated_current": frozenset({"mA"}),
-}
-#: Role -> signal column it fills (the statusword fills none).
-_SIGNAL_BY_ROLE: Mapping[str, str] = {
-    "position": "position_mm",
-    "velocity": "velocity_mm_min",
-    "velocity_demand": "velocity_cmd_mm_min",
-    "current": "current_a",
-}
-
-
-def position_scale_mm(
-    increments_per_rev: int, screw_lead_mm: float, gear_ratio: float = 1.0
-) -> float:
-    """Millimetres per position increment.
-
-    Args:
-        increments_per_rev: Encoder increments per motor revolution.
-        screw_lead_mm: Ball-screw lead (mm per screw revolution).
-        gear_ratio: Motor revolutions per screw revolution.
-    """
-    return screw_lead_mm / (increments_per_rev * gear_ratio)
-
-
-def velocity_scale_mm_min(
-    unit: str, increments_per_rev: int, screw_lead_mm: float, gear_ratio: float = 1.0
-) -> float:
-    """Millimetres per minute per unit of the drive's velocity objects."""
-    if unit == "inc_per_s":
-        return 60.0 * position_scale_mm(increments_per_rev, screw_lead_mm, gear_ratio)
-    if unit in _RPM_FACTOR:
-        return _RPM_FACTOR[unit] * screw_lead_mm / gear_ratio
-    raise ValueError(f"unknown velocity unit {unit!r}; known: {', '.join(VELOCITY_UNITS)}")
-
-
-# --- object maps ------------------------------------------------------------------------
-
-_MAP_PACKAGE = "ncmeasure.links"
-_MAP_FOLDER = "objectmaps"
-
-
-class _Model(_BaseModel):
-    model_config = _ConfigDict(extra="forbid", frozen=True)
-
-
-class MapObject(_Model):
-    """One object of a drive's dictionary that carries a value the link reads."""
-
-    name: str = Field(description="Name of the object, for messages.")
-    index: int = Field(ge=0x1000, le=0xFFFF, description="Object index.")
-    subindex: int = Field(default=0, ge=0, le=0xFF, description="Sub-index.")
-    type: DataTypeName = Field(description="Data type as the drive encodes it.")
-    unit: ObjectUnit = Field(description="Unit of the raw value (see the cia402 map).")
-    fallback: MapObject | None = Field(
-        default=None, description="Object to read instead when the drive lacks this one."
-    )
-    note: str = ""
-
-    @property
-    def size(self) -> int:
-        """Size in bytes."""
-        return struct.calcsize("<" + DATA_TYPES[self.type][1])
-
-    @property
-    def label(self) -> str:
-        """``current actual value 0x6078:00`` for messages."""
-        return f"{self.name} 0x{self.index:04X}:{self.subindex:02X}"
-
-    def with_type(self, type_name: DataTypeName) -> MapObject:
-        """The same object with another data type (an EDS that says otherwise)."""
-        return self.model_copy(update={"type": type_name})
-
-
-class TpdoLayout(_Model):
-    """How the link packs the roles into TPDOs."""
-
-    layout: list[list[Role]] = Field(min_length=1, max_length=8)
-
-
-class ObjectMap(_Model):
-    """Which object carries which value on a kind of drive, and the TPDO layout."""
-
-    name: str
-    description: str = ""
-    sources: list[str] = Field(default_factory=list)
-    velocity_unit: VelocityUnit = "inc_per_s"
-    statusword: MapObject | None = None
-    position: MapObject
-    velocity: MapObject
-    current: MapObject
-    velocity_demand: MapObject | None = None
-    rated_current: MapObject | None = None
-    tpdo: TpdoLayout
-
-    @model_validator(mode="after")
-    def _check(self) -> ObjectMap:
-        for role, units in _UNITS_BY_ROLE.items():
-            obj = cast(MapObject | None, getattr(self, role))
-            while obj is not None:
-                if obj.unit not in units:
-                    raise ValueError(
-                        f"{role}: unit {obj.unit!r} does not fit; use one of {sorted(units)}"
-                    )
-                obj = obj.fallback
-        seen: set[str] = set()
-        for group in self.tpdo.layout:
-            for role in group:
-                if role in seen:
-                    raise ValueError(f"tpdo.layout: {role} appears twice")
-                seen.add(role)
-                if getattr(self, role) is None:
-                    raise ValueError(f"tpdo.layout: {role} is not defined in this map")
-            size = sum(_max_size(cast(MapObject, getattr(self, role))) for role in group)
-            if size > 8:
-                raise ValueError(f"tpdo.layout: {group} needs {size} bytes, a PDO holds 8")
-        missing = {"position", "velocity", "current"} - seen
-        if missing:
-            raise ValueError(f"tpdo.layout: must contain {', '.join(sorted(missing))}")
-        return self
-
-    def role(self, name: str) -> MapObject | None:
-        """The object of a role (``position``, ``current``, ...), or None."""
-        return cast(MapObject | None, getattr(self, name, None))
-
-
-def _max_size(obj: MapObject) -> int:
-    size = obj.size
-    while obj.fallback is not None:
-        obj = obj.fallback
-        size = max(size, obj.size)
-    return size
-
-
-def available_object_maps() -> list[str]:
-    """Names of the built-in object maps."""
-    folder = resources.files(_MAP_PACKAGE).joinpath(_MAP_FOLDER)
-    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
-
-
-def load_object_map(spec: str | Path) -> ObjectMap:
-    """A built-in object map by name (``cia402``, ``maxon_epos4``) or one from a TOML file.
-
-    Raises:
-        ConfigError: unknown name, unreadable file, or an invalid map.
-    """
-    text: str
-    where: str
-    if isinstance(spec, str) and re.fullmatch(r"[a-z0-9_]+", spec):
-        resource = resources.files(_MAP_PACKAGE).joinpath(_MAP_FOLDER, f"{spec}.toml")
-        if not resource.is_file():
-            raise ConfigError(
-                f"unknown object map {spec!r}; built-in maps: "
-                f"{', '.join(available_object_maps())}, or give the path of a .toml map"
-            )
-        text, where = resource.read_text(encoding="utf-8"), f"object map {spec}"
-    else:
-        path = Path(spec).expanduser()
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError as exc:
-            raise ConfigError(
-                f"{path}: no such object map file (built-in maps: "
-                f"{', '.join(available_object_maps())})"
-            ) from exc
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"{path}: cannot read the object map ({exc})") from exc
-        where = str(path)
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{where}: invalid TOML: {exc}") from exc
-    try:
-        return ObjectMap.model_validate(data)
-    except ValidationError as exc:
-        raise ConfigError(
-            f"{where} is not a valid object map", format_validation_error(exc)
-        ) from exc
-
-
-# --- bus load ---------------------------------------------------------------------------
-
-
-def frame_bits(data_bytes: int, *, worst_case: bool = False) -> int:
-    """Bits on the wire of one classical CAN data frame with an 11-bit identifier.
-
-    Nominal: 47 + 8n (start of frame to interframe space). Worst case adds the
-    stuff bits: at most one per 4 bits of the 34 + 8n stuffed bits, i.e.
-    floor((34 + 8n - 1) / 4); an 8-byte frame is 111 bits nominal, 135 worst.
-    """
-    if not 0 <= data_bytes <= 8:
-        raise ValueError(f"a CAN frame carries 0 to 8 bytes, not {data_bytes}")
-    bits = 47 + 8 * data_bytes
-    if worst_case:
-        bits += (34 + 8 * data_bytes - 1) // 4
-    return bits
-
-
-@dataclass(frozen=True)
-class BusLoad:
-    """Bus load of one SYNC cycle repeated at ``sync_hz``."""
-
-    frames_per_cycle: int
-    bits_per_cycle: int
-    worst_bits_per_cycle: int
-    sync_hz: float
-    bitrate: int
-
-    @property
-    def load(self) -> float:
-        """Fraction of the bitrate used, nominal frame lengths."""
-        return self.bits_per_cycle * self.sync_hz / self.bitrate
-
-    @property
-    def worst_load(self) -> float:
-        """Fraction of the bitrate used with worst-case bit stuffing."""
-        return self.worst_bits_per_cycle * self.sync_hz / self.bitrate
-
-    def max_sync_hz(self, max_load: float) -> float:
-        """The highest SYNC rate whose worst-case load stays at ``max_load``."""
-        return max_load * self.bitrate / self.worst_bits_per_cycle
-
-    def describe(self) -> str:
-        """One line with the numbers."""
-        return (
-            f"{self.frames_per_cycle} frames per SYNC cycle, {self.bits_per_cycle} bits "
-            f"({self.worst_bits_per_cycle} with worst-case bit stuffing) at "
-            f"{self.sync_hz:g} Hz on {self.bitrate / 1000:g} kbit/s = "
-            f"{100 * self.load:.1f} % ({100 * self.worst_load:.1f} % worst case)"
-        )
-
-
-def bus_load(
-    pdo_bytes: Sequence[int], sync_hz: float, bitrate: int, *, sync_frame: bool = True
-) -> BusLoad:
-    """Bus load of a SYNC frame plus the given PDOs per cycle.
-
-    Args:
-        pdo_bytes: Data length of every PDO sent per SYNC cycle (all nodes).
-        sync_hz: SYNC frequency.
-        bitrate: Bus bitrate in bit/s.
-        sync_frame: Count the (empty) SYNC frame itself.
-
-    Example: one 8-byte PDO with SYNC at 1 kHz on 1 Mbit/s is 47 + 111 = 158
-    bits per cycle, a load of 0.158 (0.190 worst case: 55 + 135 bits).
-    """
-    if sync_hz <= 0 or bitrate <= 0:
-        raise ValueError("sync_hz and bitrate must be positive")
-    sizes = [*([0] if sync_frame else []), *pdo_bytes]
-    return BusLoad(
-        frames_per_cycle=len(sizes),
-        bits_per_cycle=sum(frame_bits(n) for n in sizes),
-        worst_bits_per_cycle=sum(frame_bits(n, worst_case=True) for n in sizes),
-        sync_hz=sync_hz,
-        bitrate=bitrate,
-    )
-
-
-# --- readable texts ---------------------------------------------------------------------
-
-#: EMCY error codes of CiA 301 (communication) and CiA 402 / IEC 61800-7-201 (drives).
-_EMCY_CODES: Mapping[int, str] = {
-    0x0000: "error reset or no error",
-    0x1000: "generic error",
-    0x2110: "short circuit or earth leakage (input)",
-    0x2220: "continuous over-current inside the device",
-    0x2310: "continuous over-current (motor side)",
-    0x2311: "continuous over-current no. 1 (motor side)",
-    0x2312: "continuous over-current no. 2 (motor side)",
-    0x2320: "short circuit or earth leakage (motor side)",
-    0x2330: "earth leakage (motor side)",
-    0x2340: "short circuit (motor side)",
-    0x3110: "mains over-voltage",
-    0x3120: "mains under-voltage",
-    0x3130: "phase failure",
-    0x3210: "DC link over-voltage",
-    0x3220: "DC link under-voltage",
-    0x3230: "load error",
-    0x3310: "output over-voltage",
-    0x4110: "ambient temperature too high",
-    0x4210: "excess temperature of the device",
-    0x4220: "temperature of the device too low",
-    0x4310: "excess temperature of the drive (motor)",
-    0x4320: "temperature of the drive (motor) too low",
-    0x5110: "supply low voltage",
-    0x5210: "measurement circuit",
-    0x5400: "power section",
-    0x5410: "output stages",
-    0x5530: "EEPROM",
-    0x6010: "software reset (watchdog)",
-    0x6310: "loss of parameters",
-    0x6320: "parameter error",
-    0x7110: "brake chopper",
-    0x7120: "motor",
-    0x7121: "motor blocked",
-    0x7122: "motor error or commutation malfunction",
-    0x7300: "sensor",
-    0x7301: "tacho fault",
-    0x7303: "resolver 1 fault",
-    0x7305: "incremental sensor 1 fault",
-    0x7306: "incremental sensor 2 fault",
-    0x7310: "speed",
-    0x7320: "position",
-    0x7500: "communication",
-    0x8110: "CAN overrun (objects lost)",
-    0x8120: "CAN in error passive mode",
-    0x8130: "life guard or heartbeat error",
-    0x8140: "recovered from bus off",
-    0x8150: "CAN-ID collision",
-    0x8210: "PDO not processed due to length error",
-    0x8220: "PDO length exceeded",
-    0x8240: "unexpected SYNC data length",
-    0x8250: "RPDO timeout",
-    0x8311: "excess torque",
-    0x8312: "difficult start-up",
-    0x8313: "standstill torque",
-    0x8321: "insufficient torque",
-    0x8331: "torque fault",
-    0x8400: "velocity (speed) controller",
-    0x8500: "position controller",
-    0x8611: "following error",
-    0x8612: "reference limit",
-    0x8A00: "control",
-    0x9000: "external error",
-    0xF001: "deceleration",
-    0xF002: "sub-synchronous run",
-    0xF003: "stroke operation",
-    0xF004: "control",
-}
-
-
-def emcy_text(code: int) -> str:
-    """Readable meaning of an EMCY error code (CiA 301 / CiA 402), e.g. ``motor blocked``."""
-    if code in _EMCY_CODES:
-        return _EMCY_CODES[code]
-    if code & 0xFF00 == 0xFF00:
-        return "device-specific error (see the drive manual)"
-    group = EmcyError(code, 0, b"", 0.0).get_desc()
-    return f"{group.lower()} error" if group else "unknown error code"
-
-
-def sdo_error_text(exc: BaseException, timeout_s: float | None = None) -> str:
-    """Readable text of a canopen SDO error: abort code with its CiA 301 meaning, or timeout."""
-    if isinstance(exc, SdoAbortedError):
-        meaning = SdoAbortedError.CODES.get(exc.code, "unknown abort code")
-        return f"SDO abort 0x{exc.code:08X} ({meaning})"
-    if isinstance(exc, SdoCommunicationError):
-        within = f" within {timeout_s:g} s" if timeout_s is not None else ""
-        return f"no SDO answer{within} ({exc})"
-    return f"{type(exc).__name__}: {exc}"
-
-
-# --- object dictionaries ----------------------------------------------------------------
-
-
-def _variable(
-    name: str,
-    index: int,
-    subindex: int,
-    type_code: int,
-    access: str,
-    default: int | None,
-    mappable: bool = False,
-) -> ODVariable:
-    var = ODVariable(name, index, subindex)
-    var.data_type = type_code
-    var.access_type = access
-    var.default = default
-    var.pdo_mappable = mappable
-    return var
-
-
-def _add_record(od: ObjectDictionary, name: str, index: int, members: Sequence[ODVariable]) -> None:
-    record = ODRecord(name, index)
-    for member in members:
-        record.add_member(member)
-    od.add_object(record)
-
-
-def build_dictionary(
-    object_map: ObjectMap, node_id: int = 1, tpdos: int = 4, rated_current_ma: int = 0
-) -> ObjectDictionary:
-    """A CiA 402 object dictionary for a drive without EDS: communication objects + the map.
-
-    Holds 0x1000, 0x1001, 0x1006, 0x1008, 0x1017, 0x1018, ``tpdos`` TPDOs (0x1800/0x1A00
-    onwards, predefined COB-IDs, event-driven, nothing mapped) and every object
-    of the map including fallbacks and the rated current.
-    """
-    u8, u16, u32 = DATA_TYPES["uint8"][0], DATA_TYPES["uint16"][0], DATA_TYPES["uint32"][0]
-    od = ObjectDictionary()  # type: ignore[no-untyped-call]
-    od.node_id = node_id
-    od.add_object(_variable("device type", 0x1000, 0, u32, "ro", 0x00020192))
-    od.add_object(_variable("error register", 0x1001, 0, u8, "ro", 0))
-    od.add_object(_variable("communication cycle period", 0x1006, 0, u32, "rw", 0))
-    device_name = _variable("manufacturer device name", 0x1008, 0, 0x09, "const", None)
-    cast(Any, device_name).default = "ncmeasure CiA 402 drive"  # a string, not an int
-    od.add_object(device_name)
-    od.add_object(_variable("producer heartbeat time", 0x1017, 0, u16, "rw", 0))
-    _add_record(
-        od,
-        "identity",
-        0x1018,
-        [
-            _variable("highest sub-index", 0x1018, 0, u8, "const", 4),
-            _variable("vendor id", 0x1018, 1, u32, "ro", 0),
-            _variable("product code", 0x1018, 2, u32, "ro", 0),
-            _variable("revision number", 0x1018, 3, u32, "ro", 0),
-            _variable("serial number", 0x1018, 4, u32, "ro", 0),
-        ],
-    )
-    for number in range(tpdos):
-        comm, mapping = 0x1800 + number, 0x1A00 + number
-        cob_id = (0x180 + 0x100 * number + node_id) if number < 4 else 0x80000000
-        _add_record(
-            od,
-            f"TPDO{number + 1} communication parameter",
-            comm,
-            [
-                _variable("highest sub-index", comm, 0, u8, "const", 5),
-                _variable("COB-ID", comm, 1, u32, "rw", cob_id),
-                _variable("transmission type", comm, 2, u8, "rw", 255),
-                _variable("inhibit time", comm, 3, u16, "rw", 0),
-                _variable("event timer", comm, 5, u16, "rw", 0),
-            ],
-        )
-        _add_record(
-            od,
-            f"TPDO{number + 1} mapping parameter",
-            mapping,
-            [
-                _variable("number of mapped objects", mapping, 0, u8, "rw", 0),
-                *(_variable(f"mapped object {k}", mapping, k, u32, "rw", 0) for k in range(1, 9)),
-            ],
-        )
-    objects: list[MapObject] = []
-    for role in (
-        "statusword",
-        "position",
-        "velocity",
-        "velocity_demand",
-        "current",
-        "rated_current",
-    ):
-        obj = object_map.role(role)
-        while obj is not None:
-            objects.append(obj)
-            obj = obj.fallback
-    by_index: dict[int, list[MapObject]] = {}
-    for obj in objects:
-        by_index.setdefault(obj.index, [])
-        if all(o.subindex != obj.subindex for o in by_index[obj.index]):
-            by_index[obj.index].append(obj)
-
-    def make(obj: MapObject) -> ODVariable:
-        rated = obj is object_map.rated_current
-        return _variable(
-            obj.name,
-            obj.index,
-            obj.subindex,
-            DATA_TYPES[obj.type][0],
-            "rw" if rated else "ro",
-            rated_current_ma if rated else 0,
-            mappable=not rated,
-        )
-
-    for index, group in sorted(by_index.items()):
-        if len(group) == 1 and group[0].subindex == 0:
-            od.add_object(make(group[0]))
-        else:
-            highest = max(o.subindex for o in group)
-            _add_record(
-                od,
-                group[0].name,
-                index,
-                [
-                    _variable("highest sub-index", index, 0, u8, "const", highest),
-                    *(make(o) for o in sorted(group, key=lambda o: o.subindex)),
-                ],
-            )
-    return od
-
-
-def _od_variable(od: ObjectDictionary, index: int, subindex: int) -> ODVariable | None:
-    if index not in od:
-        return None
-    obj = od[index]
-    if isinstance(obj, ODVariable):
-        return obj if subindex == 0 else None
-    if isinstance(obj, (ODRecord, ODArray)):
-        var = obj.subindices.get(subindex)
-        return var if isinstance(var, ODVariable) else None
-    return None
-
-
-def load_eds(path: Path, node_id: int) -> ObjectDictionary:
-    """Parse an EDS/DCF file for node ``node_id``.
-
-    Raises:
-        ConfigError: the file is missing or cannot be parsed; the message names it.
-    """
-    if not path.is_file():
-        raise ConfigError(f"{path}: no such EDS/DCF file")
-    if path.suffix.lower() not in (".eds", ".dcf"):
-        raise ConfigError(f"{path}: an EDS or DCF file must end in .eds or .dcf")
-    try:
-        od = canopen.import_od(str(path), node_id)
-    except Exception as exc:  # configparser, ValueError, KeyError... all mean "unreadable"
-        reason = " ".join(str(exc).split())  # parser messages span several lines
-        raise ConfigError(f"{path}: not a readable EDS/DCF file ({reason})") from exc
-    if len(od) == 0:
-        raise ConfigError(f"{path}: not a readable EDS/DCF file (no objects found)")
-    return od
-
 
 # --- settings ---------------------------------------------------------------------------
 
@@ -748,131 +193,6 @@ class CanOpenAxis(AxisLinkSettings):
         description="First TPDO number the link may configure (1 = 0x1800/0x1A00); raise it "
         "when the controller uses the first TPDOs itself.",
     )
-
-
-# --- assembling rows from PDOs ------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class LostCycle:
-    """A SYNC cycle that will not become a row."""
-
-    cycle: int
-    missing: frozenset[int]
-    """PDO slots without data (all when no SYNC was sent)."""
-    no_sync: bool = False
-
-
-class CycleAssembler:
-    """Collect PDO frames into rows keyed by SYNC cycle. Not thread-safe: lock around it.
-
-    A frame belongs to the newest SYNC cycle (a drive samples on SYNC and
-    answers before the next one). A second frame of the same PDO within one
-    cycle proves the drive lags behind (a busy host): the earlier frames of
-    that PDO move back one cycle each, into the first earlier cycle that lacks
-    it, which keeps every frame at or after its true cycle. Cycles that are
-    still incomplete ``hold_cycles`` after the newest SYNC are lost.
-    """
-
-    def __init__(self, slots: int, hold_cycles: int) -> None:
-        if slots < 1 or hold_cycles < 1:
-            raise ValueError("slots and hold_cycles must be positive")
-        self.slots = slots
-        self.hold_cycles = hold_cycles
-        self.newest = -1
-        self.next_cycle = 0
-        self.late_frames = 0
-        self._rows: dict[int, list[bytes | None]] = {}
-        self._filled: dict[int, int] = {}
-        self._no_sync: set[int] = set()
-
-    def sync(self, cycle: int) -> None:
-        """A SYNC of ``cycle`` was sent or seen (cycles only grow)."""
-        if cycle <= self.newest:
-            raise ValueError(f"SYNC cycle {cycle} after {self.newest}")
-        self.newest = cycle
-
-    def skip(self, first: int, count: int) -> None:
-        """Cycles ``first .. first + count - 1`` had no SYNC on the bus."""
-        self._no_sync.update(range(first, first + count))
-
-    def _row(self, cycle: int) -> list[bytes | None]:
-        row = self._rows.get(cycle)
-        if row is None:
-            row = self._rows[cycle] = [None] * self.slots
-            self._filled[cycle] = 0
-        return row
-
-    def _previous(self, cycle: int) -> int:
-        cycle -= 1
-        while cycle in self._no_sync:
-            cycle -= 1
-        return cycle
-
-    def frame(self, slot: int, data: bytes) -> None:
-        """A frame of PDO ``slot`` arrived."""
-        newest = self.newest
-        if newest < self.next_cycle:
-            self.late_frames += 1  # before the first SYNC
-            return
-        row = self._row(newest)
-        if row[slot] is None:
-            row[slot] = data
-            self._filled[newest] += 1
-            return
-        start = newest
-        while True:
-            before = self._previous(start)
-            if before < self.next_cycle:
-                break
-            prev = self._rows.get(before)
-            if prev is None or prev[slot] is None:
-                break
-            start = before
-        carried: bytes | None = data
-        cycle = newest
-        while cycle >= start:
-            row_c = self._rows[cycle]
-            row_c[slot], carried = carried, row_c[slot]
-            if cycle == start:
-                break
-            cycle = self._previous(cycle)
-        target = self._previous(start)
-        if target >= self.next_cycle:
-            self._row(target)[slot] = carried
-            self._filled[target] += 1
-        else:
-            self.late_frames += 1  # the lag reaches back beyond the open cycles
-
-    def settle(self, final: bool = False) -> tuple[list[tuple[int, list[bytes]]], list[LostCycle]]:
-        """Complete rows in cycle order, and the cycles given up (``final``: all but the newest)."""
-        rows: list[tuple[int, list[bytes]]] = []
-        lost: list[LostCycle] = []
-        limit = self.newest - (1 if final else self.hold_cycles)
-        everything = frozenset(range(self.slots))
-        while self.next_cycle <= self.newest:
-            cycle = self.next_cycle
-            if cycle in self._no_sync:
-                self._no_sync.discard(cycle)
-                self._rows.pop(cycle, None)
-                self._filled.pop(cycle, None)
-                lost.append(LostCycle(cycle, everything, no_sync=True))
-            elif self._filled.get(cycle) == self.slots:
-                rows.append((cycle, cast(list[bytes], self._rows.pop(cycle))))
-                del self._filled[cycle]
-            elif cycle <= limit:
-                row = self._rows.pop(cycle, None)
-                self._filled.pop(cycle, None)
-                missing = (
-                    everything
-                    if row is None
-                    else frozenset(i for i, value in enumerate(row) if value is None)
-                )
-                lost.append(LostCycle(cycle, missing))
-            else:
-                break
-            self.next_cycle += 1
-        return rows, lost
 
 
 # --- the link ----------------------------------------------------------------------------
@@ -1134,10 +454,10 @@ class CanOpenLink(DriveLink):
     ) -> MapObject | None:
         obj: MapObject | None = wanted
         while obj is not None:
-            var = _od_variable(od, obj.index, obj.subindex)
+            var = od_variable(od, obj.index, obj.subindex)
             if var is not None:
                 chosen = obj
-                type_name = _TYPE_BY_CODE.get(var.data_type or 0)
+                type_name = TYPE_BY_CODE.get(var.data_type or 0)
                 if type_name is not None and type_name != obj.type:
                     notes.append(
                         f"{eds} gives {obj.label} as {type_name}, not {obj.type}; using the EDS"
@@ -1171,7 +491,7 @@ class CanOpenLink(DriveLink):
         axis.slots = []
         for k, slot_roles in enumerate(groups):
             fields = [
-                _Field(r, axis.objects[r], axis.columns.get(_SIGNAL_BY_ROLE.get(r, ""), -1))
+                _Field(r, axis.objects[r], axis.columns.get(SIGNAL_BY_ROLE.get(r, ""), -1))
                 for r in slot_roles
             ]
             slot = _Slot(axis, axis.settings.first_tpdo + k, fields)
