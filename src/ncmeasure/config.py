@@ -20,7 +20,7 @@ import re
 import tomllib
 from collections.abc import Collection, Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Optional
 
 from pydantic import (
     BaseModel,
@@ -28,6 +28,7 @@ from pydantic import (
     ConfigDict,
     Field,
     ValidationError,
+    create_model,
     field_validator,
 )
 from pydantic_core import PydanticCustomError
@@ -259,30 +260,34 @@ class Measurement(_Model):
         return self.window_samples * self.sample_period_ms / 1000.0
 
 
-class MeasurementOverride(_Model):
-    """Per-axis ``[axes.measurement]`` table: any measurement field, replacing the global one.
+def _all_optional(model: type[_Model], name: str, doc: str) -> type[_Model]:
+    """``model`` with every field optional and unset by default: a table of replacements.
 
-    The merged result is validated as a whole :class:`Measurement`.
+    The fields keep their types and descriptions; their ranges and rules are
+    checked when the replacements are merged into a whole ``model``.
     """
+    fields: dict[str, Any] = {
+        key: (Optional[info.annotation], Field(default=None, description=info.description))  # noqa: UP045 (a runtime type)
+        for key, info in model.model_fields.items()
+    }
+    return create_model(name, __base__=_Model, __doc__=doc, __module__=__name__, **fields)
 
-    positions: int | list[float] | None = None
-    velocity_steps: int | None = None
-    min_velocity_mm_min: float | None = None
-    max_velocity_mm_min: float | None = None
-    max_velocity_fraction: float | None = None
-    spacing: Literal["geometric", "linear"] | None = None
-    window_s: float | None = None
-    window_samples: int | None = None
-    sample_period_ms: float | None = None
-    settle_s: float | None = None
-    dynamics_safety: float | None = None
-    margin_mm: float | None = None
-    warmup_strokes: int | None = None
-    warmup_velocity_mm_min: float | None = None
-    repetitions: int | None = None
-    both_directions: bool | None = None
-    dwell_s: float | None = None
-    unfit_steps: Literal["error", "drop"] | None = None
+
+if TYPE_CHECKING:
+
+    class MeasurementOverride(Measurement):
+        """Per-axis ``[axes.measurement]`` table, as the type checker sees it."""
+
+else:
+    MeasurementOverride = _all_optional(
+        Measurement,
+        "MeasurementOverride",
+        """Per-axis ``[axes.measurement]`` table: any measurement field, replacing the global one.
+
+        Derived from :class:`Measurement` (one model, not two); the merged result is
+        validated as a whole :class:`Measurement`.
+        """,
+    )
 
 
 class AxisConfig(_Model):

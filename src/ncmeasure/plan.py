@@ -43,12 +43,14 @@ __all__ = [
     "Move",
     "Rapid",
     "Run",
+    "RunLengths",
     "Schedule",
     "SizeLimit",
     "Window",
     "move_blocks",
     "plan_axis",
     "plan_machine",
+    "run_lengths",
     "velocity_steps",
 ]
 
@@ -278,8 +280,46 @@ def nominal_positions_um(meas: Measurement, low_um: int, high_um: int) -> list[i
 
 
 @dataclass(frozen=True)
+class RunLengths:
+    """The lengths of one run at one velocity, in mm (exact; programs round them to µm).
+
+    A run accelerates from rest (the jerk-limited ramp, times ``dynamics_safety``),
+    keeps the velocity ``settle_s`` before the window and the window's duration,
+    and stops with the same ramp. :func:`ncmeasure.sim.synthetic.simulate` uses
+    the same lengths for its own programs.
+    """
+
+    runout_mm: float
+    """Window end to rest: ramp distance × dynamics_safety."""
+    settle_mm: float
+    """Constant velocity before the window: v × settle_s."""
+    window_mm: float
+    """v × the window duration."""
+    ramp_time_s: float
+
+    @property
+    def runup_mm(self) -> float:
+        """Rest to window start: run-out plus the settle distance."""
+        return self.runout_mm + self.settle_mm
+
+
+def run_lengths(
+    velocity_mm_min: float, acceleration_m_s2: float, jerk_m_s3: float, meas: Measurement
+) -> RunLengths:
+    """The lengths of a run at ``velocity_mm_min`` (jerk may be ``math.inf``: trapezoidal)."""
+    r = ramp(velocity_mm_min, acceleration_m_s2, jerk_m_s3)
+    v_mm_s = abs(velocity_mm_min) / 60.0
+    return RunLengths(
+        runout_mm=r.distance_mm * meas.dynamics_safety,
+        settle_mm=v_mm_s * meas.settle_s,
+        window_mm=v_mm_s * meas.window_duration_s,
+        ramp_time_s=r.time_s,
+    )
+
+
+@dataclass(frozen=True)
 class _RunGeometry:
-    """Lengths of one run at one velocity, in µm."""
+    """Lengths of one run at one velocity, in µm (as the programs write them)."""
 
     runup_um: int  # rest to window start: ramp × safety + settle distance
     window_um: int
@@ -288,13 +328,12 @@ class _RunGeometry:
 
 
 def _geometry(v_mm_min: float, axis: AxisConfig, meas: Measurement) -> _RunGeometry:
-    r = ramp(v_mm_min, axis.max_acceleration_m_s2, axis.max_jerk_m_s3)
-    v_mm_s = v_mm_min / 60.0
-    runout = _ceil_um(r.distance_mm * meas.dynamics_safety)
-    runup = runout + _ceil_um(v_mm_s * meas.settle_s)
-    window = _ceil_um(v_mm_s * meas.window_duration_s)
+    lengths = run_lengths(v_mm_min, axis.max_acceleration_m_s2, axis.max_jerk_m_s3, meas)
+    runout = _ceil_um(lengths.runout_mm)
+    runup = runout + _ceil_um(lengths.settle_mm)
+    window = _ceil_um(lengths.window_mm)
     window += window % 2  # even, so the window centres exactly on its position
-    return _RunGeometry(runup, window, runout, r.time_s)
+    return _RunGeometry(runup, window, runout, lengths.ramp_time_s)
 
 
 def _run_time_s(geo: _RunGeometry, v_mm_min: float, axis: AxisConfig) -> tuple[float, float, float]:

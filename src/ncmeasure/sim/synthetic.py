@@ -10,10 +10,11 @@ and returns the matching :class:`~ncmeasure.plan.Schedule`.
 
 The program is built here rather than planned from a machine file so that a
 test states positions and velocities directly and every window is exactly
-where the spec says (the planner may drop or shift steps); its geometry
-follows the planner: run-up = ramp × 1.2 + settle distance, window =
-velocity × ``window_s``, run-out = ramp × 1.2, windows shifted inward where
-the run-up would leave the travel (as the planner shifts them).
+where the spec says (the planner may drop or shift steps); its geometry is
+the planner's (:func:`ncmeasure.plan.run_lengths` with the measurement
+defaults of the machine file for the safety factor and the margin, and
+trapezoidal ramps), and windows are shifted inward where the run-up would
+leave the travel (as the planner shifts them).
 
 The physics, per sample:
 
@@ -50,8 +51,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.config import AxisConfig, MachineConfig, MachineSection
-from ncmeasure.plan import AxisSummary, Schedule, Window
+from ncmeasure.config import AxisConfig, MachineConfig, MachineSection, Measurement
+from ncmeasure.plan import AxisSummary, RunLengths, Schedule, Window, run_lengths
 from ncmeasure.recording import Recording, RecordingWriter
 from ncmeasure.samples import SIGNAL_UNITS, Channel, SampleBlock
 from ncmeasure.sim.servo import follow, servo
@@ -68,8 +69,6 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 PerPosition = float | tuple[float, ...]
 
-_SAFETY = 1.2  # the planner's default dynamics_safety
-_MARGIN_MM = 5.0  # the planner's default margin_mm
 _ROWS_PER_BLOCK = 200_000
 
 
@@ -349,6 +348,16 @@ class _Program:
         return start_s + t_ramp + (covered - 0.5 * v * t_ramp) / v
 
 
+def _measurement(spec: SyntheticAxis) -> Measurement:
+    """The machine file's measurement defaults with the spec's window and settle time."""
+    return Measurement(window_s=spec.window_s, settle_s=spec.settle_s)
+
+
+def _lengths(spec: SyntheticAxis, speed_mm_min: float) -> RunLengths:
+    """The planner's run at ``speed_mm_min``, with the spec's trapezoidal (jerk-free) ramps."""
+    return run_lengths(speed_mm_min, spec.acceleration_m_s2, math.inf, _measurement(spec))
+
+
 def _plan_axis(
     spec: SyntheticAxis,
     program: _Program,
@@ -357,8 +366,9 @@ def _plan_axis(
     marker_values: Literal["window_id", "flag"],
 ) -> list[Window]:
     """Drive one axis through its measurement program; return its scheduled windows."""
-    low = spec.travel_mm[0] + _MARGIN_MM
-    high = spec.travel_mm[1] - _MARGIN_MM
+    meas = _measurement(spec)
+    low = spec.travel_mm[0] + meas.margin_mm
+    high = spec.travel_mm[1] - meas.margin_mm
     top = max(spec.velocities_mm_min)
     for _ in range(spec.warmup_strokes):
         program.move(low, spec.rapid_mm_min)
@@ -366,14 +376,10 @@ def _plan_axis(
         program.move(low, top)
     windows: list[Window] = []
     directions: tuple[Literal[1, -1], ...] = (1, -1) if spec.both_directions else (1,)
-    a = program.accel_mm_s2
     for repetition in range(spec.repetitions):
         for step, speed in enumerate(spec.velocities_mm_min):
-            v = speed / 60.0
-            ramp_mm = v * v / (2 * a)
-            runout = ramp_mm * _SAFETY
-            runup = runout + v * spec.settle_s
-            half = v * spec.window_s / 2
+            lengths = _lengths(spec, speed)
+            runout, runup, half = lengths.runout_mm, lengths.runup_mm, lengths.window_mm / 2
             c_min, c_max = low + half + runup, high - half - runup
             if c_min > c_max:
                 raise ValueError(
@@ -563,15 +569,15 @@ def _summary(
     spec: SyntheticAxis, windows: list[Window], program: _Program, start_s: float, dt: float
 ) -> AxisSummary:
     top = max(spec.velocities_mm_min)
-    v = top / 60.0
-    runup = v * v / (2 * program.accel_mm_s2) * _SAFETY + v * spec.settle_s
+    runup = _lengths(spec, top).runup_mm
+    margin = _measurement(spec).margin_mm
     shifted = sorted(
         {w.nominal_position_mm for w in windows if w.position_mm != w.nominal_position_mm}
     )
     return AxisSummary(
         name=spec.name,
         travel_mm=spec.travel_mm,
-        usable_mm=(spec.travel_mm[0] + _MARGIN_MM, spec.travel_mm[1] - _MARGIN_MM),
+        usable_mm=(spec.travel_mm[0] + margin, spec.travel_mm[1] - margin),
         park_mm=(spec.travel_mm[0] + spec.travel_mm[1]) / 2,
         max_velocity_mm_min=max(spec.rapid_mm_min, top),
         vertical=spec.vertical,
