@@ -797,6 +797,13 @@ def simulate_drive_command(
             help="Modbus RTU: serve on this serial port instead of TCP.", rich_help_panel="Modbus"
         ),
     ] = None,
+    baudrate: Annotated[
+        int, typer.Option(help="Modbus RTU: baud rate.", rich_help_panel="Modbus")
+    ] = 19200,
+    parity: Annotated[
+        str,
+        typer.Option(help="Modbus RTU: parity N, E or O.", rich_help_panel="Modbus"),
+    ] = "E",
     duration: Annotated[
         float | None, typer.Option(help="Seconds to run (default: until Ctrl-C).")
     ] = None,
@@ -831,6 +838,8 @@ def simulate_drive_command(
                 port=port,
                 register_map=register_map,
                 serial_port=serial_port,
+                baudrate=baudrate,
+                parity=parity,
                 ready=ready,
                 stop=stop,
             )

@@ -26,7 +26,6 @@ from ncmeasure.sim.modbus_drive import (
     ServerInfo,
     SimulatedModbusDrive,
     SimulatedUnit,
-    main,
     pty_null_modem,
     running_server,
     serve,
@@ -321,13 +320,8 @@ def test_bad_serial_port_is_a_link_error() -> None:
         pass
 
 
-def test_command_line_parses_units() -> None:
-    with pytest.raises(SystemExit) as info:
-        main(["--unit", "X1"])
-    assert info.value.code == 2
-
-
-def test_command_line_serves_until_stopped() -> None:
+def test_simulate_drive_command_serves_until_stopped() -> None:
+    """`ncmeasure simulate-drive --link modbus` is the one command line of the simulated drive."""
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
@@ -335,26 +329,27 @@ def test_command_line_serves_until_stopped() -> None:
         [
             sys.executable,
             "-m",
-            "ncmeasure.sim.modbus_drive",
+            "ncmeasure",
+            "simulate-drive",
+            "--link",
+            "modbus",
             "--port",
             str(port),
             "--unit",
             "X=1",
             "--unit",
             "Y=2",
-            "--step-s",
-            "0.01",
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
     try:
-        assert process.stdout is not None
-        readable, _, _ = select.select([process.stdout], [], [], 20)
+        assert process.stderr is not None
+        readable, _, _ = select.select([process.stderr], [], [], 60)
         assert readable, "the server printed nothing"
-        line = process.stdout.readline()
-        assert line.startswith(f"serving X=1, Y=2 on 127.0.0.1:{port}")
+        line = process.stderr.readline()
+        assert line.startswith(f"simulated Modbus drives on 127.0.0.1:{port}, units X=1, Y=2")
         info = ServerInfo("127.0.0.1", port, None, {"X": 1, "Y": 2})
         with tcp_client(info) as client:
             assert not client.read_input_registers(0, count=8, device_id=2).isError()

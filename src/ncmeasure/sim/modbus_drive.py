@@ -20,13 +20,11 @@ Fault switches (:class:`Fault`, thread-safe through :class:`DriveFaults`):
 stop answering, answer with a Modbus exception code, answer late, and drop
 the TCP connections. :func:`running_server` runs a server in another process
 and controls it through a pipe; :func:`serve` is the blocking entry point
-behind ``ncmeasure simulate-drive --link modbus`` and
-``python -m ncmeasure.sim.modbus_drive``.
+behind ``ncmeasure simulate-drive --link modbus``.
 """
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import contextlib
 import logging
@@ -34,7 +32,6 @@ import multiprocessing
 import os
 import select
 import socket
-import sys
 import threading
 import time
 import tty
@@ -65,7 +62,6 @@ __all__ = [
     "ServerInfo",
     "SimulatedModbusDrive",
     "SimulatedUnit",
-    "main",
     "pty_null_modem",
     "running_server",
     "serve",
@@ -820,71 +816,3 @@ def pty_null_modem() -> Iterator[tuple[str, str]]:
         for fd in (master_a, slave_a, master_b, slave_b):
             with contextlib.suppress(OSError):
                 os.close(fd)
-
-
-# --- command line -------------------------------------------------------------------------
-
-
-def _parse_unit(text: str) -> tuple[str, int]:
-    axis, sep, number = text.partition("=")
-    if not sep or not axis or not number.isdigit():
-        raise argparse.ArgumentTypeError(f"{text!r} is not AXIS=UNIT_ID, e.g. X=1")
-    return axis, int(number)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m ncmeasure.sim.modbus_drive``: serve simulated drives until Ctrl-C."""
-    parser = argparse.ArgumentParser(
-        prog="python -m ncmeasure.sim.modbus_drive",
-        description="Serve simulated servo drives over Modbus TCP or RTU.",
-    )
-    parser.add_argument("--port", type=int, default=5020, help="TCP port (default 5020)")
-    parser.add_argument("--host", default="127.0.0.1", help="TCP address (default 127.0.0.1)")
-    parser.add_argument(
-        "--unit",
-        dest="units",
-        type=_parse_unit,
-        action="append",
-        metavar="AXIS=ID",
-        help="axis and unit id, repeatable (default X=1)",
-    )
-    parser.add_argument(
-        "--register-map", default="generic", help="built-in map name or TOML path (default generic)"
-    )
-    parser.add_argument(
-        "--step-s",
-        type=float,
-        default=None,
-        help="deterministic: request n shows the state at n × STEP_S",
-    )
-    parser.add_argument("--serial-port", default=None, help="serve Modbus RTU on this device")
-    parser.add_argument("--baudrate", type=int, default=19200)
-    parser.add_argument("--parity", choices=("N", "E", "O"), default="E")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
-
-    def ready(info: ServerInfo) -> None:
-        units = ", ".join(f"{axis}={uid}" for axis, uid in info.units.items())
-        print(f"serving {units} on {info.endpoint}; Ctrl-C stops", flush=True)
-
-    try:
-        serve(
-            units=dict(args.units or [("X", 1)]),
-            host=args.host,
-            port=args.port,
-            register_map=args.register_map,
-            step_s=args.step_s,
-            serial_port=args.serial_port,
-            baudrate=args.baudrate,
-            parity=args.parity,
-            ready=ready,
-        )
-    except (ConfigError, LinkError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
