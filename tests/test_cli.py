@@ -217,3 +217,51 @@ def test_console_script_shows_no_traceback(tmp_path: Path) -> None:
     assert done.returncode == 2
     assert "axes: required key is missing" in done.stderr
     assert "Traceback" not in done.stderr
+
+
+# --- user text, --debug, exit codes in one place (issue: the CLI owns the console) ------------
+
+
+@pytest.mark.parametrize("text", ["[/]", "[red]evil", "a[bold]b[/bold]"])
+def test_user_text_is_printed_as_written(text: str, tmp_path: Path) -> None:
+    """Square brackets in a machine file or a path are text, not console markup."""
+    machine = tmp_path / "m.toml"
+    machine.write_text(
+        example_machine("linuxcnc").replace('controller = "linuxcnc"', f'controller = "{text}"')
+    )
+    code, _, err = run("plan", machine)
+    assert code == 2 and text in err and "Traceback" not in err
+    folder = tmp_path / text.replace("/", "_")
+    code, _, err = run("check", folder)
+    assert code == 2 and str(folder) in err and "Traceback" not in err
+
+
+def test_a_path_with_markup_is_checked_and_printed_whole(tmp_path: Path) -> None:
+    machine = tmp_path / "m.toml"
+    machine.write_text(example_machine("linuxcnc"))
+    out = tmp_path / "run[/]x"
+    code, _, err = run("generate", machine, "-o", out, "-q")
+    assert code == 0, err
+    code, text, _ = run("check", out)
+    assert code == 0 and f"ok: {out} (linuxcnc)" in text
+
+
+def test_help_keeps_square_brackets() -> None:
+    code, out, _ = run("record", "--help")
+    assert code == 0 and "[link] table" in " ".join(out.split())
+    code, out, _ = run("export", "--help")
+    assert code == 0
+    assert "--format" in out
+
+
+@pytest.mark.parametrize("where", ["before", "after"])
+def test_debug_anywhere_shows_the_traceback_and_keeps_the_exit_code(
+    where: str, tmp_path: Path
+) -> None:
+    args = ["check", str(tmp_path / "nothing")]
+    args = ["--debug", *args] if where == "before" else [*args, "--debug"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2
+    assert "Traceback" in result.stderr and "not a directory of generated programs" in (
+        result.stderr
+    )

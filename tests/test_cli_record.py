@@ -223,7 +223,7 @@ def test_simulate_drive_port_in_use(tmp_path: Path) -> None:
         code, _, err = run(
             "simulate-drive", "--link", "modbus", "--port", str(port), "--duration", "2"
         )
-    assert code == 2 and str(port) in err and "Traceback" not in err
+    assert code == 4 and str(port) in err and "Traceback" not in err  # the link cannot serve
 
 
 def test_sigterm_closes_the_recording_and_exits_3(tmp_path: Path) -> None:

@@ -8,6 +8,7 @@ options, paths). ``--debug`` shows tracebacks; nobody else ever sees one.
 from __future__ import annotations
 
 import contextlib
+import functools
 import inspect
 import json
 import logging
@@ -16,18 +17,21 @@ import sys
 import threading
 import time
 import tomllib
+import traceback
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, NoReturn
+from typing import TYPE_CHECKING, Annotated, Any, Literal, get_args
 
 import typer
 from rich.console import Console
 from rich.live import Live
+from rich.markup import escape
 from rich.table import Table
 from rich.text import Text
 
 from ncmeasure._version import __version__
 from ncmeasure.acquire import Progress, record
-from ncmeasure.config import MachineConfig, load_machine
+from ncmeasure.config import MachineConfig, load_machine, parse_assignments
 from ncmeasure.errors import ConfigError, LinkError, NcMeasureError, OutputError, ProgramCheckError
 from ncmeasure.examples import example_machine
 from ncmeasure.plan import Schedule
@@ -71,7 +75,24 @@ listed here so that ``--help`` need not import the analysis."""
 
 EXIT_OK = 0
 EXIT_CHECK_FAILED = 1
+"""A check found problems (check), a warning limit was crossed (compare)."""
 EXIT_BAD_INPUT = 2
+"""Bad input: a machine file, an option, a path, a file that cannot be read or written."""
+EXIT_INTERRUPTED = 3
+"""Stopped by Ctrl-C/SIGTERM (what was recorded is kept); compare: a critical limit crossed."""
+EXIT_LINK = 4
+"""A drive link failed (bus, network, drive, simulated drive)."""
+
+Outcome = Literal["ok", "problems", "warning", "critical", "interrupted", "link_lost"]
+"""What a command reports besides an error; :func:`_command` turns it into the exit code."""
+_OUTCOME_EXIT: dict[str, int] = {
+    "ok": EXIT_OK,
+    "problems": EXIT_CHECK_FAILED,
+    "warning": EXIT_CHECK_FAILED,
+    "critical": EXIT_INTERRUPTED,
+    "interrupted": EXIT_INTERRUPTED,
+    "link_lost": EXIT_LINK,
+}
 
 app = typer.Typer(
     name="ncmeasure",
@@ -80,19 +101,25 @@ app = typer.Typer(
         "Typical use: `ncmeasure init --controller sinumerik-840d > machine.toml`, edit the "
         "axes, `ncmeasure plan machine.toml` to see how long it takes, then "
         "`ncmeasure generate machine.toml -o programs/` and `ncmeasure check programs/`.\n\n"
-        "New here? `ncmeasure demo` runs the whole pipeline on a virtual machine in about 20 s."
+        "New here? `ncmeasure demo` runs the whole pipeline on a virtual machine in about 20 s.\n\n"
+        "Exit codes: 0 done; 1 a check found problems or a warning limit was crossed; "
+        "2 bad input; 3 stopped by Ctrl-C/SIGTERM or a critical limit crossed; 4 a drive link "
+        "failed. --debug (anywhere on the line) shows tracebacks."
     ),
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
 )
 schema_app = typer.Typer(
-    help="Print JSON Schemas of ncmeasure's files (for editors).", no_args_is_help=True
+    help="Print JSON Schemas of ncmeasure's files (for editors).",
+    no_args_is_help=True,
 )
 app.add_typer(schema_app, name="schema")
 
-console = Console(highlight=False, soft_wrap=True)
-err_console = Console(stderr=True, highlight=False, soft_wrap=True)
+# No markup: messages carry user text (machine names, paths, controller names) that may
+# hold square brackets; styled parts are rich Text objects.
+console = Console(highlight=False, soft_wrap=True, markup=False)
+err_console = Console(stderr=True, highlight=False, soft_wrap=True, markup=False)
 _state = {"debug": False}
 
 ControllersDir = Annotated[
@@ -115,15 +142,73 @@ TemplatesDir = Annotated[
 ]
 
 
-def _fail(exc: NcMeasureError, code: int | None = None) -> NoReturn:
-    if code is None:
-        code = EXIT_CHECK_FAILED if isinstance(exc, ProgramCheckError) else EXIT_BAD_INPUT
-    err_console.print(f"[bold red]error:[/] {exc.message}", markup=True, soft_wrap=True)
-    for line in exc.problems:
-        err_console.print(f"  {line}", markup=False, soft_wrap=True)
-    if _state["debug"]:
-        raise exc
-    raise typer.Exit(code)
+def _exit_code(error: BaseException) -> int:
+    """The exit code of an error (see the EXIT_ constants)."""
+    if isinstance(error, ProgramCheckError):
+        return EXIT_CHECK_FAILED
+    if isinstance(error, LinkError):
+        return EXIT_LINK
+    if isinstance(error, KeyboardInterrupt):
+        return EXIT_INTERRUPTED
+    return EXIT_BAD_INPUT
+
+
+def _warn(message: str) -> None:
+    """``warning: message`` on stderr (user text verbatim)."""
+    err_console.print(Text.assemble(("warning:", "yellow"), f" {message}"), soft_wrap=True)
+
+
+def _report(error: NcMeasureError) -> None:
+    """``error: message`` and one indented line per problem, on stderr (user text verbatim)."""
+    err_console.print(Text.assemble(("error:", "bold red"), f" {error.message}"), soft_wrap=True)
+    for line in error.problems:
+        err_console.print(Text(f"  {line}"), soft_wrap=True)
+
+
+_DEBUG_OPTION = Annotated[
+    bool,
+    typer.Option(
+        "--debug", help="Show tracebacks and debug logs (also before the command).", hidden=True
+    ),
+]
+
+
+def _command(func: Callable[..., Outcome | None]) -> Callable[..., None]:
+    """Run a command's body: the one place where errors and outcomes become exit codes.
+
+    A command body raises :class:`~ncmeasure.errors.NcMeasureError` for anything
+    that goes wrong and may return an :data:`Outcome`; no command decides an exit
+    code itself. ``--debug`` is accepted after the command name too, and shows
+    the traceback of an error without changing its exit code.
+    """
+
+    @functools.wraps(func)
+    def run(*args: Any, debug: bool = False, **kwargs: Any) -> None:
+        if debug:
+            _set_debug(True)
+        try:
+            outcome = func(*args, **kwargs)
+        except NcMeasureError as exc:
+            _report(exc)
+            if _state["debug"]:
+                err_console.print(Text("".join(traceback.format_exception(exc))), soft_wrap=True)
+            raise typer.Exit(_exit_code(exc)) from None
+        except KeyboardInterrupt:
+            err_console.print("interrupted")
+            raise typer.Exit(EXIT_INTERRUPTED) from None
+        code = _OUTCOME_EXIT[outcome or "ok"]
+        if code != EXIT_OK:
+            raise typer.Exit(code)
+
+    signature = inspect.signature(func, eval_str=True)
+    debug = inspect.Parameter(
+        "debug", inspect.Parameter.KEYWORD_ONLY, default=False, annotation=_DEBUG_OPTION
+    )
+    run.__signature__ = signature.replace(  # type: ignore[attr-defined]
+        parameters=[*signature.parameters.values(), debug], return_annotation=None
+    )
+    run.__annotations__ = {**func.__annotations__, "debug": _DEBUG_OPTION, "return": None}
+    return run
 
 
 def _version(value: bool) -> None:
@@ -142,26 +227,24 @@ def _main(
         ),
     ] = False,
 ) -> None:
+    _set_debug(debug)
+
+
+def _set_debug(debug: bool) -> None:
     _state["debug"] = debug
     logging.basicConfig(
         level=logging.DEBUG if debug else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
+        force=True,
     )
-    if not debug:
-        # The bus and protocol libraries log what ncmeasure already reports as events
-        # and errors; their own lines would only repeat it less clearly.
-        for name in ("can", "canopen", "pymodbus"):
-            logging.getLogger(name).setLevel(logging.CRITICAL)
-
-
-def _load(machine: Path) -> MachineConfig:
-    try:
-        return load_machine(machine)
-    except NcMeasureError as exc:
-        _fail(exc)
+    # The bus and protocol libraries log what ncmeasure already reports as events
+    # and errors; their own lines would only repeat it less clearly.
+    for name in ("can", "canopen", "pymodbus"):
+        logging.getLogger(name).setLevel(logging.NOTSET if debug else logging.CRITICAL)
 
 
 @app.command()
+@_command
 def init(
     controller: Annotated[
         str, typer.Option(help="Controller dialect of the example (see `ncmeasure controllers`).")
@@ -172,26 +255,26 @@ def init(
 
     Example: ncmeasure init --controller linuxcnc > machine.toml
     """
-    try:
-        dialect = load_dialect(controller, controllers_dir or ())
-    except NcMeasureError as exc:
-        _fail(exc)
+    dialect = load_dialect(controller, controllers_dir or ())
     sys.stdout.write(example_machine(dialect.name))
 
 
 @schema_app.command("machine")
+@_command
 def schema_machine() -> None:
     """JSON Schema of the machine file (point your editor's TOML support at it)."""
     sys.stdout.write(json.dumps(MachineConfig.model_json_schema(), indent=2) + "\n")
 
 
 @schema_app.command("schedule")
+@_command
 def schema_schedule() -> None:
     """JSON Schema of schedule.json, the velocity file generate writes."""
     sys.stdout.write(json.dumps(Schedule.model_json_schema(), indent=2) + "\n")
 
 
 @app.command()
+@_command
 def controllers(
     details: Annotated[
         bool,
@@ -201,29 +284,22 @@ def controllers(
 ) -> None:
     """List the controller dialects ncmeasure can write programs for."""
     table = Table("name", "controller", "files", "marker", show_lines=details)
-    try:
-        for name in available_dialects(controllers_dir or ()):
-            dialect = load_dialect(name, controllers_dir or ())
-            files = (
-                f"{Path(dialect.names.main_file).suffix} / {Path(dialect.names.sub_file).suffix}"
-            )
-            if not dialect.subprograms:
-                files = f"{Path(dialect.names.main_file).suffix} (one program)"
-            marker: str = dialect.marker.scope
-            if details:
-                marker = f"{dialect.marker.scope}: {dialect.marker.mechanism}"
-                if dialect.options:
-                    marker += "\noptions: " + ", ".join(
-                        f"{k}={v}" for k, v in dialect.options.items()
-                    )
-                marker += f"\nprogram memory: {dialect.memory.program_kb} kB"
-                if dialect.memory.note:
-                    marker += f" ({dialect.memory.note})"
-                if dialect.left_out:
-                    marker += "\nleft out: " + "; ".join(dialect.left_out)
-            table.add_row(name, dialect.title, files, marker)
-    except NcMeasureError as exc:
-        _fail(exc)
+    for name in available_dialects(controllers_dir or ()):
+        dialect = load_dialect(name, controllers_dir or ())
+        files = f"{Path(dialect.names.main_file).suffix} / {Path(dialect.names.sub_file).suffix}"
+        if not dialect.subprograms:
+            files = f"{Path(dialect.names.main_file).suffix} (one program)"
+        marker: str = dialect.marker.scope
+        if details:
+            marker = f"{dialect.marker.scope}: {dialect.marker.mechanism}"
+            if dialect.options:
+                marker += "\noptions: " + ", ".join(f"{k}={v}" for k, v in dialect.options.items())
+            marker += f"\nprogram memory: {dialect.memory.program_kb} kB"
+            if dialect.memory.note:
+                marker += f" ({dialect.memory.note})"
+            if dialect.left_out:
+                marker += "\nleft out: " + "; ".join(dialect.left_out)
+        table.add_row(name, dialect.title, files, marker)
     console.print(table)
 
 
@@ -253,7 +329,9 @@ def _print_plan(schedule: Schedule) -> None:
             _duration(axis.full_travel_duration_s),
         )
     console.print(
-        f"[bold]{schedule.machine}[/] · {schedule.controller} · config {schedule.config_hash}"
+        Text.assemble(
+            (schedule.machine, "bold"), f" · {schedule.controller} · config {schedule.config_hash}"
+        )
     )
     console.print(table)
     saving = 1 - schedule.duration_s / schedule.full_travel_duration_s
@@ -269,7 +347,7 @@ def _print_plan(schedule: Schedule) -> None:
                 "where the run-up would not fit (schedule.json has each window's position)"
             )
     for warning in schedule.warnings:
-        err_console.print(f"[yellow]warning:[/] {warning}", soft_wrap=True)
+        _warn(warning)
 
 
 def _duration(seconds: float) -> str:
@@ -281,6 +359,7 @@ def _duration(seconds: float) -> str:
 
 
 @app.command()
+@_command
 def plan(
     machine: Annotated[Path, typer.Argument(help="Machine file (TOML).")],
     as_json: Annotated[
@@ -293,11 +372,8 @@ def plan(
     controllers_dir: ControllersDir = None,
 ) -> None:
     """Show what the measurement will do and how long it takes, without writing anything."""
-    config = _load(machine)
-    try:
-        result = generate_programs(config, controllers_dirs=controllers_dir or ())
-    except NcMeasureError as exc:
-        _fail(exc)
+    config = load_machine(machine)
+    result = generate_programs(config, controllers_dirs=controllers_dir or ())
     schedule = result.schedule
     if as_json:
         summary = schedule.model_dump(mode="json")
@@ -309,6 +385,7 @@ def plan(
 
 
 @app.command()
+@_command
 def generate(
     machine: Annotated[Path, typer.Argument(help="Machine file (TOML).")],
     output: Annotated[
@@ -325,18 +402,15 @@ def generate(
 
     Example: ncmeasure generate machine.toml -o programs/
     """
-    config = _load(machine)
+    config = load_machine(machine)
     if output.exists() and not output.is_dir():
-        _fail(OutputError(f"{output}: exists and is not a directory"))
-    try:
-        result = generate_programs(
-            config, controllers_dirs=controllers_dir or (), templates_dirs=templates_dir or ()
-        )
-        written = result.write(output)
-    except NcMeasureError as exc:
-        _fail(exc)
+        raise OutputError(f"{output}: exists and is not a directory")
+    result = generate_programs(
+        config, controllers_dirs=controllers_dir or (), templates_dirs=templates_dir or ()
+    )
+    written = result.write(output)
     if quiet:
-        return
+        return None
     for path in written:
         console.print(f"wrote {path}")
     _print_plan(result.schedule)
@@ -344,10 +418,15 @@ def generate(
         "checked before writing: every position inside the soft limits, every feed within "
         "the maximum, every window as planned"
     )
-    console.print(f"next: [bold]ncmeasure check {output}[/] (again after copying or editing)")
+    console.print(
+        Text.assemble(
+            "next: ", (f"ncmeasure check {output}", "bold"), " (again after copying or editing)"
+        )
+    )
 
 
 @app.command()
+@_command
 def check(
     directory: Annotated[Path, typer.Argument(help="Folder written by `ncmeasure generate`.")],
     controllers_dir: ControllersDir = None,
@@ -356,14 +435,14 @@ def check(
 
     Exit code 0: all holds; 1: a program breaks a limit or its schedule; 2: unreadable input.
     """
-    try:
-        report = check_programs(directory, tuple(controllers_dir or ()))
-    except NcMeasureError as exc:
-        _fail(exc)
+    report = check_programs(directory, tuple(controllers_dir or ()))
     console.print(
-        f"[green]ok[/]: {directory} ({report.controller}): {report.motions} moves, "
-        f"{report.feeds} feeds, {report.windows_found}/{report.windows_expected} windows; "
-        "every position inside the soft limits, every feed within the maximum"
+        Text.assemble(
+            ("ok", "green"),
+            f": {directory} ({report.controller}): {report.motions} moves, "
+            f"{report.feeds} feeds, {report.windows_found}/{report.windows_expected} windows; "
+            "every position inside the soft limits, every feed within the maximum",
+        )
     )
 
 
@@ -374,32 +453,26 @@ def main() -> None:
 
 # --- acquisition -------------------------------------------------------------------------
 
-EXIT_INTERRUPTED = 3
-EXIT_LINK = 4
-
 
 def _pairs(values: list[str], option: str, key: str) -> dict[str, dict[str, Any]]:
     """``X=1`` options into per-axis settings ``{"X": {key: 1}}``."""
+    form, example = "AXIS=NUMBER", f"{option} X=1"
     result: dict[str, dict[str, Any]] = {}
-    for text in values:
-        axis, sep, value = text.partition("=")
-        if not sep or not axis or not value.strip().isdigit():
-            _fail(ConfigError(f"{option} {text!r}: expected AXIS=NUMBER, e.g. {option} X=1"))
-        result.setdefault(axis.strip(), {})[key] = int(value)
+    for axis, value in parse_assignments(values, option, form=form, example=example):
+        if not value.isdigit():
+            raise ConfigError(f"{option} '{axis}={value}': expected {form}, e.g. {example}")
+        result.setdefault(axis, {})[key] = int(value)
     return result
 
 
-def _settings(values: list[str]) -> dict[str, Any]:
+def _settings(values: list[str], example: str = "--set sync_hz=500") -> dict[str, Any]:
     """``--set key=value`` options; values are read as TOML (numbers, true/false, strings)."""
     result: dict[str, Any] = {}
-    for text in values:
-        key, sep, value = text.partition("=")
-        if not sep or not key.strip():
-            _fail(ConfigError(f"--set {text!r}: expected KEY=VALUE, e.g. --set sync_hz=500"))
+    for key, value in parse_assignments(values, "--set", example=example):
         try:
-            result[key.strip()] = tomllib.loads(f"v = {value}")["v"]
+            result[key] = tomllib.loads(f"v = {value}")["v"]
         except tomllib.TOMLDecodeError:
-            result[key.strip()] = value
+            result[key] = value
     return result
 
 
@@ -448,6 +521,7 @@ def _progress_table(progress: Progress) -> Table:
 
 
 @app.command("record")
+@_command
 def record_command(
     machine: Annotated[
         Path,
@@ -475,7 +549,11 @@ def record_command(
     ] = None,
     node: Annotated[
         list[str] | None,
-        typer.Option(help="CANopen: AXIS=NODE_ID, repeat per axis.", rich_help_panel="CANopen"),
+        typer.Option(
+            help="CANopen: AXIS=NODE_ID, repeat per axis.",
+            rich_help_panel="CANopen",
+            metavar="AXIS=NODE_ID",
+        ),
     ] = None,
     sync_hz: Annotated[
         float | None, typer.Option(help="CANopen: SYNC rate in Hz.", rich_help_panel="CANopen")
@@ -492,7 +570,11 @@ def record_command(
     ] = None,
     unit: Annotated[
         list[str] | None,
-        typer.Option(help="Modbus: AXIS=UNIT_ID, repeat per axis.", rich_help_panel="Modbus"),
+        typer.Option(
+            help="Modbus: AXIS=UNIT_ID, repeat per axis.",
+            rich_help_panel="Modbus",
+            metavar="AXIS=UNIT_ID",
+        ),
     ] = None,
     register_map: Annotated[
         str | None,
@@ -517,7 +599,8 @@ def record_command(
         ),
     ] = None,
     set_: Annotated[
-        list[str] | None, typer.Option("--set", help="Any other link setting, KEY=VALUE.")
+        list[str] | None,
+        typer.Option("--set", help="Any other link setting, KEY=VALUE.", metavar="KEY=VALUE"),
     ] = None,
     duration: Annotated[float | None, typer.Option(help="Seconds to record.")] = None,
     schedule: Annotated[
@@ -529,7 +612,7 @@ def record_command(
     ] = None,
     notes: Annotated[str, typer.Option(help="Free text stored with the recording.")] = "",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No live display.")] = False,
-) -> None:
+) -> Outcome:
     """Record motor current, velocity and position from the drives into a recording.
 
     Stops after --duration, at the end of --schedule, at the end of a replay, or on
@@ -539,7 +622,7 @@ def record_command(
     Example: ncmeasure record m.toml --link canopen --interface virtual --channel test
     --node X=1 --sync-hz 250 --duration 60 -o run1
     """
-    config = _load(machine)
+    config = load_machine(machine)
     overrides: dict[str, Any] = {
         key: value
         for key, value in {
@@ -565,18 +648,14 @@ def record_command(
         axis_overrides.setdefault(axis, {}).update(values)
     unknown = set(axis_overrides) - {a.name for a in config.axes}
     if unknown:
-        _fail(
-            ConfigError(f"--node/--unit name axes the machine lacks: {', '.join(sorted(unknown))}")
+        raise ConfigError(
+            f"--node/--unit name axes the machine lacks: {', '.join(sorted(unknown))}"
         )
-    try:
-        plan_schedule = load_schedule(schedule) if schedule else None
-    except NcMeasureError as exc:
-        _fail(exc)
+    plan_schedule = load_schedule(schedule) if schedule else None
 
     stop = threading.Event()
     previous = _stop_on_signals(stop)
     live: Live | None = None
-    failure: NcMeasureError | None = None
 
     def show(progress: Progress) -> None:
         if live is not None:
@@ -598,14 +677,10 @@ def record_command(
             stop=stop,
             on_progress=None if quiet else show,
         )
-    except NcMeasureError as exc:
-        failure = exc
     finally:
         if live is not None:
             live.stop()  # before any message, so the display does not overwrite it
         _restore_signals(previous)
-    if failure is not None:
-        _fail(failure, EXIT_LINK if isinstance(failure, LinkError) else None)
     lost = sum(e.lost_samples for e in result.events)
     if not quiet or result.status != "complete":
         err_console.print(
@@ -614,16 +689,14 @@ def record_command(
             + (f"; {result.error}" if result.error else ""),
             soft_wrap=True,
         )
-    if result.status == "interrupted":
-        raise typer.Exit(EXIT_INTERRUPTED)
-    if result.status == "link_lost":
-        raise typer.Exit(EXIT_LINK)
+    return "ok" if result.status == "complete" else result.status
 
 
 _FORMATS = {"csv": ".csv", "mdf4": ".mf4"}
 
 
 @app.command("export")
+@_command
 def export_command(
     run: Annotated[Path, typer.Argument(help="Recording directory.")],
     fmt: Annotated[str, typer.Option("--format", "-f", help="csv or mdf4.")] = "csv",
@@ -633,22 +706,20 @@ def export_command(
 ) -> None:
     """Write a recording as one CSV (time_s, then <AXIS>_<signal> columns) or MDF4 file."""
     if fmt not in _FORMATS:
-        _fail(ConfigError(f"--format {fmt!r}: expected one of {', '.join(_FORMATS)}"))
+        raise ConfigError(f"--format {fmt!r}: expected one of {', '.join(_FORMATS)}")
     target = output or run.with_suffix(_FORMATS[fmt])
-    try:
-        recording = read_recording(run)
-        for problem in recording.problems:
-            err_console.print(f"[yellow]warning:[/] {problem}", soft_wrap=True)
-        if fmt == "csv":
-            export_csv(recording, target)
-        else:
-            export_mdf4(recording, target)
-    except NcMeasureError as exc:
-        _fail(exc)
+    recording = read_recording(run)
+    for problem in recording.problems:
+        _warn(problem)
+    if fmt == "csv":
+        export_csv(recording, target)
+    else:
+        export_mdf4(recording, target)
     console.print(f"wrote {target} ({len(recording.time_s)} samples)")
 
 
 @app.command("import")
+@_command
 def import_command(
     file: Annotated[Path, typer.Argument(help="Trace or exported file to import.")],
     output: Annotated[Path, typer.Option("--output", "-o", help="New recording directory.")],
@@ -670,7 +741,10 @@ def import_command(
     ] = None,
     axis: Annotated[
         list[str] | None,
-        typer.Option(help="Map a trace's axis to a machine axis, e.g. --axis 1=X --axis 2=Y."),
+        typer.Option(
+            help="Map a trace's axis to a machine axis, e.g. --axis 1=X --axis 2=Y.",
+            metavar="TRACE_AXIS=AXIS",
+        ),
     ] = None,
     columns: Annotated[
         Path | None,
@@ -694,67 +768,62 @@ def import_command(
 
     from ncmeasure.traces import detect_format, import_trace
 
-    axis_names: dict[str, str] = {}
-    for text in axis or []:
-        source, sep, target = text.partition("=")
-        if not sep or not source.strip() or not target.strip():
-            _fail(ConfigError(f"--axis {text!r}: expected TRACE_AXIS=MACHINE_AXIS, e.g. 1=X"))
-        axis_names[source.strip()] = target.strip()
+    axis_names = dict(
+        parse_assignments(axis or [], "--axis", form="TRACE_AXIS=MACHINE_AXIS", example="1=X")
+    )
     report: list[str] = []
-    try:
-        config = load_machine(machine) if machine else None
-        if columns is None and (
-            fmt == "mdf4" or (fmt is None and file.suffix.lower() in (".mf4", ".mdf"))
-        ):
-            recording = import_mdf4(file, output)
-            report = list(recording.meta.link.get("report", []))
-        else:
-            if columns is None:
-                fmt = fmt or detect_format(file)
-            bar = (
-                None
-                if quiet
-                else Progress(
-                    TextColumn(f"importing {file.name}"),
-                    BarColumn(),
-                    DownloadColumn(),
-                    console=err_console,
-                    transient=True,
-                )
+    config = load_machine(machine) if machine else None
+    if columns is None and (
+        fmt == "mdf4" or (fmt is None and file.suffix.lower() in (".mf4", ".mdf"))
+    ):
+        recording = import_mdf4(file, output, machine=config)
+        report = list(recording.meta.link.get("report", []))
+    else:
+        if columns is None:
+            fmt = fmt or detect_format(file)
+        bar = (
+            None
+            if quiet
+            else Progress(
+                TextColumn("importing {task.description}", markup=False),
+                BarColumn(),
+                DownloadColumn(),
+                console=err_console,
+                transient=True,
             )
-            task = bar.add_task("import", total=None) if bar else None
+        )
+        task = bar.add_task(file.name, total=None) if bar else None
 
-            def progress(done: int, total: int) -> None:
-                if bar is not None and task is not None:
-                    bar.update(task, completed=done, total=total)
+        def progress(done: int, total: int) -> None:
+            if bar is not None and task is not None:
+                bar.update(task, completed=done, total=total)
 
+        if bar is not None:
+            bar.start()
+        try:
+            result = import_trace(
+                file,
+                output,
+                format=fmt,
+                machine=config,
+                axis_names=axis_names or None,
+                progress=progress,
+                columns=columns,
+            )
+        finally:
             if bar is not None:
-                bar.start()
-            try:
-                result = import_trace(
-                    file,
-                    output,
-                    format=fmt,
-                    machine=config,
-                    axis_names=axis_names or None,
-                    progress=progress,
-                    columns=columns,
-                )
-            finally:
-                if bar is not None:
-                    bar.stop()
-            recording, report = result.recording, result.report
-    except NcMeasureError as exc:
-        _fail(exc)
+                bar.stop()
+        recording, report = result.recording, result.report
     if not quiet:
         for line in report:
-            err_console.print(f"  {line}", markup=False)
+            err_console.print(f"  {line}")
     console.print(
         f"wrote {output} ({len(recording.time_s)} samples, {len(recording.channels)} channels)"
     )
 
 
 @app.command("simulate-drive")
+@_command
 def simulate_drive_command(
     link: Annotated[str, typer.Option(help="canopen or modbus.")],
     interface: Annotated[
@@ -767,6 +836,7 @@ def simulate_drive_command(
         list[str] | None,
         typer.Option(
             help="CANopen: AXIS=NODE_ID per simulated drive (default X=1 Y=2 Z=3).",
+            metavar="AXIS=NODE_ID",
             rich_help_panel="CANopen",
         ),
     ] = None,
@@ -785,6 +855,7 @@ def simulate_drive_command(
         list[str] | None,
         typer.Option(
             help="Modbus: AXIS=UNIT_ID per simulated drive (default X=1 Y=2 Z=3).",
+            metavar="AXIS=UNIT_ID",
             rich_help_panel="Modbus",
         ),
     ] = None,
@@ -813,6 +884,8 @@ def simulate_drive_command(
     The drives report a smooth test motion of every axis. Example, in two terminals:
     `ncmeasure simulate-drive --link modbus --port 5020` and
     `ncmeasure record m.toml --link modbus --host 127.0.0.1 --port 5020 --unit X=1 ...`.
+    Exit code 0: stopped; 2: bad input; 4: the drives cannot serve there (port in use,
+    no such interface).
     """
     stop = threading.Event()
     previous = _stop_on_signals(stop)
@@ -851,9 +924,7 @@ def simulate_drive_command(
             err_console.print(f"simulated CiA 402 drives, nodes {ids}, on {interface}:{channel}")
             serve_canopen(channel=channel, interface=interface, nodes=ids, eds=eds, stop=stop)
         else:
-            _fail(ConfigError(f"--link {link!r}: simulated drives exist for canopen and modbus"))
-    except NcMeasureError as exc:
-        _fail(exc)
+            raise ConfigError(f"--link {link!r}: simulated drives exist for canopen and modbus")
     finally:
         stop.set()
         _restore_signals(previous)
@@ -873,7 +944,7 @@ def _progress_bar(quiet: bool, *, stages: bool = False) -> tuple[Any, Any]:
     if quiet:
         return None, None
     bar = Progress(
-        TextColumn("{task.description}"),
+        TextColumn("{task.description}", markup=False),
         BarColumn(),
         TimeElapsedColumn(),
         console=err_console,
@@ -886,7 +957,9 @@ def _progress_bar(quiet: bool, *, stages: bool = False) -> tuple[Any, Any]:
         if stage != current["stage"]:
             if stages and current["stage"] is not None:
                 took = time.monotonic() - current["since"]
-                bar.console.print(f"[green]✓[/] {current['stage']} ({took:.1f} s)")
+                bar.console.print(
+                    Text.assemble(("✓", "green"), f" {current['stage']} ({took:.1f} s)")
+                )
             current.update(stage=stage, since=time.monotonic())
             bar.update(task, description=stage, completed=0.0)
         if fraction is not None:
@@ -896,6 +969,7 @@ def _progress_bar(quiet: bool, *, stages: bool = False) -> tuple[Any, Any]:
 
 
 @app.command("analyze")
+@_command
 def analyze_command(
     run: Annotated[Path, typer.Argument(help="Recording directory (recorded or imported).")],
     schedule: Annotated[
@@ -918,13 +992,16 @@ def analyze_command(
     only: Annotated[
         list[str] | None,
         typer.Option(
-            "--axis", help="Analyse only this axis (repeat for several; default: every axis)."
+            "--axis",
+            help="Analyse only this axis (repeat for several; default: every axis).",
+            metavar="AXIS",
         ),
     ] = None,
     set_: Annotated[
         list[str] | None,
         typer.Option(
             "--set",
+            metavar="KEY=VALUE",
             help="An analysis setting, KEY=VALUE, e.g. --set settle_s=0.2 --set "
             f"window_method=command. Settings: {', '.join(ANALYSIS_SETTINGS)} "
             "(docs/analysis.md, Settings).",
@@ -946,37 +1023,38 @@ def analyze_command(
 
     target = output or run.with_name(run.name + ".results.json")
     try:
-        settings = AnalysisSettings.model_validate(_settings(set_ or []))
+        settings = AnalysisSettings.model_validate(
+            _settings(set_ or [], example="--set settle_s=0.2")
+        )
     except ValidationError as exc:
-        _fail(ConfigError("--set: not valid analysis settings", format_validation_error(exc)))
+        raise ConfigError(
+            "--set: not valid analysis settings", format_validation_error(exc)
+        ) from exc
+    recording = read_recording(run)
+    plan_schedule = load_schedule(schedule) if schedule else None
+    config = load_machine(machine) if machine else None
+    bar, update = _progress_bar(quiet)
+    if bar is not None:
+        bar.start()
     try:
-        recording = read_recording(run)
-        plan_schedule = load_schedule(schedule) if schedule else None
-        config = load_machine(machine) if machine else None
-        bar, update = _progress_bar(quiet)
+        results = analyze(
+            recording,
+            schedule=plan_schedule,
+            machine=config,
+            settings=settings,
+            axes=only or None,
+            progress=update,
+        )
+    finally:
         if bar is not None:
-            bar.start()
-        try:
-            results = analyze(
-                recording,
-                schedule=plan_schedule,
-                machine=config,
-                settings=settings,
-                axes=only or None,
-                progress=update,
-            )
-        finally:
-            if bar is not None:
-                bar.stop()
-        write_results(results, target)
-        if report is not None:
-            from ncmeasure.report import write_report
+            bar.stop()
+    write_results(results, target)
+    if report is not None:
+        from ncmeasure.report import write_report
 
-            write_report(results, report, recording=recording)
-    except NcMeasureError as exc:
-        _fail(exc)
+        write_report(results, report, recording=recording)
     if quiet:
-        return
+        return None
     _print_verdicts(results)
     _print_warnings(results, recording.problems)
     console.print(f"wrote {target}" + (f" and {report}" if report else ""))
@@ -1063,6 +1141,7 @@ def _print_warnings(results: Results, problems: list[str]) -> None:
 
 
 @app.command("compare")
+@_command
 def compare_command(
     base: Annotated[
         Path,
@@ -1082,46 +1161,43 @@ def compare_command(
         Path | None,
         typer.Option(help="Write an HTML report of the last run with the comparison."),
     ] = None,
-) -> None:
+) -> Outcome:
     """Compare runs: the same machine over its life, or identical machines (fleet).
 
     Exit code 0: every deviation within the warning limit; 1: a warning limit crossed;
     3: a critical limit crossed; 2: bad input.
     """
-    from ncmeasure.analysis.analyze import load_results
-    from ncmeasure.analysis.compare import Limits, compare_results, comparison_exit_code
+    from pydantic import ValidationError
 
-    try:
-        reference = load_results(base)
-        runs = [load_results(path) for path in others]
-        limits = Limits()
-        updates = {
-            k: v
-            for k, v in {"warning_percent": warning, "critical_percent": critical}.items()
-            if v is not None
-        }
-        if updates:
+    from ncmeasure.analysis.analyze import load_results
+    from ncmeasure.analysis.compare import Limits, compare_results
+    from ncmeasure.config import format_validation_error
+
+    reference = load_results(base)
+    runs = [load_results(path) for path in others]
+    limits = Limits()
+    updates = {
+        k: v
+        for k, v in {"warning_percent": warning, "critical_percent": critical}.items()
+        if v is not None
+    }
+    if updates:
+        try:
             limits = Limits.model_validate({**limits.model_dump(), **updates})
-        comparison = compare_results(
-            reference, runs, labels=[p.stem for p in others], limits=limits
-        )
-    except NcMeasureError as exc:
-        _fail(exc)
-    except ValueError as exc:  # pydantic validation of the limits
-        _fail(ConfigError(f"limits: {exc}"))
+        except ValidationError as exc:
+            raise ConfigError(
+                "--warning/--critical: not valid limits", format_validation_error(exc)
+            ) from exc
+    comparison = compare_results(reference, runs, labels=[p.stem for p in others], limits=limits)
     if output is not None:
         output.write_text(comparison.model_dump_json(indent=2) + "\n", encoding="utf-8")
     if report is not None:
         from ncmeasure.report import write_report
 
-        try:
-            write_report(runs[-1], report, comparison=comparison)
-        except NcMeasureError as exc:
-            _fail(exc)
+        write_report(runs[-1], report, comparison=comparison)
         console.print(f"wrote {report}")
     _print_comparison(comparison, runs)
-    code = comparison_exit_code(comparison)
-    raise typer.Exit(code)
+    return comparison.status
 
 
 def _print_comparison(comparison: Comparison, runs: list[Results]) -> None:
@@ -1157,13 +1233,15 @@ def _print_comparison(comparison: Comparison, runs: list[Results]) -> None:
 
 
 @app.command("simulate")
+@_command
 def simulate_command(
     machine: Annotated[Path, typer.Argument(help="Machine file.")],
     variation: Annotated[
         list[str] | None,
         typer.Option(
+            metavar="KEY=VALUE",
             help="An assembly variation, e.g. loose_bearing_shift_um=20 or "
-            "'nut_shift_um=20, bearing_preload_change=-0.3'; repeat for side by side."
+            "'nut_shift_um=20, bearing_preload_change=-0.3'; repeat for side by side.",
         ),
     ] = None,
     axis: Annotated[str | None, typer.Option(help="Axis to study (default: the first).")] = None,
@@ -1177,20 +1255,17 @@ def simulate_command(
     """
     from ncmeasure.sim.explore import plot_study, study
 
-    config = _load(machine)
+    config = load_machine(machine)
     names = [a.name for a in config.axes]
     if axis is not None and axis not in names:
-        _fail(ConfigError(f"--axis {axis}: the machine has axes {', '.join(names)}"))
+        raise ConfigError(f"--axis {axis}: the machine has axes {', '.join(names)}")
     chosen = config.axis(axis or names[0])
-    try:
-        result = study(chosen, config.measurement_for(chosen), variation or [])
-        if plot is not None:
-            plot_study(result, plot)
-    except NcMeasureError as exc:
-        _fail(exc)
+    result = study(chosen, config.measurement_for(chosen), variation or [])
+    if plot is not None:
+        plot_study(result, plot)
     if as_json:
         sys.stdout.write(result.model_dump_json(indent=2) + "\n")
-        return
+        return None
     table = Table(box=None, header_style="bold")
     table.add_column("variation", overflow="fold")
     table.add_column("mean Nm", justify="right")
@@ -1221,6 +1296,7 @@ def _variation(texts: list[str] | None) -> Any:
 
 
 @app.command("demo")
+@_command
 def demo_command(
     outdir: Annotated[
         Path, typer.Argument(help="Folder to write everything into (new or empty).")
@@ -1235,10 +1311,11 @@ def demo_command(
     variation: Annotated[
         list[str] | None,
         typer.Option(
+            metavar="KEY=VALUE",
             help="Assemble every axis of the virtual machine with this fault, e.g. "
             "loose_bearing_shift_um=500 or nut_preload_change=1.5; repeat to combine. "
             "The machine is then measured twice: assembled correctly, and with the fault. "
-            "Keys: see `ncmeasure simulate --help` and docs/axis-model.md."
+            "Keys: see `ncmeasure simulate --help` and docs/axis-model.md.",
         ),
     ] = None,
     controller: Annotated[
@@ -1276,36 +1353,27 @@ def demo_command(
     """
     from ncmeasure.demo import run_demo
 
-    try:
-        chosen = _variation(variation)
-    except NcMeasureError as exc:
-        _fail(exc)
+    chosen = _variation(variation)
     bar, progress = _progress_bar(quiet, stages=True)
 
     started = time.monotonic()
-    try:
-        with bar or contextlib.nullcontext():
-            result = run_demo(
-                outdir,
-                link=link,
-                variation=chosen,
-                controller=controller,
-                speed=speed,
-                reference=reference,
-                seed=seed,
-                force=force,
-                progress=progress,
-            )
-            if progress is not None:
-                progress("done", None)
-    except NcMeasureError as exc:
-        _fail(exc, EXIT_LINK if isinstance(exc, LinkError) else None)
-    except KeyboardInterrupt:
-        err_console.print("interrupted")
-        raise typer.Exit(EXIT_INTERRUPTED) from None
+    with bar or contextlib.nullcontext():
+        result = run_demo(
+            outdir,
+            link=link,
+            variation=chosen,
+            controller=controller,
+            speed=speed,
+            reference=reference,
+            seed=seed,
+            force=force,
+            progress=progress,
+        )
+        if progress is not None:
+            progress("done", None)
     if quiet:
         console.print(str(result.report))
-        return
+        return None
     console.print(
         f"virtual machine: axes {', '.join(result.runs[-1].results.axes)}, "
         f"{controller} programs, recorded through {result.link} at {result.speed:g}x real time"
@@ -1334,7 +1402,7 @@ def demo_command(
                 )
         _print_skipped(run.results, indent="  ")
     took = time.monotonic() - started
-    console.print(f"finished in {took:.0f} s. Open [bold]{result.report}[/]")
+    console.print(Text.assemble(f"finished in {took:.0f} s. Open ", (str(result.report), "bold")))
     console.print(
         f"files: {result.directory}/ (machine.toml, programs/, recording/, results.json"
         + (", reference/" if (result.directory / "reference").is_dir() else "")
@@ -1344,6 +1412,7 @@ def demo_command(
 
 
 @schema_app.command("results")
+@_command
 def schema_results() -> None:
     """JSON Schema of results.json, what `ncmeasure analyze` writes."""
     from ncmeasure.analysis.results import Results
@@ -1357,7 +1426,31 @@ def _reflow(text: str) -> str:
     return "\n\n".join(" ".join(line.strip() for line in p.splitlines()) for p in paragraphs)
 
 
+def _polish_help(info: typer.models.CommandInfo, done: set[int]) -> None:
+    """Plain help texts (no markup: they name [link] tables and ncmeasure[mdf]) and metavars.
+
+    Arguments show their name in capitals, flags no type; options shared by
+    several commands are polished once.
+    """
+    doc = info.help or (info.callback.__doc__ if info.callback else None)
+    if doc:
+        info.help = escape(_reflow(doc))
+    if info.callback is None:
+        return
+    for param in inspect.signature(info.callback).parameters.values():
+        hint, *extras = get_args(param.annotation) or (None,)
+        for meta in extras:
+            if not isinstance(meta, typer.models.ParameterInfo) or id(meta) in done:
+                continue
+            done.add(id(meta))
+            if meta.help:
+                meta.help = escape(meta.help)
+            if isinstance(meta, typer.models.ArgumentInfo) and meta.metavar is None:
+                meta.metavar = param.name.upper()
+            elif hint is bool and meta.metavar is None:
+                meta.metavar = ""
+
+
+_polished: set[int] = set()
 for _info in [*app.registered_commands, *schema_app.registered_commands]:
-    _doc = _info.help or (_info.callback.__doc__ if _info.callback else None)
-    if _doc:
-        _info.help = _reflow(_doc)
+    _polish_help(_info, _polished)

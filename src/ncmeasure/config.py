@@ -45,6 +45,7 @@ __all__ = [
     "config_hash",
     "format_validation_error",
     "load_machine",
+    "parse_assignments",
     "parse_machine",
     "read_toml",
 ]
@@ -662,3 +663,43 @@ def config_hash(config: MachineConfig) -> str:
     )
     canonical = json.dumps(data, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(canonical.encode("utf-8")).hexdigest()[:16]
+
+
+def parse_assignments(
+    items: Iterable[str],
+    what: str,
+    *,
+    form: str = "KEY=VALUE",
+    example: str,
+    problems: list[str] | None = None,
+) -> list[tuple[str, str]]:
+    """``KEY=VALUE`` texts (command-line options, variations) into stripped pairs, in order.
+
+    The one parser of such pairs; callers convert and check the values.
+
+    Args:
+        items: The texts, e.g. ``["X=1", "Y=2"]``.
+        what: How a message names an item's origin (``--unit``, ``variation``).
+        form: The expected form, for the message (``AXIS=NUMBER``).
+        example: A correct item, for the message.
+        problems: Collect a malformed item's message here instead of raising.
+
+    Raises:
+        ConfigError: an item without ``=``, without a key or without a value (one
+            line per such item), unless ``problems`` collects them.
+    """
+    pairs: list[tuple[str, str]] = []
+    found: list[str] = []
+    for text in items:
+        key, sep, value = text.partition("=")
+        if not sep or not key.strip() or not value.strip():
+            found.append(f"{what} {text!r}: expected {form}, e.g. {example}")
+            continue
+        pairs.append((key.strip(), value.strip()))
+    if problems is not None:
+        problems += found
+    elif len(found) == 1:
+        raise ConfigError(found[0])
+    elif found:
+        raise ConfigError(f"{what}: expected {form}", found)
+    return pairs

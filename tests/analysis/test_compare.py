@@ -1,4 +1,4 @@
-"""Comparison of results: deviation, limits and exit codes, fleet outliers, mismatches, causes."""
+"""Comparison of results: deviation, limits and status, fleet outliers, mismatches, causes."""
 
 from __future__ import annotations
 
@@ -16,7 +16,6 @@ from ncmeasure.analysis.compare import (
     ComparisonError,
     Limits,
     compare_results,
-    comparison_exit_code,
 )
 from ncmeasure.analysis.results import (
     AxisResult,
@@ -113,10 +112,10 @@ def results(
 
 
 @pytest.mark.parametrize(
-    ("factor", "status", "code"),
-    [(1.05, "ok", 0), (0.7, "warning", 1), (1.3, "warning", 1), (0.5, "critical", 3)],
+    ("factor", "status"),
+    [(1.05, "ok"), (0.7, "warning"), (1.3, "warning"), (0.5, "critical")],
 )
-def test_lifetime_deviation_limits_and_exit_code(factor: float, status: str, code: int) -> None:
+def test_lifetime_deviation_limits_and_status(factor: float, status: str) -> None:
     base = results(created="2026-01-15T08:30:00+00:00")
     later = results(factor=factor, created="2028-01-15T08:30:00+00:00")
     comparison = compare_results(base, [later])
@@ -128,7 +127,7 @@ def test_lifetime_deviation_limits_and_exit_code(factor: float, status: str, cod
     (run,) = comparison.runs
     assert run.status == status
     assert run.max_abs_deviation_percent == pytest.approx(abs(factor - 1) * 100)
-    assert comparison_exit_code(comparison) == code
+    assert comparison.status == status
     assert comparison.problems == []
     # Same machine name: the labels are made unique by the creation time.
     assert comparison.base != comparison.others[0]
@@ -163,7 +162,7 @@ def test_limits_use_the_median_over_velocities_not_single_points() -> None:
     comparison = compare_results(results(), [results(factor=one_bad_step)])
     assert comparison.runs[0].status == "ok"
     assert max(g.max_abs_point_deviation_percent for g in comparison.groups) == pytest.approx(100)
-    assert comparison_exit_code(comparison) == 0
+    assert comparison.status == "ok"
 
 
 def test_labels_for_the_others_only_or_for_all() -> None:
@@ -181,7 +180,7 @@ def test_custom_limits() -> None:
     comparison = compare_results(results(), [results(factor=1.12)], limits=limits)
     assert comparison.runs[0].status == "warning"
     comparison = compare_results(results(), [results(factor=1.2)], limits=limits)
-    assert comparison_exit_code(comparison) == 3
+    assert comparison.status == "critical"
     with pytest.raises(ValidationError, match="critical_percent"):
         Limits(warning_percent=30, critical_percent=20)
     with pytest.raises(ValidationError):
@@ -215,14 +214,14 @@ def test_fleet_outlier_among_six_machines() -> None:
     assert any("outlier: 'HMX-400 #6'" in line for line in comparison.findings)
     statuses = {r.label: r.status for r in comparison.runs}
     assert statuses["HMX-400 #6"] == "critical"
-    assert comparison_exit_code(comparison) == 3
+    assert comparison.status == "critical"
 
 
 def test_fleet_without_outlier() -> None:
     runs = [results(f"M{i}", 1 + 0.02 * i, noise=0.01, seed=i) for i in range(6)]
     comparison = compare_results(runs[0], runs[1:])
     assert all(stats.outliers == [] for stats in comparison.fleet)
-    assert comparison_exit_code(comparison) == 0
+    assert comparison.status == "ok"
 
 
 def test_two_different_machines_are_a_fleet_without_outliers() -> None:

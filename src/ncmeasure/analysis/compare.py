@@ -67,7 +67,6 @@ __all__ = [
     "PointDeviation",
     "RunSummary",
     "compare_results",
-    "comparison_exit_code",
 ]
 
 log = logging.getLogger(__name__)
@@ -256,6 +255,15 @@ class Comparison(_Model):
         default_factory=list,
         description="Per compared run and axis: the change along the travel and its cause.",
     )
+
+    @property
+    def status(self) -> Status:
+        """The worst run's status: ``critical``, ``warning`` or ``ok``.
+
+        Fleet outliers and matching problems are findings, not a status.
+        """
+        statuses = {run.status for run in self.runs}
+        return next((s for s in ("critical", "warning") if s in statuses), "ok")
 
 
 # --------------------------------------------------------------------------- matching
@@ -951,19 +959,3 @@ def _findings(
             f"{len(problems)} matching problem(s): not every point was compared (see problems)."
         )
     return lines
-
-
-def comparison_exit_code(comparison: Comparison) -> int:
-    """Exit code of a comparison for the command line.
-
-    0: every run within the warning limit; 1: a warning limit crossed (none
-    critical); 3: a critical limit crossed. 2 is reserved for bad input
-    (:class:`ComparisonError` and other :class:`~ncmeasure.errors.NcMeasureError`).
-    Fleet outliers and matching problems are findings, not exit codes.
-    """
-    statuses = {run.status for run in comparison.runs}
-    if "critical" in statuses:
-        return 3
-    if "warning" in statuses:
-        return 1
-    return 0

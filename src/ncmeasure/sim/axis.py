@@ -79,7 +79,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ncmeasure.config import AxisConfig
+from ncmeasure.config import AxisConfig, parse_assignments
 from ncmeasure.errors import ConfigError
 
 __all__ = [
@@ -511,12 +511,14 @@ def parse_variation(text: str) -> Variation:
     """
     values: dict[str, float] = {}
     problems: list[str] = []
-    for item in text.replace(",", " ").split():
-        key, sep, raw = item.partition("=")
-        key = key.strip()
-        if not sep or not key:
-            problems.append(f"{item!r}: expected key=value, e.g. loose_bearing_shift_um=20")
-            continue
+    pairs = parse_assignments(
+        text.replace(",", " ").split(),
+        "variation",
+        form="key=value",
+        example="loose_bearing_shift_um=20",
+        problems=problems,
+    )
+    for key, raw in pairs:
         if key not in _VARIATION_KEYS:
             problems.append(f"{key}: unknown variation key (known: {', '.join(_VARIATION_KEYS)})")
             continue
