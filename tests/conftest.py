@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import os
 import re
 import tomllib
 from collections.abc import Callable
@@ -17,6 +18,21 @@ from ncmeasure.examples import example_machine
 from ncmeasure.program import available_dialects
 
 DIALECTS = sorted(available_dialects())
+SHARED_FIXTURES = Path(__file__).resolve().parents[2] / "shared" / "fixtures"
+"""The project's read-only fixtures beside the clone (real drives' EDS files, traces)."""
+
+
+def shared_fixture(*parts: str) -> Path:
+    """A file of ../shared/fixtures; its folder missing fails under CI=true, else skips."""
+    folder = SHARED_FIXTURES / parts[0]
+    if not folder.is_dir():
+        message = f"fixtures folder {folder} is absent"
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(f"{message}: CI has ../shared beside the clone")
+        pytest.skip(message)
+    return SHARED_FIXTURES.joinpath(*parts)
+
+
 FIXED_TIME = dt.datetime(2026, 1, 15, 8, 30, tzinfo=dt.UTC)
 
 

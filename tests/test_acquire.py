@@ -173,7 +173,8 @@ def test_replay_of_a_recording_records_the_same_samples(tmp_path: Path, speed: f
         link="replay",
         link_settings={"source": str(source), "speed": speed, "block_rows": 64},
     )
-    assert result.status == "complete"
+    assert result.status == "incomplete"  # the source's gap is replayed: samples were lost
+    assert (result.gaps, result.lost_samples) == (1, 2)
     original, replayed = read_recording(source), read_recording(tmp_path / "replayed")
     np.testing.assert_array_equal(original.time_s, replayed.time_s)
     np.testing.assert_array_equal(original.values, replayed.values)
@@ -220,7 +221,12 @@ def test_schedule_sets_the_end_and_the_config_hash(tmp_path: Path) -> None:
         schedule_margin_s=1.0,
     )
     recording = read_recording(result.directory)
-    assert result.status == "complete"
+    assert result.status == "incomplete"  # the source's gap at 1 s
+    assert (recording.meta.status, recording.meta.gaps, recording.meta.lost_samples) == (
+        "incomplete",
+        1,
+        2,
+    )
     assert len(recording.time_s) == 750  # 3 s at 4 ms
     assert recording.meta.config_hash == schedule.config_hash
 

@@ -4,19 +4,18 @@ before the fault and marks the gap."""
 from __future__ import annotations
 
 import contextlib
-import threading
-import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
-from ncmeasure.acquire import AcquisitionResult, record
+from ncmeasure.acquire import record
 from ncmeasure.config import MachineConfig, parse_machine
-from ncmeasure.links import LinkClock
 from ncmeasure.recording import Recording, read_recording
+from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
 from ncmeasure.sim.modbus_drive import Fault, running_server
 from ncmeasure.sim.signals import AxisState, PatternSource, SignalSource
@@ -33,22 +32,6 @@ def machine(link: dict[str, Any], axis_key: str) -> MachineConfig:
     return parse_machine(data)
 
 
-def record_while(
-    config: MachineConfig, out: Path, duration_s: float, during: Callable[[], None]
-) -> tuple[AcquisitionResult, Recording]:
-    """Record for ``duration_s`` (link clock) while ``during`` runs in this thread."""
-    results: list[AcquisitionResult] = []
-    worker = threading.Thread(
-        target=lambda: results.append(record(config, out=out, duration_s=duration_s)),
-        daemon=True,
-    )
-    worker.start()
-    during()
-    worker.join(timeout=60)
-    assert not worker.is_alive() and results
-    return results[0], read_recording(out)
-
-
 def assert_contiguous_until(recording: Recording, period_s: float, until_s: float) -> int:
     before = recording.time_s[recording.time_s < until_s]
     steps = np.diff(before)
@@ -59,7 +42,7 @@ def assert_contiguous_until(recording: Recording, period_s: float, until_s: floa
 
 @contextlib.contextmanager
 def canopen_machine(
-    source: SignalSource | None = None,
+    source: SignalSource | None = None, clock: SimulatedClock | None = None
 ) -> Iterator[tuple[MachineConfig, SimulatedDrives]]:
     """Three simulated CiA 402 drives on a fresh virtual bus, and a machine to record them."""
     channel = f"acq-{uuid.uuid4().hex[:8]}"
@@ -68,71 +51,82 @@ def canopen_machine(
     )
     scaling = DriveScaling(increments_per_rev=10_000, screw_lead_mm=20.0, rated_current_a=17.7)
     with SimulatedDrives.start(
-        channel, {0: 1, 1: 2, 2: 3}, source or PatternSource(), scaling=scaling
+        channel, {0: 1, 1: 2, 2: 3}, source or PatternSource(), scaling=scaling, clock=clock
     ) as drives:
         yield config, drives
 
 
 def test_canopen_drive_that_goes_silent_leaves_a_marked_gap(tmp_path: Path) -> None:
-    with canopen_machine() as (config, drives):
-        fault_at: list[float] = []
-
-        def fault() -> None:
-            time.sleep(1.0)
-            fault_at.append(time.monotonic())
-            drives[1].stop_answering()
-            time.sleep(0.5)
-            drives[1].resume()
-
-        result, recording = record_while(config, tmp_path / "run", 3.0, fault)
-    assert result.status == "complete"
-    gaps = [e for e in recording.events if e.kind == "gap"]
-    assert gaps and gaps[0].lost_samples > 50 and gaps[0].axis == "Y"
-    assert_contiguous_until(recording, 0.004, gaps[0].time_s)
-    assert recording.time_s[-1] > gaps[0].time_s + 0.5  # recording went on after it
-    assert recording.meta.status == "complete"
+    clock = SimulatedClock()
+    with canopen_machine(clock=clock) as (config, drives):
+        drives.at_sync(250, drives[1].stop_answering)  # at 1.0 s of machine time
+        drives.at_sync(375, drives[1].resume)  # 0.5 s later
+        result = record(config, out=tmp_path / "run", duration_s=3.0, clock=clock)
+    recording = read_recording(tmp_path / "run")
+    assert result.status == "incomplete"  # a recording that lost samples is not complete
+    assert (result.gaps, result.lost_samples) == (1, 125)
+    gap = next(e for e in recording.events if e.kind == "gap")
+    assert gap.time_s == pytest.approx(1.0) and gap.axis == "Y"
+    assert assert_contiguous_until(recording, 0.004, gap.time_s) == 250
+    assert len(recording) == 750 - 125  # 3 s at 250 Hz, less the gap
+    assert (recording.meta.status, recording.meta.gaps, recording.meta.lost_samples) == (
+        "incomplete",
+        1,
+        125,
+    )
 
 
 def test_canopen_reboot_is_recorded(tmp_path: Path) -> None:
-    with canopen_machine() as (config, drives):
-
-        def fault() -> None:
-            time.sleep(1.0)
-            drives[2].reboot(downtime_s=0.2)
-
-        _, recording = record_while(config, tmp_path / "run", 3.0, fault)
-    kinds = [e.kind for e in recording.events]
-    assert "reboot" in kinds
+    clock = SimulatedClock()
+    with canopen_machine(clock=clock) as (config, drives):
+        drives.at_sync(250, drives[2].reboot)
+        result = record(config, out=tmp_path / "run", duration_s=3.0, clock=clock)
+    recording = read_recording(tmp_path / "run")
     reboot = next(e for e in recording.events if e.kind == "reboot")
-    assert reboot.axis == "Z"
-    assert_contiguous_until(recording, 0.004, reboot.time_s - 0.05)
-    assert recording.time_s[-1] > reboot.time_s + 1.0
+    assert reboot.axis == "Z" and reboot.time_s == pytest.approx(1.0)
+    assert assert_contiguous_until(recording, 0.004, reboot.time_s) == 250
+    assert result.lost_samples == 1  # only the cycle of the reboot: no SYNC while reconfiguring
+    assert len(recording) == 749
 
 
-def test_modbus_dropped_connection_reconnects_and_marks_it(tmp_path: Path) -> None:
-    with running_server({"X": 1, "Y": 2, "Z": 3}) as server:
+def test_modbus_outage_and_dropped_connection_are_marked(tmp_path: Path) -> None:
+    clock = SimulatedClock()
+    with running_server({"X": 1, "Y": 2, "Z": 3}, clock=clock) as server:
+        config = machine(
+            {
+                "type": "modbus",
+                "port": server.port,
+                "register_map": "generic",
+                "poll_hz": 100,
+                "timeout_s": 0.1,
+                "retries": 0,
+            },
+            "unit_id",
+        )
+        server.set_fault(Fault(silent=True, from_s=1.0, until_s=1.1))
+        result = record(config, out=tmp_path / "silent", duration_s=2.0, clock=clock)
+        server.clear_faults()
+    recording = read_recording(tmp_path / "silent")
+    gap = next(e for e in recording.events if e.kind == "gap")
+    assert result.status == "incomplete" and gap.time_s == pytest.approx(1.0)
+    assert result.lost_samples == 10  # the 10 poll cycles of the silent 0.1 s
+    assert assert_contiguous_until(recording, 0.01, gap.time_s) == 100
+    assert np.allclose(np.diff(recording.time_s[recording.time_s > 1.1]), 0.01)
+
+    clock = SimulatedClock()
+    with running_server({"X": 1, "Y": 2, "Z": 3}, clock=clock) as server:
         config = machine(
             {"type": "modbus", "port": server.port, "register_map": "generic", "poll_hz": 100},
             "unit_id",
         )
-
-        def fault() -> None:
-            time.sleep(1.0)
-            server.set_fault(Fault(silent=True))
-            time.sleep(0.6)
-            server.clear_faults()
-            time.sleep(0.4)
-            server.drop_connections()
-
-        result, recording = record_while(config, tmp_path / "run", 4.0, fault)
-    assert result.status == "complete"
+        server.set_fault(Fault(disconnect=True, from_s=1.0, until_s=1.005))
+        result = record(config, out=tmp_path / "dropped", duration_s=3.0, clock=clock)
+    recording = read_recording(tmp_path / "dropped")
     kinds = [e.kind for e in recording.events]
     assert "gap" in kinds and "reconnect" in kinds
-    first_gap = next(e for e in recording.events if e.kind == "gap")
-    assert first_gap.lost_samples > 0
-    before = recording.time_s[recording.time_s < first_gap.time_s]
-    assert len(before) > 50 and np.all(np.diff(before) < 0.1)
-    assert recording.time_s[-1] > 3.0
+    # the cycle at 1.0 s fails; the link waits reconnect_delay_s (0.5 s) of link time
+    assert result.lost_samples == 50
+    assert recording.time_s[-1] == pytest.approx(2.99)
 
 
 class TimeSource:
@@ -142,19 +136,19 @@ class TimeSource:
         return AxisState(position_mm=10.0 * time_s, velocity_mm_min=600.0, current_a=1.0)
 
 
-def test_canopen_faster_than_real_time_records_machine_time(tmp_path: Path) -> None:
-    with canopen_machine(TimeSource()) as (config, _):
-        result = record(config, out=tmp_path / "run", duration_s=4.0, clock=LinkClock(4))
+def test_canopen_in_lockstep_records_machine_time(tmp_path: Path) -> None:
+    clock = SimulatedClock()
+    with canopen_machine(TimeSource(), clock=clock) as (config, _):
+        result = record(config, out=tmp_path / "run", duration_s=4.0, clock=clock)
     recording = read_recording(tmp_path / "run")
-    assert result.status == "complete"
+    assert result.status == "complete" and result.rows == 1000
     assert recording.meta.faster_than_real_time is True
-    assert recording.meta.time_scale == 4.0
-    assert recording.meta.link["clock_speed"] == 4.0
-    assert recording.time_s[-1] - recording.time_s[0] >= 3.9
-    assert result.wall_time_s < 4.0 / 2  # 4 s of machine time at 4 x real time
-    for axis in "XYZ":  # every sample shows the machine at its time stamp, within a period
-        error_s = np.abs(recording.column(f"{axis}_position_mm") - 10.0 * recording.time_s) / 10
-        assert error_s.max() <= recording.meta.nominal_period_s + 0.002 / 10
+    assert recording.meta.time_scale == 0.0  # as fast as the computer allows
+    assert recording.meta.link["clock"] == "simulated"
+    np.testing.assert_allclose(recording.time_s, np.arange(1000) * 0.004, rtol=0, atol=1e-12)
+    for axis in "XYZ":  # every sample is the machine at its time stamp
+        position = recording.column(f"{axis}_position_mm")
+        np.testing.assert_allclose(position, 10.0 * recording.time_s, atol=0.002)
 
 
 def test_real_time_recording_says_so(tmp_path: Path) -> None:
@@ -162,4 +156,4 @@ def test_real_time_recording_says_so(tmp_path: Path) -> None:
         record(config, out=tmp_path / "run", duration_s=0.2)
     meta = read_recording(tmp_path / "run").meta
     assert meta.faster_than_real_time is False and meta.time_scale == 1.0
-    assert "clock_speed" not in meta.link
+    assert meta.link["clock"] == "real time"

@@ -152,7 +152,8 @@ def test_write_close_read_back(tmp_path: Path, make_config: Make) -> None:
     assert meta.source == "canopen"
     assert meta.faster_than_real_time is False
     assert meta.time_scale == 1.0
-    assert meta.status == "complete"
+    assert meta.status == "incomplete"  # closed as complete, but a gap event lost 3 samples
+    assert (meta.gaps, meta.lost_samples) == (1, 3)
     assert meta.samples == sum(sizes)
     assert meta.end_utc is not None
     start = dt.datetime.fromisoformat(meta.start_utc)
@@ -161,7 +162,7 @@ def test_write_close_read_back(tmp_path: Path, make_config: Make) -> None:
     assert read_recording(directory).meta == meta
     # meta.json is plain JSON with the documented fields
     on_disk = json.loads((directory / META_FILE).read_text(encoding="utf-8"))
-    assert on_disk["status"] == "complete"
+    assert on_disk["status"] == "incomplete"
     assert on_disk["channels"][0] == {"name": "X_current_a", "axis": "X", "signal": "current_a",
                                       "unit": "A"}  # fmt: skip
 

@@ -10,14 +10,21 @@ received is ever lost. :func:`record` is the one-call Python API::
     result = ncmeasure.record("machine.toml", duration_s=60, out="run1")
 
 Durations and time stamps are on the link's clock: real time for real
-drives, machine time for a virtual machine with simulated drives running
-faster than real time (``clock=LinkClock(4)``); the recording's metadata says
-so (``faster_than_real_time``, ``time_scale``).
+drives, simulated time for ncmeasure's own simulated drives
+(``clock=SimulatedClock()``: link and simulator in lockstep, as fast as the
+computer allows; the recording's metadata says so, ``link.clock`` and
+``time_scale`` 0). The duration is checked against the link's own time
+(:meth:`~ncmeasure.links.base.DriveLink.now_s`) whether rows arrive or not,
+so a recording of drives that fall silent still ends on time.
+
+A recording is ``complete`` only without gaps: one that lost samples ends
+``incomplete``, with the gaps in its events and their number in ``meta.json``.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -34,14 +41,23 @@ from ncmeasure.plan import Schedule
 from ncmeasure.recording import RecordingWriter
 from ncmeasure.samples import LinkClock, LinkEvent, SampleBlock
 
-__all__ = ["AcquisitionResult", "Progress", "acquire", "link_time_scale", "record"]
+__all__ = [
+    "AcquisitionResult",
+    "Progress",
+    "acquire",
+    "check_duration",
+    "link_time_scale",
+    "record",
+]
 
 log = logging.getLogger(__name__)
 
-Status = Literal["complete", "interrupted", "link_lost"]
+Status = Literal["complete", "incomplete", "interrupted", "link_lost"]
 
 #: Recording goes on this long after the schedule's last window, by default.
 SCHEDULE_MARGIN_S = 30.0
+#: After the duration, rows already on their way are waited for this long (link time).
+IN_FLIGHT_S = 1.0
 
 
 @dataclass
@@ -79,16 +95,38 @@ class AcquisitionResult:
         """Number of gap events."""
         return sum(1 for e in self.events if e.kind == "gap")
 
+    @property
+    def lost_samples(self) -> int:
+        """Samples the gap events say were lost."""
+        return sum(e.lost_samples for e in self.events if e.kind == "gap")
+
+    @property
+    def lost_share(self) -> float:
+        """Lost samples as a share of the samples there should have been (0 … 1)."""
+        total = self.rows + self.lost_samples
+        return self.lost_samples / total if total else 0.0
+
+
+def check_duration(duration_s: float | None, what: str = "duration") -> None:
+    """Refuse a duration that is not a positive, finite number of seconds.
+
+    Raises:
+        ConfigError: 0, negative, NaN or infinite.
+    """
+    if duration_s is not None and not (math.isfinite(duration_s) and duration_s > 0):
+        raise ConfigError(
+            f"{what} {duration_s!r} s: a recording lasts a positive, finite number of seconds"
+        )
+
 
 def link_time_scale(link: DriveLink) -> float:
     """Seconds of link time per wall-clock second, for a recording's ``time_scale``.
 
-    The speed of the link's clock when it is not real time (a virtual
-    machine), else the link's ``speed`` setting (a replay; 0 = as fast as
-    possible), else 1.
+    0 for a link in lockstep with a simulator (as fast as the computer allows)
+    and for a replay as fast as possible; the replay's ``speed``; else 1.
     """
-    if not link.clock.real_time:
-        return link.clock.speed
+    if link.clock.lockstep:
+        return 0.0
     speed = getattr(link.settings, "speed", 1.0)
     return float(speed) if isinstance(speed, (int, float)) else 1.0
 
@@ -108,7 +146,8 @@ def acquire(
     Args:
         link: An open drive link.
         writer: The recording to append to; closed on return with the status.
-        duration_s: Stop once the link's clock has run this long (None: no limit).
+        duration_s: Stop once the link's clock has run this long from the first
+            row (from the link's start while no row has come); None: no limit.
         stop: Set it (from a signal handler or another thread) to stop early.
         on_progress: Called with a :class:`Progress` every ``progress_interval_s``.
         progress_interval_s: Seconds between progress calls.
@@ -116,10 +155,15 @@ def acquire(
             time to ``stop``.
 
     Returns:
-        The result; ``status`` is ``complete`` (duration or end of source),
-        ``interrupted`` (stop was set) or ``link_lost`` (the link failed; the
-        rows received until then are in the recording).
+        The result; ``status`` is ``complete`` (duration or end of source, no
+        gap), ``incomplete`` (the same, but samples were lost), ``interrupted``
+        (stop was set) or ``link_lost`` (the link failed; the rows received
+        until then are in the recording).
+
+    Raises:
+        ConfigError: ``duration_s`` is not a positive, finite number.
     """
+    check_duration(duration_s)
     stop = stop or threading.Event()
     started = time.monotonic()
     next_progress = started + progress_interval_s
@@ -146,13 +190,17 @@ def acquire(
             if block is None:
                 reached_end = True  # the source has no more data
                 break
-            if len(block) and duration_s is not None:
-                if first_time_s is None:
+            if duration_s is not None:
+                if len(block) and first_time_s is None:
                     first_time_s = float(block.time_s[0])
-                end = int(np.searchsorted(block.time_s, first_time_s + duration_s, "left"))
-                if end < len(block):
-                    block = SampleBlock(block.time_s[:end], block.values[:end])
+                end_s = (first_time_s or 0.0) + duration_s
+                cut = int(np.searchsorted(block.time_s, end_s, "left"))
+                if cut < len(block):
+                    block = SampleBlock(block.time_s[:cut], block.values[:cut])
                     reached_end = True
+                now_s = link.now_s()
+                if now_s is not None and now_s >= end_s + IN_FLIGHT_S:
+                    reached_end = True  # no row reached the end: the drives fell silent
             if len(block):
                 writer.append(block)
                 rows += len(block)
@@ -186,6 +234,8 @@ def acquire(
             log.exception("could not collect the link's last events")
     finally:
         writer.close(status=status)
+    if status == "complete" and any(e.kind == "gap" for e in events):
+        status = "incomplete"
     return AcquisitionResult(
         directory=writer.directory,
         status=status,
@@ -229,15 +279,16 @@ def record(
         notes: Free text stored with the recording.
         stop: Set it to stop early.
         on_progress: Progress callback (see :class:`Progress`).
-        clock: The link's clock: a virtual machine's, faster than real time
-            (simulated drives only); ``None``: real time. ``duration_s`` and
-            the time stamps are on this clock.
+        clock: The link's clock: a :class:`~ncmeasure.samples.SimulatedClock`
+            for ncmeasure's own simulated drives (lockstep); ``None``: real time.
+            ``duration_s`` and the time stamps are on this clock.
 
     Raises:
         ConfigError: bad machine file or link settings.
         LinkError: the link cannot be opened (nothing is recorded then).
         RecordingError: the recording cannot be created.
     """
+    check_duration(duration_s)
     config = machine if isinstance(machine, MachineConfig) else load_machine(machine)
     drive_link = make_link(config, link, link_settings, axis_settings)
     if clock is not None:
@@ -264,7 +315,7 @@ def record(
             config_hash=schedule.config_hash if schedule else None,
             notes=notes,
             source=drive_link.name,
-            faster_than_real_time=time_scale != 1.0,
+            faster_than_real_time=time_scale != 1.0 or drive_link.clock.lockstep,
             time_scale=time_scale,
         )
         return acquire(

@@ -602,7 +602,9 @@ def record_command(
         list[str] | None,
         typer.Option("--set", help="Any other link setting, KEY=VALUE.", metavar="KEY=VALUE"),
     ] = None,
-    duration: Annotated[float | None, typer.Option(help="Seconds to record.")] = None,
+    duration: Annotated[
+        float | None, typer.Option(help="Seconds to record (positive, finite).")
+    ] = None,
     schedule: Annotated[
         Path | None,
         typer.Option(help="schedule.json of the program: stop after its end plus a margin."),
@@ -681,15 +683,23 @@ def record_command(
         if live is not None:
             live.stop()  # before any message, so the display does not overwrite it
         _restore_signals(previous)
-    lost = sum(e.lost_samples for e in result.events)
     if not quiet or result.status != "complete":
         err_console.print(
             f"{result.status}: {result.rows} samples over {result.link_time_s:.1f} s in "
-            f"{result.directory} ({result.gaps} gaps, {lost} samples lost)"
-            + (f"; {result.error}" if result.error else ""),
+            f"{result.directory}" + (f"; {result.error}" if result.error else ""),
             soft_wrap=True,
         )
-    return "ok" if result.status == "complete" else result.status
+    if result.gaps:
+        _warn(
+            f"{result.lost_samples} samples lost in {result.gaps} gap(s), "
+            f"{100 * result.lost_share:.2g} % of the recording; the gap events in "
+            f"{result.directory} say when and why, and the analysis reports them"
+        )
+    if result.status == "interrupted":
+        return "interrupted"
+    if result.status == "link_lost":
+        return "link_lost"
+    return "ok"  # complete, or incomplete with the warning above
 
 
 _FORMATS = {"csv": ".csv", "mdf4": ".mf4"}
@@ -1328,13 +1338,6 @@ def demo_command(
             "measuring the correctly assembled machine again."
         ),
     ] = None,
-    speed: Annotated[
-        float | None,
-        typer.Option(
-            help="Machine seconds per wall-clock second (default: 8 for canopen, 5 for "
-            "modbus). The recording says it ran faster than real time."
-        ),
-    ] = None,
     seed: Annotated[int, typer.Option(help="Seed of the simulated noise.")] = 0,
     force: Annotated[bool, typer.Option(help="Replace an earlier demo in OUTDIR.")] = False,
     quiet: Annotated[
@@ -1346,7 +1349,9 @@ def demo_command(
     Writes a machine file, generates its NC programs, runs them on a virtual machine tool
     whose axes follow the programs (friction from a physical model of the feed axis),
     records the simulated drives through the real link, analyses the recording and writes
-    an HTML report. Takes well under a minute.
+    an HTML report. Link and simulated drives run in lockstep on simulated time, as fast
+    as the computer allows: the same seed gives the same recording on an idle and on a
+    busy computer. Takes well under a minute.
 
     Examples: ncmeasure demo  ·  ncmeasure demo --variation loose_bearing_shift_um=500
     ·  ncmeasure demo demo-modbus --link modbus
@@ -1363,7 +1368,6 @@ def demo_command(
             link=link,
             variation=chosen,
             controller=controller,
-            speed=speed,
             reference=reference,
             seed=seed,
             force=force,
@@ -1376,18 +1380,26 @@ def demo_command(
         return None
     console.print(
         f"virtual machine: axes {', '.join(result.runs[-1].results.axes)}, "
-        f"{controller} programs, recorded through {result.link} at {result.speed:g}x real time"
+        f"{controller} programs, recorded through {result.link} in lockstep with the "
+        "simulated drives"
     )
     for run in result.runs:
         acquisition = run.acquisition
         if acquisition is None:
             console.print(f"{run.label}: reused from {run.directory}")
             continue
-        gaps = f", {acquisition.gaps} gap(s)" if acquisition.gaps else ", no sample lost"
         console.print(
             f"{run.label}: {run.machine_time_s:.0f} s of machine time in "
-            f"{run.wall_time_s:.0f} s, {acquisition.rows} samples{gaps}"
+            f"{run.wall_time_s:.0f} s, {acquisition.rows} samples"
+            + ("" if acquisition.gaps else ", no sample lost")
         )
+        if acquisition.gaps:
+            _warn(
+                f"{run.label}: {acquisition.lost_samples} samples lost in {acquisition.gaps} "
+                f"gap(s) ({100 * acquisition.lost_share:.2g} %): the recording is marked "
+                "incomplete, the analysis measured the windows that stayed whole and counts "
+                "the rest in its report"
+            )
         compared = result.comparison if run is result.measured else None
         for name in run.results.axes:
             _print_verdict(run.results, name, compared, indent="  ")

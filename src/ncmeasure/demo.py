@@ -50,18 +50,13 @@ from ncmeasure.examples import DEMO_LINKS, demo_machine
 from ncmeasure.plan import Schedule
 from ncmeasure.program import SCHEDULE_FILE, generate_programs, load_dialect
 from ncmeasure.recording import read_recording
-from ncmeasure.samples import LinkClock
+from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.axis import Variation
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
 from ncmeasure.sim.machine import MachineRun, VirtualMachine
 from ncmeasure.sim.modbus_drive import running_server
 
-__all__ = ["DEFAULT_SPEED", "AxisAccuracy", "DemoResult", "DemoRun", "accuracy", "run_demo"]
-
-DEFAULT_SPEED = {"canopen": 8.0, "modbus": 5.0}
-"""Machine seconds per wall-clock second, per link: what two cores keep up with
-(CANopen: SYNC at 250 Hz, no sample lost; Modbus TCP: polls at 125 Hz, the
-rate of a real Modbus drive, rarely one lost)."""
+__all__ = ["AxisAccuracy", "DemoResult", "DemoRun", "accuracy", "run_demo"]
 
 _MARKER_FILE = ".ncmeasure-demo"
 _OWN = (
@@ -171,7 +166,6 @@ class DemoResult:
 
     directory: Path
     link: str
-    speed: float
     machine_file: Path
     programs: Path
     runs: list[DemoRun] = field(default_factory=list)
@@ -219,20 +213,24 @@ def _record(
     schedule: Schedule,
     out: Path,
     link: str,
-    speed: float,
     progress: Progress,
     stage: str,
     label: str,
 ) -> AcquisitionResult:
-    """Serve ``run`` through simulated drives and record it with the real link."""
-    clock = LinkClock(speed)
+    """Serve ``run`` through simulated drives and record it with the real link, in lockstep.
+
+    Link and drives share a :class:`~ncmeasure.samples.SimulatedClock`: cycle ``k`` is
+    the virtual machine at ``k × period``, as fast as the computer allows, so the
+    recording is the same on an idle and on a loaded computer.
+    """
+    clock = SimulatedClock()
     settings: dict[str, Any] = dict(config.link or {})
     total = run.duration_s
 
     def on_progress(p: Any) -> None:
         progress(stage, min(1.0, p.link_time_s / total) if total > 0 else None)
 
-    notes = f"ncmeasure demo: virtual machine, {label}, {speed:g}x real time"
+    notes = f"ncmeasure demo: virtual machine, {label}, simulated time (lockstep)"
     if link == "canopen":
         channel = f"{settings.get('channel', 'ncmeasure-demo')}-{uuid.uuid4().hex[:8]}"
         nodes = {i: int(axis.link["node_id"]) for i, axis in enumerate(config.axes)}
@@ -245,7 +243,9 @@ def _record(
             for i, axis in enumerate(config.axes)
         }
         sync_hz = float(settings.get("sync_hz", 250.0))
-        with SimulatedDrives.start(channel, nodes, run, scaling=scaling, period_s=1.0 / sync_hz):
+        with SimulatedDrives.start(
+            channel, nodes, run, scaling=scaling, period_s=1.0 / sync_hz, clock=clock
+        ):
             return record(
                 config,
                 out=out,
@@ -304,7 +304,6 @@ def _measure(
     *,
     label: str,
     link: str,
-    speed: float,
     seed: int,
     progress: Progress,
 ) -> DemoRun:
@@ -317,15 +316,10 @@ def _measure(
     (out / "truth.json").write_text(
         json.dumps(_truth(vm, schedule), indent=2) + "\n", encoding="utf-8"
     )
-    stage = (
-        f"{label}: recording {run.duration_s:.0f} s of machine time through {link} "
-        f"at {speed:g}x real time"
-    )
+    stage = f"{label}: recording {run.duration_s:.0f} s of machine time through {link}"
     progress(stage, None)
-    acquisition = _record(
-        config, run, schedule, out / "recording", link, speed, progress, stage, label
-    )
-    if acquisition.status != "complete":
+    acquisition = _record(config, run, schedule, out / "recording", link, progress, stage, label)
+    if acquisition.status not in ("complete", "incomplete"):
         raise LinkError(
             f"{label}: the recording ended {acquisition.status}"
             + (f": {acquisition.error}" if acquisition.error else "")
@@ -383,7 +377,6 @@ def run_demo(
     link: str = "canopen",
     variation: Variation | None = None,
     controller: str = "linuxcnc",
-    speed: float | None = None,
     reference: str | Path | None = None,
     seed: int = 0,
     force: bool = False,
@@ -398,8 +391,6 @@ def run_demo(
         variation: Assembly variation of every axis; None or all zero: none.
         controller: Dialect of the programs the virtual machine runs
             (``linuxcnc`` or ``sinumerik-840d``; any dialect the reader knows).
-        speed: Machine seconds per wall-clock second (default per link,
-            :data:`DEFAULT_SPEED`).
         reference: An earlier demo folder without variation to compare with,
             instead of measuring the reference again.
         seed: Seed of the simulated noise (the machine with a variation gets seed + 1,
@@ -409,16 +400,13 @@ def run_demo(
         progress: ``progress(stage, fraction)`` for a progress display.
 
     Raises:
-        ConfigError: unknown link, bad speed, unusable reference.
+        ConfigError: unknown link, unusable reference.
         OutputError: ``directory`` is not usable.
         LinkError: the recording failed.
         NcMeasureError: anything else of the pipeline (programs, analysis).
     """
     if link not in DEMO_LINKS:
         raise ConfigError(f"link {link!r}: the demo records through {' or '.join(DEMO_LINKS)}")
-    speed = DEFAULT_SPEED[link] if speed is None else speed
-    if not 0 < speed <= 50:
-        raise ConfigError(f"speed {speed:g}: must be above 0 and at most 50")
     variation = variation or Variation()
     report_progress: Progress = progress or (lambda _stage, _fraction: None)
     directory = Path(directory)
@@ -439,7 +427,7 @@ def run_demo(
     schedule = generated.schedule
     assert (programs / SCHEDULE_FILE).is_file()
 
-    result = DemoResult(directory, link, speed, machine_file, programs)
+    result = DemoResult(directory, link, machine_file, programs)
     varied = variation != Variation()
     if varied:
         if reference_dir is not None:
@@ -454,7 +442,6 @@ def run_demo(
                     directory / "reference",
                     label="reference (assembled correctly)",
                     link=link,
-                    speed=speed,
                     seed=seed,
                     progress=report_progress,
                 )
@@ -468,7 +455,6 @@ def run_demo(
             directory,
             label="machine with the variation" if varied else "machine",
             link=link,
-            speed=speed,
             seed=seed + 1 if varied else seed,  # its own noise, not the reference's
             progress=report_progress,
         )

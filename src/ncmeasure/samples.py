@@ -7,8 +7,9 @@ in ncmeasure's units (A, mm/min, mm, see :data:`SIGNAL_UNITS`). Things that
 happen on the way (missing cycles, drive faults, reboots, reconnects) are
 :class:`LinkEvent` objects. Recordings store both; the analysis reads them.
 
-Time stamps are seconds on a :class:`LinkClock`: real time for real drives, or
-the clock of a virtual machine (:mod:`ncmeasure.sim`).
+Time stamps are seconds on a :class:`LinkClock`: real time for real drives, or a
+:class:`SimulatedClock` that the link advances cycle by cycle when it talks to
+ncmeasure's own simulator (:mod:`ncmeasure.sim`).
 
 Nothing here imports another part of ncmeasure: links, recordings, importers,
 the simulator and the analysis all build on this module.
@@ -16,7 +17,7 @@ the simulator and the analysis all build on this module.
 
 from __future__ import annotations
 
-import math
+import threading
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -35,6 +36,7 @@ __all__ = [
     "LinkEvent",
     "SampleBlock",
     "Signal",
+    "SimulatedClock",
     "channels_for",
 ]
 
@@ -105,67 +107,140 @@ class SampleBlock:
 
 
 class LinkClock:
-    """The clock a link paces itself by and time-stamps with.
+    """The clock a link paces itself by and time-stamps with: real time.
 
-    Real time (speed 1) for real drives. A virtual machine may run faster than
-    real time: speed 4 means 4 s of this clock pass per wall-clock second.
-    The clock holds only its speed, so it pickles into another process, and
-    :meth:`now` has the same epoch in every process (``time.perf_counter``,
-    the system's monotonic clock on Linux): a simulated drive in a server
-    process and the link reading it agree on the time.
-
-    Args:
-        speed: Seconds of this clock per wall-clock second; finite and positive.
-
-    Raises:
-        ValueError: ``speed`` is not a finite positive number.
+    Real drives sample on the wall clock; a link talking to them keeps their
+    time with :meth:`now` (``time.perf_counter``, the system's monotonic clock,
+    the same epoch in every process) and waits with :meth:`sleep`.
+    :class:`SimulatedClock` is the other kind: the time of a simulation that
+    advances cycle by cycle, as fast as the computer allows.
     """
 
-    __slots__ = ("_speed",)
-
-    def __init__(self, speed: float = 1.0) -> None:
-        speed = float(speed)
-        if not (math.isfinite(speed) and speed > 0):
-            raise ValueError(f"a clock speed must be finite and positive, not {speed!r}")
-        self._speed = speed
-
-    @property
-    def speed(self) -> float:
-        """Seconds of this clock per wall-clock second."""
-        return self._speed
+    __slots__ = ()
 
     @property
     def real_time(self) -> bool:
-        """True for speed 1."""
-        return self._speed == 1.0
+        """True: this clock is the wall clock."""
+        return True
+
+    @property
+    def lockstep(self) -> bool:
+        """True for a :class:`SimulatedClock`: link and simulator take turns, cycle by cycle."""
+        return False
 
     def now(self) -> float:
         """The time on this clock in seconds (monotonic; only differences mean anything)."""
-        return time.perf_counter() * self._speed
+        return time.perf_counter()
 
     def sleep(self, seconds: float) -> None:
-        """Sleep ``seconds`` of this clock (``seconds / speed`` of wall-clock time)."""
+        """Sleep ``seconds`` of this clock."""
         if seconds > 0:
-            time.sleep(seconds / self._speed)
+            time.sleep(seconds)
 
     def wall(self, seconds: float) -> float:
-        """``seconds`` of this clock in wall-clock seconds."""
-        return seconds / self._speed
+        """``seconds`` of this clock in wall-clock seconds (how long to wait for them)."""
+        return seconds
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, LinkClock):
             return NotImplemented
-        return self._speed == other._speed
+        return type(self) is type(other) and (type(self) is LinkClock or self is other)
 
     def __hash__(self) -> int:
-        return hash(self._speed)
+        return hash(type(self)) if type(self) is LinkClock else id(self)
 
     def __repr__(self) -> str:
-        return f"LinkClock(speed={self._speed:g})"
+        return "LinkClock()"
 
 
 #: The clock of real drives: wall-clock time.
 REAL_TIME: LinkClock = LinkClock()
+
+
+class SimulatedClock(LinkClock):
+    """Simulated time, advanced by the link cycle by cycle: link and simulator in lockstep.
+
+    Where ncmeasure talks to its own simulator (simulated CiA 402 drives on a
+    virtual CAN bus, a simulated Modbus drive on 127.0.0.1, the demo, the
+    tests), the link sets the time of every cycle with :meth:`advance_to`
+    before it asks for the cycle, and the simulator answers with the state of
+    the machine at that time. Nothing waits for the wall clock: cycle ``k`` is
+    the machine state at ``k × period`` however slow or busy the computer is,
+    and the same seed gives the same recording on an idle and a loaded machine.
+
+    The time lives in shared memory, so a simulator in another process (the
+    Modbus server of :func:`ncmeasure.sim.modbus_drive.running_server`) reads
+    it too. A simulator in the same process (the CAN bus of python-can's
+    ``virtual`` interface is one process) also reports each step done
+    (:meth:`step_done`), and the link waits for it (:meth:`wait_step`) before
+    it starts the next cycle.
+    """
+
+    __slots__ = ("_cond", "_done", "_sent", "_time")
+
+    def __init__(self) -> None:
+        import multiprocessing
+
+        # A shared double: written by the link, read by a simulator process.
+        self._time: Any = multiprocessing.get_context("spawn").Value("d", 0.0, lock=False)
+        self._cond = threading.Condition()
+        self._done = -1
+        self._sent = 0
+
+    @property
+    def real_time(self) -> bool:
+        """False: the time of a simulation."""
+        return False
+
+    @property
+    def lockstep(self) -> bool:
+        """True: link and simulator take turns, cycle by cycle."""
+        return True
+
+    def now(self) -> float:
+        """The simulated time in seconds: what the link last set with :meth:`advance_to`."""
+        return float(self._time.value)
+
+    def advance_to(self, time_s: float) -> None:
+        """Set the simulated time (the link does, before it asks for a cycle)."""
+        self._time.value = float(time_s)
+
+    def sleep(self, seconds: float) -> None:
+        """Return at once: simulated time does not pass by waiting."""
+
+    def wall(self, seconds: float) -> float:
+        """0: nothing waits for simulated time."""
+        return 0.0
+
+    def step_done(self, step: int, frames_sent: int) -> None:
+        """The simulator has answered step ``step`` and sent ``frames_sent`` frames in all."""
+        with self._cond:
+            self._done = max(self._done, step)
+            self._sent = frames_sent
+            self._cond.notify_all()
+
+    def wait_step(self, step: int, timeout_s: float) -> int | None:
+        """Wait until the simulator has answered ``step``; its frame count, or None on timeout.
+
+        The timeout only guards against a simulator that is not there: it is not
+        part of the simulation.
+        """
+        with self._cond:
+            if not self._cond.wait_for(lambda: self._done >= step, timeout_s):
+                return None
+            return self._sent
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {"time": self._time}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self._time = state["time"]
+        self._cond = threading.Condition()
+        self._done = -1
+        self._sent = 0
+
+    def __repr__(self) -> str:
+        return f"SimulatedClock(now={self.now():g} s)"
 
 
 EventKind = Literal["gap", "fault", "emcy", "reboot", "reconnect", "info"]

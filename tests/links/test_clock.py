@@ -1,9 +1,9 @@
-"""The link clock: real time, or a virtual machine's time running faster than real time."""
+"""The link clocks: real time, and simulated time that the link advances in lockstep."""
 
 from __future__ import annotations
 
-import math
-import pickle
+import multiprocessing
+import threading
 import time
 import uuid
 from pathlib import Path
@@ -16,45 +16,67 @@ from ncmeasure.config import parse_machine
 from ncmeasure.errors import LinkError
 from ncmeasure.links import REAL_TIME, LinkClock, link_class
 from ncmeasure.recording import RecordingWriter
-from ncmeasure.samples import SampleBlock, channels_for
+from ncmeasure.samples import SampleBlock, SimulatedClock, channels_for
 from tests.conftest import example_data
 
 
-@pytest.mark.parametrize("speed", [0.0, -1.0, math.nan, math.inf])
-def test_speed_must_be_finite_and_positive(speed: float) -> None:
-    with pytest.raises(ValueError, match="finite and positive"):
-        LinkClock(speed)
-
-
-def test_real_time_is_speed_one_and_exported() -> None:
+def test_real_time_is_the_perf_counter_and_exported() -> None:
     assert links.REAL_TIME is REAL_TIME and links.LinkClock is LinkClock
-    assert REAL_TIME.speed == 1.0 and REAL_TIME.real_time
+    assert REAL_TIME.real_time and not REAL_TIME.lockstep
     assert LinkClock() == REAL_TIME
-    assert not LinkClock(4).real_time
-
-
-def test_now_runs_at_its_speed_on_the_perf_counter() -> None:
-    clock = LinkClock(4)
     before = time.perf_counter()
-    reading = clock.now()
-    after = time.perf_counter()
-    assert 4 * before <= reading <= 4 * after
-
-
-def test_sleep_and_wall_convert_to_wall_clock_seconds() -> None:
-    clock = LinkClock(4)
-    assert clock.wall(2.0) == 0.5
+    reading = REAL_TIME.now()
+    assert before <= reading <= time.perf_counter()
     assert REAL_TIME.wall(2.0) == 2.0
-    start = clock.now()
-    clock.sleep(0.2)  # 0.05 s of wall-clock time
-    assert clock.now() - start >= 0.2
-    clock.sleep(0.0)
-    clock.sleep(-1.0)  # nothing to wait for
+    REAL_TIME.sleep(0.0)
+    REAL_TIME.sleep(-1.0)  # nothing to wait for
 
 
-def test_a_clock_pickles_for_a_server_process() -> None:
-    clock = pickle.loads(pickle.dumps(LinkClock(2.5)))
-    assert clock == LinkClock(2.5) and clock.speed == 2.5
+def test_simulated_time_moves_only_when_the_link_advances_it() -> None:
+    clock = SimulatedClock()
+    assert not clock.real_time and clock.lockstep
+    assert clock.now() == 0.0
+    clock.sleep(10.0)  # returns at once: waiting does not pass simulated time
+    assert clock.now() == 0.0 and clock.wall(10.0) == 0.0
+    clock.advance_to(1.25)
+    assert clock.now() == 1.25
+    assert clock != SimulatedClock() and clock == clock
+
+
+def test_a_step_is_waited_for_until_the_simulator_reports_it() -> None:
+    clock = SimulatedClock()
+    assert clock.wait_step(0, 0.01) is None  # no simulator: the guard times out
+    answered = threading.Event()
+
+    def simulator() -> None:
+        answered.wait(5.0)
+        clock.step_done(0, frames_sent=7)
+
+    thread = threading.Thread(target=simulator)
+    thread.start()
+    answered.set()
+    assert clock.wait_step(0, 5.0) == 7
+    thread.join()
+    clock.step_done(3, frames_sent=9)
+    assert clock.wait_step(1, 0.01) == 9  # later steps answer earlier ones too
+
+
+def _read_time(clock: SimulatedClock, conn: multiprocessing.connection.Connection) -> None:
+    conn.send(clock.now())
+
+
+def test_a_simulator_in_another_process_reads_the_same_time() -> None:
+    clock = SimulatedClock()
+    clock.advance_to(42.5)
+    context = multiprocessing.get_context("spawn")
+    parent, child = context.Pipe()
+    process = context.Process(target=_read_time, args=(clock, child))
+    process.start()
+    try:
+        assert parent.poll(60), "the child process sent nothing"
+        assert parent.recv() == 42.5
+    finally:
+        process.join(30)
 
 
 def _canopen_link() -> links.DriveLink:
@@ -69,12 +91,13 @@ def _canopen_link() -> links.DriveLink:
 def test_a_link_runs_on_real_time_unless_told_otherwise() -> None:
     link = _canopen_link()
     assert link.clock is REAL_TIME
-    assert "clock_speed" not in link.describe()
-    link.use_clock(LinkClock(4))
-    assert link.clock.speed == 4
-    assert link.describe()["clock_speed"] == 4
+    assert link.describe()["clock"] == "real time"
+    clock = SimulatedClock()
+    link.use_clock(clock)
+    assert link.clock is clock
+    assert link.describe()["clock"] == "simulated"
     link.use_clock(REAL_TIME)
-    assert "clock_speed" not in link.describe()
+    assert link.describe()["clock"] == "real time"
     with pytest.raises(TypeError, match="LinkClock"):
         link.use_clock(4)  # type: ignore[arg-type]
 
@@ -89,8 +112,9 @@ def test_the_clock_cannot_change_while_the_link_is_open(tmp_path: Path) -> None:
     link = link_class("replay").from_tables(
         {"source": str(source), "speed": 0}, [(a, {}) for a in axes]
     )
-    link.use_clock(LinkClock(2))
+    clock = SimulatedClock()
+    link.use_clock(clock)
     with link:
         with pytest.raises(LinkError, match="cannot change while it is open"):
             link.use_clock(REAL_TIME)
-        assert link.clock.speed == 2
+        assert link.clock is clock

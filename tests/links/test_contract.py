@@ -22,10 +22,10 @@ import pytest
 
 from ncmeasure.config import AxisConfig, parse_machine
 from ncmeasure.errors import ConfigError, LinkError
-from ncmeasure.links import REAL_TIME, LinkClock, available_links, link_class
+from ncmeasure.links import REAL_TIME, available_links, link_class
 from ncmeasure.links.base import DriveLink
 from ncmeasure.recording import RecordingWriter
-from ncmeasure.samples import SIGNAL_UNITS, SampleBlock, channels_for
+from ncmeasure.samples import SIGNAL_UNITS, SampleBlock, SimulatedClock, channels_for
 from ncmeasure.sim.signals import PatternSource
 from tests.conftest import example_data
 
@@ -104,7 +104,7 @@ def test_link_keeps_the_contract(name: str, tmp_path: Path) -> None:
             with pytest.raises(LinkError, match="already open"):
                 link.open()
             with pytest.raises(LinkError, match="while it is open"):
-                link.use_clock(LinkClock(2))
+                link.use_clock(SimulatedClock())
             rows, last = 0, -np.inf
             deadline = time.monotonic() + 20
             for _ in itertools.count():

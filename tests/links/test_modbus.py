@@ -26,7 +26,7 @@ from hypothesis import strategies as st
 
 from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
-from ncmeasure.links import LinkClock, link_class
+from ncmeasure.links import link_class
 from ncmeasure.links.modbus.link import ModbusLink
 from ncmeasure.links.modbus.registers import (
     EXCEPTION_MEANINGS,
@@ -35,7 +35,7 @@ from ncmeasure.links.modbus.registers import (
     encode_value,
     load_register_map,
 )
-from ncmeasure.samples import LinkEvent, SampleBlock
+from ncmeasure.samples import LinkEvent, SampleBlock, SimulatedClock
 from ncmeasure.sim.modbus_drive import (
     Fault,
     ServerHandle,
@@ -158,6 +158,51 @@ def generic_numbers(
 def events_of(link: ModbusLink, kind: str, events: list[LinkEvent]) -> list[LinkEvent]:
     events += link.events()
     return [e for e in events if e.kind == kind]
+
+
+@pytest.fixture(scope="module")
+def lockstep() -> Iterator[tuple[ServerHandle, SimulatedClock]]:
+    """A server in lockstep with the links of a test: faults at moments of simulated time."""
+    clock = SimulatedClock()
+    with running_server(dict(zip(AXES, (1, 2, 3), strict=True)), clock=clock) as handle:
+        yield handle, clock
+
+
+@pytest.fixture
+def stepped(lockstep: tuple[ServerHandle, SimulatedClock]) -> tuple[ServerHandle, SimulatedClock]:
+    server, clock = lockstep
+    server.reset()
+    clock.advance_to(0.0)
+    return server, clock
+
+
+def stepped_link(stepped: tuple[ServerHandle, SimulatedClock], **settings: Any) -> ModbusLink:
+    server, clock = stepped
+    link = tcp_link(server, **settings)
+    link.use_clock(clock)
+    return link
+
+
+def lockstep_rows(rows: Sequence[tuple[float, list[float]]], axis_index: int) -> None:
+    """Every row is the state of the PatternSource at its time stamp, quantised by the map."""
+    for t, values in rows:
+        expected = generic_row(SOURCE.state(axis_index, t))
+        assert values[4 * axis_index : 4 * axis_index + 4] == expected, t
+
+
+def read_until(
+    link: ModbusLink, time_s: float, events: list[LinkEvent], limit_s: float = 60.0
+) -> list[tuple[float, list[float]]]:
+    """Rows until one at ``time_s`` or later (a guard of ``limit_s`` against a hang)."""
+    rows: list[tuple[float, list[float]]] = []
+    deadline = time.monotonic() + limit_s
+    while not rows or rows[-1][0] < time_s:
+        assert time.monotonic() < deadline, "the link stopped delivering rows"
+        block = link.read(timeout_s=0.5)
+        assert block is not None
+        rows += block_rows(block)
+        events += link.events()
+    return rows
 
 
 @pytest.fixture(scope="module")
@@ -302,124 +347,117 @@ class TimeSource:
         return AxisState(position_mm=10.0 * time_s, velocity_mm_min=600.0, current_a=1.0)
 
 
-def test_faster_than_real_time_with_a_server_on_the_same_clock() -> None:
-    clock = LinkClock(4)
-    link_s = 8.0
+def test_in_lockstep_a_row_is_the_server_state_at_its_time_stamp() -> None:
+    clock = SimulatedClock()
     with running_server({"X": 1}, source=TimeSource(), clock=clock) as handle:
         link = ModbusLink.from_tables(
             {"port": handle.port, "register_map": "generic", "poll_hz": 50},
             [(axis("X"), {"unit_id": 1})],
         )
         link.use_clock(clock)
-        assert link.describe()["clock_speed"] == 4
+        assert link.describe()["clock"] == "simulated"
         with link:
-            rows = read_rows(link, 1)
-            first = (time.monotonic(), rows[-1][0])
-            deadline = time.monotonic() + 10.0 + link_s / clock.speed
-            while rows[-1][0] < link_s and time.monotonic() < deadline:
-                rows += read_rows(link, 1)
-            last = (time.monotonic(), rows[-1][0])
-    assert rows[-1][0] >= link_s
+            rows = read_rows(link, 400)
+            assert link.now_s() == pytest.approx(clock.now())
     times = np.array([t for t, _ in rows])
+    # every cycle, none skipped however slow the computer: row k at k × 20 ms
+    np.testing.assert_allclose(times, np.arange(len(rows)) * 0.02, rtol=0, atol=1e-12)
     positions = np.array([values[2] for _, values in rows])
-    # the server started before the link: compare slopes, not absolute values
-    fit = np.polyfit(times, positions, 1)
-    assert fit[0] == pytest.approx(10.0, rel=0.05)
-    error_s = np.abs(positions - np.polyval(fit, times)) / 10.0
-    assert np.percentile(error_s, 95) < 3 * link.nominal_period_s
-    assert np.all(np.diff(times) > 0)
-    # link seconds per wall-clock second
-    rate = (last[1] - first[1]) / (last[0] - first[0])
-    assert 0.75 * clock.speed < rate < 1.25 * clock.speed
+    np.testing.assert_allclose(positions, 10.0 * times, atol=0.0005)  # the register's 1 µm
 
 
 # --- faults ------------------------------------------------------------------------------
 
 
-def test_server_stops_answering_gives_up_after_max_outage(server: ServerHandle) -> None:
+def test_server_stops_answering_gives_up_after_max_outage(
+    stepped: tuple[ServerHandle, SimulatedClock],
+) -> None:
+    server, _ = stepped
+    server.set_fault(Fault(silent=True, from_s=0.2))
     events: list[LinkEvent] = []
-    with tcp_link(server, **FAST) as link:
-        before = read_rows(link, 20)
-        server.set_fault(Fault(silent=True))
-        rows = list(before)
+    rows: list[tuple[float, list[float]]] = []
+    with stepped_link(stepped, **{**FAST, "max_outage_s": 0.1}) as link:
         with pytest.raises(LinkTimeoutError) as info:
-            for _ in range(100):  # bounded: gives up after max_outage_s = 1 s
+            for _ in range(1000):  # bounded; gives up after 0.1 s of link time
                 block = link.read(timeout_s=0.5)
                 assert block is not None
                 rows += block_rows(block)
         events_of(link, "gap", events)
-    assert "gave up after 1 s" in str(info.value)
+    assert "gave up after 0.1 s" in str(info.value)
     assert "no valid answer" in str(info.value)
-    # Every row that arrived before the fault is complete and exact.
+    assert len(rows) == 20  # every cycle before the fault, exact
     for index in range(3):
-        assert generic_numbers(rows, index) == list(range(1, len(rows) + 1))
+        lockstep_rows(rows, index)
     gaps = [e for e in events if e.kind == "gap"]
-    assert gaps and sum(e.lost_samples for e in gaps) > 0
+    assert gaps and gaps[0].time_s == pytest.approx(0.2)
     assert any(e.kind == "fault" and "gave up" in e.message for e in events)
 
 
-def test_silent_drive_that_comes_back_leaves_a_gap(server: ServerHandle) -> None:
+def test_silent_drive_that_comes_back_leaves_a_gap(
+    stepped: tuple[ServerHandle, SimulatedClock],
+) -> None:
+    server, _ = stepped
+    server.set_fault(Fault(silent=True, units=frozenset({2}), from_s=0.1, until_s=0.15))
     events: list[LinkEvent] = []
-    with tcp_link(server, **{**FAST, "max_outage_s": 5.0}) as link:
-        before = read_rows(link, 10)
-        server.set_fault(Fault(silent=True, units=frozenset({2})))
-        during = read_for(link, 0.5)
-        server.clear_faults()
-        after = read_rows(link, 10)
-        gaps = events_of(link, "gap", events)
-    assert during == [] or len(during) < 5  # rows only from cycles before the fault
-    assert gaps and gaps[0].lost_samples > 0
+    with stepped_link(stepped, **{**FAST, "max_outage_s": 5.0}) as link:
+        rows = read_until(link, 0.3, events)
+    gaps = [e for e in events if e.kind == "gap"]
+    assert [(g.time_s, g.lost_samples) for g in gaps] == [(pytest.approx(0.1), 5)]
     assert "no valid answer" in gaps[0].message and "axis Y" in gaps[0].message
-    rows = before + during + after
+    times = [t for t, _ in rows]
+    assert times == pytest.approx([k * 0.01 for k in range(31) if not 10 <= k < 15])
     for index in range(3):  # exact and in order, before and after the gap
-        numbers = generic_numbers(rows, index)
-        assert numbers[: len(before)] == list(range(1, len(before) + 1))
+        lockstep_rows(rows, index)
 
 
-def test_dropped_connection_reconnects_and_data_continues(server: ServerHandle) -> None:
+def test_dropped_connection_reconnects_and_data_continues(
+    stepped: tuple[ServerHandle, SimulatedClock],
+) -> None:
+    server, _ = stepped
+    server.set_fault(Fault(disconnect=True, from_s=0.1, until_s=0.105))
     events: list[LinkEvent] = []
-    with tcp_link(server, **FAST) as link:
-        before = read_rows(link, 10)
-        server.drop_connections()
-        after = read_for(link, 0.6)
-        events_of(link, "", events)
+    with stepped_link(stepped, **FAST) as link:
+        rows = read_until(link, 0.4, events)
     reconnects = [e for e in events if e.kind == "reconnect"]
     gaps = [e for e in events if e.kind == "gap"]
     assert len(reconnects) == 1
     assert f"127.0.0.1:{server.port}" in reconnects[0].message
-    assert gaps and gaps[0].lost_samples > 0  # reconnect_delay_s = 0.1 s is 10 poll periods
-    assert len(after) > 10
+    # the cycle at 0.1 s fails; reconnect_delay_s = 0.1 s of link time is 10 poll periods
+    assert [(g.time_s, g.lost_samples) for g in gaps] == [(pytest.approx(0.1), 10)]
+    assert reconnects[0].time_s == pytest.approx(0.2)
     for index in range(3):
-        numbers = generic_numbers(before + after, index)
-        assert numbers[: len(before)] == list(range(1, len(before) + 1))
-    assert reconnects[0].time_s > before[-1][0]
+        lockstep_rows(rows, index)
 
 
-def test_exception_response_is_a_fault_event_with_its_meaning(server: ServerHandle) -> None:
+def test_exception_response_is_a_fault_event_with_its_meaning(
+    stepped: tuple[ServerHandle, SimulatedClock],
+) -> None:
+    server, _ = stepped
+    server.set_fault(Fault(exception_code=6, units=frozenset({2}), from_s=0.05, until_s=0.08))
     events: list[LinkEvent] = []
-    with tcp_link(server, **{**FAST, "max_outage_s": 5.0}) as link:
-        read_rows(link, 5)
-        server.set_fault(Fault(exception_code=6, units=frozenset({2})))
-        read_for(link, 0.3)
-        server.clear_faults()
-        read_rows(link, 5)
-        events_of(link, "", events)
+    with stepped_link(stepped, **{**FAST, "max_outage_s": 5.0}) as link:
+        rows = read_until(link, 0.2, events)
     faults = [e for e in events if e.kind == "fault"]
     assert len(faults) == 1  # reported once, not once per cycle
-    assert faults[0].axis == "Y"
+    assert faults[0].axis == "Y" and faults[0].time_s == pytest.approx(0.05)
     assert faults[0].details["exception_code"] == 6
     assert "exception 6 (server device busy" in faults[0].message
     assert any(e.kind == "info" and "axis Y answers again" in e.message for e in events)
-    assert any(e.kind == "gap" and e.lost_samples > 0 for e in events)
+    assert [(e.time_s, e.lost_samples) for e in events if e.kind == "gap"] == [
+        (pytest.approx(0.05), 3)
+    ]
+    for index in range(3):
+        lockstep_rows(rows, index)
 
 
-def test_persistent_exception_ends_in_a_link_error_with_the_meaning(server: ServerHandle) -> None:
-    with tcp_link(server, **FAST) as link:
-        read_rows(link, 5)
-        server.set_fault(Fault(exception_code=4))
-        with pytest.raises(LinkError) as info:
-            for _ in range(100):
-                link.read(timeout_s=0.5)
+def test_persistent_exception_ends_in_a_link_error_with_the_meaning(
+    stepped: tuple[ServerHandle, SimulatedClock],
+) -> None:
+    server, _ = stepped
+    server.set_fault(Fault(exception_code=4, from_s=0.05))
+    with stepped_link(stepped, **FAST) as link, pytest.raises(LinkError) as info:
+        for _ in range(1000):
+            link.read(timeout_s=0.5)
     assert not isinstance(info.value, LinkTimeoutError)
     assert "exception 4 (server device failure" in str(info.value)
 
@@ -442,12 +480,11 @@ def test_slow_answers_are_late_cycles_not_errors(server: ServerHandle) -> None:
     with tcp_link(server, **FAST) as link:
         before = read_rows(link, 5)
         server.set_fault(Fault(delay_s=0.02))  # 3 requests: 60 ms per cycle at 10 ms period
-        slow = read_for(link, 0.5)
+        slow = read_rows(link, 3)
         server.clear_faults()
         after = read_rows(link, 5)
         gaps = events_of(link, "gap", events)
     rows = before + slow + after
-    assert len(slow) >= 2
     for index in range(3):  # every answer arrived: no request is missing
         assert generic_numbers(rows, index) == list(range(1, len(rows) + 1))
     assert gaps and all("slow answers" in e.message for e in gaps)

@@ -28,8 +28,8 @@ from ncmeasure.sim.cia402 import (
     serve,
 )
 from ncmeasure.sim.signals import PatternSource
+from tests.conftest import shared_fixture
 
-EDS_DIR = Path(__file__).resolve().parents[3] / "shared" / "fixtures" / "eds"
 SOURCE = PatternSource()
 SCALING = DriveScaling(increments_per_rev=4096, screw_lead_mm=10.0, rated_current_a=5.0)
 PERIOD_S = 0.002
@@ -342,9 +342,8 @@ def test_fault_bit(drives: SimulatedDrives, network: canopen.Network) -> None:
 
 
 def fixture(name: str) -> Path:
-    if not EDS_DIR.is_dir():
-        pytest.skip(f"EDS fixtures folder {EDS_DIR} is absent")
-    return EDS_DIR / name
+    """A drive's EDS/DCF from ../shared/fixtures/eds: under CI=true its absence fails."""
+    return shared_fixture("eds", name)
 
 
 def test_technosoft_eds_drive(channel: str, network: canopen.Network) -> None:

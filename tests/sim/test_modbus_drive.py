@@ -18,8 +18,8 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusIOException
 
 from ncmeasure.errors import ConfigError, LinkError
-from ncmeasure.links import LinkClock
 from ncmeasure.links.modbus.registers import decode_words
+from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.modbus_drive import (
     DriveFaults,
     Fault,
@@ -160,31 +160,40 @@ def test_time_mode_follows_the_clock() -> None:
     assert first != second
 
 
-def test_time_runs_on_the_given_clock() -> None:
-    before = time.perf_counter()
-    drive = SimulatedModbusDrive([SimulatedUnit("X", 1)], clock=LinkClock(4))
-    created = time.perf_counter()
-    time.sleep(0.05)
-    low = time.perf_counter()
-    elapsed = drive.elapsed_s()
-    high = time.perf_counter()
-    assert 4 * (low - created) <= elapsed <= 4 * (high - before)
+def test_on_a_simulated_clock_the_server_time_is_the_links() -> None:
+    clock = SimulatedClock()
+    drive = SimulatedModbusDrive([SimulatedUnit("X", 1)], clock=clock)
+    time.sleep(0.01)
+    assert drive.elapsed_s() == 0.0  # the wall clock does not move simulated time
+    clock.advance_to(12.5)
+    assert drive.elapsed_s() == 12.5
     plain = SimulatedModbusDrive([SimulatedUnit("X", 1)])
-    assert plain.clock is None and plain.elapsed_s() < elapsed
+    assert plain.clock is None and 0.0 < plain.elapsed_s() < 12.5
 
 
-def test_server_on_a_clock_serves_the_state_of_its_time() -> None:
+def test_server_in_lockstep_serves_the_state_at_the_links_time() -> None:
+    clock = SimulatedClock()
     with (
-        server_thread(units={"X": 1}, source=Ramp(), clock=LinkClock(4)) as (info, _),
+        server_thread(units={"X": 1}, source=Ramp(), clock=clock) as (info, faults),
         tcp_client(info) as client,
     ):
-        start = time.perf_counter()
+        clock.advance_to(1.0)
         first = generic_position(client.read_input_registers(0, count=8, device_id=1).registers)
-        time.sleep(0.25)
-        second = generic_position(client.read_input_registers(0, count=8, device_id=1).registers)
-        wall_s = time.perf_counter() - start
-    # 10 mm per second of the clock, 4 clock seconds per wall-clock second
-    assert 40 * 0.25 * 0.9 < second - first < 40 * wall_s * 1.1
+        time.sleep(0.05)
+        again = generic_position(client.read_input_registers(0, count=8, device_id=1).registers)
+        clock.advance_to(3.5)
+        later = generic_position(client.read_input_registers(0, count=8, device_id=1).registers)
+        faults.set(Fault(silent=True, from_s=4.0, until_s=5.0))
+        assert not client.read_input_registers(0, count=8, device_id=1).isError()  # 3.5 s
+    # 10 mm per second of simulated time, whatever the wall clock did meanwhile
+    assert (first, again, later) == (pytest.approx(10.0), pytest.approx(10.0), pytest.approx(35.0))
+
+
+def test_a_fault_holds_only_inside_its_time_window() -> None:
+    fault = Fault(silent=True, units=frozenset({2}), from_s=1.0, until_s=2.0)
+    assert not fault.applies_to(1, 1.5)
+    assert [fault.applies_to(2, t) for t in (0.99, 1.0, 1.99, 2.0)] == [False, True, True, False]
+    assert fault.applies_to(2)  # without a time: the unit decides
 
 
 def test_faults_silent_exception_delay_and_units() -> None:

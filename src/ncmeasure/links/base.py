@@ -17,10 +17,11 @@ and one for the per-axis settings (:attr:`DriveLink.axis_settings_model`, the
 ``link`` table of an ``[[axes]]`` entry, e.g. a node id).
 
 Clock: a link paces itself and stamps its rows by its
-:class:`~ncmeasure.samples.LinkClock`,
-real time for real drives. A virtual machine with simulated drives may run
-faster than real time (:meth:`DriveLink.use_clock`); the time stamps are then
-seconds of the simulated machine, not of the wall clock.
+:class:`~ncmeasure.samples.LinkClock`, real time for real drives. With
+ncmeasure's own simulated drives it runs on a
+:class:`~ncmeasure.samples.SimulatedClock` (:meth:`DriveLink.use_clock`):
+link and simulator in lockstep, cycle by cycle, the time stamps seconds of the
+simulated machine, as fast as the computer allows.
 """
 
 from __future__ import annotations
@@ -151,15 +152,22 @@ class DriveLink(ABC):
     def describe(self) -> dict[str, Any]:
         """Link settings and scale factors for a recording's metadata.
 
-        Holds ``clock_speed`` when the link runs on a clock other than real time.
+        ``clock`` says ``simulated`` when the link ran in lockstep with a
+        simulator (:class:`~ncmeasure.samples.SimulatedClock`), else ``real time``.
         """
-        info: dict[str, Any] = {
+        return {
             "link": self.settings.model_dump(mode="json"),
             "axes": {b.name: b.settings.model_dump(mode="json") for b in self.axes},
+            "clock": "simulated" if self._clock.lockstep else "real time",
         }
-        if not self._clock.real_time:
-            info["clock_speed"] = self._clock.speed
-        return info
+
+    def now_s(self) -> float | None:
+        """The link's time now, on the time axis of its rows; None where it has none.
+
+        Ends a recording on time when rows stop arriving (a silent drive, a
+        lost connection): the acquisition checks its duration against this.
+        """
+        return None
 
     @abstractmethod
     def _open(self) -> None:
@@ -181,10 +189,10 @@ class DriveLink(ABC):
         return self._clock
 
     def use_clock(self, clock: LinkClock) -> None:
-        """Run the link on ``clock``: a virtual machine's, faster than real time.
+        """Run the link on ``clock``: a :class:`~ncmeasure.samples.SimulatedClock`, in lockstep.
 
-        Only simulated drives follow a clock other than real time; real drives
-        need :data:`REAL_TIME`.
+        Only ncmeasure's own simulated drives follow a simulated clock; real
+        drives need :data:`~ncmeasure.samples.REAL_TIME`.
 
         Raises:
             LinkError: the link is open (set the clock before :meth:`open`).

@@ -49,7 +49,11 @@ MAX_FRAME_ROWS = 1 << 20
 ROW_DTYPE = np.dtype("<f8")
 IMPORT_CHUNK_ROWS = 100_000
 
-RecordingStatus = Literal["recording", "complete", "interrupted", "link_lost", "failed"]
+RecordingStatus = Literal[
+    "recording", "complete", "incomplete", "interrupted", "link_lost", "failed"
+]
+"""How a recording ended. ``complete``: as planned and without a gap; ``incomplete``: as
+planned, but samples were lost (``gaps``, ``lost_samples`` and the gap events say where)."""
 
 
 # --- metadata --------------------------------------------------------------------------
@@ -107,6 +111,10 @@ class RecordingMeta(BaseModel):
     status: RecordingStatus = "recording"
     end_utc: str | None = None
     samples: int | None = Field(default=None, ge=0)
+    gaps: int | None = Field(default=None, ge=0)
+    """Gap events in ``events.jsonl`` (written at close)."""
+    lost_samples: int | None = Field(default=None, ge=0)
+    """Samples the gap events say were lost (written at close)."""
 
     @model_validator(mode="after")
     def _check_unique_channels(self) -> Self:

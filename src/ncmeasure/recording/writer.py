@@ -56,7 +56,16 @@ log = logging.getLogger(__name__)
 _STATUSES: tuple[str, ...] = get_args(RecordingStatus)
 # Fields that describe the data itself; close() must not change them.
 _FIXED_FIELDS = frozenset(
-    {"format", "format_version", "channels", "status", "samples", "ncmeasure_version"}
+    {
+        "format",
+        "format_version",
+        "channels",
+        "status",
+        "samples",
+        "gaps",
+        "lost_samples",
+        "ncmeasure_version",
+    }
 )
 
 
@@ -112,6 +121,8 @@ class RecordingWriter:
         self._last_time_s = -np.inf
         self._rows_appended = 0
         self._rows_written = 0
+        self._gaps = 0
+        self._lost_samples = 0
         self._frames = 0
         self._samples_size = 0
         self._events_size = 0
@@ -325,6 +336,9 @@ class RecordingWriter:
         with self._lock:
             self._check_usable()
             self._pending_events.append(line)
+            if event.kind == "gap":
+                self._gaps += 1
+                self._lost_samples += int(event.lost_samples)
 
     def flush(self) -> None:
         """Write the buffered rows as one frame and the buffered events, then fsync.
@@ -342,9 +356,13 @@ class RecordingWriter:
     def close(self, status: RecordingStatus = "complete", **meta_updates: Any) -> None:
         """Flush, stop the flush thread and finish ``meta.json``. Safe to call twice.
 
+        A recording is ``complete`` only without gaps: ``complete`` becomes
+        ``incomplete`` when gap events were added; ``meta.json`` gets their number
+        and the samples they lost in any case.
+
         Args:
-            status: How the recording ended: ``complete``, ``interrupted``,
-                ``link_lost`` or ``failed``.
+            status: How the recording ended: ``complete``, ``incomplete``,
+                ``interrupted``, ``link_lost`` or ``failed``.
             **meta_updates: Other ``meta.json`` fields to change, e.g. ``notes``
                 or ``nominal_period_s`` (not the format, channels, status or samples).
 
@@ -358,7 +376,7 @@ class RecordingWriter:
         if status not in _STATUSES or status == "recording":
             raise RecordingError(
                 f"{self.directory}: cannot close with status {status!r} "
-                "(complete, interrupted, link_lost or failed)"
+                "(complete, incomplete, interrupted, link_lost or failed)"
             )
         fixed = sorted(_FIXED_FIELDS.intersection(meta_updates))
         if fixed:
@@ -385,6 +403,8 @@ class RecordingWriter:
                 error = exc
                 status = "failed"
             self._closed = True
+            if status == "complete" and self._gaps:
+                status = "incomplete"
             for file in (self._samples, self._events):
                 try:
                     file.close()  # also releases the writer's lock
@@ -397,6 +417,8 @@ class RecordingWriter:
                     "status": status,
                     "end_utc": now_utc(),
                     "samples": self._rows_written,
+                    "gaps": self._gaps,
+                    "lost_samples": self._lost_samples,
                 }
             )
             write_meta(self.directory, self._meta)

@@ -21,15 +21,21 @@ built-in CiA 402 defaults, and:
 
 The SYNC index counts the SYNC messages from 0, so it equals the cycle number
 of the CANopen link that produces them, and the sample of link time ``t`` is
-the source's state at ``t``. A SYNC with a one-byte counter (1..240, as the
-link sends it faster than real time) sets the index to the next one that is
-congruent to ``counter - 1`` modulo 240: cycles the link skipped are skipped
-here too, and the numbering stays aligned.
+the source's state at ``t``. A SYNC with a one-byte counter (1..240, CiA 301
+0x1019) sets the index to the next one that is congruent to ``counter - 1``
+modulo 240: cycles the producer skipped are skipped here too.
+
+In lockstep with a link on a :class:`~ncmeasure.samples.SimulatedClock`
+(``clock``), the drives report every SYNC answered, with the number of frames
+they have sent, and the link sends the next SYNC only when it has received
+them: the recording is the same on an idle and on a loaded computer.
 
 Fault switches for tests, all thread-safe: :meth:`SimulatedDrive.stop_answering`,
 :meth:`~SimulatedDrive.resume`, :meth:`~SimulatedDrive.abort_sdo`,
 :meth:`~SimulatedDrive.slow`, :meth:`~SimulatedDrive.reboot`,
-:meth:`~SimulatedDrive.send_emcy`, :meth:`~SimulatedDrive.set_fault`.
+:meth:`~SimulatedDrive.send_emcy`, :meth:`~SimulatedDrive.set_fault`. A test
+that needs one at a given moment schedules it by SYNC index
+(:meth:`SimulatedDrives.at_sync`), an event in simulated time, not a sleep.
 
 :class:`SimulatedDrives` runs the drives of a machine on one bus in one
 thread; :func:`serve` is the blocking form for ``ncmeasure simulate-drive``.
@@ -62,6 +68,7 @@ from ncmeasure.links.canopen.objects import (
     position_scale_mm,
     velocity_scale_mm_min,
 )
+from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.signals import AxisState, PatternSource, SignalSource
 
 __all__ = [
@@ -290,6 +297,8 @@ class SimulatedDrive:
         self._transfer: _Transfer | None = None
         self._plans: list[_Plan] | None = None
         self._status = OPERATION_ENABLED
+        self._late_cob_id: int | None = None
+        self._held: tuple[int, bytes] | None = None
         self.sdo_requests = 0
         self.sdo_writes = 0
         self.boots = 0
@@ -399,8 +408,12 @@ class SimulatedDrive:
             self._nmt = _INITIALISING
             self._down_until = time.monotonic() + downtime_s
         host = self._host
-        if host is not None:
+        if host is None:
+            return
+        if downtime_s > 0:
             host._schedule(downtime_s, self._boot)
+        else:
+            self._boot()  # at once, in the same SYNC cycle as the reset
 
     def send_emcy(self, code: int, register: int = 0x01, data: bytes = b"") -> None:
         """Send an EMCY message (0x80 + id): error code, error register, 5 bytes of data."""
@@ -416,6 +429,16 @@ class SimulatedDrive:
             self._status = (
                 (OPERATION_ENABLED & ~0x0007 | _FAULT_BIT) if active else OPERATION_ENABLED
             )
+
+    def send_late(self, cob_id: int | None) -> None:
+        """Send the TPDO ``cob_id`` one cycle late, after the next SYNC (None: on time again).
+
+        A drive too slow for its SYNC period: the frame of cycle k goes out after
+        SYNC k + 1, before the frames of k + 1, so on the bus it sits in the wrong
+        cycle. When the drive is on time again the held frame still goes out first.
+        """
+        with self._lock:
+            self._late_cob_id = cob_id
 
     # --- state for tests ----------------------------------------------------------------
 
@@ -520,7 +543,8 @@ class SimulatedDrive:
             if not due:
                 return []
             state = source.state(self.axis, index * self._period_s())
-            frames = []
+            frames = [self._held] if self._held is not None else []
+            self._held = None
             for plan in due:
                 parts = []
                 for key, code, size in plan.parts:
@@ -529,7 +553,11 @@ class SimulatedDrive:
                         parts.append(struct.pack("<" + code, _clamp(dyn.encode(state), code)))
                     else:
                         parts.append(self._entries[key].data[:size].ljust(size, b"\0"))
-                frames.append((plan.cob_id, b"".join(parts)))
+                frame = (plan.cob_id, b"".join(parts))
+                if plan.cob_id == self._late_cob_id:
+                    self._held = frame
+                else:
+                    frames.append(frame)
             return frames
 
     def _make_plans(self) -> list[_Plan]:
@@ -748,6 +776,8 @@ class SimulatedDrives:
         source: Values of the axes.
         period_s: SYNC period used until the master writes 0x1006.
         own_bus: Shut the bus down on :meth:`stop`.
+        clock: The link's :class:`~ncmeasure.samples.SimulatedClock`: answer in
+            lockstep with it (every SYNC reported done). ``None``: real time.
     """
 
     def __init__(
@@ -758,6 +788,7 @@ class SimulatedDrives:
         *,
         period_s: float = 0.004,
         own_bus: bool = False,
+        clock: SimulatedClock | None = None,
     ) -> None:
         if not drives:
             raise ValueError("no drives to simulate")
@@ -768,6 +799,10 @@ class SimulatedDrives:
         self.drives = tuple(drives)
         self.source = source
         self.period_s = period_s
+        self.clock = clock
+        self.frames_sent = 0
+        """Frames sent on the bus so far (all kinds)."""
+        self._at_sync: dict[int, list[Callable[[], None]]] = {}
         self.started = time.monotonic()
         self._own_bus = own_bus
         self._by_node = {d.node_id: d for d in drives}
@@ -798,6 +833,7 @@ class SimulatedDrives:
         object_map: str | ObjectMap = "cia402",
         scaling: DriveScaling | Mapping[int, DriveScaling] | None = None,
         bus_options: Mapping[str, Any] | None = None,
+        clock: SimulatedClock | None = None,
     ) -> SimulatedDrives:
         """Create the drives, open the bus if a channel name is given, and start serving.
 
@@ -811,6 +847,7 @@ class SimulatedDrives:
             object_map: Object map name/path, or a loaded map.
             scaling: For all drives, or per axis index.
             bus_options: Extra python-can arguments for a channel name.
+            clock: The link's :class:`~ncmeasure.samples.SimulatedClock` (lockstep).
         """
         the_map = object_map if isinstance(object_map, ObjectMap) else load_object_map(object_map)
         drives = []
@@ -838,7 +875,9 @@ class SimulatedDrives:
             if interface is not None:
                 kwargs["interface"] = interface
             bus = can.Bus(channel=bus_or_channel, **kwargs)
-        drives_host = cls(bus, drives, source or PatternSource(), period_s=period_s, own_bus=own)
+        drives_host = cls(
+            bus, drives, source or PatternSource(), period_s=period_s, own_bus=own, clock=clock
+        )
         drives_host.run()
         return drives_host
 
@@ -871,6 +910,15 @@ class SimulatedDrives:
     def sync_index(self) -> int:
         """Index of the newest SYNC (its sample time is index × period); -1 before the first."""
         return self._sync_index
+
+    def at_sync(self, index: int, action: Callable[[], None]) -> None:
+        """Run ``action`` when SYNC ``index`` arrives, before the drives answer it.
+
+        A fault at a moment of simulated time, e.g.
+        ``drives.at_sync(100, drives[1].stop_answering)``.
+        """
+        with self._sync_cond:
+            self._at_sync.setdefault(index, []).append(action)
 
     def wait_for_sync(self, count: int, timeout_s: float) -> bool:
         """Wait until ``count`` SYNC messages were seen; False on timeout."""
@@ -913,6 +961,7 @@ class SimulatedDrives:
         try:
             with self._send_lock:
                 self.bus.send(message)
+                self.frames_sent += 1
         except can.CanError as exc:
             if not self._stop.is_set():
                 log.warning("simulated drives: cannot send 0x%03X: %s", can_id, exc)
@@ -963,12 +1012,19 @@ class SimulatedDrives:
                 index += (data[0] - 1 - index) % _SYNC_COUNTER_MAX
             self._sync_index = index
             self._sync_count += 1
+            actions = self._at_sync.pop(index, [])
             self._sync_cond.notify_all()
+        for action in actions:
+            action()
         frames: list[tuple[int, bytes]] = []
         for drive in self.drives:
             frames += drive._on_sync(index, self.source)
         for can_id, data in frames:
             self._send(can_id, data)
+        if self.clock is not None:
+            with self._send_lock:
+                sent = self.frames_sent
+            self.clock.step_done(index, sent)
 
 
 def serve(

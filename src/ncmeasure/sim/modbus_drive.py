@@ -6,15 +6,15 @@ state and encodes it the way the register map says (data type, word order,
 scale, unit conversion), so a :class:`~ncmeasure.links.modbus.link.ModbusLink`
 reading them gets the source's values quantised by the map.
 
-Time: by default the state is taken at the server's elapsed time. With a
-:class:`~ncmeasure.samples.LinkClock` (``clock``) the elapsed time is on
-that clock: a virtual machine running faster than real time serves the state
-of its own time, and a :class:`~ncmeasure.links.modbus.link.ModbusLink` on a clock
-of the same speed stamps its rows with the same time scale. With
-``step_s`` the server is *deterministic*: the n-th read request a unit
-answers for a register type (counting from 0) gets the state at ``n × step_s``,
-whatever the wall clock says. Requests that are not answered (faults) do not
-count.
+Time: by default the state is taken at the server's elapsed wall-clock time.
+With a :class:`~ncmeasure.samples.SimulatedClock` (``clock``) shared with the
+link, the server is in lockstep with it: the link sets the simulated time of
+each poll cycle before it asks, and every answer shows the state at that time,
+however slow the computer is (a server in another process reads the same
+clock through shared memory). With ``step_s`` the server is deterministic on
+its own: the n-th read request a unit answers for a register type (counting
+from 0) gets the state at ``n × step_s``. Requests that are not answered
+(faults) do not count.
 
 Fault switches (:class:`Fault`, thread-safe through :class:`DriveFaults`):
 stop answering, answer with a Modbus exception code, answer late, and drop
@@ -52,7 +52,7 @@ from ncmeasure.links.modbus.registers import (
     load_register_map,
     signal_factor,
 )
-from ncmeasure.samples import LinkClock
+from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.signals import AxisState, PatternSource, SignalSource
 
 __all__ = [
@@ -103,14 +103,23 @@ class Fault:
     Args:
         silent: Read requests get no answer at all.
         exception_code: Answer with this Modbus exception code (1-8, 10, 11).
-        delay_s: Answer this late.
+        delay_s: Answer this late (wall-clock).
+        disconnect: Close the TCP connection instead of answering.
         units: The unit ids affected; ``None``: all.
+        from_s: The fault starts at this server time (``None``: at once). On a
+            :class:`~ncmeasure.samples.SimulatedClock` this is simulated time, so a
+            test sets a fault for exactly the poll cycles it means, however slow the
+            computer is.
+        until_s: The fault ends at this server time (``None``: when cleared).
     """
 
     silent: bool = False
     exception_code: int | None = None
     delay_s: float = 0.0
+    disconnect: bool = False
     units: frozenset[int] | None = None
+    from_s: float | None = None
+    until_s: float | None = None
 
     def __post_init__(self) -> None:
         if self.exception_code is not None and self.exception_code not in _VALID_EXCEPTION_CODES:
@@ -119,9 +128,15 @@ class Fault:
         if self.delay_s < 0:
             raise ValueError("delay_s must not be negative")
 
-    def applies_to(self, unit_id: int) -> bool:
-        """Whether the fault affects ``unit_id``."""
-        return self.units is None or unit_id in self.units
+    def applies_to(self, unit_id: int, time_s: float | None = None) -> bool:
+        """Whether the fault affects ``unit_id`` (at server time ``time_s``, when given)."""
+        if self.units is not None and unit_id not in self.units:
+            return False
+        if time_s is None:
+            return True
+        return (self.from_s is None or time_s >= self.from_s) and (
+            self.until_s is None or time_s < self.until_s
+        )
 
 
 NO_FAULT = Fault()
@@ -192,10 +207,11 @@ class SimulatedModbusDrive:
         units: The axes to serve, one unit id each.
         source: The axis states; default :class:`PatternSource`.
         step_s: Deterministic mode: n-th request of a unit and register type
-            gets the state at ``n × step_s``. ``None``: elapsed server time.
+            gets the state at ``n × step_s``. ``None``: the server time.
         faults: Shared fault switches; a new set when ``None``.
-        clock: The clock of the elapsed server time (a virtual machine's,
-            faster than real time); ``None``: wall-clock time.
+        clock: A :class:`~ncmeasure.samples.SimulatedClock` shared with the link:
+            every answer shows the state at the simulated time the link set for
+            its poll cycle (lockstep). ``None``: the elapsed wall-clock time.
 
     Raises:
         ConfigError: a unit id twice or out of range, or an invalid register map.
@@ -208,7 +224,7 @@ class SimulatedModbusDrive:
         source: SignalSource | None = None,
         step_s: float | None = None,
         faults: DriveFaults | None = None,
-        clock: LinkClock | None = None,
+        clock: SimulatedClock | None = None,
     ) -> None:
         if not units:
             raise ConfigError("the simulated drive needs at least one unit")
@@ -264,11 +280,18 @@ class SimulatedModbusDrive:
     def _now(self) -> float:
         return self.clock.now() if self.clock is not None else time.monotonic()
 
-    def elapsed_s(self) -> float:
-        """Server time since start or :meth:`reset` on ``clock`` (state time without ``step_s``)."""
+    def _time_s(self) -> float:
+        """The server time: the link's simulated time in lockstep, else time since start."""
+        if self.clock is not None and self.clock.lockstep:
+            return self.clock.now()
         with self._lock:
             start = self._start
         return self._now() - start
+
+    def elapsed_s(self) -> float:
+        """The server time (the state time without ``step_s``): the simulated time in
+        lockstep, else the time since start or :meth:`reset`."""
+        return self._time_s()
 
     def registers(self, unit_id: int, function: str, state: AxisState) -> dict[int, int]:
         """The registers (address -> value) a unit shows for ``state``."""
@@ -289,10 +312,9 @@ class SimulatedModbusDrive:
             count = runtime.counters[function_code]
             runtime.counters[function_code] = count + 1
             runtime.answered += 1
-            start = self._start
         if self.step_s is not None:
             return count * self.step_s
-        return self._now() - start
+        return self._time_s()
 
     def _action(self, unit_id: int) -> Callable[..., Any]:
         runtime = self._units[unit_id]
@@ -307,11 +329,13 @@ class SimulatedModbusDrive:
         ) -> ExcCodes | None:
             del address, count
             fault = self.faults.current()
-            if fault.applies_to(unit_id):
+            if fault.applies_to(unit_id, self._time_s()):
                 if fault.delay_s > 0:
                     await asyncio.sleep(fault.delay_s)
-                if fault.silent:
+                if fault.silent or fault.disconnect:
                     self._suppress.add(unit_id)
+                    if fault.disconnect:
+                        self._drop_now()
                     return None
                 if fault.exception_code is not None:
                     return ExcCodes(fault.exception_code)
@@ -513,7 +537,7 @@ def serve(
     faults: DriveFaults | None = None,
     ready: Callable[[ServerInfo], None] | None = None,
     stop: threading.Event | None = None,
-    clock: LinkClock | None = None,
+    clock: SimulatedClock | None = None,
 ) -> None:
     """Run simulated Modbus drives until interrupted (blocking).
 
@@ -540,7 +564,8 @@ def serve(
         faults: Fault switches to control the server from another thread.
         ready: Called with the :class:`ServerInfo` once the server listens.
         stop: Serve until this event is set.
-        clock: Clock of the state time (a virtual machine's); ``None``: wall-clock.
+        clock: A :class:`~ncmeasure.samples.SimulatedClock` shared with the link
+            (lockstep); ``None``: wall-clock.
 
     Raises:
         ConfigError: invalid units or register maps.
@@ -585,7 +610,7 @@ class _ProcessConfig:
     step_s: float | None
     host: str
     port: int
-    clock: LinkClock | None = None
+    clock: SimulatedClock | None = None
 
 
 def _child_main(config: _ProcessConfig, conn: Connection) -> None:
@@ -692,7 +717,7 @@ def running_server(
     source: SignalSource | None = None,
     step_s: float | None = None,
     start_timeout_s: float = 30.0,
-    clock: LinkClock | None = None,
+    clock: SimulatedClock | None = None,
 ) -> Iterator[ServerHandle]:
     """A simulated Modbus TCP drive server in another process, for tests and benchmarks.
 
@@ -708,8 +733,8 @@ def running_server(
         source: Axis states (must be picklable); default :class:`PatternSource`.
         step_s: Deterministic mode.
         start_timeout_s: How long to wait for the server to listen.
-        clock: Clock of the state time (a virtual machine's, faster than real
-            time); ``None``: wall-clock. It has the same epoch in both processes.
+        clock: A :class:`~ncmeasure.samples.SimulatedClock` shared with the link
+            (lockstep, through shared memory); ``None``: wall-clock.
 
     Raises:
         LinkError: the server did not start (port in use, ...).

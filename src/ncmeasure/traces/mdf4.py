@@ -222,7 +222,7 @@ def import_mdf4(
                 meta["time_scale"] = scale
         if nominal_period_s is None and embedded.get("nominal_period_s"):
             nominal_period_s = float(embedded["nominal_period_s"])
-        if embedded.get("status") in ("interrupted", "link_lost", "failed"):
+        if embedded.get("status") in ("incomplete", "interrupted", "link_lost", "failed"):
             status = embedded["status"]
     try:
         start = dt.datetime.fromisoformat(str((embedded or {}).get("start_utc")))

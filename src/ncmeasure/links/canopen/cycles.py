@@ -1,19 +1,38 @@
-"""Rows from PDO frames: which SYNC cycle a frame belongs to, and which cycles are lost."""
+"""Rows from PDO frames: which SYNC cycle a frame belongs to, and which cycles are lost.
+
+A drive samples its values when it sees SYNC and sends its synchronous TPDOs
+before the next SYNC. So, in the order frames travel on the bus, a PDO frame
+belongs to the SYNC that came before it. The link therefore feeds the
+assembler in bus order: every frame as it is received, and every SYNC as it
+is *seen on the bus* (its own SYNC comes back through the receive stream,
+python-can's ``receive_own_messages``), never as it is sent. A frame that the
+host receives late still counts in its own cycle, because the next SYNC is
+behind it in the same stream.
+
+A row holds the values of one SYNC cycle only. A cycle is final when the next
+SYNC is seen: complete, it becomes a row; otherwise it is lost. Where the cycle
+of a frame cannot be told, the cycle is dropped and counted as lost, never
+shifted or filled:
+
+* a second frame of the same PDO before the next SYNC (the first one was a
+  cycle late);
+* a drive's frames out of their usual order: a drive sends its TPDOs in the
+  same order every cycle (the lower COB-ID wins the bus), so a frame that comes
+  before one it usually follows was sent for the cycle before, after its SYNC.
+  That is how a drive that answers one TPDO late, cycle after cycle, shows:
+  each cycle would otherwise look complete with one value a cycle old. The
+  usual order is learned from the first complete cycle.
+"""
 
 from __future__ import annotations
 
-import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import cast
+from typing import Literal
 
-__all__ = [
-    "CycleAssembler",
-    "LostCycle",
-]
+__all__ = ["CycleAssembler", "LossReason", "LostCycle"]
 
-log = logging.getLogger(__name__)
-
-# --- assembling rows from PDOs ------------------------------------------------------------
+LossReason = Literal["missing", "no_sync", "doubled"]
 
 
 @dataclass(frozen=True)
@@ -22,117 +41,114 @@ class LostCycle:
 
     cycle: int
     missing: frozenset[int]
-    """PDO slots without data (all when no SYNC was sent)."""
-    no_sync: bool = False
+    """PDO slots without data (all when no SYNC was seen), or the slots whose cycle
+    could not be told."""
+    reason: LossReason = "missing"
+    """``missing``: slots without a frame; ``no_sync``: no SYNC for this cycle on the bus;
+    ``doubled``: frames whose cycle cannot be told (twice, or out of their order)."""
+
+    @property
+    def no_sync(self) -> bool:
+        """True when the cycle had no SYNC on the bus."""
+        return self.reason == "no_sync"
 
 
 class CycleAssembler:
-    """Collect PDO frames into rows keyed by SYNC cycle. Not thread-safe: lock around it.
+    """Collect PDO frames, in bus order, into rows keyed by SYNC cycle.
 
-    A frame belongs to the newest SYNC cycle (a drive samples on SYNC and
-    answers before the next one). A second frame of the same PDO within one
-    cycle proves the drive lags behind (a busy host): the earlier frames of
-    that PDO move back one cycle each, into the first earlier cycle that lacks
-    it, which keeps every frame at or after its true cycle. Cycles that are
-    still incomplete ``hold_cycles`` after the newest SYNC are lost.
+    Args:
+        slots: Number of PDO slots (every TPDO of every node).
+        groups: The node (any label) of every slot; slots of one node keep an order.
+
+    Not thread-safe: the link calls it under its lock, from the thread that
+    receives the bus (frames and SYNCs in the order they were received).
     """
 
-    def __init__(self, slots: int, hold_cycles: int) -> None:
-        if slots < 1 or hold_cycles < 1:
-            raise ValueError("slots and hold_cycles must be positive")
+    def __init__(self, slots: int, groups: Sequence[int] | None = None) -> None:
+        if slots < 1:
+            raise ValueError("slots must be positive")
+        groups = list(groups) if groups is not None else list(range(slots))
+        if len(groups) != slots:
+            raise ValueError("one group per slot")
         self.slots = slots
-        self.hold_cycles = hold_cycles
+        self._groups = groups
         self.newest = -1
-        self.next_cycle = 0
-        self.late_frames = 0
-        self._rows: dict[int, list[bytes | None]] = {}
-        self._filled: dict[int, int] = {}
-        self._no_sync: set[int] = set()
+        """The cycle of the newest SYNC seen (-1 before the first)."""
+        self.early_frames = 0
+        """Frames that came before the first SYNC (they belong to no cycle of this link)."""
+        self._order: dict[int, dict[int, int]] = {}
+        """Per group, the usual position of each of its slots (learned)."""
+        self._arrival: list[int] = []
+        self._row: list[bytes | None] = [None] * slots
+        self._filled = 0
+        self._doubted: set[int] = set()
+        self._last: dict[int, int] = {}
+        self._rows: list[tuple[int, list[bytes]]] = []
+        self._lost: list[LostCycle] = []
 
     def sync(self, cycle: int) -> None:
-        """A SYNC of ``cycle`` was sent or seen (cycles only grow)."""
+        """The SYNC of ``cycle`` was seen on the bus: the cycle before it is final.
+
+        Cycles between the previous SYNC and this one had no SYNC on the bus.
+
+        Raises:
+            ValueError: ``cycle`` is not later than the newest SYNC.
+        """
         if cycle <= self.newest:
             raise ValueError(f"SYNC cycle {cycle} after {self.newest}")
+        if self.newest >= 0:
+            self._finish_newest()
+            everything = frozenset(range(self.slots))
+            self._lost.extend(
+                LostCycle(skipped, everything, "no_sync")
+                for skipped in range(self.newest + 1, cycle)
+            )
         self.newest = cycle
 
-    def skip(self, first: int, count: int) -> None:
-        """Cycles ``first .. first + count - 1`` had no SYNC on the bus."""
-        self._no_sync.update(range(first, first + count))
-
-    def _row(self, cycle: int) -> list[bytes | None]:
-        row = self._rows.get(cycle)
-        if row is None:
-            row = self._rows[cycle] = [None] * self.slots
-            self._filled[cycle] = 0
-        return row
-
-    def _previous(self, cycle: int) -> int:
-        cycle -= 1
-        while cycle in self._no_sync:
-            cycle -= 1
-        return cycle
-
     def frame(self, slot: int, data: bytes) -> None:
-        """A frame of PDO ``slot`` arrived."""
-        newest = self.newest
-        if newest < self.next_cycle:
-            self.late_frames += 1  # before the first SYNC
+        """A frame of PDO ``slot`` was received: it belongs to the newest SYNC's cycle."""
+        if self.newest < 0:
+            self.early_frames += 1
             return
-        row = self._row(newest)
-        if row[slot] is None:
-            row[slot] = data
-            self._filled[newest] += 1
-            return
-        start = newest
-        while True:
-            before = self._previous(start)
-            if before < self.next_cycle:
-                break
-            prev = self._rows.get(before)
-            if prev is None or prev[slot] is None:
-                break
-            start = before
-        carried: bytes | None = data
-        cycle = newest
-        while cycle >= start:
-            row_c = self._rows[cycle]
-            row_c[slot], carried = carried, row_c[slot]
-            if cycle == start:
-                break
-            cycle = self._previous(cycle)
-        target = self._previous(start)
-        if target >= self.next_cycle:
-            self._row(target)[slot] = carried
-            self._filled[target] += 1
-        else:
-            self.late_frames += 1  # the lag reaches back beyond the open cycles
+        group = self._groups[slot]
+        order = self._order.get(group)
+        if self._row[slot] is not None:
+            self._doubted.add(slot)  # twice in one cycle
+        elif order is not None and order[slot] < self._last.get(group, -1):
+            self._doubted.add(slot)  # before a frame it usually follows: a cycle late
+        if order is not None:
+            self._last[group] = max(self._last.get(group, -1), order[slot])
+        self._arrival.append(slot)
+        if self._row[slot] is None:
+            self._row[slot] = data
+            self._filled += 1
 
-    def settle(self, final: bool = False) -> tuple[list[tuple[int, list[bytes]]], list[LostCycle]]:
-        """Complete rows in cycle order, and the cycles given up (``final``: all but the newest)."""
-        rows: list[tuple[int, list[bytes]]] = []
-        lost: list[LostCycle] = []
-        limit = self.newest - (1 if final else self.hold_cycles)
-        everything = frozenset(range(self.slots))
-        while self.next_cycle <= self.newest:
-            cycle = self.next_cycle
-            if cycle in self._no_sync:
-                self._no_sync.discard(cycle)
-                self._rows.pop(cycle, None)
-                self._filled.pop(cycle, None)
-                lost.append(LostCycle(cycle, everything, no_sync=True))
-            elif self._filled.get(cycle) == self.slots:
-                rows.append((cycle, cast(list[bytes], self._rows.pop(cycle))))
-                del self._filled[cycle]
-            elif cycle <= limit:
-                row = self._rows.pop(cycle, None)
-                self._filled.pop(cycle, None)
-                missing = (
-                    everything
-                    if row is None
-                    else frozenset(i for i, value in enumerate(row) if value is None)
-                )
-                lost.append(LostCycle(cycle, missing))
-            else:
-                break
-            self.next_cycle += 1
+    def take(self) -> tuple[list[tuple[int, list[bytes]]], list[LostCycle]]:
+        """The rows and lost cycles that became final since the last call, each in cycle order."""
+        rows, self._rows = self._rows, []
+        lost, self._lost = self._lost, []
         return rows, lost
+
+    def _finish_newest(self) -> None:
+        cycle = self.newest
+        if self._doubted:
+            self._lost.append(LostCycle(cycle, frozenset(self._doubted), "doubled"))
+        elif self._filled == self.slots:
+            self._rows.append((cycle, [data for data in self._row if data is not None]))
+            self._learn_order()
+        else:
+            missing = frozenset(i for i, data in enumerate(self._row) if data is None)
+            self._lost.append(LostCycle(cycle, missing))
+        self._row = [None] * self.slots
+        self._filled = 0
+        self._doubted = set()
+        self._last = {}
+        self._arrival = []
+
+    def _learn_order(self) -> None:
+        """The first complete cycle shows each node's order of frames."""
+        if self._order:
+            return
+        for slot in self._arrival:
+            order = self._order.setdefault(self._groups[slot], {})
+            order.setdefault(slot, len(order))

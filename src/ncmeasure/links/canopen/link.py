@@ -18,26 +18,36 @@ How it works, in the order :meth:`CanOpenLink.open` does it:
    master). A row of samples is complete when every PDO of every node for one
    SYNC cycle has arrived; ``time_s`` is the cycle number × period.
 
-The SYNC producer keeps time by the link's :class:`~ncmeasure.samples.LinkClock`:
-real time for real drives, or the clock of a virtual machine running faster
-than real time with simulated drives (:mod:`ncmeasure.sim.cia402`). Its
-period is ``1 / sync_hz`` rounded to whole microseconds, the unit of the
-communication cycle period 0x1006 it writes to the drives, so the link and
-the drives agree on it exactly. Faster than real time, every SYNC carries a
-one-byte counter, the cycle number modulo 240 plus 1, so the simulated drives
-follow the link's cycle numbering across cycles the host skipped.
+Cycles are told apart in bus order (:mod:`.cycles`): the link receives its own
+SYNC back through the receive stream (python-can's ``receive_own_messages``)
+and gives every PDO frame to the SYNC received before it, so a frame the host
+receives late still counts in its own cycle. A row holds the values of one SYNC
+cycle only; a cycle whose frames cannot be told apart is dropped as lost.
+
+The SYNC producer keeps time by the link's :class:`~ncmeasure.samples.LinkClock`.
+Real time for real drives: SYNC ``k`` goes out at ``k × period`` (``1 / sync_hz``
+rounded to whole microseconds, the unit of the communication cycle period
+0x1006 it writes to the drives); when the host falls behind by more than
+``MAX_SYNC_LATE_S`` it skips the late cycles and reports them. With
+ncmeasure's own simulated drives (:mod:`ncmeasure.sim.cia402`) it runs on a
+:class:`~ncmeasure.samples.SimulatedClock`, in lockstep: SYNC ``k`` goes out
+at simulated time ``k × period``, the drives answer with the machine state of
+that time, and SYNC ``k + 1`` waits until the link has received all they sent,
+however slow the computer is.
 
 Values are taken inside the PDO callbacks into a :class:`CycleAssembler`
 keyed by SYNC cycle, so no frame is lost to a PDO map holding only its last
 frame. Cycles that stay incomplete are dropped, never filled with invented or
 NaN values, and reported as ``gap`` events with ``lost_samples``; EMCY
 messages, reboots (boot-up, after which the node's PDOs are configured
-again), SDO fallbacks and drive faults are events too. A failing bus raises
-:class:`~ncmeasure.errors.LinkError` from :meth:`~CanOpenLink.read`.
+again), SDO fallbacks and drive faults are events too. Without a complete
+cycle for ``max_outage_s`` the link gives up; a failing bus or an outage
+raises :class:`~ncmeasure.errors.LinkError` from :meth:`~CanOpenLink.read`.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import functools
 import logging
@@ -80,7 +90,7 @@ from ncmeasure.links.canopen.objects import (
     sdo_error_text,
     velocity_scale_mm_min,
 )
-from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent, SampleBlock
+from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent, SampleBlock, SimulatedClock
 
 __all__ = [
     "CanOpenAxis",
@@ -126,6 +136,12 @@ class CanOpenSettings(LinkSettings):
         "master owns their NMT state.",
     )
     sdo_timeout_s: float = Field(default=0.5, gt=0, le=30, description="SDO answer timeout.")
+    max_outage_s: float = Field(
+        default=10.0,
+        gt=0,
+        le=3600,
+        description="Give up after this long (link time) without a complete SYNC cycle.",
+    )
     max_bus_load: float = Field(
         default=0.9,
         gt=0,
@@ -281,7 +297,9 @@ class _GapRun:
     last: int
     count: int = 0
     no_sync: int = 0
+    doubled: int = 0
     axes: set[int] = field(default_factory=set)
+    doubled_slots: set[int] = field(default_factory=set)
     reason: str = ""
 
 
@@ -295,14 +313,17 @@ class CanOpenLink(DriveLink):
     settings_model: ClassVar[type[LinkSettings]] = CanOpenSettings
     axis_settings_model: ClassVar[type[AxisLinkSettings]] = CanOpenAxis
 
-    #: How long (wall-clock) an incomplete SYNC cycle may wait for its PDOs before it is lost.
-    HOLD_S: ClassVar[float] = 0.1
     #: A gap event covers at most this much link time; longer outages give several.
     GAP_REPORT_S: ClassVar[float] = 1.0
     #: The SYNC producer skips (and reports) cycles when it is this late (wall-clock).
     MAX_SYNC_LATE_S: ClassVar[float] = 0.005
-    #: Faster than real time, the SYNC counter runs 1..SYNC_COUNTER_MAX (CiA 301 0x1019 at most).
-    SYNC_COUNTER_MAX: ClassVar[int] = 240
+    #: How long the link waits for its first own SYNC to come back through the receive stream.
+    ECHO_TIMEOUT_S: ClassVar[float] = 5.0
+    #: Lockstep: the longest (wall-clock) wait for the simulated drives to answer one SYNC.
+    #: It guards against a simulator that is not there; it plays no part in the simulation.
+    STEP_TIMEOUT_S: ClassVar[float] = 60.0
+    #: Lockstep: rows the link may hold before the SYNC waits for the reader.
+    MAX_READY_ROWS: ClassVar[int] = 20_000
 
     settings: CanOpenSettings
 
@@ -329,8 +350,19 @@ class CanOpenLink(DriveLink):
         self._network: canopen.Network | None = None
         self._threads: list[threading.Thread] = []
         self._jobs: queue.Queue[Callable[[], None] | None] = queue.Queue()
-        self._assembler = CycleAssembler(len(self._slots), self._hold_cycles())
+        self._assembler = self._new_assembler()
         self._cycle = -1
+        """The newest SYNC cycle seen on the bus (own SYNCs through the receive stream)."""
+        self._sent: collections.deque[int] = collections.deque()
+        """Cycles of own SYNCs sent and not yet seen back, in order."""
+        self._sent_cycle = -1
+        self._t0 = 0.0
+        """Clock time of SYNC cycle 0."""
+        self._received = 0
+        """Frames of others received (lockstep: all the simulated drives sent must be here)."""
+        self._reconfiguring = 0
+        self._polled_cycle = -1
+        self._last_row_cycle = -1
         self._last_sync_time: float | None = None
         self._ready: list[tuple[int, list[bytes]]] = []
         self._gap: _GapRun | None = None
@@ -508,9 +540,21 @@ class CanOpenLink(DriveLink):
     def nominal_period_s(self) -> float:
         return self._period
 
-    def _hold_cycles(self) -> int:
-        """Cycles an incomplete row waits: ``HOLD_S`` of wall-clock time, at least 8."""
-        return max(8, math.ceil(self.HOLD_S / self.clock.wall(self._period)))
+    def _new_assembler(self) -> CycleAssembler:
+        """An assembler for the current slots; a node's slots keep their order."""
+        return CycleAssembler(
+            max(1, len(self._slots)), [slot.axis.position for slot in self._slots] or [0]
+        )
+
+    def now_s(self) -> float | None:
+        """The link time now: the newest SYNC's (lockstep), else the clock since SYNC 0."""
+        if not self._streaming:
+            return None
+        if self.clock.lockstep or not self.settings.sync_producer:
+            return max(self._sent_cycle if self.settings.sync_producer else self._cycle, 0) * (
+                self._period
+            )
+        return self.clock.now() - self._t0
 
     @property
     def mode(self) -> str:
@@ -529,7 +573,7 @@ class CanOpenLink(DriveLink):
         """Counters since open: PDO frames, SYNC cycles, rows, lost rows, SDO polls, ..."""
         with self._lock:
             stats = dict(self._stats)
-            stats["late_frames"] = self._assembler.late_frames
+            stats["early_frames"] = self._assembler.early_frames
         return stats
 
     def describe(self) -> dict[str, Any]:
@@ -578,7 +622,7 @@ class CanOpenLink(DriveLink):
     def _open(self) -> None:
         load = self.planned_bus_load()
         self._check_load(load)
-        self._assembler = CycleAssembler(len(self._slots), self._hold_cycles())
+        self._assembler = self._new_assembler()
         self._bus = self._make_bus()
         network = canopen.Network(self._bus)
         network.NOTIFIER_CYCLE = 0.1  # bounds how long close() waits for the receive thread
@@ -614,12 +658,29 @@ class CanOpenLink(DriveLink):
             for index, slot in enumerate(self._slots):
                 network.subscribe(slot.cob_id, self._pdo_callback(index, slot))
         self._streaming = True
-        if self.settings.sync_producer:
-            self._start_thread(self._produce_sync, "canopen-link-sync")
-        else:
-            network.subscribe(0x80, self._on_sync_frame)
         if self._mode == "sdo_polling":
             self._start_thread(self._poll, "canopen-link-poll")
+        if self.settings.sync_producer:
+            self._start_thread(self._produce_sync, "canopen-link-sync")
+            self._await_own_sync()
+        else:
+            network.subscribe(0x80, self._on_sync_frame)
+
+    def _await_own_sync(self) -> None:
+        """The first own SYNC must come back through the receive stream (bus order)."""
+        with self._cond:
+            seen = self._cond.wait_for(
+                lambda: self._cycle >= 0 or self._failure is not None, self.ECHO_TIMEOUT_S
+            )
+        self._check_failure()
+        if not seen:
+            raise LinkError(
+                f"the CAN interface {self.settings.interface or '(python-can config)'} does not "
+                "return the link's own SYNC frames (python-can receive_own_messages); the link "
+                "needs them to give every PDO to its SYNC cycle. Use an interface that does "
+                "(socketcan, pcan, kvaser, vector, ixxat, virtual, ...), or let the controller "
+                "produce SYNC (link.sync_producer = false)"
+            )
 
     def _start_thread(self, target: Callable[[], None], name: str) -> None:
         thread = threading.Thread(target=target, name=name, daemon=True)
@@ -647,8 +708,9 @@ class CanOpenLink(DriveLink):
         if s.channel is not None:
             kwargs["channel"] = s.channel
         kwargs["bitrate"] = s.bitrate
-        if s.raw_log is not None:
-            kwargs["receive_own_messages"] = True  # the log shows SYNC and SDO requests too
+        if s.sync_producer or s.raw_log is not None:
+            # Own SYNCs come back in bus order among the PDOs (and the log shows them).
+            kwargs["receive_own_messages"] = True
         try:
             return can.Bus(**kwargs)
         except Exception as exc:  # python-can raises CanError, OSError, ValueError, ...
@@ -718,7 +780,7 @@ class CanOpenLink(DriveLink):
                 axis.objects[role] = obj
         self._layout(axis)
         self._slots = [slot for a in self._axes for slot in a.slots]
-        self._assembler = CycleAssembler(len(self._slots), self._assembler.hold_cycles)
+        self._assembler = self._new_assembler()
         self._read_rated_current(axis)
         self._set_scales(axis)
         if self.settings.sync_producer:
@@ -913,6 +975,8 @@ class CanOpenLink(DriveLink):
                 axis=axis.name,
             )
         )
+        with self._cond:
+            self._reconfiguring += 1  # lockstep: no SYNC until the drive is configured again
         self._jobs.put(lambda: self._reconfigure(axis))
 
     def _on_sync_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
@@ -926,15 +990,19 @@ class CanOpenLink(DriveLink):
             self._last_sync_time = timestamp
             self._advance(self._cycle + step)
 
+    def _on_own_sync(self) -> None:
+        """An own SYNC came back through the receive stream: its cycle starts now, in bus order."""
+        with self._cond:
+            if self._sent:
+                self._advance(self._sent.popleft())
+
     def _advance(self, cycle: int) -> None:
-        """Publish SYNC cycle ``cycle``; caller holds the lock."""
+        """SYNC cycle ``cycle`` was seen on the bus; caller holds the lock."""
         skipped = cycle - self._cycle - 1
         if self._mode == "pdo":
-            if skipped > 0:
-                self._assembler.skip(self._cycle + 1, skipped)
             self._assembler.sync(cycle)
-        elif skipped > 0:
-            self._lost_polls(self._cycle + 1, skipped, "no SYNC on the bus")
+        elif skipped > 0 and self._cycle >= 0:
+            self._lost_polls(self._cycle + 1, skipped, "")
         self._cycle = cycle
         self._stats["sync_cycles"] += 1
         self._settle()
@@ -946,33 +1014,98 @@ class CanOpenLink(DriveLink):
     # --- SYNC producer, polling, worker (own threads) ------------------------------------
 
     def _produce_sync(self) -> None:
-        """Send SYNC cycle k at ``start + k × period`` on the link clock."""
+        """Send SYNC cycle k at ``k × period`` on the link clock (real time or lockstep)."""
+        try:
+            if self.clock.lockstep:
+                self._produce_in_lockstep()
+            else:
+                self._produce_in_real_time()
+        except LinkError as exc:
+            self._fail(exc)
+
+    def _send_sync(self, cycle: int) -> None:
         assert self._network is not None
+        with self._cond:
+            self._sent.append(cycle)
+            self._sent_cycle = cycle
+        try:
+            self._network.send_message(0x80, b"")
+        except Exception as exc:
+            raise LinkError(f"cannot send SYNC: {exc}") from exc
+
+    def _produce_in_real_time(self) -> None:
         clock = self.clock
-        counted = not clock.real_time  # simulated drives: they follow the counter
         period = self._period
-        # Late by MAX_SYNC_LATE_S of wall-clock time: a host hiccup. Simulated drives number
-        # their samples by the SYNC counter, so a late SYNC still samples its own cycle.
-        max_late = max(2, math.ceil(self.MAX_SYNC_LATE_S / clock.wall(period)))
-        start = clock.now()
+        # Late by MAX_SYNC_LATE_S: a host hiccup. The late cycles are skipped (drives sample
+        # on receipt: a late SYNC would stamp its samples wrongly) and reported as lost.
+        max_late = max(2, math.ceil(self.MAX_SYNC_LATE_S / period))
+        self._t0 = start = clock.now()
         cycle = 0
         while not self._stop.is_set():
             due = start + cycle * period
             delay = due - clock.now()
-            if delay > 0 and self._stop.wait(clock.wall(delay)):
+            if delay > 0 and self._stop.wait(delay):
                 break
             late = int((clock.now() - due) / period)
             if late >= max_late:
-                cycle += late  # sending them now would stamp the samples wrongly
-            with self._cond:
-                self._advance(cycle)
-            data = bytes([cycle % self.SYNC_COUNTER_MAX + 1]) if counted else b""
-            try:
-                self._network.send_message(0x80, data)
-            except Exception as exc:
-                self._fail(LinkError(f"cannot send SYNC: {exc}"))
-                return
+                cycle += late
+            self._send_sync(cycle)
             cycle += 1
+
+    def _produce_in_lockstep(self) -> None:
+        """SYNC k at simulated time k × period; SYNC k + 1 once all of cycle k is received.
+
+        The simulated drives report each SYNC answered and how many frames they sent
+        (:meth:`~ncmeasure.samples.SimulatedClock.step_done`); the next SYNC waits until
+        the link has received them all, until no drive is being configured again, and
+        until the reader has taken the rows, so the recording does not depend on how fast
+        the threads run.
+        """
+        clock = cast(SimulatedClock, self.clock)
+        cycle = 0
+        while not self._stop.is_set():
+            clock.advance_to(cycle * self._period)
+            self._send_sync(cycle)
+            sent = self._wait_for_drives(clock, cycle)
+            if sent is None:
+                return
+            with self._cond:
+                ready = self._cond.wait_for(
+                    functools.partial(self._cycle_received, cycle, sent), self.STEP_TIMEOUT_S
+                )
+            if not ready:
+                raise LinkError(
+                    f"SYNC cycle {cycle}: the simulated drives' frames did not arrive within "
+                    f"{self.STEP_TIMEOUT_S:g} s"
+                )
+            cycle += 1
+
+    def _wait_for_drives(self, clock: SimulatedClock, cycle: int) -> int | None:
+        """The simulated drives' frame count after answering ``cycle``; None when stopping."""
+        deadline = time.monotonic() + self.STEP_TIMEOUT_S
+        while not self._stop.is_set():
+            sent = clock.wait_step(cycle, 0.1)
+            if sent is not None:
+                return sent
+            if time.monotonic() > deadline:
+                raise LinkError(
+                    f"the simulated drives did not answer SYNC cycle {cycle} within "
+                    f"{self.STEP_TIMEOUT_S:g} s; a link on a SimulatedClock needs simulated "
+                    "drives on the same clock (SimulatedDrives.start(..., clock=clock))"
+                )
+        return None
+
+    def _cycle_received(self, cycle: int, sent: int) -> bool:
+        """Lockstep: everything of ``cycle`` is in, and the next SYNC may go out."""
+        if self._stop.is_set() or self._failure is not None:
+            return True
+        return (
+            self._cycle >= cycle
+            and self._received >= sent
+            and self._reconfiguring == 0
+            and (self._mode == "pdo" or self._polled_cycle >= cycle)
+            and len(self._ready) < self.MAX_READY_ROWS
+        )
 
     def _poll(self) -> None:
         """The fallback: read every slot's objects over SDO once per SYNC cycle, at most."""
@@ -998,10 +1131,14 @@ class CanOpenLink(DriveLink):
                         1,
                         f"SDO polling failed: {sdo_error_text(exc, self.settings.sdo_timeout_s)}",
                     )
+                    self._polled_cycle = cycle
+                    self._cond.notify_all()
                 continue
             with self._cond:
                 self._stats["sdo_polls"] += 1
                 self._ready.append((cycle, row))
+                self._last_row_cycle = cycle
+                self._polled_cycle = cycle
                 self._close_gap()
                 self._cond.notify_all()
 
@@ -1023,6 +1160,14 @@ class CanOpenLink(DriveLink):
                 log.exception("canopen link: background job failed")
 
     def _reconfigure(self, axis: _Axis) -> None:
+        try:
+            self._configure_again(axis)
+        finally:
+            with self._cond:
+                self._reconfiguring -= 1
+                self._cond.notify_all()
+
+    def _configure_again(self, axis: _Axis) -> None:
         if self._stop.is_set():
             return
         errors: list[str] = []
@@ -1067,43 +1212,49 @@ class CanOpenLink(DriveLink):
 
     # --- rows, gaps -------------------------------------------------------------------
 
-    def _settle(self, final: bool = False) -> None:
-        """Move complete rows to the ready list, account lost cycles; caller holds the lock."""
+    def _settle(self) -> None:
+        """Move final rows to the ready list, account lost cycles; caller holds the lock."""
         if self._mode != "pdo":
             return
-        rows, lost = self._assembler.settle(final)
+        rows, lost = self._assembler.take()
         events: list[tuple[int, list[bytes]] | LostCycle] = [*rows, *lost]
         events.sort(key=lambda item: item.cycle if isinstance(item, LostCycle) else item[0])
         for item in events:
             if isinstance(item, LostCycle):
-                axes = {self._slots[i].axis.position for i in item.missing}
-                self._lose(item.cycle, axes, item.no_sync, "")
+                self._lose(item, "")
             else:
                 self._close_gap()
                 self._ready.append(item)
+                self._last_row_cycle = item[0]
 
-    def _lose(self, cycle: int, axes: set[int], no_sync: bool, reason: str) -> None:
+    def _lose(self, lost: LostCycle, reason: str) -> None:
         gap = self._gap
         report_cycles = max(1, math.ceil(self.GAP_REPORT_S * self._rate_hz))
         if gap is not None and (
-            cycle != gap.last + 1
+            lost.cycle != gap.last + 1
             or gap.last - gap.first + 1 >= report_cycles
             or gap.reason != reason
         ):
             self._close_gap()
             gap = None
         if gap is None:
-            gap = self._gap = _GapRun(first=cycle, last=cycle, reason=reason)
-        gap.last = cycle
+            gap = self._gap = _GapRun(first=lost.cycle, last=lost.cycle, reason=reason)
+        gap.last = lost.cycle
         gap.count += 1
-        gap.no_sync += no_sync
-        if not no_sync:
+        axes = {self._slots[i].axis.position for i in lost.missing if i < len(self._slots)}
+        if lost.reason == "no_sync":
+            gap.no_sync += 1
+        elif lost.reason == "doubled":
+            gap.doubled += 1
+            gap.doubled_slots |= set(lost.missing)
+        else:
             gap.axes |= axes
         self._stats["lost_rows"] += 1
 
     def _lost_polls(self, first: int, count: int, reason: str) -> None:
+        everything = frozenset(range(len(self._slots)))
         for cycle in range(first, first + count):
-            self._lose(cycle, set(), False, reason)
+            self._lose(LostCycle(cycle, everything, "no_sync" if not reason else "missing"), reason)
 
     def _close_gap(self) -> None:
         gap, self._gap = self._gap, None
@@ -1119,6 +1270,13 @@ class CanOpenLink(DriveLink):
             plural = "s" if len(axes) > 1 else ""
             reasons.append(
                 f"no PDOs from axis{'es' if plural else ''} {names} (node{plural} {nodes})"
+            )
+        if gap.doubled:
+            slots = [self._slots[i] for i in sorted(gap.doubled_slots)]
+            late = ", ".join(f"{slot.axis.who} TPDO{slot.number}" for slot in slots)
+            reasons.append(
+                f"{gap.doubled} cycles with two frames of one TPDO ({late}: a drive answered "
+                "a cycle late), so their cycles cannot be told apart"
             )
         if gap.no_sync and self.settings.sync_producer:
             reasons.append(f"{gap.no_sync} SYNC cycles not sent (the host fell behind)")
@@ -1139,6 +1297,7 @@ class CanOpenLink(DriveLink):
                     "axes": [a.name for a in axes],
                     "nodes": [a.node_id for a in axes],
                     "missing_sync": gap.no_sync,
+                    "doubled": gap.doubled,
                 },
             )
         )
@@ -1148,6 +1307,7 @@ class CanOpenLink(DriveLink):
         with self._cond:
             while True:
                 self._check_failure()
+                self._check_outage()
                 self._settle()
                 if self._ready:
                     rows, self._ready = self._ready, []
@@ -1158,6 +1318,28 @@ class CanOpenLink(DriveLink):
                 self._cond.wait(min(remaining, 0.05))
             self._stats["rows"] += len(rows)
         return self._decode(rows)
+
+    def _check_outage(self) -> None:
+        """Give up after ``max_outage_s`` of link time without a complete cycle (lock held)."""
+        now = self.now_s()
+        if now is None:
+            return
+        since = max(self._last_row_cycle, 0) * self._period
+        limit = self.settings.max_outage_s
+        if now - since < limit:
+            return
+        gap = self._gap
+        why = ""
+        if gap is not None and gap.axes:
+            names = ", ".join(self._axes[i].name for i in sorted(gap.axes))
+            why = f": no PDOs from axis {names}"
+        elif self._cycle < 0 or self._cycle * self._period < since + limit / 2:
+            why = ": no SYNC seen on the bus"
+        self._close_gap()
+        message = f"the canopen link gave up after {limit:g} s without a complete SYNC cycle{why}"
+        self._event(LinkEvent(now, "fault", message))
+        self._failure = LinkTimeoutError(message)
+        raise self._failure
 
     def _check_failure(self) -> None:
         if self._failure is not None:
@@ -1233,7 +1415,7 @@ class CanOpenLink(DriveLink):
                     log.info("%s: NMT pre-operational not sent (%s)", axis.who, exc)
         with self._cond:
             try:
-                self._settle(final=True)
+                self._settle()
             except Exception:
                 log.exception("canopen link: settling at close failed")
             self._close_gap()
@@ -1281,13 +1463,25 @@ class _RawLog(can.Listener):
 
 
 class _BusWatch(can.Listener):
-    """Turns a failing bus (the notifier's receive error) into a LinkError for read()."""
+    """Own SYNCs in bus order, frames of others counted, a failing bus a LinkError for read().
+
+    Runs in the notifier thread after canopen's own listener, message by message,
+    so an own SYNC starts its cycle exactly between the PDOs received before and
+    after it.
+    """
 
     def __init__(self, link: CanOpenLink) -> None:
         self._link = link
 
     def on_message_received(self, msg: can.Message) -> None:
-        pass
+        link = self._link
+        if msg.is_rx:
+            link._received += 1  # only this thread writes it
+            if link.clock.lockstep:
+                with link._cond:
+                    link._cond.notify_all()
+        elif msg.arbitration_id == 0x80 and not msg.is_extended_id:
+            link._on_own_sync()
 
     def on_error(self, exc: Exception) -> None:
         self._link._fail(LinkError(f"CAN bus error: {exc}"))

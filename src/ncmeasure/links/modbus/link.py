@@ -22,10 +22,14 @@ with their meaning; after ``max_outage_s`` without a complete cycle the link
 gives up with :class:`~ncmeasure.errors.LinkError`. See ``docs/modbus.md``.
 
 Time is kept by the link's :class:`~ncmeasure.samples.LinkClock`: the
-poll period, the time stamps, outage durations and ``max_outage_s`` are on
-that clock (real time for real drives, machine time for simulated drives of
-a virtual machine running faster than real time); the request timeout, the
-reconnect delay and the RTU line silences are wall-clock time.
+poll period, the time stamps, outage durations, the reconnect delay and
+``max_outage_s`` are on that clock; the request timeout and the RTU line
+silences are wall-clock time. Real time for real drives. With ncmeasure's own
+simulated drive it runs on a :class:`~ncmeasure.samples.SimulatedClock`, in
+lockstep: before each poll cycle the link sets the simulated time to
+``slot × period``, the server answers with the machine state of that time, and
+the next cycle follows when this one is done, however slow the computer is;
+the rows are then stamped exactly ``slot × period``.
 """
 
 from __future__ import annotations
@@ -59,7 +63,7 @@ from ncmeasure.links.modbus.registers import (
     load_register_map,
     signal_factor,
 )
-from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent, SampleBlock
+from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent, SampleBlock, SimulatedClock
 
 __all__ = ["ModbusAxis", "ModbusLink", "ModbusSettings"]
 
@@ -217,6 +221,8 @@ class ModbusLink(DriveLink):
     name: ClassVar[str] = "modbus"
     settings_model: ClassVar[type[LinkSettings]] = ModbusSettings
     axis_settings_model: ClassVar[type[AxisLinkSettings]] = ModbusAxis
+    #: Lockstep: rows the link may hold before the next poll cycle waits for the reader.
+    MAX_QUEUED_ROWS: ClassVar[int] = 20_000
 
     def __init__(self, settings: LinkSettings, axes: Sequence[AxisBinding]) -> None:
         super().__init__(settings, axes)
@@ -626,6 +632,10 @@ class ModbusLink(DriveLink):
         """Link time since polling started."""
         return self.clock.now() - self._t0
 
+    def now_s(self) -> float | None:
+        """The link time now, on the time axis of the rows; None before polling starts."""
+        return self._now_s() if self._thread is not None else None
+
     def _flush_gap(self) -> None:
         gap = self._pending_gap
         if gap is None or gap.lost <= 0:
@@ -664,7 +674,7 @@ class ModbusLink(DriveLink):
         s = self.modbus
         clock = self.clock
         period = self._period_s
-        reconnect_delay = s.reconnect_delay_s * clock.speed  # wall-clock, in link seconds
+        reconnect_delay = s.reconnect_delay_s  # in link seconds
         slot = 0
         last_row_slot = -1
         outage: _Outage | None = None
@@ -673,6 +683,11 @@ class ModbusLink(DriveLink):
             f"poll cycles took longer than the poll period of {period * 1000:.3g} ms (slow answers)"
         )
         while not self._stop.is_set():
+            if isinstance(clock, SimulatedClock):
+                # Lockstep: this cycle is the machine at slot × period, however long it takes.
+                if not self._wait_for_reader():
+                    break
+                clock.advance_to(self._t0 + slot * period)
             delay = self._t0 + slot * period - clock.now()
             if delay > 0 and self._stop.wait(clock.wall(delay)):
                 break
@@ -744,6 +759,13 @@ class ModbusLink(DriveLink):
             slot = max(slot + 1, math.ceil((now - self._t0) / period))
             if not self._connected() and next_connect > now:
                 slot = max(slot, math.ceil((next_connect - self._t0) / period))
+
+    def _wait_for_reader(self) -> bool:
+        """Lockstep: hold the next cycle while the reader has many rows to take; False: stop."""
+        while self._rows.qsize() >= self.MAX_QUEUED_ROWS:
+            if self._stop.wait(0.01):
+                return False
+        return not self._stop.is_set()
 
     def _report_failure(self, outage: _Outage, failure: _Failure) -> None:
         key = (failure.axis, failure.code)
