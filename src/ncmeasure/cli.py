@@ -738,9 +738,9 @@ def import_command(
         typer.Option(
             "--format",
             "-f",
-            help="sinumerik-xml, "
-            "sinumerik-csv, twincat-csv, tncscope, csv, mdf4 "
-            "(default: detected from the content).",
+            help="sinumerik-xml, sinumerik-csv, twincat-csv, tncscope, csv, mdf4, can-log "
+            "(default: detected from the content; CAN logs by their ending .blf, .asc, "
+            ".log, .trc).",
         ),
     ] = None,
     machine: Annotated[
@@ -770,13 +770,16 @@ def import_command(
     """Turn a controller trace or an exported CSV/MDF4 file into a recording.
 
     Reads SINUMERIK trace XML and CSV, TwinCAT Scope CSV, TNCscope text and the
-    CSV of `ncmeasure export`, and any CSV through a column map (--columns);
-    reports what was mapped, converted and left out.
-    Example: ncmeasure import trace.xml --machine machine.toml --axis 1=X -o run1
+    CSV of `ncmeasure export`, any CSV through a column map (--columns), and CAN logs
+    of a CANopen bus (.blf, .asc, .log, .trc: decoded with the machine file's [link]
+    settings, as the CANopen link reads the live bus); reports what was mapped,
+    converted and left out.
+    Examples: ncmeasure import trace.xml --machine machine.toml --axis 1=X -o run1
+    ·  ncmeasure import capture.blf --machine machine.toml -o run2
     """
     from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
 
-    from ncmeasure.traces import detect_format, import_trace
+    from ncmeasure.traces import import_trace
 
     axis_names = dict(
         parse_assignments(axis or [], "--axis", form="TRACE_AXIS=MACHINE_AXIS", example="1=X")
@@ -789,8 +792,6 @@ def import_command(
         recording = import_mdf4(file, output, machine=config)
         report = list(recording.meta.link.get("report", []))
     else:
-        if columns is None:
-            fmt = fmt or detect_format(file)
         bar = (
             None
             if quiet

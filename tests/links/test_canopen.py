@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import can
+import canopen
 import numpy as np
 import pytest
 
@@ -29,9 +30,14 @@ from ncmeasure.links import REAL_TIME, make_link
 from ncmeasure.links.canopen.busload import bus_load, frame_bits
 from ncmeasure.links.canopen.cycles import CycleAssembler
 from ncmeasure.links.canopen.link import CanOpenLink
-from ncmeasure.links.canopen.objects import emcy_text, load_object_map, sdo_error_text
+from ncmeasure.links.canopen.objects import (
+    build_dictionary,
+    emcy_text,
+    load_object_map,
+    sdo_error_text,
+)
 from ncmeasure.samples import LinkEvent, SimulatedClock
-from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
+from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrive, SimulatedDrives
 from ncmeasure.sim.signals import AxisState, PatternSource
 from tests.conftest import shared_fixture
 
@@ -639,6 +645,153 @@ def test_a_failing_raw_log_never_stops_the_measurement(
     assert_exact(rec)
     fault = rec.kinds("fault")[0]
     assert f"the raw CAN log {tmp_path / 'bus.blf'} stopped" in fault.message
+
+
+# --- listen only: the controller owns the bus ---------------------------------------------------
+
+TPDOS = {1: (0x60640020, 0x60410010), 2: (0x606C0020, 0x60780010)}
+"""The layout the 'controller' of these tests configured: position + statusword, velocity +
+current (per mille of the rated current)."""
+
+
+def configured_dcf(folder: Path, node_id: int) -> Path:
+    """A DCF of a drive whose TPDOs the controller configured (as ParameterValue)."""
+    od = build_dictionary(load_object_map("cia402"), node_id, rated_current_ma=int(RATED_A * 1000))
+    for number, entries in TPDOS.items():
+        comm, mapping = od[0x1800 + number - 1], od[0x1A00 + number - 1]
+        comm[1].value = 0x180 + 0x100 * (number - 1) + node_id
+        comm[2].value = 1  # on every SYNC
+        mapping[0].value = len(entries)
+        for k, entry in enumerate(entries, start=1):
+            mapping[k].value = entry
+    path = folder / f"drive{node_id}.dcf"
+    canopen.export_od(od, str(path), doc_type="dcf")
+    return path
+
+
+class Controller:
+    """The CANopen master of a machine: starts the nodes, then SYNC every period.
+
+    SYNC k carries the time stamp 1000 s + k × period (the link counts cycles by the time
+    stamps of another master's SYNC) and waits until the simulated drives answered it, so
+    that what the listening link sees does not depend on how busy the computer is.
+    """
+
+    def __init__(self, channel: str, clock: SimulatedClock, cycles: int) -> None:
+        self.bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+        self.clock = clock
+        self.cycles = cycles
+        self.thread = threading.Thread(target=self._run, daemon=True)
+
+    def _send(self, can_id: int, data: bytes, timestamp: float) -> None:
+        self.bus.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False,
+                                  timestamp=timestamp))  # fmt: skip
+
+    def _run(self) -> None:
+        self._send(0x000, b"\x01\x00", 999.0)  # NMT start, all nodes
+        for cycle in range(self.cycles):
+            self._send(0x080, b"", 1000.0 + cycle * 0.004)
+            assert self.clock.wait_step(cycle, TIMEOUT_S) is not None
+
+    def __enter__(self) -> Controller:
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.thread.join(TIMEOUT_S)
+        self.bus.shutdown()
+
+
+def listener(
+    channel: str, n_axes: int, axis_tables: list[dict[str, Any]], **link: Any
+) -> CanOpenLink:
+    axes = [
+        (axis_config(name, rated_current_a=None), {"node_id": i + 1, "increments_per_rev": IPR,
+                                                    **axis_tables[i]})
+        for i, name in enumerate("XYZ"[:n_axes])
+    ]  # fmt: skip
+    return CanOpenLink.from_tables(
+        {"channel": channel, "sync_hz": 250, "listen_only": True, **link}, axes
+    )
+
+
+@pytest.mark.parametrize("layout", ["dcf", "table"])
+def test_a_listening_link_reads_the_controllers_pdos_and_sends_nothing(
+    channel: str, clock: SimulatedClock, tmp_path: Path, layout: str
+) -> None:
+    dcfs = [configured_dcf(tmp_path, node) for node in (1, 2)]
+    if layout == "dcf":
+        tables: list[dict[str, Any]] = [{"eds": str(path)} for path in dcfs]
+        link = listener(channel, 2, tables)
+    else:  # the layout written into the machine file; the rated current from it too
+        tables = [
+            {
+                "rated_current_a": RATED_A,
+                "tpdo": [
+                    {"cob_id": 0x180 + 0x100 * (n - 1) + node, "mapping": list(e)}
+                    for n, e in TPDOS.items()
+                ],
+            }
+            for node in (1, 2)
+        ]
+        link = listener(channel, 2, tables)
+    drives = [SimulatedDrive.from_eds(path, node, node - 1, load_object_map("cia402"), SCALING)
+              for node, path in zip((1, 2), dcfs, strict=True)]  # fmt: skip
+    with (
+        can.Bus(interface="virtual", channel=channel) as watch,
+        SimulatedDrives(
+            can.Bus(interface="virtual", channel=channel), drives, SOURCE, own_bus=True, clock=clock
+        ) as sim,
+    ):
+        sim.run()
+        seen = can.BufferedReader()
+        notifier = can.Notifier(watch, [seen], timeout=0.05)
+        try:
+            with link, Controller(channel, clock, cycles=120):
+                rec = Recorder(link)
+                rec.until(lambda: len(rec.times) >= 119)
+        finally:
+            notifier.stop()
+    assert np.array_equal(rec.cycles, np.arange(119))
+    assert_exact(rec)
+    assert rec.kinds("gap") == []
+    assert link.describe()["link"]["listen_only"] is True
+    ids = []
+    while (msg := seen.get_message(0)) is not None:
+        ids.append(msg.arbitration_id)
+    assert ids.count(0x000) == 1 and ids.count(0x080) == 120  # the controller's only
+    assert not [i for i in ids if 0x600 <= i <= 0x67F]  # no SDO request from the link
+
+
+def test_listening_needs_the_controllers_layout_and_sends_nothing_of_its_own() -> None:
+    problems = problems_of(
+        {"listen_only": True}, [(axis_config("X"), {"node_id": 1, "increments_per_rev": IPR})]
+    )
+    assert problems[0].startswith("axes[0].link: listen_only needs the drive's TPDO layout")
+    problems = problems_of(
+        {"listen_only": True, "sync_producer": True},
+        [(axis_config("X"), {"node_id": 1, "increments_per_rev": IPR})],
+    )
+    assert problems == [
+        "link: Value error, listen_only: the link sends nothing, so sync_producer must be false"
+    ]
+    problems = problems_of(
+        {"listen_only": True},
+        [
+            (
+                axis_config("X", rated_current_a=None),
+                {
+                    "node_id": 1,
+                    "increments_per_rev": IPR,
+                    "tpdo": [{"cob_id": 0x181, "mapping": [0x60640020, 0x606C0020]}],
+                },
+            )
+        ],
+    )
+    assert problems == [
+        "axes[0].link: the drive's TPDOs as configured (the link.tpdo table) carry no "
+        "current object; listen_only reads what the controller maps and cannot map more"
+    ]
 
 
 # --- bus load -------------------------------------------------------------------------------

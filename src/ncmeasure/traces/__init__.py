@@ -19,6 +19,8 @@ Formats (:data:`FORMATS`):
 ``twincat-csv``    TwinCAT Scope CSV export                             :mod:`.twincat_csv`
 ``tncscope``       Heidenhain TNCscope text export (``.sco``)           :mod:`.tncscope`
 ``csv``            the layout of ``ncmeasure export`` (``traces.csv.import_csv``)
+``can-log``        a CAN log of a CANopen bus (``.blf``, ``.asc``, ``.log``, ``.trc``),
+                   decoded with the machine file's CANopen link settings   :mod:`.canlog`
 
 Any other delimited text file (a data collector's CSV, a PLC log) imports
 through a column map that names the column of each channel:
@@ -53,6 +55,7 @@ from ncmeasure.traces._common import (
     check_target,
     run_import,
 )
+from ncmeasure.traces.canlog import import_can_log, is_can_log
 from ncmeasure.traces.columns import ColumnMap, import_columns, load_column_map
 from ncmeasure.traces.csv import import_csv
 from ncmeasure.traces.sinumerik_csv import import_sinumerik_csv
@@ -73,13 +76,14 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 #: The trace formats :func:`import_trace` reads.
-FORMATS: Final = ("sinumerik-xml", "sinumerik-csv", "twincat-csv", "tncscope", "csv")
+FORMATS: Final = ("sinumerik-xml", "sinumerik-csv", "twincat-csv", "tncscope", "csv", "can-log")
 
 _IMPORTERS: Final[Mapping[str, Callable[[ImportJob], Recording]]] = {
     "sinumerik-xml": import_sinumerik_xml,
     "sinumerik-csv": import_sinumerik_csv,
     "twincat-csv": import_twincat_csv,
     "tncscope": import_tncscope,
+    "can-log": import_can_log,
 }
 _SNIFF_BYTES: Final = 1 << 16
 
@@ -94,6 +98,8 @@ def detect_format(path: str | os.PathLike[str]) -> str:
         RecordingError: The file cannot be read, or its content matches no format.
     """
     source = Path(path)
+    if is_can_log(source) and source.is_file():
+        return "can-log"  # binary (BLF) or a tool's text: python-can's readers tell by the ending
     try:
         with source.open("rb") as file:
             head = file.read(_SNIFF_BYTES)
@@ -202,6 +208,10 @@ def import_trace(
     name = format if format is not None else detect_format(source)
     if name == "csv":
         return _import_recording_csv(source, target, machine, axis_names, progress)
+    if name == "can-log" and axis_names:
+        raise ConfigError(
+            "axis_names does not apply to a CAN log: the machine file's node ids name the axes"
+        )
     check_target(target)
     job = ImportJob(source, target, name, machine=machine, axis_names=axis_names, progress=progress)
     return run_import(job, _IMPORTERS[name])

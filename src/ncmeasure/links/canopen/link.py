@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import copy
 import functools
 import logging
 import math
@@ -56,7 +57,7 @@ import queue
 import struct
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Literal, cast
@@ -68,7 +69,7 @@ from canopen.emcy import EmcyError
 from canopen.objectdictionary import ObjectDictionary
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 from numpy.typing import NDArray
-from pydantic import Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError, OutputError
 from ncmeasure.links.base import AxisBinding, AxisLinkSettings, DriveLink, LinkSettings
@@ -80,6 +81,7 @@ from ncmeasure.links.canopen.objects import (
     TYPE_BY_CODE,
     DataTypeName,
     MapObject,
+    ObjectMap,
     VelocityUnit,
     build_dictionary,
     emcy_text,
@@ -125,6 +127,12 @@ class CanOpenSettings(LinkSettings):
     object_map: str = Field(
         default="cia402",
         description="Built-in object map (cia402, maxon_epos4) or the path of a TOML map.",
+    )
+    listen_only: bool = Field(
+        default=False,
+        description="Only listen: no SDO, NMT or SYNC of the link's own. The controller "
+        "owns the bus and the drives' PDO mapping; the link takes the layout from the "
+        "drives' DCF (link.eds) or the axes' tpdo tables, and a row per SYNC seen on the bus.",
     )
     sync_producer: bool = Field(
         default=True,
@@ -176,6 +184,50 @@ class CanOpenSettings(LinkSettings):
             raise ValueError(f"set {', '.join(clash)} as link settings, not in bus_options")
         return value
 
+    @model_validator(mode="after")
+    def _check_listen_only(self) -> CanOpenSettings:
+        if not self.listen_only:
+            return self
+        for key in ("sync_producer", "nmt_control"):
+            if key in self.model_fields_set and getattr(self, key):
+                raise ValueError(f"listen_only: the link sends nothing, so {key} must be false")
+        return self
+
+    @property
+    def produces_sync(self) -> bool:
+        """True when the link sends SYNC itself."""
+        return self.sync_producer and not self.listen_only
+
+    @property
+    def controls_nmt(self) -> bool:
+        """True when the link sends NMT commands."""
+        return self.nmt_control and not self.listen_only
+
+
+class TpdoTable(BaseModel):
+    """One TPDO as the controller configured it: for a link that only listens."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    cob_id: int = Field(ge=0x181, le=0x7FF, description="COB-ID of the TPDO, e.g. 0x181.")
+    mapping: list[int] = Field(
+        min_length=1,
+        max_length=8,
+        description="The mapping entries as in the drive's 0x1A00+n: index << 16 | "
+        "sub-index << 8 | bits, e.g. 0x60640020 for 0x6064:00, 32 bits.",
+    )
+
+    @field_validator("mapping")
+    @classmethod
+    def _check_mapping(cls, value: list[int]) -> list[int]:
+        for entry in value:
+            bits = entry & 0xFF
+            if not 0 <= entry <= 0xFFFFFFFF or bits == 0 or bits % 8:
+                raise ValueError(f"0x{entry:08X} is no mapping entry (index, sub-index, bits)")
+        if sum((entry & 0xFF) // 8 for entry in value) > 8:
+            raise ValueError("the entries need more than the 8 bytes of a PDO")
+        return value
+
 
 class CanOpenAxis(AxisLinkSettings):
     """The ``link`` table of an axis recorded over CANopen."""
@@ -209,6 +261,12 @@ class CanOpenAxis(AxisLinkSettings):
         description="First TPDO number the link may configure (1 = 0x1800/0x1A00); raise it "
         "when the controller uses the first TPDOs itself.",
     )
+    tpdo: list[TpdoTable] | None = Field(
+        default=None,
+        max_length=512,
+        description="listen_only: the drive's TPDOs as the controller configured them "
+        "(default: from its DCF).",
+    )
 
 
 # --- the link ----------------------------------------------------------------------------
@@ -220,11 +278,25 @@ _ABSENT_CODES = frozenset({0x06020000, 0x06090011})  # object / sub-index does n
 _STATUS_FAULT = 0x0008
 
 
+_STATUS_COLUMN = -1
+_UNREAD = -2
+
+
 @dataclass
 class _Field:
     role: str
-    obj: MapObject
-    column: int  # -1: statusword
+    """A role of the object map; empty for mapped bytes the link does not read."""
+    obj: MapObject | None
+    column: int  # _STATUS_COLUMN: statusword; _UNREAD: not read
+    unread_bytes: int = 0
+
+    @property
+    def size(self) -> int:
+        return self.obj.size if self.obj is not None else self.unread_bytes
+
+    @property
+    def np_type(self) -> str:
+        return _NP_TYPES[self.obj.type] if self.obj is not None else f"V{self.unread_bytes}"
 
 
 @dataclass
@@ -239,13 +311,13 @@ class _Slot:
 
     @property
     def size(self) -> int:
-        return sum(f.obj.size for f in self.fields)
+        return sum(f.size for f in self.fields)
 
     def update_dtype(self) -> None:
         self.dtype = np.dtype(
             {
                 "names": [f"f{k}" for k in range(len(self.fields))],
-                "formats": [_NP_TYPES[f.obj.type] for f in self.fields],
+                "formats": [f.np_type for f in self.fields],
             }
         )
 
@@ -335,7 +407,7 @@ class CanOpenLink(DriveLink):
         #: SYNC period in whole µs, as written to 0x1006.
         self._period_us = max(1, round(1e6 / settings.sync_hz))
         #: Cycles per second on the link clock: the produced rate, or the other master's.
-        self._rate_hz = 1e6 / self._period_us if settings.sync_producer else settings.sync_hz
+        self._rate_hz = 1e6 / self._period_us if settings.produces_sync else settings.sync_hz
         self._period = 1.0 / self._rate_hz
         self._map = load_object_map(settings.object_map)
         self._axes: list[_Axis] = []
@@ -361,6 +433,7 @@ class CanOpenLink(DriveLink):
         self._received = 0
         """Frames of others received (lockstep: all the simulated drives sent must be here)."""
         self._reconfiguring = 0
+        self._offline = False
         self._polled_cycle = -1
         self._last_row_cycle = -1
         self._last_sync_time: float | None = None
@@ -445,6 +518,19 @@ class CanOpenLink(DriveLink):
                     )
                     continue
                 objects[role] = chosen
+            configured: list[_ConfiguredTpdo] = []
+            if self.settings.listen_only:
+                configured = self._configured_tpdos(axis_settings, od, eds, where, problems)
+                objects = _roles_mapped(configured, self._map, od)
+                missing = [r for r in ("position", "velocity", "current") if r not in objects]
+                if missing:
+                    problems.append(
+                        f"{where}.link: the drive's TPDOs as configured "
+                        f"({_tpdo_source(axis_settings, eds)}) carry no "
+                        f"{', '.join(missing)} object; listen_only reads what the controller "
+                        "maps and cannot map more"
+                    )
+                    continue
             signals = ["current_a", "velocity_mm_min", "position_mm"]
             if "velocity_demand" in objects:
                 signals.append("velocity_cmd_mm_min")
@@ -465,6 +551,11 @@ class CanOpenLink(DriveLink):
                 columns=columns,
                 notes=notes,
             )
+            if self.settings.listen_only:
+                self._passive_layout(axis, configured)
+                self._rated_current_without_sdo(axis, where, problems)
+                self._axes.append(axis)
+                continue
             self._layout(axis)
             for slot in axis.slots:
                 comm, mapping = 0x1800 + slot.number - 1, 0x1A00 + slot.number - 1
@@ -503,6 +594,85 @@ class CanOpenLink(DriveLink):
                 return chosen
             obj = obj.fallback
         return None
+
+    def _configured_tpdos(
+        self,
+        axis_settings: CanOpenAxis,
+        od: ObjectDictionary,
+        eds: Path | None,
+        where: str,
+        problems: list[str],
+    ) -> list[_ConfiguredTpdo]:
+        """listen_only: the TPDOs the controller configured, from the tpdo table or the DCF."""
+        if axis_settings.tpdo is not None:
+            return [
+                _ConfiguredTpdo(number, table.cob_id, 1, list(table.mapping))
+                for number, table in enumerate(axis_settings.tpdo, start=1)
+            ]
+        if eds is None:
+            problems.append(
+                f"{where}.link: listen_only needs the drive's TPDO layout as the controller "
+                "configured it: its DCF (link.eds) or "
+                f"{where}.link.tpdo = [{{ cob_id = 0x181, mapping = [0x60640020, ...] }}]"
+            )
+            return []
+        found = []
+        for number in range(1, 513):
+            tpdo = _dcf_tpdo(od, number)
+            if tpdo is not None:
+                found.append(tpdo)
+        for tpdo in found:
+            if _roles_mapped([tpdo], self._map, od) and tpdo.transmission_type != 1:
+                problems.append(
+                    f"{where}.link.eds: {eds}: TPDO{tpdo.number} (0x{tpdo.cob_id:03X}) has "
+                    f"transmission type {tpdo.transmission_type}; a row per SYNC needs 1 "
+                    "(sent on every SYNC)"
+                )
+        return found
+
+    def _rated_current_without_sdo(self, axis: _Axis, where: str, problems: list[str]) -> None:
+        """Rated current and scales when the drive cannot be asked: configured, else the DCF's."""
+        axis.rated_current_a = axis.configured_rated_current_a
+        needs = any(o.unit.startswith("permille") for o in axis.objects.values())
+        if needs and axis.rated_current_a is None:
+            obj = self._map.rated_current
+            value = _od_value(axis.od, obj.index, obj.subindex) if obj and axis.eds else None
+            if obj is None or not value or value <= 0:
+                label = f" or a DCF with its {obj.label}" if obj is not None else ""
+                problems.append(
+                    f"{where}.rated_current_a: the current comes in per mille of the rated "
+                    f"current, and without SDO the drive cannot be asked: set it{label}"
+                )
+                return
+            axis.rated_current_a = value / 1000.0
+            axis.notes.append(f"rated current {value / 1000:g} A from {axis.eds} ({obj.label})")
+        self._set_scales(axis)
+
+    def _passive_layout(self, axis: _Axis, configured: list[_ConfiguredTpdo]) -> None:
+        """The slots of the TPDOs that carry an object the link reads, as configured."""
+        axis.slots = []
+        for tpdo in configured:
+            fields: list[_Field] = []
+            for entry in tpdo.mapping:
+                index, subindex, size = entry >> 16, (entry >> 8) & 0xFF, (entry & 0xFF) // 8
+                role = next(
+                    (
+                        r
+                        for r, o in axis.objects.items()
+                        if (o.index, o.subindex) == (index, subindex)
+                    ),
+                    "",
+                )
+                if role:
+                    obj = axis.objects[role]
+                    column = axis.columns.get(SIGNAL_BY_ROLE.get(role, ""), _STATUS_COLUMN)
+                    fields.append(_Field(role, obj, column))
+                else:
+                    fields.append(_Field("", None, _UNREAD, size))
+            if any(f.role for f in fields):
+                slot = _Slot(axis, tpdo.number, fields, cob_id=tpdo.cob_id)
+                slot.update_dtype()
+                axis.slots.append(slot)
 
     def _layout(self, axis: _Axis) -> None:
         """Pack the axis' objects into TPDOs following the map's layout."""
@@ -547,13 +717,11 @@ class CanOpenLink(DriveLink):
         )
 
     def now_s(self) -> float | None:
-        """The link time now: the newest SYNC's (lockstep), else the clock since SYNC 0."""
+        """The link time now: the newest SYNC's (lockstep), else the clock since streaming."""
         if not self._streaming:
             return None
-        if self.clock.lockstep or not self.settings.sync_producer:
-            return max(self._sent_cycle if self.settings.sync_producer else self._cycle, 0) * (
-                self._period
-            )
+        if self.clock.lockstep:
+            return max(self._sent_cycle, 0) * self._period
         return self.clock.now() - self._t0
 
     @property
@@ -620,8 +788,8 @@ class CanOpenLink(DriveLink):
     # --- open ------------------------------------------------------------------------
 
     def _open(self) -> None:
-        load = self.planned_bus_load()
-        self._check_load(load)
+        if not self.settings.listen_only:  # listening, the controller's layout is what it is
+            self._check_load(self.planned_bus_load())
         self._assembler = self._new_assembler()
         self._bus = self._make_bus()
         network = canopen.Network(self._bus)
@@ -642,10 +810,29 @@ class CanOpenLink(DriveLink):
             axis.node = node
             node.emcy.add_callback(functools.partial(self._on_emcy, axis))
             node.nmt.add_heartbeat_callback(functools.partial(self._on_heartbeat, axis))
+        if self.settings.listen_only:
+            for axis in self._axes:
+                self._report_notes(axis)
+        else:
+            self._configure_drives()
+        if self._mode == "pdo":
+            for index, slot in enumerate(self._slots):
+                network.subscribe(slot.cob_id, self._pdo_callback(index, slot))
+        self._t0 = self.clock.now()
+        self._streaming = True
+        if self._mode == "sdo_polling":
+            self._start_thread(self._poll, "canopen-link-poll")
+        if self.settings.produces_sync:
+            self._start_thread(self._produce_sync, "canopen-link-sync")
+            self._await_own_sync()
+        else:
+            network.subscribe(0x80, self._on_sync_frame)
+
+    def _configure_drives(self) -> None:
+        """The master's part: read the objects, map the TPDOs, start the nodes (SDO, NMT)."""
         for axis in self._axes:
             self._prepare(axis)
-        load = self.planned_bus_load()  # objects may have changed to fallbacks
-        self._check_load(load)
+        self._check_load(self.planned_bus_load())  # objects may have changed to fallbacks
         for axis in self._axes:
             try:
                 self._map_tpdos(axis)
@@ -654,17 +841,10 @@ class CanOpenLink(DriveLink):
                 break
         for axis in self._axes:
             self._start_node(axis)
-        if self._mode == "pdo":
-            for index, slot in enumerate(self._slots):
-                network.subscribe(slot.cob_id, self._pdo_callback(index, slot))
-        self._streaming = True
-        if self._mode == "sdo_polling":
-            self._start_thread(self._poll, "canopen-link-poll")
-        if self.settings.sync_producer:
-            self._start_thread(self._produce_sync, "canopen-link-sync")
-            self._await_own_sync()
-        else:
-            network.subscribe(0x80, self._on_sync_frame)
+
+    def _report_notes(self, axis: _Axis) -> None:
+        for note in axis.notes:
+            self._event(LinkEvent(0.0, "info", f"{axis.who}: {note}", axis=axis.name))
 
     def _await_own_sync(self) -> None:
         """The first own SYNC must come back through the receive stream (bus order)."""
@@ -708,7 +888,7 @@ class CanOpenLink(DriveLink):
         if s.channel is not None:
             kwargs["channel"] = s.channel
         kwargs["bitrate"] = s.bitrate
-        if s.sync_producer or s.raw_log is not None:
+        if s.produces_sync or s.raw_log is not None:
             # Own SYNCs come back in bus order among the PDOs (and the log shows them).
             kwargs["receive_own_messages"] = True
         try:
@@ -744,7 +924,7 @@ class CanOpenLink(DriveLink):
         return LinkError(text)
 
     def _nmt(self, axis: _Axis, state: str) -> None:
-        if self.settings.nmt_control and axis.node is not None:
+        if self.settings.controls_nmt and axis.node is not None:
             axis.node.nmt.state = state
 
     def _prepare(self, axis: _Axis) -> None:
@@ -783,13 +963,12 @@ class CanOpenLink(DriveLink):
         self._assembler = self._new_assembler()
         self._read_rated_current(axis)
         self._set_scales(axis)
-        if self.settings.sync_producer:
+        if self.settings.produces_sync:
             try:  # lets the drive monitor the SYNC; optional for the measurement
                 self._sdo_down(axis, 0x1006, 0, struct.pack("<I", self._period_us))
             except (SdoAbortedError, SdoCommunicationError) as exc:
                 log.info("%s: 0x1006 not written (%s)", axis.who, sdo_error_text(exc))
-        for note in axis.notes:
-            self._event(LinkEvent(0.0, "info", f"{axis.who}: {note}", axis=axis.name))
+        self._report_notes(axis)
 
     def _read_rated_current(self, axis: _Axis) -> None:
         needs = any(o.unit.startswith("permille") for o in axis.objects.values())
@@ -879,6 +1058,7 @@ class CanOpenLink(DriveLink):
                     self._sdo_down(axis, comm, 3, struct.pack("<H", 0))
                 self._sdo_down(axis, mapping, 0, struct.pack("<B", 0))
                 for k, f in enumerate(slot.fields, start=1):
+                    assert f.obj is not None  # the link's own layout reads every byte
                     entry = f.obj.index << 16 | f.obj.subindex << 8 | 8 * f.obj.size
                     self._sdo_down(axis, mapping, k, struct.pack("<I", entry))
                 self._sdo_down(axis, mapping, 0, struct.pack("<B", len(slot.fields)))
@@ -965,6 +1145,17 @@ class CanOpenLink(DriveLink):
 
     def _on_heartbeat(self, axis: _Axis, state: int) -> None:
         if state != 0 or not self._streaming:
+            return
+        if self.settings.listen_only or self._offline:
+            self._event(
+                LinkEvent(
+                    self._cycle_time(),
+                    "reboot",
+                    f"{axis.who} rebooted (boot-up message): its PDOs stop until the "
+                    "controller configures it again; the cycles until then are a gap",
+                    axis=axis.name,
+                )
+            )
             return
         self._event(
             LinkEvent(
@@ -1121,7 +1312,7 @@ class CanOpenLink(DriveLink):
             last = cycle
             try:
                 row = [
-                    b"".join(self._poll_object(slot.axis, f.obj) for f in slot.fields)
+                    b"".join(self._poll_field(slot.axis, f) for f in slot.fields)
                     for slot in self._slots
                 ]
             except (SdoAbortedError, SdoCommunicationError) as exc:
@@ -1145,9 +1336,11 @@ class CanOpenLink(DriveLink):
     def _new_cycle(self, last: int) -> bool:
         return self._cycle != last or self._stop.is_set()
 
-    def _poll_object(self, axis: _Axis, obj: MapObject) -> bytes:
-        raw = self._sdo_up(axis, obj.index, obj.subindex)
-        return _fit(raw, obj)
+    def _poll_field(self, axis: _Axis, f: _Field) -> bytes:
+        if f.obj is None:
+            return bytes(f.unread_bytes)
+        raw = self._sdo_up(axis, f.obj.index, f.obj.subindex)
+        return _fit(raw, f.obj)
 
     def _work(self) -> None:
         while True:
@@ -1175,7 +1368,7 @@ class CanOpenLink(DriveLink):
             try:
                 if self._mode == "pdo":
                     self._map_tpdos(axis)
-                if self.settings.sync_producer:
+                if self.settings.produces_sync:
                     period_us = struct.pack("<I", self._period_us)
                     with contextlib.suppress(SdoAbortedError):
                         self._sdo_down(axis, 0x1006, 0, period_us)
@@ -1209,6 +1402,81 @@ class CanOpenLink(DriveLink):
             if self._failure is None:
                 self._failure = error
             self._cond.notify_all()
+
+    # --- offline: a CAN log ----------------------------------------------------------------
+
+    def decode_frames(
+        self, messages: Iterable[can.Message], block_rows: int = 20_000
+    ) -> Iterator[tuple[SampleBlock, list[LinkEvent]]]:
+        """Decode a CAN log the way this link reads the bus, without a bus: rows and events.
+
+        Every SYNC in the log starts a cycle (missing ones are told by the frames' time
+        stamps, as for the SYNC of another master); every PDO frame belongs to the SYNC
+        before it. The TPDO layout is the one this link reads: the controller's (DCF or
+        tpdo tables) when it only listens, else the layout it configures itself, on the
+        predefined COB-IDs. Nothing is sent and no drive is asked, so the rated current
+        comes from the machine file or the DCF.
+
+        Yields:
+            Blocks of at most ``block_rows`` rows, each with the events since the last.
+
+        Raises:
+            LinkError: the link is open.
+            ConfigError: the rated current or a COB-ID cannot be known without SDO.
+        """
+        if self._state != "new":
+            raise LinkError("decode_frames needs a canopen link that was never opened")
+        self._prepare_offline()
+        handlers = {slot.cob_id: self._pdo_callback(i, slot) for i, slot in enumerate(self._slots)}
+        nodes = {axis.node_id: axis for axis in self._axes}
+        for msg in messages:
+            if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+                continue
+            can_id, data = msg.arbitration_id, msg.data
+            if can_id == 0x80:
+                self._on_sync_frame(can_id, data, msg.timestamp)
+            elif can_id in handlers:
+                handlers[can_id](can_id, data, msg.timestamp)
+            elif 0x81 <= can_id <= 0xFF and can_id - 0x80 in nodes and len(data) >= 3:
+                code, register = int.from_bytes(data[:2], "little"), data[2]
+                entry = EmcyError(code, register, bytes(data[3:8]), msg.timestamp)
+                self._on_emcy(nodes[can_id - 0x80], entry)
+            elif 0x701 <= can_id <= 0x77F and can_id - 0x700 in nodes and data[:1] == b"\0":
+                self._on_heartbeat(nodes[can_id - 0x700], 0)
+            if len(self._ready) >= block_rows:
+                yield self._take_block(), self.events()
+        with self._cond:
+            self._settle()
+            self._close_gap()
+        yield self._take_block(), self.events()
+
+    def _prepare_offline(self) -> None:
+        problems: list[str] = []
+        for axis in self._axes:
+            where = f"axes[{axis.position}]"
+            if axis.rated_current_a is None and not axis.scales:
+                self._rated_current_without_sdo(axis, where, problems)
+            for slot in axis.slots:
+                if slot.cob_id:
+                    continue
+                if slot.number > 4:
+                    problems.append(
+                        f"{where}.link.first_tpdo: TPDO{slot.number} has no predefined COB-ID; "
+                        "the log cannot tell which frames are its"
+                    )
+                slot.cob_id = 0x180 + 0x100 * (slot.number - 1) + axis.node_id
+            self._report_notes(axis)
+        if problems:
+            raise ConfigError("the CAN log cannot be decoded with these link settings", problems)
+        self._assembler = self._new_assembler()
+        self._offline = True
+        self._streaming = True
+
+    def _take_block(self) -> SampleBlock:
+        with self._cond:
+            rows, self._ready = self._ready, []
+            self._stats["rows"] += len(rows)
+        return self._decode(rows) if rows else self.empty_block()
 
     # --- rows, gaps -------------------------------------------------------------------
 
@@ -1278,7 +1546,7 @@ class CanOpenLink(DriveLink):
                 f"{gap.doubled} cycles with two frames of one TPDO ({late}: a drive answered "
                 "a cycle late), so their cycles cannot be told apart"
             )
-        if gap.no_sync and self.settings.sync_producer:
+        if gap.no_sync and self.settings.produces_sync:
             reasons.append(f"{gap.no_sync} SYNC cycles not sent (the host fell behind)")
         elif gap.no_sync:
             reasons.append(f"{gap.no_sync} SYNC cycles missing on the bus")
@@ -1361,7 +1629,7 @@ class CanOpenLink(DriveLink):
                 column = raw[f"f{k}"]
                 if f.column >= 0:
                     values[:, f.column] = column * slot.axis.scales[f.role]
-                else:
+                elif f.column == _STATUS_COLUMN:
                     self._check_status(slot.axis, column, time_s)
         return SampleBlock(time_s, values)
 
@@ -1433,18 +1701,103 @@ class CanOpenLink(DriveLink):
         self._bus = None
 
 
+@dataclass(frozen=True)
+class _ConfiguredTpdo:
+    number: int
+    cob_id: int
+    transmission_type: int
+    mapping: list[int]
+
+
+def _od_value(od: ObjectDictionary, index: int, subindex: int) -> int | None:
+    """A DCF's configured value (ParameterValue), else the EDS default; None when absent."""
+    var = od_variable(od, index, subindex)
+    if var is None:
+        return None
+    value = var.value if var.value is not None else var.default
+    return value if isinstance(value, int) else None
+
+
+def _dcf_tpdo(od: ObjectDictionary, number: int) -> _ConfiguredTpdo | None:
+    """TPDO ``number`` of a DCF/EDS when it is valid and fully mapped, else None."""
+    comm, mapping = 0x1800 + number - 1, 0x1A00 + number - 1
+    cob_id = _od_value(od, comm, 1)
+    count = _od_value(od, mapping, 0)
+    if cob_id is None or cob_id & _COB_INVALID or not count:
+        return None
+    entries = [_od_value(od, mapping, k) for k in range(1, count + 1)]
+    if any(entry is None for entry in entries):
+        return None
+    transmission = _od_value(od, comm, 2)
+    return _ConfiguredTpdo(
+        number,
+        cob_id & 0x7FF,
+        255 if transmission is None else transmission,
+        entries,  # type: ignore[arg-type]
+    )
+
+
+def _roles_mapped(
+    configured: Sequence[_ConfiguredTpdo], object_map: ObjectMap, od: ObjectDictionary
+) -> dict[str, MapObject]:
+    """The roles whose object (or a fallback) the TPDOs map, with the mapped size's type."""
+    mapped = {
+        (entry >> 16, (entry >> 8) & 0xFF): (entry & 0xFF) // 8
+        for tpdo in configured
+        for entry in tpdo.mapping
+    }
+    found: dict[str, MapObject] = {}
+    for role in ("statusword", "position", "velocity", "velocity_demand", "current"):
+        obj = object_map.role(role)
+        while obj is not None:
+            size = mapped.get((obj.index, obj.subindex))
+            if size is not None:
+                found[role] = obj if obj.size == size else obj.with_type(_sized(obj, size, od))
+                break
+            obj = obj.fallback
+    return found
+
+
+def _sized(obj: MapObject, size: int, od: ObjectDictionary) -> DataTypeName:
+    """The object's type as the mapping says its size: the EDS's, else the map's signedness."""
+    var = od_variable(od, obj.index, obj.subindex)
+    eds_type = TYPE_BY_CODE.get(var.data_type or 0) if var is not None else None
+    if (
+        eds_type is not None
+        and DATA_TYPES[eds_type][1]
+        and struct.calcsize("<" + DATA_TYPES[eds_type][1]) == size
+    ):
+        return cast(DataTypeName, eds_type)
+    signed = obj.type.startswith("int")
+    return cast(DataTypeName, f"{'int' if signed else 'uint'}{8 * size}")
+
+
+def _tpdo_source(axis_settings: CanOpenAxis, eds: Path | None) -> str:
+    return "the link.tpdo table" if axis_settings.tpdo is not None else f"DCF {eds}"
+
+
 class _RawLog(can.Listener):
-    """The raw frame log; a writer that fails stops logging, never the measurement."""
+    """The raw frame log; a writer that fails stops logging, never the measurement.
+
+    In lockstep the frames are stamped with the simulated time (from the wall-clock
+    time the log started): the log is of the simulated bus, in the machine's time, so
+    that a SYNC every period shows as one, as on a real bus.
+    """
 
     def __init__(self, link: CanOpenLink, writer: can.Listener, path: Path) -> None:
         self._link = link
         self._writer = writer
         self._path = path
         self._failed = False
+        self._epoch = time.time()
 
     def on_message_received(self, msg: can.Message) -> None:
         if self._failed:
             return
+        clock = self._link.clock
+        if clock.lockstep:
+            msg = copy.copy(msg)
+            msg.timestamp = self._epoch + clock.now()
         try:
             self._writer.on_message_received(msg)
         except Exception as exc:  # python-can writers raise struct.error, OSError, ...

@@ -1,0 +1,136 @@
+"""CAN logs become recordings: decoded as the CANopen link reads the live bus."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from ncmeasure.acquire import record
+from ncmeasure.cli import app
+from ncmeasure.errors import ConfigError, RecordingError
+from ncmeasure.recording import read_recording
+from ncmeasure.samples import SimulatedClock
+from ncmeasure.traces import detect_format, import_trace
+from tests.test_acquire_links import canopen_machine
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
+    """A recording of three simulated drives in lockstep, with its raw log (.blf).
+
+    Node 2 is silent for 30 cycles, so the log holds a gap too.
+    """
+    folder = tmp_path_factory.mktemp("canlog")
+    clock = SimulatedClock()
+    with canopen_machine(clock=clock) as (config, drives):
+        drives.at_sync(100, drives[1].stop_answering)
+        drives.at_sync(130, drives[1].resume)
+        drives.at_sync(300, lambda: drives[0].send_emcy(0x7121))
+        record(
+            config,
+            out=folder / "live",
+            duration_s=2.0,
+            clock=clock,
+            link_settings={"raw_log": str(folder / "bus.blf")},
+        )
+    return folder, config
+
+
+@pytest.mark.parametrize("suffix", [".blf", ".asc"])
+def test_a_raw_log_imported_gives_the_samples_of_the_live_recording(
+    recorded: tuple[Path, object], suffix: str, tmp_path: Path
+) -> None:
+    folder, config = recorded
+    log = folder / "bus.blf"
+    if suffix != ".blf":  # the same frames in another format python-can writes
+        log = tmp_path / f"bus{suffix}"
+        with can.Logger(str(log)) as writer:
+            for msg in can.LogReader(str(folder / "bus.blf")):
+                writer.on_message_received(msg)
+    live = read_recording(folder / "live")
+    result = import_trace(log, tmp_path / "imported", machine=config)  # type: ignore[arg-type]
+    imported = result.recording
+    # the log goes on until the link closed, after the live recording's end
+    assert len(imported) > len(live)
+    assert np.array_equal(live.time_s, imported.time_s[: len(live)])
+    assert np.array_equal(live.values, imported.values[: len(live)])
+    assert [c.name for c in live.channels] == [c.name for c in imported.channels]
+    gaps = [(e.time_s, e.lost_samples, e.axis) for e in imported.events if e.kind == "gap"]
+    assert gaps == [(pytest.approx(0.4), 30, "Y")]
+    emcy = [e for e in imported.events if e.kind == "emcy"]
+    assert len(emcy) == 1 and "motor blocked" in emcy[0].message
+    assert emcy[0].time_s == pytest.approx(300 * 0.004)
+    assert imported.meta.source == "import:can-log" and imported.meta.status == "incomplete"
+    assert any("SYNC cycles" in line for line in result.report)
+
+
+def test_the_command_line_imports_a_log_by_its_ending(
+    recorded: tuple[Path, object], tmp_path: Path
+) -> None:
+    folder, _ = recorded
+    machine = tmp_path / "m.toml"
+    assert detect_format(folder / "bus.blf") == "can-log"
+    live = read_recording(folder / "live")
+    machine.write_text(_machine_toml(live.meta.link), encoding="utf-8")
+    result = runner.invoke(
+        app,
+        ["import", str(folder / "bus.blf"), "--machine", str(machine), "-o", str(tmp_path / "r")],
+    )
+    assert result.exit_code == 0, result.output
+    imported = read_recording(tmp_path / "r")
+    assert np.array_equal(live.values, imported.values[: len(live)])
+
+
+def _machine_toml(link: dict[str, object]) -> str:
+    """The example machine of the tests with the live recording's CANopen link."""
+    from tests.conftest import example_data, machine_toml
+
+    data = example_data()
+    settings = dict(link["link"])  # type: ignore[call-overload]
+    data["link"] = {
+        "type": "canopen",
+        "channel": settings["channel"],
+        "sync_hz": settings["sync_hz"],
+    }
+    for i, axis in enumerate(data["axes"]):
+        axis["link"] = {"node_id": i + 1, "increments_per_rev": 10_000}
+    return machine_toml(data)
+
+
+def test_a_log_needs_the_machine_files_canopen_link(
+    recorded: tuple[Path, object], tmp_path: Path
+) -> None:
+    folder, _ = recorded
+    with pytest.raises(ConfigError, match="CANopen settings"):
+        import_trace(folder / "bus.blf", tmp_path / "r")
+    result = runner.invoke(app, ["import", str(folder / "bus.blf"), "-o", str(tmp_path / "r")])
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_log_of_other_nodes_is_refused_and_leaves_nothing(
+    recorded: tuple[Path, object], tmp_path: Path
+) -> None:
+    folder, config = recorded
+    data = config.model_dump()  # type: ignore[attr-defined]
+    for i, axis in enumerate(data["axes"]):
+        axis["link"]["node_id"] = 40 + i
+    other = type(config).model_validate(data)
+    with pytest.raises(RecordingError, match="no complete SYNC cycle of the nodes 40, 41, 42"):
+        import_trace(folder / "bus.blf", tmp_path / "r", machine=other)
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_damaged_log_is_a_clear_error(recorded: tuple[Path, object], tmp_path: Path) -> None:
+    _, config = recorded
+    broken = tmp_path / "broken.blf"
+    broken.write_bytes(b"LOGG" + bytes(200))
+    with pytest.raises(RecordingError, match=str(broken)):
+        import_trace(broken, tmp_path / "r", machine=config)  # type: ignore[arg-type]
+    assert not (tmp_path / "r").exists()
