@@ -2,15 +2,29 @@
 
 The pipeline, one folder per stage, data flowing one way:
 
-1. ``config``   a machine file (TOML) -> validated :class:`MachineConfig`
-2. ``plan``     config -> :class:`Schedule`: velocity steps, positions, windows, timing
-3. ``program``  schedule -> NC main program and one subprogram per axis, per
-                controller dialect (Jinja templates), and a reader that checks them
-4. ``links``    drive links (CANopen CiA 402, Modbus TCP/RTU, replay) -> sample blocks
-5. ``recording`` crash-safe recordings on disk: writer, reader, CSV/MDF4 exchange
-6. ``acquire``  the acquisition service: a link -> a recording, until done
-7. ``sim``      simulated drives for tests and demos
-8. ``cli``      the ``ncmeasure`` command: init, plan, generate, check, record, export, import
+1. ``config``    a machine file (TOML) -> validated :class:`MachineConfig`
+2. ``plan``      config -> :class:`Schedule`: velocity steps, positions, windows, timing
+3. ``program``   schedule -> NC main program and one subprogram per axis, per
+                 controller dialect (Jinja templates), and a reader that checks them
+4. ``links``     drive links (CANopen CiA 402, Modbus TCP/RTU, replay) -> sample blocks
+5. ``recording`` crash-safe recordings on disk: format, writer, reader, import sink
+6. ``acquire``   the acquisition service: a link -> a recording, until done
+7. ``traces``    controller traces, CSV/MDF4 exchange and CAN logs -> recordings
+8. ``analysis``  recordings -> friction, fits, diagnosis, comparison; ``report`` -> HTML
+9. ``sim``       the virtual machine and simulated drives, for the demo and the tests
+10. ``cli``      the ``ncmeasure`` command
+
+The layers (a module imports only from its own layer and the ones below)::
+
+    cli
+    demo ─────────────────────────── sim.machine, sim.axis, sim.synthetic
+    report ── analysis               sim.cia402, sim.modbus_drive (the protocol
+    traces ── acquire                  knowledge of links.canopen.objects and
+              links (base, canopen,    links.modbus.registers, not the links)
+              modbus, replay)
+    recording (format, writer, reader, sink)
+    program ── plan ── profile
+    config, errors, validity, samples (the sample vocabulary and the clocks), _version
 
 The public API is re-exported here::
 
