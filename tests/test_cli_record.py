@@ -254,10 +254,12 @@ def test_sigterm_closes_the_recording_and_exits_3(tmp_path: Path) -> None:
         text=True,
         env={**os.environ, "COLUMNS": "200"},
     )
-    deadline = time.monotonic() + 30
-    while not (tmp_path / "run2" / "samples.bin").exists() and time.monotonic() < deadline:
-        time.sleep(0.1)
-    time.sleep(1.5)
+    deadline = time.monotonic() + 60  # a guard against a hang, not a timing
+    samples = tmp_path / "run2" / "samples.bin"
+    while time.monotonic() < deadline:  # stop once some rows are on disk, whenever that is
+        if samples.exists() and samples.stat().st_size > 200 * 8 * 10:
+            break
+        time.sleep(0.05)
     process.send_signal(signal.SIGTERM)
     _, err = process.communicate(timeout=30)
     assert process.returncode == 3, err
@@ -272,7 +274,6 @@ def test_sigterm_closes_the_recording_and_exits_3(tmp_path: Path) -> None:
 
 def test_simulate_drive_canopen_serves_a_recording(tmp_path: Path) -> None:
     import threading
-    import time
     import uuid
 
     from ncmeasure.acquire import record
@@ -297,7 +298,7 @@ def test_simulate_drive_canopen_serves_a_recording(tmp_path: Path) -> None:
         daemon=True,
     )
     server.start()
-    time.sleep(1.0)  # the drives join the virtual bus
+    _wait_for_node(channel, 1)
     machine = _machine_with(
         tmp_path,
         f'type = "canopen"\ninterface = "virtual"\nchannel = "{channel}"',
@@ -311,6 +312,31 @@ def test_simulate_drive_canopen_serves_a_recording(tmp_path: Path) -> None:
         axis_settings={"X": {"node_id": 1}, "Y": {"node_id": 2}, "Z": {"node_id": 3}},
     )
     server.join(timeout=30)
-    assert result.status == "complete"
-    assert len(read_recording(tmp_path / "r").time_s) == 250
+    # real time (the drives serve another program): a busy host may skip SYNC cycles,
+    # but every cycle of the second is a row or a counted loss
+    assert result.status in ("complete", "incomplete")
+    assert len(read_recording(tmp_path / "r").time_s) + result.lost_samples == 250
     assert done == [0]
+
+
+def _wait_for_node(channel: str, node_id: int) -> None:
+    """Until the simulated drive answers an SDO request (a guard of 60 s, not a timing)."""
+    import time
+
+    import canopen
+
+    network = canopen.Network()
+    network.connect(interface="virtual", channel=channel)
+    try:
+        remote = canopen.RemoteNode(node_id, canopen.ObjectDictionary())  # type: ignore[no-untyped-call]
+        remote.sdo.RESPONSE_TIMEOUT = 0.2
+        network.add_node(remote)
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                remote.sdo.upload(0x1000, 0)
+                return
+            except canopen.SdoCommunicationError:
+                assert time.monotonic() < deadline, "the simulated drive never answered"
+    finally:
+        network.disconnect()

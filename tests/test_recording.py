@@ -209,7 +209,9 @@ def test_rows_are_flushed_without_an_explicit_flush(tmp_path: Path) -> None:
     try:
         writer.append(block(0, 300))
         writer.add_event(LinkEvent(0.1, "info", "started"))
-        time.sleep(0.6)
+        deadline = time.monotonic() + 60  # the flush thread writes them; a guard, not a timing
+        while writer.rows_written < 300 and time.monotonic() < deadline:
+            time.sleep(0.01)
         live = Recording.open(directory)  # a second handle, while the writer is open
         assert len(live) == 300
         assert same_bits(live.values, rows_for(0, 300, len(XY))[1])
@@ -278,7 +280,7 @@ RECORDER = textwrap.dedent(
         values = np.column_stack([index * 0.5 - 3.0, np.sqrt(index)])
         writer.append(SampleBlock(index * 0.001, values))
         k += 10
-        print(k, flush=True)
+        print(k, writer.rows_written, flush=True)  # appended, and on disk (fsynced)
         due += 0.01
         time.sleep(max(0.0, due - time.monotonic()))
     """
@@ -286,7 +288,12 @@ RECORDER = textwrap.dedent(
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="SIGKILL is POSIX")
-def test_rows_older_than_one_second_survive_kill_9(tmp_path: Path) -> None:
+def test_rows_on_disk_survive_kill_9(tmp_path: Path) -> None:
+    """What the flush thread wrote (every 0.5 s, fsynced) survives ``kill -9``, exactly.
+
+    The recorder reports what it appended and what is on disk; the test kills it once
+    1500 rows are on disk, whenever that is on a busy computer.
+    """
     script = tmp_path / "recorder.py"
     script.write_text(RECORDER, encoding="utf-8")
     directory = tmp_path / "killed"
@@ -296,41 +303,26 @@ def test_rows_older_than_one_second_survive_kill_9(tmp_path: Path) -> None:
         stderr=subprocess.PIPE,
         text=True,
     )
-    progress: list[tuple[float, str]] = []  # (when the line arrived, the line)
-
-    def read_progress() -> None:
-        assert process.stdout is not None
-        for line in process.stdout:
-            progress.append((time.monotonic(), line.strip()))
-
-    reader = threading.Thread(target=read_progress, daemon=True)
-    reader.start()
+    assert process.stdout is not None
+    on_disk = appended = 0
     try:
-        deadline = time.monotonic() + 60
-        while not any(line == "ready" for _, line in progress):
-            if process.poll() is not None or time.monotonic() > deadline:
-                assert process.stderr is not None
-                pytest.fail(f"the recorder did not start: {process.stderr.read()}")
-            time.sleep(0.05)
-        time.sleep(2.0)
-        killed_at = time.monotonic()
+        deadline = time.monotonic() + 120  # a guard against a hang
+        for line in process.stdout:
+            if line.strip() == "ready":
+                continue
+            appended, on_disk = (int(word) for word in line.split())
+            if on_disk >= 1500 or time.monotonic() > deadline:
+                break
         os.kill(process.pid, signal.SIGKILL)
         process.wait(timeout=10)
     finally:
         if process.poll() is None:
             process.kill()
             process.wait(timeout=10)
-    reader.join(timeout=10)
     assert process.returncode == -signal.SIGKILL
-
-    counts = [(t, int(line)) for t, line in progress if line.isdigit()]
-    old = max(
-        (k for t, k in counts if t <= killed_at - 1.0), default=0
-    )  # appended over 1 s before the kill
-    appended = max(k for _, k in counts)
-    assert old >= 500  # the recorder really ran for a while
+    assert on_disk >= 1500, process.stderr.read() if process.stderr else ""
     rec = Recording.open(directory)
-    assert old <= len(rec) <= appended + 10
+    assert on_disk <= len(rec) <= appended + 10  # what was on disk, perhaps a frame more
     index = np.arange(len(rec))
     assert same_bits(rec.time_s, index * 0.001)
     assert same_bits(rec.values[:, 0], index * 0.5 - 3.0)
