@@ -12,7 +12,7 @@ import pytest
 
 from ncmeasure.acquire import Progress, acquire, record
 from ncmeasure.config import MachineConfig, parse_machine
-from ncmeasure.errors import LinkError
+from ncmeasure.errors import ConfigError, LinkError
 from ncmeasure.links.base import AxisBinding, AxisLinkSettings, DriveLink, LinkSettings
 from ncmeasure.recording import RecordingWriter, read_recording
 from ncmeasure.samples import Channel, LinkEvent, SampleBlock, channels_for
@@ -43,12 +43,17 @@ class CountingLink(DriveLink):
         rows_per_read: int = 50,
         fail_after: int | None = None,
         total: int | None = None,
+        silent_after: int | None = None,
+        ahead_s: float = 0.0,
     ) -> None:
         super().__init__(settings, axes)
         self.rows_per_read = rows_per_read
         self.fail_after = fail_after
         self.total = total
+        self.silent_after = silent_after
+        self.ahead_s = ahead_s
         self.next = 0
+        self.reads = 0
 
     @property
     def channels(self) -> tuple[Channel, ...]:
@@ -61,9 +66,16 @@ class CountingLink(DriveLink):
     def _open(self) -> None:
         self.next = 0
 
+    def now_s(self) -> float | None:
+        """The link's time: a cycle per read, ``ahead_s`` ahead of its rows."""
+        return self.reads * self.rows_per_read * PERIOD_S + self.ahead_s
+
     def _read(self, timeout_s: float) -> SampleBlock | None:
+        self.reads += 1
         if self.total is not None and self.next >= self.total:
             return None
+        if self.silent_after is not None and self.next >= self.silent_after:
+            return self.empty_block()  # the drives fell silent: no row, ever
         if self.fail_after is not None and self.next >= self.fail_after:
             self._event(LinkEvent(self.next * PERIOD_S, "fault", "bus off"))
             raise LinkError("bus off")
@@ -106,6 +118,40 @@ def test_duration_stops_on_the_link_clock(tmp_path: Path) -> None:
     assert recording.meta.status == "complete"
     np.testing.assert_array_equal(recording.values[:, 0], np.arange(250))
     assert recording.problems == []
+
+
+def test_drives_that_fall_silent_still_end_the_recording_on_time(tmp_path: Path) -> None:
+    """The duration is checked on the link's clock whether rows arrive or not."""
+    config = machine()
+    link = counting_link(config, silent_after=100)
+    with link:
+        result = acquire(link, writer_for(link, tmp_path / "run", config), duration_s=2.0)
+    assert result.status == "complete" and result.rows == 100
+    assert link.now_s() is not None and link.now_s() >= 2.0  # it ended by the clock
+
+
+def test_a_link_ahead_of_its_reader_loses_no_row(tmp_path: Path) -> None:
+    """A link whose time runs ahead of the rows it still holds (lockstep, a slow reader)."""
+    config = machine()
+    link = counting_link(config, ahead_s=100.0)
+    with link:
+        result = acquire(link, writer_for(link, tmp_path / "run", config), duration_s=2.0)
+    assert result.status == "complete" and result.rows == 500  # 2 s at 4 ms, every one
+
+
+@pytest.mark.parametrize("duration", [0.0, -1.0, float("nan"), float("inf")])
+def test_a_duration_must_be_positive_and_finite(tmp_path: Path, duration: float) -> None:
+    config = machine()
+    link = counting_link(config)
+    with (
+        link,
+        writer_for(link, tmp_path / "run", config) as writer,
+        pytest.raises(ConfigError, match="a recording lasts a positive, finite"),
+    ):
+        acquire(link, writer, duration_s=duration)
+    with pytest.raises(ConfigError, match="a recording lasts a positive, finite"):
+        record(config, out=tmp_path / "r", link="replay", duration_s=duration)
+    assert not (tmp_path / "r").exists()
 
 
 def test_stop_request_closes_as_interrupted(tmp_path: Path) -> None:

@@ -198,9 +198,11 @@ def acquire(
                 if cut < len(block):
                     block = SampleBlock(block.time_s[:cut], block.values[:cut])
                     reached_end = True
-                now_s = link.now_s()
+                now_s = link.now_s() if not len(block) else None
                 if now_s is not None and now_s >= end_s + IN_FLIGHT_S:
-                    reached_end = True  # no row reached the end: the drives fell silent
+                    # nothing is waiting in the link and its time is past the end: the
+                    # drives fell silent (a link ahead of its reader still has rows)
+                    reached_end = True
             if len(block):
                 writer.append(block)
                 rows += len(block)
