@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from ncmeasure.cli import app
@@ -340,3 +341,14 @@ def _wait_for_node(channel: str, node_id: int) -> None:
                 assert time.monotonic() < deadline, "the simulated drive never answered"
     finally:
         network.disconnect()
+
+
+@pytest.mark.parametrize("duration", ["0", "nan", "-3", "inf"])
+def test_a_duration_that_is_no_duration_is_refused(tmp_path: Path, duration: str) -> None:
+    source = _source(tmp_path / "run1")
+    code, _, err = run(
+        "record", _machine(tmp_path), "--link", "replay", "--source", source,
+        "--duration", duration, "-o", tmp_path / "r",
+    )  # fmt: skip
+    assert code == 2 and "a recording lasts a positive, finite number of seconds" in err
+    assert "Traceback" not in err and not (tmp_path / "r").exists()
