@@ -395,6 +395,32 @@ def test_garbage_after_a_clean_file_is_reported(
     assert rec.problems == [problem]
 
 
+def test_a_huge_sparse_zero_tail_is_a_torn_tail_read_in_bounded_memory(tmp_path: Path) -> None:
+    """A 50 GiB hole after the frames (a file system's zeros after a crash, or a stray
+    truncate) reads as the intact rows plus a torn-tail report, allocating only them."""
+    import tracemalloc
+
+    directory = tmp_path / "r"
+    write_frames(directory, frames=3, rows_per_frame=10)
+    path = directory / SAMPLES_FILE
+    end = path.stat().st_size
+    with path.open("r+b") as file:
+        file.truncate(50 * 2**30)  # sparse: no block of the hole is allocated
+    tracemalloc.start()
+    try:
+        rec = Recording.open(directory)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 16 * 2**20, peak  # numpy reports its buffers to tracemalloc
+    assert same_bits(rec.values, rows_for(0, 30, len(XY))[1])
+    assert same_bits(rec.time_s, rows_for(0, 30, len(XY))[0])
+    tail = 50 * 2**30 - end
+    assert f"torn tail: {tail} bytes after frame 2 ignored (zero bytes at byte {end}" in (
+        " ".join(rec.problems)
+    )
+
+
 def test_a_corrupt_frame_stops_the_read_at_the_frame_before(tmp_path: Path) -> None:
     directory = tmp_path / "r"
     write_frames(directory, frames=5, rows_per_frame=20)
