@@ -122,6 +122,17 @@ def test_record_bad_input_is_clear(tmp_path: Path) -> None:
     assert not (tmp_path / "r").exists()
 
 
+def test_export_never_writes_through_a_symlink_at_a_temporary_name(tmp_path: Path) -> None:
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me", encoding="utf-8")
+    (tmp_path / "out.csv.tmp").symlink_to(victim)
+    (tmp_path / ".out.csv.tmp").symlink_to(victim)
+    code, _, err = run("export", _source(tmp_path / "run", rows=10), "-o", tmp_path / "out.csv")
+    assert code == 0, err
+    assert victim.read_text(encoding="utf-8") == "keep me"
+    assert (tmp_path / "out.csv").read_text().startswith("time_s,X_current_a")
+
+
 def test_export_and_import_bad_input(tmp_path: Path) -> None:
     code, _, err = run("export", tmp_path / "nothing", "-o", tmp_path / "x.csv")
     assert code == 2 and "nothing" in err

@@ -511,6 +511,26 @@ def test_create_refuses_a_directory_that_is_not_empty(tmp_path: Path) -> None:
     assert Recording.open(tmp_path / "empty").meta.status == "complete"
 
 
+def test_meta_json_is_never_written_through_a_planted_temporary_file(tmp_path: Path) -> None:
+    """A symlink or file at the old predictable name meta.json.tmp is neither followed
+    nor replaced: meta.json goes through a new temporary file of its own."""
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me", encoding="utf-8")
+    directory = tmp_path / "r"
+    writer = RecordingWriter.create(directory, XY, nominal_period_s=0.001)
+    writer.append(block(0, 5))
+    (directory / "meta.json.tmp").symlink_to(victim)
+    (directory / ".meta.json.tmp").write_text("someone else's", encoding="utf-8")
+    writer.close()
+    assert victim.read_text(encoding="utf-8") == "keep me"
+    assert (directory / ".meta.json.tmp").read_text(encoding="utf-8") == "someone else's"
+    assert (directory / "meta.json.tmp").is_symlink()
+    assert Recording.open(directory).meta.status == "complete"
+    assert sorted(p.name for p in directory.iterdir()) == sorted(
+        [EVENTS_FILE, META_FILE, SAMPLES_FILE, "meta.json.tmp", ".meta.json.tmp"]
+    )
+
+
 def test_create_checks_its_arguments(tmp_path: Path, make_config: Make) -> None:
     with pytest.raises(ValueError, match="flush_interval_s"):
         RecordingWriter.create(tmp_path / "a", XY, nominal_period_s=0.001, flush_interval_s=1.0)

@@ -27,6 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from ncmeasure._version import __version__
 from ncmeasure.config import AXIS_NAME_PATTERN, AxisConfig, MachineConfig
 from ncmeasure.errors import RecordingError
+from ncmeasure.files import replace_text
 from ncmeasure.samples import SIGNAL_UNITS, Channel, EventKind, LinkEvent
 
 log = logging.getLogger(__name__)
@@ -198,14 +199,10 @@ def fsync_directory(directory: Path) -> None:
 def write_meta(directory: Path, meta: RecordingMeta) -> None:
     """Replace ``meta.json`` atomically: a reader sees the old or the new file, whole."""
     path = directory / META_FILE
-    tmp = directory / (META_FILE + ".tmp")
     text = json.dumps(meta.model_dump(mode="json"), indent=2, ensure_ascii=False, default=str)
     try:
-        with tmp.open("w", encoding="utf-8") as file:
+        with replace_text(path, fsync=True) as file:
             file.write(text + "\n")
-            file.flush()
-            os.fsync(file.fileno())
-        tmp.replace(path)
     except OSError as exc:
         raise RecordingError(f"{path}: cannot be written ({exc.strerror or exc})") from exc
     fsync_directory(directory)
