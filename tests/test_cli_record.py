@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from ncmeasure.cli import app
@@ -13,6 +14,7 @@ from ncmeasure.examples import example_machine
 from ncmeasure.recording import RecordingWriter, read_recording
 from ncmeasure.samples import LinkEvent, SampleBlock, channels_for
 from tests.conftest import example_data
+from tests.test_recording import FullDisk
 
 runner = CliRunner()
 
@@ -91,6 +93,32 @@ def test_record_with_duration_and_progress_display(tmp_path: Path) -> None:
     assert code == 0, err
     assert "complete: 500 samples" in err
     assert len(read_recording(tmp_path / "run2").time_s) == 500
+
+
+def test_record_on_a_full_disk_says_so_and_a_retry_goes_into_the_same_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    source = _source(tmp_path / "run1")
+    machine = _machine(tmp_path)
+    # 8 s of samples at 4x: several flushes; the disk is full after the first
+    args = ("record", machine, "--link", "replay", "--source", source, "--speed", "4", "--quiet")
+    disk = FullDisk(monkeypatch, samples_syncs=1)
+    code, _, err = run(*args, "-o", tmp_path / "run2")
+    assert code == 2, err
+    assert "disk full" in err and str(tmp_path / "run2") in err and "Traceback" not in err
+    assert not [p.name for p in (tmp_path / "run2").iterdir() if p.name.endswith(".tmp")]
+    kept = read_recording(tmp_path / "run2")
+    assert 0 < len(kept.time_s) < 2000
+    np.testing.assert_array_equal(kept.values, read_recording(source).values[: len(kept.time_s)])
+
+    disk.free()
+    code, _, err = run(*args, "-o", tmp_path / "run2")
+    assert code == 0, err
+    assert f"moved to {tmp_path / 'run2.failed-1'}" in err
+    assert len(read_recording(tmp_path / "run2").time_s) == 2000
+    assert len(read_recording(tmp_path / "run2.failed-1").time_s) == len(kept.time_s)
+    code, _, err = run(*args, "-o", tmp_path / "run2")  # a finished recording stays
+    assert code == 2 and "finished recording" in err
 
 
 def test_record_bad_input_is_clear(tmp_path: Path) -> None:

@@ -158,6 +158,11 @@ def _warn(message: str) -> None:
     err_console.print(Text.assemble(("warning:", "yellow"), f" {message}"), soft_wrap=True)
 
 
+def _note(message: str) -> None:
+    """``note: message`` on stderr (user text verbatim)."""
+    err_console.print(Text.assemble(("note:", "bold"), f" {message}"), soft_wrap=True)
+
+
 def _report(error: NcMeasureError) -> None:
     """``error: message`` and one indented line per problem, on stderr (user text verbatim)."""
     err_console.print(Text.assemble(("error:", "bold red"), f" {error.message}"), soft_wrap=True)
@@ -683,6 +688,11 @@ def record_command(
         if live is not None:
             live.stop()  # before any message, so the display does not overwrite it
         _restore_signals(previous)
+    if result.moved_aside is not None:
+        _note(
+            f"the unfinished earlier attempt in {result.directory} was moved to "
+            f"{result.moved_aside}, whole"
+        )
     if not quiet or result.status != "complete":
         err_console.print(
             f"{result.status}: {result.rows} samples over {result.link_time_s:.1f} s in "

@@ -32,13 +32,9 @@ from ncmeasure.recording.format import (
     EventRecord,
     PathArg,
     RecordingMeta,
+    is_being_written,
 )
 from ncmeasure.samples import Channel, LinkEvent
-
-try:  # advisory locks tell a reader that a writer is still at work (POSIX only)
-    import fcntl
-except ImportError:  # pragma: no cover - Windows
-    fcntl = None  # type: ignore[assignment]
 
 log = logging.getLogger(__name__)
 
@@ -203,24 +199,6 @@ def _read_meta(directory: Path) -> RecordingMeta:
         raise RecordingError(f"{path}: invalid metadata", format_validation_error(exc)) from exc
 
 
-def _is_being_written(path: Path) -> bool | None:
-    """True while a writer holds ``samples.bin``; None where that cannot be told."""
-    if fcntl is None:  # pragma: no cover - Windows
-        return None
-    try:
-        with path.open("rb") as file:
-            try:
-                fcntl.flock(file.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
-            except BlockingIOError:
-                return True
-            except OSError:
-                return None
-            fcntl.flock(file.fileno(), fcntl.LOCK_UN)
-            return False
-    except OSError:
-        return None
-
-
 @dataclass(frozen=True, eq=False)
 class Recording:
     """A recording read into memory.
@@ -272,7 +250,7 @@ class Recording:
         rows = len(data)
         events = _read_events(path / EVENTS_FILE, problems)
         if meta.status == "recording":
-            if _is_being_written(samples_path):
+            if is_being_written(samples_path):
                 problems.insert(
                     0, f"still being recorded (status 'recording'): {rows} samples so far"
                 )
