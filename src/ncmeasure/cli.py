@@ -1181,11 +1181,23 @@ def compare_command(
         Path | None,
         typer.Option(help="Write an HTML report of the last run with the comparison."),
     ] = None,
+    label: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--label",
+            metavar="LABEL",
+            help="Name of a compared file in the output; repeat in order, one per file "
+            "after BASE (or one per file, BASE's first). Default: the file name, with its "
+            "folders where names clash (m17/results, m18/results).",
+        ),
+    ] = None,
 ) -> Outcome:
     """Compare runs: the same machine over its life, or identical machines (fleet).
 
     Exit code 0: every deviation within the warning limit; 1: a warning limit crossed;
     3: a critical limit crossed; 2: bad input.
+
+    Example: ncmeasure compare m17/results.json m18/results.json m19/results.json
     """
     from pydantic import ValidationError
 
@@ -1193,6 +1205,7 @@ def compare_command(
     from ncmeasure.analysis.compare import Limits, compare_results
     from ncmeasure.config import format_validation_error
 
+    labels = _compare_labels(base, others, label)
     reference = load_results(base)
     runs = [load_results(path) for path in others]
     limits = Limits()
@@ -1208,7 +1221,7 @@ def compare_command(
             raise ConfigError(
                 "--warning/--critical: not valid limits", format_validation_error(exc)
             ) from exc
-    comparison = compare_results(reference, runs, labels=[p.stem for p in others], limits=limits)
+    comparison = compare_results(reference, runs, labels=labels, limits=limits)
     if output is not None:
         output.write_text(comparison.model_dump_json(indent=2) + "\n", encoding="utf-8")
     if report is not None:
@@ -1218,6 +1231,61 @@ def compare_command(
         console.print(f"wrote {report}")
     _print_comparison(comparison, runs)
     return comparison.status
+
+
+def _file_labels(paths: list[Path]) -> list[str]:
+    """A label per results file: its name without ``.json``; where names clash, with as
+    many of its folders as tell them apart (``m17/results``), else numbered (``#2``)."""
+
+    def label(path: Path, depth: int) -> str:
+        folders = path.absolute().parent.parts[1:]
+        return "/".join([*folders[len(folders) - depth :], path.stem]) if depth else path.stem
+
+    depths = [0] * len(paths)
+    labels = [path.stem for path in paths]
+    while True:
+        grown = False
+        for name in {name for name in labels if labels.count(name) > 1}:
+            group = [i for i, other in enumerate(labels) if other == name]
+            if len({paths[i].absolute() for i in group}) == 1:
+                continue  # the same file: only a number tells them apart
+            for index in group:
+                if depths[index] < len(paths[index].absolute().parent.parts) - 1:
+                    depths[index] += 1
+                    labels[index] = label(paths[index], depths[index])
+                    grown = True
+        if not grown:
+            break
+    doubled = {name for name in labels if labels.count(name) > 1}
+    counts: dict[str, int] = {}
+    for index, name in enumerate(labels):
+        if name in doubled:
+            counts[name] = counts.get(name, 0) + 1
+            labels[index] = f"{name} #{counts[name]}"
+    return labels
+
+
+def _compare_labels(base: Path, others: list[Path], given: list[str] | None) -> list[str]:
+    """The labels of the compared files: ``--label`` checked, or from the file names.
+
+    Raises:
+        ConfigError: ``--label`` given neither once per file after BASE nor once per
+            file, empty, or twice the same.
+    """
+    if not given:
+        return _file_labels([base, *others])[1:]
+    if len(given) not in (len(others), len(others) + 1):
+        raise ConfigError(
+            f"--label: {len(given)} label{'s' if len(given) != 1 else ''} for "
+            f"{len(others)} compared file{'s' if len(others) != 1 else ''}: give one per "
+            "file after BASE, in order (or one per file, BASE's first)"
+        )
+    if any(not text.strip() for text in given):
+        raise ConfigError("--label: a label is empty; every compared file needs a name")
+    doubled = next((text for text in given if given.count(text) > 1), None)
+    if doubled is not None:
+        raise ConfigError(f"--label: {doubled!r} is given twice; labels must be unique")
+    return list(given)
 
 
 def _print_comparison(comparison: Comparison, runs: list[Results]) -> None:

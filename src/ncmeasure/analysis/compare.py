@@ -282,7 +282,10 @@ def _labels(base: Results, others: Sequence[Results], labels: Sequence[str] | No
         return defaults
     names = [str(label) for label in labels]
     if len(names) == len(others):
-        names = [defaults[0], *names]
+        base_name = defaults[0]
+        if base_name in names:  # the base's default must not take a given label
+            base_name = f"{base_name} (base)"
+        names = [base_name, *names]
     if len(names) != len(runs):
         raise ComparisonError(
             f"{len(names)} labels for {len(runs)} results: give one label per other run, "
