@@ -166,6 +166,22 @@ def test_compare_takes_a_label_per_compared_file(fleet: Path) -> None:
         assert code == 2 and message in err and "Traceback" not in err, err
 
 
+def test_compare_output_that_cannot_be_written_is_bad_input(fleet: Path, tmp_path: Path) -> None:
+    files = [fleet / "m17" / "results.json", fleet / "m18" / "results.json"]
+    (tmp_path / "blocker").write_text("a file, not a folder")
+    code, _, err = run("compare", *files, "-o", tmp_path / "blocker" / "x.json")
+    assert code == 2 and "Traceback" not in err, err
+    assert f"{tmp_path / 'blocker' / 'x.json'}: cannot be written" in err
+    code, _, err = run("compare", *files, "--report", tmp_path / "blocker" / "x.html")
+    assert code == 2 and "Traceback" not in err and "blocker" in err, err
+    # a folder that does not exist yet is made, as analyze -o and --report make theirs
+    code, _, err = run("compare", *files, "-o", tmp_path / "missing" / "dir" / "x.json")
+    assert code == 0, err
+    assert json.loads((tmp_path / "missing" / "dir" / "x.json").read_text())["others"] == [
+        "m18/results"
+    ]
+
+
 def test_analysis_bad_input(tmp_path: Path) -> None:
     code, _, err = run("analyze", tmp_path / "nothing")
     assert code == 2 and "nothing" in err and "Traceback" not in err

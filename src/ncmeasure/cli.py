@@ -1195,14 +1195,14 @@ def compare_command(
     """Compare runs: the same machine over its life, or identical machines (fleet).
 
     Exit code 0: every deviation within the warning limit; 1: a warning limit crossed;
-    3: a critical limit crossed; 2: bad input.
+    3: a critical limit crossed; 2: bad input (also an output that cannot be written).
 
     Example: ncmeasure compare m17/results.json m18/results.json m19/results.json
     """
     from pydantic import ValidationError
 
     from ncmeasure.analysis.analyze import load_results
-    from ncmeasure.analysis.compare import Limits, compare_results
+    from ncmeasure.analysis.compare import Limits, compare_results, write_comparison
     from ncmeasure.config import format_validation_error
 
     labels = _compare_labels(base, others, label)
@@ -1223,7 +1223,7 @@ def compare_command(
             ) from exc
     comparison = compare_results(reference, runs, labels=labels, limits=limits)
     if output is not None:
-        output.write_text(comparison.model_dump_json(indent=2) + "\n", encoding="utf-8")
+        write_comparison(comparison, output)
     if report is not None:
         from ncmeasure.report import write_report
 
