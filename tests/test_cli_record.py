@@ -265,6 +265,32 @@ def test_simulate_drive_port_in_use(tmp_path: Path) -> None:
     assert code == 4 and str(port) in err and "Traceback" not in err  # the link cannot serve
 
 
+def test_simulate_drive_canopen_interface_that_cannot_open(tmp_path: Path) -> None:
+    code, _, err = run(
+        "simulate-drive", "--link", "canopen", "--interface", "socketcan", "--channel", "nope0",
+        "--duration", "1",
+    )  # fmt: skip
+    assert code == 4 and "Traceback" not in err, err
+    assert "cannot open the CAN interface socketcan channel nope0" in err
+    code, _, err = run(
+        "simulate-drive", "--link", "canopen", "--interface", "nosuch", "--channel", "x",
+        "--duration", "1",
+    )  # fmt: skip
+    assert code == 2 and "Traceback" not in err, err
+    assert "--interface nosuch: python-can has no such interface" in err and "socketcan" in err
+
+
+def test_simulate_drive_on_the_virtual_bus_says_it_serves_this_process_only() -> None:
+    code, _, err = run(
+        "simulate-drive", "--link", "canopen", "--channel", "only-here", "--duration", "0.3"
+    )
+    assert code == 0, err
+    text = " ".join(err.split())
+    assert "on virtual:only-here" in text
+    assert "only this process" in text and "another terminal" in text
+    assert "--interface socketcan --channel vcan0" in text and "udp_multicast" in text
+
+
 def test_sigterm_closes_the_recording_and_exits_3(tmp_path: Path) -> None:
     import os
     import signal

@@ -847,7 +847,13 @@ def import_command(
 def simulate_drive_command(
     link: Annotated[str, typer.Option(help="canopen or modbus.")],
     interface: Annotated[
-        str | None, typer.Option(help="CANopen: python-can interface.", rich_help_panel="CANopen")
+        str | None,
+        typer.Option(
+            help="CANopen: python-can interface. The default, virtual, reaches only this "
+            "process; for `record` in another terminal use socketcan (with a vcan device) "
+            "or udp_multicast.",
+            rich_help_panel="CANopen",
+        ),
     ] = "virtual",
     channel: Annotated[
         str | None, typer.Option(help="CANopen: python-can channel.", rich_help_panel="CANopen")
@@ -904,8 +910,8 @@ def simulate_drive_command(
     The drives report a smooth test motion of every axis. Example, in two terminals:
     `ncmeasure simulate-drive --link modbus --port 5020` and
     `ncmeasure record m.toml --link modbus --host 127.0.0.1 --port 5020 --unit X=1 ...`.
-    Exit code 0: stopped; 2: bad input; 4: the drives cannot serve there (port in use,
-    no such interface).
+    Exit code 0: stopped; 2: bad input (an interface python-can does not know); 4: the
+    drives cannot serve there (port in use, a CAN interface that cannot be opened).
     """
     stop = threading.Event()
     previous = _stop_on_signals(stop)
@@ -937,12 +943,29 @@ def simulate_drive_command(
                 stop=stop,
             )
         elif link == "canopen":
+            from ncmeasure.sim.cia402 import VIRTUAL_BUS_REACH
             from ncmeasure.sim.cia402 import serve as serve_canopen
 
             nodes = {a: v["node_id"] for a, v in _pairs(node or [], "--node", "node_id").items()}
             ids = list((nodes or default).values())
-            err_console.print(f"simulated CiA 402 drives, nodes {ids}, on {interface}:{channel}")
-            serve_canopen(channel=channel, interface=interface, nodes=ids, eds=eds, stop=stop)
+
+            def canopen_ready(_: object) -> None:
+                err_console.print(
+                    f"simulated CiA 402 drives, nodes {ids}, on {interface}:{channel}; "
+                    "Ctrl-C stops",
+                    soft_wrap=True,
+                )
+                if interface == "virtual":
+                    _note(VIRTUAL_BUS_REACH)
+
+            serve_canopen(
+                channel=channel,
+                interface=interface,
+                nodes=ids,
+                eds=eds,
+                stop=stop,
+                on_ready=canopen_ready,
+            )
         else:
             raise ConfigError(f"--link {link!r}: simulated drives exist for canopen and modbus")
     finally:
