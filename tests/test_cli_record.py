@@ -252,6 +252,84 @@ def test_link_bad_input_from_the_command_line(tmp_path: Path) -> None:
     assert not (tmp_path / "r").exists()
 
 
+def _help_example(command: str) -> list[str]:
+    """The example line of a command's --help, as arguments after ``ncmeasure``."""
+    import shlex
+
+    code, out, _ = run(command, "--help")
+    assert code == 0
+    text = " ".join(out.replace("│", " ").split())
+    line = text.split("Example: ncmeasure ", 1)[1].split(" -o ", 1)
+    return [*shlex.split(line[0]), "-o", line[1].split()[0]]
+
+
+def test_the_record_help_example_gets_past_validation_on_an_init_file(tmp_path: Path) -> None:
+    """The example, word for word on the file `init` writes, reaches the bus (can0 is
+    absent here: a link error, exit 4, never a machine-file or option error)."""
+    example = _help_example("record")
+    assert example[:2] == ["record", "m.toml"]
+    code, init, _ = run("init")
+    assert code == 0
+    (tmp_path / "m.toml").write_text(init)
+    args = [str(tmp_path / "m.toml"), *example[2:-1], str(tmp_path / "run1")]
+    code, _, err = run("record", *args)
+    assert code == 4, err
+    assert "cannot open the CAN interface socketcan channel can0" in err
+    assert not (tmp_path / "run1").exists()
+
+
+def test_the_record_help_example_records_simulated_drives(tmp_path: Path) -> None:
+    """The example on an init file, on this process' virtual bus with simulated drives
+    (instead of SocketCAN's can0) and 1 s instead of 60, records all three axes."""
+    import threading
+    import uuid
+
+    from ncmeasure.sim.cia402 import serve
+
+    channel = f"help-{uuid.uuid4().hex[:8]}"
+    example = _help_example("record")
+    swap = {"socketcan": "virtual", "can0": channel, "60": "1", "m.toml": str(tmp_path / "m.toml"),
+            "run1": str(tmp_path / "run1")}  # fmt: skip
+    (tmp_path / "m.toml").write_text(run("init")[1])
+    stop, ready = threading.Event(), threading.Event()
+    drives = threading.Thread(
+        target=serve,
+        kwargs={"channel": channel, "nodes": [1, 2, 3], "stop": stop,
+                "on_ready": lambda _: ready.set()},
+        daemon=True,
+    )  # fmt: skip
+    drives.start()
+    try:
+        assert ready.wait(10)
+        code, _, err = run(*(swap.get(word, word) for word in example), "--quiet")
+    finally:
+        stop.set()
+        drives.join(10)
+    assert code == 0, err
+    recording = read_recording(tmp_path / "run1")
+    assert recording.axes == ("X", "Y", "Z")
+    assert len(recording.time_s) > 200  # 250 SYNC/s for 1 s, some may be lost on a busy machine
+
+
+def test_axis_set_gives_per_axis_link_settings(tmp_path: Path) -> None:
+    machine = _machine(tmp_path)
+    nodes = ["--node", "X=1", "--node", "Y=2", "--node", "Z=3"]
+    base = ["record", machine, "--link", "canopen", "--interface", "nosuch", *nodes]
+    code, _, err = run(*base, "--axis-set", "X.increments_per_rev=0", "-o", tmp_path / "r")
+    assert code == 2 and "axes[0].link.increments_per_rev" in err, err  # checked like the file
+    code, _, err = run(*base, "--axis-set", "W.node_id=4", "-o", tmp_path / "r")
+    assert code == 2 and "--axis-set 'W.node_id=4': the machine has no axis W" in err, err
+    code, _, err = run(*base, "--axis-set", "increments_per_rev", "-o", tmp_path / "r")
+    assert code == 2 and "expected [AXIS.]KEY=VALUE" in err, err
+    code, _, err = run(*base, "--axis-set", "gear_ratio=2", "-o", tmp_path / "r")
+    assert code == 2 and "axes[1].link.increments_per_rev" in err, err  # for Y: still missing
+    code, _, err = run(
+        *base, "--axis-set", "increments_per_rev=4096", "--axis-set", "X.gear_ratio=2.5",
+        "-o", tmp_path / "r",
+    )  # fmt: skip
+    assert code == 4 and "nosuch" in err, err  # valid settings: the link tries the interface
+
+
 def test_simulate_drive_port_in_use(tmp_path: Path) -> None:
     import socket
 

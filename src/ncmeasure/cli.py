@@ -481,6 +481,34 @@ def _settings(values: list[str], example: str = "--set sync_hz=500") -> dict[str
     return result
 
 
+def _axis_settings(values: list[str], axes: list[str]) -> dict[str, dict[str, Any]]:
+    """``--axis-set [AXIS.]KEY=VALUE`` options into per-axis link settings.
+
+    Without ``AXIS.`` a setting is for every axis; one for a named axis wins over it,
+    whatever the order. Values are read as TOML (numbers, true/false, strings).
+
+    Raises:
+        ConfigError: an item not of that form, or an axis the machine lacks.
+    """
+    result: dict[str, dict[str, Any]] = {}
+    form, example = "[AXIS.]KEY=VALUE", "--axis-set X.increments_per_rev=10000"
+    pairs = parse_assignments(values, "--axis-set", form=form, example=example)
+    pairs.sort(key=lambda pair: "." in pair[0])  # every axis first, then named ones
+    for target, text in pairs:
+        axis, dot, key = target.rpartition(".")
+        if dot and axis not in axes:
+            raise ConfigError(
+                f"--axis-set '{target}={text}': the machine has no axis {axis} "
+                f"(it has {', '.join(axes)})"
+            )
+        if not key:
+            raise ConfigError(f"--axis-set '{target}={text}': expected {form}, e.g. {example}")
+        value = _settings([f"{key}={text}"], example=example)[key]
+        for name in [axis] if dot else axes:
+            result.setdefault(name, {})[key] = value
+    return result
+
+
 def _stop_on_signals(stop: threading.Event) -> dict[int, Any]:
     """Ctrl-C and SIGTERM set ``stop``; returns the handlers to restore.
 
@@ -607,6 +635,16 @@ def record_command(
         list[str] | None,
         typer.Option("--set", help="Any other link setting, KEY=VALUE.", metavar="KEY=VALUE"),
     ] = None,
+    axis_set: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--axis-set",
+            help="A per-axis link setting (what an axis' link table holds): KEY=VALUE for "
+            "every axis, AXIS.KEY=VALUE for one, e.g. --axis-set increments_per_rev=10000 "
+            "--axis-set Z.gear_ratio=2. Over the machine file's; --node and --unit go last.",
+            metavar="[AXIS.]KEY=VALUE",
+        ),
+    ] = None,
     duration: Annotated[
         float | None, typer.Option(help="Seconds to record (positive, finite).")
     ] = None,
@@ -626,8 +664,12 @@ def record_command(
     Ctrl-C/SIGTERM; every way of stopping closes the recording with what was received.
     Exit code 0: complete; 2: bad input; 3: stopped by Ctrl-C/SIGTERM; 4: the link failed.
 
-    Example: ncmeasure record m.toml --link canopen --interface virtual --channel test
-    --node X=1 --sync-hz 250 --duration 60 -o run1
+    A file from `ncmeasure init` names no drives: --node (CANopen) or --unit (Modbus)
+    gives each axis its drive, --axis-set the rest of its link table.
+
+    Example: ncmeasure record m.toml --link canopen --interface socketcan --channel can0
+    --node X=1 --node Y=2 --node Z=3 --axis-set increments_per_rev=10000 --sync-hz 250
+    --duration 60 -o run1
     """
     config = load_machine(machine)
     overrides: dict[str, Any] = {
@@ -650,9 +692,10 @@ def record_command(
         if value is not None
     }
     overrides.update(_settings(set_ or []))
-    axis_overrides = _pairs(node or [], "--node", "node_id")
-    for axis, values in _pairs(unit or [], "--unit", "unit_id").items():
-        axis_overrides.setdefault(axis, {}).update(values)
+    axis_overrides = _axis_settings(axis_set or [], [a.name for a in config.axes])
+    for option, key, values in (("--node", "node_id", node), ("--unit", "unit_id", unit)):
+        for axis, pair in _pairs(values or [], option, key).items():
+            axis_overrides.setdefault(axis, {}).update(pair)
     unknown = set(axis_overrides) - {a.name for a in config.axes}
     if unknown:
         raise ConfigError(
