@@ -330,6 +330,23 @@ def test_axis_set_gives_per_axis_link_settings(tmp_path: Path) -> None:
     assert code == 4 and "nosuch" in err, err  # valid settings: the link tries the interface
 
 
+def test_a_serial_port_alone_records_over_rtu_not_tcp(tmp_path: Path) -> None:
+    machine = _machine(tmp_path)
+    units = ["--unit", "X=1", "--unit", "Y=2", "--unit", "Z=3", "--register-map", "generic"]
+    port = tmp_path / "ttyX"  # no such device
+    code, _, err = run(
+        "record", machine, "--link", "modbus", "--serial-port", port, *units, "--duration", "1",
+        "-o", tmp_path / "r",
+    )  # fmt: skip
+    assert code == 4 and str(port) in err, err
+    assert "127.0.0.1" not in err and "502" not in err
+    code, _, err = run(
+        "record", machine, "--link", "modbus", "--serial-port", port, "--set", "mode=tcp",
+        *units, "-o", tmp_path / "r",
+    )  # fmt: skip
+    assert code == 2 and "link.serial_port: a serial port is for mode 'rtu'" in err, err
+
+
 def test_simulate_drive_port_in_use(tmp_path: Path) -> None:
     import socket
 
