@@ -122,6 +122,66 @@ def test_compare_lifetime_exit_codes(tmp_path: Path) -> None:
     assert "Comparison" in html and "warning" in html.lower()
 
 
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Three analysed machines, each as results.json in a folder of its own (m17, m18, m19)."""
+    folder = tmp_path_factory.mktemp("fleet")
+    for seed, name in enumerate(("m17", "m18", "m19")):
+        run_dir, _ = _run(folder / "runs" / name, (2.0 + 0.01 * seed, 2.0, 2.0), seed=seed)
+        (folder / name).mkdir()
+        code, _, err = run("analyze", run_dir, "-o", folder / name / "results.json", "--quiet")
+        assert code == 0, err
+    return folder
+
+
+def test_compare_labels_files_of_the_same_name_by_their_folders(fleet: Path) -> None:
+    files = [fleet / name / "results.json" for name in ("m17", "m18", "m19")]
+    code, out, err = run("compare", *files, "-o", fleet / "cmp.json")
+    assert code == 0, out + err
+    assert "m18/results: axis X: ok" in out and "m19/results: axis X: ok" in out
+    comparison = json.loads((fleet / "cmp.json").read_text())
+    assert comparison["others"] == ["m18/results", "m19/results"]
+    # the same file twice is still told apart
+    code, out, err = run("compare", files[0], files[1], files[1])
+    assert code == 0, out + err
+    assert "m18/results #1: axis X" in out and "m18/results #2: axis X" in out
+
+
+def test_compare_takes_a_label_per_compared_file(fleet: Path) -> None:
+    files = [fleet / name / "results.json" for name in ("m17", "m18", "m19")]
+    code, out, err = run("compare", *files, "--label", "M-18 [rebuilt]", "--label", "M-19")
+    assert code == 0, out + err
+    assert "M-18 [rebuilt]: axis X: ok" in out and "M-19: axis X: ok" in out
+    code, out, err = run("compare", *files, "--label", "M-17", "--label", "M-18", "--label", "x")
+    assert code == 0, out + err  # one per file, the base's first
+    assert "M-18: axis X" in out and "x: axis X" in out
+    for labels, message in [
+        (["only one"], "--label: 1 label for 2 compared files"),
+        (["a", "a"], "--label: 'a' is given twice"),
+        (["a", " "], "--label: a label is empty"),
+    ]:
+        code, out, err = run(
+            "compare", *files, *[x for label in labels for x in ("--label", label)]
+        )
+        assert code == 2 and message in err and "Traceback" not in err, err
+
+
+def test_compare_output_that_cannot_be_written_is_bad_input(fleet: Path, tmp_path: Path) -> None:
+    files = [fleet / "m17" / "results.json", fleet / "m18" / "results.json"]
+    (tmp_path / "blocker").write_text("a file, not a folder")
+    code, _, err = run("compare", *files, "-o", tmp_path / "blocker" / "x.json")
+    assert code == 2 and "Traceback" not in err, err
+    assert f"{tmp_path / 'blocker' / 'x.json'}: cannot be written" in err
+    code, _, err = run("compare", *files, "--report", tmp_path / "blocker" / "x.html")
+    assert code == 2 and "Traceback" not in err and "blocker" in err, err
+    # a folder that does not exist yet is made, as analyze -o and --report make theirs
+    code, _, err = run("compare", *files, "-o", tmp_path / "missing" / "dir" / "x.json")
+    assert code == 0, err
+    assert json.loads((tmp_path / "missing" / "dir" / "x.json").read_text())["others"] == [
+        "m18/results"
+    ]
+
+
 def test_analysis_bad_input(tmp_path: Path) -> None:
     code, _, err = run("analyze", tmp_path / "nothing")
     assert code == 2 and "nothing" in err and "Traceback" not in err

@@ -14,6 +14,7 @@ from ncmeasure.examples import example_machine
 from ncmeasure.recording import RecordingWriter, read_recording
 from ncmeasure.samples import LinkEvent, SampleBlock, channels_for
 from tests.conftest import example_data
+from tests.test_recording import FullDisk
 
 runner = CliRunner()
 
@@ -94,6 +95,32 @@ def test_record_with_duration_and_progress_display(tmp_path: Path) -> None:
     assert len(read_recording(tmp_path / "run2").time_s) == 500
 
 
+def test_record_on_a_full_disk_says_so_and_a_retry_goes_into_the_same_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    source = _source(tmp_path / "run1")
+    machine = _machine(tmp_path)
+    # 8 s of samples at 4x: several flushes; the disk is full after the first
+    args = ("record", machine, "--link", "replay", "--source", source, "--speed", "4", "--quiet")
+    disk = FullDisk(monkeypatch, samples_syncs=1)
+    code, _, err = run(*args, "-o", tmp_path / "run2")
+    assert code == 2, err
+    assert "disk full" in err and str(tmp_path / "run2") in err and "Traceback" not in err
+    assert not [p.name for p in (tmp_path / "run2").iterdir() if p.name.endswith(".tmp")]
+    kept = read_recording(tmp_path / "run2")
+    assert 0 < len(kept.time_s) < 2000
+    np.testing.assert_array_equal(kept.values, read_recording(source).values[: len(kept.time_s)])
+
+    disk.free()
+    code, _, err = run(*args, "-o", tmp_path / "run2")
+    assert code == 0, err
+    assert f"moved to {tmp_path / 'run2.failed-1'}" in err
+    assert len(read_recording(tmp_path / "run2").time_s) == 2000
+    assert len(read_recording(tmp_path / "run2.failed-1").time_s) == len(kept.time_s)
+    code, _, err = run(*args, "-o", tmp_path / "run2")  # a finished recording stays
+    assert code == 2 and "finished recording" in err
+
+
 def test_record_bad_input_is_clear(tmp_path: Path) -> None:
     machine = _machine(tmp_path)
     code, _, err = run("record", machine, "-o", tmp_path / "r")
@@ -121,6 +148,17 @@ def test_record_bad_input_is_clear(tmp_path: Path) -> None:
     assert code == 2 and "link.sped: unknown key" in err
     assert "Traceback" not in err
     assert not (tmp_path / "r").exists()
+
+
+def test_export_never_writes_through_a_symlink_at_a_temporary_name(tmp_path: Path) -> None:
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me", encoding="utf-8")
+    (tmp_path / "out.csv.tmp").symlink_to(victim)
+    (tmp_path / ".out.csv.tmp").symlink_to(victim)
+    code, _, err = run("export", _source(tmp_path / "run", rows=10), "-o", tmp_path / "out.csv")
+    assert code == 0, err
+    assert victim.read_text(encoding="utf-8") == "keep me"
+    assert (tmp_path / "out.csv").read_text().startswith("time_s,X_current_a")
 
 
 def test_export_and_import_bad_input(tmp_path: Path) -> None:
@@ -214,6 +252,101 @@ def test_link_bad_input_from_the_command_line(tmp_path: Path) -> None:
     assert not (tmp_path / "r").exists()
 
 
+def _help_example(command: str) -> list[str]:
+    """The example line of a command's --help, as arguments after ``ncmeasure``."""
+    import shlex
+
+    code, out, _ = run(command, "--help")
+    assert code == 0
+    text = " ".join(out.replace("│", " ").split())
+    line = text.split("Example: ncmeasure ", 1)[1].split(" -o ", 1)
+    return [*shlex.split(line[0]), "-o", line[1].split()[0]]
+
+
+def test_the_record_help_example_gets_past_validation_on_an_init_file(tmp_path: Path) -> None:
+    """The example, word for word on the file `init` writes, reaches the bus (can0 is
+    absent here: a link error, exit 4, never a machine-file or option error)."""
+    example = _help_example("record")
+    assert example[:2] == ["record", "m.toml"]
+    code, init, _ = run("init")
+    assert code == 0
+    (tmp_path / "m.toml").write_text(init)
+    args = [str(tmp_path / "m.toml"), *example[2:-1], str(tmp_path / "run1")]
+    code, _, err = run("record", *args)
+    assert code == 4, err
+    assert "cannot open the CAN interface socketcan channel can0" in err
+    assert not (tmp_path / "run1").exists()
+
+
+def test_the_record_help_example_records_simulated_drives(tmp_path: Path) -> None:
+    """The example on an init file, on this process' virtual bus with simulated drives
+    (instead of SocketCAN's can0) and 1 s instead of 60, records all three axes."""
+    import threading
+    import uuid
+
+    from ncmeasure.sim.cia402 import serve
+
+    channel = f"help-{uuid.uuid4().hex[:8]}"
+    example = _help_example("record")
+    swap = {"socketcan": "virtual", "can0": channel, "60": "1", "m.toml": str(tmp_path / "m.toml"),
+            "run1": str(tmp_path / "run1")}  # fmt: skip
+    (tmp_path / "m.toml").write_text(run("init")[1])
+    stop, ready = threading.Event(), threading.Event()
+    drives = threading.Thread(
+        target=serve,
+        kwargs={"channel": channel, "nodes": [1, 2, 3], "stop": stop,
+                "on_ready": lambda _: ready.set()},
+        daemon=True,
+    )  # fmt: skip
+    drives.start()
+    try:
+        assert ready.wait(10)
+        code, _, err = run(*(swap.get(word, word) for word in example), "--quiet")
+    finally:
+        stop.set()
+        drives.join(10)
+    assert code == 0, err
+    recording = read_recording(tmp_path / "run1")
+    assert recording.axes == ("X", "Y", "Z")
+    assert len(recording.time_s) > 200  # 250 SYNC/s for 1 s, some may be lost on a busy machine
+
+
+def test_axis_set_gives_per_axis_link_settings(tmp_path: Path) -> None:
+    machine = _machine(tmp_path)
+    nodes = ["--node", "X=1", "--node", "Y=2", "--node", "Z=3"]
+    base = ["record", machine, "--link", "canopen", "--interface", "nosuch", *nodes]
+    code, _, err = run(*base, "--axis-set", "X.increments_per_rev=0", "-o", tmp_path / "r")
+    assert code == 2 and "axes[0].link.increments_per_rev" in err, err  # checked like the file
+    code, _, err = run(*base, "--axis-set", "W.node_id=4", "-o", tmp_path / "r")
+    assert code == 2 and "--axis-set 'W.node_id=4': the machine has no axis W" in err, err
+    code, _, err = run(*base, "--axis-set", "increments_per_rev", "-o", tmp_path / "r")
+    assert code == 2 and "expected [AXIS.]KEY=VALUE" in err, err
+    code, _, err = run(*base, "--axis-set", "gear_ratio=2", "-o", tmp_path / "r")
+    assert code == 2 and "axes[1].link.increments_per_rev" in err, err  # for Y: still missing
+    code, _, err = run(
+        *base, "--axis-set", "increments_per_rev=4096", "--axis-set", "X.gear_ratio=2.5",
+        "-o", tmp_path / "r",
+    )  # fmt: skip
+    assert code == 4 and "nosuch" in err, err  # valid settings: the link tries the interface
+
+
+def test_a_serial_port_alone_records_over_rtu_not_tcp(tmp_path: Path) -> None:
+    machine = _machine(tmp_path)
+    units = ["--unit", "X=1", "--unit", "Y=2", "--unit", "Z=3", "--register-map", "generic"]
+    port = tmp_path / "ttyX"  # no such device
+    code, _, err = run(
+        "record", machine, "--link", "modbus", "--serial-port", port, *units, "--duration", "1",
+        "-o", tmp_path / "r",
+    )  # fmt: skip
+    assert code == 4 and str(port) in err, err
+    assert "127.0.0.1" not in err and "502" not in err
+    code, _, err = run(
+        "record", machine, "--link", "modbus", "--serial-port", port, "--set", "mode=tcp",
+        *units, "-o", tmp_path / "r",
+    )  # fmt: skip
+    assert code == 2 and "link.serial_port: a serial port is for mode 'rtu'" in err, err
+
+
 def test_simulate_drive_port_in_use(tmp_path: Path) -> None:
     import socket
 
@@ -225,6 +358,32 @@ def test_simulate_drive_port_in_use(tmp_path: Path) -> None:
             "simulate-drive", "--link", "modbus", "--port", str(port), "--duration", "2"
         )
     assert code == 4 and str(port) in err and "Traceback" not in err  # the link cannot serve
+
+
+def test_simulate_drive_canopen_interface_that_cannot_open(tmp_path: Path) -> None:
+    code, _, err = run(
+        "simulate-drive", "--link", "canopen", "--interface", "socketcan", "--channel", "nope0",
+        "--duration", "1",
+    )  # fmt: skip
+    assert code == 4 and "Traceback" not in err, err
+    assert "cannot open the CAN interface socketcan channel nope0" in err
+    code, _, err = run(
+        "simulate-drive", "--link", "canopen", "--interface", "nosuch", "--channel", "x",
+        "--duration", "1",
+    )  # fmt: skip
+    assert code == 2 and "Traceback" not in err, err
+    assert "--interface nosuch: python-can has no such interface" in err and "socketcan" in err
+
+
+def test_simulate_drive_on_the_virtual_bus_says_it_serves_this_process_only() -> None:
+    code, _, err = run(
+        "simulate-drive", "--link", "canopen", "--channel", "only-here", "--duration", "0.3"
+    )
+    assert code == 0, err
+    text = " ".join(err.split())
+    assert "on virtual:only-here" in text
+    assert "only this process" in text and "another terminal" in text
+    assert "--interface socketcan --channel vcan0" in text and "udp_multicast" in text
 
 
 def test_sigterm_closes_the_recording_and_exits_3(tmp_path: Path) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import errno
 import json
 import math
 import os
@@ -387,6 +388,32 @@ def test_garbage_after_a_clean_file_is_reported(
     assert rec.problems == [problem]
 
 
+def test_a_huge_sparse_zero_tail_is_a_torn_tail_read_in_bounded_memory(tmp_path: Path) -> None:
+    """A 50 GiB hole after the frames (a file system's zeros after a crash, or a stray
+    truncate) reads as the intact rows plus a torn-tail report, allocating only them."""
+    import tracemalloc
+
+    directory = tmp_path / "r"
+    write_frames(directory, frames=3, rows_per_frame=10)
+    path = directory / SAMPLES_FILE
+    end = path.stat().st_size
+    with path.open("r+b") as file:
+        file.truncate(50 * 2**30)  # sparse: no block of the hole is allocated
+    tracemalloc.start()
+    try:
+        rec = Recording.open(directory)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 16 * 2**20, peak  # numpy reports its buffers to tracemalloc
+    assert same_bits(rec.values, rows_for(0, 30, len(XY))[1])
+    assert same_bits(rec.time_s, rows_for(0, 30, len(XY))[0])
+    tail = 50 * 2**30 - end
+    assert f"torn tail: {tail} bytes after frame 2 ignored (zero bytes at byte {end}" in (
+        " ".join(rec.problems)
+    )
+
+
 def test_a_corrupt_frame_stops_the_read_at_the_frame_before(tmp_path: Path) -> None:
     directory = tmp_path / "r"
     write_frames(directory, frames=5, rows_per_frame=20)
@@ -442,6 +469,182 @@ def test_problems_are_logged_as_warnings(tmp_path: Path, caplog: pytest.LogCaptu
     ]
 
 
+# --- a full disk ---------------------------------------------------------------------------
+
+
+class FullDisk:
+    """``os.fsync`` fails with ENOSPC once the disk is "full", as a full disk makes it fail.
+
+    The disk fills by hand (:meth:`fill`) or after ``samples_syncs`` syncs of
+    a ``samples.bin`` (Linux: the file's name from /proc); everything synced
+    after that fails, meta.json included.
+    """
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch, samples_syncs: int | None = None) -> None:
+        self.full = False
+        self.samples_syncs = samples_syncs
+        real = os.fsync
+
+        def fsync(fd: int) -> None:
+            if self.samples_syncs is not None and not self.full:
+                with contextlib.suppress(OSError):
+                    if Path(f"/proc/self/fd/{fd}").readlink().name == SAMPLES_FILE:
+                        self.samples_syncs -= 1
+                        self.full = self.samples_syncs < 0
+            if self.full:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            real(fd)
+
+        monkeypatch.setattr(os, "fsync", fsync)
+
+    def fill(self) -> None:
+        self.full = True
+
+    def free(self) -> None:
+        self.full, self.samples_syncs = False, None
+
+
+def test_a_full_disk_keeps_what_was_written_and_a_retry_moves_it_aside(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    disk = FullDisk(monkeypatch)
+    directory = tmp_path / "run"
+    writer = RecordingWriter.create(directory, XY, nominal_period_s=0.001)
+    writer.append(block(0, 10))
+    writer.flush()
+    disk.fill()
+    writer.append(block(10, 10))
+    with pytest.raises(RecordingError, match=r"run: disk full \(No space left on device\)"):
+        writer.flush()
+    with pytest.raises(RecordingError, match="disk full") as caught:
+        writer.close()
+    message = caught.value.message
+    assert str(directory) in message and "10 samples" in message and "readable" in message
+    assert "meta.json" in message  # still says 'recording': the disk had no room for it
+    # no temporary file is left behind; the 10 samples on disk read back
+    assert sorted(p.name for p in directory.iterdir()) == [EVENTS_FILE, META_FILE, SAMPLES_FILE]
+    rec = Recording.open(directory)
+    assert same_bits(rec.values, rows_for(0, 10, len(XY))[1])
+    assert rec.meta.status == "recording"
+
+    # with room again, a retry into the same directory moves the failed attempt aside
+    disk.free()
+    with RecordingWriter.create(directory, XY, nominal_period_s=0.001) as retry:
+        retry.append(block(0, 3))
+    assert retry.moved_aside == tmp_path / "run.failed-1"
+    assert len(Recording.open(tmp_path / "run.failed-1")) == 10
+    assert len(Recording.open(directory)) == 3
+    # a finished recording is never replaced or moved
+    with pytest.raises(
+        RecordingError, match=r"not empty: .*finished recording \(status complete\)"
+    ):
+        RecordingWriter.create(directory, XY, nominal_period_s=0.001)
+    assert len(Recording.open(directory)) == 3
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "run.failed-1"]
+
+
+def test_a_disk_that_is_full_from_the_start_leaves_nothing_behind(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    disk = FullDisk(monkeypatch)
+    disk.fill()
+    (tmp_path / "empty").mkdir()
+    for directory in (tmp_path / "new", tmp_path / "empty"):
+        with pytest.raises(RecordingError, match=f"{directory.name}: disk full") as caught:
+            RecordingWriter.create(directory, XY, nominal_period_s=0.001)
+        assert "meta.json" in caught.value.message
+    assert not (tmp_path / "new").exists()
+    assert list((tmp_path / "empty").iterdir()) == []
+    disk.free()
+    RecordingWriter.create(tmp_path / "new", XY, nominal_period_s=0.001).close()
+    assert Recording.open(tmp_path / "new").meta.status == "complete"
+
+
+def test_which_earlier_attempts_a_new_recording_moves_aside(tmp_path: Path) -> None:
+    # failed, or stopped without closing (status 'recording', no writer): moved aside
+    failed = RecordingWriter.create(tmp_path / "a", XY, nominal_period_s=0.001)
+    failed.append(block(0, 4))
+    failed.close("failed")
+    write_frames(tmp_path / "b", frames=1, rows_per_frame=4)
+    meta = json.loads((tmp_path / "b" / META_FILE).read_text(encoding="utf-8"))
+    (tmp_path / "b" / META_FILE).write_text(json.dumps({**meta, "status": "recording"}))
+    for name in ("a", "b"):
+        RecordingWriter.create(tmp_path / name, XY, nominal_period_s=0.001).close()
+        assert len(Recording.open(tmp_path / f"{name}.failed-1")) == 4
+    # a second failed attempt goes beside the first
+    meta = json.loads((tmp_path / "a" / META_FILE).read_text(encoding="utf-8"))
+    (tmp_path / "a" / META_FILE).write_text(json.dumps({**meta, "status": "failed"}))
+    assert RecordingWriter.create(tmp_path / "a", XY, nominal_period_s=0.001).moved_aside == (
+        tmp_path / "a.failed-2"
+    )
+    # a recording still being written is left alone
+    live = RecordingWriter.create(tmp_path / "c", XY, nominal_period_s=0.001)
+    try:
+        with pytest.raises(RecordingError, match=r"not empty: .*still being recorded"):
+            RecordingWriter.create(tmp_path / "c", XY, nominal_period_s=0.001)
+    finally:
+        live.close()
+    # finished ones, whatever their end, and folders that hold no recording are refused
+    for status in ("incomplete", "interrupted", "link_lost"):
+        with RecordingWriter.create(tmp_path / status, XY, nominal_period_s=0.001) as writer:
+            writer.append(block(0, 2))
+        writer_meta = json.loads((tmp_path / status / META_FILE).read_text(encoding="utf-8"))
+        (tmp_path / status / META_FILE).write_text(json.dumps({**writer_meta, "status": status}))
+        with pytest.raises(RecordingError, match=f"finished recording \\(status {status}\\)"):
+            RecordingWriter.create(tmp_path / status, XY, nominal_period_s=0.001)
+    assert not (tmp_path / "c.failed-1").exists()
+    moved = sorted(p.name for p in tmp_path.iterdir() if ".failed-" in p.name)
+    assert moved == ["a.failed-1", "a.failed-2", "b.failed-1"]
+
+
+RECORDER_WITH_A_SIZE_LIMIT = textwrap.dedent(
+    """
+    import resource, signal, sys
+    import numpy as np
+    from ncmeasure.errors import RecordingError
+    from ncmeasure.recording import RecordingWriter
+    from ncmeasure.samples import SampleBlock, channels_for
+
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG
+    resource.setrlimit(resource.RLIMIT_FSIZE, (100_000, 100_000))
+    writer = RecordingWriter.create(sys.argv[1], channels_for(["X"]), nominal_period_s=0.001)
+    try:
+        for k in range(100):
+            time_s = (np.arange(100) + 100 * k) * 0.001
+            writer.append(SampleBlock(time_s, np.ones((100, 3))))
+            writer.flush()
+    except RecordingError as exc:
+        print("append:", exc.message)
+    try:
+        writer.close()
+    except RecordingError as exc:
+        print("close:", exc.message)
+    """
+)
+
+
+def test_a_file_size_limit_of_the_system_stops_the_recording_cleanly(tmp_path: Path) -> None:
+    """A real write that fails half way (RLIMIT_FSIZE: EFBIG) is cut back to whole frames."""
+    script = tmp_path / "recorder.py"
+    script.write_text(RECORDER_WITH_A_SIZE_LIMIT, encoding="utf-8")
+    directory = tmp_path / "limited"
+    done = subprocess.run(
+        [sys.executable, str(script), str(directory)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
+    assert "append: " in done.stdout and "file size limit" in done.stdout, done.stdout
+    assert f"close: {directory}: file size limit" in done.stdout, done.stdout
+    rec = Recording.open(directory)
+    assert rec.meta.status == "failed"  # meta.json is small enough to be written
+    assert 0 < len(rec) < 10_000 and len(rec) % 100 == 0
+    assert rec.meta.samples == len(rec)
+    assert rec.problems == []
+    assert sorted(p.name for p in directory.iterdir()) == [EVENTS_FILE, META_FILE, SAMPLES_FILE]
+
+
 # --- bad input -----------------------------------------------------------------------------
 
 
@@ -475,6 +678,26 @@ def test_create_refuses_a_directory_that_is_not_empty(tmp_path: Path) -> None:
     (tmp_path / "empty").mkdir()
     RecordingWriter.create(tmp_path / "empty", XY, nominal_period_s=0.001).close()
     assert Recording.open(tmp_path / "empty").meta.status == "complete"
+
+
+def test_meta_json_is_never_written_through_a_planted_temporary_file(tmp_path: Path) -> None:
+    """A symlink or file at the old predictable name meta.json.tmp is neither followed
+    nor replaced: meta.json goes through a new temporary file of its own."""
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me", encoding="utf-8")
+    directory = tmp_path / "r"
+    writer = RecordingWriter.create(directory, XY, nominal_period_s=0.001)
+    writer.append(block(0, 5))
+    (directory / "meta.json.tmp").symlink_to(victim)
+    (directory / ".meta.json.tmp").write_text("someone else's", encoding="utf-8")
+    writer.close()
+    assert victim.read_text(encoding="utf-8") == "keep me"
+    assert (directory / ".meta.json.tmp").read_text(encoding="utf-8") == "someone else's"
+    assert (directory / "meta.json.tmp").is_symlink()
+    assert Recording.open(directory).meta.status == "complete"
+    assert sorted(p.name for p in directory.iterdir()) == sorted(
+        [EVENTS_FILE, META_FILE, SAMPLES_FILE, "meta.json.tmp", ".meta.json.tmp"]
+    )
 
 
 def test_create_checks_its_arguments(tmp_path: Path, make_config: Make) -> None:

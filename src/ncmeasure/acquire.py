@@ -35,7 +35,7 @@ from typing import Any, Literal
 import numpy as np
 
 from ncmeasure.config import MachineConfig, load_machine
-from ncmeasure.errors import ConfigError, LinkError
+from ncmeasure.errors import ConfigError, LinkError, RecordingError
 from ncmeasure.links import DriveLink, make_link
 from ncmeasure.plan import Schedule
 from ncmeasure.recording import RecordingWriter
@@ -89,6 +89,9 @@ class AcquisitionResult:
     wall_time_s: float
     events: list[LinkEvent] = field(default_factory=list)
     error: str | None = None
+    moved_aside: Path | None = None
+    """Where an unfinished earlier attempt in the directory was moved (see
+    :meth:`RecordingWriter.create`)."""
 
     @property
     def gaps(self) -> int:
@@ -162,6 +165,8 @@ def acquire(
 
     Raises:
         ConfigError: ``duration_s`` is not a positive, finite number.
+        RecordingError: The recording cannot be written (a full disk): it is
+            closed with what is on disk, and the message says how much that is.
     """
     check_duration(duration_s)
     stop = stop or threading.Event()
@@ -227,6 +232,11 @@ def acquire(
                 )
                 next_progress = now + progress_interval_s
         status = "complete" if reached_end else "interrupted"
+    except RecordingError:
+        # The disk refused the rows. close() raises in its turn while it still does,
+        # saying what is kept on disk; that message replaces this one.
+        writer.close(status="failed")
+        raise
     except LinkError as exc:
         status, error = "link_lost", str(exc)
         log.error("link lost: %s", exc)
@@ -235,7 +245,7 @@ def acquire(
         except Exception:
             log.exception("could not collect the link's last events")
     finally:
-        writer.close(status=status)
+        writer.close(status=status)  # a no-op after a failure: closed above
     if status == "complete" and any(e.kind == "gap" for e in events):
         status = "incomplete"
     return AcquisitionResult(
@@ -246,6 +256,7 @@ def acquire(
         wall_time_s=time.monotonic() - started,
         events=events,
         error=error,
+        moved_aside=writer.moved_aside,
     )
 
 
@@ -288,7 +299,8 @@ def record(
     Raises:
         ConfigError: bad machine file or link settings.
         LinkError: the link cannot be opened (nothing is recorded then).
-        RecordingError: the recording cannot be created.
+        RecordingError: the recording cannot be created or written (see
+            :func:`acquire`).
     """
     check_duration(duration_s)
     config = machine if isinstance(machine, MachineConfig) else load_machine(machine)

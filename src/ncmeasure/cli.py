@@ -158,6 +158,11 @@ def _warn(message: str) -> None:
     err_console.print(Text.assemble(("warning:", "yellow"), f" {message}"), soft_wrap=True)
 
 
+def _note(message: str) -> None:
+    """``note: message`` on stderr (user text verbatim)."""
+    err_console.print(Text.assemble(("note:", "bold"), f" {message}"), soft_wrap=True)
+
+
 def _report(error: NcMeasureError) -> None:
     """``error: message`` and one indented line per problem, on stderr (user text verbatim)."""
     err_console.print(Text.assemble(("error:", "bold red"), f" {error.message}"), soft_wrap=True)
@@ -476,6 +481,34 @@ def _settings(values: list[str], example: str = "--set sync_hz=500") -> dict[str
     return result
 
 
+def _axis_settings(values: list[str], axes: list[str]) -> dict[str, dict[str, Any]]:
+    """``--axis-set [AXIS.]KEY=VALUE`` options into per-axis link settings.
+
+    Without ``AXIS.`` a setting is for every axis; one for a named axis wins over it,
+    whatever the order. Values are read as TOML (numbers, true/false, strings).
+
+    Raises:
+        ConfigError: an item not of that form, or an axis the machine lacks.
+    """
+    result: dict[str, dict[str, Any]] = {}
+    form, example = "[AXIS.]KEY=VALUE", "--axis-set X.increments_per_rev=10000"
+    pairs = parse_assignments(values, "--axis-set", form=form, example=example)
+    pairs.sort(key=lambda pair: "." in pair[0])  # every axis first, then named ones
+    for target, text in pairs:
+        axis, dot, key = target.rpartition(".")
+        if dot and axis not in axes:
+            raise ConfigError(
+                f"--axis-set '{target}={text}': the machine has no axis {axis} "
+                f"(it has {', '.join(axes)})"
+            )
+        if not key:
+            raise ConfigError(f"--axis-set '{target}={text}': expected {form}, e.g. {example}")
+        value = _settings([f"{key}={text}"], example=example)[key]
+        for name in [axis] if dot else axes:
+            result.setdefault(name, {})[key] = value
+    return result
+
+
 def _stop_on_signals(stop: threading.Event) -> dict[int, Any]:
     """Ctrl-C and SIGTERM set ``stop``; returns the handlers to restore.
 
@@ -602,6 +635,16 @@ def record_command(
         list[str] | None,
         typer.Option("--set", help="Any other link setting, KEY=VALUE.", metavar="KEY=VALUE"),
     ] = None,
+    axis_set: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--axis-set",
+            help="A per-axis link setting (what an axis' link table holds): KEY=VALUE for "
+            "every axis, AXIS.KEY=VALUE for one, e.g. --axis-set increments_per_rev=10000 "
+            "--axis-set Z.gear_ratio=2. Over the machine file's; --node and --unit go last.",
+            metavar="[AXIS.]KEY=VALUE",
+        ),
+    ] = None,
     duration: Annotated[
         float | None, typer.Option(help="Seconds to record (positive, finite).")
     ] = None,
@@ -621,8 +664,12 @@ def record_command(
     Ctrl-C/SIGTERM; every way of stopping closes the recording with what was received.
     Exit code 0: complete; 2: bad input; 3: stopped by Ctrl-C/SIGTERM; 4: the link failed.
 
-    Example: ncmeasure record m.toml --link canopen --interface virtual --channel test
-    --node X=1 --sync-hz 250 --duration 60 -o run1
+    A file from `ncmeasure init` names no drives: --node (CANopen) or --unit (Modbus)
+    gives each axis its drive, --axis-set the rest of its link table.
+
+    Example: ncmeasure record m.toml --link canopen --interface socketcan --channel can0
+    --node X=1 --node Y=2 --node Z=3 --axis-set increments_per_rev=10000 --sync-hz 250
+    --duration 60 -o run1
     """
     config = load_machine(machine)
     overrides: dict[str, Any] = {
@@ -645,9 +692,10 @@ def record_command(
         if value is not None
     }
     overrides.update(_settings(set_ or []))
-    axis_overrides = _pairs(node or [], "--node", "node_id")
-    for axis, values in _pairs(unit or [], "--unit", "unit_id").items():
-        axis_overrides.setdefault(axis, {}).update(values)
+    axis_overrides = _axis_settings(axis_set or [], [a.name for a in config.axes])
+    for option, key, values in (("--node", "node_id", node), ("--unit", "unit_id", unit)):
+        for axis, pair in _pairs(values or [], option, key).items():
+            axis_overrides.setdefault(axis, {}).update(pair)
     unknown = set(axis_overrides) - {a.name for a in config.axes}
     if unknown:
         raise ConfigError(
@@ -683,6 +731,11 @@ def record_command(
         if live is not None:
             live.stop()  # before any message, so the display does not overwrite it
         _restore_signals(previous)
+    if result.moved_aside is not None:
+        _note(
+            f"the unfinished earlier attempt in {result.directory} was moved to "
+            f"{result.moved_aside}, whole"
+        )
     if not quiet or result.status != "complete":
         err_console.print(
             f"{result.status}: {result.rows} samples over {result.link_time_s:.1f} s in "
@@ -838,7 +891,13 @@ def import_command(
 def simulate_drive_command(
     link: Annotated[str, typer.Option(help="canopen or modbus.")],
     interface: Annotated[
-        str | None, typer.Option(help="CANopen: python-can interface.", rich_help_panel="CANopen")
+        str | None,
+        typer.Option(
+            help="CANopen: python-can interface. The default, virtual, reaches only this "
+            "process; for `record` in another terminal use socketcan (with a vcan device) "
+            "or udp_multicast.",
+            rich_help_panel="CANopen",
+        ),
     ] = "virtual",
     channel: Annotated[
         str | None, typer.Option(help="CANopen: python-can channel.", rich_help_panel="CANopen")
@@ -895,8 +954,8 @@ def simulate_drive_command(
     The drives report a smooth test motion of every axis. Example, in two terminals:
     `ncmeasure simulate-drive --link modbus --port 5020` and
     `ncmeasure record m.toml --link modbus --host 127.0.0.1 --port 5020 --unit X=1 ...`.
-    Exit code 0: stopped; 2: bad input; 4: the drives cannot serve there (port in use,
-    no such interface).
+    Exit code 0: stopped; 2: bad input (an interface python-can does not know); 4: the
+    drives cannot serve there (port in use, a CAN interface that cannot be opened).
     """
     stop = threading.Event()
     previous = _stop_on_signals(stop)
@@ -928,12 +987,29 @@ def simulate_drive_command(
                 stop=stop,
             )
         elif link == "canopen":
+            from ncmeasure.sim.cia402 import VIRTUAL_BUS_REACH
             from ncmeasure.sim.cia402 import serve as serve_canopen
 
             nodes = {a: v["node_id"] for a, v in _pairs(node or [], "--node", "node_id").items()}
             ids = list((nodes or default).values())
-            err_console.print(f"simulated CiA 402 drives, nodes {ids}, on {interface}:{channel}")
-            serve_canopen(channel=channel, interface=interface, nodes=ids, eds=eds, stop=stop)
+
+            def canopen_ready(_: object) -> None:
+                err_console.print(
+                    f"simulated CiA 402 drives, nodes {ids}, on {interface}:{channel}; "
+                    "Ctrl-C stops",
+                    soft_wrap=True,
+                )
+                if interface == "virtual":
+                    _note(VIRTUAL_BUS_REACH)
+
+            serve_canopen(
+                channel=channel,
+                interface=interface,
+                nodes=ids,
+                eds=eds,
+                stop=stop,
+                on_ready=canopen_ready,
+            )
         else:
             raise ConfigError(f"--link {link!r}: simulated drives exist for canopen and modbus")
     finally:
@@ -1172,18 +1248,31 @@ def compare_command(
         Path | None,
         typer.Option(help="Write an HTML report of the last run with the comparison."),
     ] = None,
+    label: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--label",
+            metavar="LABEL",
+            help="Name of a compared file in the output; repeat in order, one per file "
+            "after BASE (or one per file, BASE's first). Default: the file name, with its "
+            "folders where names clash (m17/results, m18/results).",
+        ),
+    ] = None,
 ) -> Outcome:
     """Compare runs: the same machine over its life, or identical machines (fleet).
 
     Exit code 0: every deviation within the warning limit; 1: a warning limit crossed;
-    3: a critical limit crossed; 2: bad input.
+    3: a critical limit crossed; 2: bad input (also an output that cannot be written).
+
+    Example: ncmeasure compare m17/results.json m18/results.json m19/results.json
     """
     from pydantic import ValidationError
 
     from ncmeasure.analysis.analyze import load_results
-    from ncmeasure.analysis.compare import Limits, compare_results
+    from ncmeasure.analysis.compare import Limits, compare_results, write_comparison
     from ncmeasure.config import format_validation_error
 
+    labels = _compare_labels(base, others, label)
     reference = load_results(base)
     runs = [load_results(path) for path in others]
     limits = Limits()
@@ -1199,9 +1288,9 @@ def compare_command(
             raise ConfigError(
                 "--warning/--critical: not valid limits", format_validation_error(exc)
             ) from exc
-    comparison = compare_results(reference, runs, labels=[p.stem for p in others], limits=limits)
+    comparison = compare_results(reference, runs, labels=labels, limits=limits)
     if output is not None:
-        output.write_text(comparison.model_dump_json(indent=2) + "\n", encoding="utf-8")
+        write_comparison(comparison, output)
     if report is not None:
         from ncmeasure.report import write_report
 
@@ -1209,6 +1298,61 @@ def compare_command(
         console.print(f"wrote {report}")
     _print_comparison(comparison, runs)
     return comparison.status
+
+
+def _file_labels(paths: list[Path]) -> list[str]:
+    """A label per results file: its name without ``.json``; where names clash, with as
+    many of its folders as tell them apart (``m17/results``), else numbered (``#2``)."""
+
+    def label(path: Path, depth: int) -> str:
+        folders = path.absolute().parent.parts[1:]
+        return "/".join([*folders[len(folders) - depth :], path.stem]) if depth else path.stem
+
+    depths = [0] * len(paths)
+    labels = [path.stem for path in paths]
+    while True:
+        grown = False
+        for name in {name for name in labels if labels.count(name) > 1}:
+            group = [i for i, other in enumerate(labels) if other == name]
+            if len({paths[i].absolute() for i in group}) == 1:
+                continue  # the same file: only a number tells them apart
+            for index in group:
+                if depths[index] < len(paths[index].absolute().parent.parts) - 1:
+                    depths[index] += 1
+                    labels[index] = label(paths[index], depths[index])
+                    grown = True
+        if not grown:
+            break
+    doubled = {name for name in labels if labels.count(name) > 1}
+    counts: dict[str, int] = {}
+    for index, name in enumerate(labels):
+        if name in doubled:
+            counts[name] = counts.get(name, 0) + 1
+            labels[index] = f"{name} #{counts[name]}"
+    return labels
+
+
+def _compare_labels(base: Path, others: list[Path], given: list[str] | None) -> list[str]:
+    """The labels of the compared files: ``--label`` checked, or from the file names.
+
+    Raises:
+        ConfigError: ``--label`` given neither once per file after BASE nor once per
+            file, empty, or twice the same.
+    """
+    if not given:
+        return _file_labels([base, *others])[1:]
+    if len(given) not in (len(others), len(others) + 1):
+        raise ConfigError(
+            f"--label: {len(given)} label{'s' if len(given) != 1 else ''} for "
+            f"{len(others)} compared file{'s' if len(others) != 1 else ''}: give one per "
+            "file after BASE, in order (or one per file, BASE's first)"
+        )
+    if any(not text.strip() for text in given):
+        raise ConfigError("--label: a label is empty; every compared file needs a name")
+    doubled = next((text for text in given if given.count(text) > 1), None)
+    if doubled is not None:
+        raise ConfigError(f"--label: {doubled!r} is given twice; labels must be unique")
+    return list(given)
 
 
 def _print_comparison(comparison: Comparison, runs: list[Results]) -> None:

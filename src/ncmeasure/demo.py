@@ -42,7 +42,7 @@ import numpy as np
 
 from ncmeasure.acquire import AcquisitionResult, record
 from ncmeasure.analysis.analyze import analyze, load_results, write_results
-from ncmeasure.analysis.compare import Comparison, compare_results
+from ncmeasure.analysis.compare import Comparison, compare_results, write_comparison
 from ncmeasure.analysis.results import Results
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.errors import ConfigError, LinkError, OutputError
@@ -464,9 +464,7 @@ def run_demo(
         result.comparison = compare_results(
             base.results, [measured.results], labels=["reference", "measured"]
         )
-        (directory / "comparison.json").write_text(
-            result.comparison.model_dump_json(indent=2) + "\n", encoding="utf-8"
-        )
+        write_comparison(result.comparison, directory / "comparison.json")
     if report:
         from ncmeasure.report import write_report
 

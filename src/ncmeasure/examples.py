@@ -74,6 +74,16 @@ both_directions = true
 # [limits]                        # larger plans are refused before anything is written
 # max_duration_h = 8.0            # one shift
 # max_program_kb = 512            # default: the controller's program memory (controllers --details)
+
+# How `ncmeasure record` reaches the drives (or give it all on its command line:
+# --link, --interface, --channel, --node X=1, --axis-set increments_per_rev=10000):
+# [link]
+# type = "canopen"                # or "modbus"
+# interface = "socketcan"         # any python-can interface
+# channel = "can0"
+# sync_hz = 250
+# and in every [[axes]] table, its drive:
+# link = {{ node_id = 1, increments_per_rev = 10000 }}   # Modbus: {{ unit_id = 1 }}
 """
 
 

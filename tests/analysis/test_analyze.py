@@ -486,6 +486,18 @@ def test_writing_replaces_an_old_file_whole(tmp_path: Path, small_results: Resul
     assert load_results(path) == small_results
 
 
+def test_writing_never_follows_a_planted_temporary_file(
+    tmp_path: Path, small_results: Results
+) -> None:
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me", encoding="utf-8")
+    (tmp_path / ".r.json.tmp").symlink_to(victim)
+    write_results(small_results, tmp_path / "r.json")
+    assert victim.read_text(encoding="utf-8") == "keep me"
+    assert (tmp_path / ".r.json.tmp").is_symlink()
+    assert load_results(tmp_path / "r.json") == small_results
+
+
 def test_writing_where_a_file_blocks_the_directory(tmp_path: Path, small_results: Results) -> None:
     (tmp_path / "blocker").write_text("", encoding="utf-8")
     with pytest.raises(OutputError, match="cannot be written"):

@@ -175,6 +175,11 @@ def test_labels_for_the_others_only_or_for_all() -> None:
     assert (both.base, both.others) == ("2026", ["2027"])
 
 
+def test_a_label_that_is_the_base_default_does_not_clash() -> None:
+    comparison = compare_results(results("A"), [results("B")], labels=["A"])
+    assert (comparison.base, comparison.others) == ("A (base)", ["A"])
+
+
 def test_custom_limits() -> None:
     limits = Limits(warning_percent=10, critical_percent=15)
     comparison = compare_results(results(), [results(factor=1.12)], limits=limits)

@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
 from ncmeasure.links import link_class
-from ncmeasure.links.modbus.link import ModbusLink
+from ncmeasure.links.modbus.link import ModbusLink, ModbusSettings
 from ncmeasure.links.modbus.registers import (
     EXCEPTION_MEANINGS,
     builtin_register_maps,
@@ -567,6 +567,18 @@ def test_bad_link_settings_are_located() -> None:
     assert "link.serial_port: required when mode is 'rtu'" in problems
     assert "link.register_map: required key is missing" in problems
     assert any(p.startswith("link.poll_hz: ") for p in problems)
+
+
+def test_a_serial_port_means_rtu_never_tcp() -> None:
+    """A serial port alone selects RTU; with mode 'tcp' it is refused, never ignored."""
+    table = {"serial_port": "/dev/ttyX", "baudrate": 9600, "register_map": "generic"}
+    link = ModbusLink.from_tables(table, [(axis("X"), {"unit_id": 1})])
+    assert isinstance(link.settings, ModbusSettings) and link.settings.mode == "rtu"
+    problems = link_problems({**table, "mode": "tcp"}, [{"unit_id": 1}])
+    assert problems == [
+        "link.serial_port: a serial port is for mode 'rtu', but mode is 'tcp': set mode = "
+        "'rtu' (or leave mode out) to use the serial line, or leave serial_port out for TCP"
+    ]
 
 
 def test_duplicate_unit_ids_and_missing_axis_data() -> None:

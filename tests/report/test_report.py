@@ -454,6 +454,16 @@ def test_healthy_machine_reads_ok_without_alarm(healthy: Results, tmp_path: Path
     assert "138" in models  # the line's χ²ᵣ is shown, plainly
 
 
+def test_the_page_never_follows_a_planted_temporary_file(healthy: Results, tmp_path: Path) -> None:
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me", encoding="utf-8")
+    (tmp_path / ".page.html.tmp").symlink_to(victim)
+    write_report(healthy, tmp_path / "page.html")
+    assert victim.read_text(encoding="utf-8") == "keep me"
+    assert (tmp_path / ".page.html.tmp").is_symlink()
+    assert "<html" in (tmp_path / "page.html").read_text(encoding="utf-8")
+
+
 def test_faulty_axis_reads_fault_with_reason(report: Path, example: Example) -> None:
     page = _text(report)
     x = example.results.axes["X"]

@@ -11,6 +11,7 @@ import threading
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -247,6 +248,43 @@ def test_bad_faults_and_units() -> None:
         SimulatedModbusDrive([SimulatedUnit("X", 0)])
     with pytest.raises(ConfigError, match="unknown register map"):
         SimulatedModbusDrive([SimulatedUnit("X", 1, "nope")])
+
+
+UNGUARDED_SCRIPT = """
+from ncmeasure.sim.modbus_drive import running_server
+
+with running_server({"X": 1}, start_timeout_s=%s) as server:
+    print("serving on", server.port, flush=True)
+"""
+
+
+@pytest.mark.parametrize("guarded", [False, True])
+def test_a_script_without_the_main_guard_is_told_so(tmp_path: Path, guarded: bool) -> None:
+    """multiprocessing's spawn imports the script again in the drive process: without the
+    `if __name__ == "__main__":` guard that would start a server there too. It is refused
+    at once with the remedy, not a hang or a bootstrapping traceback."""
+    script = tmp_path / "script.py"
+    text = UNGUARDED_SCRIPT % 300
+    if guarded:
+        body = text.split("\n\n", 1)[1]
+        text = (
+            text.split("\n\n", 1)[0]
+            + '\n\nif __name__ == "__main__":\n'
+            + "".join(f"    {line}\n" for line in body.strip().splitlines())
+        )
+    script.write_text(text, encoding="utf-8")
+    started = time.monotonic()
+    done = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=120
+    )
+    if guarded:
+        assert done.returncode == 0 and "serving on" in done.stdout, done.stderr
+        return
+    assert time.monotonic() - started < 60  # well before the 300 s start timeout
+    assert done.returncode == 1
+    assert 'if __name__ == "__main__":' in done.stderr
+    assert "LinkError" in done.stderr and "main module" in done.stderr
+    assert "bootstrapping phase" not in done.stderr  # multiprocessing's own traceback
 
 
 def test_port_in_use_is_a_clear_error() -> None:

@@ -57,6 +57,20 @@ def awkward_recording(
     return Recording.open(directory)
 
 
+def test_export_never_writes_through_a_planted_temporary_file(tmp_path: Path) -> None:
+    """A symlink at the old temporary name out.csv.tmp does not redirect the export."""
+    write_frames(tmp_path / "r", frames=2, rows_per_frame=5)
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me", encoding="utf-8")
+    (tmp_path / "out.csv.tmp").symlink_to(victim)
+    export_csv(tmp_path / "r", tmp_path / "out.csv")
+    assert victim.read_text(encoding="utf-8") == "keep me"
+    assert (tmp_path / "out.csv.tmp").is_symlink()
+    assert len((tmp_path / "out.csv").read_text(encoding="utf-8").splitlines()) == 11
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == ["out.csv", "out.csv.tmp", "r", "victim.txt"]
+
+
 def test_csv_import_leaves_out_what_no_drive_reports(tmp_path: Path) -> None:
     original = awkward_recording(tmp_path / "original", extremes=IMPOSSIBLE)
     copy = import_csv(export_csv(original, tmp_path / "out.csv"), tmp_path / "copy")

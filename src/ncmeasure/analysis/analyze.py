@@ -58,6 +58,7 @@ from ncmeasure.analysis.segment import Segmentation, SegmentSettings, find_windo
 from ncmeasure.analysis.verdict import axis_verdict
 from ncmeasure.config import MachineConfig, format_validation_error
 from ncmeasure.errors import ConfigError, OutputError, RecordingError
+from ncmeasure.files import replace_text
 from ncmeasure.plan import AxisSummary, Schedule
 from ncmeasure.recording import Recording
 from ncmeasure.validity import Implausible
@@ -680,19 +681,12 @@ def write_results(results: Results, path: str | os.PathLike[str]) -> Path:
         OutputError: The file cannot be written.
     """
     target = Path(path)
-    tmp = target.with_name(f".{target.name}.tmp")
     text = results.model_dump_json(indent=2)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
-        with tmp.open("w", encoding="utf-8") as file:
+        with replace_text(target, fsync=True) as file:
             file.write(text + "\n")
-            file.flush()
-            os.fsync(file.fileno())
-        tmp.replace(target)
     except OSError as exc:
-        with_tmp = tmp.exists()
-        if with_tmp:
-            tmp.unlink(missing_ok=True)
         raise OutputError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
     log.info("wrote %s", target)
     return target

@@ -27,8 +27,9 @@ from __future__ import annotations
 import datetime as dt
 import logging
 import math
+import os
 from collections.abc import Sequence
-from pathlib import PurePath
+from pathlib import Path, PurePath
 from typing import Literal
 
 import numpy as np
@@ -49,7 +50,8 @@ from ncmeasure.analysis.results import (
     Results,
     Signature,
 )
-from ncmeasure.errors import ComparisonError
+from ncmeasure.errors import ComparisonError, OutputError
+from ncmeasure.files import replace_text
 
 __all__ = [
     "CHANGE_SHAPE",
@@ -67,6 +69,7 @@ __all__ = [
     "PointDeviation",
     "RunSummary",
     "compare_results",
+    "write_comparison",
 ]
 
 log = logging.getLogger(__name__)
@@ -282,7 +285,10 @@ def _labels(base: Results, others: Sequence[Results], labels: Sequence[str] | No
         return defaults
     names = [str(label) for label in labels]
     if len(names) == len(others):
-        names = [defaults[0], *names]
+        base_name = defaults[0]
+        if base_name in names:  # the base's default must not take a given label
+            base_name = f"{base_name} (base)"
+        names = [base_name, *names]
     if len(names) != len(runs):
         raise ComparisonError(
             f"{len(names)} labels for {len(runs)} results: give one label per other run, "
@@ -959,3 +965,20 @@ def _findings(
             f"{len(problems)} matching problem(s): not every point was compared (see problems)."
         )
     return lines
+
+
+def write_comparison(comparison: Comparison, path: str | os.PathLike[str]) -> Path:
+    """Write a comparison as JSON, whole (its folder is created when missing).
+
+    Raises:
+        OutputError: The file or its folder cannot be written.
+    """
+    target = Path(path)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with replace_text(target, fsync=True) as file:
+            file.write(comparison.model_dump_json(indent=2) + "\n")
+    except OSError as exc:
+        raise OutputError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
+    log.info("wrote %s", target)
+    return target

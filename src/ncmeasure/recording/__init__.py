@@ -4,7 +4,7 @@ A recording is a directory of ``meta.json``, ``samples.bin`` and
 ``events.jsonl`` (:mod:`.format`, described byte by byte in
 ``docs/recording-format.md``). :class:`RecordingWriter` (:mod:`.writer`)
 appends sample blocks crash-safe; :class:`Recording` (:mod:`.reader`) reads
-one back in a single pass; :class:`ImportSink` (:mod:`.sink`) is where every
+one back frame by frame; :class:`ImportSink` (:mod:`.sink`) is where every
 importer writes. Recordings sit below the links: they speak the vocabulary of
 :mod:`ncmeasure.samples` and import nothing of the links. CSV and MDF4
 exchange live with the other importers, in :mod:`ncmeasure.traces.csv` and

@@ -13,6 +13,7 @@ writer (:mod:`.writer`) and the reader (:mod:`.reader`) share what is here.
 from __future__ import annotations
 
 import datetime as dt
+import errno
 import json
 import logging
 import os
@@ -27,7 +28,13 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from ncmeasure._version import __version__
 from ncmeasure.config import AXIS_NAME_PATTERN, AxisConfig, MachineConfig
 from ncmeasure.errors import RecordingError
+from ncmeasure.files import replace_text
 from ncmeasure.samples import SIGNAL_UNITS, Channel, EventKind, LinkEvent
+
+try:  # advisory locks tell a reader that a writer is still at work (POSIX only)
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
 
 log = logging.getLogger(__name__)
 
@@ -195,20 +202,58 @@ def fsync_directory(directory: Path) -> None:
         os.close(fd)
 
 
+_DISK_FULL = frozenset(
+    code for code in (errno.ENOSPC, getattr(errno, "EDQUOT", None)) if code is not None
+)
+
+
+def write_failure(directory: Path, what: str, exc: OSError) -> str:
+    """Why ``what`` of the recording ``directory`` could not be written, for a message.
+
+    A full disk or an exhausted quota (ENOSPC, EDQUOT) reads ``disk full``, a file
+    size limit (EFBIG) ``file size limit reached``; the recording is named first.
+    """
+    reason = exc.strerror or str(exc)
+    if exc.errno in _DISK_FULL:
+        return f"{directory}: disk full ({reason}) while writing {what}"
+    if exc.errno == errno.EFBIG:
+        return f"{directory}: file size limit reached ({reason}) while writing {what}"
+    return f"{directory}: {what} cannot be written ({reason})"
+
+
 def write_meta(directory: Path, meta: RecordingMeta) -> None:
-    """Replace ``meta.json`` atomically: a reader sees the old or the new file, whole."""
+    """Replace ``meta.json`` atomically: a reader sees the old or the new file, whole.
+
+    Raises:
+        RecordingError: The file cannot be written (the old one stays, no
+            temporary file is left behind).
+    """
     path = directory / META_FILE
-    tmp = directory / (META_FILE + ".tmp")
     text = json.dumps(meta.model_dump(mode="json"), indent=2, ensure_ascii=False, default=str)
     try:
-        with tmp.open("w", encoding="utf-8") as file:
+        with replace_text(path, fsync=True) as file:
             file.write(text + "\n")
-            file.flush()
-            os.fsync(file.fileno())
-        tmp.replace(path)
     except OSError as exc:
-        raise RecordingError(f"{path}: cannot be written ({exc.strerror or exc})") from exc
+        raise RecordingError(write_failure(directory, META_FILE, exc)) from exc
     fsync_directory(directory)
+
+
+def is_being_written(path: Path) -> bool | None:
+    """True while a writer holds ``samples.bin`` (``path``); None where that cannot be told."""
+    if fcntl is None:  # pragma: no cover - Windows
+        return None
+    try:
+        with path.open("rb") as file:
+            try:
+                fcntl.flock(file.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return True
+            except OSError:
+                return None
+            fcntl.flock(file.fileno(), fcntl.LOCK_UN)
+            return False
+    except OSError:
+        return None
 
 
 def event_line(event: LinkEvent) -> bytes:

@@ -1,4 +1,4 @@
-"""Reading a recording back: one pass over ``samples.bin``, straight into a numpy array.
+"""Reading a recording back: ``samples.bin`` frame by frame, straight into a numpy array.
 
 A frame that was cut short or damaged, and everything after it, is reported in
 :attr:`Recording.problems` and never misread.
@@ -32,13 +32,9 @@ from ncmeasure.recording.format import (
     EventRecord,
     PathArg,
     RecordingMeta,
+    is_being_written,
 )
 from ncmeasure.samples import Channel, LinkEvent
-
-try:  # advisory locks tell a reader that a writer is still at work (POSIX only)
-    import fcntl
-except ImportError:  # pragma: no cover - Windows
-    fcntl = None  # type: ignore[assignment]
 
 log = logging.getLogger(__name__)
 
@@ -53,8 +49,61 @@ def _read_exactly(file: io.FileIO, target: memoryview) -> int:
     return got
 
 
+@dataclass(frozen=True)
+class _Frame:
+    offset: int
+    rows: int
+    crc: int
+
+
+def _walk_headers(file: io.FileIO, size: int, row_bytes: int, problems: list[str]) -> list[_Frame]:
+    """The frames whose headers are whole and in sequence and whose payload fits the file.
+
+    Only the 16-byte headers are read; the first one that is cut short, has no
+    magic, the wrong sequence number or more rows than the rest of the file
+    holds ends the walk with a problem.
+    """
+    frames: list[_Frame] = []
+    header = bytearray(FRAME_HEADER.size)
+    offset = 0
+    while offset < size:
+        rest = size - offset
+        number = len(frames)
+        where = f"after frame {number - 1}" if number else "at the start of samples.bin"
+        file.seek(offset)
+        if rest < FRAME_HEADER.size or _read_exactly(file, memoryview(header)) < len(header):
+            problems.append(f"torn tail: {rest} bytes {where} ignored (incomplete frame)")
+            break
+        magic, count, crc, sequence = FRAME_HEADER.unpack(header)
+        if magic != FRAME_MAGIC:
+            # A crash can leave zeros where a frame was to be (file systems that extend
+            # the file before its data is on disk), or a sparse hole of any size.
+            found = "zero bytes" if not any(header) else "no frame header"
+            problems.append(f"torn tail: {rest} bytes {where} ignored ({found} at byte {offset})")
+            break
+        if sequence != number:
+            problems.append(
+                f"frame {number} at byte {offset} carries sequence number {sequence}: "
+                f"it and everything after it ignored ({rest} bytes)"
+            )
+            break
+        payload_bytes = count * row_bytes
+        if payload_bytes > rest - FRAME_HEADER.size:
+            problems.append(f"torn tail: {rest} bytes {where} ignored (incomplete frame)")
+            break
+        frames.append(_Frame(offset, count, crc))
+        offset += FRAME_HEADER.size + payload_bytes
+    return frames
+
+
 def _read_frames(path: Path, columns: int) -> tuple[NDArray[np.float64], list[str]]:
     """Read every intact frame of ``samples.bin`` straight into one array.
+
+    Two passes: the headers first, which give the number of rows, then every
+    payload into its place in an array of exactly that size, with its CRC
+    checked. Memory follows the rows the headers announce, never the file
+    size: a file with a huge (sparse) damaged tail costs no more than its
+    intact frames.
 
     Returns:
         The rows of the intact frames (n, columns), and the problems found.
@@ -63,45 +112,26 @@ def _read_frames(path: Path, columns: int) -> tuple[NDArray[np.float64], list[st
     row_bytes = 8 * columns
     with path.open("rb", buffering=0) as file:
         size = os.fstat(file.fileno()).st_size  # a live writer may append more: ignored
-        raw = np.empty(size // row_bytes * row_bytes, dtype=np.uint8)  # pages are touched lazily
+        frames = _walk_headers(file, size, row_bytes, problems)
+        raw = np.empty(sum(f.rows for f in frames) * row_bytes, dtype=np.uint8)
         buffer = raw.data
-        header = bytearray(FRAME_HEADER.size)
-        offset = rows = frame = 0
-        while offset < size:
-            rest = size - offset
-            where = f"after frame {frame - 1}" if frame else "at the start of samples.bin"
-            if rest < FRAME_HEADER.size or _read_exactly(file, memoryview(header)) < len(header):
-                problems.append(f"torn tail: {rest} bytes {where} ignored (incomplete frame)")
-                break
-            magic, count, crc, sequence = FRAME_HEADER.unpack(header)
-            if magic != FRAME_MAGIC:
-                problems.append(
-                    f"torn tail: {rest} bytes {where} ignored (no frame header at byte {offset})"
-                )
-                break
-            if sequence != frame:
-                problems.append(
-                    f"frame {frame} at byte {offset} carries sequence number {sequence}: "
-                    f"it and everything after it ignored ({rest} bytes)"
-                )
-                break
-            payload_bytes = count * row_bytes
-            if payload_bytes > rest - FRAME_HEADER.size:
-                problems.append(f"torn tail: {rest} bytes {where} ignored (incomplete frame)")
-                break
+        rows = 0
+        for number, frame in enumerate(frames):
+            payload_bytes = frame.rows * row_bytes
+            rest = size - frame.offset
             target = buffer[rows * row_bytes : rows * row_bytes + payload_bytes]
+            file.seek(frame.offset + FRAME_HEADER.size)
             if _read_exactly(file, target) < payload_bytes:
-                problems.append(f"torn tail: {rest} bytes {where} ignored (file shrank)")
+                where = f"after frame {number - 1}" if number else "at the start of samples.bin"
+                problems[:] = [f"torn tail: {rest} bytes {where} ignored (file shrank)"]
                 break
-            if zlib.crc32(target) != crc:
-                problems.append(
-                    f"frame {frame} fails its checksum: it and everything after it "
+            if zlib.crc32(target) != frame.crc:
+                problems[:] = [
+                    f"frame {number} fails its checksum: it and everything after it "
                     f"ignored ({rest} bytes)"
-                )
+                ]
                 break
-            offset += FRAME_HEADER.size + payload_bytes
-            rows += count
-            frame += 1
+            rows += frame.rows
     data: NDArray[np.float64] = raw[: rows * row_bytes].view(ROW_DTYPE).reshape(rows, columns)
     return data, problems
 
@@ -169,24 +199,6 @@ def _read_meta(directory: Path) -> RecordingMeta:
         raise RecordingError(f"{path}: invalid metadata", format_validation_error(exc)) from exc
 
 
-def _is_being_written(path: Path) -> bool | None:
-    """True while a writer holds ``samples.bin``; None where that cannot be told."""
-    if fcntl is None:  # pragma: no cover - Windows
-        return None
-    try:
-        with path.open("rb") as file:
-            try:
-                fcntl.flock(file.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
-            except BlockingIOError:
-                return True
-            except OSError:
-                return None
-            fcntl.flock(file.fileno(), fcntl.LOCK_UN)
-            return False
-    except OSError:
-        return None
-
-
 @dataclass(frozen=True, eq=False)
 class Recording:
     """A recording read into memory.
@@ -238,7 +250,7 @@ class Recording:
         rows = len(data)
         events = _read_events(path / EVENTS_FILE, problems)
         if meta.status == "recording":
-            if _is_being_written(samples_path):
+            if is_being_written(samples_path):
                 problems.insert(
                     0, f"still being recorded (status 'recording'): {rows} samples so far"
                 )

@@ -204,7 +204,7 @@ class ImportSink:
             return
         with contextlib.suppress(RecordingError):
             self.writer.close("failed")
-        for name in (META_FILE, SAMPLES_FILE, EVENTS_FILE, META_FILE + ".tmp"):
+        for name in (META_FILE, SAMPLES_FILE, EVENTS_FILE):
             with contextlib.suppress(OSError):
                 (self.directory / name).unlink()
         if not self.existed:

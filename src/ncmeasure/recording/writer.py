@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import json
 import logging
 import os
 import threading
@@ -32,6 +33,7 @@ from ncmeasure.recording.format import (
     FRAME_MAGIC,
     MAX_FLUSH_INTERVAL_S,
     MAX_FRAME_ROWS,
+    META_FILE,
     ROW_DTYPE,
     SAMPLES_FILE,
     ChannelMeta,
@@ -41,7 +43,9 @@ from ncmeasure.recording.format import (
     axis_metadata,
     event_line,
     fsync_directory,
+    is_being_written,
     now_utc,
+    write_failure,
     write_meta,
 )
 from ncmeasure.samples import Channel, LinkEvent, SampleBlock
@@ -76,6 +80,67 @@ def _write_all(file: IO[bytes], data: bytes | memoryview) -> None:
         if not written:
             raise OSError("the file accepted no more bytes")
         view = view[written:]
+
+
+_UNFINISHED: frozenset[str] = frozenset({"recording", "failed"})
+"""Statuses of an attempt that a new recording into its directory moves aside."""
+
+
+def _attempt_status(path: Path) -> str | None:
+    """The status in ``path``'s meta.json; None when it holds no readable recording."""
+    try:
+        data = json.loads((path / META_FILE).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    status = data.get("status") if isinstance(data, dict) else None
+    return status if isinstance(status, str) and status in _STATUSES else None
+
+
+def _move_failed_attempt_aside(path: Path) -> Path:
+    """Make room in the non-empty directory ``path`` for a new recording, or refuse.
+
+    A recording that did not finish (status ``failed``, or ``recording`` with no
+    writer at work: a full disk, a crash) is renamed to ``<name>.failed-<n>``
+    beside it, whole and readable; nothing else is ever moved or replaced.
+
+    Returns:
+        Where the earlier attempt now is.
+
+    Raises:
+        RecordingError: The directory holds a finished recording, one still
+            being written, or anything that is not a recording.
+    """
+    status = _attempt_status(path)
+    if status is None:
+        raise RecordingError(
+            f"{path}: directory is not empty; a recording needs a new or empty directory"
+        )
+    if status not in _UNFINISHED:
+        raise RecordingError(
+            f"{path}: directory is not empty: it holds a finished recording (status {status}), "
+            "which is never overwritten; record into a new directory"
+        )
+    if status == "recording":
+        live = is_being_written(path / SAMPLES_FILE)
+        if live or live is None:
+            reason = "still being recorded" if live else "perhaps still being recorded"
+            raise RecordingError(
+                f"{path}: directory is not empty: it holds a recording {reason}; "
+                "record into a new directory"
+            )
+    number = 1
+    while (aside := path.with_name(f"{path.name}.failed-{number}")).exists():
+        number += 1
+    try:
+        path.rename(aside)
+    except OSError as exc:
+        raise RecordingError(
+            f"{path}: holds an unfinished recording (status {status}) that cannot be moved "
+            f"aside to {aside.name} ({exc.strerror or exc}); move or remove it, or record "
+            "into a new directory"
+        ) from exc
+    log.info("%s: the unfinished recording there (status %s) moved to %s", path, status, aside)
+    return aside
 
 
 class RecordingWriter:
@@ -128,6 +193,8 @@ class RecordingWriter:
         self._events_size = 0
         self._closed = False
         self._error: RecordingError | None = None
+        self.moved_aside: Path | None = None
+        """Where :meth:`create` moved an unfinished earlier attempt in the directory."""
         self._stop = threading.Event()
         self._thread = threading.Thread(
             target=self._flush_loop, name=f"recording-flush:{directory.name}", daemon=True
@@ -153,8 +220,15 @@ class RecordingWriter:
     ) -> RecordingWriter:
         """Start a new recording in ``directory`` (created with its parents).
 
+        A directory that holds an unfinished earlier attempt (status ``failed``,
+        or ``recording`` with no writer at work: the disk was full, the recorder
+        crashed) is first moved aside whole to ``<directory>.failed-<n>``
+        (:attr:`moved_aside` says where), so a retry can use the same name; a
+        finished recording is never overwritten or moved.
+
         Args:
-            directory: A directory that does not exist yet or is empty.
+            directory: A directory that does not exist yet, is empty, or holds
+                an unfinished attempt.
             channels: The sample columns, in the order of the blocks' values.
             nominal_period_s: The intended time between two rows.
             machine: The machine file; its name and the recorded axes' data go
@@ -173,8 +247,9 @@ class RecordingWriter:
             start_utc: When the recording began; now when not given.
 
         Raises:
-            RecordingError: The directory exists and is not empty, cannot be
-                created, or a channel's axis is not in ``machine``.
+            RecordingError: The directory holds anything but an unfinished
+                attempt, cannot be created or written (a full disk leaves
+                nothing behind), or a channel's axis is not in ``machine``.
             ValueError: An argument is out of range.
         """
         if not channels:
@@ -219,24 +294,36 @@ class RecordingWriter:
                 f"{path}: invalid recording metadata", format_validation_error(exc)
             ) from exc
 
+        moved_aside: Path | None = None
         if path.exists():
             if not path.is_dir():
                 raise RecordingError(f"{path}: exists and is not a directory")
             if any(path.iterdir()):
-                raise RecordingError(
-                    f"{path}: directory is not empty; a recording needs a new or empty directory"
-                )
+                moved_aside = _move_failed_attempt_aside(path)
+        made = not path.exists()
+        created: list[IO[bytes]] = []
         try:
             path.mkdir(parents=True, exist_ok=True)
             write_meta(path, meta)
             samples = (path / SAMPLES_FILE).open("ab", buffering=0)
-        except OSError as exc:
-            raise RecordingError(f"{path}: cannot create a recording here ({exc})") from exc
-        try:
+            created.append(samples)
             events = (path / EVENTS_FILE).open("ab", buffering=0)
-        except OSError as exc:
-            samples.close()
-            raise RecordingError(f"{path}: cannot create a recording here ({exc})") from exc
+            created.append(events)
+        except (OSError, RecordingError) as exc:
+            # Nothing half made stays behind: the directory was new or empty.
+            for file in created:
+                file.close()
+            for name in (META_FILE, SAMPLES_FILE, EVENTS_FILE):
+                with contextlib.suppress(OSError):
+                    (path / name).unlink()
+            if made:
+                with contextlib.suppress(OSError):
+                    path.rmdir()
+            if isinstance(exc, RecordingError):
+                raise
+            raise RecordingError(
+                f"{path}: cannot create a recording here ({exc.strerror or exc})"
+            ) from exc
         if fcntl is not None:
             with contextlib.suppress(OSError):  # only a hint for readers
                 fcntl.flock(samples.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -247,7 +334,9 @@ class RecordingWriter:
             len(channels),
             nominal_period_s,
         )
-        return cls(path, meta, samples, events, flush_interval_s)
+        writer = cls(path, meta, samples, events, flush_interval_s)
+        writer.moved_aside = moved_aside
+        return writer
 
     # --- properties -------------------------------------------------------------------
 
@@ -368,8 +457,11 @@ class RecordingWriter:
 
         Raises:
             RecordingError: An update is not a valid metadata field or value
-                (nothing is closed then), or the final flush failed (the
-                recording is closed with status ``failed``).
+                (nothing is closed then), or the final flush or ``meta.json``
+                failed (a full disk: the recording is closed with status
+                ``failed``, or keeps ``recording`` when not even ``meta.json``
+                could be written; the message says so, and how many samples
+                are on disk and readable).
         """
         if self._closed:
             return
@@ -410,7 +502,7 @@ class RecordingWriter:
                     file.close()  # also releases the writer's lock
                 except OSError:
                     log.exception("closing %s", getattr(file, "name", file))
-            self._meta = RecordingMeta.model_validate(
+            final = RecordingMeta.model_validate(
                 {
                     **self._meta.model_dump(),
                     **meta_updates,
@@ -421,10 +513,26 @@ class RecordingWriter:
                     "lost_samples": self._lost_samples,
                 }
             )
-            write_meta(self.directory, self._meta)
+            meta_error: RecordingError | None = None
+            try:
+                write_meta(self.directory, final)
+                self._meta = final
+            except RecordingError as exc:
+                meta_error = exc
         log.info("recording %s closed: %s, %d samples", self.directory, status, self._rows_written)
-        if error is not None:
-            raise error
+        if error is None and meta_error is None:
+            return
+        cause = error or meta_error
+        assert cause is not None
+        message = f"{cause.message}. " + ("The recording stopped there; its" if error else "Its")
+        message += f" {self._rows_written} samples on disk are whole and readable"
+        if meta_error is not None:
+            message += f" ({META_FILE} could not be updated and still says 'recording')"
+        message += (
+            f"; a new recording into {self.directory} moves this attempt aside to "
+            f"{self.directory.name}.failed-<n>"
+        )
+        raise RecordingError(message) from cause
 
     def __enter__(self) -> Self:
         return self
@@ -454,14 +562,13 @@ class RecordingWriter:
         if self._closed:
             raise RecordingError(f"{self.directory}: the recording is closed")
         if self._error is not None:
-            raise RecordingError(
-                f"{self.directory}: the recording cannot be written: {self._error.message}"
-            ) from self._error
+            raise RecordingError(self._error.message) from self._error
 
     def _flush_locked(self) -> None:
         if not self._pending_rows and not self._pending_events:
             return
         frames = self._frames
+        what = SAMPLES_FILE
         try:
             if self._pending_rows:
                 rows = (
@@ -479,6 +586,7 @@ class RecordingWriter:
                     frames += 1
                 os.fsync(self._samples.fileno())
             if self._pending_events:
+                what = EVENTS_FILE
                 _write_all(self._events, b"".join(self._pending_events))
                 os.fsync(self._events.fileno())
         except OSError as exc:
@@ -489,9 +597,7 @@ class RecordingWriter:
             ):
                 with contextlib.suppress(OSError):
                     file.truncate(size)
-            raise RecordingError(
-                f"{self.directory}: cannot write samples ({exc.strerror or exc})"
-            ) from exc
+            raise RecordingError(write_failure(self.directory, what, exc)) from exc
         self._frames = frames
         self._rows_written += self._pending_count
         self._samples_size = self._samples.tell()

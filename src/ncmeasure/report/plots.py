@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 from ncmeasure.analysis.compare import Comparison
 from ncmeasure.analysis.results import AxisResult, DirectionResult, NonlinearFit, VelocityProfile
 from ncmeasure.errors import OutputError
+from ncmeasure.files import replace_binary
 from ncmeasure.recording import Recording
 from ncmeasure.report.bearings import BearingLayout
 from ncmeasure.report.curves import linear_curve, offset_is_significant, stribeck_curve
@@ -130,7 +131,8 @@ def save_png(figure: Figure, path: str | Path) -> bytes:
     data = figure_png(figure)
     target = Path(path)
     try:
-        target.write_bytes(data)
+        with replace_binary(target) as file:
+            file.write(data)
     except OSError as exc:
         raise OutputError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
     return data

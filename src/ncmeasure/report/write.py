@@ -20,6 +20,7 @@ from pydantic import BaseModel
 from ncmeasure.analysis.compare import Comparison
 from ncmeasure.analysis.results import Results
 from ncmeasure.errors import NcMeasureError, OutputError, RecordingError
+from ncmeasure.files import replace_text
 from ncmeasure.recording import Recording
 from ncmeasure.report.bearings import bearing_layout
 from ncmeasure.report.page import AxisSection, Figure, render_page
@@ -188,12 +189,10 @@ def write_report(
         comparison=comparison,
         comparison_figure=comparison_figure,
     )
-    temporary = target.with_name(f".{target.name}.tmp")
     try:
-        temporary.write_text(page, encoding="utf-8")
-        temporary.replace(target)
+        with replace_text(target) as file:
+            file.write(page)
     except OSError as exc:
-        temporary.unlink(missing_ok=True)
         raise OutputError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
     advance("report page")
     log.info("report written to %s (plots in %s)", target, plots_dir)

@@ -59,6 +59,7 @@ from typing import Any, Self
 import can
 from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable
 
+from ncmeasure.errors import ConfigError, LinkError
 from ncmeasure.links.canopen.objects import (
     MapObject,
     ObjectMap,
@@ -1027,6 +1028,38 @@ class SimulatedDrives:
             self.clock.step_done(index, sent)
 
 
+VIRTUAL_BUS_REACH = (
+    "python-can's virtual bus reaches only this process: a `ncmeasure record` in another "
+    "terminal cannot see these drives. For two processes use an interface that crosses them, "
+    "e.g. --interface socketcan --channel vcan0 (a vcan device: `ip link add dev vcan0 type "
+    "vcan && ip link set up vcan0`, as root) or --interface udp_multicast (needs msgpack)"
+)
+"""What to say when simulated drives serve on python-can's in-process ``virtual`` bus."""
+
+
+def open_bus(channel: str | None, options: Mapping[str, Any]) -> can.BusABC:
+    """``can.Bus(channel=channel, **options)``, its failures as ncmeasure errors.
+
+    Raises:
+        ConfigError: The interface name is not one python-can knows.
+        LinkError: The interface cannot be opened (no such device, a driver or
+            package missing, no permission), naming interface and channel.
+    """
+    interface = options.get("interface")
+    if interface is not None and interface not in can.interfaces.VALID_INTERFACES:
+        known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
+        raise ConfigError(
+            f"--interface {interface}: python-can has no such interface (it knows {known})"
+        )
+    try:
+        return can.Bus(channel=channel, **options)
+    except Exception as exc:  # python-can raises CanError, OSError, ValueError, ...
+        raise LinkError(
+            f"cannot open the CAN interface {interface or '(python-can config)'} "
+            f"channel {channel or '(default)'}: {exc}"
+        ) from exc
+
+
 def serve(
     *,
     channel: str | None,
@@ -1065,6 +1098,10 @@ def serve(
 
     Returns:
         The number of SYNC messages served.
+
+    Raises:
+        ConfigError: python-can knows no such interface.
+        LinkError: The interface cannot be opened.
     """
     mapping = dict(nodes) if isinstance(nodes, Mapping) else dict(enumerate(nodes))
     kwargs: dict[str, Any] = dict(bus_options or {})
@@ -1072,7 +1109,7 @@ def serve(
         kwargs["interface"] = interface
     if bitrate is not None:
         kwargs["bitrate"] = bitrate
-    bus = can.Bus(channel=channel, **kwargs)
+    bus = open_bus(channel, kwargs)
     try:
         drives = SimulatedDrives.start(
             bus, mapping, source, period_s=period_s, eds=eds, object_map=object_map, scaling=scaling

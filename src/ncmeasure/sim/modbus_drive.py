@@ -707,6 +707,22 @@ class ServerHandle:
         return result
 
 
+_PROCESS_NAME = "ncmeasure-modbus-drive"
+_MAIN_REIMPORTED_EXIT = 86
+"""Exit code of a drive process that found itself starting a server while importing the
+main module (a script without the ``if __name__ == "__main__":`` guard)."""
+_MAIN_GUARD = (
+    "running_server() was called while the simulated drive process imported your main "
+    "module again (multiprocessing starts it with 'spawn', which runs the script's top "
+    'level once more): call it under `if __name__ == "__main__":` in the script'
+)
+
+
+def _importing_main_in_child() -> bool:
+    """True in a spawned process while it still imports the parent's main module."""
+    return bool(getattr(multiprocessing.current_process(), "_inheriting", False))
+
+
 @contextlib.contextmanager
 def running_server(
     units: Mapping[str, int] | Sequence[SimulatedUnit] | None = None,
@@ -736,9 +752,19 @@ def running_server(
         clock: A :class:`~ncmeasure.samples.SimulatedClock` shared with the link
             (lockstep, through shared memory); ``None``: wall-clock.
 
+    A script that uses it must call it under ``if __name__ == "__main__":``:
+    the server process is started with ``spawn``, which imports the script
+    again; without the guard this is refused at once with that remedy.
+
     Raises:
-        LinkError: the server did not start (port in use, ...).
+        LinkError: the server did not start (port in use, ...), or the script
+            calls it without the ``__main__`` guard.
     """
+    if _importing_main_in_child():
+        # Inside the new process, importing the script again: starting a server
+        # here would fail in multiprocessing's bootstrapping. Leave quietly; the
+        # parent sees the exit code and says why.
+        raise SystemExit(_MAIN_REIMPORTED_EXIT)
     if units is None:
         units = {"X": 1}
     if isinstance(units, Mapping):
@@ -751,7 +777,7 @@ def running_server(
     context = multiprocessing.get_context("spawn")
     parent, child = context.Pipe()
     process = context.Process(
-        target=_child_main, args=(config, child), name="ncmeasure-modbus-drive", daemon=True
+        target=_child_main, args=(config, child), name=_PROCESS_NAME, daemon=True
     )
     process.start()
     child.close()
@@ -766,6 +792,15 @@ def running_server(
             if not process.is_alive():
                 break
         if message is None:
+            process.join(timeout=5)  # a closed pipe comes before the exit code
+            if process.exitcode == _MAIN_REIMPORTED_EXIT:
+                raise LinkError(_MAIN_GUARD)
+            if process.exitcode is None:
+                raise LinkError(
+                    f"the simulated Modbus drive process did not start within "
+                    f"{start_timeout_s:g} s (a script that starts it must do so under "
+                    '`if __name__ == "__main__":`, or the process imports it again)'
+                )
             raise LinkError(
                 f"the simulated Modbus drive process did not start (exit code {process.exitcode})"
             )

@@ -7,7 +7,6 @@ repr that reads back to the same float64; :func:`import_csv` reads such a file
 
 from __future__ import annotations
 
-import contextlib
 import itertools
 import logging
 from collections.abc import Callable, Sequence
@@ -17,6 +16,7 @@ import numpy as np
 
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
+from ncmeasure.files import replace_text
 from ncmeasure.recording.format import (
     IMPORT_CHUNK_ROWS,
     PathArg,
@@ -52,18 +52,14 @@ def export_csv(recording: Recording | PathArg, path: PathArg) -> Path:
     """
     rec = as_recording(recording)
     target = Path(path)
-    tmp = target.with_name(target.name + ".tmp")
     try:
-        with tmp.open("w", encoding="utf-8", newline="\n") as file:
+        with replace_text(target, newline="\n") as file:
             file.write(",".join(["time_s", *rec.channel_names]) + "\n")
             for start in range(0, len(rec), _CSV_CHUNK_ROWS):
                 rows = frame_rows(rec, start, min(start + _CSV_CHUNK_ROWS, len(rec)))
                 # float.__repr__ is the shortest text that round-trips exactly.
                 file.write("".join([",".join(map(repr, row)) + "\n" for row in rows.tolist()]))
-        tmp.replace(target)
     except OSError as exc:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
         raise RecordingError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
     log.info("exported %d samples of %s to %s", len(rec), rec.directory, target)
     return target

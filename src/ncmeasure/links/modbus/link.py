@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 from typing import Annotated, Any, ClassVar, Literal
 
 import serial  # type: ignore[import-untyped]
-from pydantic import Field, ValidationInfo, field_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
@@ -77,7 +77,9 @@ class ModbusSettings(LinkSettings):
 
     type: Literal["modbus"] = "modbus"
     mode: Literal["tcp", "rtu"] = Field(
-        default="tcp", description="Modbus TCP (Ethernet, gateway) or Modbus RTU (serial line)."
+        default="tcp",
+        description="Modbus TCP (Ethernet, gateway) or Modbus RTU (serial line); "
+        "default: rtu when a serial_port is given, else tcp.",
     )
     host: str = Field(default="127.0.0.1", min_length=1, description="TCP: drive or gateway.")
     port: Annotated[int, Field(ge=1, le=65535)] = Field(default=502, description="TCP port.")
@@ -109,11 +111,26 @@ class ModbusSettings(LinkSettings):
         default=10.0, description="Give up after this long without a complete poll cycle."
     )
 
+    @model_validator(mode="before")
+    @classmethod
+    def _serial_port_means_rtu(cls, data: Any) -> Any:
+        # A serial port given without a mode is a serial line: never poll TCP instead.
+        if isinstance(data, dict) and "mode" not in data and data.get("serial_port"):
+            return {**data, "mode": "rtu"}
+        return data
+
     @field_validator("serial_port")
     @classmethod
     def _check_serial_port(cls, value: str | None, info: ValidationInfo) -> str | None:
-        if info.data.get("mode") == "rtu" and not value:
+        mode = info.data.get("mode")
+        if mode == "rtu" and not value:
             raise PydanticCustomError("serial_port", "required when mode is 'rtu'")
+        if mode == "tcp" and value:
+            raise PydanticCustomError(
+                "serial_port",
+                "a serial port is for mode 'rtu', but mode is 'tcp': set mode = 'rtu' (or "
+                "leave mode out) to use the serial line, or leave serial_port out for TCP",
+            )
         return value
 
 

@@ -1,0 +1,106 @@
+"""Replacing a file whole: write a new temporary file beside it, then rename it over it.
+
+Every file ncmeasure writes in one piece (``meta.json``, ``results.json``, the
+report page and its plots, exports) goes through :func:`replace_text` or
+:func:`replace_binary`. The temporary file gets a name nobody can predict and
+is created exclusively (``O_CREAT | O_EXCL``, and ``O_NOFOLLOW`` where the
+system has it): a file or symlink someone placed beside the target is never
+followed, written or replaced, and two writers never share a temporary file.
+A reader sees the old file or the new one, whole; a failure removes the
+temporary file and leaves the target as it was.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import IO, AnyStr, Final
+
+__all__ = ["replace_binary", "replace_text"]
+
+_FLAGS: Final = (
+    os.O_WRONLY
+    | os.O_CREAT
+    | os.O_EXCL
+    | getattr(os, "O_NOFOLLOW", 0)
+    | getattr(os, "O_BINARY", 0)  # Windows: no newline translation below Python's own
+    | getattr(os, "O_CLOEXEC", 0)
+)
+_ATTEMPTS: Final = 100
+
+
+def _create_temporary(target: Path) -> tuple[int, Path]:
+    """A new, exclusively created file beside ``target``: its descriptor and path.
+
+    The mode is 0o666 less the umask, as for any new file (not mkstemp's 0o600).
+    """
+    for _ in range(_ATTEMPTS):
+        temporary = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
+        try:
+            return os.open(temporary, _FLAGS, 0o666), temporary
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{target.parent}: no free temporary name for {target.name}")
+
+
+@contextlib.contextmanager
+def _replace(
+    target: Path, opener: Callable[[int], IO[AnyStr]], fsync: bool
+) -> Iterator[IO[AnyStr]]:
+    fd, temporary = _create_temporary(target)
+    try:
+        with opener(fd) as file:
+            yield file
+            file.flush()
+            if fsync:
+                os.fsync(file.fileno())
+        temporary.replace(target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            temporary.unlink()
+        raise
+
+
+@contextlib.contextmanager
+def replace_text(
+    path: str | os.PathLike[str],
+    *,
+    encoding: str = "utf-8",
+    newline: str | None = None,
+    fsync: bool = False,
+) -> Iterator[IO[str]]:
+    """Write a text file whole: a new temporary file, renamed over ``path`` at the end.
+
+    Args:
+        path: The file to replace (or create).
+        encoding: The text encoding.
+        newline: As for :func:`open` (``"\\n"`` for the same line ends everywhere).
+        fsync: Also fsync the file before the rename (survives a power cut).
+
+    Yields:
+        The open temporary file. When the ``with`` block raises, it is removed
+        and ``path`` stays as it was.
+
+    Raises:
+        OSError: The temporary file cannot be created, written or renamed.
+    """
+
+    def opener(fd: int) -> IO[str]:
+        return os.fdopen(fd, "w", encoding=encoding, newline=newline)
+
+    with _replace(Path(path), opener, fsync) as file:
+        yield file
+
+
+@contextlib.contextmanager
+def replace_binary(path: str | os.PathLike[str], *, fsync: bool = False) -> Iterator[IO[bytes]]:
+    """Write a binary file whole; see :func:`replace_text`."""
+
+    def opener(fd: int) -> IO[bytes]:
+        return os.fdopen(fd, "wb")
+
+    with _replace(Path(path), opener, fsync) as file:
+        yield file
