@@ -300,7 +300,7 @@ def test_the_record_help_example_records_simulated_drives(tmp_path: Path) -> Non
     )  # fmt: skip
     drives.start()
     try:
-        assert ready.wait(10)
+        assert ready.wait(60)
         code, _, err = run(*(swap.get(word, word) for word in example), "--quiet")
     finally:
         stop.set()
@@ -308,7 +308,9 @@ def test_the_record_help_example_records_simulated_drives(tmp_path: Path) -> Non
     assert code == 0, err
     recording = read_recording(tmp_path / "run1")
     assert recording.axes == ("X", "Y", "Z")
-    assert len(recording.time_s) > 200  # 250 SYNC/s for 1 s, some may be lost on a busy machine
+    # real time: 250 SYNC cycles in 1 s, each a row or a counted loss on a busy machine
+    rows, lost = len(recording.time_s), recording.meta.lost_samples or 0
+    assert rows <= 250 <= rows + lost
 
 
 def test_axis_set_gives_per_axis_link_settings(tmp_path: Path) -> None:
@@ -327,7 +329,8 @@ def test_axis_set_gives_per_axis_link_settings(tmp_path: Path) -> None:
         *base, "--axis-set", "increments_per_rev=4096", "--axis-set", "X.gear_ratio=2.5",
         "-o", tmp_path / "r",
     )  # fmt: skip
-    assert code == 4 and "nosuch" in err, err  # valid settings: the link tries the interface
+    # valid settings: the link gets to the interface, which python-can does not know
+    assert code == 2 and "link.interface nosuch: python-can has no such interface" in err, err
 
 
 def test_a_serial_port_alone_records_over_rtu_not_tcp(tmp_path: Path) -> None:
@@ -475,7 +478,8 @@ def test_simulate_drive_canopen_serves_a_recording(tmp_path: Path) -> None:
     # real time (the drives serve another program): a busy host may skip SYNC cycles,
     # but every cycle of the second is a row or a counted loss
     assert result.status in ("complete", "incomplete")
-    assert len(read_recording(tmp_path / "r").time_s) + result.lost_samples == 250
+    rows = len(read_recording(tmp_path / "r").time_s)
+    assert rows <= 250 <= rows + result.lost_samples
     assert done == [0]
 
 

@@ -39,7 +39,11 @@ LAYERS: dict[str, int] = {
     "__main__": 11,
 }
 #: What the simulated drives may take from the links: the protocol knowledge only.
-SIM_MAY_IMPORT = {"ncmeasure.links.canopen.objects", "ncmeasure.links.modbus.registers"}
+SIM_MAY_IMPORT = {
+    "ncmeasure.links.canopen.bus",
+    "ncmeasure.links.canopen.objects",
+    "ncmeasure.links.modbus.registers",
+}
 
 
 def _imports(path: Path) -> set[str]:

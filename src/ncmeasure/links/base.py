@@ -31,11 +31,12 @@ import threading
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from types import TracebackType
-from typing import Any, ClassVar, Literal, Self
+from typing import Annotated, Any, ClassVar, Literal, Self
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict, Strict, ValidationError
 
 from ncmeasure.config import AxisConfig, format_validation_error
 from ncmeasure.errors import ConfigError, LinkError
@@ -46,23 +47,31 @@ __all__ = [
     "AxisLinkSettings",
     "DriveLink",
     "LinkSettings",
+    "PathSetting",
 ]
 
 log = logging.getLogger(__name__)
 
 
-class LinkSettings(BaseModel):
-    """Base of a link's ``[link]`` settings; ``type`` names the link."""
+PathSetting = Annotated[Path, Strict(False)]
+"""A file named in link settings: TOML gives it as text."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+
+class LinkSettings(BaseModel):
+    """Base of a link's ``[link]`` settings; ``type`` names the link.
+
+    Types are strict, as in the machine file: ``"250"`` is text, not a number.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     type: str
 
 
 class AxisLinkSettings(BaseModel):
-    """Base of a link's per-axis settings (``[axes.link]``)."""
+    """Base of a link's per-axis settings (``[axes.link]``); types are strict."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ import numpy as np
 from pydantic import Field
 
 from ncmeasure.errors import ConfigError, LinkError, RecordingError
-from ncmeasure.links.base import AxisLinkSettings, DriveLink, LinkSettings
+from ncmeasure.links.base import AxisLinkSettings, DriveLink, LinkSettings, PathSetting
 from ncmeasure.recording import Recording, read_recording
 from ncmeasure.samples import Channel, LinkEvent, SampleBlock
 
@@ -34,7 +34,7 @@ class ReplaySettings(LinkSettings):
     """``[link]`` settings of the replay link."""
 
     type: str = "replay"
-    source: Path = Field(description="The recording (directory) to play back.")
+    source: PathSetting = Field(description="The recording (directory) to play back.")
     speed: Annotated[float, Field(ge=0)] = Field(
         default=1.0,
         description="1 = recorded speed, 2 = twice as fast, 0 = as fast as possible.",

@@ -59,7 +59,7 @@ from typing import Any, Self
 import can
 from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable
 
-from ncmeasure.errors import ConfigError, LinkError
+from ncmeasure.links.canopen.bus import open_bus
 from ncmeasure.links.canopen.objects import (
     MapObject,
     ObjectMap,
@@ -1037,29 +1037,6 @@ VIRTUAL_BUS_REACH = (
 """What to say when simulated drives serve on python-can's in-process ``virtual`` bus."""
 
 
-def open_bus(channel: str | None, options: Mapping[str, Any]) -> can.BusABC:
-    """``can.Bus(channel=channel, **options)``, its failures as ncmeasure errors.
-
-    Raises:
-        ConfigError: The interface name is not one python-can knows.
-        LinkError: The interface cannot be opened (no such device, a driver or
-            package missing, no permission), naming interface and channel.
-    """
-    interface = options.get("interface")
-    if interface is not None and interface not in can.interfaces.VALID_INTERFACES:
-        known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
-        raise ConfigError(
-            f"--interface {interface}: python-can has no such interface (it knows {known})"
-        )
-    try:
-        return can.Bus(channel=channel, **options)
-    except Exception as exc:  # python-can raises CanError, OSError, ValueError, ...
-        raise LinkError(
-            f"cannot open the CAN interface {interface or '(python-can config)'} "
-            f"channel {channel or '(default)'}: {exc}"
-        ) from exc
-
-
 def serve(
     *,
     channel: str | None,
@@ -1109,7 +1086,7 @@ def serve(
         kwargs["interface"] = interface
     if bitrate is not None:
         kwargs["bitrate"] = bitrate
-    bus = open_bus(channel, kwargs)
+    bus = open_bus(channel, kwargs, "--interface")
     try:
         drives = SimulatedDrives.start(
             bus, mapping, source, period_s=period_s, eds=eds, object_map=object_map, scaling=scaling

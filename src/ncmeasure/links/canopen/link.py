@@ -72,7 +72,8 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError, OutputError
-from ncmeasure.links.base import AxisBinding, AxisLinkSettings, DriveLink, LinkSettings
+from ncmeasure.links.base import AxisBinding, AxisLinkSettings, DriveLink, LinkSettings, PathSetting
+from ncmeasure.links.canopen.bus import open_bus
 from ncmeasure.links.canopen.busload import BusLoad, bus_load
 from ncmeasure.links.canopen.cycles import CycleAssembler, LostCycle
 from ncmeasure.links.canopen.objects import (
@@ -121,7 +122,7 @@ class CanOpenSettings(LinkSettings):
     )
     bitrate: int = Field(default=1_000_000, gt=0, le=1_000_000, description="Bit/s.")
     sync_hz: float = Field(default=250.0, gt=0, le=10_000, description="SYNC rate in Hz.")
-    eds: Path | None = Field(
+    eds: PathSetting | None = Field(
         default=None, description="EDS/DCF file describing the drives (all nodes)."
     )
     object_map: str = Field(
@@ -156,7 +157,7 @@ class CanOpenSettings(LinkSettings):
         le=10,
         description="Refuse a TPDO layout whose worst-case bus load exceeds this fraction.",
     )
-    raw_log: Path | None = Field(
+    raw_log: PathSetting | None = Field(
         default=None,
         description="Also log every CAN frame to this file (.blf, .asc, .log, .csv, .trc).",
     )
@@ -250,7 +251,9 @@ class CanOpenAxis(AxisLinkSettings):
         description="Motor rated current in A for per-mille currents. Default: the axis' "
         "rated_current_a, else read from the drive (0x6075).",
     )
-    eds: Path | None = Field(default=None, description="EDS/DCF of this node (overrides link.eds).")
+    eds: PathSetting | None = Field(
+        default=None, description="EDS/DCF of this node (overrides link.eds)."
+    )
     read_velocity_demand: bool = Field(
         default=False, description="Also read the velocity demand value (0x606B)."
     )
@@ -885,19 +888,11 @@ class CanOpenLink(DriveLink):
         kwargs: dict[str, Any] = dict(s.bus_options)
         if s.interface is not None:
             kwargs["interface"] = s.interface
-        if s.channel is not None:
-            kwargs["channel"] = s.channel
         kwargs["bitrate"] = s.bitrate
         if s.produces_sync or s.raw_log is not None:
             # Own SYNCs come back in bus order among the PDOs (and the log shows them).
             kwargs["receive_own_messages"] = True
-        try:
-            return can.Bus(**kwargs)
-        except Exception as exc:  # python-can raises CanError, OSError, ValueError, ...
-            raise LinkError(
-                f"cannot open the CAN interface {s.interface or '(python-can config)'} "
-                f"channel {s.channel or '(default)'}: {exc}"
-            ) from exc
+        return open_bus(s.channel, kwargs, "link.interface")
 
     @staticmethod
     def _make_logger(path: Path) -> can.Listener:
