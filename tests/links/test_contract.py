@@ -131,3 +131,32 @@ def test_link_keeps_the_contract(name: str, tmp_path: Path) -> None:
                 {**table, "no_such_setting": 1}, [(a, {}) for a in machine_axes()]
             )
         assert any(p.startswith("link.no_such_setting") for p in caught.value.problems)
+
+
+@pytest.mark.parametrize("name", ["canopen", "modbus", "replay"])
+def test_link_settings_are_strict_like_the_machine_file(name: str) -> None:
+    """Text where a number or a boolean belongs is refused at its place, never converted."""
+    axes = list(parse_machine(example_data()).axes)
+    table: dict[str, object] = {
+        "canopen": {"sync_hz": "250", "listen_only": "no"},
+        "modbus": {"register_map": "generic", "port": "502"},
+        "replay": {"source": "run1", "speed": "0"},
+    }[name]
+    axis_table: dict[str, object] = {
+        "canopen": {"node_id": "1", "increments_per_rev": 10_000},
+        "modbus": {"unit_id": "1"},
+        "replay": {},
+    }[name]
+    with pytest.raises(ConfigError) as info:
+        link_class(name).from_tables(table, [(a, dict(axis_table)) for a in axes])
+    text = "\n".join(info.value.problems)
+    expected = {
+        "canopen": ["link.sync_hz: expected a number, got the text '250'",
+                    "link.listen_only: expected true/false, got the text 'no'",
+                    "axes[0].link.node_id: expected an integer, got the text '1'"],
+        "modbus": ["link.port: expected an integer, got the text '502'",
+                   "axes[0].link.unit_id: expected an integer, got the text '1'"],
+        "replay": ["link.speed: expected a number, got the text '0'"],
+    }[name]  # fmt: skip
+    for line in expected:
+        assert line in text
