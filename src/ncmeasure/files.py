@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, AnyStr, Final
 
-__all__ = ["replace_binary", "replace_text"]
+__all__ = ["replace_binary", "replace_by_path", "replace_text"]
 
 _FLAGS: Final = (
     os.O_WRONLY
@@ -32,13 +32,13 @@ _FLAGS: Final = (
 _ATTEMPTS: Final = 100
 
 
-def _create_temporary(target: Path) -> tuple[int, Path]:
+def _create_temporary(target: Path, suffix: str = ".tmp") -> tuple[int, Path]:
     """A new, exclusively created file beside ``target``: its descriptor and path.
 
     The mode is 0o666 less the umask, as for any new file (not mkstemp's 0o600).
     """
     for _ in range(_ATTEMPTS):
-        temporary = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
+        temporary = target.with_name(f".{target.name}.{secrets.token_hex(6)}{suffix}")
         try:
             return os.open(temporary, _FLAGS, 0o666), temporary
         except FileExistsError:
@@ -104,3 +104,23 @@ def replace_binary(path: str | os.PathLike[str], *, fsync: bool = False) -> Iter
 
     with _replace(Path(path), opener, fsync) as file:
         yield file
+
+
+@contextlib.contextmanager
+def replace_by_path(path: str | os.PathLike[str], *, suffix: str = ".tmp") -> Iterator[Path]:
+    """For a writer that opens a path itself (asammdf): replace ``path`` whole, likewise.
+
+    Yields the path of an exclusively created, empty temporary file beside ``path``
+    (ending in ``suffix``, for writers that go by the ending); it is renamed over
+    ``path`` when the block ends, and removed when the block raises.
+    """
+    target = Path(path)
+    fd, temporary = _create_temporary(target, suffix)
+    os.close(fd)
+    try:
+        yield temporary
+        temporary.replace(target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            temporary.unlink()
+        raise

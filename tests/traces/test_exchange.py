@@ -281,3 +281,24 @@ def test_mdf4_without_asammdf_names_the_extra(
     with pytest.raises(DependencyError, match="ncmeasure\\[mdf\\]"):
         import_mdf4(tmp_path / "out.mf4", tmp_path / "copy")
     assert not (tmp_path / "out.mf4").exists()
+
+
+def test_mdf4_export_is_written_whole_under_the_name_asked_for(tmp_path: Path) -> None:
+    """asammdf writes .mf4 files: the export still lands exactly at the path given, via a
+    temporary file, and a symlink beside it is never followed."""
+    pytest.importorskip("asammdf")
+    write_frames(tmp_path / "r", frames=1, rows_per_frame=5)
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me")
+    (tmp_path / "out.mdf.tmp").symlink_to(victim)
+    target = export_mdf4(tmp_path / "r", tmp_path / "out.mdf")
+    assert target == tmp_path / "out.mdf" and target.is_file()
+    assert victim.read_text() == "keep me"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "out.mdf",
+        "out.mdf.tmp",
+        "r",
+        "victim.txt",
+    ]
+    copy = import_mdf4(target, tmp_path / "copy")
+    assert len(copy) == 5

@@ -615,6 +615,6 @@ class RecordingWriter:
                 try:
                     self._flush_locked()
                 except RecordingError as exc:
-                    if self._error is None:
-                        log.error("%s (retrying every %g s)", exc, self._flush_interval_s)
+                    if self._error is None:  # the next append, flush or close raises it
+                        log.info("%s (retrying every %g s)", exc, self._flush_interval_s)
                     self._error = exc

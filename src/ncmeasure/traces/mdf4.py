@@ -20,6 +20,7 @@ from pydantic import ValidationError
 
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import DependencyError, RecordingError
+from ncmeasure.files import replace_by_path
 from ncmeasure.recording.format import (
     EVENTS_FILE,
     FORMAT_NAME,
@@ -94,7 +95,10 @@ def export_mdf4(recording: Recording | PathArg, path: PathArg) -> Path:
                        mime="application/json")  # fmt: skip
             mdf.attach(events, file_name=EVENTS_FILE, comment="ncmeasure link events",
                        mime="application/x-ndjson")  # fmt: skip
-            mdf.save(target, overwrite=True)
+            # asammdf opens the path itself and writes .mf4 files: a temporary one,
+            # renamed to the name asked for once it is whole
+            with replace_by_path(target, suffix=".mf4") as temporary:
+                mdf.save(temporary, overwrite=True)
         finally:
             mdf.close()
     except OSError as exc:
