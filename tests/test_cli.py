@@ -265,3 +265,18 @@ def test_debug_anywhere_shows_the_traceback_and_keeps_the_exit_code(
     assert "Traceback" in result.stderr and "not a directory of generated programs" in (
         result.stderr
     )
+
+
+def test_example_machines_are_data_files_that_validate() -> None:
+    """init's and the demo's machines come from data files of the package and are valid."""
+    import tomllib
+
+    from ncmeasure.config import parse_machine
+    from ncmeasure.examples import DEMO_LINKS, _demo_links, demo_machine
+
+    assert set(DEMO_LINKS) == set(_demo_links())
+    for link in DEMO_LINKS:
+        config = parse_machine(tomllib.loads(demo_machine("linuxcnc", link)))
+        assert config.link is not None and config.link["type"] == link
+    config = parse_machine(tomllib.loads(example_machine("fanuc")))
+    assert config.machine.controller == "fanuc"
