@@ -515,3 +515,34 @@ def test_a_duration_that_is_no_duration_is_refused(tmp_path: Path, duration: str
     )  # fmt: skip
     assert code == 2 and "a recording lasts a positive, finite number of seconds" in err
     assert "Traceback" not in err and not (tmp_path / "r").exists()
+
+
+def test_record_warns_of_lost_samples_and_the_recording_says_incomplete(tmp_path: Path) -> None:
+    source = tmp_path / "run1"
+    config = parse_machine(example_data())
+    channels = channels_for(["X", "Y", "Z"])
+    with RecordingWriter.create(source, channels, nominal_period_s=0.004, machine=config) as w:
+        w.append(SampleBlock(np.arange(1000) * 0.004, np.zeros((1000, len(channels)))))
+        w.add_event(LinkEvent(1.0, "gap", "25 samples dropped: no PDOs", lost_samples=25))
+    code, _, err = run(
+        "record", _machine(tmp_path), "--link", "replay", "--source", source, "--set", "speed=0",
+        "-o", tmp_path / "run2",
+    )  # fmt: skip
+    assert code == 0, err  # a recording with gaps is kept and usable: a warning, no error
+    assert "incomplete: 1000 samples" in err
+    assert "warning: 25 samples lost in 1 gap(s), 2.4 % of the recording" in err
+    meta = read_recording(tmp_path / "run2").meta
+    assert (meta.status, meta.gaps, meta.lost_samples) == ("incomplete", 1, 25)
+
+
+def test_shared_fixtures_missing_under_ci_is_a_failure(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A test that needs ../shared/fixtures fails, not skips, where CI must have them."""
+    from tests import conftest
+
+    monkeypatch.setattr(conftest, "SHARED_FIXTURES", Path("/nonexistent/shared/fixtures"))
+    monkeypatch.setenv("CI", "true")
+    with pytest.raises(pytest.fail.Exception, match=r"CI has \.\./shared beside the clone"):
+        conftest.shared_fixture("eds", "elmo_gold.dcf")
+    monkeypatch.setenv("CI", "false")
+    with pytest.raises(pytest.skip.Exception):
+        conftest.shared_fixture("eds", "elmo_gold.dcf")
