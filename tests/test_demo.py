@@ -215,3 +215,30 @@ def test_demo_refuses_a_folder_that_is_not_its_own(tmp_path: Path) -> None:
     assert result.exit_code == 2
     assert "exists and is not empty" in result.output
     assert (tmp_path / "notes.txt").read_text(encoding="utf-8") == "mine\n"
+
+
+def test_the_demo_says_when_a_run_lost_samples(
+    nominals: Callable[[str], DemoResult], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Lockstep loses nothing; if a run ever did, the demo says so and what it did."""
+    import dataclasses
+
+    from ncmeasure.acquire import AcquisitionResult
+    from ncmeasure.samples import LinkEvent
+
+    nominal = nominals("canopen")
+    run = nominal.measured
+    assert run.acquisition is not None
+    lossy = dataclasses.replace(
+        run.acquisition,
+        status="incomplete",
+        events=[LinkEvent(1.0, "gap", "30 samples dropped", lost_samples=30)],
+    )
+    assert isinstance(lossy, AcquisitionResult)
+    result = dataclasses.replace(nominal, runs=[dataclasses.replace(run, acquisition=lossy)])
+    monkeypatch.setattr("ncmeasure.demo.run_demo", lambda *_args, **_kwargs: result)
+    outcome = runner.invoke(app, ["demo", str(tmp_path / "d")])
+    assert outcome.exit_code == 0, outcome.output
+    assert "warning: machine: 30 samples lost in 1 gap(s) (0.1 %)" in outcome.stderr
+    assert "the recording is marked incomplete" in outcome.stderr
+    assert "no sample lost" not in outcome.stdout
