@@ -24,6 +24,7 @@ LAYERS: dict[str, int] = {
     "resources": 0,
     "profile": 0,
     "examples": 0,
+    "files": 0,
     "config": 1,
     "plan": 2,
     "program": 3,
