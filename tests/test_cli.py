@@ -246,6 +246,17 @@ def test_a_path_with_markup_is_checked_and_printed_whole(tmp_path: Path) -> None
     assert code == 0 and f"ok: {out} (linuxcnc)" in text
 
 
+def test_generate_into_a_folder_with_markup_prints_its_name(tmp_path: Path) -> None:
+    """The success path names the folder as written: every 'wrote' line and the next step."""
+    machine = tmp_path / "m.toml"
+    machine.write_text(example_machine("linuxcnc"))
+    out = tmp_path / "o[/]"
+    code, text, err = run("generate", machine, "-o", out)
+    assert code == 0, err
+    assert f"wrote {out / 'friction.ngc'}" in text and f"wrote {out / 'schedule.json'}" in text
+    assert f"next: ncmeasure check {out} " in text and "Traceback" not in text + err
+
+
 def test_help_keeps_square_brackets() -> None:
     code, out, _ = run("record", "--help")
     assert code == 0 and "[link] table" in " ".join(out.split())
