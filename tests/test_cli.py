@@ -276,3 +276,10 @@ def test_debug_anywhere_shows_the_traceback_and_keeps_the_exit_code(
     assert "Traceback" in result.stderr and "not a directory of generated programs" in (
         result.stderr
     )
+
+
+def test_set_values_python_cannot_read_as_toml_stay_text() -> None:
+    from ncmeasure.cli import _settings
+
+    huge, deep = "1" * 5000, "[" * 1000 + "]" * 1000
+    assert _settings([f"a={huge}", f"b={deep}", "c=5"]) == {"a": huge, "b": deep, "c": 5}

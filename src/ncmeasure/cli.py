@@ -471,7 +471,7 @@ def _settings(values: list[str], example: str = "--set sync_hz=500") -> dict[str
     for key, value in parse_assignments(values, "--set", example=example):
         try:
             result[key] = tomllib.loads(f"v = {value}")["v"]
-        except tomllib.TOMLDecodeError:
+        except (ValueError, RecursionError):  # not TOML (or beyond what Python reads): text
             result[key] = value
     return result
 

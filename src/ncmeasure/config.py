@@ -17,7 +17,6 @@ import hashlib
 import json
 import math
 import re
-import tomllib
 from collections.abc import Collection, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, Optional
@@ -34,6 +33,7 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from ncmeasure.errors import ConfigError
+from ncmeasure.inputs import MAX_TOML_BYTES, parse_toml, read_text
 
 __all__ = [
     "AxisConfig",
@@ -619,25 +619,14 @@ def parse_machine(data: Mapping[str, Any], source: str = "machine file") -> Mach
 def read_toml(path: str | Path, what: str) -> dict[str, Any]:
     """The tables of a TOML file, or a ``ConfigError`` that names the file and the problem.
 
+    The file must be a regular file of at most 1 MiB (:data:`~ncmeasure.inputs.MAX_TOML_BYTES`).
+
     Args:
         path: The file.
         what: What the file should be, for the message (``a machine file``).
     """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{path}: no such file") from exc
-    except IsADirectoryError as exc:
-        raise ConfigError(f"{path}: is a directory, expected {what} (.toml)") from exc
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{path}: not a text file (UTF-8 expected)") from exc
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot be read ({exc.strerror or exc})") from exc
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: invalid TOML: {exc}") from exc
+    text = read_text(path, f"{what} (.toml)", MAX_TOML_BYTES)
+    return parse_toml(text, str(path))
 
 
 def load_machine(path: str | Path) -> MachineConfig:

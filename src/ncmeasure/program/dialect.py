@@ -10,7 +10,6 @@ G-code shapes themselves live in the dialect's templates.
 from __future__ import annotations
 
 import re
-import tomllib
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Literal
@@ -26,6 +25,7 @@ from pydantic import (
 
 from ncmeasure.config import MachineConfig, format_validation_error
 from ncmeasure.errors import ConfigError, DialectError
+from ncmeasure.inputs import MAX_TOML_BYTES, parse_toml, read_text
 from ncmeasure.resources import builtin_dir
 
 __all__ = [
@@ -301,10 +301,8 @@ def load_dialect(name: str, user_dirs: Iterable[Path] = ()) -> Dialect:
         known = ", ".join(dialects) or "none"
         raise DialectError(f"unknown controller {name!r}; known controllers: {known}")
     path = dialects[name]
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise DialectError(f"{path}: cannot be read: {exc}") from exc
+    text = read_text(path, "a controller definition (.toml)", MAX_TOML_BYTES, DialectError)
+    data = parse_toml(text, str(path), DialectError)
     try:
         dialect = Dialect.model_validate(data)
     except ValidationError as exc:
