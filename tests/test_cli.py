@@ -283,3 +283,64 @@ def test_set_values_python_cannot_read_as_toml_stay_text() -> None:
 
     huge, deep = "1" * 5000, "[" * 1000 + "]" * 1000
     assert _settings([f"a={huge}", f"b={deep}", "c=5"]) == {"a": huge, "b": deep, "c": 5}
+
+
+def _edit_schedule(folder: Path, **changes: object) -> None:
+    data = json.loads((folder / "schedule.json").read_text())
+    data.update(changes)
+    (folder / "schedule.json").write_text(json.dumps(data))
+
+
+HAND_EDITS: dict[str, tuple[Callable[[Path], None], int, str]] = {
+    "main program is schedule.json": (
+        lambda o: _edit_schedule(o, main_program="schedule.json"),
+        2,
+        "main_program: 'schedule.json' is not one of its program_files",
+    ),
+    "main program outside the folder": (
+        lambda o: _edit_schedule(o, main_program="../x.ngc"),
+        2,
+        "main_program: '../x.ngc' is not a plain file name",
+    ),
+    "schedule nested 100 000 deep": (
+        lambda o: (o / "schedule.json").write_text("[" * 100_000),
+        2,
+        "schedule.json: invalid JSON: arrays or tables nested too deep (at line 1)",
+    ),
+    "schedule with a 5000-digit number": (
+        lambda o: (o / "schedule.json").write_text("1" * 5000),
+        2,
+        "schedule.json: invalid JSON: an integer of more than 4300 digits",
+    ),
+    "M word of 5000 digits": (
+        lambda o: (o / "friction_x.ngc").open("a").write("M" + "9" * 5000 + "\n"),
+        1,
+        "M999999999999… (5000 digits) is not allowed",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(HAND_EDITS))
+def test_check_of_hand_edited_folders_locates_the_problem(case: str, tmp_path: Path) -> None:
+    edit, exit_code, expected = HAND_EDITS[case]
+    machine = tmp_path / "m.toml"
+    machine.write_text(example_machine("linuxcnc"))
+    out = tmp_path / "out"
+    assert run("generate", machine, "-o", out, "-q")[0] == 0
+    edit(out)
+    code, stdout, stderr = run("check", out)
+    assert code == exit_code, stdout + stderr
+    assert expected in stderr and "Traceback" not in stdout + stderr
+
+
+def test_generate_into_a_folder_with_an_unreadable_schedule_leaves_it(tmp_path: Path) -> None:
+    machine = tmp_path / "m.toml"
+    machine.write_text(example_machine("linuxcnc"))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "schedule.json").write_text("[" * 100_000)
+    code, _, stderr = run("generate", machine, "-o", out)
+    assert code == 2 and "schedule.json: not a readable schedule" in stderr
+    assert "nested too deep" in stderr and "Traceback" not in stderr
+    assert [p.name for p in tmp_path.iterdir()] == ["m.toml", "out"]
+    assert [p.name for p in out.iterdir()] == ["schedule.json"]

@@ -22,13 +22,31 @@ from typing import Any
 
 from ncmeasure.errors import ConfigError, NcMeasureError
 
-__all__ = ["MAX_TOML_BYTES", "parse_json", "parse_toml", "read_text"]
+__all__ = [
+    "MAX_TOML_BYTES",
+    "parse_json",
+    "parse_toml",
+    "plain_file_name",
+    "read_bytes",
+    "read_text",
+]
 
 MAX_TOML_BYTES = 1024 * 1024
 """Largest machine file, controller definition or map (1 MiB; a 32-axis machine file
 with every comment is a few dozen kB)."""
 
-_CHUNK = 1024 * 1024
+_CHUNK = 64 * 1024
+_UNSAFE_NAME = re.compile(r"[/\\\x00-\x1f\x7f]")
+
+
+def plain_file_name(name: str) -> bool:
+    """True for a file name that stays inside its folder.
+
+    Not empty, no path separator (``/`` or ``\\``) or control character, and not
+    starting with a dot (``.``, ``..`` and hidden files such as ncmeasure's own
+    staging folders).
+    """
+    return bool(name) and not name.startswith(".") and not _UNSAFE_NAME.search(name)
 
 
 def _size_text(size: int) -> str:
@@ -81,8 +99,10 @@ def read_bytes(
             raise error(f"{path}: {_size_text(info.st_size)}, {limit}")
         chunks: list[bytes] = []
         total = 0
+        want = info.st_size + 1  # the whole file and its end at once, if it does not grow
         while True:
-            chunk = os.read(fd, min(_CHUNK, max_bytes + 1 - total))
+            chunk = os.read(fd, min(want, max_bytes + 1 - total))
+            want = _CHUNK
             if not chunk:
                 break
             chunks.append(chunk)

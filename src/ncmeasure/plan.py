@@ -25,13 +25,15 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import AfterValidator, BaseModel, ConfigDict, field_validator
+from pydantic_core import PydanticCustomError
 
 from ncmeasure._version import __version__
 from ncmeasure.config import AxisConfig, MachineConfig, Measurement, config_hash
 from ncmeasure.errors import PlanError
+from ncmeasure.inputs import plain_file_name
 from ncmeasure.profile import move_time_s, ramp
 
 __all__ = [
@@ -53,6 +55,18 @@ __all__ = [
     "run_lengths",
     "velocity_steps",
 ]
+
+
+def _file_name(value: str) -> str:
+    if not plain_file_name(value):
+        raise PydanticCustomError(
+            "file_name", "{name} is not a plain file name", {"name": repr(value)}
+        )
+    return value
+
+
+FileName = Annotated[str, AfterValidator(_file_name)]
+"""A file name that stays in its folder (see :func:`~ncmeasure.inputs.plain_file_name`)."""
 
 SCHEDULE_FORMAT = "ncmeasure-schedule"
 SCHEDULE_FORMAT_VERSION = 1
@@ -228,9 +242,9 @@ class Schedule(BaseModel):
     blocks: int = 0
     """Motion, dwell and call blocks of all programs together: what the control must store."""
     warnings: list[str]
-    main_program: str = ""
+    main_program: Annotated[str, AfterValidator(lambda v: v and _file_name(v))] = ""
     """File name of the main program (set when programs are generated)."""
-    program_files: list[str] = []
+    program_files: list[FileName] = []
     """Every program file of the generated set, the main program first; ``check``
     refuses a program file in the folder that is not listed here."""
     marker_scope: Literal["window", "run", "none"] = "window"
@@ -239,6 +253,13 @@ class Schedule(BaseModel):
     controller_options: dict[str, int | bool] = {}
     """The dialect options the programs were written with."""
     axes: list[AxisSummary]
+
+    @field_validator("program_files")
+    @classmethod
+    def _check_program_files(cls, value: list[str]) -> list[str]:
+        if len({name.lower() for name in value}) != len(value):
+            raise PydanticCustomError("file_names", "names a file twice")
+        return value
 
 
 @dataclass

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 from collections.abc import Callable
 from pathlib import Path
@@ -10,9 +11,9 @@ import pytest
 
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.errors import ConfigError, ProgramCheckError, ProgramError
-from ncmeasure.program import check_programs, generate_programs, load_dialect
+from ncmeasure.program import check, check_programs, generate_programs, load_dialect, reader
 from ncmeasure.program.reader import read_programs
-from tests.conftest import DIALECTS, FIXED_TIME, small_data
+from tests.conftest import DIALECTS, FIXED_TIME, SPECIAL_REFUSALS, small_data
 
 Make = Callable[..., MachineConfig]
 
@@ -161,3 +162,129 @@ def test_fanuc_calls_a_numbered_program_without_its_leading_zeros(tmp_path: Path
     generate_programs(parse_machine(data), generated=FIXED_TIME).write(tmp_path)
     assert "M98 P2" in (tmp_path / "O0001.nc").read_text()
     assert check_programs(tmp_path).ok
+
+
+# --- hand-edited folders: located problems, never a traceback ---------------------------------
+
+
+def _schedule_edit(folder: Path, **changes: object) -> None:
+    path = folder / "schedule.json"
+    data = json.loads(path.read_text(encoding="utf-8"))
+    data.update(changes)
+    path.write_text(json.dumps(data), encoding="utf-8")
+
+
+@pytest.mark.parametrize(
+    ("main", "expected"),
+    [
+        ("schedule.json", "main_program: 'schedule.json' is not one of its program_files"),
+        ("../friction.ngc", "main_program: '../friction.ngc' is not a plain file name"),
+        ("/tmp/friction.ngc", "main_program: '/tmp/friction.ngc' is not a plain file name"),
+        ("", "main_program: '' is not one of its program_files"),
+    ],
+)
+def test_a_main_program_that_is_no_program_file_is_refused(
+    main: str, expected: str, make_config: Make, tmp_path: Path
+) -> None:
+    folder = _generate(make_config, "linuxcnc", tmp_path)
+    _schedule_edit(folder, main_program=main)
+    with pytest.raises(ProgramError) as caught:
+        check_programs(folder)
+    assert not isinstance(caught.value, ProgramCheckError)
+    assert expected in str(caught.value), str(caught.value)
+
+
+def test_program_files_must_be_plain_names_with_the_dialects_extension(
+    make_config: Make, tmp_path: Path
+) -> None:
+    folder = _generate(make_config, "linuxcnc", tmp_path)
+    _schedule_edit(folder, program_files=["friction.ngc", "../x.ngc", "notes.txt"])
+    with pytest.raises(ProgramError) as caught:
+        check_programs(folder)
+    text = str(caught.value)
+    assert "program_files[1]: '../x.ngc' is not a plain file name" in text, text
+
+
+@pytest.mark.parametrize(
+    ("content", "expected"),
+    [
+        ("[" * 100_000, "nested too deep (at line 1)"),
+        ("1" * 5000, "integer of more than 4300 digits (at line 1)"),
+        ('{"format": "ncmeasure-schedule", "blocks": ' + "9" * 5000 + "}", "4300 digits"),
+    ],
+)
+def test_a_schedule_python_cannot_parse_is_located(
+    content: str, expected: str, make_config: Make, tmp_path: Path
+) -> None:
+    folder = _generate(make_config, "linuxcnc", tmp_path)
+    (folder / "schedule.json").write_text(content, encoding="utf-8")
+    with pytest.raises(ProgramError) as caught:
+        check_programs(folder)
+    assert str(caught.value).startswith(f"{folder / 'schedule.json'}: invalid JSON")
+    assert expected in str(caught.value)
+
+
+@pytest.mark.parametrize(
+    ("dialect", "line", "expected"),
+    [
+        ("linuxcnc", "M" + "9" * 5000, "M999999999999… (5000 digits) is not allowed"),
+        ("fanuc", "M" + "0" * 4990 + "3", "M3 (spindle on, clockwise) is reserved"),
+        ("fanuc", "O" + "1" * 5000, "program number 111111111111… (5000 digits) is beyond"),
+        ("fanuc", "G" + "1" * 5000 + " X5.", "unexpected word G111111111111… (5000 digits)"),
+        ("linuxcnc", "M" + "9" * 5000 + " G" + "1" * 5000, "(5000 digits)"),
+    ],
+)
+def test_words_with_thousands_of_digits_are_located_problems(
+    dialect: str, line: str, expected: str, make_config: Make, tmp_path: Path
+) -> None:
+    folder = _generate(make_config, dialect, tmp_path)
+    sub = folder / SUBFILES[dialect]
+    lines = sub.read_text(encoding="utf-8").splitlines()
+    lines.insert(3, line)
+    sub.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with pytest.raises(ProgramError) as caught:
+        check_programs(folder)
+    assert f"{sub.name}:4: " in str(caught.value) and expected in str(caught.value), str(
+        caught.value
+    )
+
+
+@pytest.mark.parametrize("kind", sorted(SPECIAL_REFUSALS))
+def test_a_schedule_that_is_no_regular_file_is_not_read(
+    kind: str,
+    make_config: Make,
+    tmp_path: Path,
+    special_file: Callable[[str, Path], Path],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(check, "MAX_SCHEDULE_BYTES", 16 * 1024 * 1024)
+    folder = _generate(make_config, "linuxcnc", tmp_path)
+    path = special_file(kind, folder / "schedule.json")
+    with pytest.raises(ProgramError) as caught:
+        check_programs(folder)
+    assert str(caught.value).startswith(f"{path}: ") and SPECIAL_REFUSALS[kind] in str(caught.value)
+
+
+@pytest.mark.parametrize(
+    ("kind", "expected"),
+    [
+        ("fifo", "friction_x.ngc: not a regular file"),
+        ("device", "friction_x.ngc: not a regular file"),
+        ("huge", "friction_x.ngc: 20 MiB"),
+    ],
+)
+def test_a_program_file_that_is_no_regular_file_is_not_read(
+    kind: str,
+    expected: str,
+    make_config: Make,
+    tmp_path: Path,
+    special_file: Callable[[str, Path], Path],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(reader, "MAX_PROGRAM_FILE_BYTES", 16 * 1024 * 1024)
+    monkeypatch.setattr(check, "MAX_PROGRAM_FILE_BYTES", 16 * 1024 * 1024)
+    folder = _generate(make_config, "linuxcnc", tmp_path)
+    special_file(kind, folder / "friction_x.ngc")
+    with pytest.raises(ProgramError) as caught:
+        check_programs(folder)
+    assert expected in str(caught.value), str(caught.value)

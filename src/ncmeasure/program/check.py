@@ -14,7 +14,6 @@ templates), and verifies that
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from pydantic import ValidationError
 
 from ncmeasure.config import format_validation_error
 from ncmeasure.errors import ProgramCheckError, ProgramError
+from ncmeasure.inputs import parse_json, read_bytes, read_text
 from ncmeasure.plan import AxisSummary, Schedule
 from ncmeasure.program.dialect import (
     Dialect,
@@ -29,7 +29,14 @@ from ncmeasure.program.dialect import (
     marker_m_functions,
     option_problems,
 )
-from ncmeasure.program.reader import CodeUse, Motion, ProgramTrace, read_programs, scan_codes
+from ncmeasure.program.reader import (
+    MAX_PROGRAM_FILE_BYTES,
+    CodeUse,
+    Motion,
+    ProgramTrace,
+    read_programs,
+    scan_codes,
+)
 from ncmeasure.program.render import SCHEDULE_FILE
 
 __all__ = [
@@ -41,6 +48,8 @@ __all__ = [
     "read_generated",
 ]
 
+MAX_SCHEDULE_BYTES = 64 * 1024 * 1024
+"""Largest schedule.json read (the [limits] keep a generated one far below it)."""
 _TOL_MM = 0.0005
 _TOL_FEED = 0.0005
 _MAX_LISTED = 20
@@ -71,12 +80,14 @@ def load_schedule(path: str | Path) -> Schedule:
         ProgramError: missing, not JSON, or not a schedule.
     """
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError as exc:
-        raise ProgramError(f"{path}: no schedule here (generate writes {SCHEDULE_FILE})") from exc
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ProgramError(f"{path}: not a readable schedule: {exc}") from exc
+    text = read_text(
+        path,
+        f"a schedule ({SCHEDULE_FILE})",
+        MAX_SCHEDULE_BYTES,
+        ProgramError,
+        missing=f"{path}: no schedule here (generate writes {SCHEDULE_FILE})",
+    )
+    data = parse_json(text, str(path), ProgramError)
     try:
         return Schedule.model_validate(data)
     except ValidationError as exc:
@@ -195,6 +206,26 @@ def check_trace(schedule: Schedule, trace: ProgramTrace, report: CheckReport) ->
             )
 
 
+def _check_names(schedule: Schedule, dialect: Dialect, path: Path) -> None:
+    """The schedule's program files are files of the dialect, the main program among them.
+
+    Raises:
+        ProgramError: a name that is no program file of the dialect (a hand edit).
+    """
+    problems = [
+        f"program_files[{number}]: {name!r} is not a {dialect.name} program file "
+        f"({', '.join(sorted(dialect.program_extensions))})"
+        for number, name in enumerate(schedule.program_files)
+        if Path(name).suffix.lower() not in dialect.program_extensions
+    ]
+    if schedule.program_files and schedule.main_program not in schedule.program_files:
+        problems.insert(
+            0, f"main_program: {schedule.main_program!r} is not one of its program_files"
+        )
+    if problems:
+        raise ProgramError(f"{path}: not a valid schedule", problems)
+
+
 def _file_problems(directory: Path, schedule: Schedule, dialect: Dialect) -> list[str]:
     """Program files in the folder that schedule.json does not name, and named ones missing."""
     if not schedule.program_files:
@@ -207,15 +238,14 @@ def _file_problems(directory: Path, schedule: Schedule, dialect: Dialect) -> lis
         f"{path.name}: a program file that {SCHEDULE_FILE} does not name (left from another "
         "generation?); remove it or generate into an empty folder"
         for path in sorted(directory.iterdir())
-        if path.is_file()
-        and path.suffix.lower() in dialect.program_extensions
-        and path.name not in named
+        if path.suffix.lower() in dialect.program_extensions and path.name not in named
     ]
-    problems += [
-        f"{name}: named in {SCHEDULE_FILE} but missing"
-        for name in schedule.program_files
-        if not (directory / name).is_file()
-    ]
+    for name in schedule.program_files:
+        path = directory / name
+        if not path.exists():
+            problems.append(f"{name}: named in {SCHEDULE_FILE} but missing")
+        elif not path.is_file():
+            problems.append(f"{name}: not a regular file (a folder, device, pipe or socket)")
     return problems
 
 
@@ -242,7 +272,7 @@ def code_problems(
                 does = f" ({meaning})" if meaning else ""
                 reserved = " is reserved" if codes.reserved(use.number) else " is not allowed"
                 problems.append(
-                    f"{where}: M{use.number}{does}{reserved}: {dialect.title} programs of "
+                    f"{where}: M{use.shown}{does}{reserved}: {dialect.title} programs of "
                     f"ncmeasure use only M{', M'.join(str(m) for m in sorted(allowed_m))}"
                 )
             continue
@@ -251,12 +281,11 @@ def code_problems(
         if not any(low <= use.number <= high for low, high in rule.allowed):
             allowed = ", ".join(f"{low}-{high}" for low, high in rule.allowed)
             problems.append(
-                f"{where}: {rule.meaning} {use.number} is not one {dialect.title} allows "
-                f"({allowed})"
+                f"{where}: {rule.meaning} {use.shown} is not one {dialect.title} allows ({allowed})"
             )
         elif use.number != value:
             problems.append(
-                f"{where}: {rule.meaning} {use.number} is written, but the marker is "
+                f"{where}: {rule.meaning} {use.shown} is written, but the marker is "
                 f"controller_options.{use.kind} = {value}"
             )
     if codes.ascii_only and directory is not None:
@@ -264,7 +293,8 @@ def code_problems(
             path = directory / name
             if not path.is_file():
                 continue
-            for number, line in enumerate(path.read_bytes().splitlines(), start=1):
+            data = read_bytes(path, "a program file", MAX_PROGRAM_FILE_BYTES, ProgramError)
+            for number, line in enumerate(data.splitlines(), start=1):
                 if not line.isascii():
                     problems.append(
                         f"{name}:{number}: not ASCII; {dialect.title} reads ISO/EIA code only"
@@ -288,6 +318,7 @@ def read_generated(
         raise ProgramError(f"{directory}: not a directory of generated programs")
     schedule = load_schedule(directory / SCHEDULE_FILE)
     dialect = load_dialect(schedule.controller, controllers_dirs)
+    _check_names(schedule, dialect, directory / SCHEDULE_FILE)
     trace = read_programs(
         dialect,
         directory,
@@ -313,6 +344,7 @@ def check_programs(directory: str | Path, controllers_dirs: tuple[Path, ...] = (
         raise ProgramError(f"{directory}: not a directory of generated programs")
     schedule = load_schedule(directory / SCHEDULE_FILE)
     dialect = load_dialect(schedule.controller, controllers_dirs)
+    _check_names(schedule, dialect, directory / SCHEDULE_FILE)
     report = CheckReport(directory=directory, controller=dialect.name)
     report.problems.extend(_file_problems(directory, schedule, dialect))
     uses = scan_codes(dialect, directory, schedule.controller_options)

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Literal
 
 from ncmeasure.errors import ProgramError
+from ncmeasure.inputs import read_text
 from ncmeasure.program.dialect import Dialect
 
 __all__ = ["CodeUse", "Dwell", "Motion", "ProgramTrace", "read_programs", "scan_codes"]
@@ -29,6 +30,8 @@ _WORD = re.compile(
     rf"\s*(?:(?P<long>[A-Z]+\d+)\s*=\s*(?P<lval>{_NUMBER})|(?P<addr>[A-Z])\s*(?P<val>{_NUMBER}))"
 )
 _MAX_STEPS = 5_000_000
+MAX_PROGRAM_FILE_BYTES = 32 * 1024 * 1024
+"""Largest program file read (generate writes none larger)."""
 
 
 @dataclass(frozen=True)
@@ -67,8 +70,16 @@ class CodeUse:
     kind: str
     """'m', or the name of the controller option whose kind the number is."""
     number: int
+    """The number; one of more than 18 digits counts as 10¹⁸, beyond every range."""
     file: str
     line: int
+    written: str = ""
+    """The digits as a message shows them (long ones cut)."""
+
+    @property
+    def shown(self) -> str:
+        """The number for a message."""
+        return self.written or str(self.number)
 
 
 # An M word: 'M', spaces allowed, digits; not inside a name (FRICTION_M3, o<m3_x>, %M3).
@@ -94,25 +105,54 @@ class _Program:
     lines: list[tuple[int, str]]
 
 
+def _digits(text: str) -> str:
+    """The digits of a whole number without leading zeros ('0' for zero)."""
+    return text.lstrip("0") or "0"
+
+
+_LONGEST = 18
+_BEYOND = 10**_LONGEST
+"""What a number of more digits counts as: beyond every range a dialect allows."""
+
+
+def _whole(text: str) -> int:
+    """A whole number written as digits; one of more than 18 digits counts as 10¹⁸
+    (converting thousands of digits is slow, and Python refuses more than 4300)."""
+    digits = _digits(text)
+    return int(digits) if len(digits) <= _LONGEST else _BEYOND
+
+
+def _shown(text: str, width: int = 12) -> str:
+    """Text for a message: a long number or word cut, with its length."""
+    if len(text) <= _LONGEST:
+        return text
+    unit = "digits" if text.isdigit() else "characters"
+    return f"{text[:width]}… ({len(text)} {unit})"
+
+
 def _program_key(name: str) -> str:
     """How a program is looked up: names in capitals, numbers without leading zeros
     (FANUC's M98 P2 calls O0002)."""
-    return str(int(name)) if name.isdigit() else name.upper()
+    return _digits(name) if name.isdigit() else name.upper()
 
 
 def _split_programs(dialect: Dialect, path: Path) -> list[_Program]:
     reader = dialect.reader
-    try:
-        raw = path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ProgramError(f"{path}: cannot be read ({exc})") from exc
+    raw = read_text(path, "a program file", MAX_PROGRAM_FILE_BYTES, ProgramError).splitlines()
     default_key = path.stem if reader.program_key == "stem" else path.name
     programs = [_Program(_program_key(default_key), path.name, [])]
     start = re.compile(reader.program_start, re.I) if reader.program_start else None
+    names = dialect.names
     for number, line in enumerate(raw, start=1):
         match = start.search(line.strip()) if start else None
         if match:
-            programs.append(_Program(_program_key(match.group("key")), path.name, []))
+            key = _program_key(match.group("key"))
+            if names.numbered and key.isdigit() and _whole(key) > names.max_number:
+                raise ProgramError(
+                    f"{path.name}:{number}: program number {_shown(key)} is beyond the "
+                    f"{dialect.title} range (at most {names.max_number})"
+                )
+            programs.append(_Program(key, path.name, []))
             continue
         programs[-1].lines.append((number, line))
     if start:
@@ -138,6 +178,10 @@ def _patterns(patterns: Iterable[str], options: Mapping[str, int | bool]) -> lis
 def _pattern(pattern: str | None, options: Mapping[str, int | bool]) -> re.Pattern[str] | None:
     found = _patterns([pattern] if pattern else [], options)
     return found[0] if found else None
+
+
+def _use(kind: str, digits: str, file: str, line: int) -> CodeUse:
+    return CodeUse(kind, _whole(digits), file, line, _shown(_digits(digits)))
 
 
 class _Interpreter:
@@ -179,11 +223,11 @@ class _Interpreter:
                     # the called program's name is a name, not words
                     text = text[: match.start("key")] + " " + text[match.end("key") :]
                 for match in _M_WORD.finditer(text):
-                    found.append(CodeUse("m", int(match.group("n")), program.file, number))
+                    found.append(_use("m", match.group("n"), program.file, number))
                 for key, patterns in uses.items():
                     for pattern in patterns:
                         for match in pattern.finditer(text):
-                            found.append(CodeUse(key, int(match.group("n")), program.file, number))
+                            found.append(_use(key, match.group("n"), program.file, number))
         return found
 
     def _error(self, program: _Program, line: int, message: str) -> ProgramError:
@@ -261,14 +305,15 @@ class _Interpreter:
         while position < len(text):
             match = _WORD.match(text, position)
             if not match:
-                raise self._error(program, number, f"cannot read {text[position:].strip()!r}")
+                rest = _shown(text[position:].strip(), 40)
+                raise self._error(program, number, f"cannot read {rest!r}")
             position = match.end()
             if match.group("long"):
                 address, value_text = match.group("long"), match.group("lval")
             else:
                 address, value_text = match.group("addr"), match.group("val")
             value = float(value_text)
-            code = f"{address}{value_text}"
+            code = f"{address}{_shown(value_text)}"
             if dwell and address == self.reader.dwell_word.upper():
                 dwell_s = value * self.reader.dwell_scale
             elif address in self.axes:
@@ -331,9 +376,10 @@ class _Interpreter:
             return False
         value = value_text.lstrip("+")
         candidates = {f"{address}{value}"}
-        if "." not in value:
-            candidates.add(f"{address}{int(value)}")
-            candidates.add(f"{address}{int(value):02d}")
+        if "." not in value and not value.startswith("-"):
+            digits = _digits(value)
+            candidates.add(f"{address}{digits}")
+            candidates.add(f"{address}{digits:0>2}")
         return bool(candidates & self.accepted)
 
 

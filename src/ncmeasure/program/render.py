@@ -24,6 +24,7 @@ from pathlib import Path
 from types import MappingProxyType
 
 import jinja2
+from jinja2.loaders import split_template_path
 
 from ncmeasure._version import __version__
 from ncmeasure.config import MachineConfig, config_hash
@@ -34,6 +35,7 @@ from ncmeasure.errors import (
     ProgramCheckError,
     ProgramError,
 )
+from ncmeasure.inputs import read_text
 from ncmeasure.plan import SMALLER, AxisPlan, Move, Schedule, SizeLimit, plan_machine
 from ncmeasure.program.dialect import (
     Dialect,
@@ -379,13 +381,39 @@ def _number(value: float, decimals: int, plus: bool) -> str:
     return text
 
 
+MAX_TEMPLATE_BYTES = 1024 * 1024
+"""Largest template file read (the built-in ones are a few kB)."""
+
+
+class _TemplateLoader(jinja2.BaseLoader):
+    """Templates from folders searched in order, each a regular file of at most 1 MiB.
+
+    A name found in an earlier folder hides the later ones, whatever the file is: a
+    FIFO or a device there is an error, not a reason to fall back to the built-in.
+    """
+
+    def __init__(self, folders: Iterable[Path]) -> None:
+        self.folders = list(folders)
+
+    def get_source(
+        self, environment: jinja2.Environment, template: str
+    ) -> tuple[str, str, Callable[[], bool]]:
+        pieces = split_template_path(template)
+        for folder in self.folders:
+            path = folder.joinpath(*pieces)
+            if path.exists() or path.is_symlink():
+                source = read_text(path, "a template", MAX_TEMPLATE_BYTES, DialectError)
+                return source, str(path), lambda: True  # read once per run
+        raise jinja2.TemplateNotFound(
+            template, f"{template!r} not found in {', '.join(map(str, self.folders))}"
+        )
+
+
 def _environment(dialect: Dialect, template_dirs: Iterable[Path]) -> TemplateSandbox:
-    loaders: list[jinja2.BaseLoader] = [
-        jinja2.FileSystemLoader(str(Path(d) / dialect.name)) for d in template_dirs
-    ]
-    loaders.append(jinja2.FileSystemLoader(str(builtin_dir("templates") / dialect.name)))
+    folders = [Path(d) / dialect.name for d in template_dirs]
+    folders.append(builtin_dir("templates") / dialect.name)
     env = TemplateSandbox(
-        loader=jinja2.ChoiceLoader(loaders),
+        loader=_TemplateLoader(folders),
         undefined=jinja2.StrictUndefined,
         trim_blocks=True,
         lstrip_blocks=True,
