@@ -35,7 +35,7 @@ from ncmeasure.errors import (
     ProgramCheckError,
     ProgramError,
 )
-from ncmeasure.inputs import read_text
+from ncmeasure.inputs import plain_file_name, read_text
 from ncmeasure.plan import SMALLER, AxisPlan, Move, Schedule, SizeLimit, plan_machine
 from ncmeasure.program.dialect import (
     Dialect,
@@ -244,6 +244,11 @@ class GeneratedPrograms:
         if directory.exists() and not directory.is_dir():
             raise OutputError(f"{directory}: exists and is not a directory")
         new = [*self.program_files, SCHEDULE_FILE]
+        for name in new:  # whatever named the files: nothing lands outside the folder
+            if not plain_file_name(name):
+                raise OutputError(
+                    f"{directory}: {name!r} is not a plain file name; nothing was written"
+                )
         previous = _previous_generation(directory, self.dialect, new)
         # Staged inside the folder when it exists (same file system, nothing needed
         # beside it), else beside it in the nearest folder that exists.
@@ -522,6 +527,17 @@ def generate_programs(
         p.axis.name: ref(names.sub, p.axis.name, i + 1) if dialect.subprograms else None
         for i, p in enumerate(plans)
     }
+    taken = {SCHEDULE_FILE: "schedule"}
+    for key, named in [("main_file", main)] + [("sub_file", s) for s in subs.values() if s]:
+        if named.file_name.lower() in taken:
+            raise DialectError(
+                f"controller {dialect.name}: two files of the same name",
+                [
+                    f"names.{key}: {named.file_name!r} is the file of two programs "
+                    "(a name given twice); each program needs its own"
+                ],
+            )
+        taken[named.file_name.lower()] = named.name
     by_name = {p.axis.name: p for p in plans}
 
     def view_of(axis_name: str) -> AxisView:
