@@ -10,9 +10,10 @@ from pathlib import Path
 import pytest
 
 from ncmeasure.config import MachineConfig, parse_machine
-from ncmeasure.errors import ConfigError, ProgramCheckError, ProgramError
+from ncmeasure.errors import ConfigError, DialectError, ProgramCheckError, ProgramError
 from ncmeasure.program import check, check_programs, generate_programs, load_dialect, reader
 from ncmeasure.program.reader import read_programs
+from ncmeasure.resources import builtin_dir
 from tests.conftest import DIALECTS, FIXED_TIME, SPECIAL_REFUSALS, small_data
 
 Make = Callable[..., MachineConfig]
@@ -282,9 +283,134 @@ def test_a_program_file_that_is_no_regular_file_is_not_read(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setattr(reader, "MAX_PROGRAM_FILE_BYTES", 16 * 1024 * 1024)
-    monkeypatch.setattr(check, "MAX_PROGRAM_FILE_BYTES", 16 * 1024 * 1024)
+
     folder = _generate(make_config, "linuxcnc", tmp_path)
     special_file(kind, folder / "friction_x.ngc")
     with pytest.raises(ProgramError) as caught:
         check_programs(folder)
     assert expected in str(caught.value), str(caught.value)
+
+
+# --- every line of every program file is read or refused ---------------------------------------
+
+
+def _insert(path: Path, after_line: int, *lines: str) -> None:
+    text = path.read_text(encoding="utf-8").split("\n")
+    text[after_line:after_line] = list(lines)
+    path.write_text("\n".join(text), encoding="utf-8")
+
+
+@pytest.mark.parametrize("file", ["O1000.nc", "O1001.nc"])
+def test_fanuc_blocks_between_the_tape_start_and_the_program_number_are_refused(
+    file: str, make_config: Make, tmp_path: Path
+) -> None:
+    folder = _generate(make_config, "fanuc", tmp_path)
+    _insert(folder / file, 1, "M3 S1000", "G0 X-99999.0", "#3000=1")
+    with pytest.raises(ProgramCheckError) as caught:
+        check_programs(folder)
+    text = str(caught.value)
+    assert f"{file}:2: M3 (spindle on, clockwise) is reserved" in text, text
+    assert f"{file}:4: common macro variable 3000 is not one" in text, text
+    assert f"{file}:3: 'G0 X-99999.0' stands before the first program number" in text, text
+
+
+def test_a_template_writing_before_the_program_number_writes_nothing(
+    make_config: Make, tmp_path: Path
+) -> None:
+    own = tmp_path / "templates" / "fanuc"
+    own.mkdir(parents=True)
+    main = (builtin_dir("templates") / "fanuc" / "main.j2").read_text(encoding="utf-8")
+    (own / "main.j2").write_text(main.replace("%\n", "%\nG00 X5.000\n", 1), encoding="utf-8")
+    result = generate_programs(
+        make_config("fanuc", small=True), templates_dirs=[tmp_path / "templates"]
+    )
+    with pytest.raises(DialectError) as caught:
+        result.write(tmp_path / "out")
+    assert "O1000.nc:2: 'G00 X5.000' stands before the first program number" in str(caught.value)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_second_program_with_the_main_programs_number_is_refused(
+    make_config: Make, tmp_path: Path
+) -> None:
+    folder = _generate(make_config, "fanuc", tmp_path)
+    main = folder / "O1000.nc"
+    original = main.read_text(encoding="utf-8")
+    _edit(main, r"^G17 G21 G90 G94$", "G17 G21 G90 G94\nM3 S20000\nG0 X-90000.0")
+    decoy = "\n".join(original.split("\n")[1:])  # the untouched main program without '%'
+    sub = folder / "O1001.nc"
+    sub.write_text(sub.read_text(encoding="utf-8").removesuffix("%\n") + decoy)
+    with pytest.raises(ProgramCheckError) as caught:
+        check_programs(folder)
+    text = str(caught.value)
+    assert "O1001.nc:" in text and "program 1000 again (first in O1000.nc:2)" in text, text
+    assert "O1000.nc:7: M3 (spindle on, clockwise) is reserved" in text, text
+
+
+def test_a_percent_line_in_the_middle_of_a_program_ends_it(
+    make_config: Make, tmp_path: Path
+) -> None:
+    """LinuxCNC ends a file that starts with '%' at the next '%': the rest never runs."""
+    folder = _generate(make_config, "linuxcnc", tmp_path)
+    _edit(folder / "friction.ngc", r"^G64 P0.005$", "G64 P0.005\n%")
+    with pytest.raises(ProgramCheckError) as caught:
+        check_programs(folder)
+    text = str(caught.value)
+    assert "friction.ngc:8-" in text and "text after the closing '%' of line 7" in text, text
+    assert "never reaches its end" in text, text
+
+
+def test_a_percent_line_in_a_file_that_does_not_start_with_one_is_refused(
+    make_config: Make, tmp_path: Path
+) -> None:
+    folder = _generate(make_config, "linuxcnc", tmp_path)
+    _insert(folder / "friction_x.ngc", 5, "%")
+    with pytest.raises(ProgramCheckError, match=r"friction_x.ngc:6: '%' where the file"):
+        check_programs(folder)
+
+
+@pytest.mark.parametrize(
+    ("dialect", "line", "expected"),
+    [
+        ("linuxcnc", "\u2028", r"'\u2028' (U+2028) outside a comment"),
+        ("linuxcnc", "G1 X5.000\u00a0", r"'\xa0' (U+00A0) outside a comment"),
+        ("linuxcnc", "G4\tP1", r"'\t' (U+0009) outside a comment"),
+        ("linuxcnc", "G4 P1\x0c", r"'\x0c' (U+000C)"),
+        ("sinumerik-840d", "G4 F1 ; \u2028", r"'\u2028' (U+2028) is not printable"),
+        ("fanuc", "(FRÄSE)", r"'Ä' (U+00C4) is not ASCII"),
+        ("twincat", "\x1e", r"'\x1e' (U+001E)"),
+    ],
+)
+def test_characters_a_control_cannot_read_are_refused(
+    dialect: str, line: str, expected: str, make_config: Make, tmp_path: Path
+) -> None:
+    folder = _generate(make_config, dialect, tmp_path)
+    _insert(folder / SUBFILES[dialect], 4, line)
+    with pytest.raises(ProgramCheckError) as caught:
+        check_programs(folder)
+    assert f"{SUBFILES[dialect]}:5: character {expected}" in str(caught.value), str(caught.value)
+
+
+def test_printable_text_in_comments_and_crlf_line_ends_are_read(tmp_path: Path) -> None:
+    data = small_data("linuxcnc")
+    data["machine"]["name"] = "Fräse 机床 #17"
+    folder = tmp_path / "out"
+    generate_programs(parse_machine(data), generated=FIXED_TIME).write(folder)
+    assert "Fräse 机床" in (folder / "friction.ngc").read_text(encoding="utf-8")
+    sub = folder / "friction_x.ngc"
+    sub.write_bytes(sub.read_bytes().replace(b"\n", b"\r\n"))
+    assert check_programs(folder).ok
+
+
+def test_a_template_writing_a_line_separator_writes_nothing(
+    make_config: Make, tmp_path: Path
+) -> None:
+    own = tmp_path / "templates" / "linuxcnc"
+    own.mkdir(parents=True)
+    main = (builtin_dir("templates") / "linuxcnc" / "main.j2").read_text(encoding="utf-8")
+    (own / "main.j2").write_text(main.replace("G64 P0.005\n", "G64 P0.005\n\u2028\n"))
+    result = generate_programs(
+        make_config("linuxcnc", small=True), templates_dirs=[tmp_path / "templates"]
+    )
+    with pytest.raises(DialectError, match=r"friction.ngc:\d+: character '\\u2028'"):
+        result.write(tmp_path / "out")

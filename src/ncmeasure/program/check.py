@@ -21,7 +21,7 @@ from pydantic import ValidationError
 
 from ncmeasure.config import format_validation_error
 from ncmeasure.errors import ProgramCheckError, ProgramError
-from ncmeasure.inputs import parse_json, read_bytes, read_text
+from ncmeasure.inputs import parse_json, read_text
 from ncmeasure.plan import AxisSummary, Schedule
 from ncmeasure.program.dialect import (
     Dialect,
@@ -30,12 +30,11 @@ from ncmeasure.program.dialect import (
     option_problems,
 )
 from ncmeasure.program.reader import (
-    MAX_PROGRAM_FILE_BYTES,
     CodeUse,
     Motion,
+    ProgramSet,
     ProgramTrace,
     read_programs,
-    scan_codes,
 )
 from ncmeasure.program.render import SCHEDULE_FILE
 
@@ -150,6 +149,7 @@ def check_trace(schedule: Schedule, trace: ProgramTrace, report: CheckReport) ->
     axes = {axis.name: axis for axis in schedule.axes}
     report.motions = len(trace.motions)
     problems = report.problems
+    problems.extend(trace.problems)
     if not trace.ended:
         problems.append("the main program never reaches its end (M30/M2)")
     parking = trace.motions[: len(axes)]
@@ -249,10 +249,8 @@ def _file_problems(directory: Path, schedule: Schedule, dialect: Dialect) -> lis
     return problems
 
 
-def code_problems(
-    schedule: Schedule, dialect: Dialect, uses: list[CodeUse], directory: Path | None = None
-) -> list[str]:
-    """M functions, variables and outputs the dialect does not allow, and non-ASCII text.
+def code_problems(schedule: Schedule, dialect: Dialect, uses: list[CodeUse]) -> list[str]:
+    """M functions, variables and outputs the dialect does not allow.
 
     Every M word must be one of the dialect's own or a marker option's value that
     passes the dialect's rules; every variable or output must be its option's value.
@@ -288,18 +286,6 @@ def code_problems(
                 f"{where}: {rule.meaning} {use.shown} is written, but the marker is "
                 f"controller_options.{use.kind} = {value}"
             )
-    if codes.ascii_only and directory is not None:
-        for name in schedule.program_files:
-            path = directory / name
-            if not path.is_file():
-                continue
-            data = read_bytes(path, "a program file", MAX_PROGRAM_FILE_BYTES, ProgramError)
-            for number, line in enumerate(data.splitlines(), start=1):
-                if not line.isascii():
-                    problems.append(
-                        f"{name}:{number}: not ASCII; {dialect.title} reads ISO/EIA code only"
-                    )
-                    break
     return problems
 
 
@@ -347,10 +333,11 @@ def check_programs(directory: str | Path, controllers_dirs: tuple[Path, ...] = (
     _check_names(schedule, dialect, directory / SCHEDULE_FILE)
     report = CheckReport(directory=directory, controller=dialect.name)
     report.problems.extend(_file_problems(directory, schedule, dialect))
-    uses = scan_codes(dialect, directory, schedule.controller_options)
-    report.problems.extend(code_problems(schedule, dialect, uses, directory))
+    files = ProgramSet(dialect, directory, schedule.controller_options)
+    report.problems.extend(code_problems(schedule, dialect, files.scan()))
+    report.problems.extend(files.problems)
     try:
-        _, _, trace = read_generated(directory, controllers_dirs)
+        trace = files.run(schedule.main_program, {axis.name for axis in schedule.axes})
     except ProgramError as exc:
         if not report.problems:
             raise

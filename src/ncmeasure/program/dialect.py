@@ -246,6 +246,10 @@ class Reader(_Strict):
     comments: Sequence[Regex] = (r"\(.*?\)", r";.*$")
     ignore: Sequence[Regex] = ()
     """Whole lines to skip (program headers and the like)."""
+    tape: Regex | None = None
+    """The tape mark ('%' on FANUC and LinuxCNC), matched against a whole line: a file
+    whose first non-blank line is one ends at the next one (text after it is refused);
+    anywhere else it is refused."""
     program_start: Annotated[str, AfterValidator(lambda v: _regex(v, "key"))] | None = None
     """Splits a file into programs; group 'key' names the program."""
     program_key: Literal["stem", "file"] = "stem"

@@ -7,6 +7,13 @@ only) and the marker. Everything else it meets must be a word the dialect
 declares harmless; anything unknown is an error, so a template that starts
 writing something new cannot slip past the checker unread.
 
+Every line of every program file is read or refused: lines are split at
+``\n`` only (as controls read them), each must hold only characters the
+control reads, a ``%`` tape mark is honoured where FANUC and LinuxCNC honour
+it (a file whose first line is one ends at the next), and text outside every
+program (before the first program number, after the closing ``%``) or a
+program number given twice is a problem, not something left unread.
+
 The result is the list of motions the program would command, which
 :mod:`ncmeasure.program.check` compares with the limits and the schedule.
 """
@@ -21,9 +28,17 @@ from typing import Literal
 
 from ncmeasure.errors import ProgramError
 from ncmeasure.inputs import read_text
-from ncmeasure.program.dialect import Dialect
+from ncmeasure.program.dialect import OPTION_PLACEHOLDER, Dialect
 
-__all__ = ["CodeUse", "Dwell", "Motion", "ProgramTrace", "read_programs", "scan_codes"]
+__all__ = [
+    "CodeUse",
+    "Dwell",
+    "Motion",
+    "ProgramSet",
+    "ProgramTrace",
+    "read_programs",
+    "scan_codes",
+]
 
 _NUMBER = r"[+-]?(?:\d+\.?\d*|\.\d+)"
 _WORD = re.compile(
@@ -96,13 +111,21 @@ class ProgramTrace:
     """Motions and dwells in the order the program commands them."""
     calls: list[str] = field(default_factory=list)
     ended: bool = False
+    problems: list[str] = field(default_factory=list)
+    """Rules the program files break where they can still be read, one
+    ``file:line: message`` each (text outside every program, a program number
+    given twice, a character the control cannot read)."""
 
 
 @dataclass
 class _Program:
     key: str
     file: str
+    line: int
+    """Line of its program number (0: the program is the file)."""
     lines: list[tuple[int, str]]
+    """Its blocks: line number and the text as the reader sees it (comments removed,
+    capitals)."""
 
 
 def _digits(text: str) -> str:
@@ -136,41 +159,14 @@ def _program_key(name: str) -> str:
     return _digits(name) if name.isdigit() else name.upper()
 
 
-def _split_programs(dialect: Dialect, path: Path) -> list[_Program]:
-    reader = dialect.reader
-    raw = read_text(path, "a program file", MAX_PROGRAM_FILE_BYTES, ProgramError).splitlines()
-    default_key = path.stem if reader.program_key == "stem" else path.name
-    programs = [_Program(_program_key(default_key), path.name, [])]
-    start = re.compile(reader.program_start, re.I) if reader.program_start else None
-    names = dialect.names
-    for number, line in enumerate(raw, start=1):
-        match = start.search(line.strip()) if start else None
-        if match:
-            key = _program_key(match.group("key"))
-            if names.numbered and key.isdigit() and _whole(key) > names.max_number:
-                raise ProgramError(
-                    f"{path.name}:{number}: program number {_shown(key)} is beyond the "
-                    f"{dialect.title} range (at most {names.max_number})"
-                )
-            programs.append(_Program(key, path.name, []))
-            continue
-        programs[-1].lines.append((number, line))
-    if start:
-        programs = list(programs[1:]) or programs
-    return programs
-
-
-_OPTION = re.compile(r"<<(\w+)>>")
-
-
 def _patterns(patterns: Iterable[str], options: Mapping[str, int | bool]) -> list[re.Pattern[str]]:
     """Compile patterns, filling in ``<<option>>``; drop those whose option is unset."""
     compiled = []
     for pattern in patterns:
-        names = _OPTION.findall(pattern)
+        names = OPTION_PLACEHOLDER.findall(pattern)
         if any(not options.get(name) for name in names):
             continue
-        text = _OPTION.sub(lambda m: str(int(options[m.group(1)])), pattern)
+        text = OPTION_PLACEHOLDER.sub(lambda m: str(int(options[m.group(1)])), pattern)
         compiled.append(re.compile(text, re.I))
     return compiled
 
@@ -181,54 +177,251 @@ def _pattern(pattern: str | None, options: Mapping[str, int | bool]) -> re.Patte
 
 
 def _use(kind: str, digits: str, file: str, line: int) -> CodeUse:
+    if not digits.isdigit():  # a user's pattern may find anything: beyond every range
+        return CodeUse(kind, _BEYOND, file, line, repr(_shown(digits, 40)))
     return CodeUse(kind, _whole(digits), file, line, _shown(_digits(digits)))
 
 
-class _Interpreter:
+_BLOCK_NUMBER = re.compile(r"^N\d+\s*", re.I)
+_MAX_FILE_PROBLEMS = 5
+"""Problems of one kind reported per file (the first ones say what is wrong)."""
+
+
+def _character(char: str) -> str:
+    return f"{char!r} (U+{ord(char):04X})"
+
+
+class ProgramSet:
+    """The program files of a folder, read once: split into programs, every line kept.
+
+    :meth:`scan` finds every M word and option number of every line, :meth:`run`
+    follows the main program the way a control would.
+
+    Raises:
+        ProgramError: a program file cannot be read (not a regular file, too large,
+            not UTF-8).
+    """
+
     def __init__(
         self,
         dialect: Dialect,
-        programs: dict[str, _Program],
-        axes: set[str],
-        options: Mapping[str, int | bool],
+        directory: str | Path,
+        options: Mapping[str, int | bool] | None = None,
     ) -> None:
         self.dialect = dialect
         self.reader = dialect.reader
-        self.programs = programs
-        self.axes = axes
+        effective = dict(dialect.options)
+        effective.update(options or {})
+        self.options = effective
         r = self.reader
-        self.comments = _patterns(r.comments, options)
-        self.ignore = _patterns(r.ignore, options)
-        self.call = _pattern(r.call, options)
-        self.ret = _pattern(r.ret, options)
+        self.comments = _patterns(r.comments, effective)
+        self.ignore = _patterns(r.ignore, effective)
+        self.call = _pattern(r.call, effective)
+        self.ret = _pattern(r.ret, effective)
         self.end = re.compile(r.end, re.I)
-        self.marker = _patterns(r.marker, options)
-        self.marker_off = _patterns(r.marker_off, options)
-        self.dwell = _pattern(r.dwell, options)
+        self.marker = _patterns(r.marker, effective)
+        self.marker_off = _patterns(r.marker_off, effective)
+        self.dwell = _pattern(r.dwell, effective)
+        self.tape = _pattern(r.tape, effective)
+        self.start = _pattern(r.program_start, effective)
         self.block_end = re.compile(r.block_end + r"\s*$") if r.block_end else None
         self.accepted = {w.upper() for w in r.accepted}
+        self.programs: dict[str, _Program] = {}
+        self.first_program: dict[str, str] = {}
+        """File name -> key of its first program."""
+        self.lines: list[tuple[str, int, str]] = []
+        """Every line of every file as the reader sees it: file, number, text."""
+        self.problems: list[str] = []
+        directory = Path(directory)
+        for path in sorted(directory.iterdir()):
+            if path.suffix.lower() in dialect.program_extensions and path.is_file():
+                self._read_file(path)
+
+    # --- reading the files --------------------------------------------------------------
+
+    def _read_file(self, path: Path) -> None:
+        text = read_text(path, "a program file", MAX_PROGRAM_FILE_BYTES, ProgramError)
+        raw_lines = text.split("\n")  # a control ends lines at LF only (U+2028 is no end)
+        if raw_lines[-1] == "":
+            raw_lines.pop()
+        file = path.name
+        default_key = path.stem if self.reader.program_key == "stem" else path.name
+        outside = _Program("", file, 0, [])  # before the first program number
+        current = outside if self.start else _Program(_program_key(default_key), file, 0, [])
+        found: list[_Program] = [] if self.start else [current]
+        problems: dict[str, list[str]] = {}
+        blank_so_far, tape_line, closed_at = True, 0, 0
+        after: list[int] = []  # lines with text after the closing tape mark
+        for number, raw in enumerate(raw_lines, start=1):
+            raw = raw.removesuffix("\r")  # CR LF line ends
+            bad = self._bad_character(raw)
+            if bad:
+                problems.setdefault("character", []).append(f"{file}:{number}: character {bad}")
+            stripped = raw.strip()
+            text = self._clean(raw)
+            self.lines.append((file, number, text))
+            if closed_at:
+                if stripped:
+                    after.append(number)
+                continue
+            if self.tape and self.tape.search(stripped):
+                if blank_so_far:
+                    tape_line = number  # the tape starts: the file ends at the next mark
+                elif tape_line:
+                    closed_at = number
+                else:
+                    problems.setdefault("tape", []).append(
+                        f"{file}:{number}: '%' where the file did not start with one: "
+                        f"{self.dialect.title} refuses it (it may only start and end the tape)"
+                    )
+                blank_so_far = False
+                continue
+            blank_so_far = blank_so_far and not stripped
+            match = self.start.search(stripped) if self.start else None
+            if match:
+                current = self._program(match.group("key"), file, number, problems)
+                found.append(current)
+                continue
+            current.lines.append((number, text))
+        for number, text in outside.lines:
+            if text and not any(p.search(text) for p in self.ignore):
+                problems.setdefault("outside", []).append(
+                    f"{file}:{number}: {_shown(text, 40)!r} stands before the first program "
+                    "number: it belongs to no program; remove it"
+                )
+        if after:
+            where = f"{after[0]}" if len(after) == 1 else f"{after[0]}-{after[-1]}"
+            problems["after"] = [
+                f"{file}:{where}: text after the closing '%' of line {closed_at}: "
+                "the control does not read it; remove it"
+            ]
+        for kind in ("outside", "tape", "after", "character"):
+            found_here = problems.get(kind, [])
+            self.problems += found_here[:_MAX_FILE_PROBLEMS]
+            if len(found_here) > _MAX_FILE_PROBLEMS:
+                more = len(found_here) - _MAX_FILE_PROBLEMS
+                self.problems.append(f"{file}: {more} more such lines")
+        self.problems += problems.get("number", [])
+        if not found:  # no program number at all: the file is its program
+            found.append(_Program(_program_key(default_key), file, 0, outside.lines))
+        for program in found:
+            known = self.programs.get(program.key)
+            if known is None:
+                self.programs[program.key] = program
+            else:
+                first = f"{known.file}:{known.line}" if known.line else known.file
+                self.problems.append(
+                    f"{file}:{program.line}: program {program.key} again (first in {first}); "
+                    "a control keeps one program of a name or number"
+                )
+        self.first_program[file] = found[0].key
+
+    def _program(
+        self, written: str, file: str, number: int, problems: dict[str, list[str]]
+    ) -> _Program:
+        key = _program_key(written)
+        names = self.dialect.names
+        if names.numbered and key.isdigit() and _whole(key) > names.max_number:
+            problems.setdefault("number", []).append(
+                f"{file}:{number}: program number {_shown(key)} is beyond the "
+                f"{self.dialect.title} range (at most {names.max_number})"
+            )
+        return _Program(key, file, number, [])
+
+    def _bad_character(self, raw: str) -> str | None:
+        """A character of ``raw`` the control cannot read, described, or None.
+
+        Printable ASCII everywhere; in comments also other printable characters,
+        unless the dialect reads ASCII only (ISO/EIA code).
+        """
+        if raw.isascii() and raw.isprintable():
+            return None
+        outside = raw
+        for pattern in self.comments:
+            outside = pattern.sub(" ", outside)
+        for char in outside:
+            if not " " <= char <= "~":
+                return f"{_character(char)} outside a comment: {self._characters()}"
+        for char in raw:
+            if self.dialect.codes.ascii_only and not char.isascii():
+                return f"{_character(char)} is not ASCII: {self._characters()}"
+            if not char.isprintable():
+                return f"{_character(char)} is not printable: {self._characters()}"
+        return None
+
+    def _characters(self) -> str:
+        if self.dialect.codes.ascii_only:
+            return f"{self.dialect.title} reads printable ASCII only (ISO/EIA code)"
+        return (
+            f"{self.dialect.title} programs hold printable ASCII, comments also other "
+            "printable characters"
+        )
+
+    def _clean(self, raw: str) -> str:
+        text = raw.strip()
+        for pattern in self.comments:
+            text = pattern.sub(" ", text)
+        text = text.strip()
+        if self.block_end:
+            text = self.block_end.sub("", text)
+        text = _BLOCK_NUMBER.sub("", text)
+        return text.strip().upper()
+
+    # --- what the files hold --------------------------------------------------------------
+
+    def scan(self) -> list[CodeUse]:
+        """Every M word and option-kind number of every line, run or not."""
+        uses = {
+            key: [re.compile(pattern, re.I) for pattern in rule.uses]
+            for key, rule in self.dialect.codes.options.items()
+        }
+        found: list[CodeUse] = []
+        for file, number, text in self.lines:
+            if self.call and (match := self.call.search(text)):
+                # the called program's name is a name, not words
+                text = text[: match.start("key")] + " " + text[match.end("key") :]
+            for match in _M_WORD.finditer(text):
+                found.append(_use("m", match.group("n"), file, number))
+            for key, patterns in uses.items():
+                for pattern in patterns:
+                    for match in pattern.finditer(text):
+                        found.append(_use(key, match.group("n"), file, number))
+        return found
+
+    def run(self, main_file: str, axes: set[str]) -> ProgramTrace:
+        """Follow the main program in ``main_file``, moving ``axes``.
+
+        The trace's problems are those of the run; the files' own are :attr:`problems`.
+
+        Raises:
+            ProgramError: the main file is not among the program files, or a block
+                cannot be read.
+        """
+        if main_file not in self.first_program:
+            raise ProgramError(f"{main_file}: main program not found among the program files")
+        return _Interpreter(self, axes).run(self.first_program[main_file])
+
+
+class _Interpreter:
+    def __init__(self, files: ProgramSet, axes: set[str]) -> None:
+        self.files = files
+        self.dialect = files.dialect
+        self.reader = files.reader
+        self.programs = files.programs
+        self.axes = axes
+        self.ignore = files.ignore
+        self.call = files.call
+        self.ret = files.ret
+        self.end = files.end
+        self.marker = files.marker
+        self.marker_off = files.marker_off
+        self.dwell = files.dwell
+        self.accepted = files.accepted
         self.position: dict[str, float | None] = dict.fromkeys(axes)
         self.mode: Literal["rapid", "feed"] | None = None
         self.feed: float | None = None
         self.marker_value = 0.0
         self.trace = ProgramTrace()
-
-    def scan(self, uses: Mapping[str, list[re.Pattern[str]]]) -> list[CodeUse]:
-        """Every M word and option-kind number of every line, run or not."""
-        found: list[CodeUse] = []
-        for program in self.programs.values():
-            for number, raw in program.lines:
-                text = self._clean(raw)
-                if self.call and (match := self.call.search(text)):
-                    # the called program's name is a name, not words
-                    text = text[: match.start("key")] + " " + text[match.end("key") :]
-                for match in _M_WORD.finditer(text):
-                    found.append(_use("m", match.group("n"), program.file, number))
-                for key, patterns in uses.items():
-                    for pattern in patterns:
-                        for match in pattern.finditer(text):
-                            found.append(_use(key, match.group("n"), program.file, number))
-        return found
 
     def _error(self, program: _Program, line: int, message: str) -> ProgramError:
         return ProgramError(f"{program.file}:{line}: {message}")
@@ -245,9 +438,8 @@ class _Interpreter:
             steps += 1
             if steps > _MAX_STEPS:
                 raise ProgramError(f"{program.file}: more than {_MAX_STEPS} blocks; endless loop?")
-            number, raw = program.lines[index]
+            number, text = program.lines[index]
             stack.append((program, index + 1))
-            text = self._clean(raw)
             if not text or any(p.search(text) for p in self.ignore):
                 continue
             if self.call and (match := self.call.search(text)):
@@ -272,16 +464,6 @@ class _Interpreter:
             self._block(program, number, text)
         return self.trace
 
-    def _clean(self, raw: str) -> str:
-        text = raw.strip()
-        for pattern in self.comments:
-            text = pattern.sub(" ", text)
-        text = text.strip()
-        if self.block_end:
-            text = self.block_end.sub("", text)
-        text = re.sub(r"^N\d+\s*", "", text, flags=re.I)
-        return text.strip().upper()
-
     def _block(self, program: _Program, number: int, text: str) -> None:
         for pattern in self.marker_off:
             if pattern.search(text):
@@ -291,12 +473,12 @@ class _Interpreter:
             match = pattern.search(text)
             if match:
                 value = match.groupdict().get("value")
-                self.marker_value = float(value) if value is not None else 1.0
+                self.marker_value = 1.0 if value is None else self._number(program, number, value)
                 text = pattern.sub(" ", text).strip()
         if not text:
             return
         if self.dwell and (match := self.dwell.search(text)):
-            self._dwell(program, number, float(match.group("seconds")))
+            self._dwell(program, number, self._number(program, number, match.group("seconds")))
             return
         targets: dict[str, float] = {}
         dwell = False
@@ -365,6 +547,13 @@ class _Interpreter:
         self.trace.steps.append(motion)
         self.position.update(targets)
 
+    def _number(self, program: _Program, line: int, text: str) -> float:
+        """A number a dialect's pattern found (a user's pattern may find anything)."""
+        try:
+            return float(text)
+        except ValueError:
+            raise self._error(program, line, f"{_shown(text, 40)!r} is not a number") from None
+
     def _dwell(self, program: _Program, number: int, seconds: float) -> None:
         self.trace.dwells_s.append(seconds)
         self.trace.steps.append(
@@ -381,27 +570,6 @@ class _Interpreter:
             candidates.add(f"{address}{digits}")
             candidates.add(f"{address}{digits:0>2}")
         return bool(candidates & self.accepted)
-
-
-def _interpreter(
-    dialect: Dialect,
-    directory: Path,
-    axes: set[str],
-    options: Mapping[str, int | bool] | None,
-    main_file: str = "",
-) -> tuple[_Interpreter, str]:
-    programs: dict[str, _Program] = {}
-    main_key = ""
-    for path in sorted(directory.iterdir()):
-        if path.is_file() and path.suffix.lower() in dialect.program_extensions:
-            found = _split_programs(dialect, path)
-            for program in found:
-                programs[program.key] = program
-            if path.name == main_file:
-                main_key = found[0].key
-    effective = dict(dialect.options)
-    effective.update(options or {})
-    return _Interpreter(dialect, programs, axes, effective), main_key
 
 
 def read_programs(
@@ -428,8 +596,10 @@ def read_programs(
     main_path = directory / main_file
     if not main_path.is_file():
         raise ProgramError(f"{main_path}: main program not found")
-    interpreter, main_key = _interpreter(dialect, directory, axes, options, main_file)
-    return interpreter.run(main_key)
+    files = ProgramSet(dialect, directory, options)
+    trace = files.run(main_file, axes)
+    trace.problems[:0] = files.problems
+    return trace
 
 
 def scan_codes(
@@ -438,12 +608,6 @@ def scan_codes(
     """Every M word, variable and output written in the program files of ``directory``.
 
     Every line counts, whether it runs or not (after the program end, in a skipped
-    block); comments and the names of called programs do not.
+    block, outside every program); comments and the names of called programs do not.
     """
-    interpreter, _ = _interpreter(dialect, Path(directory), set(), options)
-    return interpreter.scan(
-        {
-            key: [re.compile(pattern, re.I) for pattern in rule.uses]
-            for key, rule in dialect.codes.options.items()
-        }
-    )
+    return ProgramSet(dialect, directory, options).scan()
