@@ -95,7 +95,15 @@ def _mm(value_um: int) -> float:
 
 
 def _floor_feed(value_mm_min: float) -> float:
-    return math.floor(value_mm_min * 1000.0 + 1e-6) / 1000.0
+    """Largest feed on the 0.001 mm/min grid not above ``value_mm_min`` as a control reads it.
+
+    The result is compared as written with three decimals (``f"{feed:.3f}"`` read
+    back), so no float noise can put a written feed above the value.
+    """
+    count = math.floor(value_mm_min * 1000.0 + 1e-6)  # exact values stay (1.9 is 1.9)
+    while count > 0 and float(f"{count / 1000.0:.3f}") > value_mm_min:
+        count -= 1
+    return count / 1000.0
 
 
 @dataclass(frozen=True)

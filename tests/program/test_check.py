@@ -414,3 +414,17 @@ def test_a_template_writing_a_line_separator_writes_nothing(
     )
     with pytest.raises(DialectError, match=r"friction.ngc:\d+: character '\\u2028'"):
         result.write(tmp_path / "out")
+
+
+def test_a_feed_above_the_maximum_by_less_than_a_micrometre_per_minute_is_caught(
+    make_config: Make, tmp_path: Path
+) -> None:
+    """The checker compares the feed as written, with no tolerance that could hide it."""
+    data = small_data("linuxcnc")
+    data["axes"][0]["max_velocity_mm_min"] = 15000.0009999999
+    folder = tmp_path / "out"
+    generate_programs(parse_machine(data), generated=FIXED_TIME).write(folder)
+    assert check_programs(folder).ok
+    _edit(folder / "friction_x.ngc", r"F15000$", "F15000.001")
+    with pytest.raises(ProgramCheckError, match=r"feed 15000\.001 mm/min exceeds the maximum"):
+        check_programs(folder)

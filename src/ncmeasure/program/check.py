@@ -93,6 +93,12 @@ def load_schedule(path: str | Path) -> Schedule:
         raise ProgramError(f"{path}: not a valid schedule", format_validation_error(exc)) from exc
 
 
+def _num(value: float) -> str:
+    """A number for a message: short, but never shorter than what tells it from a limit."""
+    short = f"{value:g}"
+    return short if float(short) == value else repr(value)
+
+
 def _where(motion: Motion) -> str:
     return f"{motion.program}:{motion.line}"
 
@@ -177,17 +183,18 @@ def check_trace(schedule: Schedule, trace: ProgramTrace, report: CheckReport) ->
                 problems.append(f"{_where(motion)}: moves axis {name}, which the schedule lacks")
                 continue
             low, high = axis.travel_mm
-            if not low - 1e-9 <= target <= high + 1e-9:
+            # as written, no tolerance: what the control reads must lie inside the limits
+            if not low <= target <= high:
                 problems.append(
-                    f"{_where(motion)}: axis {name} to {target:g} mm, outside the soft limits "
-                    f"[{low:g}, {high:g}]"
+                    f"{_where(motion)}: axis {name} to {_num(target)} mm, outside the soft limits "
+                    f"[{_num(low)}, {_num(high)}]"
                 )
             if motion.kind == "feed":
                 assert motion.feed_mm_min is not None
-                if motion.feed_mm_min > axis.max_velocity_mm_min + 1e-9:
+                if motion.feed_mm_min > axis.max_velocity_mm_min:  # as written, no tolerance
                     problems.append(
-                        f"{_where(motion)}: feed {motion.feed_mm_min:g} mm/min exceeds the "
-                        f"maximum of axis {name} ({axis.max_velocity_mm_min:g} mm/min)"
+                        f"{_where(motion)}: feed {_num(motion.feed_mm_min)} mm/min exceeds the "
+                        f"maximum of axis {name} ({_num(axis.max_velocity_mm_min)} mm/min)"
                     )
                 feeds_by_axis[name].append(motion)
             elif motion.marker != 0 and schedule.marker_scope != "none":
