@@ -147,6 +147,10 @@ def test_fanuc_integer_coordinates_are_micrometres(tmp_path: Path) -> None:
     (tmp_path / "O0001.nc").write_text("%\nO0001\nG90 G00 X100\nG00 X100.\nM30\n%\n")
     trace = read_programs(dialect, tmp_path, "O0001.nc", {"X"})
     assert [m.target["X"] for m in trace.motions] == [pytest.approx(0.1), 100.0]
+    assert trace.problems == [
+        "O0001.nc:3: X100 has no decimal point: FANUC 0i / 30i (custom macro B) reads it in "
+        "its least input increment (0.001 mm, 0.001 s); write X100."
+    ]
 
 
 def test_missing_schedule_or_folder(tmp_path: Path) -> None:
@@ -428,3 +432,22 @@ def test_a_feed_above_the_maximum_by_less_than_a_micrometre_per_minute_is_caught
     _edit(folder / "friction_x.ngc", r"F15000$", "F15000.001")
     with pytest.raises(ProgramCheckError, match=r"feed 15000\.001 mm/min exceeds the maximum"):
         check_programs(folder)
+
+
+def test_fanuc_dwells_and_coordinates_carry_a_decimal_point(tmp_path: Path) -> None:
+    """Without one FANUC reads G04 X1 as 1 ms and X100 as 0.1 mm (least input increment)."""
+    data = small_data("fanuc")
+    data["measurement"]["dwell_s"] = 1
+    data["axes"][1].setdefault("measurement", {})["dwell_s"] = 0.25
+    folder = tmp_path / "out"
+    generate_programs(parse_machine(data), generated=FIXED_TIME).write(folder)
+    assert re.search(r"^G04 X1\.$", (folder / "O1001.nc").read_text(), re.M)
+    assert re.search(r"^G04 X0\.25$", (folder / "O1002.nc").read_text(), re.M)
+    assert check_programs(folder).ok
+    _edit(folder / "O1001.nc", r"^G04 X1\.$", "G04 X1")
+    _edit(folder / "O1002.nc", r"^G00 Y5\.000$", "G00 Y5")
+    with pytest.raises(ProgramCheckError) as caught:
+        check_programs(folder)
+    text = str(caught.value)
+    assert re.search(r"O1001.nc:\d+: X1 has no decimal point: FANUC .* reads it in", text), text
+    assert re.search(r"O1002.nc:\d+: Y5 has no decimal point", text), text

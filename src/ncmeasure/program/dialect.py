@@ -198,6 +198,10 @@ class Numbers(_Strict):
     feed_decimals: int = Field(3, ge=0, le=6)
     feed_trailing_point: bool = False
     """Write 'F1000.' rather than 'F1000' for whole feeds."""
+    decimal_point: bool = False
+    """Every axis word and dwell time carries a decimal point: without one FANUC reads
+    the number in its least input increment (X100 is 0.1 mm, G04 X1 is 1 ms). The
+    checker refuses an axis word or dwell without one."""
 
 
 class Blocks(_Strict):

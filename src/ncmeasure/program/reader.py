@@ -497,9 +497,11 @@ class _Interpreter:
             value = float(value_text)
             code = f"{address}{_shown(value_text)}"
             if dwell and address == self.reader.dwell_word.upper():
+                self._decimal_point(program, number, code, value_text)
                 dwell_s = value * self.reader.dwell_scale
             elif address in self.axes:
                 if "." not in value_text:
+                    self._decimal_point(program, number, code, value_text)
                     value *= self.reader.integer_unit_mm
                 if address in targets:
                     raise self._error(program, number, f"axis {address} twice in one block")
@@ -546,6 +548,15 @@ class _Interpreter:
         self.trace.motions.append(motion)
         self.trace.steps.append(motion)
         self.position.update(targets)
+
+    def _decimal_point(self, program: _Program, line: int, code: str, value_text: str) -> None:
+        """An axis word or dwell without decimal point, where the dialect needs one."""
+        if self.dialect.numbers.decimal_point and "." not in value_text:
+            self.trace.problems.append(
+                f"{program.file}:{line}: {code} has no decimal point: {self.dialect.title} "
+                "reads it in its least input increment (0.001 mm, 0.001 s); write "
+                f"{code}."
+            )
 
     def _number(self, program: _Program, line: int, text: str) -> float:
         """A number a dialect's pattern found (a user's pattern may find anything)."""

@@ -428,7 +428,8 @@ def _environment(dialect: Dialect, template_dirs: Iterable[Path]) -> TemplateSan
     numbers, names, comments = dialect.numbers, dialect.names, dialect.comments
 
     def coord(value: float) -> str:
-        return _number(value, numbers.decimals, numbers.plus_sign)
+        text = _number(value, numbers.decimals, numbers.plus_sign)
+        return text + "." if numbers.decimal_point and "." not in text else text
 
     def feed(value: float) -> str:
         text = f"{value:.{numbers.feed_decimals}f}"
@@ -441,7 +442,8 @@ def _environment(dialect: Dialect, template_dirs: Iterable[Path]) -> TemplateSan
         return text
 
     def seconds(value: float) -> str:
-        return f"{value:.3f}".rstrip("0").rstrip(".") or "0"
+        text = f"{value:.3f}".rstrip("0").rstrip(".") or "0"
+        return text + "." if numbers.decimal_point and "." not in text else text
 
     def word(value: float, axis: str) -> str:
         form = names.axis_word if len(axis) == 1 else names.long_axis_word
