@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import re
 from collections.abc import Callable
@@ -451,3 +452,43 @@ def test_fanuc_dwells_and_coordinates_carry_a_decimal_point(tmp_path: Path) -> N
     text = str(caught.value)
     assert re.search(r"O1001.nc:\d+: X1 has no decimal point: FANUC .* reads it in", text), text
     assert re.search(r"O1002.nc:\d+: Y5 has no decimal point", text), text
+
+
+def _runout_is_next_window(tiny: bool) -> dict[str, object]:
+    """Machines whose run-out block of one run is exactly the next run's window block."""
+    axis = {"name": "X", "max_velocity_mm_min": 30000, "max_acceleration_m_s2": 2.0}
+    measurement: dict[str, object] = {"velocity_steps": 1, "settle_s": 0, "both_directions": False}
+    if tiny:
+        axis.update(travel_mm=[0.0, 0.01], park_mm=0.0, max_velocity_mm_min=1000)
+        axis.update(max_jerk_m_s3=100000)
+        measurement.update(positions=3, min_velocity_mm_min=10, max_velocity_mm_min=120)
+        measurement.update(window_samples=1, sample_period_ms=0.01, dynamics_safety=1)
+        measurement.update(margin_mm=0, warmup_strokes=0)
+    else:
+        axis.update(travel_mm=[0.0, 750.0], park_mm=375.0, max_jerk_m_s3=40.0)
+        measurement.update(positions=[100.0, 110.0], max_velocity_mm_min=6000, window_s=0.1)
+        measurement.update(dynamics_safety=1.9999999)
+    return {
+        "machine": {"name": "m", "controller": "linuxcnc"},
+        "axes": [axis],
+        "measurement": measurement,
+    }
+
+
+@pytest.mark.parametrize("dialect", DIALECTS)
+@pytest.mark.parametrize("tiny", [False, True], ids=["realistic", "tiny"])
+def test_windows_are_matched_by_their_runs_not_by_a_lookalike_block(
+    dialect: str, tiny: bool, tmp_path: Path
+) -> None:
+    """A run's run-out may be the very block of the next window: plan and check agree."""
+    data = _runout_is_next_window(tiny)
+    data["machine"]["controller"] = dialect  # type: ignore[index]
+    result = generate_programs(parse_machine(data), generated=FIXED_TIME)
+    windows = result.schedule.axes[0].windows
+    assert any(  # the lookalike is really there
+        (a.window_end_mm, a.stop_mm) == (b.window_start_mm, b.window_end_mm)
+        for a, b in itertools.pairwise(windows)
+    )
+    result.write(tmp_path / "out")
+    report = check_programs(tmp_path / "out")
+    assert report.windows_found == report.windows_expected == len(windows)

@@ -103,6 +103,18 @@ def _where(motion: Motion) -> str:
     return f"{motion.program}:{motion.line}"
 
 
+def _drives(motion: Motion, axis: str, start: float, end: float, speed: float) -> bool:
+    """True when ``motion`` feeds ``axis`` from ``start`` to ``end`` at ``speed``."""
+    first = motion.start.get(axis)
+    return (
+        first is not None
+        and abs(first - start) <= _TOL_MM
+        and abs(motion.target[axis] - end) <= _TOL_MM
+        and motion.feed_mm_min is not None
+        and abs(motion.feed_mm_min - speed) <= _TOL_FEED
+    )
+
+
 def _check_window_markers(
     schedule: Schedule, axis: AxisSummary, feeds: list[Motion], report: CheckReport
 ) -> None:
@@ -113,33 +125,33 @@ def _check_window_markers(
     next_feed = 0
     for window in windows:
         speed = abs(window.velocity_mm_min)
-        found = None
-        for index in range(next_feed, len(feeds)):
-            motion = feeds[index]
-            start = motion.start[axis.name]
-            if (
-                start is not None
-                and abs(start - window.window_start_mm) <= _TOL_MM
-                and abs(motion.target[axis.name] - window.window_end_mm) <= _TOL_MM
-                and motion.feed_mm_min is not None
-                and abs(motion.feed_mm_min - speed) <= _TOL_FEED
-            ):
-                found = index
-                break
+        # A window is found with its run: run-up, window and run-out, three feed blocks in a
+        # row at its velocity. Matched alone, a run-out could pass for the next window.
+        points = (window.start_mm, window.window_start_mm, window.window_end_mm, window.stop_mm)
+        found = next(
+            (
+                index
+                for index in range(next_feed, len(feeds) - 2)
+                if all(
+                    _drives(feeds[index + k], axis.name, points[k], points[k + 1], speed)
+                    for k in range(3)
+                )
+            ),
+            None,
+        )
         if found is None:
             report.problems.append(
                 f"axis {axis.name}: window {window.id} ({window.window_start_mm:g} -> "
-                f"{window.window_end_mm:g} mm at {speed:g} mm/min) is not driven in order"
+                f"{window.window_end_mm:g} mm at {speed:g} mm/min) is not driven in order, "
+                "with its run-up and run-out"
             )
             return
         report.windows_found += 1
         value = float(window.id if schedule.marker_values == "window_id" else 1)
-        expected_marker[found] = value
-        if scope == "run":
-            for index in (found - 1, found + 1):
-                if 0 <= index < len(feeds):
-                    expected_marker[index] = value
-        next_feed = found + 1
+        run = (found, found + 1, found + 2)
+        for index in run if scope == "run" else run[1:2]:
+            expected_marker[index] = value
+        next_feed = found + 3
     if scope == "none":
         return
     for motion, expected in zip(feeds, expected_marker, strict=True):
