@@ -42,12 +42,16 @@ __all__ = [
     "MachineSection",
     "Measurement",
     "MeasurementOverride",
+    "ceil_um",
     "config_hash",
+    "floor_um",
     "format_validation_error",
     "load_machine",
     "parse_assignments",
     "parse_machine",
     "read_toml",
+    "to_um",
+    "usable_um",
 ]
 
 # Characters that would break out of a comment or a program name in one of
@@ -65,6 +69,25 @@ MIN_FEED = 0.01
 MAX_FEED = 1_000_000.0
 MAX_WINDOW_S = 600.0
 Position = Annotated[float, Field(ge=-MAX_POSITION_MM, le=MAX_POSITION_MM)]
+
+
+def to_um(value_mm: float) -> int:
+    """The nearest whole micrometre."""
+    return round(value_mm * 1000.0)
+
+
+def ceil_um(value_mm: float) -> int:
+    """Smallest micrometre count not below ``value_mm`` (float noise never crosses it)."""
+    # The tolerance keeps exact values (e.g. 2.5 mm) from rounding up by float noise;
+    # the correction step makes sure the result is never below the value.
+    count = math.ceil(value_mm * 1000.0 - 1e-6)
+    return count + 1 if count / 1000.0 < value_mm else count
+
+
+def floor_um(value_mm: float) -> int:
+    """Largest micrometre count not above ``value_mm``."""
+    count = math.floor(value_mm * 1000.0 + 1e-6)
+    return count - 1 if count / 1000.0 > value_mm else count
 
 
 def _tuple(value: object) -> object:
@@ -374,6 +397,17 @@ class Limits(_Model):
     )
 
 
+def usable_um(axis: AxisConfig, meas: Measurement) -> tuple[int, int]:
+    """The usable travel of ``axis`` in whole micrometres: soft limits minus the margin.
+
+    Each number is rounded to micrometres on its own (limits inward, the margin up)
+    before they are added, so that the result is exactly what the file says in
+    decimals (750.3 − 5.1 is 745.2, not the float 745.1999…) and never more.
+    """
+    margin = ceil_um(meas.margin_mm)
+    return ceil_um(axis.travel_mm[0]) + margin, floor_um(axis.travel_mm[1]) - margin
+
+
 class MachineConfig(_Model):
     """A whole machine file."""
 
@@ -559,7 +593,8 @@ def _cross_checks(config: MachineConfig) -> Iterator[str]:
                 f"velocity of axis {axis.name} ({axis.max_velocity_mm_min:g} mm/min)"
             )
         low, high = axis.travel_mm
-        if 2 * meas.margin_mm >= high - low:
+        low_um, high_um = usable_um(axis, meas)
+        if high_um <= low_um:
             yield (
                 f"{where}.margin_mm: {meas.margin_mm:g} mm from both ends leaves no usable "
                 f"travel on axis {axis.name} (travel {high - low:g} mm)"
@@ -570,15 +605,14 @@ def _cross_checks(config: MachineConfig) -> Iterator[str]:
                 f"{meas.sample_period_ms:g} ms make a window of {meas.window_duration_s:g} s, "
                 f"more than {MAX_WINDOW_S:g} s"
             )
-        usable_um = math.floor((high - low - 2 * meas.margin_mm) * 1000)
         count = len(meas.positions) if isinstance(meas.positions, list) else meas.positions
-        if count > 1 and usable_um < count - 1:
+        if count > 1 and high_um - low_um < count - 1:
             yield (
                 f"{where}.positions: {count} positions need at least {count - 1} µm of usable "
-                f"travel; axis {axis.name} has {max(usable_um, 0)} µm"
+                f"travel; axis {axis.name} has {max(high_um - low_um, 0)} µm"
             )
         if isinstance(meas.positions, list):
-            micrometres = [round(p * 1000) for p in meas.positions]
+            micrometres = [to_um(p) for p in meas.positions]  # as the planner places them
             for number in range(1, len(micrometres)):
                 if micrometres[number] == micrometres[number - 1]:
                     yield (
@@ -587,11 +621,10 @@ def _cross_checks(config: MachineConfig) -> Iterator[str]:
                         "programs place positions on whole micrometres"
                     )
             for number, position in enumerate(meas.positions):
-                if not low + meas.margin_mm <= position <= high - meas.margin_mm:
+                if not low_um <= micrometres[number] <= high_um:
                     yield (
                         f"{where}.positions[{number}]: {position:g} mm is outside the usable "
-                        f"travel of axis {axis.name} [{low + meas.margin_mm:g}, "
-                        f"{high - meas.margin_mm:g}] mm"
+                        f"travel of axis {axis.name} [{low_um / 1000:g}, {high_um / 1000:g}] mm"
                     )
 
 

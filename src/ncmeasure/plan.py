@@ -31,7 +31,16 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, field_validator
 from pydantic_core import PydanticCustomError
 
 from ncmeasure._version import __version__
-from ncmeasure.config import AxisConfig, MachineConfig, Measurement, config_hash
+from ncmeasure.config import (
+    AxisConfig,
+    MachineConfig,
+    Measurement,
+    ceil_um,
+    config_hash,
+    floor_um,
+    to_um,
+    usable_um,
+)
 from ncmeasure.errors import PlanError
 from ncmeasure.inputs import plain_file_name
 from ncmeasure.profile import move_time_s, ramp
@@ -70,24 +79,6 @@ FileName = Annotated[str, AfterValidator(_file_name)]
 
 SCHEDULE_FORMAT = "ncmeasure-schedule"
 SCHEDULE_FORMAT_VERSION = 1
-
-
-def _um(value_mm: float) -> int:
-    return round(value_mm * 1000.0)
-
-
-def _ceil_um(value_mm: float) -> int:
-    """Smallest micrometre count not below ``value_mm`` (float noise never crosses it)."""
-    # The tolerance keeps exact values (e.g. 2.5 mm) from rounding up by float noise;
-    # the correction step makes sure the result is never below the value.
-    count = math.ceil(value_mm * 1000.0 - 1e-6)
-    return count + 1 if count / 1000.0 < value_mm else count
-
-
-def _floor_um(value_mm: float) -> int:
-    """Largest micrometre count not above ``value_mm``."""
-    count = math.floor(value_mm * 1000.0 + 1e-6)
-    return count - 1 if count / 1000.0 > value_mm else count
 
 
 def _mm(value_um: int) -> float:
@@ -301,7 +292,7 @@ def velocity_steps(meas: Measurement, axis: AxisConfig) -> list[float]:
 def nominal_positions_um(meas: Measurement, low_um: int, high_um: int) -> list[int]:
     """Measuring positions in µm: explicit ones, or a count spread over [low, high]."""
     if isinstance(meas.positions, list):
-        return [_um(p) for p in meas.positions]
+        return [to_um(p) for p in meas.positions]
     count = meas.positions
     if count == 1:
         return [(low_um + high_um) // 2]
@@ -358,9 +349,9 @@ class _RunGeometry:
 
 def _geometry(v_mm_min: float, axis: AxisConfig, meas: Measurement) -> _RunGeometry:
     lengths = run_lengths(v_mm_min, axis.max_acceleration_m_s2, axis.max_jerk_m_s3, meas)
-    runout = _ceil_um(lengths.runout_mm)
-    runup = runout + _ceil_um(lengths.settle_mm)
-    window = _ceil_um(lengths.window_mm)
+    runout = ceil_um(lengths.runout_mm)
+    runup = runout + ceil_um(lengths.settle_mm)
+    window = ceil_um(lengths.window_mm)
     window += window % 2  # even, so the window centres exactly on its position
     return _RunGeometry(runup, window, runout, lengths.ramp_time_s)
 
@@ -444,8 +435,7 @@ class _Steps:
 
 
 def _fitting_steps(axis: AxisConfig, meas: Measurement) -> _Steps:
-    low_um = _ceil_um(axis.travel_mm[0] + meas.margin_mm)
-    high_um = _floor_um(axis.travel_mm[1] - meas.margin_mm)
+    low_um, high_um = usable_um(axis, meas)
     available_um = high_um - low_um
     warnings: list[str] = []
     steps = velocity_steps(meas, axis)
@@ -636,8 +626,8 @@ def move_blocks(moves: Sequence[Move]) -> int:
 
 def park_position_um(axis: AxisConfig) -> int:
     """The park position on the micrometre grid, never outside the travel."""
-    low, high = _ceil_um(axis.travel_mm[0]), _floor_um(axis.travel_mm[1])
-    return min(max(_um(axis.park_mm), low), high)
+    low, high = ceil_um(axis.travel_mm[0]), floor_um(axis.travel_mm[1])
+    return min(max(to_um(axis.park_mm), low), high)
 
 
 def park_time_s(axis: AxisConfig) -> float:
