@@ -344,3 +344,19 @@ def test_generate_into_a_folder_with_an_unreadable_schedule_leaves_it(tmp_path: 
     assert "nested too deep" in stderr and "Traceback" not in stderr
     assert [p.name for p in tmp_path.iterdir()] == ["m.toml", "out"]
     assert [p.name for p in out.iterdir()] == ["schedule.json"]
+
+
+def test_a_flood_of_problems_is_printed_capped(tmp_path: Path) -> None:
+    text = example_machine("linuxcnc").replace(
+        "\n[measurement]\n",
+        "\n[measurement]\n" + "".join(f"margin_mn{n} = 5.0\n" for n in range(10_000)),
+    )
+    machine = tmp_path / "m.toml"
+    machine.write_text(text)
+    code, _, stderr = run("generate", machine, "-o", tmp_path / "out")
+    assert code == 2
+    lines = stderr.splitlines()
+    assert lines[0] == f"error: {machine} is not valid"
+    assert lines[1].startswith("  measurement.margin_mn0: unknown key")
+    assert lines[50].startswith("  measurement.margin_mn49: unknown key")
+    assert lines[51:] == ["  … and 9950 more"]

@@ -158,11 +158,21 @@ def _warn(message: str) -> None:
     err_console.print(Text.assemble(("warning:", "yellow"), f" {message}"), soft_wrap=True)
 
 
+MAX_PRINTED_PROBLEMS = 50
+"""Problems printed under an error; the rest are counted (the first ones say what is wrong)."""
+
+
 def _report(error: NcMeasureError) -> None:
-    """``error: message`` and one indented line per problem, on stderr (user text verbatim)."""
+    """``error: message`` and one indented line per problem, on stderr (user text verbatim).
+
+    At most :data:`MAX_PRINTED_PROBLEMS` problems are printed, then how many more there are.
+    """
     err_console.print(Text.assemble(("error:", "bold red"), f" {error.message}"), soft_wrap=True)
-    for line in error.problems:
-        err_console.print(Text(f"  {line}"), soft_wrap=True)
+    shown = error.problems[:MAX_PRINTED_PROBLEMS]
+    more = len(error.problems) - len(shown)
+    lines = [f"  {line}" for line in shown] + ([f"  … and {more} more"] if more else [])
+    if lines:
+        err_console.print(Text("\n".join(lines)), soft_wrap=True)
 
 
 _DEBUG_OPTION = Annotated[

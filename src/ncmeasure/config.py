@@ -510,6 +510,8 @@ def format_validation_error(
             channel names); their keys stay in the location as written.
     """
     lines: list[str] = []
+    seen: set[str] = set()
+    expected_at: dict[str, int] = {}  # a place's "expected ..." line: union branches join it
     for error in exc.errors(include_url=False):
         loc = _loc_text(error["loc"], tables)
         if error["type"] == "extra_forbidden" and error["loc"]:
@@ -530,14 +532,21 @@ def format_validation_error(
         elif error["type"] in _TYPE_ERRORS:
             # strict types: "40" is no number and "no" no boolean; say what was given
             message = f"expected {_TYPE_ERRORS[error['type']]}, got {_shown(error['input'])}"
-        for number, line in enumerate(lines):  # a union's branches: one line per place
-            if line.startswith(f"{loc}: expected ") and message.startswith("expected "):
-                lines[number] = f"{line.split(', got ')[0]} or {message.removeprefix('expected ')}"
-                break
-        else:
-            line = f"{loc}: {message}"
-            if line not in lines:
-                lines.append(line)
+        expected = message.startswith("expected ")
+        if expected and loc in expected_at:  # a union's branches: one line per place
+            number = expected_at[loc]
+            joined = f"{lines[number].split(', got ')[0]} or {message.removeprefix('expected ')}"
+            seen.discard(lines[number])
+            lines[number] = joined
+            seen.add(joined)
+            continue
+        line = f"{loc}: {message}"
+        if line in seen:
+            continue
+        if expected:
+            expected_at[loc] = len(lines)
+        lines.append(line)
+        seen.add(line)
     return lines
 
 
