@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -14,6 +17,7 @@ from typer.testing import CliRunner
 
 from ncmeasure.cli import app
 from ncmeasure.examples import example_machine
+from tests.conftest import machine_toml
 
 runner = CliRunner()
 
@@ -360,3 +364,37 @@ def test_a_flood_of_problems_is_printed_capped(tmp_path: Path) -> None:
     assert lines[1].startswith("  measurement.margin_mn0: unknown key")
     assert lines[50].startswith("  measurement.margin_mn49: unknown key")
     assert lines[51:] == ["  … and 9950 more"]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_a_stopped_generate_leaves_the_folder_as_it_was(sig: int, tmp_path: Path) -> None:
+    """Stopped while it renders (timeout, CI, systemd, Ctrl-C): exit 3, no staging folder."""
+    data = tomllib.loads(example_machine("linuxcnc"))
+    data["axes"] = data["axes"][:1]
+    data["measurement"].update(velocity_steps=500, positions=20)  # 20 000 windows
+    data["limits"] = {"max_duration_h": 100}
+    machine = tmp_path / "m.toml"
+    machine.write_text(machine_toml(data))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("kept")
+    process = subprocess.Popen(
+        [sys.executable, "-m", "ncmeasure", "generate", str(machine), "-o", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        while not any(  # wait for the event: programs being written in the staging folder
+            p.stat().st_size > 100_000 for p in out.glob(".ncmeasure-new-*/friction_x.ngc")
+        ):
+            assert process.poll() is None, process.communicate()
+            time.sleep(0.01)
+        process.send_signal(sig)
+        _, stderr = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    assert process.returncode == 3, stderr
+    assert "interrupted" in stderr and "Traceback" not in stderr
+    assert [p.name for p in out.iterdir()] == ["notes.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.toml", "out"]

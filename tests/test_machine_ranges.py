@@ -257,3 +257,14 @@ def test_positions_at_the_ends_of_the_usable_travel_are_accepted(
             parse_machine(data)
         line = next(p for p in caught.value.problems if "outside the usable travel" in p)
         assert f"[{ends[0]:g}, {ends[1]:g}] mm" in line and f"{beyond:g} mm" in line, line
+
+
+def test_a_list_of_positions_is_bounded_like_a_count() -> None:
+    data = example_data()
+    data["axes"] = data["axes"][:1]
+    data["measurement"]["positions"] = [5.0 + n for n in range(51)]
+    with pytest.raises(ConfigError) as caught:
+        parse_machine(data)
+    assert any(p.startswith("measurement.positions:") for p in caught.value.problems)
+    data["measurement"]["positions"] = [5.0 + n for n in range(50)]
+    parse_machine(data)

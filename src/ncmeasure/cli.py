@@ -196,6 +196,7 @@ def _command(func: Callable[..., Outcome | None]) -> Callable[..., None]:
     def run(*args: Any, debug: bool = False, **kwargs: Any) -> None:
         if debug:
             _set_debug(True)
+        previous = _interrupt_on_sigterm()
         try:
             outcome = func(*args, **kwargs)
         except NcMeasureError as exc:
@@ -206,6 +207,8 @@ def _command(func: Callable[..., Outcome | None]) -> Callable[..., None]:
         except KeyboardInterrupt:
             err_console.print("interrupted")
             raise typer.Exit(EXIT_INTERRUPTED) from None
+        finally:
+            _restore_signals(previous)
         code = _OUTCOME_EXIT[outcome or "ok"]
         if code != EXIT_OK:
             raise typer.Exit(code)
@@ -484,6 +487,18 @@ def _settings(values: list[str], example: str = "--set sync_hz=500") -> dict[str
         except (ValueError, RecursionError):  # not TOML (or beyond what Python reads): text
             result[key] = value
     return result
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _interrupt_on_sigterm() -> dict[int, Any]:
+    """SIGTERM (a timeout, CI, systemd) stops a command like Ctrl-C: its cleanup runs
+    (no staging folder is left) and it exits with code 3. Returns the handler to restore."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    return {signal.SIGTERM: signal.signal(signal.SIGTERM, _interrupt)}
 
 
 def _stop_on_signals(stop: threading.Event) -> dict[int, Any]:

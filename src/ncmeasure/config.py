@@ -68,6 +68,10 @@ MAX_POSITION_MM = 100_000.0
 MIN_FEED = 0.01
 MAX_FEED = 1_000_000.0
 MAX_WINDOW_S = 600.0
+MAX_POSITIONS = 50
+MAX_WINDOWS = 50_000
+"""Most windows any plan may have: what generate, check and the analysis handle in
+seconds and a few hundred MB."""
 Position = Annotated[float, Field(ge=-MAX_POSITION_MM, le=MAX_POSITION_MM)]
 
 
@@ -175,7 +179,7 @@ class MachineSection(_Model):
 class Measurement(_Model):
     """The ``[measurement]`` table: what to measure on every axis."""
 
-    positions: int | list[Position] = Field(
+    positions: int | Annotated[list[Position], Field(max_length=MAX_POSITIONS)] = Field(
         default=3,
         description="Measuring positions: a count, spread evenly over the usable travel "
         "(3: next to the fixed bearing, middle, next to the loose bearing), or a list in mm.",
@@ -267,8 +271,10 @@ class Measurement(_Model):
     @classmethod
     def _check_positions(cls, value: int | list[float]) -> int | list[float]:
         if isinstance(value, int):
-            if not 1 <= value <= 50:
-                raise PydanticCustomError("positions", "a count must be between 1 and 50")
+            if not 1 <= value <= MAX_POSITIONS:
+                raise PydanticCustomError(
+                    "positions", "a count must be between 1 and {most}", {"most": MAX_POSITIONS}
+                )
             return value
         if not value:
             raise PydanticCustomError("positions", "the list of positions is empty")
@@ -394,6 +400,12 @@ class Limits(_Model):
         description="Largest set of program files accepted, in kB (1 kB = 1024 bytes). "
         "Default: the program memory the controller definition assumes "
         "(`ncmeasure controllers --details`).",
+    )
+    max_windows: Annotated[int, Field(ge=1, le=MAX_WINDOWS)] = Field(
+        default=20_000,
+        description="Most measuring windows accepted, all axes together (each is a run of "
+        f"three blocks and an entry of schedule.json); at most {MAX_WINDOWS}. "
+        "A plan with more is refused before anything is rendered.",
     )
 
 

@@ -74,6 +74,7 @@ both_directions = true
 # [limits]                        # larger plans are refused before anything is written
 # max_duration_h = 8.0            # one shift
 # max_program_kb = 512            # default: the controller's program memory (controllers --details)
+# max_windows = 20000             # measuring windows, all axes together (at most 50 000)
 """
 
 

@@ -32,6 +32,7 @@ from pydantic_core import PydanticCustomError
 
 from ncmeasure._version import __version__
 from ncmeasure.config import (
+    MAX_WINDOWS,
     AxisConfig,
     MachineConfig,
     Measurement,
@@ -652,6 +653,7 @@ class SizeLimit:
     max_blocks: int | None = None
     memory: str = ""
     """What bounds the blocks, for the message (``512 kB of program memory ...``)."""
+    max_windows: int = MAX_WINDOWS
 
 
 def _duration_text(seconds: float) -> str:
@@ -661,9 +663,17 @@ def _duration_text(seconds: float) -> str:
     return f"{hours:.1f} h" if hours >= 1 else f"{seconds / 60:.0f} min"
 
 
-def _refuse_oversized(blocks: int, duration_s: float, limit: SizeLimit, at_least: bool) -> None:
+def _refuse_oversized(
+    windows: int, blocks: int, duration_s: float, limit: SizeLimit, at_least: bool
+) -> None:
     least = "at least " if at_least else ""
     problems = []
+    if windows > limit.max_windows:
+        problems.append(
+            f"limits.max_windows: {windows} windows, more than {limit.max_windows} "
+            f"(at most {MAX_WINDOWS}: each is a run of the programs and an entry of "
+            "schedule.json)"
+        )
     if duration_s > limit.max_duration_s:
         problems.append(
             f"limits.max_duration_h: the measurement would take {least}"
@@ -676,25 +686,27 @@ def _refuse_oversized(blocks: int, duration_s: float, limit: SizeLimit, at_least
         )
     if problems:
         raise PlanError(
-            f"the plan is too large ({least}{blocks} blocks, {least}"
+            f"the plan is too large ({windows} windows, {least}{blocks} blocks, {least}"
             f"{_duration_text(duration_s)}); nothing was written",
             [*problems, SMALLER],
         )
 
 
-def _lower_bounds(config: MachineConfig) -> tuple[int, float]:
-    """Blocks and seconds the plan takes at least, found without planning a single window."""
-    blocks, duration_s = 0, 0.0
+def _lower_bounds(config: MachineConfig) -> tuple[int, int, float]:
+    """Windows (exact), blocks and seconds (at least) of the plan, found without planning
+    a single window."""
+    windows, blocks, duration_s = 0, 0, 0.0
     for axis in config.axes:
         meas = config.measurement_for(axis)
         steps = _fitting_steps(axis, meas)
         positions = len(meas.positions) if isinstance(meas.positions, list) else meas.positions
         runs = meas.repetitions * positions * (2 if meas.both_directions else 1)
+        windows += runs * len(steps.velocities)
         blocks += 3 * runs * len(steps.velocities) + 2 * meas.warmup_strokes
         duration_s += runs * sum(
             _run_time_s(steps.geometry[v], v, axis)[2] for v in steps.velocities
         )
-    return blocks, duration_s
+    return windows, blocks, duration_s
 
 
 def plan_machine(
@@ -716,7 +728,9 @@ def plan_machine(
             plan is beyond the limits, with its size and what to change (checked
             first from lower bounds, before any window is planned).
     """
-    limit = limit or SizeLimit(config.limits.max_duration_h * 3600)
+    limit = limit or SizeLimit(
+        config.limits.max_duration_h * 3600, max_windows=config.limits.max_windows
+    )
     _refuse_oversized(*_lower_bounds(config), limit, at_least=True)
     t_s = sum(park_time_s(axis) for axis in config.park_sequence())
     plans: list[AxisPlan] = []
@@ -738,5 +752,6 @@ def plan_machine(
         warnings=[w for p in plans for w in p.warnings],
         axes=[p.summary for p in plans],
     )
-    _refuse_oversized(schedule.blocks, schedule.duration_s, limit, at_least=False)
+    windows = sum(len(axis.windows) for axis in schedule.axes)
+    _refuse_oversized(windows, schedule.blocks, schedule.duration_s, limit, at_least=False)
     return schedule, plans

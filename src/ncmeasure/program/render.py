@@ -352,14 +352,17 @@ def _move_into_place(
         for name in new:
             (staging / name).replace(directory / name)
             moved_new.append(name)
-    except OSError as exc:
+    except BaseException as exc:  # an error, or Ctrl-C / SIGTERM between two renames
         for name in reversed(moved_new):
             with contextlib.suppress(OSError):
                 (directory / name).replace(staging / name)
         for name in reversed(moved_old):
             with contextlib.suppress(OSError):
                 (backup / name).replace(directory / name)
-        raise OutputError(f"{directory}: cannot write programs ({exc.strerror})") from exc
+        moved_new.clear()
+        if isinstance(exc, OSError):
+            raise OutputError(f"{directory}: cannot write programs ({exc.strerror})") from exc
+        raise
     finally:
         if len(moved_new) == len(new):
             shutil.rmtree(backup, ignore_errors=True)
@@ -511,7 +514,12 @@ def generate_programs(
     # and a line end: a floor no rendered program stays under.
     decimals = dialect.numbers.decimals
     block_floor = 3 + decimals + (1 if decimals else 0)
-    limit = SizeLimit(config.limits.max_duration_h * 3600, limit_kb * 1024 // block_floor, memory)
+    limit = SizeLimit(
+        config.limits.max_duration_h * 3600,
+        limit_kb * 1024 // block_floor,
+        memory,
+        config.limits.max_windows,
+    )
     schedule, plans = plan_machine(config, limit)
     names = dialect.names
     program = config.machine.program
