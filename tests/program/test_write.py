@@ -412,3 +412,22 @@ def test_generate_into_the_current_folder_stages_inside_it(
     ]
     assert run("generate", "machine.toml", "-o", ".", "-q")[0] == 0  # again, replacing
     assert run("check", ".")[0] == 0
+
+
+def test_no_program_file_grows_beyond_what_check_reads(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from ncmeasure.program import render
+
+    monkeypatch.setattr(render, "MAX_PROGRAM_FILE_BYTES", 1024 * 1024)
+    data = example_data("linuxcnc")
+    data["measurement"]["velocity_steps"] = 30
+    data["limits"] = {"max_program_kb": 1_000_000}
+    templates = tmp_path / "templates"
+    shutil.copytree(builtin_dir("templates") / "linuxcnc", templates / "linuxcnc")
+    moves = templates / "linuxcnc" / "_moves.j2"  # a long comment in front of every move
+    moves.write_text(moves.read_text().replace("{% if", "{{ ('x' * 4000) | comment }}\n{% if", 1))
+    result = generate_programs(config_of(data), templates_dirs=[templates])
+    with pytest.raises(PlanError, match=r"a program file grows beyond 1 MiB"):
+        result.write(tmp_path / "out")
+    assert not (tmp_path / "out").exists()

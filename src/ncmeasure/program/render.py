@@ -30,6 +30,7 @@ from ncmeasure._version import __version__
 from ncmeasure.config import MachineConfig, config_hash
 from ncmeasure.errors import (
     DialectError,
+    NcMeasureError,
     OutputError,
     PlanError,
     ProgramCheckError,
@@ -44,6 +45,7 @@ from ncmeasure.program.dialect import (
     marker_scope,
     validate_for_dialect,
 )
+from ncmeasure.program.reader import MAX_PROGRAM_FILE_BYTES
 from ncmeasure.program.sandbox import TemplateSandbox
 from ncmeasure.resources import builtin_dir
 
@@ -93,18 +95,30 @@ class ProgramView:
 
 
 class _Output:
-    """Counts the bytes of every program file against the program-memory limit."""
+    """Counts the bytes of every program file against the program-memory limit, and of
+    each file against the largest program file ``check`` reads."""
 
     def __init__(self, limit_bytes: int, what: str) -> None:
         self.limit_bytes = limit_bytes
         self.what = what
         self.bytes = 0
+        self.file_bytes = 0
+
+    def next_file(self) -> None:
+        self.file_bytes = 0
 
     def add(self, data: bytes) -> bytes:
         self.bytes += len(data)
+        self.file_bytes += len(data)
         if self.bytes > self.limit_bytes:
             raise PlanError(
                 f"the programs grow beyond {self.what}; nothing was written",
+                [SMALLER],
+            )
+        if self.file_bytes > MAX_PROGRAM_FILE_BYTES:
+            raise PlanError(
+                f"a program file grows beyond {MAX_PROGRAM_FILE_BYTES // (1024 * 1024)} MiB, "
+                "more than `ncmeasure check` reads; nothing was written",
                 [SMALLER],
             )
         return data
@@ -156,6 +170,14 @@ class GeneratedPrograms:
     _limit_what: str = ""
     _controllers_dirs: tuple[Path, ...] = ()
     _files: dict[str, str] | None = field(default=None, repr=False)
+    _env: TemplateSandbox | None = field(default=None, repr=False)
+    _moves: int = 0
+    """Planned moves of all files: the sandbox's budgets for one rendering of them."""
+
+    def _start(self) -> None:
+        """One rendering of every file begins: the template budgets start afresh."""
+        if self._env is not None:
+            self._env.start(self._moves)
 
     @property
     def program_files(self) -> list[str]:
@@ -171,6 +193,7 @@ class GeneratedPrograms:
             PlanError: the programs exceed the program-memory limit.
         """
         if self._files is None:
+            self._start()
             output = _Output(self._limit_bytes, self._limit_what)
             files = {}
             for name, render in self._renders:
@@ -187,6 +210,7 @@ class GeneratedPrograms:
         write: Callable[[str], object],
     ) -> None:
         numbers = _BlockNumbers(self.dialect)
+        output.next_file()
         try:
             for chunk in render():
                 text = numbers.feed(chunk)
@@ -195,16 +219,23 @@ class GeneratedPrograms:
             text = numbers.close()
             output.add(text.encode("utf-8"))
             write(text)
-        except (jinja2.TemplateError, RecursionError, MemoryError, OverflowError) as exc:
-            what = str(exc) if not isinstance(exc, MemoryError) else "out of memory"
-            if isinstance(exc, RecursionError):
+        except (NcMeasureError, OSError):
+            raise  # ncmeasure's own (program memory, a comment the dialect lacks), or the disk
+        except Exception as exc:  # whatever a template does wrong: a TypeError is its error too
+            what = str(exc) or type(exc).__name__
+            if isinstance(exc, MemoryError):
+                what = "out of memory"
+            elif isinstance(exc, RecursionError):
                 what = "macros call themselves too deep"
+            elif not isinstance(exc, jinja2.TemplateError):
+                what = f"{type(exc).__name__}: {what}"
             raise DialectError(f"template {_template_place(exc, self.dialect)}: {what}") from exc
 
     def _render_into(self, folder: Path) -> None:
         schedule = self.schedule.model_dump_json(indent=2) + "\n"
         (folder / SCHEDULE_FILE).write_text(schedule, encoding="utf-8", newline="\n")
         del schedule
+        self._start()
         output = _Output(self._limit_bytes, self._limit_what)
         for name, render in self._renders:
             with (folder / name).open("w", encoding="utf-8", newline="\n") as file:
@@ -465,7 +496,7 @@ def _environment(dialect: Dialect, template_dirs: Iterable[Path]) -> TemplateSan
             clean = clean.upper()
         return f"{comments.open}{clean}{comments.close}"
 
-    env.filters.update(coord=coord, feed=feed, seconds=seconds, word=word, comment=comment)
+    env.add_filters(coord=coord, feed=feed, seconds=seconds, word=word, comment=comment)
     return env
 
 
@@ -580,13 +611,12 @@ def generate_programs(
     env = _environment(dialect, templates_dirs)
     total_moves = sum(len(plan.moves) for plan in plans)
     renders: list[tuple[str, Callable[[], Iterator[str]]]] = [
-        (main.file_name, functools.partial(_generate, env, "main.j2", total_moves, v=view))
+        (main.file_name, functools.partial(_generate, env, "main.j2", v=view))
     ]
     if dialect.subprograms:
         for axis_view in view.measure:
             assert axis_view.sub is not None
-            moves = len(axis_view.moves)
-            sub = functools.partial(_generate, env, "sub.j2", moves, v=view, axis=axis_view)
+            sub = functools.partial(_generate, env, "sub.j2", v=view, axis=axis_view)
             renders.append((axis_view.sub.file_name, sub))
     schedule = schedule.model_copy(
         update={
@@ -607,14 +637,14 @@ def generate_programs(
         _limit_bytes=limit_kb * 1024,
         _limit_what=memory,
         _controllers_dirs=tuple(controllers_dirs),
+        _env=env,
+        _moves=total_moves,
     )
 
 
-def _generate(env: TemplateSandbox, name: str, moves: int, **context: object) -> Iterator[str]:
+def _generate(env: TemplateSandbox, name: str, **context: object) -> Iterator[str]:
     """The text of one template, chunk by chunk (nothing is held in memory).
 
-    The sandbox's step budget starts afresh for each file, sized by its planned moves.
+    The sandbox's budgets are those of the whole rendering (see ``GeneratedPrograms._start``).
     """
-    template = env.get_template(name)
-    env.start(moves)
-    return template.generate(**context)
+    return env.get_template(name).generate(**context)
