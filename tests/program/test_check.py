@@ -492,3 +492,19 @@ def test_windows_are_matched_by_their_runs_not_by_a_lookalike_block(
     result.write(tmp_path / "out")
     report = check_programs(tmp_path / "out")
     assert report.windows_found == report.windows_expected == len(windows)
+
+
+def test_a_run_far_beyond_the_planned_blocks_stops_with_a_problem(
+    make_config: Make, tmp_path: Path
+) -> None:
+    """Read on, a hand-made 15 MB of moves would take the checker a gigabyte; it stops."""
+    folder = _generate(make_config, "linuxcnc", tmp_path)
+    sub = folder / "friction_x.ngc"
+    lines = sub.read_text(encoding="utf-8").split("\n")
+    at = next(n for n, line in enumerate(lines) if line.startswith("G1 ")) + 1
+    lines[at:at] = ["G1 X5.000", "G1 X6.000"] * 100_000
+    sub.write_text("\n".join(lines), encoding="utf-8")
+    with pytest.raises(ProgramCheckError) as caught:
+        check_programs(folder)
+    blocks = json.loads((folder / "schedule.json").read_text())["blocks"]
+    assert f"more than the {blocks} moves, dwells and calls the schedule plans" in str(caught.value)

@@ -356,7 +356,8 @@ def check_programs(directory: str | Path, controllers_dirs: tuple[Path, ...] = (
     report.problems.extend(code_problems(schedule, dialect, files.scan()))
     report.problems.extend(files.problems)
     try:
-        trace = files.run(schedule.main_program, {axis.name for axis in schedule.axes})
+        axes = {axis.name for axis in schedule.axes}
+        trace = files.run(schedule.main_program, axes, schedule.blocks or None)
     except ProgramError as exc:
         if not report.problems:
             raise

@@ -44,12 +44,15 @@ _NUMBER = r"[+-]?(?:\d+\.?\d*|\.\d+)"
 _WORD = re.compile(
     rf"\s*(?:(?P<long>[A-Z]+\d+)\s*=\s*(?P<lval>{_NUMBER})|(?P<addr>[A-Z])\s*(?P<val>{_NUMBER}))"
 )
-_MAX_STEPS = 5_000_000
-MAX_PROGRAM_FILE_BYTES = 32 * 1024 * 1024
+_MAX_STEPS = 1_000_000
+"""Blocks a run may take (the largest plan the limits allow runs about 300 000)."""
+MAX_PROGRAM_FILE_BYTES = 16 * 1024 * 1024
 """Largest program file read (generate writes none larger)."""
+MAX_PROGRAM_BYTES = 32 * 1024 * 1024
+"""Most program text read from one folder (generate writes no more)."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Motion:
     """One commanded straight move."""
 
@@ -67,7 +70,7 @@ class Motion:
     """File name of the program."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Dwell:
     """A dwell: the axes stand still for ``seconds``."""
 
@@ -78,7 +81,7 @@ class Dwell:
     file: str = ""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class CodeUse:
     """An M function, or a number of a controller option's kind, written in a program."""
 
@@ -123,9 +126,12 @@ class _Program:
     file: str
     line: int
     """Line of its program number (0: the program is the file)."""
-    lines: list[tuple[int, str]]
-    """Its blocks: line number and the text as the reader sees it (comments removed,
-    capitals)."""
+    texts: list[str]
+    """Every line of its file as the reader sees it (comments removed, capitals)."""
+    first: int
+    """Index in ``texts`` of its first block."""
+    end: int = -1
+    """Index in ``texts`` after its last block (-1 while the file is read)."""
 
 
 def _digits(text: str) -> str:
@@ -229,8 +235,9 @@ class ProgramSet:
         self.programs: dict[str, _Program] = {}
         self.first_program: dict[str, str] = {}
         """File name -> key of its first program."""
-        self.lines: list[tuple[str, int, str]] = []
-        """Every line of every file as the reader sees it: file, number, text."""
+        self.files: dict[str, list[str]] = {}
+        """Every line of every file as the reader sees it (comments removed, capitals)."""
+        self.bytes_read = 0
         self.problems: list[str] = []
         directory = Path(directory)
         for path in sorted(directory.iterdir()):
@@ -241,25 +248,35 @@ class ProgramSet:
 
     def _read_file(self, path: Path) -> None:
         text = read_text(path, "a program file", MAX_PROGRAM_FILE_BYTES, ProgramError)
+        self.bytes_read += len(text)
+        if self.bytes_read > MAX_PROGRAM_BYTES:
+            raise ProgramError(
+                f"{path}: the program files hold more than {MAX_PROGRAM_BYTES // (1024 * 1024)} "
+                "MiB together, more than ncmeasure reads"
+            )
         raw_lines = text.split("\n")  # a control ends lines at LF only (U+2028 is no end)
+        del text
         if raw_lines[-1] == "":
             raw_lines.pop()
         file = path.name
-        default_key = path.stem if self.reader.program_key == "stem" else path.name
-        outside = _Program("", file, 0, [])  # before the first program number
-        current = outside if self.start else _Program(_program_key(default_key), file, 0, [])
-        found: list[_Program] = [] if self.start else [current]
+        texts: list[str] = []
+        self.files[file] = texts
+        key = _program_key(path.stem if self.reader.program_key == "stem" else file)
+        default = _Program(key, file, 0, texts, 0)  # the file is its program
+        current: _Program | None = None if self.start else default
+        found: list[_Program] = []
+        outside: list[int] = []  # lines before the first program number
         problems: dict[str, list[str]] = {}
         blank_so_far, tape_line, closed_at = True, 0, 0
         after: list[int] = []  # lines with text after the closing tape mark
-        for number, raw in enumerate(raw_lines, start=1):
+        for index, raw in enumerate(raw_lines):
+            number = index + 1
             raw = raw.removesuffix("\r")  # CR LF line ends
             bad = self._bad_character(raw)
             if bad:
                 problems.setdefault("character", []).append(f"{file}:{number}: character {bad}")
             stripped = raw.strip()
-            text = self._clean(raw)
-            self.lines.append((file, number, text))
+            texts.append(self._clean(raw))
             if closed_at:
                 if stripped:
                     after.append(number)
@@ -267,6 +284,7 @@ class ProgramSet:
             if self.tape and self.tape.search(stripped):
                 if blank_so_far:
                     tape_line = number  # the tape starts: the file ends at the next mark
+                    default.first = number
                 elif tape_line:
                     closed_at = number
                 else:
@@ -274,19 +292,29 @@ class ProgramSet:
                         f"{file}:{number}: '%' where the file did not start with one: "
                         f"{self.dialect.title} refuses it (it may only start and end the tape)"
                     )
-                blank_so_far = False
+                blank_so_far = False  # a misplaced mark is refused here and skipped in a run
                 continue
             blank_so_far = blank_so_far and not stripped
             match = self.start.search(stripped) if self.start else None
             if match:
-                current = self._program(match.group("key"), file, number, problems)
+                if current is not None:
+                    current.end = index
+                current = self._program(match.group("key"), file, number, texts, problems)
                 found.append(current)
-                continue
-            current.lines.append((number, text))
-        for number, text in outside.lines:
-            if text and not any(p.search(text) for p in self.ignore):
+            elif current is None:
+                outside.append(index)
+        end = closed_at - 1 if closed_at else len(texts)
+        if current is None or current is default:  # no program number: the file is its program
+            default.end = end
+            found.append(default)
+            outside.clear()
+        else:
+            current.end = end
+        for index in outside:
+            line = texts[index]
+            if line and not any(p.search(line) for p in self.ignore):
                 problems.setdefault("outside", []).append(
-                    f"{file}:{number}: {_shown(text, 40)!r} stands before the first program "
+                    f"{file}:{index + 1}: {_shown(line, 40)!r} stands before the first program "
                     "number: it belongs to no program; remove it"
                 )
         if after:
@@ -302,8 +330,6 @@ class ProgramSet:
                 more = len(found_here) - _MAX_FILE_PROBLEMS
                 self.problems.append(f"{file}: {more} more such lines")
         self.problems += problems.get("number", [])
-        if not found:  # no program number at all: the file is its program
-            found.append(_Program(_program_key(default_key), file, 0, outside.lines))
         for program in found:
             known = self.programs.get(program.key)
             if known is None:
@@ -317,7 +343,12 @@ class ProgramSet:
         self.first_program[file] = found[0].key
 
     def _program(
-        self, written: str, file: str, number: int, problems: dict[str, list[str]]
+        self,
+        written: str,
+        file: str,
+        number: int,
+        texts: list[str],
+        problems: dict[str, list[str]],
     ) -> _Program:
         key = _program_key(written)
         names = self.dialect.names
@@ -326,7 +357,7 @@ class ProgramSet:
                 f"{file}:{number}: program number {_shown(key)} is beyond the "
                 f"{self.dialect.title} range (at most {names.max_number})"
             )
-        return _Program(key, file, number, [])
+        return _Program(key, file, number, texts, number)
 
     def _bad_character(self, raw: str) -> str | None:
         """A character of ``raw`` the control cannot read, described, or None.
@@ -376,22 +407,26 @@ class ProgramSet:
             for key, rule in self.dialect.codes.options.items()
         }
         found: list[CodeUse] = []
-        for file, number, text in self.lines:
-            if self.call and (match := self.call.search(text)):
-                # the called program's name is a name, not words
-                text = text[: match.start("key")] + " " + text[match.end("key") :]
-            for match in _M_WORD.finditer(text):
-                found.append(_use("m", match.group("n"), file, number))
-            for key, patterns in uses.items():
-                for pattern in patterns:
-                    for match in pattern.finditer(text):
-                        found.append(_use(key, match.group("n"), file, number))
+        for file, texts in self.files.items():
+            for index, text in enumerate(texts):
+                if self.call and (match := self.call.search(text)):
+                    # the called program's name is a name, not words
+                    text = text[: match.start("key")] + " " + text[match.end("key") :]
+                for match in _M_WORD.finditer(text):
+                    found.append(_use("m", match.group("n"), file, index + 1))
+                for key, patterns in uses.items():
+                    for pattern in patterns:
+                        for match in pattern.finditer(text):
+                            found.append(_use(key, match.group("n"), file, index + 1))
         return found
 
-    def run(self, main_file: str, axes: set[str]) -> ProgramTrace:
+    def run(self, main_file: str, axes: set[str], max_blocks: int | None = None) -> ProgramTrace:
         """Follow the main program in ``main_file``, moving ``axes``.
 
         The trace's problems are those of the run; the files' own are :attr:`problems`.
+        A run that commands more than ``max_blocks`` moves, dwells and calls (what the
+        schedule plans) stops there with a problem: it is not the planned program, and
+        reading on would only fill the memory.
 
         Raises:
             ProgramError: the main file is not among the program files, or a block
@@ -399,12 +434,13 @@ class ProgramSet:
         """
         if main_file not in self.first_program:
             raise ProgramError(f"{main_file}: main program not found among the program files")
-        return _Interpreter(self, axes).run(self.first_program[main_file])
+        return _Interpreter(self, axes, max_blocks).run(self.first_program[main_file])
 
 
 class _Interpreter:
-    def __init__(self, files: ProgramSet, axes: set[str]) -> None:
+    def __init__(self, files: ProgramSet, axes: set[str], max_blocks: int | None) -> None:
         self.files = files
+        self.max_blocks = max_blocks
         self.dialect = files.dialect
         self.reader = files.reader
         self.programs = files.programs
@@ -416,6 +452,7 @@ class _Interpreter:
         self.marker = files.marker
         self.marker_off = files.marker_off
         self.dwell = files.dwell
+        self.tape = files.tape
         self.accepted = files.accepted
         self.position: dict[str, float | None] = dict.fromkeys(axes)
         self.mode: Literal["rapid", "feed"] | None = None
@@ -427,21 +464,32 @@ class _Interpreter:
         return ProgramError(f"{program.file}:{line}: {message}")
 
     def run(self, main_key: str) -> ProgramTrace:
-        stack: list[tuple[_Program, int]] = [(self.programs[main_key], 0)]
+        main = self.programs[main_key]
+        stack: list[tuple[_Program, int]] = [(main, main.first)]
         steps = 0
         while stack:
             program, index = stack.pop()
-            if index >= len(program.lines):
+            if index >= program.end:
                 if len(stack) == 0:
                     break  # main program ran off its end
                 continue  # a subprogram without explicit return
             steps += 1
             if steps > _MAX_STEPS:
                 raise ProgramError(f"{program.file}: more than {_MAX_STEPS} blocks; endless loop?")
-            number, text = program.lines[index]
+            number, text = index + 1, program.texts[index]
+            trace = self.trace
+            blocks = len(trace.motions) + len(trace.dwells_s) + len(trace.calls)
+            if self.max_blocks is not None and blocks > self.max_blocks:
+                trace.problems.append(
+                    f"{program.file}:{number}: more than the {self.max_blocks} moves, dwells "
+                    "and calls the schedule plans; the rest is not read"
+                )
+                break
             stack.append((program, index + 1))
             if not text or any(p.search(text) for p in self.ignore):
                 continue
+            if self.tape and self.tape.search(text):
+                continue  # a misplaced tape mark: refused when the file was read
             if self.call and (match := self.call.search(text)):
                 key = _program_key(match.group("key"))
                 if key not in self.programs:
@@ -449,7 +497,8 @@ class _Interpreter:
                 if len(stack) > 16:
                     raise self._error(program, number, "subprograms nested deeper than 16")
                 self.trace.calls.append(key)
-                stack.append((self.programs[key], 0))
+                called = self.programs[key]
+                stack.append((called, called.first))
                 continue
             if self.ret and self.ret.search(text):
                 stack.pop()

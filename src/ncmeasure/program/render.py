@@ -45,7 +45,7 @@ from ncmeasure.program.dialect import (
     marker_scope,
     validate_for_dialect,
 )
-from ncmeasure.program.reader import MAX_PROGRAM_FILE_BYTES
+from ncmeasure.program.reader import MAX_PROGRAM_BYTES, MAX_PROGRAM_FILE_BYTES
 from ncmeasure.program.sandbox import TemplateSandbox
 from ncmeasure.resources import builtin_dir
 
@@ -115,10 +115,15 @@ class _Output:
                 f"the programs grow beyond {self.what}; nothing was written",
                 [SMALLER],
             )
-        if self.file_bytes > MAX_PROGRAM_FILE_BYTES:
+        if self.file_bytes > MAX_PROGRAM_FILE_BYTES or self.bytes > MAX_PROGRAM_BYTES:
+            largest, what = (
+                (MAX_PROGRAM_FILE_BYTES, "a program file grows")
+                if self.file_bytes > MAX_PROGRAM_FILE_BYTES
+                else (MAX_PROGRAM_BYTES, "the program files grow")
+            )
             raise PlanError(
-                f"a program file grows beyond {MAX_PROGRAM_FILE_BYTES // (1024 * 1024)} MiB, "
-                "more than `ncmeasure check` reads; nothing was written",
+                f"{what} beyond {largest // (1024 * 1024)} MiB, more than `ncmeasure check` "
+                "reads; nothing was written",
                 [SMALLER],
             )
         return data
