@@ -6,8 +6,9 @@ import datetime as dt
 import json
 import os
 import re
+import threading
 import tomllib
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -81,6 +82,62 @@ def machine_file(tmp_path: Path) -> Callable[[str], Path]:
         return path
 
     return write
+
+
+def _unblock_later(fifo: Path, seconds: float) -> None:
+    """Open ``fifo`` for writing after ``seconds``: a reader stuck on it gets end-of-file."""
+
+    def unblock() -> None:
+        if not done.wait(seconds):
+            try:
+                fd = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)
+            except OSError:  # nobody reads it: nothing to unblock
+                return
+            os.close(fd)
+
+    done = threading.Event()
+    threading.Thread(target=unblock, daemon=True).start()
+    _UNBLOCKERS.append(done)
+
+
+_UNBLOCKERS: list[threading.Event] = []
+
+
+@pytest.fixture
+def special_file(tmp_path: Path) -> Iterator[Callable[[str, Path], Path]]:
+    """Put a file no reader should read whole at a path: a FIFO, a device, a huge file.
+
+    ``fifo``: a named pipe nobody writes (opened for writing after 10 s, so a reader that
+    waits on it ends instead of hanging the tests); ``device``: a symbolic link to
+    /dev/null (a character device); ``huge``: a sparse file of 20 MiB.
+    """
+
+    def make(kind: str, path: Path) -> Path:
+        path.unlink(missing_ok=True)
+        if kind == "fifo":
+            os.mkfifo(path)
+            _unblock_later(path, 10.0)
+        elif kind == "device":
+            path.symlink_to("/dev/null")
+        elif kind == "huge":
+            with path.open("wb") as file:
+                file.truncate(20 * 1024 * 1024)
+        else:
+            raise ValueError(kind)
+        return path
+
+    yield make
+    for done in _UNBLOCKERS:
+        done.set()
+    _UNBLOCKERS.clear()
+
+
+SPECIAL_REFUSALS = {
+    "fifo": "not a regular file",
+    "device": "not a regular file",
+    "huge": "more than the",
+}
+"""What a reader says about each kind of :func:`special_file`."""
 
 
 def _toml_key(key: str) -> str:

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -14,6 +17,7 @@ from typer.testing import CliRunner
 
 from ncmeasure.cli import app
 from ncmeasure.examples import example_machine
+from tests.conftest import machine_toml
 
 runner = CliRunner()
 
@@ -246,6 +250,17 @@ def test_a_path_with_markup_is_checked_and_printed_whole(tmp_path: Path) -> None
     assert code == 0 and f"ok: {out} (linuxcnc)" in text
 
 
+def test_generate_into_a_folder_with_markup_prints_its_name(tmp_path: Path) -> None:
+    """The success path names the folder as written: every 'wrote' line and the next step."""
+    machine = tmp_path / "m.toml"
+    machine.write_text(example_machine("linuxcnc"))
+    out = tmp_path / "o[/]"
+    code, text, err = run("generate", machine, "-o", out)
+    assert code == 0, err
+    assert f"wrote {out / 'friction.ngc'}" in text and f"wrote {out / 'schedule.json'}" in text
+    assert f"next: ncmeasure check {out} " in text and "Traceback" not in text + err
+
+
 def test_help_keeps_square_brackets() -> None:
     code, out, _ = run("record", "--help")
     assert code == 0 and "[link] table" in " ".join(out.split())
@@ -280,3 +295,121 @@ def test_example_machines_are_data_files_that_validate() -> None:
         assert config.link is not None and config.link["type"] == link
     config = parse_machine(tomllib.loads(example_machine("fanuc")))
     assert config.machine.controller == "fanuc"
+
+
+def test_set_values_python_cannot_read_as_toml_stay_text() -> None:
+    from ncmeasure.cli import _settings
+
+    huge, deep = "1" * 5000, "[" * 1000 + "]" * 1000
+    assert _settings([f"a={huge}", f"b={deep}", "c=5"]) == {"a": huge, "b": deep, "c": 5}
+
+
+def _edit_schedule(folder: Path, **changes: object) -> None:
+    data = json.loads((folder / "schedule.json").read_text())
+    data.update(changes)
+    (folder / "schedule.json").write_text(json.dumps(data))
+
+
+HAND_EDITS: dict[str, tuple[Callable[[Path], None], int, str]] = {
+    "main program is schedule.json": (
+        lambda o: _edit_schedule(o, main_program="schedule.json"),
+        2,
+        "main_program: 'schedule.json' is not one of its program_files",
+    ),
+    "main program outside the folder": (
+        lambda o: _edit_schedule(o, main_program="../x.ngc"),
+        2,
+        "main_program: '../x.ngc' is not a plain file name",
+    ),
+    "schedule nested 100 000 deep": (
+        lambda o: (o / "schedule.json").write_text("[" * 100_000),
+        2,
+        "schedule.json: invalid JSON: arrays or tables nested too deep (at line 1)",
+    ),
+    "schedule with a 5000-digit number": (
+        lambda o: (o / "schedule.json").write_text("1" * 5000),
+        2,
+        "schedule.json: invalid JSON: an integer of more than 4300 digits",
+    ),
+    "M word of 5000 digits": (
+        lambda o: (o / "friction_x.ngc").open("a").write("M" + "9" * 5000 + "\n"),
+        1,
+        "M999999999999… (5000 digits) is not allowed",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(HAND_EDITS))
+def test_check_of_hand_edited_folders_locates_the_problem(case: str, tmp_path: Path) -> None:
+    edit, exit_code, expected = HAND_EDITS[case]
+    machine = tmp_path / "m.toml"
+    machine.write_text(example_machine("linuxcnc"))
+    out = tmp_path / "out"
+    assert run("generate", machine, "-o", out, "-q")[0] == 0
+    edit(out)
+    code, stdout, stderr = run("check", out)
+    assert code == exit_code, stdout + stderr
+    assert expected in stderr and "Traceback" not in stdout + stderr
+
+
+def test_generate_into_a_folder_with_an_unreadable_schedule_leaves_it(tmp_path: Path) -> None:
+    machine = tmp_path / "m.toml"
+    machine.write_text(example_machine("linuxcnc"))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "schedule.json").write_text("[" * 100_000)
+    code, _, stderr = run("generate", machine, "-o", out)
+    assert code == 2 and "schedule.json: not a readable schedule" in stderr
+    assert "nested too deep" in stderr and "Traceback" not in stderr
+    assert [p.name for p in tmp_path.iterdir()] == ["m.toml", "out"]
+    assert [p.name for p in out.iterdir()] == ["schedule.json"]
+
+
+def test_a_flood_of_problems_is_printed_capped(tmp_path: Path) -> None:
+    text = example_machine("linuxcnc").replace(
+        "\n[measurement]\n",
+        "\n[measurement]\n" + "".join(f"margin_mn{n} = 5.0\n" for n in range(10_000)),
+    )
+    machine = tmp_path / "m.toml"
+    machine.write_text(text)
+    code, _, stderr = run("generate", machine, "-o", tmp_path / "out")
+    assert code == 2
+    lines = stderr.splitlines()
+    assert lines[0] == f"error: {machine} is not valid"
+    assert lines[1].startswith("  measurement.margin_mn0: unknown key")
+    assert lines[50].startswith("  measurement.margin_mn49: unknown key")
+    assert lines[51:] == ["  … and 9950 more"]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_a_stopped_generate_leaves_the_folder_as_it_was(sig: int, tmp_path: Path) -> None:
+    """Stopped while it renders (timeout, CI, systemd, Ctrl-C): exit 3, no staging folder."""
+    data = tomllib.loads(example_machine("linuxcnc"))
+    data["axes"] = data["axes"][:1]
+    data["measurement"].update(velocity_steps=500, positions=20)  # 20 000 windows
+    data["limits"] = {"max_duration_h": 100}
+    machine = tmp_path / "m.toml"
+    machine.write_text(machine_toml(data))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("kept")
+    process = subprocess.Popen(
+        [sys.executable, "-m", "ncmeasure", "generate", str(machine), "-o", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        while not any(  # wait for the event: programs being written in the staging folder
+            p.stat().st_size > 100_000 for p in out.glob(".ncmeasure-new-*/friction_x.ngc")
+        ):
+            assert process.poll() is None, process.communicate()
+            time.sleep(0.01)
+        process.send_signal(sig)
+        _, stderr = process.communicate(timeout=120)
+    finally:
+        process.kill()
+    assert process.returncode == 3, stderr
+    assert "interrupted" in stderr and "Traceback" not in stderr
+    assert [p.name for p in out.iterdir()] == ["notes.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.toml", "out"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -92,3 +93,31 @@ def test_load_machine_reports_toml_syntax_with_line(machine_file: Callable[[str]
 def test_load_machine_missing_file(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="no such file"):
         load_machine(tmp_path / "nope.toml")
+
+
+def _misspelt_keys(count: int) -> dict[str, Any]:
+    data = example_data()
+    data["measurement"].update({f"margin_mn{number}": 5.0 for number in range(count)})
+    return data
+
+
+def test_every_problem_is_formatted_once_in_file_order() -> None:
+    """20 000 misspelt keys: one line each, in order (formatting is linear in the count)."""
+    with pytest.raises(ConfigError) as caught:
+        parse_machine(_misspelt_keys(20_000))
+    problems = caught.value.problems
+    assert len(problems) == 20_000
+    assert problems[0].startswith("measurement.margin_mn0: unknown key")
+    assert problems[-1].startswith("measurement.margin_mn19999: unknown key")
+
+
+def test_a_union_type_error_names_every_branch_once() -> None:
+    data = example_data()
+    data["measurement"]["positions"] = "three"
+    data["axes"][0]["park_mm"] = "x"
+    with pytest.raises(ConfigError) as caught:
+        parse_machine(data)
+    assert list(caught.value.problems) == [
+        "axes[0].park_mm: expected a number, got the text 'x'",
+        "measurement.positions: expected an integer or a list, got the text 'three'",
+    ]

@@ -19,6 +19,7 @@ SRC = Path(ncmeasure.__file__).parent
 LAYERS: dict[str, int] = {
     "_version": 0,
     "errors": 0,
+    "inputs": 0,
     "samples": 0,
     "validity": 0,
     "resources": 0,

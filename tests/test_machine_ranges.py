@@ -227,3 +227,44 @@ def test_the_planner_at_the_corners_of_the_ranges_refuses_cleanly_or_plans(
         return
     schedule = result.schedule
     assert math.isfinite(schedule.duration_s) and schedule.blocks > 0
+
+
+@pytest.mark.parametrize(
+    ("travel", "margin", "ends"),
+    [
+        ((0.0, 750.3), 5.1, (5.1, 745.2)),  # 750.3 - 5.1 = 745.1999999999999 in floats
+        ((0.1, 600.7), 0.2, (0.3, 600.5)),  # 0.1 + 0.2 = 0.30000000000000004
+        ((-500.3, -0.1), 5.1, (-495.2, -5.2)),
+        ((0.0, 100.0), 0.0, (0.0, 100.0)),
+    ],
+)
+def test_positions_at_the_ends_of_the_usable_travel_are_accepted(
+    travel: tuple[float, float], margin: float, ends: tuple[float, float]
+) -> None:
+    """Compared in whole micrometres, as planned: an end is inside, 1 µm beyond is not."""
+    data = example_data()
+    data["axes"] = [data["axes"][0]]
+    data["axes"][0].update(travel_mm=list(travel), park_mm=(travel[0] + travel[1]) / 2)
+    data["measurement"].update(positions=list(ends), margin_mm=margin, velocity_steps=3)
+    data["measurement"].update(max_velocity_mm_min=1000)
+    schedule, _ = plan_machine(parse_machine(data))
+    assert schedule.axes[0].usable_mm == ends
+    assert schedule.axes[0].nominal_positions_mm == list(ends)
+    for beyond in (ends[0] - 0.001, ends[1] + 0.001):
+        data["measurement"]["positions"] = [beyond, (ends[0] + ends[1]) / 2]
+        data["measurement"]["positions"].sort()
+        with pytest.raises(ConfigError) as caught:
+            parse_machine(data)
+        line = next(p for p in caught.value.problems if "outside the usable travel" in p)
+        assert f"[{ends[0]:g}, {ends[1]:g}] mm" in line and f"{beyond:g} mm" in line, line
+
+
+def test_a_list_of_positions_is_bounded_like_a_count() -> None:
+    data = example_data()
+    data["axes"] = data["axes"][:1]
+    data["measurement"]["positions"] = [5.0 + n for n in range(51)]
+    with pytest.raises(ConfigError) as caught:
+        parse_machine(data)
+    assert any(p.startswith("measurement.positions:") for p in caught.value.problems)
+    data["measurement"]["positions"] = [5.0 + n for n in range(50)]
+    parse_machine(data)

@@ -6,10 +6,12 @@ import itertools
 from collections.abc import Callable
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.errors import PlanError
-from ncmeasure.plan import Rapid, Run, plan_axis, plan_machine
+from ncmeasure.plan import Feed, Rapid, Run, _floor_feed, plan_axis, plan_machine
 from ncmeasure.profile import ramp
 from tests.conftest import example_data
 
@@ -141,3 +143,31 @@ def test_explicit_positions_are_used() -> None:
     data["axes"][0]["measurement"] = {"positions": [100.0, 650.0, 400.0]}
     schedule, _ = plan_machine(parse_machine(data))
     assert schedule.axes[0].nominal_positions_mm == [100.0, 400.0, 650.0]
+
+
+@given(st.floats(min_value=0.01, max_value=1_000_000.0, allow_nan=False, allow_infinity=False))
+def test_feeds_are_rounded_down_to_what_a_program_writes(value: float) -> None:
+    """Never above the value (no float noise rounds up), never a whole 0.001 below it."""
+    written = float(f"{_floor_feed(value):.3f}")  # what a control reads
+    assert written <= value
+    assert value - written < 0.001 + 1e-9 * value
+
+
+@pytest.mark.parametrize("maximum", [1000.0009999999, 1000.001, 999.9999999999, 0.0109999999])
+def test_no_feed_of_the_plan_exceeds_the_axis_maximum_as_written(maximum: float) -> None:
+    data = example_data()
+    data["axes"] = [data["axes"][0]]
+    data["axes"][0]["max_velocity_mm_min"] = maximum
+    data["measurement"].pop("max_velocity_mm_min", None)
+    data["measurement"].update(
+        velocity_steps=2,
+        max_velocity_fraction=1,
+        min_velocity_mm_min=0.01,
+        positions=1,
+        warmup_strokes=0,
+    )
+    data["limits"] = {"max_duration_h": 720}  # parking at 0.01 mm/min takes weeks
+    schedule, plans = plan_machine(parse_machine(data))
+    feeds = [m.feed_mm_min for m in plans[0].moves if isinstance(m, Run | Feed)]
+    assert feeds and all(float(f"{f:.3f}") <= maximum for f in feeds), feeds
+    assert max(schedule.axes[0].velocities_mm_min) <= maximum

@@ -163,11 +163,21 @@ def _note(message: str) -> None:
     err_console.print(Text.assemble(("note:", "bold"), f" {message}"), soft_wrap=True)
 
 
+MAX_PRINTED_PROBLEMS = 50
+"""Problems printed under an error; the rest are counted (the first ones say what is wrong)."""
+
+
 def _report(error: NcMeasureError) -> None:
-    """``error: message`` and one indented line per problem, on stderr (user text verbatim)."""
+    """``error: message`` and one indented line per problem, on stderr (user text verbatim).
+
+    At most :data:`MAX_PRINTED_PROBLEMS` problems are printed, then how many more there are.
+    """
     err_console.print(Text.assemble(("error:", "bold red"), f" {error.message}"), soft_wrap=True)
-    for line in error.problems:
-        err_console.print(Text(f"  {line}"), soft_wrap=True)
+    shown = error.problems[:MAX_PRINTED_PROBLEMS]
+    more = len(error.problems) - len(shown)
+    lines = [f"  {line}" for line in shown] + ([f"  … and {more} more"] if more else [])
+    if lines:
+        err_console.print(Text("\n".join(lines)), soft_wrap=True)
 
 
 _DEBUG_OPTION = Annotated[
@@ -191,6 +201,7 @@ def _command(func: Callable[..., Outcome | None]) -> Callable[..., None]:
     def run(*args: Any, debug: bool = False, **kwargs: Any) -> None:
         if debug:
             _set_debug(True)
+        previous = _interrupt_on_sigterm()
         try:
             outcome = func(*args, **kwargs)
         except NcMeasureError as exc:
@@ -201,6 +212,8 @@ def _command(func: Callable[..., Outcome | None]) -> Callable[..., None]:
         except KeyboardInterrupt:
             err_console.print("interrupted")
             raise typer.Exit(EXIT_INTERRUPTED) from None
+        finally:
+            _restore_signals(previous)
         code = _OUTCOME_EXIT[outcome or "ok"]
         if code != EXIT_OK:
             raise typer.Exit(code)
@@ -476,7 +489,7 @@ def _settings(values: list[str], example: str = "--set sync_hz=500") -> dict[str
     for key, value in parse_assignments(values, "--set", example=example):
         try:
             result[key] = tomllib.loads(f"v = {value}")["v"]
-        except tomllib.TOMLDecodeError:
+        except (ValueError, RecursionError):  # not TOML (or beyond what Python reads): text
             result[key] = value
     return result
 
@@ -507,6 +520,18 @@ def _axis_settings(values: list[str], axes: list[str]) -> dict[str, dict[str, An
         for name in [axis] if dot else axes:
             result.setdefault(name, {})[key] = value
     return result
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _interrupt_on_sigterm() -> dict[int, Any]:
+    """SIGTERM (a timeout, CI, systemd) stops a command like Ctrl-C: its cleanup runs
+    (no staging folder is left) and it exits with code 3. Returns the handler to restore."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    return {signal.SIGTERM: signal.signal(signal.SIGTERM, _interrupt)}
 
 
 def _stop_on_signals(stop: threading.Event) -> dict[int, Any]:

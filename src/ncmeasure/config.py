@@ -17,7 +17,6 @@ import hashlib
 import json
 import math
 import re
-import tomllib
 from collections.abc import Collection, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, Optional
@@ -34,6 +33,7 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from ncmeasure.errors import ConfigError
+from ncmeasure.inputs import MAX_TOML_BYTES, parse_toml, read_text
 
 __all__ = [
     "AxisConfig",
@@ -42,12 +42,16 @@ __all__ = [
     "MachineSection",
     "Measurement",
     "MeasurementOverride",
+    "ceil_um",
     "config_hash",
+    "floor_um",
     "format_validation_error",
     "load_machine",
     "parse_assignments",
     "parse_machine",
     "read_toml",
+    "to_um",
+    "usable_um",
 ]
 
 # Characters that would break out of a comment or a program name in one of
@@ -64,7 +68,30 @@ MAX_POSITION_MM = 100_000.0
 MIN_FEED = 0.01
 MAX_FEED = 1_000_000.0
 MAX_WINDOW_S = 600.0
+MAX_POSITIONS = 50
+MAX_WINDOWS = 50_000
+"""Most windows any plan may have: what generate, check and the analysis handle in
+seconds and a few hundred MB."""
 Position = Annotated[float, Field(ge=-MAX_POSITION_MM, le=MAX_POSITION_MM)]
+
+
+def to_um(value_mm: float) -> int:
+    """The nearest whole micrometre."""
+    return round(value_mm * 1000.0)
+
+
+def ceil_um(value_mm: float) -> int:
+    """Smallest micrometre count not below ``value_mm`` (float noise never crosses it)."""
+    # The tolerance keeps exact values (e.g. 2.5 mm) from rounding up by float noise;
+    # the correction step makes sure the result is never below the value.
+    count = math.ceil(value_mm * 1000.0 - 1e-6)
+    return count + 1 if count / 1000.0 < value_mm else count
+
+
+def floor_um(value_mm: float) -> int:
+    """Largest micrometre count not above ``value_mm``."""
+    count = math.floor(value_mm * 1000.0 + 1e-6)
+    return count - 1 if count / 1000.0 > value_mm else count
 
 
 def _tuple(value: object) -> object:
@@ -152,7 +179,7 @@ class MachineSection(_Model):
 class Measurement(_Model):
     """The ``[measurement]`` table: what to measure on every axis."""
 
-    positions: int | list[Position] = Field(
+    positions: int | Annotated[list[Position], Field(max_length=MAX_POSITIONS)] = Field(
         default=3,
         description="Measuring positions: a count, spread evenly over the usable travel "
         "(3: next to the fixed bearing, middle, next to the loose bearing), or a list in mm.",
@@ -244,8 +271,10 @@ class Measurement(_Model):
     @classmethod
     def _check_positions(cls, value: int | list[float]) -> int | list[float]:
         if isinstance(value, int):
-            if not 1 <= value <= 50:
-                raise PydanticCustomError("positions", "a count must be between 1 and 50")
+            if not 1 <= value <= MAX_POSITIONS:
+                raise PydanticCustomError(
+                    "positions", "a count must be between 1 and {most}", {"most": MAX_POSITIONS}
+                )
             return value
         if not value:
             raise PydanticCustomError("positions", "the list of positions is empty")
@@ -372,6 +401,23 @@ class Limits(_Model):
         "Default: the program memory the controller definition assumes "
         "(`ncmeasure controllers --details`).",
     )
+    max_windows: Annotated[int, Field(ge=1, le=MAX_WINDOWS)] = Field(
+        default=20_000,
+        description="Most measuring windows accepted, all axes together (each is a run of "
+        f"three blocks and an entry of schedule.json); at most {MAX_WINDOWS}. "
+        "A plan with more is refused before anything is rendered.",
+    )
+
+
+def usable_um(axis: AxisConfig, meas: Measurement) -> tuple[int, int]:
+    """The usable travel of ``axis`` in whole micrometres: soft limits minus the margin.
+
+    Each number is rounded to micrometres on its own (limits inward, the margin up)
+    before they are added, so that the result is exactly what the file says in
+    decimals (750.3 − 5.1 is 745.2, not the float 745.1999…) and never more.
+    """
+    margin = ceil_um(meas.margin_mm)
+    return ceil_um(axis.travel_mm[0]) + margin, floor_um(axis.travel_mm[1]) - margin
 
 
 class MachineConfig(_Model):
@@ -476,6 +522,8 @@ def format_validation_error(
             channel names); their keys stay in the location as written.
     """
     lines: list[str] = []
+    seen: set[str] = set()
+    expected_at: dict[str, int] = {}  # a place's "expected ..." line: union branches join it
     for error in exc.errors(include_url=False):
         loc = _loc_text(error["loc"], tables)
         if error["type"] == "extra_forbidden" and error["loc"]:
@@ -496,14 +544,21 @@ def format_validation_error(
         elif error["type"] in _TYPE_ERRORS:
             # strict types: "40" is no number and "no" no boolean; say what was given
             message = f"expected {_TYPE_ERRORS[error['type']]}, got {_shown(error['input'])}"
-        for number, line in enumerate(lines):  # a union's branches: one line per place
-            if line.startswith(f"{loc}: expected ") and message.startswith("expected "):
-                lines[number] = f"{line.split(', got ')[0]} or {message.removeprefix('expected ')}"
-                break
-        else:
-            line = f"{loc}: {message}"
-            if line not in lines:
-                lines.append(line)
+        expected = message.startswith("expected ")
+        if expected and loc in expected_at:  # a union's branches: one line per place
+            number = expected_at[loc]
+            joined = f"{lines[number].split(', got ')[0]} or {message.removeprefix('expected ')}"
+            seen.discard(lines[number])
+            lines[number] = joined
+            seen.add(joined)
+            continue
+        line = f"{loc}: {message}"
+        if line in seen:
+            continue
+        if expected:
+            expected_at[loc] = len(lines)
+        lines.append(line)
+        seen.add(line)
     return lines
 
 
@@ -559,7 +614,8 @@ def _cross_checks(config: MachineConfig) -> Iterator[str]:
                 f"velocity of axis {axis.name} ({axis.max_velocity_mm_min:g} mm/min)"
             )
         low, high = axis.travel_mm
-        if 2 * meas.margin_mm >= high - low:
+        low_um, high_um = usable_um(axis, meas)
+        if high_um <= low_um:
             yield (
                 f"{where}.margin_mm: {meas.margin_mm:g} mm from both ends leaves no usable "
                 f"travel on axis {axis.name} (travel {high - low:g} mm)"
@@ -570,15 +626,14 @@ def _cross_checks(config: MachineConfig) -> Iterator[str]:
                 f"{meas.sample_period_ms:g} ms make a window of {meas.window_duration_s:g} s, "
                 f"more than {MAX_WINDOW_S:g} s"
             )
-        usable_um = math.floor((high - low - 2 * meas.margin_mm) * 1000)
         count = len(meas.positions) if isinstance(meas.positions, list) else meas.positions
-        if count > 1 and usable_um < count - 1:
+        if count > 1 and high_um - low_um < count - 1:
             yield (
                 f"{where}.positions: {count} positions need at least {count - 1} µm of usable "
-                f"travel; axis {axis.name} has {max(usable_um, 0)} µm"
+                f"travel; axis {axis.name} has {max(high_um - low_um, 0)} µm"
             )
         if isinstance(meas.positions, list):
-            micrometres = [round(p * 1000) for p in meas.positions]
+            micrometres = [to_um(p) for p in meas.positions]  # as the planner places them
             for number in range(1, len(micrometres)):
                 if micrometres[number] == micrometres[number - 1]:
                     yield (
@@ -587,11 +642,10 @@ def _cross_checks(config: MachineConfig) -> Iterator[str]:
                         "programs place positions on whole micrometres"
                     )
             for number, position in enumerate(meas.positions):
-                if not low + meas.margin_mm <= position <= high - meas.margin_mm:
+                if not low_um <= micrometres[number] <= high_um:
                     yield (
                         f"{where}.positions[{number}]: {position:g} mm is outside the usable "
-                        f"travel of axis {axis.name} [{low + meas.margin_mm:g}, "
-                        f"{high - meas.margin_mm:g}] mm"
+                        f"travel of axis {axis.name} [{low_um / 1000:g}, {high_um / 1000:g}] mm"
                     )
 
 
@@ -619,25 +673,14 @@ def parse_machine(data: Mapping[str, Any], source: str = "machine file") -> Mach
 def read_toml(path: str | Path, what: str) -> dict[str, Any]:
     """The tables of a TOML file, or a ``ConfigError`` that names the file and the problem.
 
+    The file must be a regular file of at most 1 MiB (:data:`~ncmeasure.inputs.MAX_TOML_BYTES`).
+
     Args:
         path: The file.
         what: What the file should be, for the message (``a machine file``).
     """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{path}: no such file") from exc
-    except IsADirectoryError as exc:
-        raise ConfigError(f"{path}: is a directory, expected {what} (.toml)") from exc
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{path}: not a text file (UTF-8 expected)") from exc
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot be read ({exc.strerror or exc})") from exc
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: invalid TOML: {exc}") from exc
+    text = read_text(path, f"{what} (.toml)", MAX_TOML_BYTES)
+    return parse_toml(text, str(path))
 
 
 def load_machine(path: str | Path) -> MachineConfig:

@@ -25,13 +25,25 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import AfterValidator, BaseModel, ConfigDict, field_validator
+from pydantic_core import PydanticCustomError
 
 from ncmeasure._version import __version__
-from ncmeasure.config import AxisConfig, MachineConfig, Measurement, config_hash
+from ncmeasure.config import (
+    MAX_WINDOWS,
+    AxisConfig,
+    MachineConfig,
+    Measurement,
+    ceil_um,
+    config_hash,
+    floor_um,
+    to_um,
+    usable_um,
+)
 from ncmeasure.errors import PlanError
+from ncmeasure.inputs import plain_file_name
 from ncmeasure.profile import move_time_s, ramp
 
 __all__ = [
@@ -54,26 +66,20 @@ __all__ = [
     "velocity_steps",
 ]
 
+
+def _file_name(value: str) -> str:
+    if not plain_file_name(value):
+        raise PydanticCustomError(
+            "file_name", "{name} is not a plain file name", {"name": repr(value)}
+        )
+    return value
+
+
+FileName = Annotated[str, AfterValidator(_file_name)]
+"""A file name that stays in its folder (see :func:`~ncmeasure.inputs.plain_file_name`)."""
+
 SCHEDULE_FORMAT = "ncmeasure-schedule"
 SCHEDULE_FORMAT_VERSION = 1
-
-
-def _um(value_mm: float) -> int:
-    return round(value_mm * 1000.0)
-
-
-def _ceil_um(value_mm: float) -> int:
-    """Smallest micrometre count not below ``value_mm`` (float noise never crosses it)."""
-    # The tolerance keeps exact values (e.g. 2.5 mm) from rounding up by float noise;
-    # the correction step makes sure the result is never below the value.
-    count = math.ceil(value_mm * 1000.0 - 1e-6)
-    return count + 1 if count / 1000.0 < value_mm else count
-
-
-def _floor_um(value_mm: float) -> int:
-    """Largest micrometre count not above ``value_mm``."""
-    count = math.floor(value_mm * 1000.0 + 1e-6)
-    return count - 1 if count / 1000.0 > value_mm else count
 
 
 def _mm(value_um: int) -> float:
@@ -81,7 +87,15 @@ def _mm(value_um: int) -> float:
 
 
 def _floor_feed(value_mm_min: float) -> float:
-    return math.floor(value_mm_min * 1000.0 + 1e-6) / 1000.0
+    """Largest feed on the 0.001 mm/min grid not above ``value_mm_min`` as a control reads it.
+
+    The result is compared as written with three decimals (``f"{feed:.3f}"`` read
+    back), so no float noise can put a written feed above the value.
+    """
+    count = math.floor(value_mm_min * 1000.0 + 1e-6)  # exact values stay (1.9 is 1.9)
+    while count > 0 and float(f"{count / 1000.0:.3f}") > value_mm_min:
+        count -= 1
+    return count / 1000.0
 
 
 @dataclass(frozen=True)
@@ -228,9 +242,9 @@ class Schedule(BaseModel):
     blocks: int = 0
     """Motion, dwell and call blocks of all programs together: what the control must store."""
     warnings: list[str]
-    main_program: str = ""
+    main_program: Annotated[str, AfterValidator(lambda v: v and _file_name(v))] = ""
     """File name of the main program (set when programs are generated)."""
-    program_files: list[str] = []
+    program_files: list[FileName] = []
     """Every program file of the generated set, the main program first; ``check``
     refuses a program file in the folder that is not listed here."""
     marker_scope: Literal["window", "run", "none"] = "window"
@@ -239,6 +253,13 @@ class Schedule(BaseModel):
     controller_options: dict[str, int | bool] = {}
     """The dialect options the programs were written with."""
     axes: list[AxisSummary]
+
+    @field_validator("program_files")
+    @classmethod
+    def _check_program_files(cls, value: list[str]) -> list[str]:
+        if len({name.lower() for name in value}) != len(value):
+            raise PydanticCustomError("file_names", "names a file twice")
+        return value
 
 
 @dataclass
@@ -272,7 +293,7 @@ def velocity_steps(meas: Measurement, axis: AxisConfig) -> list[float]:
 def nominal_positions_um(meas: Measurement, low_um: int, high_um: int) -> list[int]:
     """Measuring positions in µm: explicit ones, or a count spread over [low, high]."""
     if isinstance(meas.positions, list):
-        return [_um(p) for p in meas.positions]
+        return [to_um(p) for p in meas.positions]
     count = meas.positions
     if count == 1:
         return [(low_um + high_um) // 2]
@@ -329,9 +350,9 @@ class _RunGeometry:
 
 def _geometry(v_mm_min: float, axis: AxisConfig, meas: Measurement) -> _RunGeometry:
     lengths = run_lengths(v_mm_min, axis.max_acceleration_m_s2, axis.max_jerk_m_s3, meas)
-    runout = _ceil_um(lengths.runout_mm)
-    runup = runout + _ceil_um(lengths.settle_mm)
-    window = _ceil_um(lengths.window_mm)
+    runout = ceil_um(lengths.runout_mm)
+    runup = runout + ceil_um(lengths.settle_mm)
+    window = ceil_um(lengths.window_mm)
     window += window % 2  # even, so the window centres exactly on its position
     return _RunGeometry(runup, window, runout, lengths.ramp_time_s)
 
@@ -415,8 +436,7 @@ class _Steps:
 
 
 def _fitting_steps(axis: AxisConfig, meas: Measurement) -> _Steps:
-    low_um = _ceil_um(axis.travel_mm[0] + meas.margin_mm)
-    high_um = _floor_um(axis.travel_mm[1] - meas.margin_mm)
+    low_um, high_um = usable_um(axis, meas)
     available_um = high_um - low_um
     warnings: list[str] = []
     steps = velocity_steps(meas, axis)
@@ -607,8 +627,8 @@ def move_blocks(moves: Sequence[Move]) -> int:
 
 def park_position_um(axis: AxisConfig) -> int:
     """The park position on the micrometre grid, never outside the travel."""
-    low, high = _ceil_um(axis.travel_mm[0]), _floor_um(axis.travel_mm[1])
-    return min(max(_um(axis.park_mm), low), high)
+    low, high = ceil_um(axis.travel_mm[0]), floor_um(axis.travel_mm[1])
+    return min(max(to_um(axis.park_mm), low), high)
 
 
 def park_time_s(axis: AxisConfig) -> float:
@@ -633,6 +653,7 @@ class SizeLimit:
     max_blocks: int | None = None
     memory: str = ""
     """What bounds the blocks, for the message (``512 kB of program memory ...``)."""
+    max_windows: int = MAX_WINDOWS
 
 
 def _duration_text(seconds: float) -> str:
@@ -642,9 +663,17 @@ def _duration_text(seconds: float) -> str:
     return f"{hours:.1f} h" if hours >= 1 else f"{seconds / 60:.0f} min"
 
 
-def _refuse_oversized(blocks: int, duration_s: float, limit: SizeLimit, at_least: bool) -> None:
+def _refuse_oversized(
+    windows: int, blocks: int, duration_s: float, limit: SizeLimit, at_least: bool
+) -> None:
     least = "at least " if at_least else ""
     problems = []
+    if windows > limit.max_windows:
+        problems.append(
+            f"limits.max_windows: {windows} windows, more than {limit.max_windows} "
+            f"(at most {MAX_WINDOWS}: each is a run of the programs and an entry of "
+            "schedule.json)"
+        )
     if duration_s > limit.max_duration_s:
         problems.append(
             f"limits.max_duration_h: the measurement would take {least}"
@@ -657,25 +686,27 @@ def _refuse_oversized(blocks: int, duration_s: float, limit: SizeLimit, at_least
         )
     if problems:
         raise PlanError(
-            f"the plan is too large ({least}{blocks} blocks, {least}"
+            f"the plan is too large ({windows} windows, {least}{blocks} blocks, {least}"
             f"{_duration_text(duration_s)}); nothing was written",
             [*problems, SMALLER],
         )
 
 
-def _lower_bounds(config: MachineConfig) -> tuple[int, float]:
-    """Blocks and seconds the plan takes at least, found without planning a single window."""
-    blocks, duration_s = 0, 0.0
+def _lower_bounds(config: MachineConfig) -> tuple[int, int, float]:
+    """Windows (exact), blocks and seconds (at least) of the plan, found without planning
+    a single window."""
+    windows, blocks, duration_s = 0, 0, 0.0
     for axis in config.axes:
         meas = config.measurement_for(axis)
         steps = _fitting_steps(axis, meas)
         positions = len(meas.positions) if isinstance(meas.positions, list) else meas.positions
         runs = meas.repetitions * positions * (2 if meas.both_directions else 1)
+        windows += runs * len(steps.velocities)
         blocks += 3 * runs * len(steps.velocities) + 2 * meas.warmup_strokes
         duration_s += runs * sum(
             _run_time_s(steps.geometry[v], v, axis)[2] for v in steps.velocities
         )
-    return blocks, duration_s
+    return windows, blocks, duration_s
 
 
 def plan_machine(
@@ -697,7 +728,9 @@ def plan_machine(
             plan is beyond the limits, with its size and what to change (checked
             first from lower bounds, before any window is planned).
     """
-    limit = limit or SizeLimit(config.limits.max_duration_h * 3600)
+    limit = limit or SizeLimit(
+        config.limits.max_duration_h * 3600, max_windows=config.limits.max_windows
+    )
     _refuse_oversized(*_lower_bounds(config), limit, at_least=True)
     t_s = sum(park_time_s(axis) for axis in config.park_sequence())
     plans: list[AxisPlan] = []
@@ -719,5 +752,6 @@ def plan_machine(
         warnings=[w for p in plans for w in p.warnings],
         axes=[p.summary for p in plans],
     )
-    _refuse_oversized(schedule.blocks, schedule.duration_s, limit, at_least=False)
+    windows = sum(len(axis.windows) for axis in schedule.axes)
+    _refuse_oversized(windows, schedule.blocks, schedule.duration_s, limit, at_least=False)
     return schedule, plans

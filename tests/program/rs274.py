@@ -69,8 +69,7 @@ def run_rs274(folder: Path, main: str) -> list[Canon]:
 def check_against_schedule(moves: list[Canon], schedule: Schedule, markers: bool) -> None:
     axes = {a.name: a for a in schedule.axes}
     previous: tuple[float, ...] = (0.0,) * len(AXES)
-    windows = {name: list(a.windows) for name, a in axes.items()}
-    found = dict.fromkeys(axes, 0)
+    feeds: dict[str, list[tuple[float, float, Canon]]] = {name: [] for name in axes}
     started: set[str] = set()  # rs274 starts every axis at 0: limits hold from its first move
     for move in moves:
         moved = [AXES[i] for i in range(len(AXES)) if abs(move.position[i] - previous[i]) > 1e-9]
@@ -88,22 +87,29 @@ def check_against_schedule(moves: list[Canon], schedule: Schedule, markers: bool
             name = moved[0]
             i = AXES.index(name)
             assert move.feed <= axes[name].max_velocity_mm_min
-            pending = windows[name]
-            if pending:
-                w = pending[0]
-                is_window = (
-                    abs(previous[i] - w.window_start_mm) < 5e-4
-                    and abs(move.position[i] - w.window_end_mm) < 5e-4
-                    and abs(move.feed - abs(w.velocity_mm_min)) < 5e-4
-                )
-                if is_window:
-                    pending.pop(0)
-                    found[name] += 1
-                if markers:
-                    assert move.marker == (w.id if is_window else 0), (move, w)
+            feeds[name].append((previous[i], move.position[i], move))
         previous = move.position
     for name, axis in axes.items():
-        assert found[name] == len(axis.windows)
+        # each window with its run: run-up, window, run-out in a row (a run-out may look
+        # like the next window)
+        marked: dict[int, float] = {}
+        index = 0
+        for w in axis.windows:
+            points = (w.start_mm, w.window_start_mm, w.window_end_mm, w.stop_mm)
+            speed = abs(w.velocity_mm_min)
+            while index + 3 <= len(feeds[name]) and not all(
+                abs(feeds[name][index + k][0] - points[k]) < 5e-4
+                and abs(feeds[name][index + k][1] - points[k + 1]) < 5e-4
+                and abs(feeds[name][index + k][2].feed - speed) < 5e-4
+                for k in range(3)
+            ):
+                index += 1
+            assert index + 3 <= len(feeds[name]), f"window {w.id} of {name} is not driven"
+            marked[index + 1] = w.id
+            index += 3
+        if markers:
+            for number, (_, _, move) in enumerate(feeds[name]):
+                assert move.marker == marked.get(number, 0.0), (name, number, move)
 
 
 def fanuc_as_one_file(

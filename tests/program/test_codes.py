@@ -207,9 +207,10 @@ def test_fanuc_comments_are_ascii_and_check_refuses_other_text(tmp_path: Path) -
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     with pytest.raises(ProgramCheckError) as caught:
         check_programs(tmp_path)
-    assert "O1001.nc:4: not ASCII; FANUC 0i / 30i (custom macro B) reads ISO/EIA code only" in (
-        caught.value.problems
-    )
+    assert (
+        "O1001.nc:4: character '–' (U+2013) is not ASCII: FANUC 0i / 30i (custom macro B) "
+        "reads printable ASCII only (ISO/EIA code)"
+    ) in caught.value.problems
 
 
 @pytest.mark.parametrize(

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from ncmeasure.config import MachineConfig
+from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.program import GeneratedPrograms, generate_programs
 from ncmeasure.program.reader import read_programs
 from tests.conftest import FIXED_TIME
@@ -75,3 +75,14 @@ def test_fanuc_output_runs_in_rs274_fanuc_style(
     single.mkdir()
     (single / "O1000.nc").write_text("\n".join(combined) + "\n")
     assert_reader_agrees(moves, single, result, "O1000.nc")
+
+
+@pytest.mark.parametrize("tiny", [False, True], ids=["realistic", "tiny"])
+def test_a_runout_that_is_the_next_window_runs_as_planned(tiny: bool, tmp_path: Path) -> None:
+    from tests.program.test_check import _runout_is_next_window
+
+    result = generate_programs(parse_machine(_runout_is_next_window(tiny)), generated=FIXED_TIME)
+    result.write(tmp_path)
+    moves = run_rs274(tmp_path, result.main_file)
+    check_against_schedule(moves, result.schedule, markers=True)
+    assert_reader_agrees(moves, tmp_path, result, result.main_file)

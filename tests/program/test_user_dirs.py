@@ -71,3 +71,23 @@ def test_broken_template_is_a_dialect_error(make_config: Make, tmp_path: Path) -
 def test_source_date_epoch_fixes_the_header_date(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("SOURCE_DATE_EPOCH", "1768465800")
     assert generation_time() == FIXED_TIME
+
+
+@pytest.mark.parametrize("kind", ["fifo", "device", "huge"])
+def test_a_template_that_is_no_regular_file_is_an_error_not_a_fallback(
+    kind: str,
+    make_config: Make,
+    tmp_path: Path,
+    special_file: Callable[[str, Path], Path],
+) -> None:
+    own = tmp_path / "templates" / "linuxcnc"
+    own.mkdir(parents=True)
+    path = special_file(kind, own / "main.j2")
+    result = generate_programs(
+        make_config("linuxcnc", small=True), templates_dirs=[tmp_path / "templates"]
+    )
+    with pytest.raises(DialectError) as caught:
+        result.write(tmp_path / "out")
+    expected = "more than the 1 MiB" if kind == "huge" else "not a regular file"
+    assert str(caught.value).startswith(f"{path}: ") and expected in str(caught.value)
+    assert not (tmp_path / "out").exists()

@@ -17,9 +17,16 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
+from ncmeasure import plan
 from ncmeasure.cli import app
 from ncmeasure.config import MachineConfig, parse_machine
-from ncmeasure.errors import DialectError, OutputError, PlanError, ProgramCheckError
+from ncmeasure.errors import (
+    ConfigError,
+    DialectError,
+    OutputError,
+    PlanError,
+    ProgramCheckError,
+)
 from ncmeasure.program import GeneratedPrograms, check_programs, generate_programs
 from ncmeasure.program.check import read_generated
 from ncmeasure.resources import builtin_dir
@@ -71,6 +78,77 @@ def test_a_week_long_plan_is_refused_before_rendering(tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.toml"], "no staging folder left"
 
 
+def _tiny_and_fine(repetitions: int = 3, axes: int = 1) -> dict[str, Any]:
+    """One millimetre of travel, 50 positions x 500 steps of 1 ms windows: quick to run,
+    huge to write (150 000 windows at 3 repetitions)."""
+    axis = {
+        "travel_mm": [0.0, 1.0],
+        "park_mm": 0.5,
+        "max_velocity_mm_min": 1_000_000,
+        "max_acceleration_m_s2": 200,
+        "max_jerk_m_s3": 100_000,
+    }
+    return {
+        "machine": {"name": "big", "controller": "linuxcnc"},
+        "axes": [{"name": name, **axis} for name in "XYZABC"[:axes]],
+        "measurement": {
+            "positions": 50,
+            "velocity_steps": 500,
+            "spacing": "linear",
+            "min_velocity_mm_min": 100,
+            "max_velocity_mm_min": 600,
+            "window_s": 0.001,
+            "settle_s": 0,
+            "dynamics_safety": 1,
+            "margin_mm": 0,
+            "warmup_strokes": 0,
+            "repetitions": repetitions,
+        },
+    }
+
+
+@pytest.mark.parametrize(
+    ("repetitions", "axes", "limits", "windows"),
+    [
+        (3, 1, {}, 150_000),
+        (15, 1, {}, 750_000),
+        (100, 6, {"max_duration_h": 720, "max_program_kb": 1_000_000}, 30_000_000),
+    ],
+)
+def test_too_many_windows_are_refused_before_any_window_is_planned(
+    repetitions: int,
+    axes: int,
+    limits: dict[str, Any],
+    windows: int,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A plan that would take minutes and gigabytes to write is refused from its counts."""
+    data = _tiny_and_fine(repetitions, axes)
+    data["limits"] = limits
+    config = config_of(data)
+
+    def never(*args: object, **kwargs: object) -> None:
+        raise AssertionError("a window was planned")
+
+    monkeypatch.setattr(plan, "plan_axis", never)
+    with pytest.raises(PlanError) as caught:
+        generate_programs(config)
+    text = "\n".join(caught.value.problems)
+    assert f"limits.max_windows: {windows} windows, more than 20000" in text, text
+
+
+def test_the_window_limit_is_configurable_up_to_its_ceiling() -> None:
+    data = _tiny_and_fine(1)
+    data["measurement"]["velocity_steps"] = 300  # 30 000 windows
+    with pytest.raises(PlanError, match="plan is too large"):
+        generate_programs(config_of(data))
+    data["limits"] = {"max_windows": 30_000}
+    assert len(generate_programs(config_of(data)).schedule.axes[0].windows) == 30_000
+    data["limits"] = {"max_windows": 50_001}
+    with pytest.raises(ConfigError, match=r"limits\.max_windows"):
+        config_of(data)
+
+
 def test_the_duration_limit_is_configurable() -> None:
     data = example_data("linuxcnc")
     data["limits"] = {"max_duration_h": 0.1}  # the example takes about 19 minutes
@@ -117,7 +195,7 @@ def test_the_default_program_memory_is_the_dialects() -> None:
     data = example_data("fanuc")
     generate_programs(config_of(data))
     data["measurement"].update(velocity_steps=250, positions=15)
-    data["limits"] = {"max_duration_h": 100}
+    data["limits"] = {"max_duration_h": 100, "max_windows": 30_000}
     with pytest.raises(PlanError) as caught:
         generate_programs(config_of(data))
     assert "512 kB of program memory assumed for FANUC" in "\n".join(caught.value.problems)
@@ -334,3 +412,22 @@ def test_generate_into_the_current_folder_stages_inside_it(
     ]
     assert run("generate", "machine.toml", "-o", ".", "-q")[0] == 0  # again, replacing
     assert run("check", ".")[0] == 0
+
+
+def test_no_program_file_grows_beyond_what_check_reads(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from ncmeasure.program import render
+
+    monkeypatch.setattr(render, "MAX_PROGRAM_FILE_BYTES", 1024 * 1024)
+    data = example_data("linuxcnc")
+    data["measurement"]["velocity_steps"] = 30
+    data["limits"] = {"max_program_kb": 1_000_000}
+    templates = tmp_path / "templates"
+    shutil.copytree(builtin_dir("templates") / "linuxcnc", templates / "linuxcnc")
+    moves = templates / "linuxcnc" / "_moves.j2"  # a long comment in front of every move
+    moves.write_text(moves.read_text().replace("{% if", "{{ ('x' * 4000) | comment }}\n{% if", 1))
+    result = generate_programs(config_of(data), templates_dirs=[templates])
+    with pytest.raises(PlanError, match=r"a program file grows beyond 1 MiB"):
+        result.write(tmp_path / "out")
+    assert not (tmp_path / "out").exists()

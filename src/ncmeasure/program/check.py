@@ -14,7 +14,6 @@ templates), and verifies that
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from pydantic import ValidationError
 
 from ncmeasure.config import format_validation_error
 from ncmeasure.errors import ProgramCheckError, ProgramError
+from ncmeasure.inputs import parse_json, read_text
 from ncmeasure.plan import AxisSummary, Schedule
 from ncmeasure.program.dialect import (
     Dialect,
@@ -29,7 +29,13 @@ from ncmeasure.program.dialect import (
     marker_m_functions,
     option_problems,
 )
-from ncmeasure.program.reader import CodeUse, Motion, ProgramTrace, read_programs, scan_codes
+from ncmeasure.program.reader import (
+    CodeUse,
+    Motion,
+    ProgramSet,
+    ProgramTrace,
+    read_programs,
+)
 from ncmeasure.program.render import SCHEDULE_FILE
 
 __all__ = [
@@ -41,6 +47,8 @@ __all__ = [
     "read_generated",
 ]
 
+MAX_SCHEDULE_BYTES = 64 * 1024 * 1024
+"""Largest schedule.json read (the [limits] keep a generated one far below it)."""
 _TOL_MM = 0.0005
 _TOL_FEED = 0.0005
 _MAX_LISTED = 20
@@ -71,20 +79,40 @@ def load_schedule(path: str | Path) -> Schedule:
         ProgramError: missing, not JSON, or not a schedule.
     """
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError as exc:
-        raise ProgramError(f"{path}: no schedule here (generate writes {SCHEDULE_FILE})") from exc
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ProgramError(f"{path}: not a readable schedule: {exc}") from exc
+    text = read_text(
+        path,
+        f"a schedule ({SCHEDULE_FILE})",
+        MAX_SCHEDULE_BYTES,
+        ProgramError,
+        missing=f"{path}: no schedule here (generate writes {SCHEDULE_FILE})",
+    )
+    data = parse_json(text, str(path), ProgramError)
     try:
         return Schedule.model_validate(data)
     except ValidationError as exc:
         raise ProgramError(f"{path}: not a valid schedule", format_validation_error(exc)) from exc
 
 
+def _num(value: float) -> str:
+    """A number for a message: short, but never shorter than what tells it from a limit."""
+    short = f"{value:g}"
+    return short if float(short) == value else repr(value)
+
+
 def _where(motion: Motion) -> str:
     return f"{motion.program}:{motion.line}"
+
+
+def _drives(motion: Motion, axis: str, start: float, end: float, speed: float) -> bool:
+    """True when ``motion`` feeds ``axis`` from ``start`` to ``end`` at ``speed``."""
+    first = motion.start.get(axis)
+    return (
+        first is not None
+        and abs(first - start) <= _TOL_MM
+        and abs(motion.target[axis] - end) <= _TOL_MM
+        and motion.feed_mm_min is not None
+        and abs(motion.feed_mm_min - speed) <= _TOL_FEED
+    )
 
 
 def _check_window_markers(
@@ -97,33 +125,33 @@ def _check_window_markers(
     next_feed = 0
     for window in windows:
         speed = abs(window.velocity_mm_min)
-        found = None
-        for index in range(next_feed, len(feeds)):
-            motion = feeds[index]
-            start = motion.start[axis.name]
-            if (
-                start is not None
-                and abs(start - window.window_start_mm) <= _TOL_MM
-                and abs(motion.target[axis.name] - window.window_end_mm) <= _TOL_MM
-                and motion.feed_mm_min is not None
-                and abs(motion.feed_mm_min - speed) <= _TOL_FEED
-            ):
-                found = index
-                break
+        # A window is found with its run: run-up, window and run-out, three feed blocks in a
+        # row at its velocity. Matched alone, a run-out could pass for the next window.
+        points = (window.start_mm, window.window_start_mm, window.window_end_mm, window.stop_mm)
+        found = next(
+            (
+                index
+                for index in range(next_feed, len(feeds) - 2)
+                if all(
+                    _drives(feeds[index + k], axis.name, points[k], points[k + 1], speed)
+                    for k in range(3)
+                )
+            ),
+            None,
+        )
         if found is None:
             report.problems.append(
                 f"axis {axis.name}: window {window.id} ({window.window_start_mm:g} -> "
-                f"{window.window_end_mm:g} mm at {speed:g} mm/min) is not driven in order"
+                f"{window.window_end_mm:g} mm at {speed:g} mm/min) is not driven in order, "
+                "with its run-up and run-out"
             )
             return
         report.windows_found += 1
         value = float(window.id if schedule.marker_values == "window_id" else 1)
-        expected_marker[found] = value
-        if scope == "run":
-            for index in (found - 1, found + 1):
-                if 0 <= index < len(feeds):
-                    expected_marker[index] = value
-        next_feed = found + 1
+        run = (found, found + 1, found + 2)
+        for index in run if scope == "run" else run[1:2]:
+            expected_marker[index] = value
+        next_feed = found + 3
     if scope == "none":
         return
     for motion, expected in zip(feeds, expected_marker, strict=True):
@@ -139,6 +167,7 @@ def check_trace(schedule: Schedule, trace: ProgramTrace, report: CheckReport) ->
     axes = {axis.name: axis for axis in schedule.axes}
     report.motions = len(trace.motions)
     problems = report.problems
+    problems.extend(trace.problems)
     if not trace.ended:
         problems.append("the main program never reaches its end (M30/M2)")
     parking = trace.motions[: len(axes)]
@@ -166,17 +195,18 @@ def check_trace(schedule: Schedule, trace: ProgramTrace, report: CheckReport) ->
                 problems.append(f"{_where(motion)}: moves axis {name}, which the schedule lacks")
                 continue
             low, high = axis.travel_mm
-            if not low - 1e-9 <= target <= high + 1e-9:
+            # as written, no tolerance: what the control reads must lie inside the limits
+            if not low <= target <= high:
                 problems.append(
-                    f"{_where(motion)}: axis {name} to {target:g} mm, outside the soft limits "
-                    f"[{low:g}, {high:g}]"
+                    f"{_where(motion)}: axis {name} to {_num(target)} mm, outside the soft limits "
+                    f"[{_num(low)}, {_num(high)}]"
                 )
             if motion.kind == "feed":
                 assert motion.feed_mm_min is not None
-                if motion.feed_mm_min > axis.max_velocity_mm_min + 1e-9:
+                if motion.feed_mm_min > axis.max_velocity_mm_min:  # as written, no tolerance
                     problems.append(
-                        f"{_where(motion)}: feed {motion.feed_mm_min:g} mm/min exceeds the "
-                        f"maximum of axis {name} ({axis.max_velocity_mm_min:g} mm/min)"
+                        f"{_where(motion)}: feed {_num(motion.feed_mm_min)} mm/min exceeds the "
+                        f"maximum of axis {name} ({_num(axis.max_velocity_mm_min)} mm/min)"
                     )
                 feeds_by_axis[name].append(motion)
             elif motion.marker != 0 and schedule.marker_scope != "none":
@@ -195,6 +225,26 @@ def check_trace(schedule: Schedule, trace: ProgramTrace, report: CheckReport) ->
             )
 
 
+def _check_names(schedule: Schedule, dialect: Dialect, path: Path) -> None:
+    """The schedule's program files are files of the dialect, the main program among them.
+
+    Raises:
+        ProgramError: a name that is no program file of the dialect (a hand edit).
+    """
+    problems = [
+        f"program_files[{number}]: {name!r} is not a {dialect.name} program file "
+        f"({', '.join(sorted(dialect.program_extensions))})"
+        for number, name in enumerate(schedule.program_files)
+        if Path(name).suffix.lower() not in dialect.program_extensions
+    ]
+    if schedule.program_files and schedule.main_program not in schedule.program_files:
+        problems.insert(
+            0, f"main_program: {schedule.main_program!r} is not one of its program_files"
+        )
+    if problems:
+        raise ProgramError(f"{path}: not a valid schedule", problems)
+
+
 def _file_problems(directory: Path, schedule: Schedule, dialect: Dialect) -> list[str]:
     """Program files in the folder that schedule.json does not name, and named ones missing."""
     if not schedule.program_files:
@@ -207,22 +257,19 @@ def _file_problems(directory: Path, schedule: Schedule, dialect: Dialect) -> lis
         f"{path.name}: a program file that {SCHEDULE_FILE} does not name (left from another "
         "generation?); remove it or generate into an empty folder"
         for path in sorted(directory.iterdir())
-        if path.is_file()
-        and path.suffix.lower() in dialect.program_extensions
-        and path.name not in named
+        if path.suffix.lower() in dialect.program_extensions and path.name not in named
     ]
-    problems += [
-        f"{name}: named in {SCHEDULE_FILE} but missing"
-        for name in schedule.program_files
-        if not (directory / name).is_file()
-    ]
+    for name in schedule.program_files:
+        path = directory / name
+        if not path.exists():
+            problems.append(f"{name}: named in {SCHEDULE_FILE} but missing")
+        elif not path.is_file():
+            problems.append(f"{name}: not a regular file (a folder, device, pipe or socket)")
     return problems
 
 
-def code_problems(
-    schedule: Schedule, dialect: Dialect, uses: list[CodeUse], directory: Path | None = None
-) -> list[str]:
-    """M functions, variables and outputs the dialect does not allow, and non-ASCII text.
+def code_problems(schedule: Schedule, dialect: Dialect, uses: list[CodeUse]) -> list[str]:
+    """M functions, variables and outputs the dialect does not allow.
 
     Every M word must be one of the dialect's own or a marker option's value that
     passes the dialect's rules; every variable or output must be its option's value.
@@ -242,7 +289,7 @@ def code_problems(
                 does = f" ({meaning})" if meaning else ""
                 reserved = " is reserved" if codes.reserved(use.number) else " is not allowed"
                 problems.append(
-                    f"{where}: M{use.number}{does}{reserved}: {dialect.title} programs of "
+                    f"{where}: M{use.shown}{does}{reserved}: {dialect.title} programs of "
                     f"ncmeasure use only M{', M'.join(str(m) for m in sorted(allowed_m))}"
                 )
             continue
@@ -251,25 +298,13 @@ def code_problems(
         if not any(low <= use.number <= high for low, high in rule.allowed):
             allowed = ", ".join(f"{low}-{high}" for low, high in rule.allowed)
             problems.append(
-                f"{where}: {rule.meaning} {use.number} is not one {dialect.title} allows "
-                f"({allowed})"
+                f"{where}: {rule.meaning} {use.shown} is not one {dialect.title} allows ({allowed})"
             )
         elif use.number != value:
             problems.append(
-                f"{where}: {rule.meaning} {use.number} is written, but the marker is "
+                f"{where}: {rule.meaning} {use.shown} is written, but the marker is "
                 f"controller_options.{use.kind} = {value}"
             )
-    if codes.ascii_only and directory is not None:
-        for name in schedule.program_files:
-            path = directory / name
-            if not path.is_file():
-                continue
-            for number, line in enumerate(path.read_bytes().splitlines(), start=1):
-                if not line.isascii():
-                    problems.append(
-                        f"{name}:{number}: not ASCII; {dialect.title} reads ISO/EIA code only"
-                    )
-                    break
     return problems
 
 
@@ -288,6 +323,7 @@ def read_generated(
         raise ProgramError(f"{directory}: not a directory of generated programs")
     schedule = load_schedule(directory / SCHEDULE_FILE)
     dialect = load_dialect(schedule.controller, controllers_dirs)
+    _check_names(schedule, dialect, directory / SCHEDULE_FILE)
     trace = read_programs(
         dialect,
         directory,
@@ -313,12 +349,15 @@ def check_programs(directory: str | Path, controllers_dirs: tuple[Path, ...] = (
         raise ProgramError(f"{directory}: not a directory of generated programs")
     schedule = load_schedule(directory / SCHEDULE_FILE)
     dialect = load_dialect(schedule.controller, controllers_dirs)
+    _check_names(schedule, dialect, directory / SCHEDULE_FILE)
     report = CheckReport(directory=directory, controller=dialect.name)
     report.problems.extend(_file_problems(directory, schedule, dialect))
-    uses = scan_codes(dialect, directory, schedule.controller_options)
-    report.problems.extend(code_problems(schedule, dialect, uses, directory))
+    files = ProgramSet(dialect, directory, schedule.controller_options)
+    report.problems.extend(code_problems(schedule, dialect, files.scan()))
+    report.problems.extend(files.problems)
     try:
-        _, _, trace = read_generated(directory, controllers_dirs)
+        axes = {axis.name for axis in schedule.axes}
+        trace = files.run(schedule.main_program, axes, schedule.blocks or None)
     except ProgramError as exc:
         if not report.problems:
             raise

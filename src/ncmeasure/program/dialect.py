@@ -10,22 +10,26 @@ G-code shapes themselves live in the dialect's templates.
 from __future__ import annotations
 
 import re
-import tomllib
+import string
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import (
+    AfterValidator,
     BaseModel,
     ConfigDict,
     Field,
     ValidationError,
+    ValidationInfo,
     field_validator,
     model_validator,
 )
+from pydantic_core import PydanticCustomError
 
 from ncmeasure.config import MachineConfig, format_validation_error
 from ncmeasure.errors import ConfigError, DialectError
+from ncmeasure.inputs import MAX_TOML_BYTES, parse_toml, plain_file_name, read_text
 from ncmeasure.resources import builtin_dir
 
 __all__ = [
@@ -41,15 +45,119 @@ __all__ = [
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
-def _regex(value: str) -> str:
+OPTION_PLACEHOLDER = re.compile(r"<<(\w+)>>")
+"""``<<option>>`` in a reader pattern: the value of a controller option."""
+MAX_FORMAT_WIDTH = 32
+"""Widest field a naming format may ask for (``O{number:08d}`` asks for 8)."""
+
+
+def _invalid(message: str) -> PydanticCustomError:
+    """A validation error whose message is ``message`` as written (braces included)."""
+    return PydanticCustomError("dialect", "{message}", {"message": message})
+
+
+def _regex(value: str, group: str | None = None) -> str:
+    """A regular expression, ``<<option>>`` standing for a number; ``group`` is required."""
     try:
-        re.compile(value)
+        compiled = re.compile(OPTION_PLACEHOLDER.sub("1", value), re.I)
     except re.error as exc:
-        raise ValueError(f"invalid regular expression {value!r}: {exc}") from exc
+        raise _invalid(f"invalid regular expression {value!r}: {exc}") from exc
+    if group is not None and group not in compiled.groupindex:
+        raise _invalid(f"needs the group (?P<{group}>...): {value!r}")
     return value
+
+
+Regex = Annotated[str, AfterValidator(_regex)]
+"""A regular expression (checked when the definition is loaded)."""
+
+
+def _no_control(value: str) -> str:
+    for char in value:
+        if not char.isprintable():
+            raise _invalid(f"{char!r} is a control character")
+    return value
+
+
+# What each naming format may use, and a value to try it with.
+_FIELDS: dict[str, tuple[str, ...]] = {
+    "number_format": ("number",),
+    "main": ("program", "axis"),
+    "sub": ("program", "axis"),
+    "main_file": ("name",),
+    "sub_file": ("name",),
+    "axis_word": ("axis", "value"),
+    "long_axis_word": ("axis", "value"),
+}
+_SAMPLES: dict[str, object] = {
+    "number": 1234,
+    "program": "FRICTION",
+    "axis": "X",
+    "name": "FRICTION_X",
+    "value": "-100.000",
+}
+_SPEC = re.compile(
+    r"(?:(?P<fill>.)?[<>=^])?[+\- ]?z?#?(?P<width>\d*)[,_]?(?:\.(?P<precision>\d+))?[A-Za-z%]?"
+)
+# Characters the literal text of a format may hold: program names, file names, words.
+_NAME_CHARACTERS = re.compile(r"[A-Za-z0-9_]")
+_WORD_CHARACTERS = re.compile(r"[ -~]")
+_FILE_NAME = re.compile(r"[A-Za-z0-9_.\-]+")
+
+
+def _format_problem(key: str, value: str) -> str | None:
+    """What is wrong with the naming format ``key`` = ``value``, or None."""
+    fields = _FIELDS[key]
+    allowed = ", ".join("{" + name + "}" for name in fields)
+    try:
+        parsed = list(string.Formatter().parse(value))
+    except ValueError as exc:
+        return f"not a format string ({exc}): {value!r}"
+    characters, what = (
+        (_WORD_CHARACTERS, "a program word")
+        if "word" in key
+        else (_NAME_CHARACTERS, "a program name")
+    )
+    for literal, field, spec, conversion in parsed:
+        if not key.endswith("_file"):
+            for char in literal:
+                if not characters.fullmatch(char):
+                    return f"{char!r} is not a character of {what}"
+        if field is None:
+            continue
+        if field not in fields:
+            return f"{{{field}}} is not one of {allowed}"
+        if conversion:
+            return f"no conversion (!{conversion}) in {{{field}}}"
+        if not spec:
+            continue
+        if "{" in spec:
+            return f"a field inside a format spec: {{{field}:{spec}}}"
+        match = _SPEC.fullmatch(spec)
+        if not match:
+            return f"{spec!r} is not a format spec"
+        fill = match.group("fill")
+        if fill is not None and not _NAME_CHARACTERS.fullmatch(fill):
+            return f"fill character {fill!r}: use a letter, digit or underscore"
+        for part in ("width", "precision"):
+            number = match.group(part)
+            if number and (len(number) > 3 or int(number) > MAX_FORMAT_WIDTH):
+                return f"{part} {number} is more than {MAX_FORMAT_WIDTH}"
+    try:
+        sample = value.format(**{name: _SAMPLES[name] for name in fields})
+    except (ValueError, TypeError, KeyError, IndexError, AttributeError) as exc:
+        return str(exc)
+    if key.endswith("_file"):
+        if not plain_file_name(sample) or not _FILE_NAME.fullmatch(sample):
+            return f"{sample!r} is not a plain file name (letters, digits, '_', '-', '.')"
+        suffix = Path(sample).suffix.lower()
+        if not re.fullmatch(r"\.[a-z0-9]+", suffix):
+            return f"needs an extension that tells program files from others: {value!r}"
+        if suffix == ".json":
+            return ".json is the schedule's extension"
+    return None
 
 
 class Names(_Strict):
@@ -58,21 +166,28 @@ class Names(_Strict):
     numbered: bool = False
     """Programs are numbers (Fanuc O-numbers): name = number_format."""
     number_format: str = "O{number:04d}"
-    max_number: int = 9999
+    max_number: int = Field(9999, ge=1, le=99_999_999)
     main: str = "{program}"
     sub: str = "{program}_{axis}"
     case: Literal["upper", "lower", "keep"] = "upper"
-    pattern: str = r"^[A-Z][A-Z0-9_]*$"
-    max_length: int = 24
+    pattern: Regex = r"^[A-Z][A-Z0-9_]*$"
+    max_length: int = Field(24, ge=1, le=255)
     main_file: str = "{name}.nc"
     sub_file: str = "{name}.nc"
-    axis_pattern: str = r"^[XYZ]$"
+    axis_pattern: Regex = r"^[XYZ]$"
     axis_word: str = "{axis}{value}"
     """How an axis word is written."""
     long_axis_word: str = "{axis}={value}"
     """How the word of an axis whose name has more than one character is written."""
 
-    _check = field_validator("pattern", "axis_pattern")(classmethod(lambda cls, v: _regex(v)))
+    @field_validator(*_FIELDS)
+    @classmethod
+    def _check_format(cls, value: str, info: ValidationInfo) -> str:
+        assert info.field_name is not None
+        problem = _format_problem(info.field_name, value)
+        if problem:
+            raise _invalid(problem)
+        return value
 
 
 class Numbers(_Strict):
@@ -83,15 +198,19 @@ class Numbers(_Strict):
     feed_decimals: int = Field(3, ge=0, le=6)
     feed_trailing_point: bool = False
     """Write 'F1000.' rather than 'F1000' for whole feeds."""
+    decimal_point: bool = False
+    """Every axis word and dwell time carries a decimal point: without one FANUC reads
+    the number in its least input increment (X100 is 0.1 mm, G04 X1 is 1 ms). The
+    checker refuses an axis word or dwell without one."""
 
 
 class Blocks(_Strict):
     """Block numbers added after rendering."""
 
     numbered: bool = False
-    start: int = 10
-    step: int = 10
-    skip: str = r"^(%|N)"
+    start: int = Field(10, ge=0, le=99_999_999)
+    step: int = Field(10, ge=1, le=99_999_999)
+    skip: Regex = r"^(%|N)"
     """Lines that get no block number (regular expression)."""
 
 
@@ -99,8 +218,8 @@ class Comments(_Strict):
     """Comment syntax, or none."""
 
     supported: bool = True
-    open: str = "("
-    close: str = ")"
+    open: Annotated[str, AfterValidator(_no_control)] = "("
+    close: Annotated[str, AfterValidator(_no_control)] = ")"
     forbidden: str = "()"
     """Characters removed from comment text."""
     upper: bool = False
@@ -128,27 +247,31 @@ class Reader(_Strict):
     pattern whose option is 0 or false is not used.
     """
 
-    comments: Sequence[str] = (r"\(.*?\)", r";.*$")
-    ignore: Sequence[str] = ()
+    comments: Sequence[Regex] = (r"\(.*?\)", r";.*$")
+    ignore: Sequence[Regex] = ()
     """Whole lines to skip (program headers and the like)."""
-    program_start: str | None = None
+    tape: Regex | None = None
+    """The tape mark ('%' on FANUC and LinuxCNC), matched against a whole line: a file
+    whose first non-blank line is one ends at the next one (text after it is refused);
+    anywhere else it is refused."""
+    program_start: Annotated[str, AfterValidator(lambda v: _regex(v, "key"))] | None = None
     """Splits a file into programs; group 'key' names the program."""
     program_key: Literal["stem", "file"] = "stem"
-    call: str | None = None
+    call: Annotated[str, AfterValidator(lambda v: _regex(v, "key"))] | None = None
     """A subprogram call; group 'key' names the called program."""
-    ret: str | None = None
-    end: str = r"^M(30|0?2)$"
-    marker: Sequence[str] = ()
+    ret: Regex | None = None
+    end: Regex = r"^M(30|0?2)$"
+    marker: Sequence[Regex] = ()
     """Set the marker; optional group 'value' (default 1)."""
-    marker_off: Sequence[str] = ()
-    dwell: str | None = None
+    marker_off: Sequence[Regex] = ()
+    dwell: Annotated[str, AfterValidator(lambda v: _regex(v, "seconds"))] | None = None
     """A dwell block written without G4 (e.g. '#TIME 1.5'); group 'seconds'."""
-    dwell_word: str = "P"
-    dwell_scale: float = 1.0
+    dwell_word: str = Field("P", pattern=r"^[A-Z]$")
+    dwell_scale: float = Field(1.0, gt=0, le=1e6)
     """Seconds per unit of the dwell word."""
-    integer_unit_mm: float = 1.0
+    integer_unit_mm: float = Field(1.0, gt=0, le=1e6)
     """Value of an axis word written without decimal point (Fanuc: 0.001 mm)."""
-    block_end: str | None = None
+    block_end: Regex | None = None
     accepted: Sequence[str] = ()
     """G and M words (e.g. 'G64', 'M30') that are accepted and do not move an axis."""
     parameter_words: str = "PQEHRDLST"
@@ -166,12 +289,10 @@ class OptionRule(_Strict):
     """Allowed values as inclusive ranges."""
     zero_is_off: bool = False
     """0 means "not used" and is always allowed."""
-    uses: Sequence[str] = ()
+    uses: Sequence[Annotated[str, AfterValidator(lambda v: _regex(v, "n"))]] = ()
     """Patterns (group 'n') that find where a program uses a number of this kind;
     for kind 'm' every M word is found anyway."""
     source: str = ""
-
-    _check = field_validator("uses")(classmethod(lambda cls, v: [_regex(p) for p in v]))
 
 
 class Codes(_Strict):
@@ -301,10 +422,8 @@ def load_dialect(name: str, user_dirs: Iterable[Path] = ()) -> Dialect:
         known = ", ".join(dialects) or "none"
         raise DialectError(f"unknown controller {name!r}; known controllers: {known}")
     path = dialects[name]
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise DialectError(f"{path}: cannot be read: {exc}") from exc
+    text = read_text(path, "a controller definition (.toml)", MAX_TOML_BYTES, DialectError)
+    data = parse_toml(text, str(path), DialectError)
     try:
         dialect = Dialect.model_validate(data)
     except ValidationError as exc:

@@ -7,6 +7,13 @@ only) and the marker. Everything else it meets must be a word the dialect
 declares harmless; anything unknown is an error, so a template that starts
 writing something new cannot slip past the checker unread.
 
+Every line of every program file is read or refused: lines are split at
+``\n`` only (as controls read them), each must hold only characters the
+control reads, a ``%`` tape mark is honoured where FANUC and LinuxCNC honour
+it (a file whose first line is one ends at the next), and text outside every
+program (before the first program number, after the closing ``%``) or a
+program number given twice is a problem, not something left unread.
+
 The result is the list of motions the program would command, which
 :mod:`ncmeasure.program.check` compares with the limits and the schedule.
 """
@@ -20,18 +27,32 @@ from pathlib import Path
 from typing import Literal
 
 from ncmeasure.errors import ProgramError
-from ncmeasure.program.dialect import Dialect
+from ncmeasure.inputs import read_text
+from ncmeasure.program.dialect import OPTION_PLACEHOLDER, Dialect
 
-__all__ = ["CodeUse", "Dwell", "Motion", "ProgramTrace", "read_programs", "scan_codes"]
+__all__ = [
+    "CodeUse",
+    "Dwell",
+    "Motion",
+    "ProgramSet",
+    "ProgramTrace",
+    "read_programs",
+    "scan_codes",
+]
 
 _NUMBER = r"[+-]?(?:\d+\.?\d*|\.\d+)"
 _WORD = re.compile(
     rf"\s*(?:(?P<long>[A-Z]+\d+)\s*=\s*(?P<lval>{_NUMBER})|(?P<addr>[A-Z])\s*(?P<val>{_NUMBER}))"
 )
-_MAX_STEPS = 5_000_000
+_MAX_STEPS = 1_000_000
+"""Blocks a run may take (the largest plan the limits allow runs about 300 000)."""
+MAX_PROGRAM_FILE_BYTES = 16 * 1024 * 1024
+"""Largest program file read (generate writes none larger)."""
+MAX_PROGRAM_BYTES = 32 * 1024 * 1024
+"""Most program text read from one folder (generate writes no more)."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Motion:
     """One commanded straight move."""
 
@@ -49,7 +70,7 @@ class Motion:
     """File name of the program."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Dwell:
     """A dwell: the axes stand still for ``seconds``."""
 
@@ -60,15 +81,23 @@ class Dwell:
     file: str = ""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class CodeUse:
     """An M function, or a number of a controller option's kind, written in a program."""
 
     kind: str
     """'m', or the name of the controller option whose kind the number is."""
     number: int
+    """The number; one of more than 18 digits counts as 10¹⁸, beyond every range."""
     file: str
     line: int
+    written: str = ""
+    """The digits as a message shows them (long ones cut)."""
+
+    @property
+    def shown(self) -> str:
+        """The number for a message."""
+        return self.written or str(self.number)
 
 
 # An M word: 'M', spaces allowed, digits; not inside a name (FRICTION_M3, o<m3_x>, %M3).
@@ -85,52 +114,65 @@ class ProgramTrace:
     """Motions and dwells in the order the program commands them."""
     calls: list[str] = field(default_factory=list)
     ended: bool = False
+    problems: list[str] = field(default_factory=list)
+    """Rules the program files break where they can still be read, one
+    ``file:line: message`` each (text outside every program, a program number
+    given twice, a character the control cannot read)."""
 
 
 @dataclass
 class _Program:
     key: str
     file: str
-    lines: list[tuple[int, str]]
+    line: int
+    """Line of its program number (0: the program is the file)."""
+    texts: list[str]
+    """Every line of its file as the reader sees it (comments removed, capitals)."""
+    first: int
+    """Index in ``texts`` of its first block."""
+    end: int = -1
+    """Index in ``texts`` after its last block (-1 while the file is read)."""
+
+
+def _digits(text: str) -> str:
+    """The digits of a whole number without leading zeros ('0' for zero)."""
+    return text.lstrip("0") or "0"
+
+
+_LONGEST = 18
+_BEYOND = 10**_LONGEST
+"""What a number of more digits counts as: beyond every range a dialect allows."""
+
+
+def _whole(text: str) -> int:
+    """A whole number written as digits; one of more than 18 digits counts as 10¹⁸
+    (converting thousands of digits is slow, and Python refuses more than 4300)."""
+    digits = _digits(text)
+    return int(digits) if len(digits) <= _LONGEST else _BEYOND
+
+
+def _shown(text: str, width: int = 12) -> str:
+    """Text for a message: a long number or word cut, with its length."""
+    if len(text) <= _LONGEST:
+        return text
+    unit = "digits" if text.isdigit() else "characters"
+    return f"{text[:width]}… ({len(text)} {unit})"
 
 
 def _program_key(name: str) -> str:
     """How a program is looked up: names in capitals, numbers without leading zeros
     (FANUC's M98 P2 calls O0002)."""
-    return str(int(name)) if name.isdigit() else name.upper()
-
-
-def _split_programs(dialect: Dialect, path: Path) -> list[_Program]:
-    reader = dialect.reader
-    try:
-        raw = path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ProgramError(f"{path}: cannot be read ({exc})") from exc
-    default_key = path.stem if reader.program_key == "stem" else path.name
-    programs = [_Program(_program_key(default_key), path.name, [])]
-    start = re.compile(reader.program_start, re.I) if reader.program_start else None
-    for number, line in enumerate(raw, start=1):
-        match = start.search(line.strip()) if start else None
-        if match:
-            programs.append(_Program(_program_key(match.group("key")), path.name, []))
-            continue
-        programs[-1].lines.append((number, line))
-    if start:
-        programs = list(programs[1:]) or programs
-    return programs
-
-
-_OPTION = re.compile(r"<<(\w+)>>")
+    return _digits(name) if name.isdigit() else name.upper()
 
 
 def _patterns(patterns: Iterable[str], options: Mapping[str, int | bool]) -> list[re.Pattern[str]]:
     """Compile patterns, filling in ``<<option>>``; drop those whose option is unset."""
     compiled = []
     for pattern in patterns:
-        names = _OPTION.findall(pattern)
+        names = OPTION_PLACEHOLDER.findall(pattern)
         if any(not options.get(name) for name in names):
             continue
-        text = _OPTION.sub(lambda m: str(int(options[m.group(1)])), pattern)
+        text = OPTION_PLACEHOLDER.sub(lambda m: str(int(options[m.group(1)])), pattern)
         compiled.append(re.compile(text, re.I))
     return compiled
 
@@ -140,72 +182,314 @@ def _pattern(pattern: str | None, options: Mapping[str, int | bool]) -> re.Patte
     return found[0] if found else None
 
 
-class _Interpreter:
+def _use(kind: str, digits: str, file: str, line: int) -> CodeUse:
+    if not digits.isdigit():  # a user's pattern may find anything: beyond every range
+        return CodeUse(kind, _BEYOND, file, line, repr(_shown(digits, 40)))
+    return CodeUse(kind, _whole(digits), file, line, _shown(_digits(digits)))
+
+
+_BLOCK_NUMBER = re.compile(r"^N\d+\s*", re.I)
+_MAX_FILE_PROBLEMS = 5
+"""Problems of one kind reported per file (the first ones say what is wrong)."""
+
+
+def _character(char: str) -> str:
+    return f"{char!r} (U+{ord(char):04X})"
+
+
+class ProgramSet:
+    """The program files of a folder, read once: split into programs, every line kept.
+
+    :meth:`scan` finds every M word and option number of every line, :meth:`run`
+    follows the main program the way a control would.
+
+    Raises:
+        ProgramError: a program file cannot be read (not a regular file, too large,
+            not UTF-8).
+    """
+
     def __init__(
         self,
         dialect: Dialect,
-        programs: dict[str, _Program],
-        axes: set[str],
-        options: Mapping[str, int | bool],
+        directory: str | Path,
+        options: Mapping[str, int | bool] | None = None,
     ) -> None:
         self.dialect = dialect
         self.reader = dialect.reader
-        self.programs = programs
-        self.axes = axes
+        effective = dict(dialect.options)
+        effective.update(options or {})
+        self.options = effective
         r = self.reader
-        self.comments = _patterns(r.comments, options)
-        self.ignore = _patterns(r.ignore, options)
-        self.call = _pattern(r.call, options)
-        self.ret = _pattern(r.ret, options)
+        self.comments = _patterns(r.comments, effective)
+        self.ignore = _patterns(r.ignore, effective)
+        self.call = _pattern(r.call, effective)
+        self.ret = _pattern(r.ret, effective)
         self.end = re.compile(r.end, re.I)
-        self.marker = _patterns(r.marker, options)
-        self.marker_off = _patterns(r.marker_off, options)
-        self.dwell = _pattern(r.dwell, options)
+        self.marker = _patterns(r.marker, effective)
+        self.marker_off = _patterns(r.marker_off, effective)
+        self.dwell = _pattern(r.dwell, effective)
+        self.tape = _pattern(r.tape, effective)
+        self.start = _pattern(r.program_start, effective)
         self.block_end = re.compile(r.block_end + r"\s*$") if r.block_end else None
         self.accepted = {w.upper() for w in r.accepted}
+        self.programs: dict[str, _Program] = {}
+        self.first_program: dict[str, str] = {}
+        """File name -> key of its first program."""
+        self.files: dict[str, list[str]] = {}
+        """Every line of every file as the reader sees it (comments removed, capitals)."""
+        self.bytes_read = 0
+        self.problems: list[str] = []
+        directory = Path(directory)
+        for path in sorted(directory.iterdir()):
+            if path.suffix.lower() in dialect.program_extensions and path.is_file():
+                self._read_file(path)
+
+    # --- reading the files --------------------------------------------------------------
+
+    def _read_file(self, path: Path) -> None:
+        text = read_text(path, "a program file", MAX_PROGRAM_FILE_BYTES, ProgramError)
+        self.bytes_read += len(text)
+        if self.bytes_read > MAX_PROGRAM_BYTES:
+            raise ProgramError(
+                f"{path}: the program files hold more than {MAX_PROGRAM_BYTES // (1024 * 1024)} "
+                "MiB together, more than ncmeasure reads"
+            )
+        raw_lines = text.split("\n")  # a control ends lines at LF only (U+2028 is no end)
+        del text
+        if raw_lines[-1] == "":
+            raw_lines.pop()
+        file = path.name
+        texts: list[str] = []
+        self.files[file] = texts
+        key = _program_key(path.stem if self.reader.program_key == "stem" else file)
+        default = _Program(key, file, 0, texts, 0)  # the file is its program
+        current: _Program | None = None if self.start else default
+        found: list[_Program] = []
+        outside: list[int] = []  # lines before the first program number
+        problems: dict[str, list[str]] = {}
+        blank_so_far, tape_line, closed_at = True, 0, 0
+        after: list[int] = []  # lines with text after the closing tape mark
+        for index, raw in enumerate(raw_lines):
+            number = index + 1
+            raw = raw.removesuffix("\r")  # CR LF line ends
+            bad = self._bad_character(raw)
+            if bad:
+                problems.setdefault("character", []).append(f"{file}:{number}: character {bad}")
+            stripped = raw.strip()
+            texts.append(self._clean(raw))
+            if closed_at:
+                if stripped:
+                    after.append(number)
+                continue
+            if self.tape and self.tape.search(stripped):
+                if blank_so_far:
+                    tape_line = number  # the tape starts: the file ends at the next mark
+                    default.first = number
+                elif tape_line:
+                    closed_at = number
+                else:
+                    problems.setdefault("tape", []).append(
+                        f"{file}:{number}: '%' where the file did not start with one: "
+                        f"{self.dialect.title} refuses it (it may only start and end the tape)"
+                    )
+                blank_so_far = False  # a misplaced mark is refused here and skipped in a run
+                continue
+            blank_so_far = blank_so_far and not stripped
+            match = self.start.search(stripped) if self.start else None
+            if match:
+                if current is not None:
+                    current.end = index
+                current = self._program(match.group("key"), file, number, texts, problems)
+                found.append(current)
+            elif current is None:
+                outside.append(index)
+        end = closed_at - 1 if closed_at else len(texts)
+        if current is None or current is default:  # no program number: the file is its program
+            default.end = end
+            found.append(default)
+            outside.clear()
+        else:
+            current.end = end
+        for index in outside:
+            line = texts[index]
+            if line and not any(p.search(line) for p in self.ignore):
+                problems.setdefault("outside", []).append(
+                    f"{file}:{index + 1}: {_shown(line, 40)!r} stands before the first program "
+                    "number: it belongs to no program; remove it"
+                )
+        if after:
+            where = f"{after[0]}" if len(after) == 1 else f"{after[0]}-{after[-1]}"
+            problems["after"] = [
+                f"{file}:{where}: text after the closing '%' of line {closed_at}: "
+                "the control does not read it; remove it"
+            ]
+        for kind in ("outside", "tape", "after", "character"):
+            found_here = problems.get(kind, [])
+            self.problems += found_here[:_MAX_FILE_PROBLEMS]
+            if len(found_here) > _MAX_FILE_PROBLEMS:
+                more = len(found_here) - _MAX_FILE_PROBLEMS
+                self.problems.append(f"{file}: {more} more such lines")
+        self.problems += problems.get("number", [])
+        for program in found:
+            known = self.programs.get(program.key)
+            if known is None:
+                self.programs[program.key] = program
+            else:
+                first = f"{known.file}:{known.line}" if known.line else known.file
+                self.problems.append(
+                    f"{file}:{program.line}: program {program.key} again (first in {first}); "
+                    "a control keeps one program of a name or number"
+                )
+        self.first_program[file] = found[0].key
+
+    def _program(
+        self,
+        written: str,
+        file: str,
+        number: int,
+        texts: list[str],
+        problems: dict[str, list[str]],
+    ) -> _Program:
+        key = _program_key(written)
+        names = self.dialect.names
+        if names.numbered and key.isdigit() and _whole(key) > names.max_number:
+            problems.setdefault("number", []).append(
+                f"{file}:{number}: program number {_shown(key)} is beyond the "
+                f"{self.dialect.title} range (at most {names.max_number})"
+            )
+        return _Program(key, file, number, texts, number)
+
+    def _bad_character(self, raw: str) -> str | None:
+        """A character of ``raw`` the control cannot read, described, or None.
+
+        Printable ASCII everywhere; in comments also other printable characters,
+        unless the dialect reads ASCII only (ISO/EIA code).
+        """
+        if raw.isascii() and raw.isprintable():
+            return None
+        outside = raw
+        for pattern in self.comments:
+            outside = pattern.sub(" ", outside)
+        for char in outside:
+            if not " " <= char <= "~":
+                return f"{_character(char)} outside a comment: {self._characters()}"
+        for char in raw:
+            if self.dialect.codes.ascii_only and not char.isascii():
+                return f"{_character(char)} is not ASCII: {self._characters()}"
+            if not char.isprintable():
+                return f"{_character(char)} is not printable: {self._characters()}"
+        return None
+
+    def _characters(self) -> str:
+        if self.dialect.codes.ascii_only:
+            return f"{self.dialect.title} reads printable ASCII only (ISO/EIA code)"
+        return (
+            f"{self.dialect.title} programs hold printable ASCII, comments also other "
+            "printable characters"
+        )
+
+    def _clean(self, raw: str) -> str:
+        text = raw.strip()
+        for pattern in self.comments:
+            text = pattern.sub(" ", text)
+        text = text.strip()
+        if self.block_end:
+            text = self.block_end.sub("", text)
+        text = _BLOCK_NUMBER.sub("", text)
+        return text.strip().upper()
+
+    # --- what the files hold --------------------------------------------------------------
+
+    def scan(self) -> list[CodeUse]:
+        """Every M word and option-kind number of every line, run or not."""
+        uses = {
+            key: [re.compile(pattern, re.I) for pattern in rule.uses]
+            for key, rule in self.dialect.codes.options.items()
+        }
+        found: list[CodeUse] = []
+        for file, texts in self.files.items():
+            for index, text in enumerate(texts):
+                if self.call and (match := self.call.search(text)):
+                    # the called program's name is a name, not words
+                    text = text[: match.start("key")] + " " + text[match.end("key") :]
+                for match in _M_WORD.finditer(text):
+                    found.append(_use("m", match.group("n"), file, index + 1))
+                for key, patterns in uses.items():
+                    for pattern in patterns:
+                        for match in pattern.finditer(text):
+                            found.append(_use(key, match.group("n"), file, index + 1))
+        return found
+
+    def run(self, main_file: str, axes: set[str], max_blocks: int | None = None) -> ProgramTrace:
+        """Follow the main program in ``main_file``, moving ``axes``.
+
+        The trace's problems are those of the run; the files' own are :attr:`problems`.
+        A run that commands more than ``max_blocks`` moves, dwells and calls (what the
+        schedule plans) stops there with a problem: it is not the planned program, and
+        reading on would only fill the memory.
+
+        Raises:
+            ProgramError: the main file is not among the program files, or a block
+                cannot be read.
+        """
+        if main_file not in self.first_program:
+            raise ProgramError(f"{main_file}: main program not found among the program files")
+        return _Interpreter(self, axes, max_blocks).run(self.first_program[main_file])
+
+
+class _Interpreter:
+    def __init__(self, files: ProgramSet, axes: set[str], max_blocks: int | None) -> None:
+        self.files = files
+        self.max_blocks = max_blocks
+        self.dialect = files.dialect
+        self.reader = files.reader
+        self.programs = files.programs
+        self.axes = axes
+        self.ignore = files.ignore
+        self.call = files.call
+        self.ret = files.ret
+        self.end = files.end
+        self.marker = files.marker
+        self.marker_off = files.marker_off
+        self.dwell = files.dwell
+        self.tape = files.tape
+        self.accepted = files.accepted
         self.position: dict[str, float | None] = dict.fromkeys(axes)
         self.mode: Literal["rapid", "feed"] | None = None
         self.feed: float | None = None
         self.marker_value = 0.0
         self.trace = ProgramTrace()
 
-    def scan(self, uses: Mapping[str, list[re.Pattern[str]]]) -> list[CodeUse]:
-        """Every M word and option-kind number of every line, run or not."""
-        found: list[CodeUse] = []
-        for program in self.programs.values():
-            for number, raw in program.lines:
-                text = self._clean(raw)
-                if self.call and (match := self.call.search(text)):
-                    # the called program's name is a name, not words
-                    text = text[: match.start("key")] + " " + text[match.end("key") :]
-                for match in _M_WORD.finditer(text):
-                    found.append(CodeUse("m", int(match.group("n")), program.file, number))
-                for key, patterns in uses.items():
-                    for pattern in patterns:
-                        for match in pattern.finditer(text):
-                            found.append(CodeUse(key, int(match.group("n")), program.file, number))
-        return found
-
     def _error(self, program: _Program, line: int, message: str) -> ProgramError:
         return ProgramError(f"{program.file}:{line}: {message}")
 
     def run(self, main_key: str) -> ProgramTrace:
-        stack: list[tuple[_Program, int]] = [(self.programs[main_key], 0)]
+        main = self.programs[main_key]
+        stack: list[tuple[_Program, int]] = [(main, main.first)]
         steps = 0
         while stack:
             program, index = stack.pop()
-            if index >= len(program.lines):
+            if index >= program.end:
                 if len(stack) == 0:
                     break  # main program ran off its end
                 continue  # a subprogram without explicit return
             steps += 1
             if steps > _MAX_STEPS:
                 raise ProgramError(f"{program.file}: more than {_MAX_STEPS} blocks; endless loop?")
-            number, raw = program.lines[index]
+            number, text = index + 1, program.texts[index]
+            trace = self.trace
+            blocks = len(trace.motions) + len(trace.dwells_s) + len(trace.calls)
+            if self.max_blocks is not None and blocks > self.max_blocks:
+                trace.problems.append(
+                    f"{program.file}:{number}: more than the {self.max_blocks} moves, dwells "
+                    "and calls the schedule plans; the rest is not read"
+                )
+                break
             stack.append((program, index + 1))
-            text = self._clean(raw)
             if not text or any(p.search(text) for p in self.ignore):
                 continue
+            if self.tape and self.tape.search(text):
+                continue  # a misplaced tape mark: refused when the file was read
             if self.call and (match := self.call.search(text)):
                 key = _program_key(match.group("key"))
                 if key not in self.programs:
@@ -213,7 +497,8 @@ class _Interpreter:
                 if len(stack) > 16:
                     raise self._error(program, number, "subprograms nested deeper than 16")
                 self.trace.calls.append(key)
-                stack.append((self.programs[key], 0))
+                called = self.programs[key]
+                stack.append((called, called.first))
                 continue
             if self.ret and self.ret.search(text):
                 stack.pop()
@@ -228,16 +513,6 @@ class _Interpreter:
             self._block(program, number, text)
         return self.trace
 
-    def _clean(self, raw: str) -> str:
-        text = raw.strip()
-        for pattern in self.comments:
-            text = pattern.sub(" ", text)
-        text = text.strip()
-        if self.block_end:
-            text = self.block_end.sub("", text)
-        text = re.sub(r"^N\d+\s*", "", text, flags=re.I)
-        return text.strip().upper()
-
     def _block(self, program: _Program, number: int, text: str) -> None:
         for pattern in self.marker_off:
             if pattern.search(text):
@@ -247,12 +522,12 @@ class _Interpreter:
             match = pattern.search(text)
             if match:
                 value = match.groupdict().get("value")
-                self.marker_value = float(value) if value is not None else 1.0
+                self.marker_value = 1.0 if value is None else self._number(program, number, value)
                 text = pattern.sub(" ", text).strip()
         if not text:
             return
         if self.dwell and (match := self.dwell.search(text)):
-            self._dwell(program, number, float(match.group("seconds")))
+            self._dwell(program, number, self._number(program, number, match.group("seconds")))
             return
         targets: dict[str, float] = {}
         dwell = False
@@ -261,18 +536,21 @@ class _Interpreter:
         while position < len(text):
             match = _WORD.match(text, position)
             if not match:
-                raise self._error(program, number, f"cannot read {text[position:].strip()!r}")
+                rest = _shown(text[position:].strip(), 40)
+                raise self._error(program, number, f"cannot read {rest!r}")
             position = match.end()
             if match.group("long"):
                 address, value_text = match.group("long"), match.group("lval")
             else:
                 address, value_text = match.group("addr"), match.group("val")
             value = float(value_text)
-            code = f"{address}{value_text}"
+            code = f"{address}{_shown(value_text)}"
             if dwell and address == self.reader.dwell_word.upper():
+                self._decimal_point(program, number, code, value_text)
                 dwell_s = value * self.reader.dwell_scale
             elif address in self.axes:
                 if "." not in value_text:
+                    self._decimal_point(program, number, code, value_text)
                     value *= self.reader.integer_unit_mm
                 if address in targets:
                     raise self._error(program, number, f"axis {address} twice in one block")
@@ -320,6 +598,22 @@ class _Interpreter:
         self.trace.steps.append(motion)
         self.position.update(targets)
 
+    def _decimal_point(self, program: _Program, line: int, code: str, value_text: str) -> None:
+        """An axis word or dwell without decimal point, where the dialect needs one."""
+        if self.dialect.numbers.decimal_point and "." not in value_text:
+            self.trace.problems.append(
+                f"{program.file}:{line}: {code} has no decimal point: {self.dialect.title} "
+                "reads it in its least input increment (0.001 mm, 0.001 s); write "
+                f"{code}."
+            )
+
+    def _number(self, program: _Program, line: int, text: str) -> float:
+        """A number a dialect's pattern found (a user's pattern may find anything)."""
+        try:
+            return float(text)
+        except ValueError:
+            raise self._error(program, line, f"{_shown(text, 40)!r} is not a number") from None
+
     def _dwell(self, program: _Program, number: int, seconds: float) -> None:
         self.trace.dwells_s.append(seconds)
         self.trace.steps.append(
@@ -331,31 +625,11 @@ class _Interpreter:
             return False
         value = value_text.lstrip("+")
         candidates = {f"{address}{value}"}
-        if "." not in value:
-            candidates.add(f"{address}{int(value)}")
-            candidates.add(f"{address}{int(value):02d}")
+        if "." not in value and not value.startswith("-"):
+            digits = _digits(value)
+            candidates.add(f"{address}{digits}")
+            candidates.add(f"{address}{digits:0>2}")
         return bool(candidates & self.accepted)
-
-
-def _interpreter(
-    dialect: Dialect,
-    directory: Path,
-    axes: set[str],
-    options: Mapping[str, int | bool] | None,
-    main_file: str = "",
-) -> tuple[_Interpreter, str]:
-    programs: dict[str, _Program] = {}
-    main_key = ""
-    for path in sorted(directory.iterdir()):
-        if path.is_file() and path.suffix.lower() in dialect.program_extensions:
-            found = _split_programs(dialect, path)
-            for program in found:
-                programs[program.key] = program
-            if path.name == main_file:
-                main_key = found[0].key
-    effective = dict(dialect.options)
-    effective.update(options or {})
-    return _Interpreter(dialect, programs, axes, effective), main_key
 
 
 def read_programs(
@@ -382,8 +656,10 @@ def read_programs(
     main_path = directory / main_file
     if not main_path.is_file():
         raise ProgramError(f"{main_path}: main program not found")
-    interpreter, main_key = _interpreter(dialect, directory, axes, options, main_file)
-    return interpreter.run(main_key)
+    files = ProgramSet(dialect, directory, options)
+    trace = files.run(main_file, axes)
+    trace.problems[:0] = files.problems
+    return trace
 
 
 def scan_codes(
@@ -392,12 +668,6 @@ def scan_codes(
     """Every M word, variable and output written in the program files of ``directory``.
 
     Every line counts, whether it runs or not (after the program end, in a skipped
-    block); comments and the names of called programs do not.
+    block, outside every program); comments and the names of called programs do not.
     """
-    interpreter, _ = _interpreter(dialect, Path(directory), set(), options)
-    return interpreter.scan(
-        {
-            key: [re.compile(pattern, re.I) for pattern in rule.uses]
-            for key, rule in dialect.codes.options.items()
-        }
-    )
+    return ProgramSet(dialect, directory, options).scan()

@@ -24,16 +24,19 @@ from pathlib import Path
 from types import MappingProxyType
 
 import jinja2
+from jinja2.loaders import split_template_path
 
 from ncmeasure._version import __version__
 from ncmeasure.config import MachineConfig, config_hash
 from ncmeasure.errors import (
     DialectError,
+    NcMeasureError,
     OutputError,
     PlanError,
     ProgramCheckError,
     ProgramError,
 )
+from ncmeasure.inputs import plain_file_name, read_text
 from ncmeasure.plan import SMALLER, AxisPlan, Move, Schedule, SizeLimit, plan_machine
 from ncmeasure.program.dialect import (
     Dialect,
@@ -42,6 +45,7 @@ from ncmeasure.program.dialect import (
     marker_scope,
     validate_for_dialect,
 )
+from ncmeasure.program.reader import MAX_PROGRAM_BYTES, MAX_PROGRAM_FILE_BYTES
 from ncmeasure.program.sandbox import TemplateSandbox
 from ncmeasure.resources import builtin_dir
 
@@ -91,18 +95,35 @@ class ProgramView:
 
 
 class _Output:
-    """Counts the bytes of every program file against the program-memory limit."""
+    """Counts the bytes of every program file against the program-memory limit, and of
+    each file against the largest program file ``check`` reads."""
 
     def __init__(self, limit_bytes: int, what: str) -> None:
         self.limit_bytes = limit_bytes
         self.what = what
         self.bytes = 0
+        self.file_bytes = 0
+
+    def next_file(self) -> None:
+        self.file_bytes = 0
 
     def add(self, data: bytes) -> bytes:
         self.bytes += len(data)
+        self.file_bytes += len(data)
         if self.bytes > self.limit_bytes:
             raise PlanError(
                 f"the programs grow beyond {self.what}; nothing was written",
+                [SMALLER],
+            )
+        if self.file_bytes > MAX_PROGRAM_FILE_BYTES or self.bytes > MAX_PROGRAM_BYTES:
+            largest, what = (
+                (MAX_PROGRAM_FILE_BYTES, "a program file grows")
+                if self.file_bytes > MAX_PROGRAM_FILE_BYTES
+                else (MAX_PROGRAM_BYTES, "the program files grow")
+            )
+            raise PlanError(
+                f"{what} beyond {largest // (1024 * 1024)} MiB, more than `ncmeasure check` "
+                "reads; nothing was written",
                 [SMALLER],
             )
         return data
@@ -154,6 +175,14 @@ class GeneratedPrograms:
     _limit_what: str = ""
     _controllers_dirs: tuple[Path, ...] = ()
     _files: dict[str, str] | None = field(default=None, repr=False)
+    _env: TemplateSandbox | None = field(default=None, repr=False)
+    _moves: int = 0
+    """Planned moves of all files: the sandbox's budgets for one rendering of them."""
+
+    def _start(self) -> None:
+        """One rendering of every file begins: the template budgets start afresh."""
+        if self._env is not None:
+            self._env.start(self._moves)
 
     @property
     def program_files(self) -> list[str]:
@@ -169,6 +198,7 @@ class GeneratedPrograms:
             PlanError: the programs exceed the program-memory limit.
         """
         if self._files is None:
+            self._start()
             output = _Output(self._limit_bytes, self._limit_what)
             files = {}
             for name, render in self._renders:
@@ -185,6 +215,7 @@ class GeneratedPrograms:
         write: Callable[[str], object],
     ) -> None:
         numbers = _BlockNumbers(self.dialect)
+        output.next_file()
         try:
             for chunk in render():
                 text = numbers.feed(chunk)
@@ -193,16 +224,23 @@ class GeneratedPrograms:
             text = numbers.close()
             output.add(text.encode("utf-8"))
             write(text)
-        except (jinja2.TemplateError, RecursionError, MemoryError, OverflowError) as exc:
-            what = str(exc) if not isinstance(exc, MemoryError) else "out of memory"
-            if isinstance(exc, RecursionError):
+        except (NcMeasureError, OSError):
+            raise  # ncmeasure's own (program memory, a comment the dialect lacks), or the disk
+        except Exception as exc:  # whatever a template does wrong: a TypeError is its error too
+            what = str(exc) or type(exc).__name__
+            if isinstance(exc, MemoryError):
+                what = "out of memory"
+            elif isinstance(exc, RecursionError):
                 what = "macros call themselves too deep"
+            elif not isinstance(exc, jinja2.TemplateError):
+                what = f"{type(exc).__name__}: {what}"
             raise DialectError(f"template {_template_place(exc, self.dialect)}: {what}") from exc
 
     def _render_into(self, folder: Path) -> None:
         schedule = self.schedule.model_dump_json(indent=2) + "\n"
         (folder / SCHEDULE_FILE).write_text(schedule, encoding="utf-8", newline="\n")
         del schedule
+        self._start()
         output = _Output(self._limit_bytes, self._limit_what)
         for name, render in self._renders:
             with (folder / name).open("w", encoding="utf-8", newline="\n") as file:
@@ -242,6 +280,11 @@ class GeneratedPrograms:
         if directory.exists() and not directory.is_dir():
             raise OutputError(f"{directory}: exists and is not a directory")
         new = [*self.program_files, SCHEDULE_FILE]
+        for name in new:  # whatever named the files: nothing lands outside the folder
+            if not plain_file_name(name):
+                raise OutputError(
+                    f"{directory}: {name!r} is not a plain file name; nothing was written"
+                )
         previous = _previous_generation(directory, self.dialect, new)
         # Staged inside the folder when it exists (same file system, nothing needed
         # beside it), else beside it in the nearest folder that exists.
@@ -345,14 +388,17 @@ def _move_into_place(
         for name in new:
             (staging / name).replace(directory / name)
             moved_new.append(name)
-    except OSError as exc:
+    except BaseException as exc:  # an error, or Ctrl-C / SIGTERM between two renames
         for name in reversed(moved_new):
             with contextlib.suppress(OSError):
                 (directory / name).replace(staging / name)
         for name in reversed(moved_old):
             with contextlib.suppress(OSError):
                 (backup / name).replace(directory / name)
-        raise OutputError(f"{directory}: cannot write programs ({exc.strerror})") from exc
+        moved_new.clear()
+        if isinstance(exc, OSError):
+            raise OutputError(f"{directory}: cannot write programs ({exc.strerror})") from exc
+        raise
     finally:
         if len(moved_new) == len(new):
             shutil.rmtree(backup, ignore_errors=True)
@@ -379,13 +425,39 @@ def _number(value: float, decimals: int, plus: bool) -> str:
     return text
 
 
+MAX_TEMPLATE_BYTES = 1024 * 1024
+"""Largest template file read (the built-in ones are a few kB)."""
+
+
+class _TemplateLoader(jinja2.BaseLoader):
+    """Templates from folders searched in order, each a regular file of at most 1 MiB.
+
+    A name found in an earlier folder hides the later ones, whatever the file is: a
+    FIFO or a device there is an error, not a reason to fall back to the built-in.
+    """
+
+    def __init__(self, folders: Iterable[Path]) -> None:
+        self.folders = list(folders)
+
+    def get_source(
+        self, environment: jinja2.Environment, template: str
+    ) -> tuple[str, str, Callable[[], bool]]:
+        pieces = split_template_path(template)
+        for folder in self.folders:
+            path = folder.joinpath(*pieces)
+            if path.exists() or path.is_symlink():
+                source = read_text(path, "a template", MAX_TEMPLATE_BYTES, DialectError)
+                return source, str(path), lambda: True  # read once per run
+        raise jinja2.TemplateNotFound(
+            template, f"{template!r} not found in {', '.join(map(str, self.folders))}"
+        )
+
+
 def _environment(dialect: Dialect, template_dirs: Iterable[Path]) -> TemplateSandbox:
-    loaders: list[jinja2.BaseLoader] = [
-        jinja2.FileSystemLoader(str(Path(d) / dialect.name)) for d in template_dirs
-    ]
-    loaders.append(jinja2.FileSystemLoader(str(builtin_dir("templates") / dialect.name)))
+    folders = [Path(d) / dialect.name for d in template_dirs]
+    folders.append(builtin_dir("templates") / dialect.name)
     env = TemplateSandbox(
-        loader=jinja2.ChoiceLoader(loaders),
+        loader=_TemplateLoader(folders),
         undefined=jinja2.StrictUndefined,
         trim_blocks=True,
         lstrip_blocks=True,
@@ -395,7 +467,8 @@ def _environment(dialect: Dialect, template_dirs: Iterable[Path]) -> TemplateSan
     numbers, names, comments = dialect.numbers, dialect.names, dialect.comments
 
     def coord(value: float) -> str:
-        return _number(value, numbers.decimals, numbers.plus_sign)
+        text = _number(value, numbers.decimals, numbers.plus_sign)
+        return text + "." if numbers.decimal_point and "." not in text else text
 
     def feed(value: float) -> str:
         text = f"{value:.{numbers.feed_decimals}f}"
@@ -408,7 +481,8 @@ def _environment(dialect: Dialect, template_dirs: Iterable[Path]) -> TemplateSan
         return text
 
     def seconds(value: float) -> str:
-        return f"{value:.3f}".rstrip("0").rstrip(".") or "0"
+        text = f"{value:.3f}".rstrip("0").rstrip(".") or "0"
+        return text + "." if numbers.decimal_point and "." not in text else text
 
     def word(value: float, axis: str) -> str:
         form = names.axis_word if len(axis) == 1 else names.long_axis_word
@@ -427,7 +501,7 @@ def _environment(dialect: Dialect, template_dirs: Iterable[Path]) -> TemplateSan
             clean = clean.upper()
         return f"{comments.open}{clean}{comments.close}"
 
-    env.filters.update(coord=coord, feed=feed, seconds=seconds, word=word, comment=comment)
+    env.add_filters(coord=coord, feed=feed, seconds=seconds, word=word, comment=comment)
     return env
 
 
@@ -476,7 +550,12 @@ def generate_programs(
     # and a line end: a floor no rendered program stays under.
     decimals = dialect.numbers.decimals
     block_floor = 3 + decimals + (1 if decimals else 0)
-    limit = SizeLimit(config.limits.max_duration_h * 3600, limit_kb * 1024 // block_floor, memory)
+    limit = SizeLimit(
+        config.limits.max_duration_h * 3600,
+        limit_kb * 1024 // block_floor,
+        memory,
+        config.limits.max_windows,
+    )
     schedule, plans = plan_machine(config, limit)
     names = dialect.names
     program = config.machine.program
@@ -494,6 +573,17 @@ def generate_programs(
         p.axis.name: ref(names.sub, p.axis.name, i + 1) if dialect.subprograms else None
         for i, p in enumerate(plans)
     }
+    taken = {SCHEDULE_FILE: "schedule"}
+    for key, named in [("main_file", main)] + [("sub_file", s) for s in subs.values() if s]:
+        if named.file_name.lower() in taken:
+            raise DialectError(
+                f"controller {dialect.name}: two files of the same name",
+                [
+                    f"names.{key}: {named.file_name!r} is the file of two programs "
+                    "(a name given twice); each program needs its own"
+                ],
+            )
+        taken[named.file_name.lower()] = named.name
     by_name = {p.axis.name: p for p in plans}
 
     def view_of(axis_name: str) -> AxisView:
@@ -526,13 +616,12 @@ def generate_programs(
     env = _environment(dialect, templates_dirs)
     total_moves = sum(len(plan.moves) for plan in plans)
     renders: list[tuple[str, Callable[[], Iterator[str]]]] = [
-        (main.file_name, functools.partial(_generate, env, "main.j2", total_moves, v=view))
+        (main.file_name, functools.partial(_generate, env, "main.j2", v=view))
     ]
     if dialect.subprograms:
         for axis_view in view.measure:
             assert axis_view.sub is not None
-            moves = len(axis_view.moves)
-            sub = functools.partial(_generate, env, "sub.j2", moves, v=view, axis=axis_view)
+            sub = functools.partial(_generate, env, "sub.j2", v=view, axis=axis_view)
             renders.append((axis_view.sub.file_name, sub))
     schedule = schedule.model_copy(
         update={
@@ -553,14 +642,14 @@ def generate_programs(
         _limit_bytes=limit_kb * 1024,
         _limit_what=memory,
         _controllers_dirs=tuple(controllers_dirs),
+        _env=env,
+        _moves=total_moves,
     )
 
 
-def _generate(env: TemplateSandbox, name: str, moves: int, **context: object) -> Iterator[str]:
+def _generate(env: TemplateSandbox, name: str, **context: object) -> Iterator[str]:
     """The text of one template, chunk by chunk (nothing is held in memory).
 
-    The sandbox's step budget starts afresh for each file, sized by its planned moves.
+    The sandbox's budgets are those of the whole rendering (see ``GeneratedPrograms._start``).
     """
-    template = env.get_template(name)
-    env.start(moves)
-    return template.generate(**context)
+    return env.get_template(name).generate(**context)

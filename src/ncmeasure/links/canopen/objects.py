@@ -15,7 +15,6 @@ import functools
 import logging
 import re
 import struct
-import tomllib
 from collections.abc import Mapping, Sequence
 from importlib import resources
 from pathlib import Path
@@ -31,6 +30,7 @@ from pydantic import Field, ValidationError, model_validator
 
 from ncmeasure.config import format_validation_error
 from ncmeasure.errors import ConfigError
+from ncmeasure.inputs import MAX_TOML_BYTES, parse_toml, read_text
 
 __all__ = [
     "DATA_TYPES",
@@ -251,20 +251,15 @@ def load_object_map(spec: str | Path) -> ObjectMap:
         text, where = resource.read_text(encoding="utf-8"), f"object map {spec}"
     else:
         path = Path(spec).expanduser()
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError as exc:
-            raise ConfigError(
-                f"{path}: no such object map file (built-in maps: "
-                f"{', '.join(available_object_maps())})"
-            ) from exc
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"{path}: cannot read the object map ({exc})") from exc
+        text = read_text(
+            path,
+            "an object map (.toml)",
+            MAX_TOML_BYTES,
+            missing=f"{path}: no such object map file (built-in maps: "
+            f"{', '.join(available_object_maps())})",
+        )
         where = str(path)
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{where}: invalid TOML: {exc}") from exc
+    data = parse_toml(text, where)
     try:
         return ObjectMap.model_validate(data)
     except ValidationError as exc:
@@ -280,7 +275,8 @@ def load_object_map(spec: str | Path) -> ObjectMap:
 def _emcy_codes() -> Mapping[int, str]:
     """The EMCY table of ``emcy.toml``: code -> meaning."""
     text = resources.files(_MAP_PACKAGE).joinpath("emcy.toml").read_text(encoding="utf-8")
-    return {int(code, 16): meaning for code, meaning in tomllib.loads(text)["codes"].items()}
+    codes = parse_toml(text, "emcy.toml")["codes"]
+    return {int(code, 16): meaning for code, meaning in codes.items()}
 
 
 def emcy_text(code: int) -> str:

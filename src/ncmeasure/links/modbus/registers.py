@@ -17,7 +17,6 @@ from __future__ import annotations
 import logging
 import math
 import struct
-import tomllib
 from collections.abc import Mapping, Sequence
 from importlib import resources
 from pathlib import Path
@@ -28,6 +27,7 @@ from pydantic_core import PydanticCustomError
 
 from ncmeasure.config import format_validation_error
 from ncmeasure.errors import ConfigError
+from ncmeasure.inputs import MAX_TOML_BYTES, parse_toml, read_text
 from ncmeasure.samples import SIGNAL_UNITS
 
 __all__ = [
@@ -257,12 +257,12 @@ def load_register_map(name_or_path: str | Path) -> RegisterMap:
     if isinstance(name_or_path, Path) or "/" in text_name or text_name.endswith(".toml"):
         path = Path(name_or_path)
         where = str(path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError as exc:
-            raise ConfigError(f"register map {where}: no such file") from exc
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"register map {where}: cannot be read ({exc})") from exc
+        text = read_text(
+            path,
+            "a register map (.toml)",
+            MAX_TOML_BYTES,
+            missing=f"register map {where}: no such file",
+        )
     else:
         resource = _maps_dir().joinpath(f"{text_name}.toml")
         if not resource.is_file():
@@ -273,10 +273,7 @@ def load_register_map(name_or_path: str | Path) -> RegisterMap:
             )
         where = f"built-in register map {text_name}"
         text = resource.read_text(encoding="utf-8")
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{where}: invalid TOML: {exc}") from exc
+    data = parse_toml(text, where)
     try:
         reg_map = RegisterMap.model_validate(data)
     except ValidationError as exc:
