@@ -99,3 +99,27 @@ def test_json_beyond_python_is_located() -> None:
         parse_json("\n" + "[" * 100_000, "s.json", ConfigError)
     with pytest.raises(ConfigError, match=r"s\.json: invalid JSON: an integer of more than 4300"):
         parse_json('{"a": ' + "1" * 5000 + "}", "s.json", ConfigError)
+
+
+@pytest.mark.parametrize("what", ["results", "meta"])
+def test_results_and_recordings_are_read_as_bounded_regular_files(
+    tmp_path: Path, what: str
+) -> None:
+    """results.json and a recording's meta.json: brackets nested deep, or a device, are
+    located errors, never a traceback or a read without end."""
+    from ncmeasure.analysis.analyze import load_results
+    from ncmeasure.errors import NcMeasureError
+    from ncmeasure.recording import read_recording
+
+    folder = tmp_path / "run"
+    folder.mkdir()
+    target = tmp_path / "results.json" if what == "results" else folder / "meta.json"
+    (folder / "samples.bin").write_bytes(b"")
+    read = (lambda: load_results(target)) if what == "results" else (lambda: read_recording(folder))
+    target.write_text("[" * 100_000)
+    with pytest.raises(NcMeasureError, match=r"invalid JSON: .*nest"):
+        read()
+    target.unlink()
+    target.symlink_to("/dev/zero")
+    with pytest.raises(NcMeasureError, match="not a regular file"):
+        read()

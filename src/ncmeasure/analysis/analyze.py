@@ -25,7 +25,6 @@ then the schedule, supply what it lacks. :func:`write_results` and
 from __future__ import annotations
 
 import datetime as dt
-import json
 import logging
 import math
 import os
@@ -59,6 +58,7 @@ from ncmeasure.analysis.verdict import axis_verdict
 from ncmeasure.config import MachineConfig, format_validation_error
 from ncmeasure.errors import ConfigError, OutputError, RecordingError
 from ncmeasure.files import replace_text
+from ncmeasure.inputs import parse_json, read_text
 from ncmeasure.plan import AxisSummary, Schedule
 from ncmeasure.recording import Recording
 from ncmeasure.validity import Implausible
@@ -692,6 +692,10 @@ def write_results(results: Results, path: str | os.PathLike[str]) -> Path:
     return target
 
 
+MAX_RESULTS_BYTES = 256 * 1024 * 1024
+"""Largest results.json read."""
+
+
 def load_results(path: str | os.PathLike[str]) -> Results:
     """Read a ``results.json`` written by :func:`write_results`.
 
@@ -700,14 +704,10 @@ def load_results(path: str | os.PathLike[str]) -> Results:
             file, of another format version, or not valid (one line per problem).
     """
     source = Path(path)
-    try:
-        data = json.loads(source.read_text(encoding="utf-8"))
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{source}: no such results file") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{source}: cannot be read ({exc})") from exc
-    except json.JSONDecodeError as exc:
-        raise ConfigError(f"{source}: not a results file (not valid JSON: {exc})") from exc
+    text = read_text(
+        source, "a results file", MAX_RESULTS_BYTES, missing=f"{source}: no such results file"
+    )
+    data = parse_json(text, f"{source}: not a results file", ConfigError)
     if not isinstance(data, dict) or data.get("format") != RESULTS_FORMAT:
         found = data.get("format") if isinstance(data, dict) else type(data).__name__
         raise ConfigError(

@@ -7,7 +7,6 @@ A frame that was cut short or damaged, and everything after it, is reported in
 from __future__ import annotations
 
 import io
-import json
 import logging
 import os
 import zlib
@@ -20,6 +19,7 @@ from pydantic import ValidationError
 
 from ncmeasure.config import format_validation_error
 from ncmeasure.errors import RecordingError
+from ncmeasure.inputs import parse_json, read_bytes, read_text
 from ncmeasure.recording.format import (
     EVENTS_FILE,
     FORMAT_NAME,
@@ -37,6 +37,11 @@ from ncmeasure.recording.format import (
 from ncmeasure.samples import Channel, LinkEvent
 
 log = logging.getLogger(__name__)
+
+MAX_META_BYTES = 16 * 1024 * 1024
+"""Largest meta.json read (a few kB as ncmeasure writes it)."""
+MAX_EVENTS_BYTES = 256 * 1024 * 1024
+"""Largest events.jsonl read (a million events)."""
 
 
 def _read_exactly(file: io.FileIO, target: memoryview) -> int:
@@ -137,13 +142,13 @@ def _read_frames(path: Path, columns: int) -> tuple[NDArray[np.float64], list[st
 
 
 def _read_events(path: Path, problems: list[str]) -> list[LinkEvent]:
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
+    if not path.exists():
         problems.append(f"{EVENTS_FILE} is missing: no events")
         return []
-    except OSError as exc:
-        problems.append(f"{EVENTS_FILE} cannot be read ({exc.strerror or exc}): no events")
+    try:
+        raw = read_bytes(path, "a recording's events.jsonl", MAX_EVENTS_BYTES, RecordingError)
+    except RecordingError as exc:
+        problems.append(f"{exc.message}: no events")
         return []
     lines = raw.split(b"\n")
     tail = lines.pop()  # the part after the last newline: empty unless torn
@@ -172,16 +177,9 @@ def _read_meta(directory: Path) -> RecordingMeta:
     if not directory.is_dir():
         raise RecordingError(f"{directory}: not a recording (a recording is a directory)")
     path = directory / META_FILE
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError as exc:
-        raise RecordingError(f"{directory}: not a recording ({META_FILE} is missing)") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise RecordingError(f"{path}: cannot be read ({exc})") from exc
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise RecordingError(f"{path}: not valid JSON ({exc})") from exc
+    missing = f"{directory}: not a recording ({META_FILE} is missing)"
+    text = read_text(path, "a recording's meta.json", MAX_META_BYTES, RecordingError, missing)
+    data = parse_json(text, str(path), RecordingError)
     if not isinstance(data, dict) or data.get("format") != FORMAT_NAME:
         found = data.get("format") if isinstance(data, dict) else type(data).__name__
         raise RecordingError(

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
-import json
 import logging
 import os
 import threading
@@ -27,6 +26,7 @@ from pydantic import ValidationError
 
 from ncmeasure.config import MachineConfig, format_validation_error
 from ncmeasure.errors import LinkError, RecordingError
+from ncmeasure.inputs import parse_json, read_text
 from ncmeasure.recording.format import (
     EVENTS_FILE,
     FRAME_HEADER,
@@ -89,8 +89,9 @@ _UNFINISHED: frozenset[str] = frozenset({"recording", "failed"})
 def _attempt_status(path: Path) -> str | None:
     """The status in ``path``'s meta.json; None when it holds no readable recording."""
     try:
-        data = json.loads((path / META_FILE).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        text = read_text(path / META_FILE, "a recording's meta.json", 1024 * 1024, RecordingError)
+        data = parse_json(text, str(path / META_FILE), RecordingError)
+    except RecordingError:
         return None
     status = data.get("status") if isinstance(data, dict) else None
     return status if isinstance(status, str) and status in _STATUSES else None
