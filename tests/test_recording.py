@@ -753,7 +753,7 @@ def _valid_meta() -> dict[str, object]:
     ("meta", "message"),
     [
         (None, "not a recording \\(meta.json is missing\\)"),
-        ("{not json", "meta.json: not valid JSON"),
+        ("{not json", "meta.json: invalid JSON"),
         ('{"format": "something-else"}', "not an ncmeasure recording"),
         ('["ncmeasure-recording"]', "not an ncmeasure recording"),
         ({**_valid_meta(), "format_version": 2}, "format_version 2 is newer"),

@@ -507,7 +507,7 @@ def test_writing_where_a_file_blocks_the_directory(tmp_path: Path, small_results
 @pytest.mark.parametrize(
     ("content", "message"),
     [
-        ("not json", "not valid JSON"),
+        ("not json", "not a results file: invalid JSON"),
         ('{"format": "ncmeasure-schedule"}', "not an ncmeasure results file"),
         ("[1, 2]", "not an ncmeasure results file"),
         ('{"format": "ncmeasure-results", "format_version": 99}', "update ncmeasure"),
