@@ -17,6 +17,7 @@ import re
 import stat
 import sys
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -179,6 +180,24 @@ def _too_deep(text: str) -> str:
     return "arrays or tables nested too deep" + (f" (at line {line})" if line else "")
 
 
+def _parse(
+    loads: Callable[[str], Any],
+    syntax_error: type[ValueError],
+    kind: str,
+    text: str,
+    where: str,
+    error: type[NcMeasureError],
+) -> Any:
+    try:
+        return loads(text)
+    except syntax_error as exc:
+        raise error(f"{where}: invalid {kind}: {exc}") from exc
+    except ValueError as exc:
+        raise error(f"{where}: invalid {kind}: {_too_long_integer(text)}") from exc
+    except RecursionError as exc:
+        raise error(f"{where}: invalid {kind}: {_too_deep(text)}") from exc
+
+
 def parse_toml(text: str, where: str, error: type[NcMeasureError] = ConfigError) -> dict[str, Any]:
     """The tables of a TOML text, or ``error`` naming ``where`` and the line.
 
@@ -186,14 +205,10 @@ def parse_toml(text: str, where: str, error: type[NcMeasureError] = ConfigError)
         error: invalid TOML, an integer Python cannot convert, or nesting deeper than
             Python's recursion allows.
     """
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise error(f"{where}: invalid TOML: {exc}") from exc
-    except ValueError as exc:
-        raise error(f"{where}: invalid TOML: {_too_long_integer(text)}") from exc
-    except RecursionError as exc:
-        raise error(f"{where}: invalid TOML: {_too_deep(text)}") from exc
+    tables: dict[str, Any] = _parse(
+        tomllib.loads, tomllib.TOMLDecodeError, "TOML", text, where, error
+    )
+    return tables
 
 
 def parse_json(text: str, where: str, error: type[NcMeasureError]) -> Any:
@@ -203,11 +218,4 @@ def parse_json(text: str, where: str, error: type[NcMeasureError]) -> Any:
         error: invalid JSON, an integer Python cannot convert, or nesting deeper than
             Python's recursion allows.
     """
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise error(f"{where}: invalid JSON: {exc}") from exc
-    except ValueError as exc:
-        raise error(f"{where}: invalid JSON: {_too_long_integer(text)}") from exc
-    except RecursionError as exc:
-        raise error(f"{where}: invalid JSON: {_too_deep(text)}") from exc
+    return _parse(json.loads, json.JSONDecodeError, "JSON", text, where, error)
