@@ -1,18 +1,54 @@
 """Opening a python-can bus, its failures told apart: a wrong name, or an interface that fails.
 
 The link and the simulated drives (:mod:`ncmeasure.sim.cia402`) open their buses here.
+
+On python-can's ``virtual`` interface a bus that receives its own messages gets them
+back before any other bus on the channel sees them, as on a real bus, where the
+controller's echo of a frame precedes every answer to it. python-can's own
+:class:`~can.interfaces.virtual.VirtualBus` delivers in the order the buses were
+opened: a simulated drive opened before the link could then answer a SYNC, on a
+loaded computer, before the link's echo of that SYNC arrived, and the link would
+put the answer into the previous cycle.
 """
 
 from __future__ import annotations
 
+import queue
+import time
 from collections.abc import Mapping
+from copy import deepcopy
 from typing import Any
 
 import can
+from can.interfaces.virtual import VirtualBus
 
 from ncmeasure.errors import ConfigError, LinkError
 
 __all__ = ["open_bus"]
+
+
+class _EchoFirstVirtualBus(VirtualBus):
+    """A virtual bus whose own echo is queued before the other buses get the frame."""
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if not self.receive_own_messages:
+            super().send(msg, timeout)
+            return
+        self._check_if_open()
+        timestamp = msg.timestamp if self.preserve_timestamps else time.time()
+        receivers = [self.queue] + [q for q in list(self.channel) if q is not self.queue]
+        all_sent = True
+        for bus_queue in receivers:
+            copy = deepcopy(msg)
+            copy.timestamp = timestamp
+            copy.channel = self.channel_id
+            copy.is_rx = bus_queue is not self.queue
+            try:
+                bus_queue.put(copy, block=True, timeout=timeout)
+            except queue.Full:
+                all_sent = False
+        if not all_sent:
+            raise can.CanOperationError("Could not send message to one or more recipients")
 
 
 def open_bus(channel: str | None, options: Mapping[str, Any], where: str) -> can.BusABC:
@@ -36,6 +72,9 @@ def open_bus(channel: str | None, options: Mapping[str, Any], where: str) -> can
             f"{where} {interface}: python-can has no such interface (it knows {known})"
         )
     try:
+        if interface == "virtual" and options.get("receive_own_messages"):
+            rest = {key: value for key, value in options.items() if key != "interface"}
+            return _EchoFirstVirtualBus(channel=channel or "channel-0", **rest)
         return can.Bus(channel=channel, **options)
     except Exception as exc:  # python-can raises CanError, OSError, ValueError, ...
         raise LinkError(
