@@ -42,10 +42,12 @@ def assert_contiguous_until(recording: Recording, period_s: float, until_s: floa
 
 @contextlib.contextmanager
 def canopen_machine(
-    source: SignalSource | None = None, clock: SimulatedClock | None = None
+    source: SignalSource | None = None,
+    clock: SimulatedClock | None = None,
+    channel: str | None = None,
 ) -> Iterator[tuple[MachineConfig, SimulatedDrives]]:
     """Three simulated CiA 402 drives on a fresh virtual bus, and a machine to record them."""
-    channel = f"acq-{uuid.uuid4().hex[:8]}"
+    channel = channel or f"acq-{uuid.uuid4().hex[:8]}"
     config = machine(
         {"type": "canopen", "interface": "virtual", "channel": channel, "sync_hz": 250}, "node_id"
     )

@@ -39,7 +39,32 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
             clock=clock,
             link_settings={"raw_log": str(folder / "bus.blf")},
         )
+    faults = [e.message for e in read_recording(folder / "live").events if e.kind == "fault"]
+    assert not [m for m in faults if "raw CAN log" in m]
     return folder, config
+
+
+@pytest.mark.parametrize("suffix", [".blf", ".asc", ".trc", ".log"])
+@pytest.mark.parametrize("name", ["acq-3cf90770", "can0", "vcan99999999"])
+def test_the_raw_log_holds_the_frames_whatever_the_channel_is_called(
+    name: str, suffix: str, tmp_path: Path
+) -> None:
+    """python-can's writers number the channel by the name's last digits (BLF: at most 65535)."""
+    clock = SimulatedClock()
+    log = tmp_path / f"bus{suffix}"
+    channel = f"{tmp_path.name}-{name}"  # unique, and ends as the name does
+    with canopen_machine(clock=clock, channel=channel) as (config, _):
+        record(
+            config,
+            out=tmp_path / "live",
+            duration_s=0.2,
+            clock=clock,
+            link_settings={"raw_log": str(log)},
+        )
+    events = read_recording(tmp_path / "live").events
+    assert not [e.message for e in events if "raw CAN log" in e.message]
+    frames = list(can.LogReader(str(log)))
+    assert sum(1 for m in frames if m.arbitration_id == 0x80) >= 50  # 0.2 s of SYNC at 250 Hz
 
 
 @pytest.mark.parametrize("suffix", [".blf", ".asc"])

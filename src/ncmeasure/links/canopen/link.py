@@ -1771,6 +1771,19 @@ def _tpdo_source(axis_settings: CanOpenAxis, eds: Path | None) -> str:
     return "the link.tpdo table" if axis_settings.tpdo is not None else f"DCF {eds}"
 
 
+def _log_channel(channel: Any) -> Any:
+    """The channel as the log writers can store it: one bus, so a number only if it fits.
+
+    python-can's writers number a channel by the last digits of its name (``can0`` is
+    channel 0), and BLF keeps a 16-bit number: a name such as ``bus-90770`` would fail
+    every frame. Such a channel is logged as the writer's default channel.
+    """
+    number = can.util.channel2int(channel)
+    if number is None or 0 <= number < 0xFFFF:
+        return channel
+    return None
+
+
 class _RawLog(can.Listener):
     """The raw frame log; a writer that fails stops logging, never the measurement.
 
@@ -1790,8 +1803,9 @@ class _RawLog(can.Listener):
         if self._failed:
             return
         clock = self._link.clock
+        msg = copy.copy(msg)
+        msg.channel = _log_channel(msg.channel)
         if clock.lockstep:
-            msg = copy.copy(msg)
             msg.timestamp = self._epoch + clock.now()
         try:
             self._writer.on_message_received(msg)
