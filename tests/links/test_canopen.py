@@ -643,19 +643,24 @@ def test_raw_log_has_every_frame(
 
 
 def test_a_failing_raw_log_never_stops_the_measurement(
-    tmp_path: Path, clock: SimulatedClock
+    tmp_path: Path, clock: SimulatedClock, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    channel = f"ncm-canopen-{uuid.uuid4().hex}-99999999"  # too big for a BLF channel number
+    """The log's disk is full (``/dev/full``: every write that reaches it fails, ENOSPC)."""
+    full = Path("/dev/full").open("w", encoding="ascii")  # noqa: SIM115 (the writer closes it)
+    monkeypatch.setattr(CanOpenLink, "_make_logger", staticmethod(lambda path: can.ASCWriter(full)))
+    channel = f"ncm-canopen-{uuid.uuid4().hex}"
     with (
         SimulatedDrives.start(channel, {0: 1}, SOURCE, scaling=SCALING, clock=clock),
-        make(channel, n_axes=1, raw_log=str(tmp_path / "bus.blf"), clock=clock) as link,
+        make(channel, n_axes=1, raw_log=str(tmp_path / "bus.asc"), clock=clock) as link,
     ):
         rec = Recorder(link)
-        rec.rows_at_least(50)
+        rec.rows_at_least(300)  # more frames than the file's buffer holds
     assert np.array_equal(rec.cycles, np.arange(len(rec.cycles)))
     assert_exact(rec)
     fault = rec.kinds("fault")[0]
-    assert f"the raw CAN log {tmp_path / 'bus.blf'} stopped" in fault.message
+    assert f"the raw CAN log {tmp_path / 'bus.asc'} stopped" in fault.message
+    assert "No space left on device" in fault.message
+    assert channel not in can.interfaces.virtual.channels  # the link's bus closed all the same
 
 
 # --- listen only: the controller owns the bus ---------------------------------------------------

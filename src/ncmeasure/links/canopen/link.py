@@ -1821,7 +1821,16 @@ class _RawLog(can.Listener):
             )
 
     def stop(self) -> None:
-        self._writer.stop()
+        try:
+            self._writer.stop()
+        except Exception as exc:  # a full disk fails the last write too; the bus still closes
+            if not self._failed:
+                log.warning(
+                    "the raw CAN log %s was not completed (%s: %s)",
+                    self._path,
+                    type(exc).__name__,
+                    exc,
+                )
 
 
 class _BusWatch(can.Listener):
