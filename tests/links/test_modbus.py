@@ -193,7 +193,11 @@ def lockstep_rows(rows: Sequence[tuple[float, list[float]]], axis_index: int) ->
 def read_until(
     link: ModbusLink, time_s: float, events: list[LinkEvent], limit_s: float = 60.0
 ) -> list[tuple[float, list[float]]]:
-    """Rows until one at ``time_s`` or later (a guard of ``limit_s`` against a hang)."""
+    """Rows up to the first one at ``time_s`` or later (a guard of ``limit_s`` against a hang).
+
+    The link polls ahead of the reader (in lockstep too: the next cycle waits only for
+    the previous one), so the last block may hold rows after that one: they are left out.
+    """
     rows: list[tuple[float, list[float]]] = []
     deadline = time.monotonic() + limit_s
     while not rows or rows[-1][0] < time_s:
@@ -202,7 +206,8 @@ def read_until(
         assert block is not None
         rows += block_rows(block)
         events += link.events()
-    return rows
+    last = next(i for i, (t, _) in enumerate(rows) if t >= time_s)
+    return rows[: last + 1]
 
 
 @pytest.fixture(scope="module")
