@@ -13,6 +13,7 @@ either::
     ├── OutputError (OSError)            results cannot be written
     ├── ComparisonError (ValueError)     results that cannot be compared
     ├── RecordingError (OSError)         a recording cannot be written or read
+    ├── StoreError (OSError)             the fleet store cannot be reached, read or written
     ├── DependencyError (ImportError)    an optional package is missing (names the extra)
     └── LinkError (ConnectionError)      a drive link failed (bus, network, drive)
         └── LinkTimeoutError (TimeoutError)  a drive did not answer in time
@@ -38,6 +39,7 @@ __all__ = [
     "ProgramCheckError",
     "ProgramError",
     "RecordingError",
+    "StoreError",
 ]
 
 
@@ -86,6 +88,10 @@ class OutputError(NcMeasureError, OSError):
 
 class RecordingError(NcMeasureError, OSError):
     """A recording cannot be written, or is not a readable recording."""
+
+
+class StoreError(NcMeasureError, OSError):
+    """The fleet store cannot be reached, read or written (or is of a newer schema)."""
 
 
 class DependencyError(NcMeasureError, ImportError):

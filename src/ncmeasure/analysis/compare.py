@@ -69,6 +69,7 @@ __all__ = [
     "PointDeviation",
     "RunSummary",
     "compare_results",
+    "modified_z_against",
     "write_comparison",
 ]
 
@@ -473,6 +474,23 @@ def _modified_z(values: Sequence[float]) -> list[float]:
     if mean_ad > 0:
         return [float(z) for z in _MEAN_AD_TO_SIGMA * (x - centre) / mean_ad]
     return [0.0] * x.size
+
+
+def modified_z_against(value: float, reference: Sequence[float]) -> float:
+    """The modified z-score of ``value`` against other values (not including it).
+
+    0.6745·(value − median)/MAD of ``reference``, with the mean absolute deviation
+    (× 0.7979) where the MAD is 0, and 0 where the reference does not scatter at all.
+    """
+    x = np.asarray(reference, dtype=np.float64)
+    centre = float(np.median(x))
+    mad = float(np.median(np.abs(x - centre)))
+    if mad > 0:
+        return _MAD_TO_SIGMA * (value - centre) / mad
+    mean_ad = float(np.mean(np.abs(x - centre)))
+    if mean_ad > 0:
+        return _MEAN_AD_TO_SIGMA * (value - centre) / mean_ad
+    return 0.0
 
 
 # --------------------------------------------------------------------------- change diagnosis

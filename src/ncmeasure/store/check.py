@@ -1,0 +1,320 @@
+"""``store check``: a machine's latest measurement against its delivery baseline and its fleet.
+
+Against the baseline (the first measurement labelled ``delivery``, else the
+first), the comparison is :func:`~ncmeasure.analysis.compare.compare_results`,
+with its limits and exit status, after the comparability rules
+(:func:`comparability`) have said what differs between the two measurements.
+
+Against the fleet (the latest measurement of every other machine of its type),
+each characteristic (:data:`~ncmeasure.store.rows.CHARACTERISTICS`) of each
+axis gets the fleet's median, its spread (MAD) and the machine's robust
+modified z-score; beyond the outlier limit (3.5) the machine is an outlier of
+its type, a warning. Fewer than ``Limits.outlier_min_runs`` other machines
+name no outlier.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from sqlalchemy import select
+
+from ncmeasure.analysis.compare import (
+    POSITION_MATCH_TOLERANCE_MM,
+    Comparison,
+    Limits,
+    Status,
+    compare_results,
+    modified_z_against,
+)
+from ncmeasure.analysis.results import Results
+from ncmeasure.errors import ComparisonError
+from ncmeasure.store import schema as t
+from ncmeasure.store.rows import CHARACTERISTICS
+from ncmeasure.store.store import MeasurementSummary, Store, check_serial
+
+__all__ = [
+    "TEMPERATURE_WARNING_K",
+    "Comparability",
+    "FleetFigure",
+    "StoreCheck",
+    "check_machine",
+    "comparability",
+]
+
+TEMPERATURE_WARNING_K = 5.0
+"""Temperatures further apart than this make a comparison doubtful: the lubricant's
+viscosity, and with it viscous friction, changes by several percent per kelvin."""
+
+_STATUS_ORDER: dict[Status, int] = {"ok": 0, "warning": 1, "critical": 2}
+
+
+@dataclass(frozen=True)
+class Comparability:
+    """What differs between two measurements, and whether that invalidates comparing them."""
+
+    differences: list[str] = field(default_factory=list)
+    """Differences that weaken the comparison (warnings)."""
+    refused: str | None = None
+    """Why the two cannot be compared at all."""
+
+
+@dataclass(frozen=True)
+class FleetFigure:
+    """One characteristic of one axis against the other machines of the type."""
+
+    axis: str
+    characteristic: str
+    unit: str
+    value: float
+    fleet_median: float
+    fleet_low: float
+    fleet_high: float
+    machines: int
+    modified_z: float | None
+    """None when the fleet is too small to name outliers."""
+    outlier: bool
+
+
+@dataclass(frozen=True)
+class StoreCheck:
+    """The result of :func:`check_machine`."""
+
+    serial: str
+    machine_type: str
+    latest: MeasurementSummary
+    baseline: MeasurementSummary | None
+    comparability: Comparability | None
+    comparison: Comparison | None
+    fleet: list[FleetFigure]
+    fleet_machines: int
+    findings: list[str]
+    status: Status
+
+
+def _positions(results: Results, axis: str) -> list[float]:
+    return [p.position_mm for p in results.axes[axis].positions]
+
+
+def _speeds(results: Results, axis: str) -> set[float]:
+    return {
+        round(abs(point.velocity_mm_min), 1)
+        for position in results.axes[axis].positions
+        for found in position.directions.values()
+        if found is not None
+        for point in found.points
+    }
+
+
+def comparability(
+    base: MeasurementSummary,
+    base_results: Results,
+    other: MeasurementSummary,
+    other_results: Results,
+) -> Comparability:
+    """What differs between two measurements of one machine (docs/fleet.md, the rules).
+
+    Refused: no axis in common, or an axis measured in another quantity (Nm
+    against A). Warnings: another program (config hash), other positions or
+    velocities, temperatures more than :data:`TEMPERATURE_WARNING_K` apart (or
+    one unknown), another link.
+    """
+    differences: list[str] = []
+    common = sorted(set(base_results.axes) & set(other_results.axes))
+    if not common:
+        return Comparability(
+            refused=f"no axis in common ({', '.join(base_results.axes)} against "
+            f"{', '.join(other_results.axes)})"
+        )
+    for axis in common:
+        b, o = base_results.axes[axis], other_results.axes[axis]
+        if b.quantity != o.quantity:
+            return Comparability(
+                refused=f"axis {axis} is in {b.unit} in one and {o.unit} in the other "
+                "measurement (a torque constant was given only once); analyse both alike"
+            )
+    if base.config_hash != other.config_hash:
+        differences.append(
+            f"another program: config {base.config_hash or '(none)'} against "
+            f"{other.config_hash or '(none)'}; only the points both measured are compared"
+        )
+    for axis in common:
+        bp, op = _positions(base_results, axis), _positions(other_results, axis)
+        matched = sum(any(abs(x - y) <= POSITION_MATCH_TOLERANCE_MM for y in op) for x in bp)
+        if matched < len(bp) or len(op) != len(bp):
+            differences.append(
+                f"axis {axis}: positions differ ({matched} of {len(bp)} within "
+                f"{POSITION_MATCH_TOLERANCE_MM:g} mm)"
+            )
+        bs, os_ = _speeds(base_results, axis), _speeds(other_results, axis)
+        if bs != os_:
+            shared = len(bs & os_)
+            differences.append(
+                f"axis {axis}: velocities differ ({shared} of {len(bs)} velocity steps in common)"
+            )
+    temperatures = (base.temperature_c, other.temperature_c)
+    if None in temperatures:
+        if temperatures != (None, None):
+            differences.append(
+                "temperature known for only one measurement: a warm machine has less friction"
+            )
+    else:
+        t_base, t_other = temperatures
+        assert t_base is not None and t_other is not None
+        if abs(t_base - t_other) > TEMPERATURE_WARNING_K:
+            differences.append(
+                f"temperatures differ by {abs(t_base - t_other):.1f} K ({t_base:g} °C against "
+                f"{t_other:g} °C): "
+                "friction falls as the machine warms; measure at a similar temperature"
+            )
+    if base.link != other.link:
+        differences.append(
+            f"measured through another link ({base.link} against {other.link}): current "
+            "scaling and filtering may differ"
+        )
+    return Comparability(differences=differences)
+
+
+def _worst(*statuses: Status) -> Status:
+    return max(statuses, key=lambda s: _STATUS_ORDER[s])
+
+
+def _fleet_values(
+    store: Store, type_id: int, machine_id: int
+) -> dict[tuple[str, str], dict[str, list[float]]]:
+    """Per (axis, unit) and characteristic: the values of the other machines' latest."""
+    a = t.axis_results
+    columns = [a.c[c.name] for c in CHARACTERISTICS]
+    values: dict[tuple[str, str], dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    with store.reading("read the fleet") as db:
+        rows = db.execute(
+            select(a.c.axis, a.c.unit, *columns)
+            .join(t.machines, t.machines.c.latest_measurement_id == a.c.measurement_id)
+            .where(t.machines.c.type_id == type_id, t.machines.c.id != machine_id)
+        ).all()
+    for row in rows:
+        for c in CHARACTERISTICS:
+            value = getattr(row, c.name)
+            if value is not None and math.isfinite(value):
+                values[(row.axis, row.unit)][c.name].append(float(value))
+    return values
+
+
+def _fleet(
+    store: Store, machine_type_id: int, machine_id: int, latest: Results, limits: Limits
+) -> tuple[list[FleetFigure], int]:
+    values = _fleet_values(store, machine_type_id, machine_id)
+    with store.reading("read the fleet") as db:
+        machines = db.execute(
+            select(t.machines.c.id).where(
+                t.machines.c.type_id == machine_type_id,
+                t.machines.c.id != machine_id,
+                t.machines.c.latest_measurement_id.is_not(None),
+            )
+        ).all()
+    from ncmeasure.store.rows import rows_of_axis
+
+    figures: list[FleetFigure] = []
+    for name, axis in sorted(latest.axes.items()):
+        own = rows_of_axis(name, axis).axis
+        for c in CHARACTERISTICS:
+            value = own[c.name]
+            reference = values.get((name, axis.unit), {}).get(c.name, [])
+            if value is None or not reference:
+                continue
+            enough = len(reference) >= limits.outlier_min_runs
+            z = modified_z_against(value, reference) if enough else None
+            unit = "%" if c.unit == "%" else c.unit.replace("quantity", axis.unit)
+            figures.append(
+                FleetFigure(
+                    axis=name,
+                    characteristic=c.name,
+                    unit=unit,
+                    value=value,
+                    fleet_median=float(np.median(reference)),
+                    fleet_low=float(min(reference)),
+                    fleet_high=float(max(reference)),
+                    machines=len(reference),
+                    modified_z=z,
+                    outlier=z is not None and abs(z) > limits.outlier_z,
+                )
+            )
+    return figures, len(machines)
+
+
+def _baseline(measurements: Sequence[MeasurementSummary]) -> MeasurementSummary:
+    return next((m for m in measurements if m.label == "delivery"), measurements[0])
+
+
+def check_machine(store: Store, serial: str, limits: Limits | None = None) -> StoreCheck:
+    """A machine's latest measurement against its baseline and its fleet.
+
+    Raises:
+        ConfigError: No such machine, or it has no measurement.
+        StoreError: The database failed.
+    """
+    limits = limits or Limits()
+    check_serial(serial)
+    summary, measurements = store.machine(serial)
+    with store.reading("read the machine") as db:
+        machine = store.machine_row(db, serial)
+    latest = next(m for m in measurements if m.id == machine.latest_measurement_id)
+    latest_results = store.results(latest.id)
+    findings: list[str] = []
+    status: Status = "ok"
+    first = _baseline(measurements)
+    baseline = first if first.id != latest.id else None
+    comparison: Comparison | None = None
+    rules: Comparability | None = None
+    if baseline is None:
+        findings.append("only the baseline is stored: nothing to compare over the machine's life")
+    else:
+        base_results = store.results(baseline.id)
+        rules = comparability(baseline, base_results, latest, latest_results)
+        if rules.refused is not None:
+            findings.append(f"not compared with the baseline: {rules.refused}")
+        else:
+            base_label = baseline.label or f"measurement {baseline.id}"
+            other_label = latest.label or f"measurement {latest.id}"
+            if other_label == base_label:
+                other_label = f"{other_label} ({latest.measured_utc[:10]})"
+            try:
+                comparison = compare_results(
+                    base_results, [latest_results], labels=[base_label, other_label], limits=limits
+                )
+            except ComparisonError as exc:
+                rules = Comparability(rules.differences, refused=exc.message)
+                findings.append(f"not compared with the baseline: {exc.message}")
+            else:
+                status = comparison.status
+                findings.extend(comparison.findings)
+    fleet, fleet_machines = _fleet(store, machine.type_id, machine.id, latest_results, limits)
+    if fleet_machines < limits.outlier_min_runs:
+        findings.append(
+            f"{fleet_machines} other machine(s) of type {summary.machine_type!r} in the store: "
+            f"at least {limits.outlier_min_runs} are needed to name outliers"
+        )
+    for figure in fleet:
+        if figure.outlier:
+            status = _worst(status, "warning")
+            findings.append(
+                f"axis {figure.axis}: {figure.characteristic} {figure.value:.4g} {figure.unit} is "
+                f"an outlier of its type (fleet median {figure.fleet_median:.4g}, modified z "
+                f"{figure.modified_z:+.1f} over {figure.machines} machines)"
+            )
+    return StoreCheck(
+        serial=serial,
+        machine_type=summary.machine_type,
+        latest=latest,
+        baseline=baseline,
+        comparability=rules,
+        comparison=comparison,
+        fleet=fleet,
+        fleet_machines=fleet_machines,
+        findings=findings,
+        status=status,
+    )

@@ -1,0 +1,210 @@
+"""The fleet store's tables (SQLAlchemy Core), the same on SQLite and PostgreSQL.
+
+::
+
+    machine_types   name + config_hash of the machine file (one program per type)
+    machines        serial (unique), type, site, the latest measurement
+    axes            per machine: X, Y, Z, ...
+    measurements    one stored results.json: when, label, who, temperature, operating
+                    hours, link, ncmeasure version, recording location, the results
+                    themselves (compressed JSON, lossless), their SHA-256 (unique)
+    axis_results    per measurement and axis: verdict, unit, the characteristics
+                    (Coulomb, viscous, spread along the travel, offset)
+    points          every measured point: position, direction, velocity, median, ...
+    fits            every fit per position and direction (linear, stribeck, extended)
+    fit_parameters  the parameters of a fit with standard error or 95 % interval
+    causes          the likely assembly causes of the position signature, ranked
+
+The schema changes only through an Alembic revision (``migrations/versions``);
+``tests/store/test_migrations.py`` proves the revisions build exactly these tables.
+"""
+
+from __future__ import annotations
+
+from sqlalchemy import (
+    Boolean,
+    Column,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    LargeBinary,
+    MetaData,
+    String,
+    Table,
+    Text,
+    UniqueConstraint,
+)
+
+__all__ = [
+    "axes",
+    "axis_results",
+    "causes",
+    "fit_parameters",
+    "fits",
+    "machine_types",
+    "machines",
+    "measurements",
+    "metadata",
+    "points",
+]
+
+metadata = MetaData(
+    naming_convention={
+        "ix": "ix_%(column_0_label)s",
+        "uq": "uq_%(table_name)s_%(column_0_name)s",
+        "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+        "pk": "pk_%(table_name)s",
+    }
+)
+
+machine_types = Table(
+    "machine_types",
+    metadata,
+    Column("id", Integer, primary_key=True),
+    Column("name", String(200), nullable=False),
+    Column("config_hash", String(64), nullable=False, doc="'' when the results carry none."),
+    Column("created_utc", String(32), nullable=False),
+    UniqueConstraint("name", "config_hash"),
+)
+
+machines = Table(
+    "machines",
+    metadata,
+    Column("id", Integer, primary_key=True),
+    Column("serial", String(64), nullable=False, unique=True),
+    Column("type_id", ForeignKey("machine_types.id"), nullable=False, index=True),
+    Column("site", String(200)),
+    Column("created_utc", String(32), nullable=False),
+    Column("latest_measurement_id", Integer, doc="The measurement with the latest time."),
+)
+
+axes = Table(
+    "axes",
+    metadata,
+    Column("id", Integer, primary_key=True),
+    Column("machine_id", ForeignKey("machines.id", ondelete="CASCADE"), nullable=False),
+    Column("name", String(32), nullable=False),
+    UniqueConstraint("machine_id", "name"),
+)
+
+measurements = Table(
+    "measurements",
+    metadata,
+    Column("id", Integer, primary_key=True),
+    Column("machine_id", ForeignKey("machines.id", ondelete="CASCADE"), nullable=False),
+    Column("type_id", ForeignKey("machine_types.id"), nullable=False),
+    Column("measured_utc", String(32), nullable=False),
+    Column("added_utc", String(32), nullable=False),
+    Column("label", String(64)),
+    Column("operator", String(200)),
+    Column("temperature_c", Float),
+    Column("operating_hours", Float),
+    Column("link", String(64), doc="Where the data came from: canopen, modbus, a trace, ..."),
+    Column("config_hash", String(64), nullable=False),
+    Column("ncmeasure_version", String(32), nullable=False),
+    Column("results_format_version", Integer, nullable=False),
+    Column("recording_location", Text),
+    Column("results_sha256", String(64), nullable=False, unique=True),
+    Column("results_json", LargeBinary, nullable=False, doc="zlib-compressed results.json."),
+    Index("ix_measurements_machine_time", "machine_id", "measured_utc"),
+)
+
+axis_results = Table(
+    "axis_results",
+    metadata,
+    Column("id", Integer, primary_key=True),
+    Column(
+        "measurement_id",
+        ForeignKey("measurements.id", ondelete="CASCADE"),
+        nullable=False,
+        index=True,
+    ),
+    Column("axis_id", ForeignKey("axes.id", ondelete="CASCADE"), nullable=False, index=True),
+    Column("axis", String(32), nullable=False),
+    Column("verdict", String(16), nullable=False),
+    Column("verdict_reason", Text, nullable=False),
+    Column("verdict_action", Text, nullable=False),
+    Column("quantity", String(16), nullable=False),
+    Column("unit", String(8), nullable=False),
+    Column("windows", Integer, nullable=False),
+    Column("samples_used", Integer, nullable=False),
+    Column("coulomb", Float),
+    Column("coulomb_positive", Float),
+    Column("coulomb_negative", Float),
+    Column("viscous_per_m_min", Float),
+    Column("spread_percent", Float),
+    Column("signature", String(32)),
+    Column("offset", Float),
+    Column("offset_stderr", Float),
+    UniqueConstraint("measurement_id", "axis"),
+)
+
+points = Table(
+    "points",
+    metadata,
+    Column("id", Integer, primary_key=True),
+    Column(
+        "axis_result_id",
+        ForeignKey("axis_results.id", ondelete="CASCADE"),
+        nullable=False,
+        index=True,
+    ),
+    Column("position_index", Integer, nullable=False),
+    Column("position_mm", Float, nullable=False),
+    Column("direction", String(8), nullable=False),
+    Column("velocity_mm_min", Float, nullable=False),
+    Column("median", Float, nullable=False),
+    Column("stderr", Float),
+    Column("mean", Float, nullable=False),
+    Column("std", Float, nullable=False),
+    Column("n", Integer, nullable=False),
+)
+
+fits = Table(
+    "fits",
+    metadata,
+    Column("id", Integer, primary_key=True),
+    Column(
+        "axis_result_id",
+        ForeignKey("axis_results.id", ondelete="CASCADE"),
+        nullable=False,
+        index=True,
+    ),
+    Column("position_index", Integer, nullable=False),
+    Column("position_mm", Float, nullable=False),
+    Column("direction", String(8), nullable=False),
+    Column("model", String(16), nullable=False),
+    Column("chosen", Boolean, nullable=False, doc="The model that describes this curve."),
+    Column("accepted", Boolean, nullable=False, doc="Linear: χ² accepted; else identifiable."),
+    Column("chi2_reduced", Float),
+    Column("reason", Text),
+)
+
+fit_parameters = Table(
+    "fit_parameters",
+    metadata,
+    Column("id", Integer, primary_key=True),
+    Column("fit_id", ForeignKey("fits.id", ondelete="CASCADE"), nullable=False, index=True),
+    Column("name", String(32), nullable=False),
+    Column("value", Float),
+    Column("stderr", Float),
+    Column("ci95_low", Float),
+    Column("ci95_high", Float),
+)
+
+causes = Table(
+    "causes",
+    metadata,
+    Column("id", Integer, primary_key=True),
+    Column(
+        "axis_result_id",
+        ForeignKey("axis_results.id", ondelete="CASCADE"),
+        nullable=False,
+        index=True,
+    ),
+    Column("rank", Integer, nullable=False),
+    Column("cause", String(32), nullable=False),
+    Column("score", Float, nullable=False),
+    Column("evidence", Text, nullable=False),
+)
