@@ -1412,6 +1412,368 @@ def _print_comparison(comparison: Comparison, runs: list[Results]) -> None:
         )
 
 
+store_app = typer.Typer(
+    help="The fleet store: every measurement of every machine over its life, in SQLite "
+    "(a file, the default) or PostgreSQL. Name it with --store URL or NCMEASURE_STORE: "
+    "sqlite:///fleet.db, postgresql://user@host/db, or a file path. Default: "
+    "~/.local/share/ncmeasure/fleet.db.\n\n"
+    "Typical use: `ncmeasure store add m17.results.json --serial M17 --label delivery`, "
+    "years later the same with --label service, then `ncmeasure store check M17`.",
+    no_args_is_help=True,
+)
+app.add_typer(store_app, name="store")
+
+StoreOption = Annotated[
+    str | None,
+    typer.Option(
+        "--store",
+        metavar="URL",
+        help="The store: sqlite:///FILE, postgresql://USER@HOST/DB, or a file path "
+        "(default: $NCMEASURE_STORE, else ~/.local/share/ncmeasure/fleet.db).",
+        show_default=False,
+    ),
+]
+
+
+def _open_store(url: str | None, *, write: bool) -> Any:
+    """The store module's ``open_store`` context on the resolved URL; a clear error
+    naming the extra when SQLAlchemy is missing."""
+    try:
+        from ncmeasure.store import open_store, store_url
+    except ImportError as exc:
+        from ncmeasure.errors import DependencyError
+
+        raise DependencyError(
+            f"the fleet store needs the package {exc.name!r}, which is missing "
+            "(pip install 'ncmeasure[store]')"
+        ) from exc
+    return open_store(store_url(url), write=write)
+
+
+def _measurement_info(**fields: Any) -> Any:
+    from ncmeasure.store import MeasurementInfo
+
+    return MeasurementInfo(**fields).checked()
+
+
+def _limits(warning: float | None, critical: float | None) -> Any:
+    from pydantic import ValidationError
+
+    from ncmeasure.analysis.compare import Limits
+    from ncmeasure.config import format_validation_error
+
+    updates = {
+        k: v
+        for k, v in {"warning_percent": warning, "critical_percent": critical}.items()
+        if v is not None
+    }
+    try:
+        return Limits.model_validate(updates)
+    except ValidationError as exc:
+        raise ConfigError(
+            "--warning/--critical: not valid limits", format_validation_error(exc)
+        ) from exc
+
+
+@store_app.command("add")
+@_command
+def store_add_command(
+    results_file: Annotated[Path, typer.Argument(help="results.json of `ncmeasure analyze`.")],
+    serial: Annotated[str, typer.Option(help="The machine's serial number.")],
+    label: Annotated[
+        str | None,
+        typer.Option(help="What the measurement is: delivery, service, after-repair, ..."),
+    ] = None,
+    site: Annotated[str | None, typer.Option(help="Where the machine stands.")] = None,
+    machine_type: Annotated[
+        str | None,
+        typer.Option("--type", help="The machine type (default: the machine name in the results)."),
+    ] = None,
+    operator: Annotated[str | None, typer.Option(help="Who measured.")] = None,
+    temperature_c: Annotated[
+        float | None, typer.Option("--temperature-c", help="Machine temperature in °C.")
+    ] = None,
+    operating_hours: Annotated[
+        float | None, typer.Option(help="The machine's operating hours.")
+    ] = None,
+    recording: Annotated[
+        str | None,
+        typer.Option(help="Where the raw recording is kept (default: its folder in the results)."),
+    ] = None,
+    store: StoreOption = None,
+) -> None:
+    """Add a measurement's results to the store (the same results twice are stored once).
+
+    Example: ncmeasure store add m17.results.json --serial M17 --label delivery --temperature-c 21.5
+    """
+    from ncmeasure.analysis.analyze import load_results
+
+    info = _measurement_info(
+        serial=serial,
+        label=label,
+        site=site,
+        machine_type=machine_type,
+        operator=operator,
+        temperature_c=temperature_c,
+        operating_hours=operating_hours,
+        recording_location=recording,
+    )
+    results = load_results(results_file)
+    with _open_store(store, write=True) as fleet:
+        added = fleet.add(results, info)
+        where = fleet.where
+    if added.new:
+        console.print(f"stored as measurement {added.measurement_id} of {serial} in {where}")
+    else:
+        console.print(
+            f"already stored as measurement {added.measurement_id} of {serial}; nothing added"
+        )
+
+
+@store_app.command("list")
+@_command
+def store_list_command(store: StoreOption = None) -> None:
+    """The machines in the store: type, site, measurements, the latest verdicts."""
+    with _open_store(store, write=False) as fleet:
+        machines = fleet.machines()
+        where = fleet.where
+    if not machines:
+        console.print(f"no machines in {where}")
+        return
+    table = Table(title=f"{len(machines)} machine(s) in {where}", title_justify="left")
+    for column in ("serial", "type", "site", "measurements", "latest", "label", "verdicts"):
+        table.add_column(column)
+    for m in machines:
+        table.add_row(
+            m.serial,
+            m.machine_type,
+            m.site or "",
+            str(m.measurements),
+            (m.latest_utc or "")[:16].replace("T", " "),
+            m.latest_label or "",
+            _verdict_text(m.latest_verdicts),
+        )
+    console.print(table)
+
+
+def _verdict_text(verdicts: dict[str, str]) -> Text:
+    text = Text()
+    for index, (axis, level) in enumerate(verdicts.items()):
+        if index:
+            text.append(" ")
+        text.append(f"{axis} ")
+        text.append(level, style=_LEVEL_STYLE.get(level, "bold"))
+    return text
+
+
+@store_app.command("show")
+@_command
+def store_show_command(
+    serial: Annotated[str, typer.Argument(help="The machine's serial number.")],
+    store: StoreOption = None,
+) -> None:
+    """A machine and its measurements, oldest first."""
+    with _open_store(store, write=False) as fleet:
+        machine, measurements = fleet.machine(serial)
+    console.print(
+        Text.assemble(
+            (machine.serial, "bold"),
+            f" · type {machine.machine_type} (config {machine.config_hash or 'unknown'})"
+            + (f" · {machine.site}" if machine.site else ""),
+        )
+    )
+    table = Table()
+    for column in ("id", "measured (UTC)", "label", "°C", "hours", "link", "verdicts"):
+        table.add_column(column)
+    for m in measurements:
+        table.add_row(
+            str(m.id),
+            m.measured_utc[:19].replace("T", " "),
+            m.label or "",
+            "" if m.temperature_c is None else f"{m.temperature_c:g}",
+            "" if m.operating_hours is None else f"{m.operating_hours:g}",
+            m.link or "",
+            _verdict_text(m.verdicts),
+        )
+    console.print(table)
+
+
+@store_app.command("trend")
+@_command
+def store_trend_command(
+    serial: Annotated[str, typer.Argument(help="The machine's serial number.")],
+    axis: Annotated[str, typer.Option(help="The axis, e.g. X.")],
+    plot: Annotated[
+        Path | None, typer.Option(help="Also draw the trend with its limits as a PNG.")
+    ] = None,
+    warning: Annotated[
+        float | None, typer.Option(help="Warning limit in % of the baseline (default 20).")
+    ] = None,
+    critical: Annotated[
+        float | None, typer.Option(help="Critical limit in % of the baseline (default 40).")
+    ] = None,
+    store: StoreOption = None,
+) -> None:
+    """Coulomb, viscous friction and the spread along the travel over the machine's life.
+
+    Example: ncmeasure store trend M17 --axis X --plot m17-x.png
+    """
+    import datetime as dt
+
+    from ncmeasure.analysis.summary import format_number
+
+    limits = _limits(warning, critical)
+    with _open_store(store, write=False) as fleet:
+        points = fleet.trend(serial, axis)
+    unit = points[0].unit
+    table = Table(title=f"{serial} axis {axis}", title_justify="left")
+    for column in (
+        "id", "measured (UTC)", "label", "hours", f"Coulomb [{unit}]",
+        f"viscous [{unit} per m/min]", "spread [%]", "verdict",
+    ):  # fmt: skip
+        table.add_column(column)
+    for p in points:
+        table.add_row(
+            str(p.measurement_id),
+            p.measured_utc[:16].replace("T", " "),
+            p.label or "",
+            "" if p.operating_hours is None else f"{p.operating_hours:g}",
+            format_number(p.coulomb),
+            format_number(p.viscous_per_m_min),
+            format_number(p.spread_percent),
+            Text(p.verdict, style=_LEVEL_STYLE.get(p.verdict, "bold")),
+        )
+    console.print(table)
+    if plot is not None:
+        from ncmeasure.report.plots import plot_trend, save_png
+
+        baseline = next((i for i, p in enumerate(points) if p.label == "delivery"), 0)
+        figure = plot_trend(
+            axis,
+            [dt.datetime.fromisoformat(p.measured_utc) for p in points],
+            [
+                ("Coulomb", unit, [p.coulomb for p in points]),
+                ("viscous", f"{unit} per m/min", [p.viscous_per_m_min for p in points]),
+                ("spread along the travel", "%", [p.spread_percent for p in points]),
+            ],
+            baseline_index=baseline,
+            warning_percent=limits.warning_percent,
+            critical_percent=limits.critical_percent,
+            labels=[p.label for p in points],
+        )
+        save_png(figure, plot)
+        console.print(f"wrote {plot}")
+
+
+@store_app.command("check")
+@_command
+def store_check_command(
+    serial: Annotated[str, typer.Argument(help="The machine's serial number.")],
+    warning: Annotated[
+        float | None, typer.Option(help="Warning limit of the change in % (default 20).")
+    ] = None,
+    critical: Annotated[
+        float | None, typer.Option(help="Critical limit of the change in % (default 40).")
+    ] = None,
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="Also write the check as JSON.")
+    ] = None,
+    store: StoreOption = None,
+) -> Outcome:
+    """The latest measurement against the machine's delivery baseline and its fleet.
+
+    The baseline is the first measurement labelled delivery (else the first). The fleet
+    is the latest measurement of every other machine of the type: per axis and
+    characteristic its median and range, and the machine's robust z-score (an outlier
+    beyond 3.5, with at least 3 other machines). What differs between baseline and
+    latest (program, positions, velocities, temperature, link) is said first.
+
+    Exit code 0: within the limits; 1: a warning limit crossed or an outlier of its type;
+    3: a critical limit crossed; 2: bad input.
+    """
+    from ncmeasure.store.check import check_machine, write_check
+
+    limits = _limits(warning, critical)
+    with _open_store(store, write=False) as fleet:
+        found = check_machine(fleet, serial, limits)
+    if output is not None:
+        write_check(found, output)
+    latest = found.latest
+    console.print(
+        Text.assemble(
+            (serial, "bold"),
+            f" · latest measurement {latest.id} ({latest.label or 'no label'}, "
+            f"{latest.measured_utc[:16].replace('T', ' ')} UTC)",
+        )
+    )
+    if found.baseline is not None:
+        base = found.baseline
+        console.print(
+            f"baseline: measurement {base.id} ({base.label or 'no label'}, "
+            f"{base.measured_utc[:16].replace('T', ' ')} UTC)"
+        )
+    if found.comparability is not None:
+        for difference in found.comparability.differences:
+            _warn(difference)
+    for finding in found.findings:
+        console.print(Text(finding))
+    line = Text("status: ")
+    line.append(found.status, style=_STATUS_STYLE[found.status])
+    console.print(line)
+    return found.status
+
+
+_STATUS_STYLE = {"ok": "bold green", "warning": "bold yellow", "critical": "bold red"}
+
+
+@store_app.command("export")
+@_command
+def store_export_command(
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="JSON-lines file (default: stdout).")
+    ] = None,
+    store: StoreOption = None,
+) -> None:
+    """Write the whole store as JSON lines: a backup, or to move it (SQLite → PostgreSQL).
+
+    Example: ncmeasure store export -o fleet.jsonl; ncmeasure store import fleet.jsonl
+    --store postgresql://ncm@db/fleet
+    """
+    from ncmeasure.files import replace_text
+    from ncmeasure.store.transfer import export_lines
+
+    with _open_store(store, write=False) as fleet:
+        if output is None:
+            for line in export_lines(fleet):
+                sys.stdout.write(line + "\n")
+            return
+        with replace_text(output) as file:
+            count = 0
+            for line in export_lines(fleet):
+                file.write(line + "\n")
+                count += 1
+    err_console.print(f"wrote {count - 1} measurement(s) to {output}")
+
+
+@store_app.command("import")
+@_command
+def store_import_command(
+    source: Annotated[Path, typer.Argument(help="JSON-lines file of `store export`.")],
+    store: StoreOption = None,
+) -> None:
+    """Add every measurement of an export (those already stored are skipped)."""
+    from ncmeasure.store.transfer import import_lines
+
+    try:
+        stream = source.open("rb")
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot be read ({exc.strerror or exc})") from exc
+    with stream, _open_store(store, write=True) as fleet:
+        added, existing = import_lines(fleet, stream, str(source))
+        where = fleet.where
+    console.print(f"added {added} measurement(s) to {where}; {existing} were already stored")
+
+
 @app.command("simulate")
 @_command
 def simulate_command(

@@ -12,6 +12,7 @@ results give the same bytes.
 
 from __future__ import annotations
 
+import datetime as dt
 import functools
 import io
 from collections.abc import Callable, Sequence
@@ -51,6 +52,7 @@ __all__ = [
     "plot_raw_data",
     "plot_stribeck",
     "plot_travel",
+    "plot_trend",
     "save_png",
 ]
 
@@ -697,4 +699,66 @@ def plot_comparison(comparison: Comparison) -> Figure:
     )
     if labels:
         figure.legend(loc="outside lower center", ncols=min(4, len(labels)))
+    return figure
+
+
+@_styled
+def plot_trend(
+    axis: str,
+    times: Sequence[dt.datetime],
+    series: Sequence[tuple[str, str, Sequence[float | None]]],
+    *,
+    baseline_index: int | None,
+    warning_percent: float,
+    critical_percent: float,
+    labels: Sequence[str | None] = (),
+) -> Figure:
+    """An axis' characteristics over a machine's life, one panel each.
+
+    Args:
+        axis: The axis name (title).
+        times: When each measurement was taken.
+        series: Per panel ``(title, unit, values)``; a value may be None (not determined).
+            A panel whose unit is ``%`` is drawn without limits (a spread).
+        baseline_index: The baseline measurement: the limits are drawn as bands
+            around its value (± warning, ± critical percent).
+        warning_percent: Warning limit in percent of the baseline.
+        critical_percent: Critical limit in percent of the baseline.
+        labels: A label per measurement (``delivery``, ``service``), written at its point.
+
+    Returns:
+        A new figure on an Agg canvas.
+    """
+    figure = _figure(1.9 * max(1, len(series)) + 0.4)
+    panels = figure.subplots(max(1, len(series)), 1, sharex=True, squeeze=False)[:, 0]
+    figure.suptitle(f"Axis {_plain(axis)} over the machine's life", fontsize=11)
+    for ax, (title, unit, values) in zip(panels, series, strict=False):
+        _style(ax)
+        known = [(t, v) for t, v in zip(times, values, strict=True) if v is not None]
+        if known:
+            ax.plot(
+                [t for t, _ in known], [v for _, v in known], "o-", color=PALETTE[0], lw=1.4, ms=5
+            )
+        for index, label in enumerate(labels):
+            value = values[index] if index < len(values) else None
+            if label and value is not None:
+                ax.annotate(
+                    _plain(label),
+                    (times[index], value),
+                    textcoords="offset points",
+                    xytext=(4, 6),
+                    fontsize=7.5,
+                    color="#555555",
+                )
+        base = values[baseline_index] if baseline_index is not None else None
+        if base is not None and unit != "%" and base != 0:
+            for limit, colour in ((critical_percent, "#c0392b"), (warning_percent, "#e07b00")):
+                band = abs(base) * limit / 100.0
+                ax.axhspan(base - band, base + band, color=colour, alpha=0.07, lw=0)
+                for edge in (base - band, base + band):
+                    ax.axhline(edge, color=colour, lw=0.8, ls="--")
+            ax.axhline(base, color="#555555", lw=0.8, ls=":")
+        ax.set_ylabel(_plain(f"{title}\n[{unit}]"))
+    panels[-1].set_xlabel("measured (UTC)")
+    figure.autofmt_xdate()
     return figure

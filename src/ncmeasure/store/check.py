@@ -15,10 +15,15 @@ name no outlier.
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
+import os
 from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from sqlalchemy import select
@@ -32,7 +37,8 @@ from ncmeasure.analysis.compare import (
     modified_z_against,
 )
 from ncmeasure.analysis.results import Results
-from ncmeasure.errors import ComparisonError
+from ncmeasure.errors import ComparisonError, OutputError
+from ncmeasure.files import replace_text
 from ncmeasure.store import schema as t
 from ncmeasure.store.rows import CHARACTERISTICS
 from ncmeasure.store.store import MeasurementSummary, Store, check_serial
@@ -42,8 +48,10 @@ __all__ = [
     "Comparability",
     "FleetFigure",
     "StoreCheck",
+    "check_json",
     "check_machine",
     "comparability",
+    "write_check",
 ]
 
 TEMPERATURE_WARNING_K = 5.0
@@ -318,3 +326,28 @@ def check_machine(store: Store, serial: str, limits: Limits | None = None) -> St
         findings=findings,
         status=status,
     )
+
+
+def check_json(check: StoreCheck) -> dict[str, Any]:
+    """The check as a JSON object (``store check -o``, the REST API)."""
+    data = dataclasses.asdict(dataclasses.replace(check, comparison=None))
+    data["comparison"] = (
+        check.comparison.model_dump(mode="json") if check.comparison is not None else None
+    )
+    return {"format": "ncmeasure-store-check", "format_version": 1, **data}
+
+
+def write_check(check: StoreCheck, path: str | os.PathLike[str]) -> Path:
+    """Write :func:`check_json` to ``path`` (replaced whole, never half written).
+
+    Raises:
+        OutputError: The file cannot be written.
+    """
+    target = Path(path)
+    try:
+        with replace_text(target) as file:
+            json.dump(check_json(check), file, indent=2, allow_nan=False)
+            file.write("\n")
+    except OSError as exc:
+        raise OutputError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
+    return target
