@@ -1,0 +1,167 @@
+"""``ncmeasure store ...``: the commands, their exit codes, and bad input in one line."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from ncmeasure.analysis.analyze import write_results
+from ncmeasure.analysis.results import Results
+from ncmeasure.cli import app
+
+runner = CliRunner()
+
+
+def run(*args: str | Path) -> tuple[int, str, str]:
+    result = runner.invoke(app, [str(a) for a in args])
+    return result.exit_code, result.stdout, result.stderr
+
+
+def _one_error_line(code: int, out: str, err: str) -> str:
+    assert code == 2, (out, err)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    assert "Traceback" not in out + err
+    return lines[0]
+
+
+@pytest.fixture
+def files(tmp_path: Path, make_results: Callable[..., Results]) -> dict[str, Path]:
+    paths = {}
+    for name, when, factor in (
+        ("delivery", "2026-01-10T08:00:00+00:00", 1.0),
+        ("service", "2029-01-10T08:00:00+00:00", 0.75),
+        ("worn", "2031-01-10T08:00:00+00:00", 0.5),
+    ):
+        paths[name] = write_results(make_results(when, factor), tmp_path / f"{name}.json")
+    return paths
+
+
+def test_a_machine_over_its_life(tmp_path: Path, files: dict[str, Path]) -> None:
+    store = f"sqlite:///{tmp_path / 'fleet.db'}"
+    code, out, _ = run("store", "add", files["delivery"], "--serial", "M17", "--label",
+                       "delivery", "--temperature-c", "21.5", "--store", store)  # fmt: skip
+    assert code == 0 and "stored as measurement 1 of M17" in out
+    code, out, _ = run("store", "add", files["delivery"], "--serial", "M17", "--store", store)
+    assert code == 0 and "already stored as measurement 1" in out
+    code, out, _ = run("store", "check", "M17", "--store", store)
+    assert code == 0 and "only the baseline" in out
+    assert run("store", "add", files["service"], "--serial", "M17", "--label", "service",
+               "--temperature-c", "22", "--store", store)[0] == 0  # fmt: skip
+    code, out, _ = run("store", "check", "M17", "--store", store, "-o", tmp_path / "check.json")
+    assert code == 1, out  # −25 %: beyond the 20 % warning limit, within the 40 % critical
+    check = json.loads((tmp_path / "check.json").read_text())
+    assert check["status"] == "warning" and check["latest"]["label"] == "service"
+
+
+def test_exit_codes_follow_compare(tmp_path: Path, files: dict[str, Path]) -> None:
+    store = f"sqlite:///{tmp_path / 'fleet.db'}"
+    for name in ("delivery", "worn"):
+        assert run("store", "add", files[name], "--serial", "M17", "--label", name,
+                   "--store", store)[0] == 0  # fmt: skip
+    code, out, _ = run("store", "check", "M17", "--store", store)
+    assert code == 3 and "status: critical" in out
+    code, out, _ = run("store", "check", "M17", "--store", store, "--critical", "60")
+    assert code == 1 and "status: warning" in out
+    code, out, _ = run("store", "list", "--store", store)
+    assert code == 0 and "M17" in out
+    code, out, _ = run("store", "show", "M17", "--store", store)
+    assert code == 0 and "delivery" in out and "worn" in out
+    png = tmp_path / "trend.png"
+    code, out, _ = run("store", "trend", "M17", "--axis", "X", "--plot", png, "--store", store)
+    assert code == 0 and png.read_bytes().startswith(b"\x89PNG")
+
+
+def test_export_to_jsonl_and_import_into_postgresql(
+    tmp_path: Path, files: dict[str, Path], pg_url: str
+) -> None:
+    store = f"sqlite:///{tmp_path / 'fleet.db'}"
+    for name in files:
+        assert run("store", "add", files[name], "--serial", "M17", "--label", name,
+                   "--store", store)[0] == 0  # fmt: skip
+    export = tmp_path / "fleet.jsonl"
+    assert run("store", "export", "-o", export, "--store", store)[0] == 0
+    assert len(export.read_text().splitlines()) == 1 + len(files)
+    code, out, _ = run("store", "import", export, "--store", pg_url)
+    assert code == 0 and "added 3 measurement(s)" in out
+    code, out, _ = run("store", "import", export, "--store", pg_url)
+    assert code == 0 and "added 0 measurement(s)" in out and "3 were already stored" in out
+    again = tmp_path / "again.jsonl"
+    assert run("store", "export", "-o", again, "--store", pg_url)[0] == 0
+    assert again.read_text() == export.read_text()  # lossless both ways
+
+
+def test_bad_input_is_one_line_and_exit_2(
+    tmp_path: Path, files: dict[str, Path], postgres_server: str
+) -> None:
+    store = f"sqlite:///{tmp_path / 'fleet.db'}"
+    assert run("store", "add", files["delivery"], "--serial", "M17", "--store", store)[0] == 0
+    before = (tmp_path / "fleet.db").read_bytes()
+
+    other = json.loads(files["service"].read_text())
+    other["format_version"] = 99
+    (tmp_path / "v99.json").write_text(json.dumps(other))
+    line = _one_error_line(*run("store", "add", tmp_path / "v99.json", "--serial", "M17",
+                                "--store", store))  # fmt: skip
+    assert "format_version 99" in line and "update ncmeasure" in line
+
+    for serial in ("../../etc/M17", "M17'; DROP TABLE machines;--"):
+        line = _one_error_line(*run("store", "add", files["service"], "--serial", serial,
+                                    "--store", store))  # fmt: skip
+        assert "serial" in line
+    unreachable = postgres_server.rsplit(":", 1)[0] + ":1/postgres"
+    line = _one_error_line(*run("store", "list", "--store", unreachable))
+    assert "cannot reach the database" in line
+    line = _one_error_line(*run("store", "list", "--store", "mysql://db/fleet"))
+    assert "not a store ncmeasure knows" in line
+    line = _one_error_line(*run("store", "list", "--store", tmp_path / "missing.db"))
+    assert "no such file" in line
+    assert (tmp_path / "fleet.db").read_bytes() == before  # nothing half written
+
+
+def test_a_newer_schema_is_one_line(tmp_path: Path, files: dict[str, Path]) -> None:
+    import sqlite3
+
+    path = tmp_path / "fleet.db"
+    assert run("store", "add", files["delivery"], "--serial", "M17", "--store", path)[0] == 0
+    with sqlite3.connect(path) as db:
+        db.execute("UPDATE alembic_version SET version_num = '9999'")
+    line = _one_error_line(*run("store", "add", files["service"], "--serial", "M17",
+                                "--store", path))  # fmt: skip
+    assert "newer than this ncmeasure" in line and "update ncmeasure" in line
+
+
+def test_a_read_only_store_is_one_line(tmp_path: Path, files: dict[str, Path]) -> None:
+    """Root writes any file: as root the command runs without the capability to override
+    file permissions (setpriv), so the file's mode holds for it as for anyone."""
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    path = folder / "fleet.db"
+    assert run("store", "add", files["delivery"], "--serial", "M17", "--store", path)[0] == 0
+    before = path.read_bytes()
+    path.chmod(0o444)
+    folder.chmod(0o555)
+    drop = []
+    if os.geteuid() == 0:
+        setpriv = shutil.which("setpriv")
+        assert setpriv, "setpriv (util-linux) is needed to test a read-only store as root"
+        drop = [setpriv, "--bounding-set", "-dac_override,-dac_read_search", "--"]
+    try:
+        done = subprocess.run(
+            [*drop, sys.executable, "-m", "ncmeasure", "store", "add", str(files["service"]),
+             "--serial", "M17", "--store", str(path)],
+            capture_output=True, text=True, timeout=300,
+        )  # fmt: skip
+    finally:
+        folder.chmod(0o755)
+    line = _one_error_line(done.returncode, done.stdout, done.stderr)
+    assert "read-only" in line and "nothing was written" in line
+    assert path.read_bytes() == before
