@@ -1120,6 +1120,22 @@ def analyze_command(
         ),
     ] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress, no summary.")] = False,
+    store: Annotated[
+        str | None,
+        typer.Option(
+            "--store",
+            metavar="URL",
+            help="Also add the results to this fleet store (needs --serial; see "
+            "`ncmeasure store --help`).",
+            show_default=False,
+        ),
+    ] = None,
+    serial: Annotated[
+        str | None, typer.Option(help="The machine's serial number, for --store.")
+    ] = None,
+    label: Annotated[
+        str | None, typer.Option(help="For --store: delivery, service, after-repair, ...")
+    ] = None,
 ) -> None:
     """Friction per position, direction and velocity; fits; position diagnosis; a verdict.
 
@@ -1134,6 +1150,13 @@ def analyze_command(
     from ncmeasure.config import format_validation_error
 
     target = output or run.with_name(run.name + ".results.json")
+    if (store is None) != (serial is None) or (label is not None and store is None):
+        raise ConfigError("--store, --serial and --label go together: give --store and --serial")
+    info = (
+        _measurement_info(serial=serial, label=label, recording_location=str(run.absolute()))
+        if serial is not None
+        else None
+    )
     try:
         settings = AnalysisSettings.model_validate(
             _settings(set_ or [], example="--set settle_s=0.2")
@@ -1165,6 +1188,12 @@ def analyze_command(
         from ncmeasure.report import write_report
 
         write_report(results, report, recording=recording)
+    if info is not None:
+        with _open_store(store, write=True) as fleet:
+            added = fleet.add(results, info)
+        if not quiet:
+            state = "stored as" if added.new else "already stored as"
+            console.print(f"{state} measurement {added.measurement_id} of {serial}")
     if quiet:
         return None
     _print_verdicts(results)

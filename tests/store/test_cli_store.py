@@ -165,3 +165,28 @@ def test_a_read_only_store_is_one_line(tmp_path: Path, files: dict[str, Path]) -
     line = _one_error_line(done.returncode, done.stdout, done.stderr)
     assert "read-only" in line and "nothing was written" in line
     assert path.read_bytes() == before
+
+
+def test_analyze_adds_to_the_store(tmp_path: Path) -> None:
+    from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
+
+    spec = SyntheticAxis(
+        positions_mm=(50.0, 375.0, 700.0),
+        coulomb=(2.0, 2.0, 2.0),
+        velocities_mm_min=geometric_velocities(10.0, 15000.0, 8),
+    )
+    folder = tmp_path / "run1"
+    _, schedule = synthetic_recording(folder, [spec], seed=1)
+    assert schedule is not None
+    schedule_file = tmp_path / "schedule.json"
+    schedule_file.write_text(schedule.model_dump_json())
+    store = tmp_path / "fleet.db"
+    code, out, _ = run("analyze", folder, "--schedule", schedule_file, "--store", store)
+    assert code == 2  # --store without --serial
+    code, out, err = run("analyze", folder, "--schedule", schedule_file, "--store", store,
+                         "--serial", "M17", "--label", "delivery")  # fmt: skip
+    assert code == 0, err
+    assert "stored as measurement 1 of M17" in out
+    code, out, _ = run("store", "show", "M17", "--store", store)
+    assert code == 0 and "delivery" in out and str(folder.name) in run("store", "export",
+        "--store", store)[1]  # fmt: skip
