@@ -36,9 +36,11 @@ LAYERS: dict[str, int] = {
     "sim": 6,
     "analysis": 7,
     "report": 8,
+    "store": 9,
     "demo": 9,
-    "cli": 10,
-    "__main__": 11,
+    "web": 10,
+    "cli": 11,
+    "__main__": 12,
 }
 #: What the simulated drives may take from the links: the protocol knowledge only.
 SIM_MAY_IMPORT = {

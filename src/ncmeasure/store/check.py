@@ -36,6 +36,7 @@ from ncmeasure.analysis.compare import (
     compare_results,
     modified_z_against,
 )
+from ncmeasure.analysis.diagnosis import FLAT_THRESHOLD_PERCENT
 from ncmeasure.analysis.results import Results
 from ncmeasure.errors import ComparisonError, OutputError
 from ncmeasure.files import replace_text
@@ -236,6 +237,15 @@ def _fleet(
                 continue
             enough = len(reference) >= limits.outlier_min_runs
             z = modified_z_against(value, reference) if enough else None
+            median = float(np.median(reference))
+            # A fleet that hardly scatters makes any difference a large z: an outlier must
+            # also differ by an amount that matters (the warning limit of a friction level,
+            # the spread a healthy axis keeps).
+            floor = (
+                abs(median) * limits.warning_percent / 100.0
+                if c.relative
+                else FLAT_THRESHOLD_PERCENT
+            )
             unit = "%" if c.unit == "%" else c.unit.replace("quantity", axis.unit)
             figures.append(
                 FleetFigure(
@@ -243,12 +253,14 @@ def _fleet(
                     characteristic=c.name,
                     unit=unit,
                     value=value,
-                    fleet_median=float(np.median(reference)),
+                    fleet_median=median,
                     fleet_low=float(min(reference)),
                     fleet_high=float(max(reference)),
                     machines=len(reference),
                     modified_z=z,
-                    outlier=z is not None and abs(z) > limits.outlier_z,
+                    outlier=z is not None
+                    and abs(z) > limits.outlier_z
+                    and abs(value - median) > floor,
                 )
             )
     return figures, len(machines)
