@@ -1,0 +1,75 @@
+"""What every page and endpoint shares: the open store and a cache of derived things.
+
+The store's engine lives as long as the application (opened on startup,
+disposed on shutdown). Checks and plots are derived from the store's content
+and cost tens of milliseconds each; they are cached under the store's
+*version* (the number of measurements and the highest id: every change adds a
+measurement), so a measurement added by ``ncmeasure store add`` elsewhere
+shows on the next request.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Hashable
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+from fastapi import Request
+from sqlalchemy import func, select
+
+from ncmeasure.store import Store
+from ncmeasure.store import schema as t
+from ncmeasure.store.check import StoreCheck, check_machine
+
+__all__ = ["Context", "Version", "context"]
+
+_T = TypeVar("_T")
+_CACHE_LIMIT = 512
+
+Version = tuple[int, int]
+"""The store's version: (measurements, highest measurement id)."""
+
+
+@dataclass
+class Context:
+    """The store and the cache of one running application."""
+
+    store: Store
+    _cache: dict[tuple[Version, Hashable], Any] = field(default_factory=dict)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def version(self) -> Version:
+        """The store's version now; read it once per request, before reading the store."""
+        with self.store.reading("read the store's version") as db:
+            count, highest = db.execute(select(func.count(), func.max(t.measurements.c.id))).one()
+        return int(count), int(highest or 0)
+
+    def cached(self, version: Version, key: Hashable, compute: Callable[[], _T]) -> _T:
+        """``compute()``, remembered under ``key`` for this version of the store.
+
+        A value computed while the store changed is kept under the version read
+        before, so it is never taken for the newer one. Entries of older
+        versions are dropped.
+        """
+        with self._lock:
+            if (version, key) in self._cache:
+                found: _T = self._cache[(version, key)]
+                return found
+        value = compute()
+        with self._lock:
+            stale = [k for k in self._cache if k[0] != version]
+            if stale or len(self._cache) >= _CACHE_LIMIT:
+                self._cache.clear()
+            self._cache[(version, key)] = value
+        return value
+
+    def check(self, version: Version, serial: str) -> StoreCheck:
+        """:func:`~ncmeasure.store.check.check_machine`, cached for this version."""
+        return self.cached(version, ("check", serial), lambda: check_machine(self.store, serial))
+
+
+def context(request: Request) -> Context:
+    """The application's :class:`Context` (a FastAPI dependency)."""
+    found: Context = request.app.state.context
+    return found

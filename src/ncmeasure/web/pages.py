@@ -1,0 +1,361 @@
+"""The dashboard: the fleet grid, a machine's page and an axis' page, as plain HTML.
+
+::
+
+    /                                  machines × axes: the latest verdict of each axis
+                                       (ok / check / fault) and the store check's status
+    /machines/{serial}                 the check, the measurements, a trend plot per axis
+    /machines/{serial}/axes/{axis}     the trend, its numbers, the latest friction curves
+
+The pages need no JavaScript and load nothing from elsewhere; the plots are
+inline SVG. The view models here hold text; the templates
+(``templates/*.html.j2``, Jinja with autoescape) only lay them out, so text
+from the store (a site, an operator, a serial) is always escaped.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Annotated, Any
+from urllib.parse import quote
+
+import jinja2
+from fastapi import APIRouter, Depends, Request
+from fastapi.responses import HTMLResponse
+from markupsafe import Markup
+
+from ncmeasure._version import __version__
+from ncmeasure.errors import ConfigError
+from ncmeasure.report.words import format_date, format_number
+from ncmeasure.store import MeasurementSummary, TrendPoint
+from ncmeasure.store.check import StoreCheck
+from ncmeasure.store.rows import CHARACTERISTICS
+from ncmeasure.web.context import Context, Version, context
+from ncmeasure.web.plots import curves_svg, travel_svg, trend_svg
+
+__all__ = ["html_page", "router"]
+
+LEVELS = ("ok", "check", "fault")
+STATUSES = ("ok", "warning", "critical")
+SECURITY_HEADERS = {
+    "content-security-policy": (
+        "default-src 'none'; style-src 'unsafe-inline'; img-src 'self' data:; "
+        "form-action 'self'; frame-ancestors 'none'; base-uri 'none'"
+    ),
+    "x-content-type-options": "nosniff",
+    "referrer-policy": "no-referrer",
+    "cache-control": "no-store",
+}
+"""Sent with every page: no script runs, nothing loads from elsewhere, no token leaks."""
+_TITLES = {c.name: c.title for c in CHARACTERISTICS}
+
+router = APIRouter(include_in_schema=False)
+Ctx = Annotated[Context, Depends(context)]
+
+
+@functools.cache
+def _environment() -> jinja2.Environment:
+    return jinja2.Environment(
+        loader=jinja2.PackageLoader("ncmeasure.web", "templates"),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
+
+
+def html_page(
+    request: Request, template: str, status_code: int = 200, **values: Any
+) -> HTMLResponse:
+    """A page rendered from ``templates/<template>`` with the security headers."""
+    where = getattr(request.app.state, "where", "")
+    text = (
+        _environment()
+        .get_template(template)
+        .render(root=_root(request), version=__version__, where=where, **values)
+    )
+    return HTMLResponse(text, status_code=status_code, headers=SECURITY_HEADERS)
+
+
+def _root(request: Request) -> str:
+    root: str = request.scope.get("root_path", "")
+    return root.rstrip("/")
+
+
+def _level(value: str | None) -> str:
+    return value if value in LEVELS else "none"
+
+
+def _machine_href(root: str, serial: str) -> str:
+    return f"{root}/machines/{quote(serial, safe='')}"
+
+
+def _axis_href(root: str, serial: str, axis: str) -> str:
+    return f"{_machine_href(root, serial)}/axes/{quote(axis, safe='')}"
+
+
+# ----------------------------------------------------------------------------- fleet
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One traffic light of the grid: an axis' latest verdict (level ``none``: no such axis)."""
+
+    level: str
+    href: str | None
+
+
+@dataclass(frozen=True)
+class GridRow:
+    """One machine of the fleet grid."""
+
+    serial: str
+    href: str
+    machine_type: str
+    site: str
+    measurements: int
+    latest: str
+    cells: list[Cell]
+    status: str
+    findings: str
+
+
+def _status(ctx: Context, version: Version, serial: str) -> tuple[str, str]:
+    """The store check's status and its first findings (``none`` when it cannot run)."""
+    try:
+        found = ctx.check(version, serial)
+    except ConfigError as exc:
+        return "none", exc.message
+    return found.status, " · ".join(found.findings[:3])
+
+
+@router.get("/", response_class=HTMLResponse)
+def fleet_page(request: Request, ctx: Ctx) -> HTMLResponse:
+    """The fleet grid: every machine (rows) × every axis (columns)."""
+    version = ctx.version()
+    root = _root(request)
+    machines = ctx.store.machines()
+    axes = sorted({a for m in machines for a in m.latest_verdicts})
+    rows = []
+    for m in machines:
+        status, findings = _status(ctx, version, m.serial)
+        cells = [
+            Cell(
+                _level(m.latest_verdicts.get(a)),
+                _axis_href(root, m.serial, a) if a in m.latest_verdicts else None,
+            )
+            for a in axes
+        ]
+        latest = format_date(m.latest_utc) + (f" · {m.latest_label}" if m.latest_label else "")
+        rows.append(
+            GridRow(
+                serial=m.serial,
+                href=_machine_href(root, m.serial),
+                machine_type=m.machine_type,
+                site=m.site or "–",
+                measurements=m.measurements,
+                latest=latest,
+                cells=cells,
+                status=status,
+                findings=findings,
+            )
+        )
+    counts = {level: sum(c.level == level for r in rows for c in r.cells) for level in LEVELS}
+    return html_page(request, "fleet.html.j2", title="Fleet", axes=axes, rows=rows, counts=counts)
+
+
+# --------------------------------------------------------------------------- machine
+
+
+@dataclass(frozen=True)
+class MeasurementRow:
+    """One measurement in a machine's table."""
+
+    id: int
+    when: str
+    label: str
+    operator: str
+    temperature: str
+    operating_hours: str
+    link: str
+    verdicts: list[str]
+    results_href: str
+
+
+@dataclass(frozen=True)
+class FleetRow:
+    """One characteristic of the check against the fleet."""
+
+    axis: str
+    characteristic: str
+    value: str
+    median: str
+    range: str
+    machines: int
+    z: str
+    outlier: bool
+
+
+@dataclass(frozen=True)
+class AxisPlot:
+    """One axis on the machine's page: its trend and the link to its page."""
+
+    axis: str
+    href: str
+    svg: Markup
+
+
+def _or_dash(value: object) -> str:
+    return "–" if value is None else str(value)
+
+
+def _measurement_rows(
+    root: str, measurements: Sequence[MeasurementSummary], axes: Sequence[str]
+) -> list[MeasurementRow]:
+    return [
+        MeasurementRow(
+            id=m.id,
+            when=format_date(m.measured_utc),
+            label=_or_dash(m.label),
+            operator=_or_dash(m.operator),
+            temperature="–" if m.temperature_c is None else f"{m.temperature_c:g} °C",
+            operating_hours="–" if m.operating_hours is None else f"{m.operating_hours:g} h",
+            link=_or_dash(m.link),
+            verdicts=[_level(m.verdicts.get(a)) for a in axes],
+            results_href=f"{root}/api/v1/measurements/{m.id}/results",
+        )
+        for m in measurements
+    ]
+
+
+def _fleet_rows(check: StoreCheck) -> list[FleetRow]:
+    return [
+        FleetRow(
+            axis=f.axis,
+            characteristic=_TITLES.get(f.characteristic, f.characteristic),
+            value=f"{format_number(f.value)} {f.unit}",
+            median=format_number(f.fleet_median),
+            range=f"{format_number(f.fleet_low)} – {format_number(f.fleet_high)}",
+            machines=f.machines,
+            z="–" if f.modified_z is None else f"{f.modified_z:+.1f}",
+            outlier=f.outlier,
+        )
+        for f in check.fleet
+    ]
+
+
+def _trend_svg(
+    ctx: Context,
+    version: Version,
+    serial: str,
+    axis: str,
+    points: Sequence[TrendPoint] | None = None,
+) -> Markup:
+    """The axis' trend plot (cached); ``points``: the trend if already read."""
+
+    def draw() -> str:
+        found = points if points is not None else ctx.store.trend(serial, axis)
+        return trend_svg(serial, axis, found)
+
+    return Markup(ctx.cached(version, ("trend", serial, axis), draw))  # SVG text is escaped
+
+
+def _axes_of(measurements: Iterable[MeasurementSummary]) -> list[str]:
+    return sorted({a for m in measurements for a in m.verdicts})
+
+
+@router.get("/machines/{serial}", response_class=HTMLResponse)
+def machine_page(request: Request, ctx: Ctx, serial: str) -> HTMLResponse:
+    """A machine: the store check, its measurements, a trend plot per axis."""
+    version = ctx.version()
+    root = _root(request)
+    machine, measurements = ctx.store.machine(serial)
+    axes = _axes_of(measurements)
+    check = ctx.check(version, serial)
+    plots = [
+        AxisPlot(axis=a, href=_axis_href(root, serial, a), svg=_trend_svg(ctx, version, serial, a))
+        for a in axes
+    ]
+    baseline = check.baseline
+    return html_page(
+        request,
+        "machine.html.j2",
+        title=f"Machine {machine.serial}",
+        machine=machine,
+        latest=format_date(machine.latest_utc),
+        check=check,
+        baseline="–"
+        if baseline is None
+        else f"{format_date(baseline.measured_utc)} · {baseline.label or f'#{baseline.id}'}",
+        fleet=_fleet_rows(check),
+        axes=axes,
+        measurements=_measurement_rows(root, measurements, axes),
+        plots=plots,
+    )
+
+
+# ------------------------------------------------------------------------------ axis
+
+
+@dataclass(frozen=True)
+class TrendRow:
+    """One measurement of an axis' trend."""
+
+    when: str
+    label: str
+    operating_hours: str
+    verdict: str
+    coulomb: str
+    viscous: str
+    spread: str
+    signature: str
+
+
+def _trend_rows(points: Sequence[TrendPoint]) -> list[TrendRow]:
+    return [
+        TrendRow(
+            when=format_date(p.measured_utc),
+            label=_or_dash(p.label),
+            operating_hours="–" if p.operating_hours is None else f"{p.operating_hours:g}",
+            verdict=_level(p.verdict),
+            coulomb=format_number(p.coulomb),
+            viscous=format_number(p.viscous_per_m_min),
+            spread=format_number(p.spread_percent),
+            signature=(p.signature or "–").replace("_", " "),
+        )
+        for p in points
+    ]
+
+
+@router.get("/machines/{serial}/axes/{axis}", response_class=HTMLResponse)
+def axis_page(request: Request, ctx: Ctx, serial: str, axis: str) -> HTMLResponse:
+    """One axis of a machine: its trend and the friction curves of its latest measurement."""
+    version = ctx.version()
+    root = _root(request)
+    points = ctx.store.trend(serial, axis)
+    latest = points[-1]
+    results = ctx.store.results(latest.measurement_id)
+    result = results.axes[axis]
+    salt = f"{serial}/{latest.measurement_id}"
+    curves = ctx.cached(version, ("curves", salt, axis), lambda: curves_svg(salt, axis, result))
+    travel = ctx.cached(version, ("travel", salt, axis), lambda: travel_svg(salt, axis, result))
+    return html_page(
+        request,
+        "axis.html.j2",
+        title=f"Machine {serial} · axis {axis}",
+        serial=serial,
+        machine_href=_machine_href(root, serial),
+        axis=axis,
+        unit=latest.unit,
+        verdict=result.verdict,
+        level=_level(result.verdict.level),
+        latest=f"{format_date(latest.measured_utc)}"
+        + (f" · {latest.label}" if latest.label else ""),
+        results_href=f"{root}/api/v1/measurements/{latest.measurement_id}/results",
+        trend=_trend_svg(ctx, version, serial, axis, points),
+        rows=_trend_rows(points),
+        curves=Markup(curves),  # matplotlib escapes all text in its SVG
+        travel=None if travel is None else Markup(travel),
+    )

@@ -1,0 +1,156 @@
+"""The dashboard: the HTML of the grid and the pages, and what Chromium makes of it."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import matplotlib.image
+import numpy as np
+import pytest
+from markupsafe import escape
+
+from ncmeasure.web import ServerInfo
+from tests.report.test_report import _chromium_or_skip, _pixels_like
+from tests.web.conftest import SCRIPT_SITE, TOKEN, WAIT_S
+
+FAULT_BACKGROUND = "#f7cfcb"
+OK_BACKGROUND = "#cdebd5"
+
+
+@pytest.fixture(scope="module")
+def browser(server: ServerInfo) -> Iterator[httpx.Client]:
+    with httpx.Client(base_url=server.url, timeout=WAIT_S) as found:
+        yield found
+
+
+def _row(page: str, serial: str) -> str:
+    match = re.search(rf"<tr>\s*<td><a href=\"/machines/{serial}\">.*?</tr>", page, re.S)
+    assert match, serial
+    return match.group(0)
+
+
+def test_the_grid_shows_every_machine_and_axis(browser: httpx.Client) -> None:
+    found = browser.get("/")
+    assert found.status_code == 200
+    assert found.headers["content-type"].startswith("text/html")
+    page = found.text
+    assert re.search(r"<th>X</th>\s*<th>Y</th>", page)
+    lights = {
+        serial: re.findall(r'class="light verdict-(\w+)"', _row(page, serial))
+        for serial in ("M-100", "M-101", "M-102", "M-103")
+    }
+    assert lights == {
+        "M-100": ["ok", "ok"],
+        "M-101": ["ok", "fault"],
+        "M-102": ["ok", "check"],
+        "M-103": ["ok", "none"],  # no axis Y
+    }
+    assert '<a href="/machines/M-101/axes/Y">fault</a>' in page
+    assert re.search(r'<td class="light check-(ok|warning|critical)"', _row(page, "M-100"))
+    assert "<script" not in page.lower()
+    assert str(escape(SCRIPT_SITE)) in page
+
+
+def test_pages_forbid_scripts_and_keep_the_token_out_of_referrers(browser: httpx.Client) -> None:
+    headers = browser.get("/").headers
+    assert "default-src 'none'" in headers["content-security-policy"]
+    assert "script-src" not in headers["content-security-policy"]
+    assert headers["referrer-policy"] == "no-referrer"
+    assert headers["x-content-type-options"] == "nosniff"
+
+
+def test_a_machine_page_has_measurements_check_and_trends(browser: httpx.Client) -> None:
+    found = browser.get("/machines/M-100")
+    assert found.status_code == 200
+    page = found.text
+    assert "Machine M-100" in page and 'id="check"' in page
+    assert "A. Technician" in page and "B. Service" in page
+    assert "21.5 °C" in page and "2012 h" in page
+    assert "2025-01-10 09:00 UTC" in page and "2025-07-10 09:00 UTC" in page
+    assert page.count("<svg") == 2  # one trend per axis, inline
+    assert '<a href="/machines/M-100/axes/X">' in page
+    assert re.search(r'href="/api/v1/measurements/\d+/results"', page)
+    escaped = browser.get("/machines/M-103").text
+    assert "&lt;script&gt;" in escaped and "<script" not in escaped.lower()
+
+
+def test_an_axis_page_has_the_trend_and_the_latest_curves(browser: httpx.Client) -> None:
+    page = browser.get("/machines/M-101/axes/Y").text
+    assert 'class="badge verdict-fault">fault</span>' in page
+    assert "loose bearing" in page  # the verdict's reason
+    assert page.count("<svg") == 3  # trend, friction curves, friction along the travel
+    assert re.search(r"<td class=\"light verdict-ok\">ok</td>.*verdict-fault", page, re.S)
+    ids = re.findall(r'\bid="([^"]+)"', page)
+    assert len(ids) == len(set(ids)), "element ids of the inline SVGs collide"
+
+
+def test_unknown_pages_are_404_pages(browser: httpx.Client) -> None:
+    for path in ("/machines/NO-SUCH", "/machines/M-103/axes/Y", "/machines/M-100/axes/Q"):
+        found = browser.get(path)
+        assert found.status_code == 404, path
+        assert found.headers["content-type"].startswith("text/html")
+        assert "Traceback" not in found.text
+    assert "NO-SUCH" in browser.get("/machines/NO-SUCH").text
+    assert browser.get("/machines/%3Cscript%3E").status_code == 404
+    assert "<script>" not in browser.get("/machines/%3Cscript%3E").text
+
+
+# --- in a browser ------------------------------------------------------------------
+
+
+def _screenshot(url: str, out: Path, height: int) -> np.ndarray:
+    """The page at ``url`` as Chromium renders it (headless), as RGB in 0..1."""
+    browser = _chromium_or_skip()
+    shot = out / "shot.png"
+    command = [
+        str(browser),
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--no-proxy-server",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        f"--user-data-dir={out / 'profile'}",
+        f"--screenshot={shot}",
+        f"--window-size=1280,{height}",
+        url,
+    ]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=180, check=False)
+    assert done.returncode == 0 and shot.exists(), done.stderr[-2000:]
+    image = np.asarray(matplotlib.image.imread(shot), dtype=np.float64)
+    shutil.rmtree(out / "profile", ignore_errors=True)
+    return image[:, :, :3]
+
+
+def test_chromium_renders_the_grid(token_server: ServerInfo, tmp_path: Path) -> None:
+    """Through the token sign-in a browser does: ``?token=``, a redirect, the cookie."""
+    image = _screenshot(f"{token_server.url}?token={TOKEN}", tmp_path, 900)
+    assert image.shape == (900, 1280, 3)
+    assert image.std() > 0.05, "a blank page"
+    assert _pixels_like(image, FAULT_BACKGROUND, 0.03) > 500  # M-101's Y light
+    assert _pixels_like(image, OK_BACKGROUND, 0.03) > 5 * 500  # the ok lights
+
+
+def test_chromium_renders_a_machine_page_with_its_plots(
+    token_server: ServerInfo, tmp_path: Path
+) -> None:
+    image = _screenshot(f"{token_server.url}machines/M-101?token={TOKEN}", tmp_path, 2200)
+    assert image.std() > 0.05, "a blank page"
+    ink = np.any(image < 0.94, axis=2)
+    assert ink.mean() > 0.04, f"only {ink.mean():.1%} of the page is not white"
+    # the trend plots' markers: the fault of Y in red, the ok points in green
+    assert _pixels_like(image, "#c0392b", 0.05) > 30
+    assert _pixels_like(image, "#2e8b3e", 0.05) > 100
+
+
+def test_without_the_token_chromium_gets_no_page(token_server: ServerInfo, tmp_path: Path) -> None:
+    image = _screenshot(token_server.url, tmp_path, 600)
+    assert _pixels_like(image, OK_BACKGROUND, 0.03) == 0  # a plain 401 line, no grid
