@@ -1320,28 +1320,13 @@ def compare_command(
 
     Example: ncmeasure compare m17/results.json m18/results.json m19/results.json
     """
-    from pydantic import ValidationError
-
     from ncmeasure.analysis.analyze import load_results
-    from ncmeasure.analysis.compare import Limits, compare_results, write_comparison
-    from ncmeasure.config import format_validation_error
+    from ncmeasure.analysis.compare import compare_results, write_comparison
 
     labels = _compare_labels(base, others, label)
     reference = load_results(base)
     runs = [load_results(path) for path in others]
-    limits = Limits()
-    updates = {
-        k: v
-        for k, v in {"warning_percent": warning, "critical_percent": critical}.items()
-        if v is not None
-    }
-    if updates:
-        try:
-            limits = Limits.model_validate({**limits.model_dump(), **updates})
-        except ValidationError as exc:
-            raise ConfigError(
-                "--warning/--critical: not valid limits", format_validation_error(exc)
-            ) from exc
+    limits = _limits(warning, critical)
     comparison = compare_results(reference, runs, labels=labels, limits=limits)
     if output is not None:
         write_comparison(comparison, output)

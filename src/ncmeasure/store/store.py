@@ -271,14 +271,11 @@ class Store:
         now = _utc(None, "now")
         config_hash = results.recording.config_hash or ""
         type_name = info.machine_type or results.recording.machine or "(unnamed)"
-        machine = db.execute(
-            select(t.machines.c.id, t.machines.c.site, t.machine_types.c.name)
-            .join(t.machine_types, t.machine_types.c.id == t.machines.c.type_id)
-            .where(t.machines.c.serial == info.serial)
-        ).first()
-        if machine is not None and info.machine_type and machine.name != info.machine_type:
+        machine = self._find_machine(db, info.serial)
+        if machine is not None and info.machine_type and machine.type_name != info.machine_type:
             raise ConfigError(
-                f"machine {info.serial!r} is of type {machine.name!r}, not {info.machine_type!r}"
+                f"machine {info.serial!r} is of type {machine.type_name!r}, "
+                f"not {info.machine_type!r}"
             )
         if machine is None:
             kind = self._get_or_create(
@@ -293,11 +290,8 @@ class Store:
                 {"serial": info.serial},
                 {"type_id": kind.id, "site": info.site, "created_utc": now},
             )
-            machine = db.execute(
-                select(t.machines.c.id, t.machines.c.site, t.machine_types.c.name)
-                .join(t.machine_types, t.machine_types.c.id == t.machines.c.type_id)
-                .where(t.machines.c.serial == info.serial)
-            ).one()
+            machine = self._find_machine(db, info.serial)
+            assert machine is not None
         if info.site is not None and machine.site != info.site:
             db.execute(
                 update(t.machines).where(t.machines.c.id == machine.id).values(site=info.site)
@@ -308,7 +302,7 @@ class Store:
         kind = self._get_or_create(
             db,
             t.machine_types,
-            {"name": machine.name, "config_hash": config_hash},
+            {"name": machine.type_name, "config_hash": config_hash},
             {"created_utc": now},
         )
         inserted = db.execute(
@@ -385,10 +379,10 @@ class Store:
 
     # ----------------------------------------------------------------------- reading
 
-    def machine_row(self, db: Connection, serial: str) -> Any:
-        """The machine's row (id, serial, site, type_id, latest_measurement_id, type_name,
-        config_hash); a :class:`ConfigError` when there is no such machine."""
-        row = db.execute(
+    @staticmethod
+    def _find_machine(db: Connection, serial: str) -> Any:
+        """The machine's row with its type (see :meth:`machine_row`), None when absent."""
+        return db.execute(
             select(
                 t.machines.c.id,
                 t.machines.c.serial,
@@ -401,6 +395,11 @@ class Store:
             .join(t.machine_types, t.machine_types.c.id == t.machines.c.type_id)
             .where(t.machines.c.serial == serial)
         ).first()
+
+    def machine_row(self, db: Connection, serial: str) -> Any:
+        """The machine's row (id, serial, site, type_id, latest_measurement_id, type_name,
+        config_hash); a :class:`ConfigError` when there is no such machine."""
+        row = self._find_machine(db, serial)
         if row is None:
             raise ConfigError(
                 f"no machine {serial!r} in the store {self.where} (ncmeasure store list shows "
