@@ -12,6 +12,7 @@ import functools
 import inspect
 import json
 import logging
+import os
 import signal
 import sys
 import threading
@@ -1632,8 +1633,6 @@ def store_trend_command(
 
     Example: ncmeasure store trend M17 --axis X --plot m17-x.png
     """
-    import datetime as dt
-
     from ncmeasure.analysis.summary import format_number
 
     limits = _limits(warning, critical)
@@ -1659,22 +1658,10 @@ def store_trend_command(
         )
     console.print(table)
     if plot is not None:
-        from ncmeasure.report.plots import plot_trend, save_png
+        from ncmeasure.report.plots import save_png
+        from ncmeasure.store.report import trend_figure
 
-        baseline = next((i for i, p in enumerate(points) if p.label == "delivery"), 0)
-        figure = plot_trend(
-            axis,
-            [dt.datetime.fromisoformat(p.measured_utc) for p in points],
-            [
-                ("Coulomb", unit, [p.coulomb for p in points]),
-                ("viscous", f"{unit} per m/min", [p.viscous_per_m_min for p in points]),
-                ("spread along the travel", "%", [p.spread_percent for p in points]),
-            ],
-            baseline_index=baseline,
-            warning_percent=limits.warning_percent,
-            critical_percent=limits.critical_percent,
-            labels=[p.label for p in points],
-        )
+        figure = trend_figure(axis, points, limits)
         save_png(figure, plot)
         console.print(f"wrote {plot}")
 
@@ -1740,6 +1727,68 @@ def store_check_command(
 _STATUS_STYLE = {"ok": "bold green", "warning": "bold yellow", "critical": "bold red"}
 
 
+@store_app.command("report")
+@_command
+def store_report_command(
+    output: Annotated[Path, typer.Option("--output", "-o", help="The HTML file to write.")],
+    trends: Annotated[
+        int,
+        typer.Option(min=0, max=200, help="Trend plots of the axes that moved most."),
+    ] = 12,
+    warning: Annotated[
+        float | None, typer.Option(help="Warning limit of the change in % (default 20).")
+    ] = None,
+    critical: Annotated[
+        float | None, typer.Option(help="Critical limit of the change in % (default 40).")
+    ] = None,
+    store: StoreOption = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> Outcome:
+    """The fleet at a glance as one HTML file: machines × axes, outliers, trends.
+
+    Each cell is an axis of a machine's latest measurement: its verdict and the change
+    since the machine's baseline, coloured by the worst of the verdict (check, fault),
+    the change against the limits, and an outlier of the machine's type. Then the
+    outliers, then the trends of the axes that moved most. The file opens offline (no
+    script, images inside).
+
+    Exit code 0: every axis ok; 1: a warning (verdict check, a change beyond the warning
+    limit, an outlier); 3: critical (verdict fault, a change beyond the critical limit);
+    2: bad input.
+
+    Example: ncmeasure store report -o fleet.html
+    """
+    from ncmeasure.store.overview import fleet_overview
+    from ncmeasure.store.report import write_fleet_report
+
+    limits = _limits(warning, critical)
+    bar, update = _progress_bar(quiet)
+    if bar is not None:
+        bar.start()
+    try:
+        with _open_store(store, write=False) as fleet:
+            if update is not None:
+                update("reading the fleet", None)
+            overview = fleet_overview(fleet, limits)
+            written = write_fleet_report(
+                fleet,
+                overview,
+                output,
+                trends=trends,
+                progress=None if update is None else lambda d, n: update("trend plots", d / n),
+            )
+    finally:
+        if bar is not None:
+            bar.stop()
+    counts = ", ".join(f"{overview.count(s)} {s}" for s in ("ok", "warning", "critical"))
+    console.print(
+        f"{len(overview.machines)} machine(s): {counts}; {len(overview.outliers)} outlier(s)"
+    )
+    console.print(f"wrote {written}")
+    statuses = {m.status for m in overview.machines}
+    return "critical" if "critical" in statuses else "warning" if "warning" in statuses else "ok"
+
+
 @store_app.command("export")
 @_command
 def store_export_command(
@@ -1786,6 +1835,86 @@ def store_import_command(
         added, existing = import_lines(fleet, stream, str(source))
         where = fleet.where
     console.print(f"added {added} measurement(s) to {where}; {existing} were already stored")
+
+
+@app.command("serve")
+@_command
+def serve_command(
+    store: StoreOption = None,
+    host: Annotated[
+        str,
+        typer.Option(help="Address to listen on; anything but loopback needs a token."),
+    ] = "127.0.0.1",
+    port: Annotated[
+        int, typer.Option(min=0, max=65535, help="TCP port (0: a free one, printed).")
+    ] = 8000,
+    token_file: Annotated[
+        Path | None,
+        typer.Option(
+            help="A file holding the token clients must send (at least 16 characters). "
+            "Or set NCMEASURE_TOKEN. Needed for any address but loopback.",
+        ),
+    ] = None,
+) -> None:
+    """The fleet store as a web dashboard and a JSON REST API, until Ctrl-C.
+
+    The dashboard: the fleet grid, a page per machine and per axis with the trends.
+    The API lives under /api/v1 (machines, measurements, results, checks; POST adds a
+    measurement), described at /openapi.json and /docs. On a loopback address (the
+    default) it is open to this computer only; any other address needs a token, which
+    clients send as "Authorization: Bearer TOKEN" (a browser opens URL?token=TOKEN once).
+    The token is read from a file or the environment, never from the command line,
+    where other users could see it.
+
+    Example: ncmeasure serve --store postgresql://ncm@db/fleet --host 0.0.0.0
+    --token-file /etc/ncmeasure/token
+    """
+    try:
+        from ncmeasure.web import ServerInfo, serve
+    except ImportError as exc:
+        from ncmeasure.errors import DependencyError
+
+        raise DependencyError(
+            f"ncmeasure serve needs the package {exc.name!r}, which is missing "
+            "(pip install 'ncmeasure[serve]')"
+        ) from exc
+    from ncmeasure.store import store_url
+
+    token = _token(token_file)
+    url = store_url(store)
+
+    def ready(info: ServerInfo) -> None:
+        access = "token required" if info.token else "this computer only"
+        console.print(f"serving {url} at {info.url} ({access}); Ctrl-C stops")
+
+    stop = threading.Event()
+    previous = _stop_on_signals(stop)
+    try:
+        serve(
+            url, host=host, port=port, token=token, on_ready=ready, stop=stop, log_level="warning"
+        )
+    finally:
+        _restore_signals(previous)
+    console.print("stopped")
+
+
+TOKEN_ENV = "NCMEASURE_TOKEN"
+
+
+def _token(path: Path | None) -> str | None:
+    """The server's token: from ``--token-file``, else ``$NCMEASURE_TOKEN``, else None."""
+    from ncmeasure.inputs import read_text
+
+    if path is not None:
+        return read_text(path, "a token file", 4096).strip() or _no_token(str(path))
+    value = os.environ.get(TOKEN_ENV)
+    if value is None:
+        return None
+    return value.strip() or _no_token(f"${TOKEN_ENV}")
+
+
+def _no_token(where: str) -> str:
+    raise ConfigError(f"{where}: empty, expected the token (at least 16 characters)")
 
 
 @app.command("simulate")

@@ -8,6 +8,8 @@ from typing import Literal
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from ncmeasure.analysis.compare import (
@@ -16,6 +18,8 @@ from ncmeasure.analysis.compare import (
     ComparisonError,
     Limits,
     compare_results,
+    modified_z_against,
+    modified_z_leave_one_out,
 )
 from ncmeasure.analysis.results import (
     AxisResult,
@@ -445,3 +449,34 @@ def test_changes_round_trip_and_old_files_load() -> None:
     loaded = Comparison.model_validate(old)
     assert loaded.changes == []
     assert loaded.findings == comparison.findings
+
+
+# --- the fleet at once: leave-one-out modified z ----------------------------------------
+
+_fleet_values = st.lists(
+    st.one_of(
+        st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False),
+        st.sampled_from([0.0, 1.0, 1.5, 2.0]),  # ties: MAD 0, mean-AD fallback, no scatter
+    ),
+    min_size=2,
+    max_size=14,
+)
+
+
+@settings(max_examples=400, deadline=None)
+@given(_fleet_values)
+def test_leave_one_out_z_is_each_value_against_the_others(values: list[float]) -> None:
+    z, medians = modified_z_leave_one_out(values)
+    for i, value in enumerate(values):
+        others = values[:i] + values[i + 1 :]
+        assert medians[i] == pytest.approx(float(np.median(others)), rel=1e-12, abs=1e-12)
+        assert z[i] == pytest.approx(modified_z_against(value, others), rel=1e-9, abs=1e-9)
+
+
+def test_leave_one_out_z_names_the_outlier_of_a_fleet() -> None:
+    values = [1.0, 1.02, 0.98, 1.01, 0.99, 1.6]
+    z, medians = modified_z_leave_one_out(values)
+    assert np.argmax(np.abs(z)) == 5 and z[5] > 3.5
+    assert medians[5] == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="at least two"):
+        modified_z_leave_one_out([1.0])

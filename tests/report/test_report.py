@@ -10,15 +10,11 @@ Stribeck hump, Y with a dead current channel (skipped).
 from __future__ import annotations
 
 import base64
-import os
 import re
-import shutil
-import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-import matplotlib.image
 import numpy as np
 import pytest
 from pydantic import BaseModel
@@ -44,6 +40,7 @@ from ncmeasure.report import (
 )
 from ncmeasure.report.curves import linear_curve
 from ncmeasure.report.words import CAUSE_TITLES, format_mm, format_number, format_with_error
+from tests.browser import pixels_like, screenshot
 from tests.report.example import (
     DEAD_Y_REASON,
     Window,
@@ -53,7 +50,6 @@ from tests.report.example import (
     simulate,
 )
 
-CHROMIUM = Path("/usr/bin/chromium")
 _SIDES: tuple[tuple[Literal["positive", "negative"], float], ...] = (
     ("positive", 1.0),
     ("negative", -1.0),
@@ -608,44 +604,6 @@ def test_report_headline_is_the_summary_function(report: Path, example: Example)
 # --- in a browser ----------------------------------------------------------------------
 
 
-def _chromium_or_skip() -> Path:
-    if CHROMIUM.exists():
-        return CHROMIUM
-    if os.environ.get("CI"):
-        pytest.fail(f"{CHROMIUM} is missing: CI must install the Debian package chromium")
-    pytest.skip(f"{CHROMIUM} is not installed (apt-get install chromium); CI runs this test")
-
-
-def _screenshot(page: Path, out: Path, height: int) -> np.ndarray:
-    browser = _chromium_or_skip()
-    shot = out / "shot.png"
-    command = [
-        str(browser),
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-quic",
-        "--no-first-run",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        f"--user-data-dir={out / 'profile'}",
-        f"--screenshot={shot}",
-        f"--window-size=1280,{height}",
-        page.resolve().as_uri(),
-    ]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=180, check=False)
-    assert done.returncode == 0 and shot.exists(), done.stderr[-2000:]
-    image = np.asarray(matplotlib.image.imread(shot), dtype=np.float64)
-    shutil.rmtree(out / "profile", ignore_errors=True)
-    return image[:, :, :3]
-
-
-def _pixels_like(image: np.ndarray, colour: str, tolerance: float = 0.06) -> int:
-    target = np.array([int(colour[i : i + 2], 16) / 255 for i in (1, 3, 5)])
-    return int(np.count_nonzero(np.all(np.abs(image - target) <= tolerance, axis=2)))
-
-
 @pytest.fixture(scope="module")
 def plain_report(example: Example, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The example's report without a comparison: the first axis follows the summary."""
@@ -659,14 +617,14 @@ def plain_report(example: Example, tmp_path_factory: pytest.TempPathFactory) -> 
 
 
 def test_chromium_renders_the_plots(plain_report: Path, tmp_path: Path) -> None:
-    image = _screenshot(plain_report, tmp_path, 2400)
+    image = screenshot(plain_report, tmp_path, 2400)
     assert image.shape == (2400, 1280, 3)
     ink = np.any(image < 0.94, axis=2)
     assert ink.mean() > 0.04, f"only {ink.mean():.1%} of the page is not white: blank?"
     # the plot colours reach the screen: positions 1-3 of the Stribeck curves,
     # the average along the travel (the page's own CSS uses none of them)
     for colour in PALETTE[:3]:
-        assert _pixels_like(image, colour) > 400, colour
+        assert pixels_like(image, colour) > 400, colour
     # the first axis' Stribeck plot is inside the first 2400 px, below the verdict,
     # the recording and the summary, and it is a plot (hundreds of rows), not a stray pixel
     rows_with_blue = np.flatnonzero(
@@ -682,5 +640,5 @@ def test_chromium_without_images_has_no_plot_colours(plain_report: Path, tmp_pat
     bare.write_text(
         re.sub(r'<img src="data:[^"]*"', '<img src=""', _text(plain_report)), encoding="utf-8"
     )
-    image = _screenshot(bare, tmp_path, 2400)
-    assert all(_pixels_like(image, colour) < 50 for colour in PALETTE[:3])
+    image = screenshot(bare, tmp_path, 2400)
+    assert all(pixels_like(image, colour) < 50 for colour in PALETTE[:3])

@@ -3,19 +3,16 @@
 from __future__ import annotations
 
 import re
-import shutil
-import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
-import matplotlib.image
 import numpy as np
 import pytest
 from markupsafe import escape
 
 from ncmeasure.web import ServerInfo
-from tests.report.test_report import _chromium_or_skip, _pixels_like
+from tests.browser import pixels_like, screenshot
 from tests.web.conftest import SCRIPT_SITE, TOKEN, WAIT_S
 
 FAULT_BACKGROUND = "#f7cfcb"
@@ -103,54 +100,27 @@ def test_unknown_pages_are_404_pages(browser: httpx.Client) -> None:
 # --- in a browser ------------------------------------------------------------------
 
 
-def _screenshot(url: str, out: Path, height: int) -> np.ndarray:
-    """The page at ``url`` as Chromium renders it (headless), as RGB in 0..1."""
-    browser = _chromium_or_skip()
-    shot = out / "shot.png"
-    command = [
-        str(browser),
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-quic",
-        "--no-first-run",
-        "--no-proxy-server",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        f"--user-data-dir={out / 'profile'}",
-        f"--screenshot={shot}",
-        f"--window-size=1280,{height}",
-        url,
-    ]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=180, check=False)
-    assert done.returncode == 0 and shot.exists(), done.stderr[-2000:]
-    image = np.asarray(matplotlib.image.imread(shot), dtype=np.float64)
-    shutil.rmtree(out / "profile", ignore_errors=True)
-    return image[:, :, :3]
-
-
 def test_chromium_renders_the_grid(token_server: ServerInfo, tmp_path: Path) -> None:
     """Through the token sign-in a browser does: ``?token=``, a redirect, the cookie."""
-    image = _screenshot(f"{token_server.url}?token={TOKEN}", tmp_path, 900)
+    image = screenshot(f"{token_server.url}?token={TOKEN}", tmp_path, 900)
     assert image.shape == (900, 1280, 3)
     assert image.std() > 0.05, "a blank page"
-    assert _pixels_like(image, FAULT_BACKGROUND, 0.03) > 500  # M-101's Y light
-    assert _pixels_like(image, OK_BACKGROUND, 0.03) > 5 * 500  # the ok lights
+    assert pixels_like(image, FAULT_BACKGROUND, 0.03) > 500  # M-101's Y light
+    assert pixels_like(image, OK_BACKGROUND, 0.03) > 5 * 500  # the ok lights
 
 
 def test_chromium_renders_a_machine_page_with_its_plots(
     token_server: ServerInfo, tmp_path: Path
 ) -> None:
-    image = _screenshot(f"{token_server.url}machines/M-101?token={TOKEN}", tmp_path, 2200)
+    image = screenshot(f"{token_server.url}machines/M-101?token={TOKEN}", tmp_path, 2200)
     assert image.std() > 0.05, "a blank page"
     ink = np.any(image < 0.94, axis=2)
     assert ink.mean() > 0.04, f"only {ink.mean():.1%} of the page is not white"
     # the trend plots' markers: the fault of Y in red, the ok points in green
-    assert _pixels_like(image, "#c0392b", 0.05) > 30
-    assert _pixels_like(image, "#2e8b3e", 0.05) > 100
+    assert pixels_like(image, "#c0392b", 0.05) > 30
+    assert pixels_like(image, "#2e8b3e", 0.05) > 100
 
 
 def test_without_the_token_chromium_gets_no_page(token_server: ServerInfo, tmp_path: Path) -> None:
-    image = _screenshot(token_server.url, tmp_path, 600)
-    assert _pixels_like(image, OK_BACKGROUND, 0.03) == 0  # a plain 401 line, no grid
+    image = screenshot(token_server.url, tmp_path, 600)
+    assert pixels_like(image, OK_BACKGROUND, 0.03) == 0  # a plain 401 line, no grid

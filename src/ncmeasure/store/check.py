@@ -36,11 +36,11 @@ from ncmeasure.analysis.compare import (
     compare_results,
     modified_z_against,
 )
-from ncmeasure.analysis.diagnosis import FLAT_THRESHOLD_PERCENT
 from ncmeasure.analysis.results import Results
 from ncmeasure.errors import ComparisonError, OutputError
 from ncmeasure.files import replace_text
 from ncmeasure.store import schema as t
+from ncmeasure.store.overview import is_outlier
 from ncmeasure.store.rows import CHARACTERISTICS
 from ncmeasure.store.store import MeasurementSummary, Store, check_serial
 
@@ -238,14 +238,6 @@ def _fleet(
             enough = len(reference) >= limits.outlier_min_runs
             z = modified_z_against(value, reference) if enough else None
             median = float(np.median(reference))
-            # A fleet that hardly scatters makes any difference a large z: an outlier must
-            # also differ by an amount that matters (the warning limit of a friction level,
-            # the spread a healthy axis keeps).
-            floor = (
-                abs(median) * limits.warning_percent / 100.0
-                if c.relative
-                else FLAT_THRESHOLD_PERCENT
-            )
             unit = "%" if c.unit == "%" else c.unit.replace("quantity", axis.unit)
             figures.append(
                 FleetFigure(
@@ -258,9 +250,7 @@ def _fleet(
                     fleet_high=float(max(reference)),
                     machines=len(reference),
                     modified_z=z,
-                    outlier=z is not None
-                    and abs(z) > limits.outlier_z
-                    and abs(value - median) > floor,
+                    outlier=is_outlier(c, value, median, z, limits),
                 )
             )
     return figures, len(machines)

@@ -105,8 +105,8 @@ def check_binding(host: str, token: str | None) -> None:
     if token is None and not is_loopback(host):
         raise ConfigError(
             f"serving on {host!r} makes the fleet store reachable from other computers: "
-            "give a token (every client then sends 'Authorization: Bearer TOKEN'), or "
-            "listen on 127.0.0.1"
+            "give a token (ncmeasure serve --token-file FILE or $NCMEASURE_TOKEN; every "
+            "client then sends 'Authorization: Bearer TOKEN'), or listen on 127.0.0.1"
         )
 
 

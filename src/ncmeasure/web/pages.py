@@ -27,10 +27,10 @@ from fastapi.responses import HTMLResponse
 from markupsafe import Markup
 
 from ncmeasure._version import __version__
-from ncmeasure.errors import ConfigError
 from ncmeasure.report.words import format_date, format_number
 from ncmeasure.store import MeasurementSummary, TrendPoint
 from ncmeasure.store.check import StoreCheck
+from ncmeasure.store.overview import MachineOverview, fleet_overview
 from ncmeasure.store.rows import CHARACTERISTICS
 from ncmeasure.web.context import Context, Version, context
 from ncmeasure.web.plots import curves_svg, travel_svg, trend_svg
@@ -122,13 +122,18 @@ class GridRow:
     findings: str
 
 
-def _status(ctx: Context, version: Version, serial: str) -> tuple[str, str]:
-    """The store check's status and its first findings (``none`` when it cannot run)."""
-    try:
-        found = ctx.check(version, serial)
-    except ConfigError as exc:
-        return "none", exc.message
-    return found.status, " · ".join(found.findings[:3])
+def _findings(machine: MachineOverview) -> str:
+    """What makes a machine's status: the changes beyond the limits, the outliers."""
+    found = []
+    for axis in machine.axes.values():
+        found += [
+            f"{axis.axis}: {_TITLES[c.characteristic]} {c.change:+.0f}"
+            + (" %" if c.characteristic != "spread_percent" else " pt")
+            for c in axis.changes
+            if c.status != "ok"
+        ]
+        found += [f"{axis.axis}: {_TITLES[o.characteristic]} an outlier" for o in axis.outliers]
+    return " · ".join(found[:4])
 
 
 @router.get("/", response_class=HTMLResponse)
@@ -136,15 +141,14 @@ def fleet_page(request: Request, ctx: Ctx) -> HTMLResponse:
     """The fleet grid: every machine (rows) × every axis (columns)."""
     version = ctx.version()
     root = _root(request)
-    machines = ctx.store.machines()
-    axes = sorted({a for m in machines for a in m.latest_verdicts})
+    overview = ctx.cached(version, "overview", lambda: fleet_overview(ctx.store))
+    axes = overview.axes
     rows = []
-    for m in machines:
-        status, findings = _status(ctx, version, m.serial)
+    for m in overview.machines:
         cells = [
             Cell(
-                _level(m.latest_verdicts.get(a)),
-                _axis_href(root, m.serial, a) if a in m.latest_verdicts else None,
+                _level(m.axes[a].verdict if a in m.axes else None),
+                _axis_href(root, m.serial, a) if a in m.axes else None,
             )
             for a in axes
         ]
@@ -158,8 +162,8 @@ def fleet_page(request: Request, ctx: Ctx) -> HTMLResponse:
                 measurements=m.measurements,
                 latest=latest,
                 cells=cells,
-                status=status,
-                findings=findings,
+                status=m.status,
+                findings=_findings(m),
             )
         )
     counts = {level: sum(c.level == level for r in rows for c in r.cells) for level in LEVELS}

@@ -1,0 +1,322 @@
+"""The fleet at a glance: every machine × every axis from the stored rows, in a few queries.
+
+What ``store report`` and the dashboard's fleet grid show. For each machine and
+axis: the latest verdict (ok / check / fault: an assembly fault), the change of each
+characteristic (:data:`~ncmeasure.store.rows.CHARACTERISTICS`) since the
+machine's baseline (the first measurement labelled ``delivery``, else the
+first), and whether the latest value is an outlier of the machine's type. The
+outliers are those of ``store check`` (the same modified z against the other
+machines' latest measurements, the same floor): computed for the whole fleet
+at once (:func:`~ncmeasure.analysis.compare.modified_z_leave_one_out`), so a
+fleet of ten thousand machines takes seconds, not ten thousand checks.
+
+The change since the baseline here is that of the characteristics (a relative
+change of the friction levels, a change in percentage points of the spread
+along the travel) against the warning and critical limits; ``store check
+SERIAL`` compares the two measurements point by point and says more.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from sqlalchemy import select
+
+from ncmeasure.analysis.compare import Limits, Status, modified_z_leave_one_out
+from ncmeasure.analysis.diagnosis import FLAT_THRESHOLD_PERCENT
+from ncmeasure.store import schema as t
+from ncmeasure.store.rows import CHARACTERISTICS, Characteristic
+from ncmeasure.store.store import Store
+
+__all__ = [
+    "AxisOverview",
+    "Change",
+    "FleetOverview",
+    "MachineOverview",
+    "Outlier",
+    "change_status",
+    "fleet_overview",
+    "is_outlier",
+]
+
+_ORDER: dict[Status, int] = {"ok": 0, "warning": 1, "critical": 2}
+_VERDICT_STATUS: dict[str, Status] = {"ok": "ok", "check": "warning", "fault": "critical"}
+_CHUNK = 500  # ids per IN (...) query: far below every database's parameter limit
+
+
+def is_outlier(
+    characteristic: Characteristic, value: float, median: float, z: float | None, limits: Limits
+) -> bool:
+    """The outlier rule of ``store check`` and the fleet overview.
+
+    A modified z beyond ``limits.outlier_z``, and a difference from the fleet's
+    median that matters: the warning limit of a friction level (relative), or
+    the spread a healthy axis keeps (:data:`FLAT_THRESHOLD_PERCENT` points). A
+    fleet that hardly scatters would otherwise make any difference a large z.
+    """
+    if z is None or abs(z) <= limits.outlier_z:
+        return False
+    floor = (
+        abs(median) * limits.warning_percent / 100.0
+        if characteristic.relative
+        else FLAT_THRESHOLD_PERCENT
+    )
+    return abs(value - median) > floor
+
+
+def change_status(change: float, limits: Limits) -> Status:
+    """A change (percent, or points of the spread) against the warning and critical limits."""
+    size = abs(change)
+    if size >= limits.critical_percent:
+        return "critical"
+    if size >= limits.warning_percent:
+        return "warning"
+    return "ok"
+
+
+@dataclass(frozen=True)
+class Change:
+    """One characteristic of an axis: the latest value against the baseline's."""
+
+    characteristic: str
+    baseline: float
+    latest: float
+    change: float
+    """Percent of the baseline (friction levels), or percentage points (the spread)."""
+    status: Status
+
+
+@dataclass(frozen=True)
+class Outlier:
+    """A characteristic of a machine's latest measurement far from the rest of its type."""
+
+    serial: str
+    machine_type: str
+    axis: str
+    characteristic: str
+    unit: str
+    value: float
+    fleet_median: float
+    modified_z: float
+    machines: int
+    """Other machines of the type the value was compared with."""
+
+
+@dataclass
+class AxisOverview:
+    """One axis of one machine."""
+
+    axis: str
+    unit: str
+    verdict: str
+    """The latest measurement's verdict: ok, check or fault."""
+    latest: dict[str, float | None]
+    changes: list[Change] = field(default_factory=list)
+    outliers: list[Outlier] = field(default_factory=list)
+
+    @property
+    def status(self) -> Status:
+        """The light: the worst of the verdict (check: warning, fault: critical), the
+        changes since the baseline, and an outlier (a warning)."""
+        status: Status = _VERDICT_STATUS.get(self.verdict, "ok")
+        for change in self.changes:
+            status = max(status, change.status, key=_ORDER.__getitem__)
+        if self.outliers:
+            status = max(status, "warning", key=_ORDER.__getitem__)
+        return status
+
+
+@dataclass
+class MachineOverview:
+    """One machine: its latest measurement, its baseline, its axes."""
+
+    serial: str
+    machine_type: str
+    site: str | None
+    measurements: int
+    latest_id: int
+    latest_utc: str
+    latest_label: str | None
+    baseline_id: int
+    baseline_utc: str
+    baseline_label: str | None
+    axes: dict[str, AxisOverview] = field(default_factory=dict)
+
+    @property
+    def status(self) -> Status:
+        """The worst of the axes (ok when only the baseline is stored)."""
+        return max((a.status for a in self.axes.values()), key=_ORDER.__getitem__, default="ok")
+
+
+@dataclass(frozen=True)
+class FleetOverview:
+    """:func:`fleet_overview`'s answer."""
+
+    machines: list[MachineOverview]
+    """Every machine with a measurement, by serial."""
+    axes: list[str]
+    """Every axis name in the fleet, sorted."""
+    outliers: list[Outlier]
+    """Largest |modified z| first."""
+    types: dict[str, int]
+    """Machines per machine type."""
+    limits: Limits
+
+    def count(self, status: Status) -> int:
+        """Machines of that status."""
+        return sum(m.status == status for m in self.machines)
+
+
+def _chunks(ids: Sequence[int]) -> Iterator[list[int]]:
+    for start in range(0, len(ids), _CHUNK):
+        yield list(ids[start : start + _CHUNK])
+
+
+def _axis_rows(store: Store, measurement_ids: Sequence[int]) -> dict[int, list[Any]]:
+    a = t.axis_results
+    found: dict[int, list[Any]] = defaultdict(list)
+    columns = [a.c.measurement_id, a.c.axis, a.c.unit, a.c.verdict]
+    columns += [a.c[c.name] for c in CHARACTERISTICS]
+    with store.reading("read the fleet") as db:
+        for ids in _chunks(sorted(set(measurement_ids))):
+            for row in db.execute(select(*columns).where(a.c.measurement_id.in_(ids))):
+                found[row.measurement_id].append(row)
+    return found
+
+
+def _finite(value: float | None) -> float | None:
+    return float(value) if value is not None and math.isfinite(value) else None
+
+
+def _changes(base: Any, latest: Any, limits: Limits) -> list[Change]:
+    changes = []
+    for c in CHARACTERISTICS:
+        before, after = _finite(getattr(base, c.name)), _finite(getattr(latest, c.name))
+        if before is None or after is None:
+            continue
+        if c.relative:
+            if before == 0:
+                continue
+            change = (after - before) / abs(before) * 100.0
+        else:
+            change = after - before
+        changes.append(Change(c.name, before, after, change, change_status(change, limits)))
+    return changes
+
+
+def fleet_overview(store: Store, limits: Limits | None = None) -> FleetOverview:
+    """Every machine of the store × every axis: latest verdict, change, outliers.
+
+    Raises:
+        StoreError: The database failed.
+    """
+    limits = limits or Limits()
+    m, mt, ms = t.machines, t.machine_types, t.measurements
+    with store.reading("read the fleet") as db:
+        machines = db.execute(
+            select(m.c.id, m.c.serial, m.c.site, m.c.latest_measurement_id, mt.c.name)
+            .join(mt, mt.c.id == m.c.type_id)
+            .where(m.c.latest_measurement_id.is_not(None))
+            .order_by(m.c.serial)
+        ).all()
+        history: dict[int, list[Any]] = defaultdict(list)
+        for row in db.execute(
+            select(ms.c.id, ms.c.machine_id, ms.c.measured_utc, ms.c.label).order_by(
+                ms.c.machine_id, ms.c.measured_utc, ms.c.id
+            )
+        ):
+            history[row.machine_id].append(row)
+    overviews: list[MachineOverview] = []
+    wanted: list[int] = []
+    for found in machines:
+        measured = history[found.id]
+        latest = next(r for r in measured if r.id == found.latest_measurement_id)
+        base = next((r for r in measured if r.label == "delivery"), measured[0])
+        wanted += [latest.id, base.id]
+        overviews.append(
+            MachineOverview(
+                serial=found.serial,
+                machine_type=found.name,
+                site=found.site,
+                measurements=len(measured),
+                latest_id=latest.id,
+                latest_utc=latest.measured_utc,
+                latest_label=latest.label,
+                baseline_id=base.id,
+                baseline_utc=base.measured_utc,
+                baseline_label=base.label,
+            )
+        )
+    rows = _axis_rows(store, wanted)
+    # per (type, axis, unit, characteristic): the machines' latest values
+    fleet: dict[tuple[str, str, str, str], list[tuple[AxisOverview, MachineOverview, float]]]
+    fleet = defaultdict(list)
+    for machine in overviews:
+        base_rows = {r.axis: r for r in rows[machine.baseline_id]}
+        for row in sorted(rows[machine.latest_id], key=lambda r: r.axis):
+            axis = AxisOverview(
+                axis=row.axis,
+                unit=row.unit,
+                verdict=row.verdict,
+                latest={c.name: _finite(getattr(row, c.name)) for c in CHARACTERISTICS},
+            )
+            base = base_rows.get(row.axis)
+            compared = machine.baseline_id != machine.latest_id
+            if compared and base is not None and base.unit == row.unit:
+                axis.changes = _changes(base, row, limits)
+            machine.axes[row.axis] = axis
+            for c in CHARACTERISTICS:
+                value = axis.latest[c.name]
+                if value is not None:
+                    fleet[(machine.machine_type, row.axis, row.unit, c.name)].append(
+                        (axis, machine, value)
+                    )
+    outliers = _outliers(fleet, limits)
+    types: dict[str, int] = defaultdict(int)
+    for machine in overviews:
+        types[machine.machine_type] += 1
+    return FleetOverview(
+        machines=overviews,
+        axes=sorted({a for machine in overviews for a in machine.axes}),
+        outliers=outliers,
+        types=dict(sorted(types.items())),
+        limits=limits,
+    )
+
+
+def _outliers(
+    fleet: dict[tuple[str, str, str, str], list[tuple[AxisOverview, MachineOverview, float]]],
+    limits: Limits,
+) -> list[Outlier]:
+    by_name = {c.name: c for c in CHARACTERISTICS}
+    found: list[Outlier] = []
+    for (machine_type, axis_name, unit, name), members in fleet.items():
+        others = len(members) - 1
+        if others < limits.outlier_min_runs:
+            continue
+        values = np.array([value for _, _, value in members])
+        z, medians = modified_z_leave_one_out(values)
+        c = by_name[name]
+        shown = "%" if c.unit == "%" else c.unit.replace("quantity", unit)
+        for (axis, machine, value), zi, median in zip(members, z, medians, strict=True):
+            if is_outlier(c, value, float(median), float(zi), limits):
+                outlier = Outlier(
+                    serial=machine.serial,
+                    machine_type=machine_type,
+                    axis=axis_name,
+                    characteristic=name,
+                    unit=shown,
+                    value=value,
+                    fleet_median=float(median),
+                    modified_z=float(zi),
+                    machines=others,
+                )
+                axis.outliers.append(outlier)
+                found.append(outlier)
+    found.sort(key=lambda o: (-abs(o.modified_z), o.serial, o.axis, o.characteristic))
+    return found
