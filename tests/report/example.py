@@ -416,3 +416,31 @@ def main(argv: list[str]) -> int:
 
 if __name__ == "__main__":
     raise SystemExit(main(sys.argv[1:]))
+
+
+def scaled_axis(axis: AxisResult, factor: float) -> AxisResult:
+    """The axis with all friction ``factor`` times as high (points, fits, offset)."""
+    positions = []
+    for position in axis.positions:
+        directions = {}
+        for name, found in position.directions.items():
+            if found is None:
+                directions[name] = None
+                continue
+            fit = found.fit
+            if fit is not None:
+                fit = fit.model_copy(
+                    update={
+                        "coulomb": None if fit.coulomb is None else fit.coulomb * factor,
+                        "viscous_per_mm_min": None
+                        if fit.viscous_per_mm_min is None
+                        else fit.viscous_per_mm_min * factor,
+                    }
+                )
+            points = [p.model_copy(update={"median": p.median * factor}) for p in found.points]
+            directions[name] = found.model_copy(update={"points": points, "fit": fit})
+        positions.append(position.model_copy(update={"directions": directions}))
+    offset = axis.offset
+    if offset is not None:
+        offset = offset.model_copy(update={"value": offset.value * factor})
+    return axis.model_copy(update={"positions": positions, "offset": offset})

@@ -1,0 +1,220 @@
+"""The fleet store at scale: add rate, one machine's check, the fleet report.
+
+A synthetic fleet (default 10,000 machines × 4 axes × 10 measurements, one
+machine type) goes into a SQLite store and, when a PostgreSQL server is
+reachable (``--postgresql URL``), into PostgreSQL too. The results are one
+analysed synthetic measurement of four axes (5 positions × 12 velocities × both
+directions), its friction scaled per machine and measurement (a spread across
+the fleet and a slow drift over each machine's life), so that every stored
+measurement is distinct.
+
+It prints, per database:
+
+- ``store add`` rate (measurements per second, through ``Store.add``, each in
+  its own transaction as the command does it; only the time inside ``add``);
+- ``store check`` of one machine: the goal is below 0.5 s;
+- the fleet overview (``store report``'s data) and the report file.
+
+And beside them, in the same run, the baseline that answers the same check
+without a store: the machine's results.json files plus the latest results.json
+of every other machine of the type, read from a folder tree (the way results
+were kept before the store), then the same comparison and fleet statistics.
+
+Run:   python benchmarks/fleet.py                       (the full fleet: long)
+       python benchmarks/fleet.py --machines 500 --measurements 4
+       python benchmarks/fleet.py --postgresql postgresql://user@127.0.0.1:5432/db
+       python benchmarks/fleet.py --postgresql auto     (a throw-away server, initdb)
+       python benchmarks/fleet.py --short --postgresql auto   (a crash test, seconds; CI)
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from ncmeasure.analysis.analyze import analyze, write_results
+from ncmeasure.analysis.compare import Limits, compare_results, modified_z_against
+from ncmeasure.analysis.results import Results
+from ncmeasure.inputs import read_text
+from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
+from ncmeasure.store import MeasurementInfo, open_store
+from ncmeasure.store.check import check_machine
+from ncmeasure.store.overview import fleet_overview, is_outlier
+from ncmeasure.store.report import write_fleet_report
+from ncmeasure.store.rows import CHARACTERISTICS, rows_of_axis
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' helpers
+from tests.report.example import scaled_axis
+
+CHECK_GOAL_S = 0.5
+
+
+def _base_results(folder: Path) -> Results:
+    """One analysed measurement of four axes (5 positions, 12 velocities, both directions)."""
+    velocities = geometric_velocities(10.0, 15000.0, 12)
+    axes = [
+        SyntheticAxis(
+            name=name,
+            positions_mm=(50.0, 150.0, 250.0, 350.0, 450.0),
+            velocities_mm_min=velocities,
+            coulomb=coulomb,
+        )
+        for name, coulomb in (("X", 2.0), ("Y", 2.2), ("Z", 2.6), ("A", 1.4))
+    ]
+    recording, schedule = synthetic_recording(folder, axes, seed=1)
+    return analyze(recording, schedule=schedule)
+
+
+def _fleet(
+    base: Results, machines: int, measurements: int, seed: int = 7
+) -> Iterator[tuple[str, int, Results, MeasurementInfo]]:
+    """(serial, index, results, info) of every measurement, machine by machine."""
+    rng = np.random.default_rng(seed)
+    for m in range(machines):
+        serial = f"HMX-{m:06d}"
+        level = float(rng.normal(1.0, 0.08))  # machines of a type spread by some 8 %
+        for k in range(measurements):
+            when = f"{2026 + k // 12:04d}-{1 + k % 12:02d}-{1 + m % 28:02d}T08:00:00+00:00"
+            factor = level * (1.0 - 0.02 * k) * float(rng.normal(1.0, 0.01))
+            axes = {name: scaled_axis(a, factor) for name, a in base.axes.items()}
+            recording = base.recording.model_copy(
+                update={"directory": f"recordings/{serial}/{k}", "start_utc": when}
+            )
+            results = base.model_copy(
+                update={"axes": axes, "recording": recording, "created_utc": when}
+            )
+            label = "delivery" if k == 0 else "service"
+            yield serial, k, results, MeasurementInfo(serial, label, measured_utc=when)
+
+
+def _median_s(run: Callable[[], object], rounds: int) -> tuple[float, float, float]:
+    times = []
+    for _ in range(rounds):
+        start = time.perf_counter()
+        run()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times), min(times), max(times)
+
+
+def _files_check(folder: Path, serial: str, limits: Limits) -> tuple[str, int]:
+    """The baseline: the same check from results.json files in ``folder/SERIAL/*.json``."""
+
+    def load(path: Path) -> Results:
+        return Results.model_validate_json(read_text(path, "results.json", 1 << 28))
+
+    own = sorted((folder / serial).glob("*.json"))
+    latest, baseline = load(own[-1]), load(own[0])
+    comparison = compare_results(baseline, [latest], labels=["delivery", "latest"], limits=limits)
+    status = comparison.status
+    outliers = 0
+    fleet: dict[tuple[str, str], list[float]] = {}
+    for machine in sorted(folder.iterdir()):
+        if machine.name == serial:
+            continue
+        other = load(sorted(machine.glob("*.json"))[-1])
+        for name, axis in other.axes.items():
+            row = rows_of_axis(name, axis).axis
+            for c in CHARACTERISTICS:
+                value = row[c.name]
+                if value is not None and math.isfinite(value):
+                    fleet.setdefault((name, c.name), []).append(float(value))
+    for name, axis in latest.axes.items():
+        row = rows_of_axis(name, axis).axis
+        for c in CHARACTERISTICS:
+            reference = fleet.get((name, c.name), [])
+            if row[c.name] is not None and len(reference) >= limits.outlier_min_runs:
+                z = modified_z_against(row[c.name], reference)
+                median = float(np.median(reference))
+                outliers += is_outlier(c, row[c.name], median, z, limits)
+    return status, outliers
+
+
+def _run(label: str, url: str, base: Results, args: argparse.Namespace, work: Path) -> None:
+    limits = Limits()
+    added = 0
+    took = 0.0
+    last = time.perf_counter()
+    with open_store(url, write=True) as store:
+        for serial, k, results, info in _fleet(base, args.machines, args.measurements):
+            start = time.perf_counter()
+            store.add(results, info)
+            took += time.perf_counter() - start
+            added += 1
+            if label == "sqlite":  # the baseline's folder tree, written once
+                write_results(results, work / "files" / serial / f"{k:03d}.json")
+            if time.perf_counter() - last > 30:
+                last = time.perf_counter()
+                print(f"  {label}: {added} measurements added ...", file=sys.stderr)
+    print(f"{label}: store add {added / took:8.1f} measurements/s ({added} in {took:.1f} s)")
+    serial = f"HMX-{args.machines // 2:06d}"
+    with open_store(url) as store:
+        median, low, high = _median_s(lambda: check_machine(store, serial, limits), args.rounds)
+        status = check_machine(store, serial, limits).status
+        goal = "meets" if median < CHECK_GOAL_S else "misses"
+        print(
+            f"{label}: store check {median:8.3f} s (range {low:.3f}–{high:.3f}, status {status}); "
+            f"goal < {CHECK_GOAL_S} s: {goal}"
+        )
+        start = time.perf_counter()
+        overview = fleet_overview(store, limits)
+        between = time.perf_counter()
+        write_fleet_report(store, overview, work / f"fleet-{label}.html", trends=args.trends)
+        end = time.perf_counter()
+    size = (work / f"fleet-{label}.html").stat().st_size / 1e6
+    print(
+        f"{label}: fleet overview {between - start:8.3f} s, report with {args.trends} trends "
+        f"{end - between:.3f} s ({size:.1f} MB, {len(overview.outliers)} outliers)"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--machines", type=int, default=10_000)
+    parser.add_argument("--measurements", type=int, default=10)
+    parser.add_argument("--rounds", type=int, default=5, help="Rounds of each timed check.")
+    parser.add_argument("--trends", type=int, default=12)
+    parser.add_argument(
+        "--postgresql",
+        metavar="URL",
+        help="An empty PostgreSQL database, or 'auto': a throw-away server (initdb).",
+    )
+    parser.add_argument("--short", action="store_true", help="A small fleet: a crash test.")
+    args = parser.parse_args()
+    if args.short:
+        args.machines, args.measurements, args.rounds, args.trends = 6, 2, 1, 2
+    with tempfile.TemporaryDirectory(prefix="ncmeasure-fleet-") as tmp:
+        work = Path(tmp)
+        base = _base_results(work / "run")
+        print(
+            f"fleet: {args.machines} machines × {len(base.axes)} axes × {args.measurements} "
+            "measurements, one machine type"
+        )
+        _run("sqlite", f"sqlite:///{work / 'fleet.db'}", base, args, work)
+        if args.postgresql == "auto":
+            from tests.pg import temporary_postgres
+
+            with temporary_postgres() as url:
+                _run("postgresql", url, base, args, work)
+        elif args.postgresql:
+            _run("postgresql", args.postgresql, base, args, work)
+        serial = f"HMX-{args.machines // 2:06d}"
+        median, low, high = _median_s(
+            lambda: _files_check(work / "files", serial, Limits()), args.rounds
+        )
+        status, outliers = _files_check(work / "files", serial, Limits())
+        print(
+            f"baseline (results.json files): the same check {median:8.3f} s "
+            f"(range {low:.3f}–{high:.3f}, status {status}, {outliers} outlier figures)"
+        )
+
+
+if __name__ == "__main__":
+    main()
