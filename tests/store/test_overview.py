@@ -153,3 +153,25 @@ def test_chromium_renders_the_fleet_report(tmp_path: Path, make_results: Make) -
     assert pixels_like(image, PALETTE[0]) > 200
     ink = np.any(image < 0.94, axis=2)
     assert ink.mean() > 0.03
+
+
+def test_a_fleet_at_noise_level_names_no_outlier_for_a_small_difference(
+    tmp_path: Path, make_results: Make
+) -> None:
+    """Machines alike to 0.1 %: one 5 % off has a huge z, but 5 % is no fault (warning: 20 %)."""
+    url = f"sqlite:///{tmp_path / 'fleet.db'}"
+    factors = {"M1": 1.0, "M2": 1.001, "M3": 0.999, "M4": 1.0005, "M5": 0.9995, "M6": 1.05}
+    with open_store(url, write=True) as store:
+        for index, (serial, factor) in enumerate(factors.items()):
+            store.add(
+                make_results(f"2026-02-{index + 1:02d}T08:00:00+00:00", factor),
+                MeasurementInfo(serial, "delivery"),
+            )
+        check = check_machine(store, "M6")
+        overview = fleet_overview(store)
+        bigger = fleet_overview(store, Limits(warning_percent=4, critical_percent=40))
+    coulomb = next(f for f in check.fleet if f.axis == "X" and f.characteristic == "coulomb")
+    assert coulomb.modified_z is not None and coulomb.modified_z > 3.5  # far out, statistically
+    assert not coulomb.outlier and not overview.outliers  # but 5 % is within any healthy spread
+    # with a warning limit below the difference, the same machine is an outlier
+    assert {(o.serial, o.characteristic) for o in bigger.outliers} >= {("M6", "coulomb")}
