@@ -170,7 +170,7 @@ def _run(label: str, url: str, base: Results, args: argparse.Namespace, work: Pa
         end = time.perf_counter()
     size = (work / f"fleet-{label}.html").stat().st_size / 1e6
     print(
-        f"{label}: fleet overview {between - start:8.3f} s, report with {args.trends} trends "
+        f"{label}: fleet overview {between - start:8.3f} s, report (up to {args.trends} trends) "
         f"{end - between:.3f} s ({size:.1f} MB, {len(overview.outliers)} outliers)"
     )
 
