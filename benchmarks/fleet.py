@@ -25,6 +25,7 @@ Run:   python benchmarks/fleet.py                       (the full fleet: long)
        python benchmarks/fleet.py --postgresql postgresql://user@127.0.0.1:5432/db
        python benchmarks/fleet.py --postgresql auto     (a throw-away server, initdb)
        python benchmarks/fleet.py --short --postgresql auto   (a crash test, seconds; CI)
+       python benchmarks/fleet.py --work /var/tmp/fleet  (keep the fleet; run again: reuse)
 """
 
 from __future__ import annotations
@@ -143,7 +144,13 @@ def _run(label: str, url: str, base: Results, args: argparse.Namespace, work: Pa
     took = 0.0
     last = time.perf_counter()
     with open_store(url, write=True) as store:
-        for serial, k, results, info in _fleet(base, args.machines, args.measurements):
+        filled = store.machines() if args.work else []
+        if filled:  # --work with a store of an earlier run: measure what is there
+            args.machines = len(filled)
+            print(f"{label}: reusing {len(filled)} machines of {store.where}")
+        for serial, k, results, info in (
+            [] if filled else _fleet(base, args.machines, args.measurements)
+        ):
             start = time.perf_counter()
             store.add(results, info)
             took += time.perf_counter() - start
@@ -153,7 +160,9 @@ def _run(label: str, url: str, base: Results, args: argparse.Namespace, work: Pa
             if time.perf_counter() - last > 30:
                 last = time.perf_counter()
                 print(f"  {label}: {added} measurements added ...", file=sys.stderr)
-    print(f"{label}: store add {added / took:8.1f} measurements/s ({added} in {took:.1f} s)")
+    if added:
+        rate = added / took
+        print(f"{label}: store add {rate:8.1f} measurements/s ({added} in {took:.1f} s)")
     serial = f"HMX-{args.machines // 2:06d}"
     with open_store(url) as store:
         median, low, high = _median_s(lambda: check_machine(store, serial, limits), args.rounds)
@@ -187,11 +196,18 @@ def main() -> None:
         help="An empty PostgreSQL database, or 'auto': a throw-away server (initdb).",
     )
     parser.add_argument("--short", action="store_true", help="A small fleet: a crash test.")
+    parser.add_argument(
+        "--work",
+        metavar="DIR",
+        help="Keep the stores and files here; a later run with the same DIR reuses them "
+        "(a fleet of 100,000 measurements takes hours to add).",
+    )
     args = parser.parse_args()
     if args.short:
         args.machines, args.measurements, args.rounds, args.trends = 6, 2, 1, 2
     with tempfile.TemporaryDirectory(prefix="ncmeasure-fleet-") as tmp:
-        work = Path(tmp)
+        work = Path(args.work or tmp)
+        work.mkdir(parents=True, exist_ok=True)
         base = _base_results(work / "run")
         print(
             f"fleet: {args.machines} machines × {len(base.axes)} axes × {args.measurements} "
