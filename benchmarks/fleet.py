@@ -208,7 +208,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="ncmeasure-fleet-") as tmp:
         work = Path(args.work or tmp)
         work.mkdir(parents=True, exist_ok=True)
-        base = _base_results(work / "run")
+        base = _base_results(Path(tmp) / "run")  # the same each time (seed)
         print(
             f"fleet: {args.machines} machines × {len(base.axes)} axes × {args.measurements} "
             "measurements, one machine type"
