@@ -1785,8 +1785,9 @@ def store_report_command(
         f"{len(overview.machines)} machine(s): {counts}; {len(overview.outliers)} outlier(s)"
     )
     console.print(f"wrote {written}")
-    statuses = {m.status for m in overview.machines}
-    return "critical" if "critical" in statuses else "warning" if "warning" in statuses else "ok"
+    from ncmeasure.analysis.compare import worst_status
+
+    return worst_status(m.status for m in overview.machines)
 
 
 @store_app.command("export")

@@ -28,7 +28,7 @@ import datetime as dt
 import logging
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path, PurePath
 from typing import Literal
 
@@ -71,6 +71,7 @@ __all__ = [
     "RunSummary",
     "compare_results",
     "modified_z_against",
+    "worst_status",
     "write_comparison",
 ]
 
@@ -107,6 +108,15 @@ _MEAN_AD_TO_SIGMA = 0.7979
 
 Direction = Literal["positive", "negative"]
 Status = Literal["ok", "warning", "critical"]
+
+_STATUS_ORDER: dict[Status, int] = {"ok": 0, "warning": 1, "critical": 2}
+
+
+def worst_status(statuses: Iterable[Status]) -> Status:
+    """The worst of the statuses: ``critical``, else ``warning``, else ``ok`` (also for none)."""
+    return max(statuses, key=_STATUS_ORDER.__getitem__, default="ok")
+
+
 _SIGN: dict[Direction, int] = {"positive": 1, "negative": -1}
 
 
@@ -267,8 +277,7 @@ class Comparison(_Model):
 
         Fleet outliers and matching problems are findings, not a status.
         """
-        statuses = {run.status for run in self.runs}
-        return next((s for s in ("critical", "warning") if s in statuses), "ok")
+        return worst_status(run.status for run in self.runs)
 
 
 # --------------------------------------------------------------------------- matching

@@ -28,7 +28,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final, Literal
 
-from ncmeasure.analysis.compare import CHANGE_SHAPE, AxisChange, Comparison, GroupDeviation
+from ncmeasure.analysis.compare import (
+    CHANGE_SHAPE,
+    AxisChange,
+    Comparison,
+    GroupDeviation,
+    worst_status,
+)
 from ncmeasure.analysis.results import AxisResult, Cause, Signature, Verdict
 from ncmeasure.analysis.verdict import comparison_verdict, percent_text
 
@@ -42,8 +48,6 @@ __all__ = [
 ]
 
 Status = Literal["ok", "warning", "critical"]
-
-_STATUS_ORDER: Final[dict[Status, int]] = {"ok": 0, "warning": 1, "critical": 2}
 
 SIGNATURE_WORDS: Final[dict[Signature, str]] = {
     "flat": "flat",
@@ -131,7 +135,7 @@ def axis_comparison(
     groups = [g for g in comparison.groups if g.label == run and g.axis == axis]
     if run is None or not groups:
         return None
-    status = max((g.status for g in groups), key=_STATUS_ORDER.__getitem__)
+    status = worst_status(g.status for g in groups)
     worst = max(groups, key=lambda g: abs(g.median_deviation_percent))
     change: AxisChange | None = next(
         (c for c in comparison.changes if c.label == run and c.axis == axis), None

@@ -34,6 +34,7 @@ from ncmeasure.analysis.compare import (
     Status,
     compare_results,
     modified_z_against,
+    worst_status,
 )
 from ncmeasure.analysis.results import Results
 from ncmeasure.errors import ComparisonError, OutputError
@@ -57,8 +58,6 @@ __all__ = [
 TEMPERATURE_WARNING_K = 5.0
 """Temperatures further apart than this make a comparison doubtful: the lubricant's
 viscosity, and with it viscous friction, changes by several percent per kelvin."""
-
-_STATUS_ORDER: dict[Status, int] = {"ok": 0, "warning": 1, "critical": 2}
 
 
 @dataclass(frozen=True)
@@ -187,10 +186,6 @@ def comparability(
     return Comparability(differences=differences)
 
 
-def _worst(*statuses: Status) -> Status:
-    return max(statuses, key=lambda s: _STATUS_ORDER[s])
-
-
 def _fleet_values(
     store: Store, type_id: int, machine_id: int
 ) -> dict[tuple[str, str], dict[str, list[float]]]:
@@ -245,7 +240,7 @@ def _fleet(
             enough = len(reference) >= limits.outlier_min_runs
             z = modified_z_against(value, reference) if enough else None
             median = float(np.median(reference))
-            unit = "%" if c.unit == "%" else c.unit.replace("quantity", axis.unit)
+            unit = c.unit_of(axis.unit)
             figures.append(
                 FleetFigure(
                     axis=name,
@@ -317,7 +312,7 @@ def check_machine(store: Store, serial: str, limits: Limits | None = None) -> St
         )
     for figure in fleet:
         if figure.outlier:
-            status = _worst(status, "warning")
+            status = worst_status((status, "warning"))
             findings.append(
                 f"axis {figure.axis}: {figure.characteristic} {figure.value:.4g} {figure.unit} is "
                 f"an outlier of its type (fleet median {figure.fleet_median:.4g}, modified z "

@@ -27,7 +27,12 @@ from typing import Any
 import numpy as np
 from sqlalchemy import select
 
-from ncmeasure.analysis.compare import Limits, Status, modified_z_leave_one_out
+from ncmeasure.analysis.compare import (
+    Limits,
+    Status,
+    modified_z_leave_one_out,
+    worst_status,
+)
 from ncmeasure.analysis.diagnosis import FLAT_THRESHOLD_PERCENT
 from ncmeasure.store import schema as t
 from ncmeasure.store.rows import CHARACTERISTICS, Characteristic
@@ -44,7 +49,6 @@ __all__ = [
     "is_outlier",
 ]
 
-_ORDER: dict[Status, int] = {"ok": 0, "warning": 1, "critical": 2}
 _VERDICT_STATUS: dict[str, Status] = {"ok": "ok", "check": "warning", "fault": "critical"}
 _CHUNK = 500  # ids per IN (...) query: far below every database's parameter limit
 
@@ -123,12 +127,9 @@ class AxisOverview:
     def status(self) -> Status:
         """The light: the worst of the verdict (check: warning, fault: critical), the
         changes since the baseline, and an outlier (a warning)."""
-        status: Status = _VERDICT_STATUS.get(self.verdict, "ok")
-        for change in self.changes:
-            status = max(status, change.status, key=_ORDER.__getitem__)
-        if self.outliers:
-            status = max(status, "warning", key=_ORDER.__getitem__)
-        return status
+        outlier: list[Status] = ["warning"] if self.outliers else []
+        verdict = _VERDICT_STATUS.get(self.verdict, "ok")
+        return worst_status([verdict, *(c.status for c in self.changes), *outlier])
 
 
 @dataclass
@@ -150,7 +151,7 @@ class MachineOverview:
     @property
     def status(self) -> Status:
         """The worst of the axes (ok when only the baseline is stored)."""
-        return max((a.status for a in self.axes.values()), key=_ORDER.__getitem__, default="ok")
+        return worst_status(a.status for a in self.axes.values())
 
 
 @dataclass(frozen=True)
@@ -302,7 +303,7 @@ def _outliers(
         values = np.array([value for _, _, value in members])
         z, medians = modified_z_leave_one_out(values)
         c = by_name[name]
-        shown = "%" if c.unit == "%" else c.unit.replace("quantity", unit)
+        shown = c.unit_of(unit)
         for (axis, machine, value), zi, median in zip(members, z, medians, strict=True):
             if is_outlier(c, value, float(median), float(zi), limits):
                 outlier = Outlier(

@@ -40,6 +40,10 @@ class Characteristic:
     relative: bool = True
     """Compared as a relative change (friction levels), else in points (spread in %)."""
 
+    def unit_of(self, quantity_unit: str) -> str:
+        """The unit of its values for an axis measured in ``quantity_unit`` (Nm or A)."""
+        return self.unit.replace("quantity", quantity_unit)
+
 
 CHARACTERISTICS = (
     Characteristic("coulomb", "Coulomb friction", "quantity"),
