@@ -1282,6 +1282,16 @@ def _print_warnings(results: Results, problems: list[str]) -> None:
                 err_console.print(Text.assemble(("warning:", "yellow"), f" axis {name}: {warning}"))
 
 
+WarningOption = Annotated[
+    float | None,
+    typer.Option(help="Warning limit of the change against the baseline, in % (default 20)."),
+]
+CriticalOption = Annotated[
+    float | None,
+    typer.Option(help="Critical limit of the change against the baseline, in % (default 40)."),
+]
+
+
 @app.command("compare")
 @_command
 def compare_command(
@@ -1292,10 +1302,8 @@ def compare_command(
         ),
     ],
     others: Annotated[list[Path], typer.Argument(help="results.json files to compare with it.")],
-    warning: Annotated[
-        float | None, typer.Option(help="Warning limit of the deviation in %.")
-    ] = None,
-    critical: Annotated[float | None, typer.Option(help="Critical limit in %.")] = None,
+    warning: WarningOption = None,
+    critical: CriticalOption = None,
     output: Annotated[
         Path | None, typer.Option("--output", "-o", help="Write the comparison as JSON.")
     ] = None,
@@ -1621,12 +1629,8 @@ def store_trend_command(
     plot: Annotated[
         Path | None, typer.Option(help="Also draw the trend with its limits as a PNG.")
     ] = None,
-    warning: Annotated[
-        float | None, typer.Option(help="Warning limit in % of the baseline (default 20).")
-    ] = None,
-    critical: Annotated[
-        float | None, typer.Option(help="Critical limit in % of the baseline (default 40).")
-    ] = None,
+    warning: WarningOption = None,
+    critical: CriticalOption = None,
     store: StoreOption = None,
 ) -> None:
     """Coulomb, viscous friction and the spread along the travel over the machine's life.
@@ -1670,12 +1674,8 @@ def store_trend_command(
 @_command
 def store_check_command(
     serial: Annotated[str, typer.Argument(help="The machine's serial number.")],
-    warning: Annotated[
-        float | None, typer.Option(help="Warning limit of the change in % (default 20).")
-    ] = None,
-    critical: Annotated[
-        float | None, typer.Option(help="Critical limit of the change in % (default 40).")
-    ] = None,
+    warning: WarningOption = None,
+    critical: CriticalOption = None,
     output: Annotated[
         Path | None, typer.Option("--output", "-o", help="Also write the check as JSON.")
     ] = None,
@@ -1735,12 +1735,8 @@ def store_report_command(
         int,
         typer.Option(min=0, max=200, help="Trend plots of the axes that moved most."),
     ] = 12,
-    warning: Annotated[
-        float | None, typer.Option(help="Warning limit of the change in % (default 20).")
-    ] = None,
-    critical: Annotated[
-        float | None, typer.Option(help="Critical limit of the change in % (default 40).")
-    ] = None,
+    warning: WarningOption = None,
+    critical: CriticalOption = None,
     store: StoreOption = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> Outcome:
