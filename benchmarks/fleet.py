@@ -26,6 +26,12 @@ Run:   python benchmarks/fleet.py                       (the full fleet: long)
        python benchmarks/fleet.py --postgresql auto     (a throw-away server, initdb)
        python benchmarks/fleet.py --short --postgresql auto   (a crash test, seconds; CI)
        python benchmarks/fleet.py --work /var/tmp/fleet  (keep the fleet; run again: reuse)
+       python benchmarks/fleet.py --work DIR --no-sqlite --postgresql auto
+                                 (PostgreSQL alone, e.g. beside a SQLite run in parallel)
+
+The throw-away server of ``--postgresql auto`` runs with fsync on and PostgreSQL's
+default shared buffers, as SQLite writes durably too; with ``--work`` its cluster is
+kept in DIR/postgresql and reused.
 """
 
 from __future__ import annotations
@@ -197,6 +203,11 @@ def main() -> None:
     )
     parser.add_argument("--short", action="store_true", help="A small fleet: a crash test.")
     parser.add_argument(
+        "--no-sqlite",
+        action="store_true",
+        help="Skip the SQLite store and the results.json baseline (it is written beside it).",
+    )
+    parser.add_argument(
         "--work",
         metavar="DIR",
         help="Keep the stores and files here; a later run with the same DIR reuses them "
@@ -213,14 +224,18 @@ def main() -> None:
             f"fleet: {args.machines} machines × {len(base.axes)} axes × {args.measurements} "
             "measurements, one machine type"
         )
-        _run("sqlite", f"sqlite:///{work / 'fleet.db'}", base, args, work)
+        if not args.no_sqlite:
+            _run("sqlite", f"sqlite:///{work / 'fleet.db'}", base, args, work)
         if args.postgresql == "auto":
             from tests.pg import temporary_postgres
 
-            with temporary_postgres() as url:
+            kept = work / "postgresql" if args.work else None
+            with temporary_postgres(kept, fsync=True, shared_buffers="128MB") as url:
                 _run("postgresql", url, base, args, work)
         elif args.postgresql:
             _run("postgresql", args.postgresql, base, args, work)
+        if args.no_sqlite:
+            return
         serial = f"HMX-{args.machines // 2:06d}"
         median, low, high = _median_s(
             lambda: _files_check(work / "files", serial, Limits()), args.rounds

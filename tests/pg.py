@@ -51,9 +51,16 @@ class PostgresMissingError(RuntimeError):
 
 
 @contextlib.contextmanager
-def temporary_postgres() -> Iterator[str]:
+def temporary_postgres(
+    folder: Path | None = None, *, fsync: bool = False, shared_buffers: str = "32MB"
+) -> Iterator[str]:
     """A fresh PostgreSQL server in a temporary folder on a free loopback port, stopped and
     removed on exit: the URL of its ``postgres`` database (superuser ``ncm``, no password).
+
+    With ``folder``, the cluster lives there and is kept: stopped on exit, started again
+    (with its data) by the next call with the same folder. ``fsync=False`` (the tests)
+    trades durability for speed; a benchmark that compares with SQLite wants ``True``
+    and PostgreSQL's default ``shared_buffers="128MB"``.
 
     Raises:
         PostgresMissingError: initdb is not installed.
@@ -63,24 +70,29 @@ def temporary_postgres() -> Iterator[str]:
     if bin_dir is None:
         raise PostgresMissingError("PostgreSQL (Debian package postgresql) is not installed")
     user = _server_user()
-    root = Path(tempfile.mkdtemp(prefix="ncmeasure-pg-"))
+    keep = folder is not None
+    if folder is not None:
+        folder.mkdir(parents=True, exist_ok=True)
+    root = folder if folder is not None else Path(tempfile.mkdtemp(prefix="ncmeasure-pg-"))
     data, sockets, log = root / "data", root / "run", root / "server.log"
-    sockets.mkdir()
+    sockets.mkdir(exist_ok=True)
     if user is not None:
         for path in (root, sockets):
             os.chown(path, user.pw_uid, user.pw_gid)
     as_user = {"user": user.pw_uid, "group": user.pw_gid} if user else {}
     env = {**os.environ, "LC_ALL": "C", "LANG": "C"}
-    subprocess.run(
-        [bin_dir / "initdb", "-D", data, "-U", PG_USER, "--auth=trust", "-E", "UTF8", "-N"],
-        check=True, capture_output=True, timeout=180, env=env, cwd=root, **as_user,
-    )  # fmt: skip
+    if not (data / "PG_VERSION").exists():
+        subprocess.run(
+            [bin_dir / "initdb", "-D", data, "-U", PG_USER, "--auth=trust", "-E", "UTF8", "-N"],
+            check=True, capture_output=True, timeout=180, env=env, cwd=root, **as_user,
+        )  # fmt: skip
     port = None
     for _ in range(5):  # another process may take the port between probe and start
         port = _free_port()
         options = (
-            f"-p {port} -k {sockets} -c listen_addresses=127.0.0.1 -c fsync=off "
-            "-c max_connections=60 -c shared_buffers=32MB"
+            f"-p {port} -k {sockets} -c listen_addresses=127.0.0.1 "
+            f"-c fsync={'on' if fsync else 'off'} -c max_connections=60 "
+            f"-c shared_buffers={shared_buffers}"
         )
         started = subprocess.run(
             [bin_dir / "pg_ctl", "-D", data, "-l", log, "-o", options, "-w", "-t", "120", "start"],
@@ -97,4 +109,5 @@ def temporary_postgres() -> Iterator[str]:
             [bin_dir / "pg_ctl", "-D", data, "-m", "fast", "-w", "-t", "60", "stop"],
             capture_output=True, timeout=120, env=env, cwd=root, **as_user,
         )  # fmt: skip
-        shutil.rmtree(root, ignore_errors=True)
+        if not keep:
+            shutil.rmtree(root, ignore_errors=True)
