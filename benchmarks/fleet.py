@@ -10,8 +10,11 @@ measurement is distinct.
 
 It prints, per database:
 
-- ``store add`` rate (measurements per second, through ``Store.add``, each in
-  its own transaction as the command does it; only the time inside ``add``);
+- ``store add`` rate: the last ``--timed`` measurements (1,000) go in through
+  ``Store.add``, each in its own transaction as the command does it, into the
+  nearly full store; only the time inside ``add`` counts. The fleet before them is
+  filled through ``Store.add_many``, ``--batch`` (50) per transaction, and that rate
+  is printed too;
 - ``store check`` of one machine: the goal is below 0.5 s;
 - the fleet overview (``store report``'s data) and the report file.
 
@@ -154,21 +157,42 @@ def _run(label: str, url: str, base: Results, args: argparse.Namespace, work: Pa
         if filled:  # --work with a store of an earlier run: measure what is there
             args.machines = len(filled)
             print(f"{label}: reusing {len(filled)} machines of {store.where}")
+        total = 0 if filled else args.machines * args.measurements
+        timed_from = total - min(args.timed, total)
+        batch: list[tuple[Results, MeasurementInfo]] = []
+        loaded = 0.0
         for serial, k, results, info in (
             [] if filled else _fleet(base, args.machines, args.measurements)
         ):
-            start = time.perf_counter()
-            store.add(results, info)
-            took += time.perf_counter() - start
-            added += 1
+            if added + len(batch) < timed_from:  # the fill: many per transaction
+                batch.append((results, info))
+                if len(batch) == args.batch or added + len(batch) == timed_from:
+                    start = time.perf_counter()
+                    store.add_many(batch)
+                    loaded += time.perf_counter() - start
+                    added += len(batch)
+                    batch.clear()
+            else:  # the timed adds: one per transaction, as the command does it
+                start = time.perf_counter()
+                store.add(results, info)
+                took += time.perf_counter() - start
+                added += 1
             if label == "sqlite":  # the baseline's folder tree, written once
                 write_results(results, work / "files" / serial / f"{k:03d}.json")
             if time.perf_counter() - last > 30:
                 last = time.perf_counter()
                 print(f"  {label}: {added} measurements added ...", file=sys.stderr)
-    if added:
-        rate = added / took
-        print(f"{label}: store add {rate:8.1f} measurements/s ({added} in {took:.1f} s)")
+    if timed_from:
+        print(
+            f"{label}: filled with {timed_from} measurements, {args.batch} per transaction: "
+            f"{timed_from / loaded:8.1f} measurements/s"
+        )
+    if added > timed_from:
+        rate = (added - timed_from) / took
+        print(
+            f"{label}: store add {rate:8.1f} measurements/s (the last {added - timed_from}, "
+            f"one per transaction, in {took:.1f} s)"
+        )
     serial = f"HMX-{args.machines // 2:06d}"
     with open_store(url) as store:
         median, low, high = _median_s(lambda: check_machine(store, serial, limits), args.rounds)
@@ -197,6 +221,15 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=5, help="Rounds of each timed check.")
     parser.add_argument("--trends", type=int, default=12)
     parser.add_argument(
+        "--timed",
+        type=int,
+        default=1000,
+        help="The last N measurements are added one per transaction and timed (store add).",
+    )
+    parser.add_argument(
+        "--batch", type=int, default=50, help="Measurements per transaction while filling."
+    )
+    parser.add_argument(
         "--postgresql",
         metavar="URL",
         help="An empty PostgreSQL database, or 'auto': a throw-away server (initdb).",
@@ -216,6 +249,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.short:
         args.machines, args.measurements, args.rounds, args.trends = 6, 2, 1, 2
+        args.timed, args.batch = 4, 3
     with tempfile.TemporaryDirectory(prefix="ncmeasure-fleet-") as tmp:
         work = Path(args.work or tmp)
         work.mkdir(parents=True, exist_ok=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import datetime as dt
 import math
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
@@ -229,13 +229,29 @@ class Store:
             ConfigError: Invalid info, or these results belong to another machine.
             StoreError: The database failed; nothing of this measurement is stored.
         """
-        info.checked()
-        if not results.axes:
-            raise ConfigError("these results hold no analysed axis; there is nothing to store")
-        canonical = canonical_json(results)
-        digest = results_digest(canonical)
-        with self._writing("add the measurement") as db:
-            return self._add(db, results, info, canonical, digest)
+        return self.add_many([(results, info)])[0]
+
+    def add_many(self, measurements: Iterable[tuple[Results, MeasurementInfo]]) -> list[Added]:
+        """Store several measurements in one transaction: all of them or none.
+
+        For loading many at once (a script filling a store): one commit instead of one
+        per measurement. Each is stored as :meth:`add` stores it.
+
+        Raises:
+            ConfigError: Invalid info, or results of another machine (nothing stored).
+            StoreError: The database failed; nothing of these measurements is stored.
+        """
+        prepared = []
+        for results, info in measurements:
+            info.checked()
+            if not results.axes:
+                raise ConfigError("these results hold no analysed axis; there is nothing to store")
+            canonical = canonical_json(results)
+            prepared.append((results, info, canonical, results_digest(canonical)))
+        with self._writing(
+            "add the measurement" if len(prepared) == 1 else "add measurements"
+        ) as db:
+            return [self._add(db, *one) for one in prepared]
 
     def _existing(self, db: Connection, digest: str, serial: str) -> Added | None:
         found = db.execute(
