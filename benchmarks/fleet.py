@@ -49,6 +49,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
+from sqlalchemy import func, select
 
 from ncmeasure.analysis.analyze import analyze, write_results
 from ncmeasure.analysis.compare import Limits, compare_results, modified_z_against
@@ -60,6 +61,7 @@ from ncmeasure.store.check import check_machine
 from ncmeasure.store.overview import fleet_overview, is_outlier
 from ncmeasure.store.report import write_fleet_report
 from ncmeasure.store.rows import CHARACTERISTICS, rows_of_axis
+from ncmeasure.store.schema import measurements
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' helpers
 from tests.report.example import scaled_axis
@@ -84,9 +86,10 @@ def _base_results(folder: Path) -> Results:
 
 
 def _fleet(
-    base: Results, machines: int, measurements: int, seed: int = 7
+    base: Results, machines: int, measurements: int, seed: int = 7, skip: int = 0
 ) -> Iterator[tuple[str, int, Results, MeasurementInfo]]:
-    """(serial, index, results, info) of every measurement, machine by machine."""
+    """(serial, index, results, info) of every measurement, machine by machine; the first
+    ``skip`` are left out (the same fleet: a fill that was stopped goes on)."""
     rng = np.random.default_rng(seed)
     for m in range(machines):
         serial = f"HMX-{m:06d}"
@@ -94,6 +97,8 @@ def _fleet(
         for k in range(measurements):
             when = f"{2026 + k // 12:04d}-{1 + k % 12:02d}-{1 + m % 28:02d}T08:00:00+00:00"
             factor = level * (1.0 - 0.02 * k) * float(rng.normal(1.0, 0.01))
+            if m * measurements + k < skip:
+                continue
             axes = {name: scaled_axis(a, factor) for name, a in base.axes.items()}
             recording = base.recording.model_copy(
                 update={"directory": f"recordings/{serial}/{k}", "start_utc": when}
@@ -149,21 +154,24 @@ def _files_check(folder: Path, serial: str, limits: Limits) -> tuple[str, int]:
 
 def _run(label: str, url: str, base: Results, args: argparse.Namespace, work: Path) -> None:
     limits = Limits()
-    added = 0
     took = 0.0
     last = time.perf_counter()
     with open_store(url, write=True) as store:
-        filled = store.machines() if args.work else []
-        if filled:  # --work with a store of an earlier run: measure what is there
-            args.machines = len(filled)
-            print(f"{label}: reusing {len(filled)} machines of {store.where}")
-        total = 0 if filled else args.machines * args.measurements
+        with store.reading("count the measurements") as db:
+            stored = db.execute(select(func.count()).select_from(measurements)).scalar_one()
+        total = args.machines * args.measurements
+        if stored >= total:  # --work with a store of an earlier run: measure what is there
+            args.machines = len(store.machines())
+            print(f"{label}: reusing {args.machines} machines of {store.where}")
+            total = stored = 0
+        elif stored:  # a fill that was stopped (whole transactions only): it goes on
+            print(f"{label}: going on after the {stored} measurements in {store.where}")
         timed_from = total - min(args.timed, total)
+        added = stored
         batch: list[tuple[Results, MeasurementInfo]] = []
         loaded = 0.0
-        for serial, k, results, info in (
-            [] if filled else _fleet(base, args.machines, args.measurements)
-        ):
+        todo = _fleet(base, args.machines, args.measurements, skip=stored) if total else iter(())
+        for serial, k, results, info in todo:
             if added + len(batch) < timed_from:  # the fill: many per transaction
                 batch.append((results, info))
                 if len(batch) == args.batch or added + len(batch) == timed_from:
@@ -182,15 +190,16 @@ def _run(label: str, url: str, base: Results, args: argparse.Namespace, work: Pa
             if time.perf_counter() - last > 30:
                 last = time.perf_counter()
                 print(f"  {label}: {added} measurements added ...", file=sys.stderr)
-    if timed_from:
+    if loaded:
+        filled = min(added, timed_from) - stored
         print(
-            f"{label}: filled with {timed_from} measurements, {args.batch} per transaction: "
-            f"{timed_from / loaded:8.1f} measurements/s"
+            f"{label}: filled with {filled} measurements, {args.batch} per transaction: "
+            f"{filled / loaded:8.1f} measurements/s"
         )
-    if added > timed_from:
-        rate = (added - timed_from) / took
+    if took:
+        timed = added - max(timed_from, stored)
         print(
-            f"{label}: store add {rate:8.1f} measurements/s (the last {added - timed_from}, "
+            f"{label}: store add {timed / took:8.1f} measurements/s (the last {timed}, "
             f"one per transaction, in {took:.1f} s)"
         )
     serial = f"HMX-{args.machines // 2:06d}"
