@@ -89,6 +89,16 @@ def axis_table(draw: st.DrawFn, name: str) -> dict[str, Any]:
         table["screw_lead_mm"] = draw(
             mostly(st.sampled_from([5.0, 10.0, 20.0]), log_floats(1e-2, 1e4))
         )
+    if draw(st.booleans()):
+        table["rapid_velocity_mm_min"] = draw(
+            mostly(st.floats(10000, 60000), log_floats(1e-3, 2e6))
+        )
+    if draw(st.integers(0, 3)) == 0:
+        table["rated_current_a"] = draw(mostly(st.floats(1, 100), log_floats(1e-3, 1e5)))
+    if draw(st.integers(0, 3)) == 0:
+        table["fixed_bearing_end"] = draw(mostly(st.sampled_from(["min", "max"]), st.just("mid")))
+    if draw(st.integers(0, 5)) == 0:
+        table["link"] = {"node_id": draw(mostly(st.integers(1, 127), st.integers(-1, 300)))}
     if draw(st.integers(0, 5)) == 0:
         table["measurement"] = {
             "velocity_steps": draw(mostly(st.integers(1, 30), st.integers(-1, 600)))
@@ -144,6 +154,16 @@ def machine_files(draw: st.DrawFn) -> dict[str, Any]:
         ),
         "unfit_steps": draw(mostly(st.just("drop"), st.just("error"))),
     }
+    optional = {  # set or left to their defaults, as users do
+        "max_velocity_mm_min": mostly(st.floats(100, 20000), log_floats(1e-5, 1e7)),
+        "warmup_velocity_mm_min": mostly(st.floats(100, 5000), log_floats(1e-5, 1e7)),
+        "window_samples": mostly(st.integers(10, 200), st.integers(-1, 2_000_000)),
+        "sample_period_ms": mostly(st.sampled_from([1.0, 2.0, 4.0]), log_floats(1e-3, 1e4)),
+        "dynamics_safety": mostly(st.floats(1, 3), st.floats(0, 20)),
+    }
+    for key, strategy in optional.items():
+        if draw(st.integers(0, 3)) == 0:
+            measurement[key] = draw(strategy)
     name = mostly(
         st.sampled_from(["HMX-400 #17", "Fräse 3 Müller", "机床 7"]),
         st.text(min_size=1, max_size=20),
@@ -161,6 +181,19 @@ def machine_files(draw: st.DrawFn) -> dict[str, Any]:
     }
     if _WILD["on"] and draw(st.booleans()):
         data["limits"] = {"max_duration_h": draw(log_floats(0.01, 1000))}
+        if draw(st.booleans()):
+            data["limits"]["max_program_kb"] = draw(st.integers(0, 2_000_000))
+        if draw(st.booleans()):
+            data["limits"]["max_windows"] = draw(st.integers(0, 100_000))
+    if draw(st.integers(0, 3)) == 0:  # an order of the axes, or one with a stranger
+        for key in ("park_order", "measure_order"):
+            if draw(st.booleans()):
+                order = draw(st.permutations(names))
+                data["machine"][key] = order + draw(
+                    mostly(st.just([]), st.sampled_from([["Q"], [names[0]]]))
+                )
+    if draw(st.integers(0, 5)) == 0:
+        data["link"] = {"type": draw(mostly(st.just("replay"), st.sampled_from(["can", 7])))}
     for _ in range(draw(st.integers(0, 2)) if _WILD["on"] else 0):  # a typo or an extreme
         where = draw(st.sampled_from(["machine", "measurement", "axis"]))
         table = data["axes"][0] if where == "axis" else data[where]
@@ -175,10 +208,11 @@ def snapshot(folder: Path) -> dict[str, bytes]:
     }
 
 
-# An error line names its place: a key path, an axis, a file, or a template line.
+# An error names its place: a key path, an axis, a file's line, or a template line. The
+# header ("m.toml is not valid") does not count: the problem itself must be located.
 _LOCATED = re.compile(
     r"(axes\[\d+\]|machine|measurement|limits|link)[.\[:]"
-    r"|axis [A-Z][A-Z0-9]*:|\.toml|template \S+:\d+"
+    r"|axis [A-Z][A-Z0-9]*:|\.toml:\d+|at line \d+|template \S+:\d+"
 )
 _M_WORD = re.compile(r"(?<![A-Z0-9_<%])M\s*(\d+)", re.I)
 
@@ -208,7 +242,8 @@ def test_generate_refuses_cleanly_or_writes_programs_check_accepts(data: dict[st
         if result.exit_code == 2:
             event(result.stderr.splitlines()[1].split(":")[0] if "\n  " in result.stderr else "-")
             assert result.stderr.startswith("error: "), output
-            assert _LOCATED.search(result.stderr), output
+            header, _, problems = result.stderr.partition("\n")
+            assert _LOCATED.search(problems or header), output
             assert snapshot(out) == before, "a refused generate changed the folder"
             assert sorted(p.name for p in tmp.iterdir()) == ["m.toml", "out"]
             return
