@@ -257,6 +257,9 @@ def test_generate_refuses_cleanly_or_writes_programs_check_accepts(data: dict[st
         _only_the_dialects_m_codes(
             out, schedule.program_files, schedule.controller_options, schedule.controller
         )
+        _only_the_marker_variables(
+            out, schedule.program_files, schedule.controller_options, schedule.controller
+        )
         axes = {a.name for a in schedule.axes}
         if schedule.controller in ("linuxcnc", "fanuc") and axes <= set(AXES) and RS274:
             main = schedule.main_program
@@ -285,6 +288,37 @@ def _only_the_dialects_m_codes(
             line = re.sub(r"\(.*?\)|;.*$|^%\S*|<[^>]*>|^L\s+\S+", " ", line)
             for match in _M_WORD.finditer(line):
                 assert int(match.group(1)) in allowed, f"{name}:{number}: {line.strip()}"
+
+
+# How a program names a variable or an output, per dialect (written here, independently of
+# the dialect data the checker reads).
+_VARIABLES = {
+    "fanuc": re.compile(r"#\s*(\d+)"),
+    "sinumerik-840d": re.compile(r"\$R\[\s*(\d+)\s*\]|(?<![A-Z$_])R(\d+)\s*="),
+    "linuxcnc": re.compile(r"M6[2-5]\s*P\s*(\d+)|M6[78]\s*E\s*(\d+)", re.I),
+}
+
+
+def _only_the_marker_variables(
+    out: Path, files: list[str], options: dict[str, int | bool], controller: str
+) -> None:
+    """Every variable or output a program touches is a marker option's value."""
+    pattern = _VARIABLES.get(controller)
+    if pattern is None:  # TwinCAT and HEIDENHAIN mark with M functions only
+        return
+    codes = load_dialect(controller).codes.options
+    allowed = {
+        int(value)
+        for key, value in options.items()
+        if key in codes and codes[key].kind in ("variable", "output") and value is not True
+    }
+    for name in files:
+        text = (out / name).read_text(encoding="utf-8")
+        for number, line in enumerate(text.splitlines(), start=1):
+            line = re.sub(r"\(.*?\)|;.*$", " ", line)
+            for match in pattern.finditer(line):
+                used = int(next(g for g in match.groups() if g is not None))
+                assert used in allowed, f"{name}:{number}: {line.strip()} (allowed {allowed})"
 
 
 @pytest.mark.parametrize("dialect", DIALECTS)
