@@ -153,16 +153,14 @@ def test_a_failed_add_leaves_nothing(
 ) -> None:
     from ncmeasure.store.store import Store
 
-    calls = []
-    original = Store._add_axis
+    original = Store._add_axes
 
-    def failing(self, db, machine_id, measurement_id, name, axis):  # type: ignore[no-untyped-def]
-        calls.append(name)
-        if len(calls) == 2:
-            raise ConfigError("injected failure on the second axis")
-        return original(self, db, machine_id, measurement_id, name, axis)
+    def failing(self, db, machine_id, measurement_id, results):  # type: ignore[no-untyped-def]
+        original(self, db, machine_id, measurement_id, results)  # every row is written ...
+        assert db.execute(select(func.count()).select_from(t.points)).scalar_one() > 0
+        raise ConfigError("injected failure after the rows")  # ... and then it fails
 
-    monkeypatch.setattr(Store, "_add_axis", failing)
+    monkeypatch.setattr(Store, "_add_axes", failing)
     with open_store(store_url, write=True) as store:
         with pytest.raises(ConfigError, match="injected"):
             store.add(make_results("2026-01-10T08:00:00+00:00"), MeasurementInfo("M17"))

@@ -347,8 +347,7 @@ class Store:
             assert again is not None
             return again
         measurement_id = int(inserted.id)
-        for name, axis in results.axes.items():
-            self._add_axis(db, machine.id, measurement_id, name, axis)
+        self._add_axes(db, machine.id, measurement_id, results)
         latest = (
             select(t.measurements.c.measured_utc)
             .where(t.measurements.c.id == t.machines.c.latest_measurement_id)
@@ -362,36 +361,61 @@ class Store:
         )
         return Added(measurement_id, info.serial, new=True)
 
-    def _add_axis(
-        self, db: Connection, machine_id: int, measurement_id: int, name: str, axis: Any
+    def _add_axes(
+        self, db: Connection, machine_id: int, measurement_id: int, results: Results
     ) -> None:
-        axis_row = self._get_or_create(db, t.axes, {"machine_id": machine_id, "name": name}, {})
-        rows = rows_of_axis(name, axis)
-        result_id = db.execute(
-            insert(t.axis_results)
-            .values(measurement_id=measurement_id, axis_id=axis_row.id, **rows.axis)
-            .returning(t.axis_results.c.id)
-        ).scalar_one()
-        if rows.points:
-            db.execute(insert(t.points), [{**p, "axis_result_id": result_id} for p in rows.points])
-        if rows.fits:
+        """Every axis' rows of one measurement, table by table (a few statements in all)."""
+        names = list(results.axes)
+        axis_ids = self._axis_ids(db, machine_id, names)
+        rows = [rows_of_axis(name, axis) for name, axis in results.axes.items()]
+        result_ids = (
+            db.execute(
+                insert(t.axis_results).returning(t.axis_results.c.id, sort_by_parameter_order=True),
+                [
+                    {"measurement_id": measurement_id, "axis_id": axis_ids[name], **r.axis}
+                    for name, r in zip(names, rows, strict=True)
+                ],
+            )
+            .scalars()
+            .all()
+        )
+        owned = list(zip(result_ids, rows, strict=True))
+        points = [{**p, "axis_result_id": rid} for rid, r in owned for p in r.points]
+        if points:
+            db.execute(insert(t.points), points)
+        fits = [(rid, fit, params) for rid, r in owned for fit, params in r.fits]
+        if fits:
             fit_ids = (
                 db.execute(
                     insert(t.fits).returning(t.fits.c.id, sort_by_parameter_order=True),
-                    [{**fit, "axis_result_id": result_id} for fit, _ in rows.fits],
+                    [{**fit, "axis_result_id": rid} for rid, fit, _ in fits],
                 )
                 .scalars()
                 .all()
             )
             parameters = [
                 {**p, "fit_id": fit_id}
-                for fit_id, (_, params) in zip(fit_ids, rows.fits, strict=True)
+                for fit_id, (_, _, params) in zip(fit_ids, fits, strict=True)
                 for p in params
             ]
             if parameters:
                 db.execute(insert(t.fit_parameters), parameters)
-        if rows.causes:
-            db.execute(insert(t.causes), [{**c, "axis_result_id": result_id} for c in rows.causes])
+        causes = [{**c, "axis_result_id": rid} for rid, r in owned for c in r.causes]
+        if causes:
+            db.execute(insert(t.causes), causes)
+
+    @staticmethod
+    def _axis_ids(db: Connection, machine_id: int, names: list[str]) -> dict[str, int]:
+        """The ids of the machine's axes of these names; the missing ones are created."""
+        where = and_(t.axes.c.machine_id == machine_id, t.axes.c.name.in_(names))
+        found = {row.name: row.id for row in db.execute(select(t.axes).where(where))}
+        missing = [name for name in names if name not in found]
+        if missing:
+            db.execute(
+                _insert_ignore(db, t.axes), [{"machine_id": machine_id, "name": n} for n in missing]
+            )
+            found = {row.name: row.id for row in db.execute(select(t.axes).where(where))}
+        return found
 
     # ----------------------------------------------------------------------- reading
 
