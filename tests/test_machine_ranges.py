@@ -99,7 +99,7 @@ REFUSED: dict[str, tuple[Edit, str]] = {
     "unknown table": (lambda d: d.__setitem__("Measurement", {}), "Measurement: unknown key"),
     "positions on the same micrometre": (
         lambda d: d["axes"][0].__setitem__("measurement", {"positions": [100.0, 100.0004]}),
-        "axes[0].measurement.positions[1]: 100 mm and 100 mm are the same micrometre",
+        "axes[0].measurement.positions[1]: 100.0004 mm and 100 mm are the same micrometre",
     ),
     "more positions than micrometres": (
         lambda d: d["axes"][0].update(
@@ -113,7 +113,7 @@ REFUSED: dict[str, tuple[Edit, str]] = {
     ),
     "a window of days": (
         lambda d: d["measurement"].update(window_samples=1_000_000, sample_period_ms=1000.0),
-        "measurement.window_samples: 1000000 samples of 1000 ms make a window of 1e+06 s",
+        "measurement.window_samples: 1000000 samples of 1000 ms make a window of 1000000 s",
     ),
     "margin beyond any travel": (
         measurement("margin_mm", 1e9),
@@ -130,6 +130,30 @@ def test_values_that_used_to_pass_are_refused_at_their_place(case: str) -> None:
     with pytest.raises(ConfigError) as caught:
         parse_machine(data)
     assert any(expected in line for line in caught.value.problems), caught.value.problems
+
+
+def test_an_option_out_of_range_is_one_problem_not_one_per_type() -> None:
+    """An integer option beyond its range is judged by the integer branch alone; the
+    boolean branch's "expected true/false" would tell the user something wrong."""
+    data = example_data("sinumerik-840d")
+    data["machine"]["controller_options"] = {"marker_r": 100_000}
+    with pytest.raises(ConfigError) as caught:
+        parse_machine(data)
+    assert list(caught.value.problems) == [
+        "machine.controller_options.marker_r: Input should be less than or equal to 99999"
+    ]
+
+
+def test_numbers_in_messages_are_shown_as_written() -> None:
+    data = example_data("linuxcnc")
+    data["axes"][0]["max_velocity_mm_min"] = 999_999.9999
+    data["measurement"]["max_velocity_mm_min"] = 999_999.99999
+    with pytest.raises(ConfigError) as caught:
+        parse_machine(data)
+    assert any(
+        "999999.99999 mm/min exceeds the maximum velocity of axis X (999999.9999 mm/min)" in line
+        for line in caught.value.problems
+    ), caught.value.problems
 
 
 @pytest.mark.parametrize(

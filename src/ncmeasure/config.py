@@ -524,6 +524,7 @@ def format_validation_error(
     lines: list[str] = []
     seen: set[str] = set()
     expected_at: dict[str, int] = {}  # a place's "expected ..." line: union branches join it
+    judged: set[str] = set()  # places with a message other than "expected ..."
     for error in exc.errors(include_url=False):
         loc = _loc_text(error["loc"], tables)
         if error["type"] == "extra_forbidden" and error["loc"]:
@@ -557,9 +558,14 @@ def format_validation_error(
             continue
         if expected:
             expected_at[loc] = len(lines)
+        else:
+            judged.add(loc)
         lines.append(line)
         seen.add(line)
-    return lines
+    # A union whose branch of the right type judged the value (100000 for an integer up
+    # to 99999, or true/false): the other branches' "expected ..." says nothing more.
+    dropped = {expected_at[loc] for loc in judged if loc in expected_at}
+    return [line for number, line in enumerate(lines) if number not in dropped]
 
 
 def _cross_checks(config: MachineConfig) -> Iterator[str]:
@@ -575,11 +581,11 @@ def _cross_checks(config: MachineConfig) -> Iterator[str]:
     for index, axis in enumerate(config.axes):
         low, high = axis.travel_mm
         if not low < high:
-            yield f"axes[{index}].travel_mm: min ({low:g}) must be below max ({high:g})"
+            yield f"axes[{index}].travel_mm: min ({low:.15g}) must be below max ({high:.15g})"
         elif not low <= axis.park_mm <= high:
             yield (
-                f"axes[{index}].park_mm: {axis.park_mm:g} mm is outside the travel "
-                f"[{low:g}, {high:g}] mm"
+                f"axes[{index}].park_mm: {axis.park_mm:.15g} mm is outside the travel "
+                f"[{low:.15g}, {high:.15g}] mm"
             )
     for index, axis in enumerate(config.axes):
         if not axis.travel_mm[0] < axis.travel_mm[1]:
@@ -598,33 +604,33 @@ def _cross_checks(config: MachineConfig) -> Iterator[str]:
         top = meas.max_velocity_mm_min
         if top is not None and top > axis.max_velocity_mm_min:
             yield (
-                f"{where}.max_velocity_mm_min: {top:g} mm/min exceeds the maximum velocity "
-                f"of axis {axis.name} ({axis.max_velocity_mm_min:g} mm/min)"
+                f"{where}.max_velocity_mm_min: {top:.15g} mm/min exceeds the maximum velocity "
+                f"of axis {axis.name} ({axis.max_velocity_mm_min:.15g} mm/min)"
             )
         top = top if top is not None else meas.max_velocity_fraction * axis.max_velocity_mm_min
         if meas.min_velocity_mm_min >= top:
             yield (
-                f"{where}.min_velocity_mm_min: {meas.min_velocity_mm_min:g} mm/min must be "
-                f"below the highest measured velocity ({top:g} mm/min) on axis {axis.name}"
+                f"{where}.min_velocity_mm_min: {meas.min_velocity_mm_min:.15g} mm/min must be "
+                f"below the highest measured velocity ({top:.15g} mm/min) on axis {axis.name}"
             )
         warm = meas.warmup_velocity_mm_min
         if warm is not None and warm > axis.max_velocity_mm_min:
             yield (
-                f"{where}.warmup_velocity_mm_min: {warm:g} mm/min exceeds the maximum "
-                f"velocity of axis {axis.name} ({axis.max_velocity_mm_min:g} mm/min)"
+                f"{where}.warmup_velocity_mm_min: {warm:.15g} mm/min exceeds the maximum "
+                f"velocity of axis {axis.name} ({axis.max_velocity_mm_min:.15g} mm/min)"
             )
         low, high = axis.travel_mm
         low_um, high_um = usable_um(axis, meas)
         if high_um <= low_um:
             yield (
-                f"{where}.margin_mm: {meas.margin_mm:g} mm from both ends leaves no usable "
-                f"travel on axis {axis.name} (travel {high - low:g} mm)"
+                f"{where}.margin_mm: {meas.margin_mm:.15g} mm from both ends leaves no usable "
+                f"travel on axis {axis.name} (travel {high - low:.15g} mm)"
             )
         if meas.window_duration_s > MAX_WINDOW_S:
             yield (
                 f"{where}.window_samples: {meas.window_samples} samples of "
-                f"{meas.sample_period_ms:g} ms make a window of {meas.window_duration_s:g} s, "
-                f"more than {MAX_WINDOW_S:g} s"
+                f"{meas.sample_period_ms:.15g} ms make a window of "
+                f"{meas.window_duration_s:.15g} s, more than {MAX_WINDOW_S:.15g} s"
             )
         count = len(meas.positions) if isinstance(meas.positions, list) else meas.positions
         if count > 1 and high_um - low_um < count - 1:
@@ -637,15 +643,16 @@ def _cross_checks(config: MachineConfig) -> Iterator[str]:
             for number in range(1, len(micrometres)):
                 if micrometres[number] == micrometres[number - 1]:
                     yield (
-                        f"{where}.positions[{number}]: {meas.positions[number]:g} mm and "
-                        f"{meas.positions[number - 1]:g} mm are the same micrometre; the "
+                        f"{where}.positions[{number}]: {meas.positions[number]:.15g} mm and "
+                        f"{meas.positions[number - 1]:.15g} mm are the same micrometre; the "
                         "programs place positions on whole micrometres"
                     )
             for number, position in enumerate(meas.positions):
                 if not low_um <= micrometres[number] <= high_um:
                     yield (
-                        f"{where}.positions[{number}]: {position:g} mm is outside the usable "
-                        f"travel of axis {axis.name} [{low_um / 1000:g}, {high_um / 1000:g}] mm"
+                        f"{where}.positions[{number}]: {position:.15g} mm is outside the "
+                        f"usable travel of axis {axis.name} "
+                        f"[{low_um / 1000:.15g}, {high_um / 1000:.15g}] mm"
                     )
 
 

@@ -238,6 +238,7 @@ def test_a_schedule_python_cannot_parse_is_located(
         ("fanuc", "O" + "1" * 5000, "program number 111111111111… (5000 digits) is beyond"),
         ("fanuc", "G" + "1" * 5000 + " X5.", "unexpected word G111111111111… (5000 digits)"),
         ("linuxcnc", "M" + "9" * 5000 + " G" + "1" * 5000, "(5000 digits)"),
+        ("twincat", "R5=1", "unexpected word R5=1"),  # as written, not "R51"
     ],
 )
 def test_words_with_thousands_of_digits_are_located_problems(

@@ -541,10 +541,11 @@ class _Interpreter:
             position = match.end()
             if match.group("long"):
                 address, value_text = match.group("long"), match.group("lval")
+                code = f"{address}={_shown(value_text)}"  # R5=1, not R51
             else:
                 address, value_text = match.group("addr"), match.group("val")
+                code = f"{address}{_shown(value_text)}"
             value = float(value_text)
-            code = f"{address}{_shown(value_text)}"
             if dwell and address == self.reader.dwell_word.upper():
                 self._decimal_point(program, number, code, value_text)
                 dwell_s = value * self.reader.dwell_scale
