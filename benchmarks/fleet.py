@@ -31,6 +31,8 @@ Run:   python benchmarks/fleet.py                       (the full fleet: long)
        python benchmarks/fleet.py --work /var/tmp/fleet  (keep the fleet; run again: reuse)
        python benchmarks/fleet.py --work DIR --no-sqlite --postgresql auto
                                  (PostgreSQL alone, e.g. beside a SQLite run in parallel)
+       python benchmarks/fleet.py --work DIR --no-sqlite --postgresql auto --copy-fill
+                                 (PostgreSQL filled with the SQLite fleet's rows of DIR)
 
 The throw-away server of ``--postgresql auto`` runs with fsync on and PostgreSQL's
 default shared buffers, as SQLite writes durably too; with ``--work`` its cluster is
@@ -152,6 +154,77 @@ def _files_check(folder: Path, serial: str, limits: Limits) -> tuple[str, int]:
     return status, outliers
 
 
+def _copy_fill(sqlite_file: Path, url: str, upto: int) -> int:
+    """Fill an empty PostgreSQL store with the SQLite store's first ``upto`` measurements:
+    the same rows (ids included), through COPY. Returns how many were copied.
+
+    The rows are what ``Store.add`` wrote into SQLite; adding them again one by one would
+    take hours and measure nothing new. What is timed in PostgreSQL (the last adds, the
+    check, the report) runs on PostgreSQL itself."""
+    import sqlite3
+
+    import psycopg
+
+    from ncmeasure.store import schema as t
+
+    source = sqlite3.connect(f"file:{sqlite_file}?mode=ro", uri=True)
+    top = source.execute(
+        "SELECT MAX(id), COUNT(*) FROM measurements WHERE id <= ?", (upto,)
+    ).fetchone()
+    if not top[1]:
+        raise SystemExit(f"{sqlite_file}: no measurements to copy; fill the SQLite store first")
+    last_result = source.execute(
+        "SELECT MAX(id) FROM axis_results WHERE measurement_id <= ?", (top[0],)
+    ).fetchone()[0]
+    last_fit = source.execute(
+        "SELECT MAX(id) FROM fits WHERE axis_result_id <= ?", (last_result,)
+    ).fetchone()[0]
+    machines = "SELECT machine_id FROM measurements WHERE id <= :m"
+    where = {
+        "machine_types": "1",
+        "machines": f"id IN ({machines})",
+        "axes": f"machine_id IN ({machines})",
+        "measurements": "id <= :m",
+        "axis_results": "id <= :r",
+        "points": "axis_result_id <= :r",
+        "fits": "id <= :f",
+        "fit_parameters": "fit_id <= :f",
+        "causes": "axis_result_id <= :r",
+    }
+    bounds = {"m": top[0], "r": last_result, "f": last_fit or 0}
+    with psycopg.connect(url.replace("postgresql+psycopg://", "postgresql://")) as target:
+        for table in t.metadata.sorted_tables:
+            if table.name not in where:
+                continue
+            columns = [c.name for c in table.columns]
+            names = ", ".join(f'"{c}"' for c in columns)
+            rows = source.execute(
+                f"SELECT {names} FROM {table.name} WHERE {where[table.name]} ORDER BY id", bounds
+            )
+            started = time.perf_counter()
+            with target.cursor().copy(f"COPY {table.name} ({names}) FROM STDIN") as copy:
+                if table.name == "machines":  # the latest measurement is set below
+                    latest = columns.index("latest_measurement_id")
+                    rows = ((*row[:latest], None, *row[latest + 1 :]) for row in rows)
+                for row in rows:
+                    copy.write_row(row)
+            print(
+                f"  postgresql: copied {table.name} in {time.perf_counter() - started:.0f} s",
+                file=sys.stderr,
+            )
+            target.execute(
+                f"SELECT setval(pg_get_serial_sequence('{table.name}', 'id'), "
+                f"COALESCE((SELECT MAX(id) FROM {table.name}), 1))"
+            )
+        target.execute(
+            "UPDATE machines SET latest_measurement_id = (SELECT m.id FROM measurements m "
+            "WHERE m.machine_id = machines.id ORDER BY m.measured_utc DESC, m.id DESC LIMIT 1)"
+        )
+        target.execute("ANALYZE")
+    source.close()
+    return int(top[1])
+
+
 def _run(label: str, url: str, base: Results, args: argparse.Namespace, work: Path) -> None:
     limits = Limits()
     took = 0.0
@@ -167,6 +240,13 @@ def _run(label: str, url: str, base: Results, args: argparse.Namespace, work: Pa
         elif stored:  # a fill that was stopped (whole transactions only): it goes on
             print(f"{label}: going on after the {stored} measurements in {store.where}")
         timed_from = total - min(args.timed, total)
+        if label == "postgresql" and args.copy_fill and stored == 0 and timed_from:
+            start = time.perf_counter()
+            stored = _copy_fill(work / "fleet.db", url, timed_from)
+            print(
+                f"{label}: filled with the SQLite store's first {stored} measurements (COPY) "
+                f"in {time.perf_counter() - start:.0f} s"
+            )
         added = stored
         batch: list[tuple[Results, MeasurementInfo]] = []
         loaded = 0.0
@@ -244,6 +324,12 @@ def main() -> None:
         help="An empty PostgreSQL database, or 'auto': a throw-away server (initdb).",
     )
     parser.add_argument("--short", action="store_true", help="A small fleet: a crash test.")
+    parser.add_argument(
+        "--copy-fill",
+        action="store_true",
+        help="Fill PostgreSQL with the rows of the SQLite fleet in --work DIR (COPY), then add "
+        "and time the last --timed measurements; hours faster than adding them all.",
+    )
     parser.add_argument(
         "--no-sqlite",
         action="store_true",
