@@ -207,6 +207,13 @@ def _prepare(directory: Path, force: bool) -> None:
     (directory / _MARKER_FILE).write_text("written by ncmeasure demo\n", encoding="utf-8")
 
 
+_ANSWER_TIMEOUT_S = 10.0
+"""How long the link waits for a simulated drive's answer (SDO, Modbus request). The
+drives answer on this computer's scheduler, not on a bus: with other work running an
+answer can come a second late, and a real drive's 0.5 s would call a busy computer a
+dead drive. In lockstep nothing else depends on the answer's time."""
+
+
 def _record(
     config: MachineConfig,
     run: MachineRun,
@@ -249,7 +256,7 @@ def _record(
             return record(
                 config,
                 out=out,
-                link_settings={"channel": channel},
+                link_settings={"channel": channel, "sdo_timeout_s": _ANSWER_TIMEOUT_S},
                 duration_s=total,
                 schedule=schedule,
                 notes=notes,
@@ -268,7 +275,11 @@ def _record(
         return record(
             config,
             out=out,
-            link_settings={"host": "127.0.0.1", "port": server.port},
+            link_settings={
+                "host": "127.0.0.1",
+                "port": server.port,
+                "timeout_s": _ANSWER_TIMEOUT_S,
+            },
             duration_s=total,
             schedule=schedule,
             notes=notes,
