@@ -38,9 +38,9 @@ The public API is re-exported here::
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 from ncmeasure._version import __version__
-from ncmeasure.acquire import record
-from ncmeasure.config import MachineConfig, config_hash, load_machine
 from ncmeasure.errors import (
     ConfigError,
     DialectError,
@@ -50,9 +50,45 @@ from ncmeasure.errors import (
     ProgramCheckError,
     ProgramError,
 )
-from ncmeasure.plan import Schedule, plan_machine
-from ncmeasure.program import GeneratedPrograms, check_programs, generate_programs
-from ncmeasure.recording import Recording, read_recording
+
+if TYPE_CHECKING:
+    from ncmeasure.acquire import record
+    from ncmeasure.config import MachineConfig, config_hash, load_machine
+    from ncmeasure.plan import Schedule, plan_machine
+    from ncmeasure.program import GeneratedPrograms, check_programs, generate_programs
+    from ncmeasure.recording import Recording, read_recording
+
+_LAZY = {
+    "record": "ncmeasure.acquire",
+    "MachineConfig": "ncmeasure.config",
+    "config_hash": "ncmeasure.config",
+    "load_machine": "ncmeasure.config",
+    "Schedule": "ncmeasure.plan",
+    "plan_machine": "ncmeasure.plan",
+    "GeneratedPrograms": "ncmeasure.program",
+    "check_programs": "ncmeasure.program",
+    "generate_programs": "ncmeasure.program",
+    "Recording": "ncmeasure.recording",
+    "read_recording": "ncmeasure.recording",
+}
+"""The public API's names and their modules, imported on first use: ``import ncmeasure``
+(and so ``ncmeasure --version``) stays instant."""
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'ncmeasure' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)
+
 
 __all__ = [
     "ConfigError",

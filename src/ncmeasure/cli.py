@@ -31,26 +31,14 @@ from rich.table import Table
 from rich.text import Text
 
 from ncmeasure._version import __version__
-from ncmeasure.acquire import Progress, record
-from ncmeasure.config import MachineConfig, load_machine, parse_assignments
 from ncmeasure.errors import ConfigError, LinkError, NcMeasureError, OutputError, ProgramCheckError
-from ncmeasure.examples import example_machine
-from ncmeasure.plan import Schedule
-from ncmeasure.program import (
-    available_dialects,
-    check_programs,
-    generate_programs,
-    load_dialect,
-    load_schedule,
-)
-from ncmeasure.recording import read_recording
-from ncmeasure.traces.csv import export_csv
-from ncmeasure.traces.mdf4 import export_mdf4, import_mdf4
 
 if TYPE_CHECKING:
+    from ncmeasure.acquire import Progress
     from ncmeasure.analysis.compare import Comparison
     from ncmeasure.analysis.results import Results
     from ncmeasure.analysis.summary import AxisComparison, Headline
+    from ncmeasure.plan import Schedule
 
 __all__ = ["app", "main"]
 
@@ -274,6 +262,9 @@ def init(
 
     Example: ncmeasure init --controller linuxcnc > machine.toml
     """
+    from ncmeasure.examples import example_machine
+    from ncmeasure.program import load_dialect
+
     dialect = load_dialect(controller, controllers_dir or ())
     sys.stdout.write(example_machine(dialect.name))
 
@@ -282,6 +273,8 @@ def init(
 @_command
 def schema_machine() -> None:
     """JSON Schema of the machine file (point your editor's TOML support at it)."""
+    from ncmeasure.config import MachineConfig
+
     sys.stdout.write(json.dumps(MachineConfig.model_json_schema(), indent=2) + "\n")
 
 
@@ -289,6 +282,8 @@ def schema_machine() -> None:
 @_command
 def schema_schedule() -> None:
     """JSON Schema of schedule.json, the velocity file generate writes."""
+    from ncmeasure.plan import Schedule
+
     sys.stdout.write(json.dumps(Schedule.model_json_schema(), indent=2) + "\n")
 
 
@@ -302,6 +297,8 @@ def controllers(
     controllers_dir: ControllersDir = None,
 ) -> None:
     """List the controller dialects ncmeasure can write programs for."""
+    from ncmeasure.program import available_dialects, load_dialect
+
     table = Table("name", "controller", "files", "marker", show_lines=details)
     for name in available_dialects(controllers_dir or ()):
         dialect = load_dialect(name, controllers_dir or ())
@@ -391,6 +388,9 @@ def plan(
     controllers_dir: ControllersDir = None,
 ) -> None:
     """Show what the measurement will do and how long it takes, without writing anything."""
+    from ncmeasure.config import load_machine
+    from ncmeasure.program import generate_programs
+
     config = load_machine(machine)
     result = generate_programs(config, controllers_dirs=controllers_dir or ())
     schedule = result.schedule
@@ -421,6 +421,9 @@ def generate(
 
     Example: ncmeasure generate machine.toml -o programs/
     """
+    from ncmeasure.config import load_machine
+    from ncmeasure.program import generate_programs
+
     config = load_machine(machine)
     if output.exists() and not output.is_dir():
         raise OutputError(f"{output}: exists and is not a directory")
@@ -454,6 +457,8 @@ def check(
 
     Exit code 0: all holds; 1: a program breaks a limit or its schedule; 2: unreadable input.
     """
+    from ncmeasure.program import check_programs
+
     report = check_programs(directory, tuple(controllers_dir or ()))
     console.print(
         Text.assemble(
@@ -475,6 +480,8 @@ def main() -> None:
 
 def _pairs(values: list[str], option: str, key: str) -> dict[str, dict[str, Any]]:
     """``X=1`` options into per-axis settings ``{"X": {key: 1}}``."""
+    from ncmeasure.config import parse_assignments
+
     form, example = "AXIS=NUMBER", f"{option} X=1"
     result: dict[str, dict[str, Any]] = {}
     for axis, value in parse_assignments(values, option, form=form, example=example):
@@ -486,6 +493,8 @@ def _pairs(values: list[str], option: str, key: str) -> dict[str, dict[str, Any]
 
 def _settings(values: list[str], example: str = "--set sync_hz=500") -> dict[str, Any]:
     """``--set key=value`` options; values are read as TOML (numbers, true/false, strings)."""
+    from ncmeasure.config import parse_assignments
+
     result: dict[str, Any] = {}
     for key, value in parse_assignments(values, "--set", example=example):
         try:
@@ -504,6 +513,8 @@ def _axis_settings(values: list[str], axes: list[str]) -> dict[str, dict[str, An
     Raises:
         ConfigError: an item not of that form, or an axis the machine lacks.
     """
+    from ncmeasure.config import parse_assignments
+
     result: dict[str, dict[str, Any]] = {}
     form, example = "[AXIS.]KEY=VALUE", "--axis-set X.increments_per_rev=10000"
     pairs = parse_assignments(values, "--axis-set", form=form, example=example)
@@ -697,6 +708,10 @@ def record_command(
     --node X=1 --node Y=2 --node Z=3 --axis-set increments_per_rev=10000 --sync-hz 250
     --duration 60 -o run1
     """
+    from ncmeasure.acquire import record
+    from ncmeasure.config import load_machine
+    from ncmeasure.program import load_schedule
+
     config = load_machine(machine)
     overrides: dict[str, Any] = {
         key: value
@@ -794,6 +809,10 @@ def export_command(
     ] = None,
 ) -> None:
     """Write a recording as one CSV (time_s, then <AXIS>_<signal> columns) or MDF4 file."""
+    from ncmeasure.recording import read_recording
+    from ncmeasure.traces.csv import export_csv
+    from ncmeasure.traces.mdf4 import export_mdf4
+
     if fmt not in _FORMATS:
         raise ConfigError(f"--format {fmt!r}: expected one of {', '.join(_FORMATS)}")
     target = output or run.with_suffix(_FORMATS[fmt])
@@ -858,7 +877,9 @@ def import_command(
     """
     from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
 
+    from ncmeasure.config import load_machine, parse_assignments
     from ncmeasure.traces import import_trace
+    from ncmeasure.traces.mdf4 import import_mdf4
 
     axis_names = dict(
         parse_assignments(axis or [], "--axis", form="TRACE_AXIS=MACHINE_AXIS", example="1=X")
@@ -1148,7 +1169,9 @@ def analyze_command(
     from pydantic import ValidationError
 
     from ncmeasure.analysis.analyze import AnalysisSettings, analyze, write_results
-    from ncmeasure.config import format_validation_error
+    from ncmeasure.config import format_validation_error, load_machine
+    from ncmeasure.program import load_schedule
+    from ncmeasure.recording import read_recording
 
     target = output or run.with_name(run.name + ".results.json")
     if (store is None) != (serial is None) or (label is not None and store is None):
@@ -1935,6 +1958,7 @@ def simulate_command(
     Example: ncmeasure simulate machine.toml --variation loose_bearing_shift_um=20
     --variation nut_shift_um=20 --plot variations.png
     """
+    from ncmeasure.config import load_machine
     from ncmeasure.sim.explore import plot_study, study
 
     config = load_machine(machine)
