@@ -1777,6 +1777,7 @@ def store_report_command(
 
     Example: ncmeasure store report -o fleet.html
     """
+    from ncmeasure.analysis.compare import worst_status
     from ncmeasure.store.overview import fleet_overview
     from ncmeasure.store.report import write_fleet_report
 
@@ -1804,8 +1805,6 @@ def store_report_command(
         f"{len(overview.machines)} machine(s): {counts}; {len(overview.outliers)} outlier(s)"
     )
     console.print(f"wrote {written}")
-    from ncmeasure.analysis.compare import worst_status
-
     return worst_status(m.status for m in overview.machines)
 
 

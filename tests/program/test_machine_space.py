@@ -17,6 +17,7 @@ import math
 import os
 import re
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -270,6 +271,14 @@ def test_generate_refuses_cleanly_or_writes_programs_check_accepts(data: dict[st
             check_against_schedule(moves, schedule, markers=schedule.marker_scope == "window")
 
 
+def _code_lines(out: Path, files: list[str], comments: str) -> Iterator[tuple[str, str]]:
+    """("file:line", the line without what ``comments`` matches) of every program line."""
+    for name in files:
+        text = (out / name).read_text(encoding="utf-8")
+        for number, line in enumerate(text.splitlines(), start=1):
+            yield f"{name}:{number}", re.sub(comments, " ", line)
+
+
 def _only_the_dialects_m_codes(
     out: Path, files: list[str], options: dict[str, int | bool], controller: str
 ) -> None:
@@ -282,12 +291,9 @@ def _only_the_dialects_m_codes(
         and dialect.codes.options[key].kind == "m"
         and value
     }
-    for name in files:
-        text = (out / name).read_text(encoding="utf-8")
-        for number, line in enumerate(text.splitlines(), start=1):
-            line = re.sub(r"\(.*?\)|;.*$|^%\S*|<[^>]*>|^L\s+\S+", " ", line)
-            for match in _M_WORD.finditer(line):
-                assert int(match.group(1)) in allowed, f"{name}:{number}: {line.strip()}"
+    for where, line in _code_lines(out, files, r"\(.*?\)|;.*$|^%\S*|<[^>]*>|^L\s+\S+"):
+        for match in _M_WORD.finditer(line):
+            assert int(match.group(1)) in allowed, f"{where}: {line.strip()}"
 
 
 # How a program names a variable or an output, per dialect (written here, independently of
@@ -312,13 +318,10 @@ def _only_the_marker_variables(
         for key, value in options.items()
         if key in codes and codes[key].kind in ("variable", "output") and value is not True
     }
-    for name in files:
-        text = (out / name).read_text(encoding="utf-8")
-        for number, line in enumerate(text.splitlines(), start=1):
-            line = re.sub(r"\(.*?\)|;.*$", " ", line)
-            for match in pattern.finditer(line):
-                used = int(next(g for g in match.groups() if g is not None))
-                assert used in allowed, f"{name}:{number}: {line.strip()} (allowed {allowed})"
+    for where, line in _code_lines(out, files, r"\(.*?\)|;.*$"):
+        for match in pattern.finditer(line):
+            used = int(next(g for g in match.groups() if g is not None))
+            assert used in allowed, f"{where}: {line.strip()} (allowed {allowed})"
 
 
 @pytest.mark.parametrize("dialect", DIALECTS)
