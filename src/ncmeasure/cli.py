@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import importlib.abc
+import importlib.machinery
+import importlib.util
 import inspect
 import json
 import logging
@@ -19,21 +22,22 @@ import threading
 import time
 import tomllib
 import traceback
-from collections.abc import Callable
+import types
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, get_args
 
 import typer
-from rich.console import Console
-from rich.live import Live
-from rich.markup import escape
-from rich.table import Table
-from rich.text import Text
 
 from ncmeasure._version import __version__
 from ncmeasure.errors import ConfigError, LinkError, NcMeasureError, OutputError, ProgramCheckError
 
 if TYPE_CHECKING:
+    from rich.console import Console
+    from rich.live import Live
+    from rich.table import Table
+    from rich.text import Text
+
     from ncmeasure.acquire import Progress
     from ncmeasure.analysis.compare import Comparison
     from ncmeasure.analysis.results import Results
@@ -98,17 +102,32 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    # Plain help: typer's rich help imports rich and markdown-it, half the start-up time
+    # of `--help`; the texts carry no markup (they name [link] tables literally).
+    rich_markup_mode=None,
+    # Wide enough for each command's first sentence in the list of commands.
+    context_settings={"max_content_width": 100},
 )
 schema_app = typer.Typer(
     help="Print JSON Schemas of ncmeasure's files (for editors).",
     no_args_is_help=True,
+    rich_markup_mode=None,
 )
 app.add_typer(schema_app, name="schema")
 
-# No markup: messages carry user text (machine names, paths, controller names) that may
-# hold square brackets; styled parts are rich Text objects.
-console = Console(highlight=False, soft_wrap=True, markup=False)
-err_console = Console(stderr=True, highlight=False, soft_wrap=True, markup=False)
+
+@functools.cache
+def _console(stderr: bool = False) -> Console:
+    """The console on stdout (or stderr), made at its first use: ``--help`` needs no rich.
+
+    No markup: messages carry user text (machine names, paths, controller names) that
+    may hold square brackets; styled parts are rich Text objects.
+    """
+    from rich.console import Console
+
+    return Console(stderr=stderr, highlight=False, soft_wrap=True, markup=False)
+
+
 _state = {"debug": False}
 
 ControllersDir = Annotated[
@@ -144,12 +163,18 @@ def _exit_code(error: BaseException) -> int:
 
 def _warn(message: str) -> None:
     """``warning: message`` on stderr (user text verbatim)."""
-    err_console.print(Text.assemble(("warning:", "yellow"), f" {message}"), soft_wrap=True)
+    from rich.text import Text
+
+    _console(stderr=True).print(
+        Text.assemble(("warning:", "yellow"), f" {message}"), soft_wrap=True
+    )
 
 
 def _note(message: str) -> None:
     """``note: message`` on stderr (user text verbatim)."""
-    err_console.print(Text.assemble(("note:", "bold"), f" {message}"), soft_wrap=True)
+    from rich.text import Text
+
+    _console(stderr=True).print(Text.assemble(("note:", "bold"), f" {message}"), soft_wrap=True)
 
 
 MAX_PRINTED_PROBLEMS = 50
@@ -161,12 +186,16 @@ def _report(error: NcMeasureError) -> None:
 
     At most :data:`MAX_PRINTED_PROBLEMS` problems are printed, then how many more there are.
     """
-    err_console.print(Text.assemble(("error:", "bold red"), f" {error.message}"), soft_wrap=True)
+    from rich.text import Text
+
+    _console(stderr=True).print(
+        Text.assemble(("error:", "bold red"), f" {error.message}"), soft_wrap=True
+    )
     shown = error.problems[:MAX_PRINTED_PROBLEMS]
     more = len(error.problems) - len(shown)
     lines = [f"  {line}" for line in shown] + ([f"  … and {more} more"] if more else [])
     if lines:
-        err_console.print(Text("\n".join(lines)), soft_wrap=True)
+        _console(stderr=True).print(Text("\n".join(lines)), soft_wrap=True)
 
 
 _DEBUG_OPTION = Annotated[
@@ -196,10 +225,13 @@ def _command(func: Callable[..., Outcome | None]) -> Callable[..., None]:
         except NcMeasureError as exc:
             _report(exc)
             if _state["debug"]:
-                err_console.print(Text("".join(traceback.format_exception(exc))), soft_wrap=True)
+                from rich.text import Text
+
+                trace = Text("".join(traceback.format_exception(exc)))
+                _console(stderr=True).print(trace, soft_wrap=True)
             raise typer.Exit(_exit_code(exc)) from None
         except KeyboardInterrupt:
-            err_console.print("interrupted")
+            _console(stderr=True).print("interrupted")
             raise typer.Exit(EXIT_INTERRUPTED) from None
         finally:
             _restore_signals(previous)
@@ -220,7 +252,7 @@ def _command(func: Callable[..., Outcome | None]) -> Callable[..., None]:
 
 def _version(value: bool) -> None:
     if value:
-        console.print(f"ncmeasure {__version__}")
+        _console().print(f"ncmeasure {__version__}")
         raise typer.Exit()
 
 
@@ -297,6 +329,8 @@ def controllers(
     controllers_dir: ControllersDir = None,
 ) -> None:
     """List the controller dialects ncmeasure can write programs for."""
+    from rich.table import Table
+
     from ncmeasure.program import available_dialects, load_dialect
 
     table = Table("name", "controller", "files", "marker", show_lines=details)
@@ -316,10 +350,13 @@ def controllers(
             if dialect.left_out:
                 marker += "\nleft out: " + "; ".join(dialect.left_out)
         table.add_row(name, dialect.title, files, marker)
-    console.print(table)
+    _console().print(table)
 
 
 def _print_plan(schedule: Schedule) -> None:
+    from rich.table import Table
+    from rich.text import Text
+
     table = Table(box=None, header_style="bold")
     for column in (
         "axis",
@@ -344,21 +381,21 @@ def _print_plan(schedule: Schedule) -> None:
             _duration(axis.duration_s),
             _duration(axis.full_travel_duration_s),
         )
-    console.print(
+    _console().print(
         Text.assemble(
             (schedule.machine, "bold"), f" · {schedule.controller} · config {schedule.config_hash}"
         )
     )
-    console.print(table)
+    _console().print(table)
     saving = 1 - schedule.duration_s / schedule.full_travel_duration_s
-    console.print(
+    _console().print(
         f"total {_duration(schedule.duration_s)}, {schedule.blocks} blocks (full travel at "
         f"every step: {_duration(schedule.full_travel_duration_s)}, saving {saving:.0%})"
     )
     for axis in schedule.axes:
         if axis.shifted_positions_mm:
             shifted = ", ".join(f"{p:g}" for p in axis.shifted_positions_mm)
-            console.print(
+            _console().print(
                 f"note: axis {axis.name}: windows at {shifted} mm move inward at high velocities, "
                 "where the run-up would not fit (schedule.json has each window's position)"
             )
@@ -421,6 +458,8 @@ def generate(
 
     Example: ncmeasure generate machine.toml -o programs/
     """
+    from rich.text import Text
+
     from ncmeasure.config import load_machine
     from ncmeasure.program import generate_programs
 
@@ -434,13 +473,13 @@ def generate(
     if quiet:
         return None
     for path in written:
-        console.print(f"wrote {path}")
+        _console().print(f"wrote {path}")
     _print_plan(result.schedule)
-    console.print(
+    _console().print(
         "checked before writing: every position inside the soft limits, every feed within "
         "the maximum, every window as planned"
     )
-    console.print(
+    _console().print(
         Text.assemble(
             "next: ", (f"ncmeasure check {output}", "bold"), " (again after copying or editing)"
         )
@@ -457,10 +496,12 @@ def check(
 
     Exit code 0: all holds; 1: a program breaks a limit or its schedule; 2: unreadable input.
     """
+    from rich.text import Text
+
     from ncmeasure.program import check_programs
 
     report = check_programs(directory, tuple(controllers_dir or ()))
-    console.print(
+    _console().print(
         Text.assemble(
             ("ok", "green"),
             f": {directory} ({report.controller}): {report.motions} moves, "
@@ -470,8 +511,49 @@ def check(
     )
 
 
+class _CanWithoutMdf(importlib.abc.MetaPathFinder):
+    """Imports python-can, the first time a command needs it, without its MF4 log support.
+
+    ``import can`` imports asammdf, and with it pandas, whenever the ``mdf`` extra is
+    installed: about half a second, for MF4 CAN logs that ncmeasure never reads
+    (:mod:`ncmeasure.traces.canlog` takes .blf, .asc, .log and .trc). While python-can
+    loads, asammdf looks absent to it; ncmeasure's own MF4 import and export import
+    asammdf as usual. Installed by :func:`main` only: a program that imports ncmeasure
+    as a library keeps python-can as it is.
+    """
+
+    def find_spec(
+        self, name: str, path: Sequence[str] | None, target: types.ModuleType | None = None
+    ) -> importlib.machinery.ModuleSpec | None:
+        if name != "can":
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.loader is None or "asammdf" in sys.modules:
+            return spec
+        loader = spec.loader
+
+        class _Loader(importlib.abc.Loader):
+            def create_module(
+                self, spec: importlib.machinery.ModuleSpec
+            ) -> types.ModuleType | None:
+                return loader.create_module(spec)
+
+            def exec_module(self, module: types.ModuleType) -> None:
+                sys.modules["asammdf"] = None  # type: ignore[assignment]  # "not installed"
+                try:
+                    loader.exec_module(module)
+                finally:
+                    del sys.modules["asammdf"]
+
+        spec.loader = _Loader()
+        return spec
+
+
 def main() -> None:
     """Entry point of the console script."""
+    if "can" not in sys.modules:
+        sys.meta_path.insert(0, _CanWithoutMdf())
     app()
 
 
@@ -565,6 +647,8 @@ def _restore_signals(previous: dict[int, Any]) -> None:
 
 
 def _progress_table(progress: Progress) -> Table:
+    from rich.table import Table
+
     table = Table(
         title=f"recording · {progress.elapsed_s:.0f} s · {progress.rows} samples · "
         f"{progress.rows_per_s:.0f} samples/s",
@@ -708,6 +792,8 @@ def record_command(
     --node X=1 --node Y=2 --node Z=3 --axis-set increments_per_rev=10000 --sync-hz 250
     --duration 60 -o run1
     """
+    from rich.live import Live
+
     from ncmeasure.acquire import record
     from ncmeasure.config import load_machine
     from ncmeasure.program import load_schedule
@@ -754,7 +840,7 @@ def record_command(
 
     try:
         if not quiet:
-            live = Live(console=err_console, refresh_per_second=4, transient=True)
+            live = Live(console=_console(stderr=True), refresh_per_second=4, transient=True)
             live.start()
         result = record(
             config,
@@ -778,7 +864,7 @@ def record_command(
             f"{result.moved_aside}, whole"
         )
     if not quiet or result.status != "complete":
-        err_console.print(
+        _console(stderr=True).print(
             f"{result.status}: {result.rows} samples over {result.link_time_s:.1f} s in "
             f"{result.directory}" + (f"; {result.error}" if result.error else ""),
             soft_wrap=True,
@@ -823,7 +909,7 @@ def export_command(
         export_csv(recording, target)
     else:
         export_mdf4(recording, target)
-    console.print(f"wrote {target} ({len(recording.time_s)} samples)")
+    _console().print(f"wrote {target} ({len(recording.time_s)} samples)")
 
 
 @app.command("import")
@@ -899,7 +985,7 @@ def import_command(
                 TextColumn("importing {task.description}", markup=False),
                 BarColumn(),
                 DownloadColumn(),
-                console=err_console,
+                console=_console(stderr=True),
                 transient=True,
             )
         )
@@ -927,8 +1013,8 @@ def import_command(
         recording, report = result.recording, result.report
     if not quiet:
         for line in report:
-            err_console.print(f"  {line}")
-    console.print(
+            _console(stderr=True).print(f"  {line}")
+    _console().print(
         f"wrote {output} ({len(recording.time_s)} samples, {len(recording.channels)} channels)"
     )
 
@@ -1017,7 +1103,7 @@ def simulate_drive_command(
 
             def ready(info: ServerInfo) -> None:
                 units_text = ", ".join(f"{a}={u}" for a, u in info.units.items())
-                err_console.print(
+                _console(stderr=True).print(
                     f"simulated Modbus drives on {info.endpoint}, units {units_text}; Ctrl-C stops",
                     soft_wrap=True,
                 )
@@ -1041,7 +1127,7 @@ def simulate_drive_command(
             ids = list((nodes or default).values())
 
             def canopen_ready(_: object) -> None:
-                err_console.print(
+                _console(stderr=True).print(
                     f"simulated CiA 402 drives, nodes {ids}, on {interface}:{channel}; "
                     "Ctrl-C stops",
                     soft_wrap=True,
@@ -1074,6 +1160,7 @@ def _progress_bar(quiet: bool, *, stages: bool = False) -> tuple[Any, Any]:
     finished stage stays on the console as a line with its duration.
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.text import Text
 
     if quiet:
         return None, None
@@ -1081,7 +1168,7 @@ def _progress_bar(quiet: bool, *, stages: bool = False) -> tuple[Any, Any]:
         TextColumn("{task.description}", markup=False),
         BarColumn(),
         TimeElapsedColumn(),
-        console=err_console,
+        console=_console(stderr=True),
         transient=True,
     )
     task = bar.add_task("starting", total=1.0)
@@ -1217,12 +1304,12 @@ def analyze_command(
             added = fleet.add(results, info)
         if not quiet:
             state = "stored as" if added.new else "already stored as"
-            console.print(f"{state} measurement {added.measurement_id} of {serial}")
+            _console().print(f"{state} measurement {added.measurement_id} of {serial}")
     if quiet:
         return None
     _print_verdicts(results)
     _print_warnings(results, recording.problems)
-    console.print(f"wrote {target}" + (f" and {report}" if report else ""))
+    _console().print(f"wrote {target}" + (f" and {report}" if report else ""))
 
 
 _LEVEL_STYLE = {"ok": "bold green", "check": "bold yellow", "fault": "bold red"}
@@ -1233,6 +1320,8 @@ def _verdict_line(name: str, headline: Headline) -> Text:
 
     The Coulomb figure is :attr:`Headline.coulomb_text`, the report's headline.
     """
+    from rich.text import Text
+
     verdict = headline.verdict
     line = Text(f"axis {name}: ")
     line.append(verdict.level, style=_LEVEL_STYLE.get(verdict.level, "bold"))
@@ -1261,6 +1350,8 @@ def _print_verdicts(
 def _print_verdict(
     results: Results, name: str, comparison: Comparison | None = None, indent: str = ""
 ) -> None:
+    from rich.text import Text
+
     from ncmeasure.analysis.summary import axis_comparison, axis_headline
 
     against = axis_comparison(comparison, name) if comparison is not None else None
@@ -1268,7 +1359,7 @@ def _print_verdict(
     line = Text(indent).append_text(_verdict_line(name, headline))
     if against is not None:
         _append_change(line, headline, against)
-    console.print(line)
+    _console().print(line)
 
 
 def _append_change(line: Text, headline: Headline, against: AxisComparison) -> None:
@@ -1283,26 +1374,32 @@ def _append_change(line: Text, headline: Headline, against: AxisComparison) -> N
 
 
 def _print_skipped(results: Results, indent: str = "") -> None:
+    from rich.text import Text
+
     for name, reason in results.skipped.items():
         line = Text(f"{indent}axis {name}: ")
         line.append("not analysed", style="bold")
         line.append(f" · {reason}")
-        console.print(line)
+        _console().print(line)
 
 
 def _print_warnings(results: Results, problems: list[str]) -> None:
     """Recording problems and analysis warnings on stderr; one shared by every axis once."""
+    from rich.text import Text
+
     for problem in problems:
-        err_console.print(Text.assemble(("warning:", "yellow"), f" {problem}"))
+        _console(stderr=True).print(Text.assemble(("warning:", "yellow"), f" {problem}"))
     lists = [axis.warnings for axis in results.axes.values()]
     shared = set.intersection(*(set(w) for w in lists)) if len(lists) > 1 else set()
     for warning in lists[0] if lists else []:
         if warning in shared:
-            err_console.print(Text.assemble(("warning:", "yellow"), f" {warning}"))
+            _console(stderr=True).print(Text.assemble(("warning:", "yellow"), f" {warning}"))
     for name, axis in results.axes.items():
         for warning in axis.warnings:
             if warning not in shared:
-                err_console.print(Text.assemble(("warning:", "yellow"), f" axis {name}: {warning}"))
+                _console(stderr=True).print(
+                    Text.assemble(("warning:", "yellow"), f" axis {name}: {warning}")
+                )
 
 
 WarningOption = Annotated[
@@ -1366,7 +1463,7 @@ def compare_command(
         from ncmeasure.report import write_report
 
         write_report(runs[-1], report, comparison=comparison)
-        console.print(f"wrote {report}")
+        _console().print(f"wrote {report}")
     _print_comparison(comparison, runs)
     return comparison.status
 
@@ -1428,6 +1525,8 @@ def _compare_labels(base: Path, others: list[Path], given: list[str] | None) -> 
 
 def _print_comparison(comparison: Comparison, runs: list[Results]) -> None:
     """Per compared run and axis: its verdict with the change, the report's headline figure."""
+    from rich.text import Text
+
     from ncmeasure.analysis.summary import axis_comparison, axis_headline, format_number
 
     for label, results in zip(comparison.others, runs, strict=True):
@@ -1439,12 +1538,12 @@ def _print_comparison(comparison: Comparison, runs: list[Results]) -> None:
                 line.append(f" Not compared with {comparison.base}.")
             else:
                 _append_change(line, headline, against)
-            console.print(line)
+            _console().print(line)
         for name, reason in results.skipped.items():
-            console.print(Text(f"{label}: axis {name}: not analysed · {reason}"))
+            _console().print(Text(f"{label}: axis {name}: not analysed · {reason}"))
     for fleet in comparison.fleet:
         outliers = ", ".join(fleet.outliers) or "none"
-        console.print(
+        _console().print(
             Text(
                 f"fleet, axis {fleet.axis}: mean friction {format_number(fleet.mean)} "
                 f"{fleet.unit} over {len(fleet.runs)} runs, spread {fleet.spread_percent:.1f} %, "
@@ -1452,7 +1551,7 @@ def _print_comparison(comparison: Comparison, runs: list[Results]) -> None:
             )
         )
     if comparison.problems:
-        console.print(
+        _console().print(
             f"{len(comparison.problems)} matching problem(s): not every point was compared "
             "(the comparison file and the report list them)"
         )
@@ -1466,6 +1565,7 @@ store_app = typer.Typer(
     "Typical use: `ncmeasure store add m17.results.json --serial M17 --label delivery`, "
     "years later the same with --label service, then `ncmeasure store check M17`.",
     no_args_is_help=True,
+    rich_markup_mode=None,
 )
 app.add_typer(store_app, name="store")
 
@@ -1569,9 +1669,9 @@ def store_add_command(
         added = fleet.add(results, info)
         where = fleet.where
     if added.new:
-        console.print(f"stored as measurement {added.measurement_id} of {serial} in {where}")
+        _console().print(f"stored as measurement {added.measurement_id} of {serial} in {where}")
     else:
-        console.print(
+        _console().print(
             f"already stored as measurement {added.measurement_id} of {serial}; nothing added"
         )
 
@@ -1580,11 +1680,13 @@ def store_add_command(
 @_command
 def store_list_command(store: StoreOption = None) -> None:
     """The machines in the store: type, site, measurements, the latest verdicts."""
+    from rich.table import Table
+
     with _open_store(store, write=False) as fleet:
         machines = fleet.machines()
         where = fleet.where
     if not machines:
-        console.print(f"no machines in {where}")
+        _console().print(f"no machines in {where}")
         return
     table = Table(title=f"{len(machines)} machine(s) in {where}", title_justify="left")
     for column in ("serial", "type", "site", "measurements", "latest", "label", "verdicts"):
@@ -1599,10 +1701,12 @@ def store_list_command(store: StoreOption = None) -> None:
             m.latest_label or "",
             _verdict_text(m.latest_verdicts),
         )
-    console.print(table)
+    _console().print(table)
 
 
 def _verdict_text(verdicts: dict[str, str]) -> Text:
+    from rich.text import Text
+
     text = Text()
     for index, (axis, level) in enumerate(verdicts.items()):
         if index:
@@ -1619,9 +1723,12 @@ def store_show_command(
     store: StoreOption = None,
 ) -> None:
     """A machine and its measurements, oldest first."""
+    from rich.table import Table
+    from rich.text import Text
+
     with _open_store(store, write=False) as fleet:
         machine, measurements = fleet.machine(serial)
-    console.print(
+    _console().print(
         Text.assemble(
             (machine.serial, "bold"),
             f" · type {machine.machine_type} (config {machine.config_hash or 'unknown'})"
@@ -1641,7 +1748,7 @@ def store_show_command(
             m.link or "",
             _verdict_text(m.verdicts),
         )
-    console.print(table)
+    _console().print(table)
 
 
 @store_app.command("trend")
@@ -1660,6 +1767,9 @@ def store_trend_command(
 
     Example: ncmeasure store trend M17 --axis X --plot m17-x.png
     """
+    from rich.table import Table
+    from rich.text import Text
+
     from ncmeasure.analysis.summary import format_number
 
     limits = _limits(warning, critical)
@@ -1683,14 +1793,14 @@ def store_trend_command(
             format_number(p.spread_percent),
             Text(p.verdict, style=_LEVEL_STYLE.get(p.verdict, "bold")),
         )
-    console.print(table)
+    _console().print(table)
     if plot is not None:
         from ncmeasure.report.plots import save_png
         from ncmeasure.store.report import trend_figure
 
         figure = trend_figure(axis, points, limits)
         save_png(figure, plot)
-        console.print(f"wrote {plot}")
+        _console().print(f"wrote {plot}")
 
 
 @store_app.command("check")
@@ -1715,6 +1825,8 @@ def store_check_command(
     Exit code 0: within the limits; 1: a warning limit crossed or an outlier of its type;
     3: a critical limit crossed; 2: bad input.
     """
+    from rich.text import Text
+
     from ncmeasure.store.check import check_machine, write_check
 
     limits = _limits(warning, critical)
@@ -1723,7 +1835,7 @@ def store_check_command(
     if output is not None:
         write_check(found, output)
     latest = found.latest
-    console.print(
+    _console().print(
         Text.assemble(
             (serial, "bold"),
             f" · latest measurement {latest.id} ({latest.label or 'no label'}, "
@@ -1732,7 +1844,7 @@ def store_check_command(
     )
     if found.baseline is not None:
         base = found.baseline
-        console.print(
+        _console().print(
             f"baseline: measurement {base.id} ({base.label or 'no label'}, "
             f"{base.measured_utc[:16].replace('T', ' ')} UTC)"
         )
@@ -1740,10 +1852,10 @@ def store_check_command(
         for difference in found.comparability.differences:
             _warn(difference)
     for finding in found.findings:
-        console.print(Text(finding))
+        _console().print(Text(finding))
     line = Text("status: ")
     line.append(found.status, style=_STATUS_STYLE[found.status])
-    console.print(line)
+    _console().print(line)
     return found.status
 
 
@@ -1801,10 +1913,10 @@ def store_report_command(
         if bar is not None:
             bar.stop()
     counts = ", ".join(f"{overview.count(s)} {s}" for s in ("ok", "warning", "critical"))
-    console.print(
+    _console().print(
         f"{len(overview.machines)} machine(s): {counts}; {len(overview.outliers)} outlier(s)"
     )
-    console.print(f"wrote {written}")
+    _console().print(f"wrote {written}")
     return worst_status(m.status for m in overview.machines)
 
 
@@ -1834,7 +1946,7 @@ def store_export_command(
             for line in export_lines(fleet):
                 file.write(line + "\n")
                 count += 1
-    err_console.print(f"wrote {count - 1} measurement(s) to {output}")
+    _console(stderr=True).print(f"wrote {count - 1} measurement(s) to {output}")
 
 
 @store_app.command("import")
@@ -1853,7 +1965,7 @@ def store_import_command(
     with stream, _open_store(store, write=True) as fleet:
         added, existing = import_lines(fleet, stream, str(source))
         where = fleet.where
-    console.print(f"added {added} measurement(s) to {where}; {existing} were already stored")
+    _console().print(f"added {added} measurement(s) to {where}; {existing} were already stored")
 
 
 @app.command("serve")
@@ -1904,7 +2016,7 @@ def serve_command(
 
     def ready(info: ServerInfo) -> None:
         access = "token required" if info.token else "this computer only"
-        console.print(f"serving {url} at {info.url} ({access}); Ctrl-C stops")
+        _console().print(f"serving {url} at {info.url} ({access}); Ctrl-C stops")
 
     stop = threading.Event()
     previous = _stop_on_signals(stop)
@@ -1914,7 +2026,7 @@ def serve_command(
         )
     finally:
         _restore_signals(previous)
-    console.print("stopped")
+    _console().print("stopped")
 
 
 TOKEN_ENV = "NCMEASURE_TOKEN"
@@ -1957,6 +2069,8 @@ def simulate_command(
     Example: ncmeasure simulate machine.toml --variation loose_bearing_shift_um=20
     --variation nut_shift_um=20 --plot variations.png
     """
+    from rich.table import Table
+
     from ncmeasure.config import load_machine
     from ncmeasure.sim.explore import plot_study, study
 
@@ -1985,12 +2099,12 @@ def simulate_command(
             f"{scenario.spread_percent:.1f} %",
             *(f"{c:+.1f} %" for c in scenario.change_percent[::step]),
         )
-    console.print(
+    _console().print(
         f"axis {result.axis}: friction change against the nominal axis, averaged over velocities"
     )
-    console.print(table)
+    _console().print(table)
     if plot is not None:
-        console.print(f"wrote {plot}")
+        _console().print(f"wrote {plot}")
 
 
 def _variation(texts: list[str] | None) -> Any:
@@ -2051,6 +2165,8 @@ def demo_command(
     Examples: ncmeasure demo  ·  ncmeasure demo --variation loose_bearing_shift_um=500
     ·  ncmeasure demo demo-modbus --link modbus
     """
+    from rich.text import Text
+
     from ncmeasure.demo import run_demo
 
     chosen = _variation(variation)
@@ -2071,9 +2187,9 @@ def demo_command(
         if progress is not None:
             progress("done", None)
     if quiet:
-        console.print(str(result.report))
+        _console().print(str(result.report))
         return None
-    console.print(
+    _console().print(
         f"virtual machine: axes {', '.join(result.runs[-1].results.axes)}, "
         f"{controller} programs, recorded through {result.link} in lockstep with the "
         "simulated drives"
@@ -2081,9 +2197,9 @@ def demo_command(
     for run in result.runs:
         acquisition = run.acquisition
         if acquisition is None:
-            console.print(f"{run.label}: reused from {run.directory}")
+            _console().print(f"{run.label}: reused from {run.directory}")
             continue
-        console.print(
+        _console().print(
             f"{run.label}: {run.machine_time_s:.0f} s of machine time in "
             f"{run.wall_time_s:.0f} s, {acquisition.rows} samples"
             + ("" if acquisition.gaps else ", no sample lost")
@@ -2100,7 +2216,7 @@ def demo_command(
             _print_verdict(run.results, name, compared, indent="  ")
             found = run.accuracy.get(name)
             if found is not None:
-                console.print(
+                _console().print(
                     f"    axis {name} against the virtual machine's own friction (mean over "
                     f"{found.points} points, all velocities): {found.measured_mean_nm:.3f} Nm "
                     f"measured, {found.simulated_mean_nm:.3f} Nm simulated (bias "
@@ -2109,8 +2225,10 @@ def demo_command(
                 )
         _print_skipped(run.results, indent="  ")
     took = time.monotonic() - started
-    console.print(Text.assemble(f"finished in {took:.0f} s. Open ", (str(result.report), "bold")))
-    console.print(
+    _console().print(
+        Text.assemble(f"finished in {took:.0f} s. Open ", (str(result.report), "bold"))
+    )
+    _console().print(
         f"files: {result.directory}/ (machine.toml, programs/, recording/, results.json"
         + (", reference/" if (result.directory / "reference").is_dir() else "")
         + (", comparison.json" if result.comparison is not None else "")
@@ -2134,14 +2252,14 @@ def _reflow(text: str) -> str:
 
 
 def _polish_help(info: typer.models.CommandInfo, done: set[int]) -> None:
-    """Plain help texts (no markup: they name [link] tables and ncmeasure[mdf]) and metavars.
+    """Help texts as paragraphs, and metavars.
 
     Arguments show their name in capitals, flags no type; options shared by
     several commands are polished once.
     """
     doc = info.help or (info.callback.__doc__ if info.callback else None)
     if doc:
-        info.help = escape(_reflow(doc))
+        info.help = _reflow(doc)
     if info.callback is None:
         return
     for param in inspect.signature(info.callback).parameters.values():
@@ -2150,8 +2268,6 @@ def _polish_help(info: typer.models.CommandInfo, done: set[int]) -> None:
             if not isinstance(meta, typer.models.ParameterInfo) or id(meta) in done:
                 continue
             done.add(id(meta))
-            if meta.help:
-                meta.help = escape(meta.help)
             if isinstance(meta, typer.models.ArgumentInfo) and meta.metavar is None:
                 meta.metavar = param.name.upper()
             elif hint is bool and meta.metavar is None:

@@ -112,6 +112,35 @@ def test_the_command_line_imports_a_log_by_its_ending(
     assert np.array_equal(live.values, imported.values[: len(live)])
 
 
+def test_the_command_reads_a_log_without_loading_mdf_support(
+    recorded: tuple[Path, object], tmp_path: Path
+) -> None:
+    # python-can imports asammdf (and pandas) when it is installed, for MF4 logs that
+    # the import never reads: the command keeps them out.
+    import subprocess
+    import sys
+
+    folder, _ = recorded
+    machine = tmp_path / "m.toml"
+    machine.write_text(_machine_toml(read_recording(folder / "live").meta.link), "utf-8")
+    args = ["import", str(folder / "bus.blf"), "--machine", str(machine), "-o", str(tmp_path / "r")]
+    code = (
+        "import sys\n"
+        f"sys.argv = ['ncmeasure', *{args!r}, '-q']\n"
+        "from ncmeasure.__main__ import main\n"
+        "try:\n    main()\nexcept SystemExit as exc:\n    assert not exc.code, exc.code\n"
+        "print(' '.join(sorted({name.split('.')[0] for name in sys.modules})))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    loaded = set(done.stdout.split())
+    assert "can" in loaded and "canopen" in loaded
+    assert not loaded & {"asammdf", "pandas"}, sorted(loaded & {"asammdf", "pandas"})
+    assert len(read_recording(tmp_path / "r")) > 0
+
+
 def _machine_toml(link: dict[str, object]) -> str:
     """The example machine of the tests with the live recording's CANopen link."""
     from tests.conftest import example_data, machine_toml
