@@ -100,3 +100,13 @@ def test_python_can_without_mdf_support_leaves_asammdf_importable() -> None:
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert done.stdout == "385\n"
+
+
+def test_the_trace_importers_load_python_can_only_for_a_can_log() -> None:
+    code = "import sys, ncmeasure.traces; print(' '.join(sorted(sys.modules)))"
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    )  # fmt: skip
+    loaded = {name.split(".")[0] for name in done.stdout.split()}
+    assert "ncmeasure" in loaded
+    assert not loaded & {"can", "canopen", "pymodbus"}, sorted(loaded & {"can", "canopen"})

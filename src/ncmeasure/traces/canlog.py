@@ -18,15 +18,16 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Final
-
-import can
+from typing import TYPE_CHECKING, Final
 
 from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.links import make_link
-from ncmeasure.links.canopen.link import CanOpenLink
 from ncmeasure.recording import Recording
 from ncmeasure.traces._common import ImportJob
+
+if TYPE_CHECKING:
+    # python-can and canopen load when a CAN log is read, not for every import.
+    import can
 
 __all__ = ["CAN_LOG_SUFFIXES", "import_can_log", "is_can_log"]
 
@@ -80,6 +81,8 @@ def import_can_log(job: ImportJob) -> Recording:
             f"{job.path}: a CAN log is read with the machine file's CANopen settings: "
             "--machine m.toml with [link] type = 'canopen' and a node_id per axis"
         )
+
+    from ncmeasure.links.canopen.link import CanOpenLink
 
     link = make_link(machine)
     assert isinstance(link, CanOpenLink)
