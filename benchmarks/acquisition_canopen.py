@@ -35,6 +35,7 @@ Run: python benchmarks/acquisition_canopen.py [--seconds 5] [--rounds 5] [--shor
 from __future__ import annotations
 
 import argparse
+import contextlib
 import statistics
 import struct
 import threading
@@ -57,7 +58,14 @@ IPR = 10_000
 LEAD_MM = 20.0
 RATED_A = 10.0
 GOAL_RATIO = 1.2
-_STRUCT_CODES = {"int8": "b", "int16": "h", "int32": "i", "uint8": "B", "uint16": "H", "uint32": "I"}
+_STRUCT_CODES = {
+    "int8": "b",
+    "int16": "h",
+    "int32": "i",
+    "uint8": "B",
+    "uint16": "H",
+    "uint32": "I",
+}
 
 
 def _thread_cpu_s(threads: list[threading.Thread]) -> dict[str, float]:
@@ -67,10 +75,8 @@ def _thread_cpu_s(threads: list[threading.Thread]) -> dict[str, float]:
         if thread.ident is None or not thread.is_alive():
             continue
         name = "main" if thread is threading.main_thread() else thread.name.split(" ")[0]
-        try:
+        with contextlib.suppress(OSError, ValueError):  # the thread ended meanwhile
             cpu[name] = time.clock_gettime(time.pthread_getcpuclockid(thread.ident))
-        except (OSError, ValueError):
-            pass  # the thread ended between the check and the call
     return cpu
 
 
