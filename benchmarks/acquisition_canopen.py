@@ -168,7 +168,8 @@ def run_link(seconds: float, sync_hz: float) -> Round:
 
     cpu = _cpu_delta(cpu0, cpu1)
     return Round(
-        "link", wall, sum(cpu.values()), delta("pdo_frames"), rows, delta("lost_rows"),
+        "link", wall, sum(cpu.values()), delta("pdo_frames"), rows,
+        max(0, delta("lost_rows") - delta("sync_skipped")),  # skipped: their own column
         delta("sync_skipped"), cpu,
     )  # fmt: skip
 

@@ -27,22 +27,27 @@ cycle only; a cycle whose frames cannot be told apart is dropped as lost.
 The SYNC producer keeps time by the link's :class:`~ncmeasure.samples.LinkClock`.
 Real time for real drives: SYNC ``k`` goes out at ``k × period`` (``1 / sync_hz``
 rounded to whole microseconds, the unit of the communication cycle period
-0x1006 it writes to the drives); when the host falls behind by more than
-``MAX_SYNC_LATE_S`` it skips the late cycles and reports them. With
+0x1006 it writes to the drives); when the host wakes so late that the next
+cycle is due already, it skips the missed cycles instead of sending them in a
+burst, counts them (``statistics()["sync_skipped"]``) and reports them as a
+gap (:func:`~.cycles.run_sync_schedule`). With
 ncmeasure's own simulated drives (:mod:`ncmeasure.sim.cia402`) it runs on a
 :class:`~ncmeasure.samples.SimulatedClock`, in lockstep: SYNC ``k`` goes out
 at simulated time ``k × period``, the drives answer with the machine state of
 that time, and SYNC ``k + 1`` waits until the link has received all they sent,
 however slow the computer is.
 
-Values are taken inside the PDO callbacks into a :class:`CycleAssembler`
-keyed by SYNC cycle, so no frame is lost to a PDO map holding only its last
-frame. Cycles that stay incomplete are dropped, never filled with invented or
-NaN values, and reported as ``gap`` events with ``lost_samples``; EMCY
-messages, reboots (boot-up, after which the node's PDOs are configured
-again), SDO fallbacks and drive faults are events too. Without a complete
-cycle for ``max_outage_s`` the link gives up; a failing bus or an outage
-raises :class:`~ncmeasure.errors.LinkError` from :meth:`~CanOpenLink.read`.
+PDO frames go from the first listener of the receive thread straight into a
+:class:`CycleAssembler` keyed by SYNC cycle (a dict from COB-ID to slot, not
+canopen's PDO objects, so no frame is lost to a PDO map holding only its last
+frame); their bytes are decoded in bulk, a block at a time, and the reader is
+woken per block of ``READ_BLOCK_S`` of rows, not per row. Cycles that stay
+incomplete are dropped, never filled with invented or NaN values, and reported
+as ``gap`` events with ``lost_samples``; EMCY messages, reboots (boot-up, after
+which the node's PDOs are configured again), SDO fallbacks and drive faults are
+events too. Without a complete cycle for ``max_outage_s`` the link gives up; a
+failing bus or an outage raises :class:`~ncmeasure.errors.LinkError` from
+:meth:`~CanOpenLink.read`.
 """
 
 from __future__ import annotations
