@@ -1,17 +1,23 @@
-"""Acquisition throughput of both drive links, each beside a bare-library baseline.
+"""Acquisition of both drive links, each beside a bare-library baseline doing the same work.
 
-1. CANopen: 3 simulated CiA 402 drives, 3 TPDOs each, SYNC at 1 kHz on
-   python-can's virtual bus for 10 s, through ncmeasure's CanOpenLink —
-   PDOs/s received, samples lost, CPU % of one core — beside a bare
-   python-can listener decoding the same frames.
-2. Modbus TCP: polls/s through ncmeasure's ModbusLink against the simulated
-   drive server in another process, beside a bare pymodbus client.
+1. CANopen (``acquisition_canopen.py``): 3 simulated CiA 402 drives, 3 TPDOs
+   each, SYNC at 1 kHz on python-can's virtual bus: CPU per PDO of
+   ``CanOpenLink`` against a bare python-can SYNC producer and receiver that
+   decodes the same PDOs into rows (goal ≤ 1.2×), rows lost, SYNC skipped.
+2. Modbus TCP (``acquisition_modbus.py``): rows per second of ``ModbusLink``
+   polling flat out against pymodbus' async client reading, decoding and
+   scaling the same registers (goal ≥ 0.9×); then paced: skipped and stale rows.
 
-Run: python benchmarks/acquisition.py [seconds]
+Rounds alternate link and baseline (A B A B …); each prints its rounds, the
+median [min–max] and the ratio with its goal.
+
+Run: python benchmarks/acquisition.py [--seconds 5] [--rounds 5] [--short]
+``--short`` (CI): one short round of each; fails only on a crash, never on a figure.
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -22,14 +28,23 @@ import acquisition_modbus
 
 
 def main() -> None:
-    seconds = float(sys.argv[1]) if len(sys.argv) > 1 else 10.0
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=5.0, help="per round and side")
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--short", action="store_true", help="one round of 1 s each (CI)")
+    args = parser.parse_args()
     program = sys.argv[0]
-    print(f"== CANopen CiA 402 over the virtual bus, SYNC 1 kHz, {seconds:g} s ==")
-    sys.argv = [program, "--seconds", str(seconds), "--sync-hz", "1000"]
+    common = (
+        ["--short"]
+        if args.short
+        else ["--seconds", str(args.seconds), "--rounds", str(args.rounds)]
+    )
+    print("== CANopen CiA 402 over the virtual bus, SYNC 1 kHz ==")
+    sys.argv = [program, *common]
     acquisition_canopen.main()
     print()
     print("== Modbus TCP on 127.0.0.1 ==")
-    sys.argv = [program, str(min(seconds, 5.0))]
+    sys.argv = [program, *common]
     acquisition_modbus.main()
 
 

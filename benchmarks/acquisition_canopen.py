@@ -1,38 +1,52 @@
-"""CANopen acquisition throughput: the canopen link beside a bare python-can listener.
+"""CANopen acquisition CPU: the canopen link beside a bare python-can receiver, same work.
 
 Three simulated CiA 402 drives answer SYNC at 1 kHz with 3 TPDOs each
 (position + statusword, velocity + current, velocity demand: 9 PDOs per
-cycle) on python-can's virtual bus, for 10 s. In the same run and on the
-same traffic two receivers listen:
+cycle) on python-can's virtual bus. Rounds alternate (A B A B …, the order
+swapped every round), each on a fresh bus with fresh drives:
 
-- the canopen link (CanOpenLink: canopen's Network and notifier, PDO
-  callbacks into the cycle assembler, rows decoded and scaled to A, mm/min,
-  mm), which also produces the SYNC;
-- the baseline: a can.Notifier with a minimal listener that decodes the same
-  PDO frames with struct and counts them.
+- **link**: ``CanOpenLink`` produces SYNC, receives the PDOs, assembles the
+  rows by SYNC cycle, decodes and scales them to A, mm/min, mm; the main
+  thread reads blocks with ``link.read``;
+- **bare**: the same work with python-can alone: a SYNC thread on the same
+  absolute schedule (missed cycles skipped, never sent in a burst), a
+  ``can.Notifier`` whose listener decodes each PDO of the same layout with
+  ``struct`` into the row of its SYNC cycle (own SYNCs in bus order, as the
+  link does), and the main thread taking the finished rows every 0.1 s as a
+  scaled numpy block.
 
-Printed: PDOs per second each receiver got, the rows (samples) the link
-delivered and lost, and the CPU time of each part as a percentage of one core
-(per-thread CPU time from /proc on Linux; process_time / wall for the whole
-process, which also runs the simulated drives).
+The drives are configured for both by the link (SDO, the same TPDO layout);
+for the bare round the link is closed again and the drives started by NMT.
+
+CPU is taken per thread (``pthread_getcpuclockid``): the link's threads
+(receive, SYNC, worker) plus the reading main thread, against the bare
+receive, SYNC and main threads. The simulated drives run in their own
+thread, excluded from both. Printed per round and as median [min–max]: CPU %
+of one core, µs per PDO, rows, rows lost, SYNC cycles skipped; the ratio
+link / bare of each round, and the goal.
 
 The virtual bus has no bitrate, so the bus-load check is relaxed here (9
 PDOs at 1 kHz would need about 103 % of a real 1 Mbit/s bus, worst case).
 
-Run: python benchmarks/acquisition_canopen.py [--seconds 10] [--sync-hz 1000]
+Run: python benchmarks/acquisition_canopen.py [--seconds 5] [--rounds 5] [--short]
+``--short`` (CI): one round of 1 s each; fails only on a crash, never on a figure.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
+import contextlib
+import statistics
 import struct
 import threading
 import time
 import uuid
-from pathlib import Path
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
 
 import can
+import numpy as np
 
 from ncmeasure.config import AxisConfig
 from ncmeasure.links.canopen.link import CanOpenLink
@@ -43,50 +57,38 @@ AXES = ("X", "Y", "Z")
 IPR = 10_000
 LEAD_MM = 20.0
 RATED_A = 10.0
+GOAL_RATIO = 1.2
+_STRUCT_CODES = {
+    "int8": "b",
+    "int16": "h",
+    "int32": "i",
+    "uint8": "B",
+    "uint16": "H",
+    "uint32": "I",
+}
 
 
-class BareListener(can.Listener):
-    """The baseline: decode each PDO of the layout with struct, count, keep the last values."""
-
-    def __init__(self, nodes: int) -> None:
-        self.formats: dict[int, struct.Struct] = {}
-        for node in range(1, nodes + 1):
-            self.formats[0x180 + node] = struct.Struct("<iH")  # position, statusword
-            self.formats[0x280 + node] = struct.Struct("<ih")  # velocity, current
-            self.formats[0x380 + node] = struct.Struct("<i")  # velocity demand
-        self.frames = 0
-        self.last: dict[int, tuple[int, ...]] = {}
-
-    def on_message_received(self, msg: can.Message) -> None:
-        fmt = self.formats.get(msg.arbitration_id)
-        if fmt is not None:
-            self.last[msg.arbitration_id] = fmt.unpack_from(msg.data)
-            self.frames += 1
-
-
-def _thread_cpu_s(threads: list[threading.Thread]) -> float | None:
-    """CPU seconds (user + system) of the given threads, from /proc; None elsewhere."""
-    ticks = os.sysconf("SC_CLK_TCK")
-    total = 0
+def _thread_cpu_s(threads: list[threading.Thread]) -> dict[str, float]:
+    """CPU seconds (user + system) of each of the given live threads, by name."""
+    cpu: dict[str, float] = {}
     for thread in threads:
-        stat = Path(f"/proc/self/task/{thread.native_id}/stat")
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except (OSError, IndexError):
-            return None
-        total += int(fields[11]) + int(fields[12])
-    return total / ticks
+        if thread.ident is None or not thread.is_alive():
+            continue
+        name = "main" if thread is threading.main_thread() else thread.name.split(" ")[0]
+        with contextlib.suppress(OSError, ValueError):  # the thread ended meanwhile
+            cpu[name] = time.clock_gettime(time.pthread_getcpuclockid(thread.ident))
+    return cpu
+
+
+def _cpu_delta(before: dict[str, float], after: dict[str, float]) -> dict[str, float]:
+    return {name: after[name] - before.get(name, 0.0) for name in after}
 
 
 def _new_threads(before: set[threading.Thread]) -> list[threading.Thread]:
     return [t for t in threading.enumerate() if t not in before]
 
 
-def measure(seconds: float = 10.0, sync_hz: float = 1000.0) -> dict[str, float]:
-    """Run the comparison once and return the figures (see the module docstring)."""
-    channel = f"bench-canopen-{uuid.uuid4().hex}"
-    nodes = {i: i + 1 for i in range(len(AXES))}
-    scaling = DriveScaling(increments_per_rev=IPR, screw_lead_mm=LEAD_MM, rated_current_a=RATED_A)
+def _link(channel: str, sync_hz: float) -> CanOpenLink:
     axes = [
         (
             AxisConfig(
@@ -103,76 +105,261 @@ def measure(seconds: float = 10.0, sync_hz: float = 1000.0) -> dict[str, float]:
         )
         for i, name in enumerate(AXES)
     ]
-    link = CanOpenLink.from_tables(
+    return CanOpenLink.from_tables(
         {"channel": channel, "sync_hz": sync_hz, "max_bus_load": 2.0}, axes
     )
-    before = set(threading.enumerate())
-    with SimulatedDrives.start(channel, nodes, PatternSource(), scaling=scaling) as drives:
-        sim_threads = _new_threads(before)
+
+
+@dataclass
+class Round:
+    """What one side did in one measuring window."""
+
+    side: str
+    seconds: float
+    cpu_s: float
+    pdos: int
+    rows: int
+    lost: int
+    skipped: int
+    by_thread: dict[str, float]
+
+    @property
+    def cpu_percent(self) -> float:
+        return 100 * self.cpu_s / self.seconds
+
+    @property
+    def us_per_pdo(self) -> float:
+        return 1e6 * self.cpu_s / max(1, self.pdos)
+
+
+def _window(seconds: float, step: Callable[[], None]) -> float:
+    start = time.perf_counter()
+    end = start + seconds
+    while time.perf_counter() < end:
+        step()
+    return time.perf_counter() - start
+
+
+def run_link(seconds: float, sync_hz: float) -> Round:
+    """One round of the link: SYNC, PDOs, rows read in blocks by the main thread."""
+    channel = f"bench-canopen-{uuid.uuid4().hex}"
+    nodes = {i: i + 1 for i in range(len(AXES))}
+    scaling = DriveScaling(increments_per_rev=IPR, screw_lead_mm=LEAD_MM, rated_current_a=RATED_A)
+    link = _link(channel, sync_hz)
+    with SimulatedDrives.start(channel, nodes, PatternSource(), scaling=scaling):
         before = set(threading.enumerate())
-        bus = can.Bus(interface="virtual", channel=channel)
-        bare = BareListener(len(AXES))
-        notifier = can.Notifier(bus, [bare], timeout=0.1)
-        bare_threads = _new_threads(before)
+        with link:
+            threads = [*_new_threads(before), threading.main_thread()]
+            time.sleep(0.2)  # past the start
+            link.read(0.0)  # rows of the start are not counted
+            rows = 0
+
+            def step() -> None:
+                nonlocal rows
+                block = link.read(0.1)
+                rows += 0 if block is None else len(block)
+
+            stats0, cpu0 = link.statistics(), _thread_cpu_s(threads)
+            wall = _window(seconds, step)
+            cpu1, stats1 = _thread_cpu_s(threads), link.statistics()
+
+    def delta(key: str) -> int:
+        return stats1.get(key, 0) - stats0.get(key, 0)
+
+    cpu = _cpu_delta(cpu0, cpu1)
+    return Round(
+        "link", wall, sum(cpu.values()), delta("pdo_frames"), rows,
+        max(0, delta("lost_rows") - delta("sync_skipped")),  # skipped: their own column
+        delta("sync_skipped"), cpu,
+    )  # fmt: skip
+
+
+class BareReceiver(can.Listener):
+    """The baseline's receive side: PDOs decoded with struct into the row of their SYNC cycle."""
+
+    def __init__(self, layout: dict[int, tuple[int, struct.Struct]], width: int) -> None:
+        self.layout = layout  # COB-ID -> (first raw column, decoder)
+        self.slots = len(layout)
+        self.width = width
+        self.row: list[int] = [0] * width
+        self.filled = 0
+        self.started = False
+        self.rows: list[list[int]] = []
+        self.lock = threading.Lock()
+        self.pdos = 0
+        self.lost = 0
+
+    def on_message_received(self, msg: can.Message) -> None:
+        entry = self.layout.get(msg.arbitration_id)
+        if entry is not None:
+            first, decoder = entry
+            values = decoder.unpack_from(msg.data)
+            self.row[first : first + len(values)] = values
+            self.filled += 1
+            self.pdos += 1
+        elif msg.arbitration_id == 0x80 and not msg.is_rx:  # own SYNC, in bus order
+            if self.started:
+                if self.filled == self.slots:
+                    with self.lock:
+                        self.rows.append(self.row)
+                else:
+                    self.lost += 1
+            self.started = True
+            self.row = [0] * self.width
+            self.filled = 0
+
+    def take(self) -> list[list[int]]:
+        with self.lock:
+            rows, self.rows = self.rows, []
+        return rows
+
+
+def _bare_layout(link: CanOpenLink) -> tuple[dict[int, tuple[int, struct.Struct]], list[float]]:
+    """The PDO layout and scale of every raw column, as the link configured the drives."""
+    layout: dict[int, tuple[int, struct.Struct]] = {}
+    scales: list[float] = []
+    for axis in link.describe()["scales"].values():
+        factor = {
+            "position": axis["position_mm_per_increment"],
+            "velocity": axis["velocity_mm_min_per_unit"],
+            "velocity_demand": axis["velocity_mm_min_per_unit"],
+            "current": axis["current_a_per_unit"],
+            "statusword": 1.0,
+        }
+        for tpdo in axis["tpdos"]:
+            codes = "".join(_STRUCT_CODES[axis["objects"][r]["type"]] for r in tpdo["roles"])
+            layout[int(tpdo["cob_id"], 16)] = (len(scales), struct.Struct("<" + codes))
+            scales += [factor[r] for r in tpdo["roles"]]
+    return layout, scales
+
+
+def run_bare(seconds: float, sync_hz: float) -> Round:
+    """One round of the baseline: the same SYNC, PDOs, rows and scaled blocks, python-can only."""
+    channel = f"bench-canopen-{uuid.uuid4().hex}"
+    nodes = {i: i + 1 for i in range(len(AXES))}
+    scaling = DriveScaling(increments_per_rev=IPR, screw_lead_mm=LEAD_MM, rated_current_a=RATED_A)
+    with SimulatedDrives.start(channel, nodes, PatternSource(), scaling=scaling):
+        link = _link(channel, sync_hz)
+        with link:  # configures the drives' TPDOs over SDO, as in the link's round
+            layout, scales = _bare_layout(link)
+        period = 1.0 / sync_hz
+        bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=True)
+        receiver = BareReceiver(layout, len(scales))
+        stop = threading.Event()
+        skipped = 0
+
+        def produce_sync() -> None:
+            nonlocal skipped
+            start = time.perf_counter()
+            cycle = 0
+            sync = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
+            while not stop.is_set():
+                delay = start + cycle * period - time.perf_counter()
+                if delay > 0 and stop.wait(delay):
+                    return
+                newest = int((time.perf_counter() - start) / period)
+                if newest > cycle:  # the next one is due already: skip, never a burst
+                    skipped += newest - cycle
+                    cycle = newest
+                bus.send(sync)
+                cycle += 1
+
         before = set(threading.enumerate())
+        notifier = can.Notifier(bus, [receiver], timeout=0.1)
+        bus.send(can.Message(arbitration_id=0x000, data=b"\x01\x00", is_extended_id=False))
+        sync_thread = threading.Thread(target=produce_sync, name="bare-sync", daemon=True)
+        sync_thread.start()
+        threads = [*_new_threads(before), threading.main_thread()]
+        scale = np.array(scales)
         try:
-            with link:
-                link_threads = [*_new_threads(before), threading.main_thread()]
-                time.sleep(0.2)  # past the start
-                link.read(0.0)  # rows of the start are not counted
-                groups = {"link": link_threads, "baseline": bare_threads, "sim": sim_threads}
-                cpu0 = {k: _thread_cpu_s(v) for k, v in groups.items()}
-                stats0, frames0 = link.statistics(), bare.frames
-                process0, wall0 = time.process_time(), time.perf_counter()
-                rows = 0
-                end = wall0 + seconds
-                while time.perf_counter() < end:
-                    block = link.read(0.1)
-                    rows += 0 if block is None else len(block)
-                wall = time.perf_counter() - wall0
-                process = time.process_time() - process0
-                cpu1 = {k: _thread_cpu_s(v) for k, v in groups.items()}
-                stats1, frames1 = link.statistics(), bare.frames
-                gaps = [e for e in link.events() if e.kind == "gap"]
-                sync_seen = drives.sync_count
+            time.sleep(0.2)
+            receiver.take()
+            rows = 0
+
+            def step() -> None:
+                nonlocal rows
+                time.sleep(0.1)
+                taken = receiver.take()
+                if taken:
+                    _block = np.array(taken, dtype=np.float64) * scale
+                    rows += len(taken)
+
+            pdos0, lost0, skipped0 = receiver.pdos, receiver.lost, skipped
+            cpu0 = _thread_cpu_s(threads)
+            wall = _window(seconds, step)
+            cpu1 = _thread_cpu_s(threads)
+            pdos, lost, skip = receiver.pdos - pdos0, receiver.lost - lost0, skipped - skipped0
         finally:
+            stop.set()
+            sync_thread.join(2.0)
             notifier.stop()
             bus.shutdown()
+    cpu = _cpu_delta(cpu0, cpu1)
+    return Round("bare", wall, sum(cpu.values()), pdos, rows, lost, skip, cpu)
 
-    def percent(group: str) -> float:
-        start, stop = cpu0[group], cpu1[group]
-        return float("nan") if start is None or stop is None else 100 * (stop - start) / wall
 
-    cycles = stats1["sync_cycles"] - stats0["sync_cycles"]
-    return {
-        "seconds": wall,
-        "sync_hz": sync_hz,
-        "sync_cycles_per_s": cycles / wall,
-        "pdos_per_s_expected": 3 * len(AXES) * cycles / wall,
-        "link_pdos_per_s": (stats1["pdo_frames"] - stats0["pdo_frames"]) / wall,
-        "baseline_pdos_per_s": (frames1 - frames0) / wall,
-        "link_rows": float(rows),
-        "link_rows_per_s": rows / wall,
-        "link_rows_lost": float(stats1["lost_rows"] - stats0["lost_rows"]),
-        "link_gap_events": float(len(gaps)),
-        "link_late_frames": float(stats1["late_frames"] - stats0["late_frames"]),
-        "link_cpu_percent": percent("link"),
-        "baseline_cpu_percent": percent("baseline"),
-        "link_cpu_us_per_pdo": 1e4 * percent("link") * wall / max(1, frames1 - frames0),
-        "baseline_cpu_us_per_pdo": 1e4 * percent("baseline") * wall / max(1, frames1 - frames0),
-        "simulator_cpu_percent": percent("sim"),
-        "process_cpu_percent": 100 * process / wall,
-        "simulator_sync_seen": float(sync_seen),
-    }
+def _spread(values: list[float], fmt: str = "{:.1f}") -> str:
+    median = statistics.median(values)
+    if len(values) == 1:
+        return fmt.format(median)
+    return f"{fmt.format(median)} [{fmt.format(min(values))}–{fmt.format(max(values))}]"
+
+
+def measure(
+    seconds: float, rounds: int, sync_hz: float, show: bool = True, threads: bool = False
+) -> dict[str, Any]:
+    """Alternate link and bare rounds; return per-side rounds and the per-round ratios."""
+    results: dict[str, list[Round]] = {"link": [], "bare": []}
+    for index in range(rounds):
+        order = ("link", "bare") if index % 2 == 0 else ("bare", "link")
+        for side in order:
+            run = run_link if side == "link" else run_bare
+            result = run(seconds, sync_hz)
+            results[side].append(result)
+            if show:
+                print(
+                    f"round {index + 1} {side:<4}: {result.cpu_percent:5.1f} % CPU, "
+                    f"{result.us_per_pdo:5.1f} µs/PDO, {result.rows} rows, "
+                    f"{result.lost} lost, {result.skipped} SYNC skipped",
+                    flush=True,
+                )
+                if threads:
+                    for name, cpu_s in sorted(result.by_thread.items()):
+                        print(f"    {name:<28} {100 * cpu_s / result.seconds:5.1f} %")
+    ratios = [
+        link.cpu_s / link.pdos / (bare.cpu_s / bare.pdos)
+        for link, bare in zip(results["link"], results["bare"], strict=True)
+    ]
+    return {**results, "ratios": ratios}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--seconds", type=float, default=5.0, help="per round and side")
+    parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--sync-hz", type=float, default=1000.0)
+    parser.add_argument("--short", action="store_true", help="one round of 1 s (CI)")
+    parser.add_argument("--threads", action="store_true", help="CPU of each thread too")
     args = parser.parse_args()
-    for name, value in measure(args.seconds, args.sync_hz).items():
-        print(f"{name:<24} {value:12.1f}")
+    if args.short:
+        args.seconds, args.rounds = 1.0, 1
+    print(
+        f"CANopen, {len(AXES)} drives × 3 TPDOs, SYNC {args.sync_hz:g} Hz, virtual bus; "
+        f"{args.rounds} rounds of {args.seconds:g} s per side, interleaved"
+    )
+    result = measure(args.seconds, args.rounds, args.sync_hz, threads=args.threads)
+    print(f"{'':<6} {'CPU % of a core':>24} {'µs CPU per PDO':>24} {'lost':>6} {'skipped':>8}")
+    for side in ("link", "bare"):
+        rounds: list[Round] = result[side]
+        print(
+            f"{side:<6} {_spread([r.cpu_percent for r in rounds]):>24} "
+            f"{_spread([r.us_per_pdo for r in rounds], '{:.2f}'):>24} "
+            f"{sum(r.lost for r in rounds):>6} {sum(r.skipped for r in rounds):>8}"
+        )
+    print(
+        f"ratio link/bare CPU per PDO: {_spread(result['ratios'], '{:.2f}')} "
+        f"(goal ≤ {GOAL_RATIO:g}×, 0 rows lost on an idle machine)"
+    )
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
 from ncmeasure.links import REAL_TIME, make_link
 from ncmeasure.links.canopen.busload import bus_load, frame_bits
-from ncmeasure.links.canopen.cycles import CycleAssembler
+from ncmeasure.links.canopen.cycles import CycleAssembler, run_sync_schedule
 from ncmeasure.links.canopen.link import CanOpenLink
 from ncmeasure.links.canopen.objects import (
     build_dictionary,
@@ -36,7 +36,7 @@ from ncmeasure.links.canopen.objects import (
     load_object_map,
     sdo_error_text,
 )
-from ncmeasure.samples import LinkEvent, SimulatedClock
+from ncmeasure.samples import LinkClock, LinkEvent, SimulatedClock
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrive, SimulatedDrives
 from ncmeasure.sim.signals import AxisState, PatternSource
 from tests.conftest import shared_fixture
@@ -1049,3 +1049,132 @@ def test_readable_texts() -> None:
         sdo_error_text(SdoAbortedError(0x06010002))
         == "SDO abort 0x06010002 (Attempt to write a read only object)"
     )
+
+
+# --- the SYNC schedule and block reads -----------------------------------------------------
+
+
+def test_sync_schedule_skips_after_a_stall_and_never_bursts() -> None:
+    """An injected clock: the producer stalls 4.5 periods after cycle 3, then runs on time."""
+    period = 0.001
+    now = [0.0]
+    sent: list[tuple[int, float]] = []
+    skipped: list[tuple[int, int]] = []
+
+    def wait(seconds: float) -> bool:
+        now[0] += seconds
+        return len(sent) >= 12  # stop
+
+    def send(cycle: int) -> None:
+        sent.append((cycle, now[0]))
+        if cycle == 3:
+            now[0] += 4.5 * period  # the host stalls after sending cycle 3
+
+    run_sync_schedule(period, lambda: now[0], wait, send, lambda a, n: skipped.append((a, n)))
+    cycles = [c for c, _ in sent]
+    assert cycles == [0, 1, 2, 3, 7, 8, 9, 10, 11, 12, 13, 14]
+    assert skipped == [(4, 3)]  # 4, 5, 6: due during the stall, skipped and counted
+    times = np.array([t for _, t in sent])
+    # on its absolute schedule except the one sent late, and never two for one period
+    on_time = [k for k, (c, t) in enumerate(sent) if c != 7]
+    np.testing.assert_allclose(times[on_time], np.array(cycles)[on_time] * period, atol=1e-12)
+    assert np.all(np.diff(times) >= 0.5 * period - 1e-12)
+
+
+def test_sync_schedule_keeps_the_period_on_average_through_late_wake_ups() -> None:
+    """Every wake-up 0.6 periods late: no cycle skipped, k-th SYNC still due at k × period."""
+    period = 0.001
+    now = [0.0]
+    sent: list[tuple[int, float]] = []
+
+    def wait(seconds: float) -> bool:
+        now[0] += seconds + 0.6 * period
+        return len(sent) >= 100
+
+    run_sync_schedule(
+        period,
+        lambda: now[0],
+        wait,
+        lambda c: sent.append((c, now[0])),
+        lambda a, n: pytest.fail("nothing is skipped"),
+    )
+    cycles = np.array([c for c, _ in sent])
+    times = np.array([t for _, t in sent])
+    assert np.array_equal(cycles, np.arange(len(sent)))
+    assert np.all(times - cycles * period < period)  # late, never drifting
+
+
+def assert_gaps_cover_missing_rows(rec: Recorder) -> None:
+    """From the first row on, the gap events cover exactly the cycles without a row.
+
+    In real time the first cycles may be lost before the first row (the simulated
+    drives are a thread of this busy process), so those are not compared.
+    """
+    cycles = rec.cycles
+    missing = set(range(cycles[0], cycles[-1] + 1)) - set(cycles.tolist())
+    covered: set[int] = set()
+    for gap in rec.kinds("gap"):
+        span = range(gap.details["first_cycle"], gap.details["last_cycle"] + 1)
+        assert gap.lost_samples == len(span)
+        covered |= set(span)
+    assert {c for c in covered if cycles[0] <= c <= cycles[-1]} == missing
+
+
+class StallClock(LinkClock):
+    """Real time that jumps ahead once: a host stall, as the SYNC producer sees it."""
+
+    __slots__ = ("jumped", "offset_s")
+
+    def __init__(self) -> None:
+        self.offset_s = 0.0
+        self.jumped = threading.Event()
+
+    def now(self) -> float:
+        return time.perf_counter() + self.offset_s
+
+    def stall(self, seconds: float) -> None:
+        self.offset_s += seconds
+        self.jumped.set()
+
+
+def test_a_stalled_sync_producer_reports_the_cycles_it_skipped(channel: str) -> None:
+    """The producer skips the cycles of a stall, counts them, and a gap event says so."""
+    clock = StallClock()
+    with SimulatedDrives.start(channel, {0: 1}, SOURCE, scaling=SCALING):
+        link = make(channel, n_axes=1)
+        link.use_clock(clock)
+        with link:
+            rec = Recorder(link)
+            rec.rows_at_least(10)
+            clock.stall(0.2)  # 50 cycles at 250 Hz
+            rec.until(lambda: bool(rec.times) and rec.times[-1] > 0.2 + 0.1)
+        rec.events += link.events()
+        stats = link.statistics()
+    not_sent = [g for g in rec.kinds("gap") if "SYNC cycles not sent" in g.message]
+    reported = sum(g.details["missing_sync"] for g in not_sent)
+    # a busy host may skip more; each skipped cycle is counted, and reported once its
+    # next SYNC is on the bus
+    assert 49 <= reported <= stats["sync_skipped"]
+    assert np.all(np.diff(rec.cycles) > 0)  # rows in order, none repeated
+    assert_gaps_cover_missing_rows(rec)
+
+
+def test_block_reads_deliver_every_row_in_order(channel: str) -> None:
+    """In real time the reader is woken per block: rows come in order, each cycle once,
+    and what is missing is a gap; rows are counted as they are handed out."""
+    with SimulatedDrives.start(channel, {0: 1, 1: 2}, TimeSource(), scaling=SCALING):
+        link = make(channel, n_axes=2, sync_hz=1000)
+        with link:
+            rec = Recorder(link)
+            rec.rows_at_least(300)
+            stats = link.statistics()
+    assert stats["rows"] == len(rec.times)
+    assert np.all(np.diff(rec.cycles) > 0)
+    assert_gaps_cover_missing_rows(rec)
+    lost = [g.time_s for g in rec.kinds("gap")]
+    times = np.asarray(rec.times)
+    keep = times < lost[0] if lost else np.ones(len(times), dtype=bool)
+    positions = np.asarray(rec.rows)[keep][:, [2, 5]]
+    for axis in range(2):  # exact up to the first lost cycle, however the blocks fell
+        expected_mm = np.rint((10.0 * times[keep] + axis) / (LEAD_MM / IPR)) * (LEAD_MM / IPR)
+        np.testing.assert_allclose(positions[:, axis], expected_mm, atol=1e-9)

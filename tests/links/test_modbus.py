@@ -480,6 +480,21 @@ def test_exception_at_open_says_what_it_means(server: ServerHandle, code: int) -
     assert "Traceback" not in text
 
 
+def test_paced_polling_gives_every_row_this_cycles_answers(server: ServerHandle) -> None:
+    """Paced (poll_hz well below what the loop can do): no row holds an older answer.
+
+    The server numbers the answers of each unit; every row must show each unit's
+    next answer, in order, none repeated and none left out. Whether the host keeps
+    the pace is not asserted (a loaded computer may not): late cycles are gaps.
+    """
+    with tcp_link(server, **{**FAST, "poll_hz": 200.0}) as link:
+        rows = read_rows(link, 60)
+    for index in range(3):
+        assert generic_numbers(rows, index) == list(range(1, len(rows) + 1))
+    times = [t for t, _ in rows]
+    assert times == sorted(times)
+
+
 def test_slow_answers_are_late_cycles_not_errors(server: ServerHandle) -> None:
     events: list[LinkEvent] = []
     with tcp_link(server, **FAST) as link:

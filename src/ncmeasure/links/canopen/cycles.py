@@ -26,11 +26,11 @@ shifted or filled:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
-__all__ = ["CycleAssembler", "LossReason", "LostCycle"]
+__all__ = ["CycleAssembler", "LossReason", "LostCycle", "run_sync_schedule"]
 
 LossReason = Literal["missing", "no_sync", "doubled"]
 
@@ -76,13 +76,15 @@ class CycleAssembler:
         """The cycle of the newest SYNC seen (-1 before the first)."""
         self.early_frames = 0
         """Frames that came before the first SYNC (they belong to no cycle of this link)."""
-        self._order: dict[int, dict[int, int]] = {}
-        """Per group, the usual position of each of its slots (learned)."""
+        self._group_index = [sorted(set(groups)).index(g) for g in groups]
+        self._order: list[tuple[int, int]] | None = None
+        """Per slot, its node's index and its usual position among the node's frames
+        (learned from the first complete cycle); None before."""
         self._arrival: list[int] = []
         self._row: list[bytes | None] = [None] * slots
         self._filled = 0
         self._doubted: set[int] = set()
-        self._last: dict[int, int] = {}
+        self._last = [-1] * (max(self._group_index) + 1)
         self._rows: list[tuple[int, list[bytes]]] = []
         self._lost: list[LostCycle] = []
 
@@ -98,11 +100,12 @@ class CycleAssembler:
             raise ValueError(f"SYNC cycle {cycle} after {self.newest}")
         if self.newest >= 0:
             self._finish_newest()
-            everything = frozenset(range(self.slots))
-            self._lost.extend(
-                LostCycle(skipped, everything, "no_sync")
-                for skipped in range(self.newest + 1, cycle)
-            )
+            if cycle > self.newest + 1:
+                everything = frozenset(range(self.slots))
+                self._lost.extend(
+                    LostCycle(skipped, everything, "no_sync")
+                    for skipped in range(self.newest + 1, cycle)
+                )
         self.newest = cycle
 
     def frame(self, slot: int, data: bytes) -> None:
@@ -110,18 +113,25 @@ class CycleAssembler:
         if self.newest < 0:
             self.early_frames += 1
             return
-        group = self._groups[slot]
-        order = self._order.get(group)
-        if self._row[slot] is not None:
-            self._doubted.add(slot)  # twice in one cycle
-        elif order is not None and order[slot] < self._last.get(group, -1):
-            self._doubted.add(slot)  # before a frame it usually follows: a cycle late
-        if order is not None:
-            self._last[group] = max(self._last.get(group, -1), order[slot])
-        self._arrival.append(slot)
-        if self._row[slot] is None:
-            self._row[slot] = data
-            self._filled += 1
+        row = self._row
+        order = self._order
+        if order is None:  # the order is not learned yet
+            self._arrival.append(slot)
+            if row[slot] is not None:
+                self._doubted.add(slot)  # twice in one cycle
+                return
+        else:
+            group, rank = order[slot]
+            last = self._last
+            if row[slot] is not None or rank < last[group]:
+                # twice in one cycle, or before a frame it usually follows: a cycle late
+                self._doubted.add(slot)
+                if row[slot] is not None:
+                    return
+            else:
+                last[group] = rank
+        row[slot] = data
+        self._filled += 1
 
     def take(self) -> tuple[list[tuple[int, list[bytes]]], list[LostCycle]]:
         """The rows and lost cycles that became final since the last call, each in cycle order."""
@@ -134,21 +144,64 @@ class CycleAssembler:
         if self._doubted:
             self._lost.append(LostCycle(cycle, frozenset(self._doubted), "doubled"))
         elif self._filled == self.slots:
-            self._rows.append((cycle, [data for data in self._row if data is not None]))
+            self._rows.append((cycle, self._row))  # type: ignore[arg-type]  # all filled
             self._learn_order()
         else:
             missing = frozenset(i for i, data in enumerate(self._row) if data is None)
             self._lost.append(LostCycle(cycle, missing))
         self._row = [None] * self.slots
         self._filled = 0
-        self._doubted = set()
-        self._last = {}
+        if self._doubted:
+            self._doubted = set()
+        self._last = [-1] * len(self._last)
         self._arrival = []
 
     def _learn_order(self) -> None:
         """The first complete cycle shows each node's order of frames."""
-        if self._order:
+        if self._order is not None:
             return
+        order: dict[int, dict[int, int]] = {}
         for slot in self._arrival:
-            order = self._order.setdefault(self._groups[slot], {})
-            order.setdefault(slot, len(order))
+            positions = order.setdefault(self._groups[slot], {})
+            positions.setdefault(slot, len(positions))
+        self._order = [
+            (self._group_index[slot], order[self._groups[slot]][slot]) for slot in range(self.slots)
+        ]
+
+
+def run_sync_schedule(
+    period_s: float,
+    now: Callable[[], float],
+    wait: Callable[[float], bool],
+    send: Callable[[int], None],
+    skip: Callable[[int, int], None],
+) -> None:
+    """Produce SYNC cycle ``k`` at ``start + k × period_s``, never in a burst, until stopped.
+
+    The schedule is absolute, so the period holds on average however late a
+    wake-up is. When the producer wakes so late that the next cycle is due
+    already (a host stall), it does not send the missed cycles one after the
+    other to catch up: the drives sample on SYNC, and a burst would stamp
+    their samples wrongly. It skips them and sends the newest due cycle.
+
+    Args:
+        period_s: The SYNC period on the clock of ``now``.
+        now: The clock.
+        wait: Waits that long; True when the producer must stop.
+        send: Sends the SYNC of a cycle (the first is cycle 0, at ``now()`` on entry).
+        skip: Called with the first skipped cycle and how many were skipped.
+    """
+    start = now()
+    cycle = 0
+    while True:
+        delay = start + cycle * period_s - now()
+        if delay > 0 and wait(delay):
+            return
+        newest = int((now() - start) / period_s)
+        if newest > cycle:  # the next cycle is due already: skip, never a burst
+            skip(cycle, newest - cycle)
+            cycle = newest
+        send(cycle)
+        cycle += 1
+        if delay <= 0 and wait(0.0):
+            return

@@ -27,22 +27,27 @@ cycle only; a cycle whose frames cannot be told apart is dropped as lost.
 The SYNC producer keeps time by the link's :class:`~ncmeasure.samples.LinkClock`.
 Real time for real drives: SYNC ``k`` goes out at ``k × period`` (``1 / sync_hz``
 rounded to whole microseconds, the unit of the communication cycle period
-0x1006 it writes to the drives); when the host falls behind by more than
-``MAX_SYNC_LATE_S`` it skips the late cycles and reports them. With
+0x1006 it writes to the drives); when the host wakes so late that the next
+cycle is due already, it skips the missed cycles instead of sending them in a
+burst, counts them (``statistics()["sync_skipped"]``) and reports them as a
+gap (:func:`~.cycles.run_sync_schedule`). With
 ncmeasure's own simulated drives (:mod:`ncmeasure.sim.cia402`) it runs on a
 :class:`~ncmeasure.samples.SimulatedClock`, in lockstep: SYNC ``k`` goes out
 at simulated time ``k × period``, the drives answer with the machine state of
 that time, and SYNC ``k + 1`` waits until the link has received all they sent,
 however slow the computer is.
 
-Values are taken inside the PDO callbacks into a :class:`CycleAssembler`
-keyed by SYNC cycle, so no frame is lost to a PDO map holding only its last
-frame. Cycles that stay incomplete are dropped, never filled with invented or
-NaN values, and reported as ``gap`` events with ``lost_samples``; EMCY
-messages, reboots (boot-up, after which the node's PDOs are configured
-again), SDO fallbacks and drive faults are events too. Without a complete
-cycle for ``max_outage_s`` the link gives up; a failing bus or an outage
-raises :class:`~ncmeasure.errors.LinkError` from :meth:`~CanOpenLink.read`.
+PDO frames go from the first listener of the receive thread straight into a
+:class:`CycleAssembler` keyed by SYNC cycle (a dict from COB-ID to slot, not
+canopen's PDO objects, so no frame is lost to a PDO map holding only its last
+frame); their bytes are decoded in bulk, a block at a time, and the reader is
+woken per block of ``READ_BLOCK_S`` of rows, not per row. Cycles that stay
+incomplete are dropped, never filled with invented or NaN values, and reported
+as ``gap`` events with ``lost_samples``; EMCY messages, reboots (boot-up, after
+which the node's PDOs are configured again), SDO fallbacks and drive faults are
+events too. Without a complete cycle for ``max_outage_s`` the link gives up; a
+failing bus or an outage raises :class:`~ncmeasure.errors.LinkError` from
+:meth:`~CanOpenLink.read`.
 """
 
 from __future__ import annotations
@@ -75,7 +80,7 @@ from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError, OutputErr
 from ncmeasure.links.base import AxisBinding, AxisLinkSettings, DriveLink, LinkSettings, PathSetting
 from ncmeasure.links.canopen.bus import open_bus
 from ncmeasure.links.canopen.busload import BusLoad, bus_load
-from ncmeasure.links.canopen.cycles import CycleAssembler, LostCycle
+from ncmeasure.links.canopen.cycles import CycleAssembler, LostCycle, run_sync_schedule
 from ncmeasure.links.canopen.objects import (
     DATA_TYPES,
     SIGNAL_BY_ROLE,
@@ -390,8 +395,9 @@ class CanOpenLink(DriveLink):
 
     #: A gap event covers at most this much link time; longer outages give several.
     GAP_REPORT_S: ClassVar[float] = 1.0
-    #: The SYNC producer skips (and reports) cycles when it is this late (wall-clock).
-    MAX_SYNC_LATE_S: ClassVar[float] = 0.005
+    #: The reader is woken when this much link time of rows is ready (real time, PDOs):
+    #: rows are handed out in blocks, not one per call. A read's timeout still ends it.
+    READ_BLOCK_S: ClassVar[float] = 0.05
     #: How long the link waits for its first own SYNC to come back through the receive stream.
     ECHO_TIMEOUT_S: ClassVar[float] = 5.0
     #: Lockstep: the longest (wall-clock) wait for the simulated drives to answer one SYNC.
@@ -446,14 +452,19 @@ class CanOpenLink(DriveLink):
         self._mode: Literal["pdo", "sdo_polling"] = "pdo"
         self._streaming = False
         self._stats = {
-            "pdo_frames": 0,
             "sync_cycles": 0,
             "rows": 0,
             "lost_rows": 0,
             "bad_frames": 0,
             "sdo_polls": 0,
+            "sync_skipped": 0,
         }
         self._bad_slots: set[int] = set()
+        self._wake_rows = 1
+        self._plan: tuple[list[_Slot], np.dtype[Any], list[tuple[str, _Axis, _Field]]] | None = None
+        self._pdo_frames = 0
+        """The reader is woken when this many rows are ready (set at open)."""
+        self._sync_message = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
 
     # --- configuration --------------------------------------------------------------
 
@@ -744,6 +755,7 @@ class CanOpenLink(DriveLink):
         """Counters since open: PDO frames, SYNC cycles, rows, lost rows, SDO polls, ..."""
         with self._lock:
             stats = dict(self._stats)
+            stats["pdo_frames"] = self._pdo_frames
             stats["early_frames"] = self._assembler.early_frames
         return stats
 
@@ -801,7 +813,8 @@ class CanOpenLink(DriveLink):
         if self.settings.raw_log is not None:
             writer = self._make_logger(self.settings.raw_log)
             network.listeners.append(cast(Any, _RawLog(self, writer, self.settings.raw_log)))
-        network.listeners.append(cast(Any, _BusWatch(self)))
+        receiver = _Receiver(self, network.listeners[0])
+        network.listeners[0] = cast(Any, receiver)  # PDOs and own SYNCs first, the rest to canopen
         network.connect()
         worker = threading.Thread(target=self._work, name="canopen-link-worker", daemon=True)
         worker.start()
@@ -819,8 +832,12 @@ class CanOpenLink(DriveLink):
         else:
             self._configure_drives()
         if self._mode == "pdo":
-            for index, slot in enumerate(self._slots):
-                network.subscribe(slot.cob_id, self._pdo_callback(index, slot))
+            receiver.pdos = {slot.cob_id: (i, slot.size) for i, slot in enumerate(self._slots)}
+            receiver.frame = self._assembler.frame
+        if self._mode == "pdo" and not self.clock.lockstep:
+            self._wake_rows = max(1, round(self.READ_BLOCK_S * self._rate_hz))
+        else:  # lockstep and SDO polling wait for every cycle
+            self._wake_rows = 0
         self._t0 = self.clock.now()
         self._streaming = True
         if self._mode == "sdo_polling":
@@ -1091,18 +1108,20 @@ class CanOpenLink(DriveLink):
 
     # --- callbacks (notifier thread) ---------------------------------------------------
 
-    def _pdo_callback(self, index: int, slot: _Slot) -> Callable[[int, bytearray, float], None]:
-        size = slot.size
+    def _on_pdo(self, index: int, size: int, data: bytearray) -> None:
+        """A PDO frame of slot ``index``, in bus order (receive thread only, no lock).
 
-        def on_pdo(can_id: int, data: bytearray, timestamp: float) -> None:
+        The frame's bytes are kept as they are and decoded in bulk, a block at a time
+        (:meth:`_decode`). Frames go into the assembler without the lock: only the
+        thread that receives the bus feeds it; rows leave it under the lock when a SYNC
+        finishes a cycle (:meth:`_advance`).
+        """
+        self._pdo_frames += 1  # only this thread writes it
+        if len(data) < size:
             with self._lock:
-                self._stats["pdo_frames"] += 1
-                if len(data) < size:
-                    self._bad_frame(index, slot, len(data))
-                    return
-                self._assembler.frame(index, bytes(data[:size]))
-
-        return on_pdo
+                self._bad_frame(index, self._slots[index], len(data))
+            return
+        self._assembler.frame(index, bytes(data) if len(data) == size else bytes(data[:size]))
 
     def _bad_frame(self, index: int, slot: _Slot, length: int) -> None:
         self._stats["bad_frames"] += 1
@@ -1178,7 +1197,7 @@ class CanOpenLink(DriveLink):
 
     def _on_own_sync(self) -> None:
         """An own SYNC came back through the receive stream: its cycle starts now, in bus order."""
-        with self._cond:
+        with self._lock:  # the condition's lock
             if self._sent:
                 self._advance(self._sent.popleft())
 
@@ -1189,10 +1208,13 @@ class CanOpenLink(DriveLink):
             self._assembler.sync(cycle)
         elif skipped > 0 and self._cycle >= 0:
             self._lost_polls(self._cycle + 1, skipped, "")
+        first = self._cycle < 0
         self._cycle = cycle
         self._stats["sync_cycles"] += 1
         self._settle()
-        self._cond.notify_all()
+        # The reader wakes per block of rows; lockstep and SDO polling wait for every cycle.
+        if first or len(self._ready) >= self._wake_rows:
+            self._cond.notify_all()
 
     def _cycle_time(self) -> float:
         return max(self._cycle, 0) * self._period
@@ -1210,33 +1232,37 @@ class CanOpenLink(DriveLink):
             self._fail(exc)
 
     def _send_sync(self, cycle: int) -> None:
-        assert self._network is not None
-        with self._cond:
+        network = self._network
+        assert network is not None and network.bus is not None
+        with self._lock:
             self._sent.append(cycle)
             self._sent_cycle = cycle
         try:
-            self._network.send_message(0x80, b"")
+            with network.send_lock:  # SDO transfers of the worker share the bus
+                network.bus.send(self._sync_message)
         except Exception as exc:
             raise LinkError(f"cannot send SYNC: {exc}") from exc
 
+    def _skip_sync(self, first: int, count: int) -> None:
+        """The producer skipped ``count`` cycles from ``first``; they become a gap (no_sync)."""
+        with self._lock:
+            self._stats["sync_skipped"] += count
+
     def _produce_in_real_time(self) -> None:
+        """SYNC k at ``k × period`` of the clock; a stall skips cycles (counted), never a burst.
+
+        The skipped cycles have no SYNC on the bus, so they come out as a ``gap`` event
+        ("SYNC cycles not sent (the host fell behind)") with their number.
+        """
         clock = self.clock
-        period = self._period
-        # Late by MAX_SYNC_LATE_S: a host hiccup. The late cycles are skipped (drives sample
-        # on receipt: a late SYNC would stamp its samples wrongly) and reported as lost.
-        max_late = max(2, math.ceil(self.MAX_SYNC_LATE_S / period))
-        self._t0 = start = clock.now()
-        cycle = 0
-        while not self._stop.is_set():
-            due = start + cycle * period
-            delay = due - clock.now()
-            if delay > 0 and self._stop.wait(delay):
-                break
-            late = int((clock.now() - due) / period)
-            if late >= max_late:
-                cycle += late
-            self._send_sync(cycle)
-            cycle += 1
+        self._t0 = clock.now()
+        run_sync_schedule(
+            self._period,
+            clock.now,
+            lambda delay: self._stop.wait(clock.wall(delay)),
+            self._send_sync,
+            self._skip_sync,
+        )
 
     def _produce_in_lockstep(self) -> None:
         """SYNC k at simulated time k × period; SYNC k + 1 once all of cycle k is received.
@@ -1422,7 +1448,7 @@ class CanOpenLink(DriveLink):
         if self._state != "new":
             raise LinkError("decode_frames needs a canopen link that was never opened")
         self._prepare_offline()
-        handlers = {slot.cob_id: self._pdo_callback(i, slot) for i, slot in enumerate(self._slots)}
+        handlers = {slot.cob_id: (i, slot.size) for i, slot in enumerate(self._slots)}
         nodes = {axis.node_id: axis for axis in self._axes}
         for msg in messages:
             if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
@@ -1431,7 +1457,7 @@ class CanOpenLink(DriveLink):
             if can_id == 0x80:
                 self._on_sync_frame(can_id, data, msg.timestamp)
             elif can_id in handlers:
-                handlers[can_id](can_id, data, msg.timestamp)
+                self._on_pdo(*handlers[can_id], data)
             elif 0x81 <= can_id <= 0xFF and can_id - 0x80 in nodes and len(data) >= 3:
                 code, register = int.from_bytes(data[:2], "little"), data[2]
                 entry = EmcyError(code, register, bytes(data[3:8]), msg.timestamp)
@@ -1480,6 +1506,13 @@ class CanOpenLink(DriveLink):
         if self._mode != "pdo":
             return
         rows, lost = self._assembler.take()
+        if not lost:  # the usual case: complete cycles only
+            if rows:
+                if self._gap is not None:
+                    self._close_gap()
+                self._ready.extend(rows)
+                self._last_row_cycle = rows[-1][0]
+            return
         events: list[tuple[int, list[bytes]] | LostCycle] = [*rows, *lost]
         events.sort(key=lambda item: item.cycle if isinstance(item, LostCycle) else item[0])
         for item in events:
@@ -1571,7 +1604,6 @@ class CanOpenLink(DriveLink):
             while True:
                 self._check_failure()
                 self._check_outage()
-                self._settle()
                 if self._ready:
                     rows, self._ready = self._ready, []
                     break
@@ -1618,20 +1650,46 @@ class CanOpenLink(DriveLink):
         cycles = np.fromiter((c for c, _ in rows), dtype=np.float64, count=n)
         time_s = cycles / self._rate_hz
         values = np.empty((n, len(self._channels)), dtype=np.float64)
-        for index, slot in enumerate(self._slots):
-            raw = np.frombuffer(b"".join(r[index] for _, r in rows), dtype=slot.dtype)
-            for k, f in enumerate(slot.fields):
-                column = raw[f"f{k}"]
-                if f.column >= 0:
-                    values[:, f.column] = column * slot.axis.scales[f.role]
-                elif f.column == _STATUS_COLUMN:
-                    self._check_status(slot.axis, column, time_s)
+        row_dtype, fields = self._decode_plan()
+        # One buffer and one structured view for the whole block: a row is its slots' bytes.
+        block = np.frombuffer(b"".join([b"".join(r) for _, r in rows]), dtype=row_dtype)
+        for name, axis, f in fields:
+            if f.column >= 0:
+                np.multiply(block[name], axis.scales[f.role], out=values[:, f.column])
+            else:
+                self._check_status(axis, block[name], time_s)
         return SampleBlock(time_s, values)
+
+    def _decode_plan(self) -> tuple[np.dtype[Any], list[tuple[str, _Axis, _Field]]]:
+        """The dtype of a row (all slots' bytes in order) and the fields to take from it."""
+        if self._plan is not None and self._plan[0] is self._slots:
+            return self._plan[1], self._plan[2]
+        names: list[str] = []
+        formats: list[str] = []
+        offsets: list[int] = []
+        fields: list[tuple[str, _Axis, _Field]] = []
+        offset = 0
+        for index, slot in enumerate(self._slots):
+            for k, f in enumerate(slot.fields):
+                name = f"s{index}f{k}"
+                names.append(name)
+                formats.append(f.np_type)
+                offsets.append(offset)
+                offset += f.size
+                if f.column >= 0 or f.column == _STATUS_COLUMN:
+                    fields.append((name, slot.axis, f))
+        row_dtype: np.dtype[Any] = np.dtype(
+            {"names": names, "formats": formats, "offsets": offsets, "itemsize": offset}
+        )
+        self._plan = (self._slots, row_dtype, fields)
+        return row_dtype, fields
 
     def _check_status(
         self, axis: _Axis, statusword: NDArray[Any], time_s: NDArray[np.float64]
     ) -> None:
         fault = (statusword & _STATUS_FAULT) != 0
+        if not axis.faulted and not fault.any():  # the usual block: nothing to report
+            return
         flags = np.concatenate(([axis.faulted], fault)).astype(np.int8)
         changes = np.flatnonzero(np.diff(flags))
         for i in changes:
@@ -1833,29 +1891,58 @@ class _RawLog(can.Listener):
                 )
 
 
-class _BusWatch(can.Listener):
-    """Own SYNCs in bus order, frames of others counted, a failing bus a LinkError for read().
+class _Receiver(can.Listener):
+    """The first listener of the receive thread: PDOs and own SYNCs here, the rest to canopen.
 
-    Runs in the notifier thread after canopen's own listener, message by message,
-    so an own SYNC starts its cycle exactly between the PDOs received before and
-    after it.
+    PDO frames go straight to the link's cycle assembler (a dict from COB-ID to
+    slot, no canopen PDO machinery per frame); an own SYNC starts its cycle
+    exactly between the PDOs received before and after it (bus order). Every
+    other frame (SDO, EMCY, heartbeat, another master's SYNC) goes on to
+    canopen's own listener. Frames of others are counted (lockstep: all the
+    simulated drives sent must be in), and a failing bus becomes a LinkError
+    for read().
     """
 
-    def __init__(self, link: CanOpenLink) -> None:
+    def __init__(self, link: CanOpenLink, canopen_listener: can.Listener) -> None:
         self._link = link
+        self._canopen = canopen_listener
+        self._lockstep = link.clock.lockstep  # the clock cannot change while the link is open
+        self.pdos: dict[int, tuple[int, int]] = {}
+        """COB-ID -> (slot index, mapped bytes); set once the TPDOs are configured."""
+        self.frame: Callable[[int, bytes], None] = link._assembler.frame
+        """The assembler's frame method (set with :attr:`pdos`)."""
 
     def on_message_received(self, msg: can.Message) -> None:
+        # This runs for 9000 PDOs a second and more: the usual frame is handled inline.
         link = self._link
         if msg.is_rx:
-            link._received += 1  # only this thread writes it
-            if link.clock.lockstep:
+            slot = self.pdos.get(msg.arbitration_id)
+            if slot is not None and not (
+                msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame
+            ):
+                data = msg.data
+                if len(data) == slot[1]:
+                    link._pdo_frames += 1  # only this thread writes it
+                    self.frame(slot[0], bytes(data))
+                else:
+                    link._on_pdo(slot[0], slot[1], data)
+            else:
+                self._canopen.on_message_received(msg)
+            if self._lockstep:  # all the simulated drives sent must be in before the next SYNC
                 with link._cond:
+                    link._received += 1
                     link._cond.notify_all()
-        elif msg.arbitration_id == 0x80 and not msg.is_extended_id:
-            link._on_own_sync()
+            return
+        if msg.arbitration_id == 0x80 and not msg.is_extended_id:
+            link._on_own_sync()  # nothing of canopen's listens to the master's own SYNC
+            return
+        self._canopen.on_message_received(msg)
 
     def on_error(self, exc: Exception) -> None:
         self._link._fail(LinkError(f"CAN bus error: {exc}"))
+
+    def stop(self) -> None:
+        self._canopen.stop()
 
 
 def _decode_int(raw: bytes, type_name: str) -> int:

@@ -772,8 +772,10 @@ class ModbusLink(DriveLink):
                         LinkEvent(now - self._t0, "fault", self._fatal.message, axis=failure.axis)
                     )
                     return
+            # The next cycle is the newest one due: at once when this one ran late (never a
+            # wait before a cycle that is due already), and the cycles wholly missed skipped.
             now = clock.now()
-            slot = max(slot + 1, math.ceil((now - self._t0) / period))
+            slot = max(slot + 1, math.floor((now - self._t0) / period))
             if not self._connected() and next_connect > now:
                 slot = max(slot, math.ceil((next_connect - self._t0) / period))
 
