@@ -196,7 +196,10 @@ def assert_gaps_match(rec: Recorder, axis: str | None) -> int:
         assert gap.lost_samples == len(span)
         assert gap.axis == axis
         covered |= set(span)
-    assert covered == missing
+    # A busy computer may lose the first cycles before any row arrives: those gaps are
+    # reported too, and lie before the first row.
+    assert covered - missing <= set(range(cycles[0])), sorted(covered - missing)[:10]
+    assert missing <= covered
     return len(missing)
 
 
