@@ -249,6 +249,13 @@ class Measurement(_Model):
         description="Measure in positive and negative direction (Stribeck curve for v > 0 "
         "and v < 0).",
     )
+    order: Literal["velocity", "position"] = Field(
+        default="velocity",
+        description="Order of the runs: 'velocity' measures one velocity step at every "
+        "position before the next step (a step's windows close together in time, more "
+        "rapids); 'position' measures every step in both directions at one position before "
+        "the next position (few rapids; each position at another time since the warm-up).",
+    )
     dwell_s: Annotated[float, Field(ge=0, le=60)] = Field(
         default=0.0, description="Dwell at standstill before each window, in s."
     )

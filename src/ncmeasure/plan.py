@@ -13,8 +13,15 @@ All positions are planned in integer micrometres and all feeds are rounded
 down to 0.001 mm/min, so what the templates print is exactly what was
 checked: no rounding can push a block over a limit.
 
-The runs are ordered to keep rapids short: at each velocity the axis sweeps
-the positions forward in positive direction and back in negative direction.
+The runs come in *visits*: a position at a velocity step, with its run in
+each direction one after the other. ``measurement.order`` chooses the order of
+the visits: ``"velocity"`` (one step at every position, then the next step) or
+``"position"`` (every step at one position, then the next position); either
+way the positions are swept alternately upward and downward, so each sweep
+starts where the last ended. Between two runs the axis takes a rapid, or, where
+the next run starts further along and drives back, the run-out goes on to it
+at the run's feed when that is quicker. :func:`duration_bound` computes the
+least time the chosen order allows, to hold the plan against.
 The result is a :class:`Schedule`: the moves each subprogram makes
 (:class:`Rapid`, :class:`Feed`, :class:`Run`, :class:`Dwell`) and the windows the analysis
 will cut out of the recording, with their expected times.
@@ -22,8 +29,9 @@ will cut out of the recording, with their expected times.
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Annotated, Literal
 
@@ -48,8 +56,10 @@ from ncmeasure.profile import move_time_s, ramp
 
 __all__ = [
     "SMALLER",
+    "AxisBound",
     "AxisPlan",
     "Comment",
+    "DurationBound",
     "Dwell",
     "Feed",
     "Move",
@@ -59,6 +69,8 @@ __all__ = [
     "Schedule",
     "SizeLimit",
     "Window",
+    "axis_duration_bound",
+    "duration_bound",
     "move_blocks",
     "plan_axis",
     "plan_machine",
@@ -215,6 +227,8 @@ class AxisSummary(BaseModel):
     warmup_strokes: int
     repetitions: int
     both_directions: bool
+    order: Literal["velocity", "position"] = "velocity"
+    """The order of the runs (the machine file's ``measurement.order``)."""
     t_start_s: float
     duration_s: float
     full_travel_duration_s: float
@@ -357,37 +371,47 @@ def _geometry(v_mm_min: float, axis: AxisConfig, meas: Measurement) -> _RunGeome
     return _RunGeometry(runup, window, runout, lengths.ramp_time_s)
 
 
-def _run_time_s(geo: _RunGeometry, v_mm_min: float, axis: AxisConfig) -> tuple[float, float, float]:
-    """Times from the start of a run to window start, window end and stop."""
+def _run_time_s(
+    geo: _RunGeometry, v_mm_min: float, axis: AxisConfig, runout_um: int | None = None
+) -> tuple[float, float, float]:
+    """Times from the start of a run to window start, window end and stop.
+
+    ``runout_um``: a run-out longer than the geometry's, where the stop of the run is
+    the start of the next.
+    """
     # The whole run is one rest-to-rest move at feed v: the ramp takes ramp_time_s,
     # the rest of the run-up and run-out is covered at constant velocity.
     v_mm_s = v_mm_min / 60.0
     ramp_mm = ramp(v_mm_min, axis.max_acceleration_m_s2, axis.max_jerk_m_s3).distance_mm
     t_window_start = geo.ramp_time_s + (_mm(geo.runup_um) - ramp_mm) / v_mm_s
     t_window_end = t_window_start + _mm(geo.window_um) / v_mm_s
-    t_stop = t_window_end + (_mm(geo.runout_um) - ramp_mm) / v_mm_s + geo.ramp_time_s
+    runout_mm = _mm(geo.runout_um if runout_um is None else runout_um)
+    t_stop = t_window_end + (runout_mm - ramp_mm) / v_mm_s + geo.ramp_time_s
     return t_window_start, t_window_end, t_stop
 
 
 class _Clock:
     """Accumulates the expected program time while moves are appended."""
 
-    def __init__(self, axis: AxisConfig, start_s: float, position_mm: float) -> None:
+    def __init__(
+        self,
+        axis: AxisConfig,
+        start_s: float,
+        position_mm: float,
+        rapid_s: Callable[[int], float],
+    ) -> None:
         self.axis = axis
         self.t_s = start_s
         self.position_mm = position_mm
         self.moves: list[Move] = []
+        self._rapid_s = rapid_s
 
     def rapid(self, target_um: int) -> None:
         target = _mm(target_um)
         if target == self.position_mm:
             return
-        self.t_s += move_time_s(
-            target - self.position_mm,
-            self.axis.rapid_mm_min,
-            self.axis.max_acceleration_m_s2,
-            self.axis.max_jerk_m_s3,
-        )
+        # every position lies on the micrometre grid
+        self.t_s += self._rapid_s(round(abs(target - self.position_mm) * 1000.0))
         self.position_mm = target
         self.moves.append(Rapid(self.axis.name, target))
 
@@ -489,6 +513,154 @@ def _fitting_steps(axis: AxisConfig, meas: Measurement) -> _Steps:
     return _Steps(low_um, high_um, velocities, dropped, geometry, warnings)
 
 
+@dataclass(frozen=True)
+class _Visit:
+    """The runs at one measuring position and velocity step: one per measured direction."""
+
+    repetition: int
+    step: int
+    velocity_mm_min: float
+    index: int
+    """Index of the nominal position (ascending)."""
+    centre_um: int
+    """Window centre: the nominal position, moved inward where the run-up does not fit."""
+    geometry: _RunGeometry
+
+    def reach_um(self, both_directions: bool) -> tuple[int, int]:
+        """The stretch of travel its runs cover at their shortest: lowest start to highest stop."""
+        geo, half = self.geometry, self.geometry.window_um // 2
+        high = geo.runup_um if both_directions else geo.runout_um
+        return self.centre_um - half - geo.runup_um, self.centre_um + half + high
+
+
+def _visits(meas: Measurement, steps: _Steps, nominal: Sequence[int]) -> list[_Visit]:
+    """The visits of one axis, in the order ``meas.order`` asks for.
+
+    The positions are swept alternately upward and downward, each sweep starting
+    where the last one ended: in velocity order one sweep per velocity step, in
+    position order one sweep per repetition with every step, ascending, at each
+    position.
+    """
+
+    def visit(repetition: int, step: int, index: int) -> _Visit:
+        v = steps.velocities[step]
+        geo = steps.geometry[v]
+        half = geo.window_um // 2
+        reach = geo.runup_um if meas.both_directions else max(geo.runup_um, geo.runout_um)
+        c_min = steps.low_um + half + reach
+        c_max = steps.high_um - half - (geo.runup_um if meas.both_directions else geo.runout_um)
+        centre = min(max(nominal[index], c_min), c_max)
+        return _Visit(repetition, step, v, index, centre, geo)
+
+    upward = list(range(len(nominal)))
+    count = len(steps.velocities)
+    visits: list[_Visit] = []
+    sweeps = 0
+    for repetition in range(meas.repetitions):
+        if meas.order == "position":
+            for index in upward if repetition % 2 == 0 else upward[::-1]:
+                visits += [visit(repetition, step, index) for step in range(count)]
+            continue
+        for step in range(count):
+            sweep = upward if sweeps % 2 == 0 else upward[::-1]
+            sweeps += 1
+            visits += [visit(repetition, step, index) for index in sweep]
+    return visits
+
+
+@dataclass(frozen=True)
+class _RunSpec:
+    """One run of a visit, in µm, with its nearest stop (the run-out may reach further)."""
+
+    visit: _Visit
+    direction: Literal[1, -1]
+    start_um: int
+    window_start_um: int
+    window_end_um: int
+    stop_um: int
+
+
+def _run_spec(visit: _Visit, direction: Literal[1, -1]) -> _RunSpec:
+    geo, half = visit.geometry, visit.geometry.window_um // 2
+    w_start = visit.centre_um - direction * half
+    w_end = visit.centre_um + direction * half
+    return _RunSpec(
+        visit,
+        direction,
+        w_start - direction * geo.runup_um,
+        w_start,
+        w_end,
+        w_end + direction * geo.runout_um,
+    )
+
+
+class _Gaps:
+    """The time from where a run stops to where the next one starts.
+
+    Either a rapid, or, when the next run starts further along the way the run
+    went and drives back (a reversal, so the axis stops in between anyway), a
+    longer run-out at the run's feed, whichever is shorter: at high velocity the
+    stop of one run becomes the run-up of the next without a block in between.
+    """
+
+    def __init__(self, axis: AxisConfig) -> None:
+        self._rapid_s = functools.cache(
+            lambda distance_um: move_time_s(
+                _mm(distance_um),
+                axis.rapid_mm_min,
+                axis.max_acceleration_m_s2,
+                axis.max_jerk_m_s3,
+            )
+        )
+
+    def rapid_s(self, distance_um: int) -> float:
+        """A rest-to-rest rapid over ``distance_um``."""
+        return float(self._rapid_s(abs(distance_um)))
+
+    def cost(
+        self, run: _RunSpec | None, here_um: int, start_um: int, direction: int
+    ) -> tuple[float, bool]:
+        """Seconds from ``here_um`` (``run``'s stop, if any) to ``start_um``, and whether
+        ``run``'s run-out should reach on to it."""
+        rapid = self.rapid_s(start_um - here_um)
+        if run is None or direction != -run.direction:
+            return rapid, False
+        beyond_um = (start_um - run.stop_um) * run.direction
+        if beyond_um <= 0:
+            return rapid, False
+        longer = _mm(beyond_um) / (run.visit.velocity_mm_min / 60.0)
+        return (longer, True) if longer <= rapid else (rapid, False)
+
+
+def _runs(
+    visits: Sequence[_Visit], gaps: _Gaps, both_directions: bool, here_um: int
+) -> list[_RunSpec]:
+    """The runs of the visits, each visit's in the orientation whose first start is
+    reached soonest from where the last one stopped (positive run first on ties)."""
+    orientations: tuple[tuple[Literal[1, -1], ...], ...] = (
+        ((1, -1), (-1, 1)) if both_directions else ((1,),)
+    )
+    runs: list[_RunSpec] = []
+    previous: _RunSpec | None = None
+    for visit in visits:
+        best: list[_RunSpec] = []
+        best_s = math.inf
+        for directions in orientations:
+            chosen = [_run_spec(visit, d) for d in directions]
+            first = chosen[0]
+            reached_s = gaps.cost(previous, here_um, first.start_um, first.direction)[0]
+            if reached_s < best_s:
+                best, best_s = chosen, reached_s
+        runs += best
+        previous = best[-1]
+        here_um = previous.stop_um
+    return runs
+
+
+def _warmup_feed(meas: Measurement, axis: AxisConfig, velocities: Sequence[float]) -> float:
+    return _floor_feed(min(meas.warmup_velocity_mm_min or velocities[-1], axis.max_velocity_mm_min))
+
+
 def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> AxisPlan:
     """Plan the subprogram of one axis, starting at its park position at time ``start_s``.
 
@@ -503,14 +675,13 @@ def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> 
     available_um = high_um - low_um
     velocities, dropped, geometry = steps.velocities, steps.dropped, steps.geometry
     nominal = nominal_positions_um(meas, low_um, high_um)
-    directions: tuple[Literal[1, -1], ...] = (1, -1) if meas.both_directions else (1,)
 
     park_um = park_position_um(axis)
-    clock = _Clock(axis, start_s, _mm(park_um))
+    gaps = _Gaps(axis)
+    clock = _Clock(axis, start_s, _mm(park_um), gaps.rapid_s)
     clock.moves.append(Comment(f"measurement of axis {axis.name}"))
-    warm_feed = _floor_feed(
-        min(meas.warmup_velocity_mm_min or velocities[-1], axis.max_velocity_mm_min)
-    )
+    warm_feed = _warmup_feed(meas, axis, velocities)
+    here_um = park_um
     if meas.warmup_strokes:
         strokes = meas.warmup_strokes
         clock.moves.append(
@@ -520,60 +691,64 @@ def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> 
         for _ in range(meas.warmup_strokes):
             clock.feed(high_um, warm_feed)
             clock.feed(low_um, warm_feed)
+        here_um = low_um
 
+    runs = _runs(_visits(meas, steps, nominal), gaps, meas.both_directions, here_um)
     windows: list[Window] = []
     shifted: set[int] = set()
-    for repetition in range(meas.repetitions):
-        for step, v in enumerate(velocities):
-            geo = geometry[v]
-            half = geo.window_um // 2
-            reach = geo.runup_um if meas.both_directions else max(geo.runup_um, geo.runout_um)
-            c_min = low_um + half + reach
-            c_max = high_um - half - (geo.runup_um if meas.both_directions else geo.runout_um)
-            clock.moves.append(
-                Comment(f"repetition {repetition + 1}, step {step + 1}: {v:g} mm/min")
+    heading: tuple[int, int] | None = None
+    for number, run in enumerate(runs, start=1):
+        visit, direction = run.visit, run.direction
+        geo, v = visit.geometry, visit.velocity_mm_min
+        if visit.centre_um != nominal[visit.index]:
+            shifted.add(visit.index)
+        part = (visit.repetition, visit.index if meas.order == "position" else visit.step)
+        if part != heading:
+            heading = part
+            clock.moves.append(Comment(_heading(meas, visit, nominal)))
+        stop = run.stop_um
+        if number < len(runs):
+            following = runs[number]
+            if gaps.cost(run, stop, following.start_um, following.direction)[1]:
+                stop = following.start_um
+        clock.rapid(run.start_um)
+        clock.dwell(meas.dwell_s)
+        t0 = clock.t_s
+        t_ws, t_we, t_stop = _run_time_s(geo, v, axis, abs(stop - run.window_end_um))
+        clock.moves.append(
+            Run(
+                axis.name,
+                _mm(run.start_um),
+                _mm(run.window_start_um),
+                _mm(run.window_end_um),
+                _mm(stop),
+                v,
+                number,
             )
-            for direction in directions:
-                order = range(len(nominal)) if direction > 0 else reversed(range(len(nominal)))
-                for index in order:
-                    centre = min(max(nominal[index], c_min), c_max)
-                    if centre != nominal[index]:
-                        shifted.add(index)
-                    w_start = centre - direction * half
-                    w_end = centre + direction * half
-                    start = w_start - direction * geo.runup_um
-                    stop = w_end + direction * geo.runout_um
-                    clock.rapid(start)
-                    clock.dwell(meas.dwell_s)
-                    t0 = clock.t_s
-                    t_ws, t_we, t_stop = _run_time_s(geo, v, axis)
-                    number = len(windows) + 1
-                    clock.moves.append(
-                        Run(axis.name, _mm(start), _mm(w_start), _mm(w_end), _mm(stop), v, number)
-                    )
-                    clock.position_mm = _mm(stop)
-                    clock.t_s = t0 + t_stop
-                    windows.append(
-                        Window(
-                            id=number,
-                            axis=axis.name,
-                            repetition=repetition,
-                            step=step,
-                            velocity_mm_min=direction * v,
-                            direction=direction,
-                            position_index=index,
-                            nominal_position_mm=_mm(nominal[index]),
-                            position_mm=_mm(centre),
-                            start_mm=_mm(start),
-                            window_start_mm=_mm(w_start),
-                            window_end_mm=_mm(w_end),
-                            stop_mm=_mm(stop),
-                            t_start_s=round(t0, 4),
-                            t_window_start_s=round(t0 + t_ws, 4),
-                            t_window_end_s=round(t0 + t_we, 4),
-                            t_stop_s=round(t0 + t_stop, 4),
-                        )
-                    )
+        )
+        clock.position_mm = _mm(stop)
+        clock.t_s = t0 + t_stop
+        windows.append(
+            Window(
+                id=number,
+                axis=axis.name,
+                repetition=visit.repetition,
+                step=visit.step,
+                velocity_mm_min=direction * v,
+                direction=direction,
+                position_index=visit.index,
+                nominal_position_mm=_mm(nominal[visit.index]),
+                position_mm=_mm(visit.centre_um),
+                start_mm=_mm(run.start_um),
+                window_start_mm=_mm(run.window_start_um),
+                window_end_mm=_mm(run.window_end_um),
+                stop_mm=_mm(stop),
+                t_start_s=round(t0, 4),
+                t_window_start_s=round(t0 + t_ws, 4),
+                t_window_end_s=round(t0 + t_we, 4),
+                t_stop_s=round(t0 + t_stop, 4),
+            )
+        )
     clock.moves.append(Comment(f"axis {axis.name} back to its park position"))
     clock.rapid(park_um)
 
@@ -609,6 +784,7 @@ def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> 
         warmup_strokes=meas.warmup_strokes,
         repetitions=meas.repetitions,
         both_directions=meas.both_directions,
+        order=meas.order,
         t_start_s=round(start_s, 4),
         duration_s=round(clock.t_s - start_s, 3),
         full_travel_duration_s=round(full_s, 3),
@@ -617,6 +793,139 @@ def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> 
     )
     return AxisPlan(
         axis=axis, measurement=meas, moves=clock.moves, summary=summary, warnings=warnings
+    )
+
+
+def _heading(meas: Measurement, visit: _Visit, nominal: Sequence[int]) -> str:
+    """The comment before a velocity step's runs, or a position's."""
+    if meas.order == "position":
+        return (
+            f"repetition {visit.repetition + 1}, position {visit.index + 1}: "
+            f"{_mm(nominal[visit.index]):g} mm, every step"
+        )
+    step = visit.step + 1
+    return f"repetition {visit.repetition + 1}, step {step}: {visit.velocity_mm_min:g} mm/min"
+
+
+@dataclass(frozen=True)
+class AxisBound:
+    """The least time the measurement of one axis takes in its order, in parts (seconds)."""
+
+    axis: str
+    order: Literal["velocity", "position"]
+    warmup_s: float
+    """The warm-up strokes."""
+    runs_s: float
+    """Every run at its shortest: run-up, window, stop."""
+    reversals_s: float
+    """The turns between a visit's two runs (one run-up beyond the window end)."""
+    dwell_s: float
+    rapids_s: float
+    """The minimal rapids between the visits, to the first and back to park."""
+
+    @property
+    def total_s(self) -> float:
+        """The bound: warm-up, runs, reversals, dwells and the minimal rapids."""
+        return self.warmup_s + self.runs_s + self.reversals_s + self.dwell_s + self.rapids_s
+
+
+@dataclass(frozen=True)
+class DurationBound:
+    """The least time a machine's measurement program takes in its order (seconds)."""
+
+    parking_s: float
+    axes: tuple[AxisBound, ...]
+
+    @property
+    def total_s(self) -> float:
+        """Parking and every axis' bound: comparable with :attr:`Schedule.duration_s`."""
+        return self.parking_s + sum(axis.total_s for axis in self.axes)
+
+
+def axis_duration_bound(config: MachineConfig, axis: AxisConfig) -> AxisBound:
+    """The least time the measurement of ``axis`` can take in the order it is measured in.
+
+    The plan's own motion model (jerk-limited rest-to-rest moves at the axis'
+    limits), with nothing the order does not force:
+
+    * the warm-up strokes as planned;
+    * every run at its shortest: from rest over the run-up (ramp × dynamics_safety
+      + settle distance), the window and the stop (ramp × dynamics_safety) to rest;
+    * with both directions, the turn between a visit's two runs: the run that ends
+      at the window must go on to where the other's run-up begins (the settle distance
+      further than its stop), at its feed or in one rapid, whichever is shorter;
+    * the dwells the machine file asks for, one before each run;
+    * the *minimal rapids*. The order fixes which visit (a position at a velocity
+      step, with its run in each direction) follows which: in velocity order each
+      step sweeps the positions, alternately upward and downward; in position order
+      each position is visited once per repetition, with every step ascending. Between
+      two consecutive visits the axis must at least cross the gap between the stretches
+      of travel their runs cover; that gap costs the shorter of one rest-to-rest rapid
+      over it (rapid velocity, the axis' acceleration and jerk) and driving it at the
+      faster of the two visits' feeds; overlapping stretches cost nothing. Likewise
+      from the park position to the lower end of the usable travel where the warm-up
+      starts, from there (or from the park position) to the first visit, and from the
+      last visit back to park.
+
+    Nothing else: no other gap between runs, no rapid longer than the gap. Any plan of
+    the same visits therefore takes at least this long.
+    """
+    meas = config.measurement_for(axis)
+    steps = _fitting_steps(axis, meas)
+    nominal = nominal_positions_um(meas, steps.low_um, steps.high_um)
+    a, j = axis.max_acceleration_m_s2, axis.max_jerk_m_s3
+    park_um = park_position_um(axis)
+    gaps = _Gaps(axis)
+    here_um = park_um
+    warmup_s = rapids_s = 0.0
+    if meas.warmup_strokes:
+        warm_feed = _warmup_feed(meas, axis, steps.velocities)
+        stroke = _mm(steps.high_um - steps.low_um)
+        warmup_s = meas.warmup_strokes * 2 * move_time_s(stroke, warm_feed, a, j)
+        rapids_s = gaps.rapid_s(park_um - steps.low_um)
+        here_um = steps.low_um
+    directions = 2 if meas.both_directions else 1
+    visits = _visits(meas, steps, nominal)
+    runs_s = directions * sum(_run_time_s(v.geometry, v.velocity_mm_min, axis)[2] for v in visits)
+    reversals_s = 0.0
+    if meas.both_directions:
+        for visit in visits:
+            settle_um = visit.geometry.runup_um - visit.geometry.runout_um
+            at_feed_s = _mm(settle_um) / (visit.velocity_mm_min / 60.0)
+            reversals_s += min(at_feed_s, gaps.rapid_s(settle_um))
+    low, high = here_um, here_um
+    fastest = 0.0
+    for visit in visits:
+        v_low, v_high = visit.reach_um(meas.both_directions)
+        gap_um = max(v_low - high, low - v_high, 0)
+        if gap_um:
+            feed = max(fastest, visit.velocity_mm_min) / 60.0
+            rapid = gaps.rapid_s(gap_um)
+            rapids_s += min(rapid, _mm(gap_um) / feed) if fastest else rapid
+        low, high, fastest = v_low, v_high, visit.velocity_mm_min
+    rapids_s += gaps.rapid_s(max(park_um - high, low - park_um, 0))
+    return AxisBound(
+        axis=axis.name,
+        order=meas.order,
+        warmup_s=warmup_s,
+        runs_s=runs_s,
+        reversals_s=reversals_s,
+        dwell_s=directions * len(visits) * round(meas.dwell_s, 3),
+        rapids_s=rapids_s,
+    )
+
+
+def duration_bound(config: MachineConfig) -> DurationBound:
+    """The least time the whole program takes: parking as planned, then every axis'
+    :func:`axis_duration_bound`.
+
+    Raises:
+        PlanError: as :func:`plan_machine` (a step that does not fit).
+    """
+    parking_s = sum(park_time_s(axis) for axis in config.park_sequence())
+    return DurationBound(
+        parking_s=parking_s,
+        axes=tuple(axis_duration_bound(config, axis) for axis in config.measure_sequence()),
     )
 
 

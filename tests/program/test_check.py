@@ -55,6 +55,21 @@ def test_generated_programs_pass_the_check(dialect: str, make_config: Make, tmp_
 
 
 @pytest.mark.parametrize("dialect", DIALECTS)
+def test_position_order_programs_pass_the_check(
+    dialect: str, make_config: Make, tmp_path: Path
+) -> None:
+    """Every dialect writes the position-by-position order; the check holds it to limits
+    and schedule like the default order."""
+    config = make_config(dialect, small=True, order="position", repetitions=2)
+    result = generate_programs(config, generated=FIXED_TIME)
+    assert all(axis.order == "position" for axis in result.schedule.axes)
+    result.write(tmp_path / "out")
+    report = check_programs(tmp_path / "out")
+    assert report.ok
+    assert report.windows_found == report.windows_expected == 3 * 4 * 3 * 2 * 2
+
+
+@pytest.mark.parametrize("dialect", DIALECTS)
 def test_a_position_beyond_the_soft_limit_is_caught(
     dialect: str, make_config: Make, tmp_path: Path
 ) -> None:

@@ -161,6 +161,7 @@ def machine_files(draw: st.DrawFn) -> dict[str, Any]:
         "window_samples": mostly(st.integers(10, 200), st.integers(-1, 2_000_000)),
         "sample_period_ms": mostly(st.sampled_from([1.0, 2.0, 4.0]), log_floats(1e-3, 1e4)),
         "dynamics_safety": mostly(st.floats(1, 3), st.floats(0, 20)),
+        "order": mostly(st.sampled_from(["velocity", "position"]), st.sampled_from(["pos", 1])),
     }
     for key, strategy in optional.items():
         if draw(st.integers(0, 3)) == 0:

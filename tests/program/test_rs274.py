@@ -57,6 +57,16 @@ def test_linuxcnc_output_runs_in_rs274(
     assert_reader_agrees(moves, tmp_path, result, result.main_file)
 
 
+def test_position_order_runs_in_rs274(
+    make_config: Callable[..., MachineConfig], tmp_path: Path
+) -> None:
+    result = generate_programs(make_config("linuxcnc", order="position"), generated=FIXED_TIME)
+    result.write(tmp_path)
+    moves = run_rs274(tmp_path, result.main_file)
+    check_against_schedule(moves, result.schedule, markers=True)
+    assert_reader_agrees(moves, tmp_path, result, result.main_file)
+
+
 def test_fanuc_output_runs_in_rs274_fanuc_style(
     make_config: Callable[..., MachineConfig], tmp_path: Path
 ) -> None:

@@ -251,7 +251,7 @@ def test_rendering_streams_to_the_files(tmp_path: Path, monkeypatch: pytest.Monk
     written = sum(
         p.stat().st_size for p in (tmp_path / "out").iterdir() if p.name != "schedule.json"
     )
-    assert written > 2_000_000
+    assert written > 1_500_000  # a few MB: about 60 bytes per block
     # held in memory, the text alone would take its size (and again encoded);
     # streamed, the rendering needs a fixed few hundred kB whatever the size
     assert peaks[1] - peaks[0] < written / 4, (peaks, written)

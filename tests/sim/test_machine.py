@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import pickle
 import tomllib
 from pathlib import Path
@@ -202,3 +203,50 @@ def test_a_program_for_an_axis_the_machine_lacks_is_refused(tmp_path: Path) -> N
     only_x = config.model_copy(update={"axes": [config.axes[0]]})
     with pytest.raises(ProgramError, match=r"friction\.ngc:\d+: moves axis Z, which the machine"):
         VirtualMachine.from_programs(only_x, folder)
+
+
+def test_position_order_is_found_by_the_analysis(tmp_path: Path) -> None:
+    """The demo machine measured position by position: the virtual machine runs the
+    programs, its signals become a recording, and the analysis finds every window, one
+    per position, direction and velocity step, and the model's friction in them."""
+    from ncmeasure.analysis.analyze import analyze
+    from ncmeasure.demo import accuracy
+    from ncmeasure.recording import Recording, RecordingWriter
+
+    data = tomllib.loads(demo_machine("linuxcnc", "canopen"))
+    data["measurement"]["order"] = "position"
+    config = parse_machine(data)
+    generated = generate_programs(config)
+    folder = tmp_path / "programs"
+    generated.write(folder)
+    schedule = generated.schedule
+    vm = VirtualMachine.from_programs(config, folder)
+    run = vm.run()
+    # the machine drives the windows position by position
+    for axis in schedule.axes:
+        by_id = {w.id: w for w in axis.windows}
+        spans = [by_id[round(s.marker)] for s in run.spans if s.axis == axis.name]
+        assert len(spans) == len(axis.windows)
+        visited = [p for p, _ in itertools.groupby(w.position_index for w in spans)]
+        assert visited == list(range(5))
+    channels, block = run.sample(0.004)
+    with RecordingWriter.create(
+        tmp_path / "recording", channels, nominal_period_s=0.004, machine=config
+    ) as writer:
+        writer.append(block)
+    results = analyze(Recording.open(tmp_path / "recording"), schedule=schedule, machine=config)
+    steps = 8
+    for name, axis in results.axes.items():
+        assert axis.window_source == "marker"
+        assert axis.windows == 5 * steps * 2, name
+        assert [p.position_index for p in axis.positions] == [0, 1, 2, 3, 4]
+        for position in axis.positions:
+            for direction in ("positive", "negative"):
+                found = position.directions[direction]
+                assert found is not None, (name, position.position_index, direction)
+                assert sorted(p.step for p in found.points) == list(range(steps))
+                assert all(p.windows == 1 for p in found.points)
+    for name, found in accuracy(results, vm).items():
+        assert found.points == 5 * steps * 2, name
+        assert abs(found.median_error_percent) <= 1.5, found
+        assert found.max_error_percent <= 10.0, found

@@ -1,9 +1,10 @@
 """Synthetic recordings with known friction, for tests and benchmarks of the analysis.
 
 A :class:`SyntheticAxis` describes an axis and its friction; :func:`simulate`
-drives it through a measurement program of its own (the same shape as
-:mod:`ncmeasure.plan` plans: at every velocity step the axis sweeps the
-positions forward in positive direction and back in negative direction) and
+drives it through a measurement program of its own (velocity by velocity, as
+:mod:`ncmeasure.plan` plans by default, but simpler: at every velocity step the
+axis sweeps the positions forward in positive direction and back in negative
+direction) and
 returns the signals a drive would report. :func:`synthetic_recording` writes
 them as a real recording with :class:`~ncmeasure.recording.RecordingWriter`
 and returns the matching :class:`~ncmeasure.plan.Schedule`.

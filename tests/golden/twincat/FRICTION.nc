@@ -1,6 +1,6 @@
 (ncmeasure friction measurement: main program FRICTION)
 (machine: HMX-400 #17)
-(generated 2026-01-15 08:30 UTC by ncmeasure 0.1.0, config 9eaf21e01f1de7d7)
+(generated 2026-01-15 08:30 UTC by ncmeasure 0.1.0, config 0794808c01591efa)
 G17 G71 G90 G94
 (park every axis, one at a time)
 G00 Z-5.000
