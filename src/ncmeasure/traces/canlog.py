@@ -25,7 +25,7 @@ import can
 from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.links import make_link
 from ncmeasure.links.canopen.link import CanOpenLink
-from ncmeasure.recording import Recording
+from ncmeasure.recording import RecordingMeta
 from ncmeasure.traces._common import ImportJob
 
 __all__ = ["CAN_LOG_SUFFIXES", "import_can_log", "is_can_log"]
@@ -66,7 +66,7 @@ def _frames(job: ImportJob, counts: dict[str, int]) -> Iterator[can.Message]:
             stop()
 
 
-def import_can_log(job: ImportJob) -> Recording:
+def import_can_log(job: ImportJob) -> RecordingMeta:
     """Decode the CAN log of ``job`` with its machine file's CANopen link settings.
 
     Raises:
