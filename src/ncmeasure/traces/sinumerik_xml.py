@@ -320,7 +320,7 @@ class _CountingReader:
         self._reported = 0
 
     def read(self, size: int = -1) -> bytes:
-        data = self._file.read(size if size and size > 0 else _READ_BYTES)
+        data = self._file.read(min(size, _READ_BYTES) if size and size > 0 else _READ_BYTES)
         self.bytes_read += len(data)
         if self.bytes_read - self._reported >= PROGRESS_STEP_BYTES or not data:
             self._job.tick(self.bytes_read)
