@@ -293,9 +293,10 @@ FORMATS: Final[dict[str, tuple[str, Callable[[Path, int], None], tuple[str, ...]
 
 def _run(source: Path, fmt: str, extra: tuple[str, ...], work: Path) -> dict[str, float]:
     """One ``ncmeasure import`` in a fresh interpreter: its peak RSS and time."""
-    output = work / "recording"
+    # named after this process: two runs may share the inputs' folder
+    output = work / f"recording-{os.getpid()}"
     shutil.rmtree(output, ignore_errors=True)
-    result = work / "child.json"
+    result = work / f"child-{os.getpid()}.json"
     command = [sys.executable, "-c", _CHILD, str(result), "import", str(source)]
     command += ["-o", str(output), "-q", "--format", fmt, *extra]
     done = subprocess.run(command, capture_output=True, text=True, check=False)
