@@ -65,7 +65,7 @@ def test_tiny_chunks_give_the_same_recording(
     assert tiny.meta.samples == len(normal.recording) > 0
 
 
-def _multirate_twincat(rows: int, bad_row: int | None = None) -> str:
+def _multirate_twincat(rows: int, bad_row: int | None = None, position_rows: int = 0) -> str:
     """X_current_a at 1 ms, X.ActPos at 2 ms ending after half the rows, tab, decimal comma."""
     lines = [
         "Name\tmany",
@@ -76,7 +76,8 @@ def _multirate_twincat(rows: int, bad_row: int | None = None) -> str:
         "",
     ]
     for k in range(rows):
-        position = f"{2 * k}\t{k / 8:.3f}".replace(".", ",") if k < rows // 2 else " \t "
+        ended = k >= (position_rows or rows // 2)
+        position = " \t " if ended else f"{2 * k}\t{k / 8:.3f}".replace(".", ",")
         current = f"{(k % 7) / 4:.2f}".replace(".", ",")
         lines.append(f"{k}\t{current}\t{position}")
     if bad_row is not None:
@@ -112,6 +113,21 @@ class _ListSink:
 
     def append(self, time_s: np.ndarray, values: np.ndarray) -> None:
         self.written.append((time_s.copy(), values.copy()))
+
+
+def test_a_channel_still_waiting_on_disk_at_the_end_is_read_back(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "ahead.csv"
+    path.write_text(_multirate_twincat(300, position_rows=300), encoding="utf-8")
+    normal = import_trace(path, tmp_path / "normal")
+    monkeypatch.setattr(_common, "CHUNK_ROWS", 50)
+    monkeypatch.setattr(_common, "MERGE_ROWS", 4)
+    monkeypatch.setattr(_common, "SPILL_ROWS", 5)
+    tiny = import_trace(path, tmp_path / "tiny")
+    assert tiny.report == normal.report
+    assert _summary(tiny.recording) == _summary(normal.recording)
+    assert "150 trailing row(s) dropped: a channel ends at t = 0.299 s" in normal.report
 
 
 def test_series_merge_equals_merge_series_on_random_timelines(tmp_path: Path) -> None:

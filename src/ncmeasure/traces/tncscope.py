@@ -316,8 +316,9 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
                 f"(COUNT up to {longest}); the file is cut short"
             )
         hand_over()
-    finally:
-        merge.close()
+    except BaseException:
+        merge.close()  # on success, finish() closes it after the last rows
+        raise
     if rows > longest:
         job.note(f"{rows - longest} row(s) after the longest curve ignored")
     if decimal == ",":

@@ -394,8 +394,9 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
         if first_row:
             raise RecordingError(f"{job.path}: no data rows after the header")
         hand_over()
-    finally:
-        merge.close()
+    except BaseException:
+        merge.close()  # on success, finish() closes it after the last rows
+        raise
     if full_timestamp:
         job.note("times are FILETIME stamps (Full Timestamp); converted to s from the export start")
     if decimal == ",":
