@@ -977,6 +977,7 @@ def import_command(
     ):
         recording = import_mdf4(file, output, machine=config)
         report = list(recording.meta.link.get("report", []))
+        samples, channels = len(recording.time_s), len(recording.channels)
     else:
         bar = (
             None
@@ -1010,13 +1011,13 @@ def import_command(
         finally:
             if bar is not None:
                 bar.stop()
-        recording, report = result.recording, result.report
+        # the counts from meta.json: reading a large recording back would cost its size in memory
+        report, samples = result.report, result.meta.samples or 0
+        channels = len(result.meta.channels)
     if not quiet:
         for line in report:
             _console(stderr=True).print(f"  {line}")
-    _console().print(
-        f"wrote {output} ({len(recording.time_s)} samples, {len(recording.channels)} channels)"
-    )
+    _console().print(f"wrote {output} ({samples} samples, {channels} channels)")
 
 
 @app.command("simulate-drive")

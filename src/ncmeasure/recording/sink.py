@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import IO, Any, Final
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,6 +24,7 @@ from ncmeasure.recording.format import (
     MAX_FLUSH_INTERVAL_S,
     META_FILE,
     SAMPLES_FILE,
+    RecordingMeta,
     RecordingStatus,
     machine_axis,
 )
@@ -32,6 +34,89 @@ from ncmeasure.samples import Channel, SampleBlock
 from ncmeasure.validity import Implausible
 
 log = logging.getLogger(__name__)
+
+#: Time steps read back at a time when their median is selected.
+_STEP_READ: Final = 1 << 20
+#: Bits of the step's sort key per counting pass (3 passes cover 64 bits).
+_DIGIT_BITS: Final = (22, 21, 21)
+
+
+class StepMedian:
+    """The exact median of the time steps of all rows, in memory that does not grow with them.
+
+    The steps go to an unnamed temporary file as float64; :meth:`median` selects
+    the middle one (the mean of the two middle ones for an even count, as
+    ``numpy.median``) by counting the bits of their sort keys, 22 bits a pass,
+    so it reads the file a few times and holds one block and one table of
+    counts. The result is bit for bit ``numpy.median(numpy.diff(all times))``.
+    """
+
+    def __init__(self) -> None:
+        self._file: IO[bytes] | None = None
+        self._last: float | None = None
+        self.count = 0
+
+    def add(self, time_s: NDArray[np.float64]) -> None:
+        """Add the next rows' times (later than the ones before)."""
+        if len(time_s) == 0:
+            return
+        times = np.asarray(time_s, dtype=np.float64)
+        steps = np.diff(times) if self._last is None else np.diff(times, prepend=self._last)
+        self._last = float(times[-1])
+        if len(steps) == 0:
+            return
+        if self._file is None:
+            # closed in close(), which finish and discard call
+            self._file = tempfile.TemporaryFile(prefix="ncmeasure-steps-")  # noqa: SIM115
+        self._file.write(np.ascontiguousarray(steps, dtype="<f8").tobytes())
+        self.count += len(steps)
+
+    def close(self) -> None:
+        """Remove the temporary file."""
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    def median(self) -> float | None:
+        """The median step; None before two rows."""
+        if not self.count:
+            return None
+        middle = self.count // 2
+        upper = self._select(middle)
+        if self.count % 2:
+            return upper
+        lower = self._select(middle - 1)
+        return float(np.mean(np.array([lower, upper], dtype=np.float64)))
+
+    def _blocks(self) -> Any:
+        assert self._file is not None
+        self._file.seek(0)
+        while data := self._file.read(_STEP_READ * 8):
+            steps = np.frombuffer(data, dtype="<f8")
+            # an order-keeping key: sign bit flipped for positive numbers, all bits for negative
+            bits = steps.view(np.uint64)
+            yield np.where(bits >> np.uint64(63), ~bits, bits | np.uint64(1 << 63))
+
+    def _select(self, rank: int) -> float:
+        """The step of rank ``rank`` (0 = smallest)."""
+        prefix = np.uint64(0)
+        known_bits = 0
+        for width in _DIGIT_BITS:
+            shift = np.uint64(64 - known_bits - width)
+            counts = np.zeros(1 << width, dtype=np.int64)
+            for keys in self._blocks():
+                if known_bits:
+                    keys = keys[(keys >> np.uint64(64 - known_bits)) == prefix]
+                digits = (keys >> shift) & np.uint64((1 << width) - 1)
+                counts += np.bincount(digits.astype(np.int64), minlength=1 << width)
+            cumulative = np.cumsum(counts)
+            digit = int(np.searchsorted(cumulative, rank, side="right"))
+            rank -= int(cumulative[digit - 1]) if digit else 0
+            prefix = (prefix << np.uint64(width)) | np.uint64(digit)
+            known_bits += width
+        key = np.array([prefix], dtype=np.uint64)
+        bits = np.where(key >> np.uint64(63), key & ~np.uint64(1 << 63), ~key)
+        return float(bits.view(np.float64)[0])
 
 
 def check_times(
@@ -71,8 +156,9 @@ class ImportSink:
     Until then the sample period may still be unknown: the recording is
     created once two rows show a time step, with the median step of the rows
     so far, and closed with the median step of all rows. Rows go to disk
-    chunk by chunk, so an import keeps at most one chunk in memory (and the
-    times, for the period). An import that fails calls :meth:`discard`, which
+    chunk by chunk, so an import keeps at most one chunk in memory; the time
+    steps, for the period, wait in a temporary file (:class:`StepMedian`).
+    An import that fails calls :meth:`discard`, which
     removes what it wrote (never anything that was there before), so it can be
     retried into the same directory.
 
@@ -120,7 +206,7 @@ class ImportSink:
                     "max_velocity_mm_min": axis.max_velocity_mm_min,
                 }
         self.validity = Implausible.for_channels({c.name: c.signal for c in self.channels}, facts)
-        self._times: list[NDArray[np.float64]] = []
+        self._steps = StepMedian()
         self._pending: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
 
     def append(self, time_s: NDArray[np.float64], values: NDArray[np.float64]) -> None:
@@ -137,7 +223,7 @@ class ImportSink:
                     values, copied = values.copy(), True
                 values[:, column] = cleaned
         self.rows += len(time_s)
-        self._times.append(np.array(time_s, dtype=np.float64))
+        self._steps.add(time_s)
         if self.writer is None:
             self._pending.append((time_s, values))
             if self.rows < 2 and self.nominal_period_s is None:
@@ -178,6 +264,18 @@ class ImportSink:
         Raises:
             RecordingError: no rows, or a single row and no sample period.
         """
+        self.close(status, **updates)
+        return Recording.open(self.directory)
+
+    def close(self, status: RecordingStatus = "complete", **updates: Any) -> RecordingMeta:
+        """Close the recording with ``status`` (and metadata ``updates``), without reading it back.
+
+        Returns:
+            Its ``meta.json`` as written.
+
+        Raises:
+            RecordingError: no rows, or a single row and no sample period.
+        """
         if self.writer is None and not self._pending:
             raise RecordingError(f"{self.directory}: {self.what} holds no complete sample")
         writer = self.ensure_writer()
@@ -190,9 +288,10 @@ class ImportSink:
             link["report"] = report + [line for line in lines if line not in report]
             link["implausible"] = dict(self.validity.counts)
             updates["link"] = link
+        self._steps.close()
         writer.close(status, **updates)
         log.info("imported into %s: %d samples", self.directory, writer.rows_written)
-        return Recording.open(self.directory)
+        return writer.meta
 
     def validity_lines(self) -> list[str]:
         """One sentence per channel whose values were left out as not physically possible."""
@@ -200,6 +299,7 @@ class ImportSink:
 
     def discard(self) -> None:
         """Remove the files this import wrote and, if the import made it, the directory."""
+        self._steps.close()
         if self.writer is None:
             return
         with contextlib.suppress(RecordingError):
@@ -212,10 +312,10 @@ class ImportSink:
                 self.directory.rmdir()
 
     def _median_step_s(self) -> float:
-        times = np.concatenate(self._times) if self._times else np.empty(0)
-        if len(times) < 2:
+        median = self._steps.median()
+        if median is None:
             raise RecordingError(
                 f"{self.directory}: {self.what} holds a single sample and no sample period; "
                 "a recording needs at least two (or pass nominal_period_s)"
             )
-        return float(np.median(np.diff(times)))
+        return median

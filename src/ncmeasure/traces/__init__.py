@@ -46,7 +46,7 @@ from typing import Final
 
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
-from ncmeasure.recording import Recording
+from ncmeasure.recording import RecordingMeta
 from ncmeasure.traces._common import (
     ImportJob,
     ProgressFn,
@@ -57,7 +57,7 @@ from ncmeasure.traces._common import (
 )
 from ncmeasure.traces.canlog import import_can_log, is_can_log
 from ncmeasure.traces.columns import ColumnMap, import_columns, load_column_map
-from ncmeasure.traces.csv import import_csv
+from ncmeasure.traces.csv import import_csv_meta
 from ncmeasure.traces.sinumerik_csv import import_sinumerik_csv
 from ncmeasure.traces.sinumerik_xml import import_sinumerik_xml
 from ncmeasure.traces.tncscope import import_tncscope
@@ -78,7 +78,7 @@ log = logging.getLogger(__name__)
 #: The trace formats :func:`import_trace` reads.
 FORMATS: Final = ("sinumerik-xml", "sinumerik-csv", "twincat-csv", "tncscope", "csv", "can-log")
 
-_IMPORTERS: Final[Mapping[str, Callable[[ImportJob], Recording]]] = {
+_IMPORTERS: Final[Mapping[str, Callable[[ImportJob], RecordingMeta]]] = {
     "sinumerik-xml": import_sinumerik_xml,
     "sinumerik-csv": import_sinumerik_csv,
     "twincat-csv": import_twincat_csv,
@@ -231,12 +231,12 @@ def _import_recording_csv(
             "(rename the columns instead)"
         )
     total = source.stat().st_size
-    recording = import_csv(source, target, machine=machine)
+    meta = import_csv_meta(source, target, machine=machine)
     if progress is not None:
         progress(total, total)
     report = [
         f"{c.name} [{c.unit}]: from column {c.name} (ncmeasure CSV, no conversion)"
-        for c in recording.channels
+        for c in (m.to_channel() for m in meta.channels)
     ]
-    report.extend(recording.meta.link.get("report", []))
-    return TraceImport(recording, report)
+    report.extend(meta.link.get("report", []))
+    return TraceImport(target, meta, report)

@@ -9,8 +9,10 @@ building rows exist, matching the two ways controllers write traces:
 * :class:`CarryForward` for record-oriented traces (Sinumerik) where a record
   holds only the signals sampled at that instant and the others keep their
   last value;
-* :func:`merge_series` for column-oriented traces (TwinCAT Scope, TNCscope)
-  where every channel has its own timeline, merged on the union of the times.
+* :class:`SeriesMerge` for column-oriented traces (TwinCAT Scope, TNCscope)
+  where every channel has its own timeline, merged on the union of the times
+  as the samples arrive (:func:`merge_series` is the same merge over whole
+  arrays, its definition).
 
 A failed import removes everything it wrote (:meth:`~ncmeasure.recording.ImportSink.discard`).
 """
@@ -19,9 +21,11 @@ from __future__ import annotations
 
 import csv
 import datetime as dt
+import functools
 import logging
 import math
 import re
+import tempfile
 from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,12 +36,14 @@ from numpy.typing import NDArray
 
 from ncmeasure.config import AXIS_NAME_PATTERN, MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
-from ncmeasure.recording import ImportSink, Recording, machine_axis
+from ncmeasure.recording import ImportSink, Recording, RecordingMeta, machine_axis
 from ncmeasure.samples import SIGNAL_UNITS, Channel
 
 __all__ = [
     "CHUNK_ROWS",
     "INVALID_ABOVE",
+    "MERGE_ROWS",
+    "SPILL_ROWS",
     "Candidate",
     "CarryForward",
     "ImportJob",
@@ -45,6 +51,7 @@ __all__ = [
     "Needs",
     "ProgressFn",
     "Series",
+    "SeriesMerge",
     "TextLines",
     "TraceImport",
     "check_source",
@@ -72,6 +79,10 @@ ProgressFn = Callable[[int, int], None]
 INVALID_ABOVE: Final = 9.218868437227405e18
 #: Rows handed to the recording at a time: bounds the memory of a streaming import.
 CHUNK_ROWS: Final = 8192
+#: Rows merged at a time from column-oriented traces (:class:`SeriesMerge`).
+MERGE_ROWS: Final = 1 << 16
+#: Samples of a channel that runs ahead of the others kept in memory; more wait on disk.
+SPILL_ROWS: Final = 1 << 16
 #: Bytes read before the progress callback is called again.
 PROGRESS_STEP_BYTES: Final = 1 << 20
 _SNIFF_BYTES: Final = 1 << 16
@@ -83,14 +94,21 @@ class TraceImport:
     """The result of an import: the new recording and what happened on the way.
 
     Attributes:
-        recording: The recording, read back from disk.
+        directory: The new recording's directory.
+        meta: Its ``meta.json`` (channels, number of samples, period, report).
         report: One sentence per fact: which trace signal became which
             channel (with unit conversions), what was not imported and why,
             invalid samples, dropped rows.
     """
 
-    recording: Recording
+    directory: Path
+    meta: RecordingMeta
     report: list[str]
+
+    @functools.cached_property
+    def recording(self) -> Recording:
+        """The recording, read from disk on first use (an import itself never holds it whole)."""
+        return Recording.open(self.directory)
 
 
 def is_invalid(value: float) -> bool:
@@ -289,16 +307,16 @@ class ImportJob:
         )
         return self.sink
 
-    def finish(self) -> Recording:
-        """Close the recording with the complete report and read it back."""
+    def finish(self) -> RecordingMeta:
+        """Close the recording with the complete report (it is not read back)."""
         if self.sink is None:
             raise RecordingError(f"{self.path}: no samples to import")
         for line in self.sink.validity_lines():
             self.note(line)
         self.link["report"] = list(self.report)
-        recording = self.sink.finish("complete", link=dict(self.link))
+        meta = self.sink.close("complete", link=dict(self.link))
         self.tick(self.total_bytes)  # the whole file is done, even if an end marker stopped reading
-        return recording
+        return meta
 
     def discard(self) -> None:
         """Remove what this import wrote."""
@@ -314,7 +332,7 @@ def check_source(path: Path) -> None:
         raise RecordingError(f"{path}: no such file")
 
 
-def run_import(job: ImportJob, read: Callable[[ImportJob], Recording]) -> TraceImport:
+def run_import(job: ImportJob, read: Callable[[ImportJob], RecordingMeta]) -> TraceImport:
     """Run an importer on ``job``; on any failure remove what it wrote.
 
     Returns:
@@ -325,7 +343,7 @@ def run_import(job: ImportJob, read: Callable[[ImportJob], Recording]) -> TraceI
             (not text, cannot be read) turned into one.
     """
     try:
-        recording = read(job)
+        meta = read(job)
     except BaseException as exc:
         job.discard()
         if isinstance(exc, UnicodeDecodeError):
@@ -340,9 +358,9 @@ def run_import(job: ImportJob, read: Callable[[ImportJob], Recording]) -> TraceI
         job.path,
         job.format_name,
         job.directory,
-        len(recording),
+        meta.samples,
     )
-    return TraceImport(recording, job.report)
+    return TraceImport(job.directory, meta, job.report)
 
 
 def check_target(directory: Path) -> None:
@@ -644,12 +662,12 @@ class CarryForward:
         sink: ImportSink,
         names: Sequence[str],
         factors: Sequence[float],
-        chunk_rows: int = CHUNK_ROWS,
+        chunk_rows: int | None = None,
     ) -> None:
         self._sink = sink
         self.names = list(names)
         self._factors = list(factors)
-        self._chunk_rows = chunk_rows
+        self._chunk_rows = chunk_rows or CHUNK_ROWS  # read now: tests make it small
         self._current = [math.nan] * len(names)
         self._seen = [False] * len(names)
         self._unseen = len(names)
@@ -788,6 +806,213 @@ def merge_series(
     if after:
         job.note(f"{after} trailing row(s) dropped: a channel ends at t = {end:g} s")
     return times, values
+
+
+class _SampleQueue:
+    """One channel's samples waiting to be merged, oldest first; beyond a bound, on disk.
+
+    A channel of a column-oriented trace can run ahead of the others in the
+    file (a 2 ms channel beside 1 ms channels gets twice the time per row), so
+    its samples wait until the others catch up: up to ``spill_rows`` in
+    memory, the older ones in an unnamed temporary file, read back in order.
+    """
+
+    def __init__(self, spill_rows: int) -> None:
+        self._spill_rows = spill_rows
+        self._front = np.empty((0, 2), dtype=np.float64)  # the oldest, ready to be read
+        self._file: BinaryIO | None = None
+        self._file_rows = 0  # rows in the file not read back yet
+        self._read_at = 0
+        self._back: list[NDArray[np.float64]] = []  # the newest, after the file's
+        self._back_rows = 0
+
+    def __len__(self) -> int:
+        return len(self._front) + self._file_rows + self._back_rows
+
+    def push(self, time_s: NDArray[np.float64], values: NDArray[np.float64]) -> None:
+        """Add samples later than every sample queued before."""
+        self._back.append(np.column_stack([time_s, values]))
+        self._back_rows += len(time_s)
+        if self._back_rows > self._spill_rows:
+            if self._file is None:
+                self._file = tempfile.TemporaryFile(prefix="ncmeasure-merge-")  # noqa: SIM115
+            self._file.seek(0, 2)
+            for block in self._back:
+                self._file.write(np.ascontiguousarray(block).tobytes())
+            self._file_rows += self._back_rows
+            self._back, self._back_rows = [], 0
+
+    def peek(self, limit: int) -> NDArray[np.float64]:
+        """Up to ``limit`` of the oldest samples (rows of time, value), left in the queue."""
+        parts = [self._front]
+        have = len(self._front)
+        if have < limit and self._file_rows:
+            assert self._file is not None
+            count = min(limit - have, self._file_rows)
+            self._file.seek(self._read_at)
+            data = self._file.read(count * 16)
+            parts.append(np.frombuffer(data, dtype=np.float64).reshape(count, 2))
+            self._read_at += count * 16
+            self._file_rows -= count
+            have += count
+            if not self._file_rows:  # all read back: the file starts again from empty
+                self._file.seek(0)
+                self._file.truncate()
+                self._read_at = 0
+        if have < limit and not self._file_rows and self._back:
+            parts.extend(self._back)
+            self._back, self._back_rows = [], 0
+        if len(parts) > 1:
+            self._front = np.concatenate(parts)
+        return self._front[:limit]
+
+    def consume(self, count: int) -> None:
+        """Drop the ``count`` oldest samples (after :meth:`peek`)."""
+        self._front = self._front[count:]
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+
+class SeriesMerge:
+    """:func:`merge_series` as a stream: samples go in channel by channel, rows come out.
+
+    Channels hand over their samples (times strictly increasing per channel)
+    in any portions; a row at a time of the union is written once every
+    channel has reached that time, so a channel ahead waits (on disk beyond
+    ``spill_rows``) and memory stays bounded by the portions. The rows, the
+    values and the report sentences are exactly those of :func:`merge_series`
+    over all samples at once; :meth:`finish` adds the sentences.
+    """
+
+    def __init__(
+        self,
+        sink: ImportSink,
+        names: Sequence[str],
+        factors: Sequence[float],
+        *,
+        batch_rows: int,
+        spill_rows: int,
+    ) -> None:
+        self._sink = sink
+        self.names = list(names)
+        self._factors = list(factors)
+        self._batch_rows = batch_rows
+        self._queues = [_SampleQueue(spill_rows) for _ in names]
+        self._first = [math.nan] * len(names)
+        self._latest = [-math.inf] * len(names)
+        self._samples = [0] * len(names)
+        self._carry = [math.nan] * len(names)
+        self._invalid = [0] * len(names)
+        self._first_invalid_s = [math.nan] * len(names)
+        self._waiting = len(names)  # channels without a sample yet
+        self._start = math.nan
+        self.rows = 0
+        self._union = 0
+        self._before = 0
+
+    def add(self, column: int, time_s: NDArray[np.float64], raw: NDArray[np.float64]) -> None:
+        """Hand over samples of a channel, in the trace's unit (later than its samples before)."""
+        if len(time_s) == 0:
+            return
+        raw = np.asarray(raw, dtype=np.float64)
+        bad = ~np.isfinite(raw) | (np.abs(raw) >= INVALID_ABOVE)
+        values = raw * self._factors[column]
+        if bad.any():
+            if not self._invalid[column]:
+                self._first_invalid_s[column] = float(time_s[int(np.flatnonzero(bad)[0])])
+            self._invalid[column] += int(bad.sum())
+            values[bad] = np.nan
+        if not self._samples[column]:
+            self._first[column] = float(time_s[0])
+            self._waiting -= 1
+            if not self._waiting:
+                self._start = max(self._first)
+        self._samples[column] += len(time_s)
+        self._latest[column] = float(time_s[-1])
+        self._queues[column].push(np.asarray(time_s, dtype=np.float64), values)
+
+    def flush(self) -> None:
+        """Write the rows up to the time that every channel has reached."""
+        if not self._waiting:
+            self._drain(min(self._latest), write=True)
+
+    def finish(self, job: ImportJob) -> None:
+        """Write the last rows, drop those after the first channel's end, report.
+
+        Raises:
+            RecordingError: A channel has no sample.
+        """
+        try:
+            for name, count in zip(self.names, self._samples, strict=True):
+                if not count:
+                    raise RecordingError(f"{job.path}: channel {name} holds no samples")
+            end = min(self._latest)
+            self._drain(end, write=True)
+            after = self._union
+            self._drain(math.inf, write=False)  # after the end: only counted
+            after = self._union - after
+        finally:
+            self.close()
+        for name, count, first in zip(
+            self.names, self._invalid, self._first_invalid_s, strict=True
+        ):
+            if count:
+                job.note(
+                    f"{name}: {count} invalid sample(s) stored as NaN until the next "
+                    f"valid value; first at t = {first:g} s"
+                )
+        if any(count != self._union for count in self._samples):
+            job.note(
+                f"channels have different timelines: merged on the union of their times "
+                f"({self.rows} rows); each channel holds its last value between its samples"
+            )
+        if self._before:
+            job.note(
+                f"{self._before} leading row(s) dropped: not every channel had a value before "
+                f"t = {self._start:g} s"
+            )
+        if after:
+            job.note(f"{after} trailing row(s) dropped: a channel ends at t = {end:g} s")
+
+    def close(self) -> None:
+        """Remove the temporary files of channels that ran ahead."""
+        for queue in self._queues:
+            queue.close()
+
+    def _drain(self, horizon: float, *, write: bool) -> None:
+        """Merge the queued samples at times up to ``horizon``, a batch at a time."""
+        while True:
+            heads = [queue.peek(self._batch_rows) for queue in self._queues]
+            upto = horizon
+            for queue, head in zip(self._queues, heads, strict=True):
+                if len(head) == self._batch_rows and len(queue) > len(head):
+                    upto = min(upto, float(head[-1, 0]))  # more of this channel may follow
+            counts = [int(np.searchsorted(h[:, 0], upto, side="right")) for h in heads]
+            if not any(counts):
+                return
+            taken = [head[:n, 0] for head, n in zip(heads, counts, strict=True)]
+            union = np.unique(np.concatenate(taken))
+            self._union += len(union)
+            keep = union >= self._start
+            times = union[keep]
+            rows = np.empty((len(times), len(heads)), dtype=np.float64)
+            for column, (queue, head, count) in enumerate(
+                zip(self._queues, heads, counts, strict=True)
+            ):
+                # value at t: the channel's last sample at or before t, from this batch or before
+                held = np.concatenate([[self._carry[column]], head[:count, 1]])
+                index = np.searchsorted(head[:count, 0], times, side="right")
+                rows[:, column] = held[index]
+                if count:
+                    self._carry[column] = float(head[count - 1, 1])
+                queue.consume(count)
+            self._before += int(len(union) - len(times))
+            if write and len(times):
+                self.rows += len(times)
+                self._sink.append(times, rows)
 
 
 def filetime_to_datetime(ticks: int) -> dt.datetime:

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Final
 
 from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.links import make_link
-from ncmeasure.recording import Recording
+from ncmeasure.recording import RecordingMeta
 from ncmeasure.traces._common import ImportJob
 
 if TYPE_CHECKING:
@@ -67,7 +67,7 @@ def _frames(job: ImportJob, counts: dict[str, int]) -> Iterator[can.Message]:
             stop()
 
 
-def import_can_log(job: ImportJob) -> Recording:
+def import_can_log(job: ImportJob) -> RecordingMeta:
     """Decode the CAN log of ``job`` with its machine file's CANopen link settings.
 
     Raises:

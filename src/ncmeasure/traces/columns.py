@@ -51,7 +51,7 @@ from pydantic_core import PydanticCustomError
 
 from ncmeasure.config import MachineConfig, format_validation_error, read_toml
 from ncmeasure.errors import ConfigError, RecordingError
-from ncmeasure.recording import Recording, channel_from_name, check_times
+from ncmeasure.recording import RecordingMeta, channel_from_name, check_times
 from ncmeasure.samples import SIGNAL_UNITS, Channel
 from ncmeasure.traces._common import (
     CHUNK_ROWS,
@@ -250,7 +250,7 @@ def import_columns(
     job.link["mapping"] = map_file
     job.link["column_map"] = column_map.model_dump(mode="json", exclude_none=True)
 
-    def read(job: ImportJob) -> Recording:
+    def read(job: ImportJob) -> RecordingMeta:
         with TextLines(job.path, job) as lines:
             try:
                 return _Reader(job, column_map, map_label, lines).read()
@@ -307,7 +307,7 @@ class _Reader:
         self.lines = lines
         self.rows: Iterator[str] = iter(lines)
 
-    def read(self) -> Recording:
+    def read(self) -> RecordingMeta:
         header_text = self._header_line()
         header_line = self.lines.line_number
         wanted = list(

@@ -20,6 +20,7 @@ from ncmeasure.files import replace_text
 from ncmeasure.recording.format import (
     IMPORT_CHUNK_ROWS,
     PathArg,
+    RecordingMeta,
     channel_from_name,
 )
 from ncmeasure.recording.reader import Recording, as_recording, frame_rows
@@ -147,6 +148,21 @@ def import_csv(
             not increase; or the recording cannot be written. What the import
             wrote is removed again then.
     """
+    import_csv_meta(path, directory, machine=machine, nominal_period_s=nominal_period_s)
+    return Recording.open(directory)
+
+
+def import_csv_meta(
+    path: PathArg,
+    directory: PathArg,
+    *,
+    machine: MachineConfig | None = None,
+    nominal_period_s: float | None = None,
+) -> RecordingMeta:
+    """:func:`import_csv` without reading the recording back: its ``meta.json``.
+
+    Memory stays within one chunk of rows whatever the size of the file.
+    """
     source = Path(path)
     target: ImportSink | None = None
     try:
@@ -179,7 +195,7 @@ def import_csv(
                 check_times(data[:, 0], previous_s, _csv_where(source, lines, first_line))
                 previous_s = float(data[-1, 0])
                 target.append(data[:, 0], data[:, 1:])
-        return target.finish()
+        return target.close()
     except BaseException as exc:
         if target is not None:
             target.discard()

@@ -38,7 +38,7 @@ from collections.abc import Callable, Iterator
 from typing import Final
 
 from ncmeasure.errors import RecordingError
-from ncmeasure.recording import Recording
+from ncmeasure.recording import RecordingMeta
 from ncmeasure.traces._common import (
     CarryForward,
     ImportJob,
@@ -91,7 +91,7 @@ def _header(line: str) -> tuple[str, list[str], float] | None:
     return best
 
 
-def import_sinumerik_csv(job: ImportJob) -> Recording:
+def import_sinumerik_csv(job: ImportJob) -> RecordingMeta:
     """Import a Sinumerik trace CSV export (see the module docstring).
 
     Raises:
@@ -104,7 +104,7 @@ def import_sinumerik_csv(job: ImportJob) -> Recording:
         return _read(job, lines)
 
 
-def _read(job: ImportJob, lines: TextLines) -> Recording:
+def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     rows: Iterator[str] = iter(lines)
     found: tuple[str, list[str], float] | None = None
     skipped = 0

@@ -80,8 +80,9 @@ SINUMERIK 840D sl trace (``<traceSession version="01.00.03.02">``)::
   its unit (a speed controller setpoint may be in motor rpm), and it is not
   the commanded velocity alone: it reads -0.13 while the setpoint stands still.
 
-The file is parsed with :func:`xml.etree.ElementTree.iterparse`; each ``rec``
-is cleared and detached once read, so memory does not grow with the trace.
+The file is parsed with :func:`xml.etree.ElementTree.iterparse`; every element
+(``rec`` or any other) is cleared and detached once read, so memory does not
+grow with the trace, whatever it holds besides records.
 """
 
 from __future__ import annotations
@@ -98,7 +99,7 @@ from types import TracebackType
 from typing import IO, Final
 
 from ncmeasure.errors import RecordingError
-from ncmeasure.recording import Recording
+from ncmeasure.recording import RecordingMeta
 from ncmeasure.traces._common import (
     PROGRESS_STEP_BYTES,
     Candidate,
@@ -319,7 +320,7 @@ class _CountingReader:
         self._reported = 0
 
     def read(self, size: int = -1) -> bytes:
-        data = self._file.read(size if size and size > 0 else _READ_BYTES)
+        data = self._file.read(min(size, _READ_BYTES) if size and size > 0 else _READ_BYTES)
         self.bytes_read += len(data)
         if self.bytes_read - self._reported >= PROGRESS_STEP_BYTES or not data:
             self._job.tick(self.bytes_read)
@@ -468,7 +469,7 @@ def _parse_start(text: str | None) -> dt.datetime | None:
     return start if start.tzinfo is not None else None
 
 
-def import_sinumerik_xml(job: ImportJob) -> Recording:
+def import_sinumerik_xml(job: ImportJob) -> RecordingMeta:
     """Import a Sinumerik trace XML (see the module docstring).
 
     Raises:
@@ -503,11 +504,7 @@ def import_sinumerik_xml(job: ImportJob) -> Recording:
                         reader.rec(elem.attrib)
                     continue
                 stack.pop()
-                if tag == "rec":
-                    elem.clear()
-                    if stack:
-                        stack[-1].remove(elem)
-                elif tag == "dataSignal":
+                if tag == "dataSignal":
                     reader.data_signal(elem.attrib)
                 elif tag == "frameHeader":
                     reader.frame_header = dict(elem.attrib)
@@ -518,6 +515,11 @@ def import_sinumerik_xml(job: ImportJob) -> Recording:
                 ):
                     # traceCaptureSetup_V20 and traceCaptureSetup both hold it; the first wins
                     reader.session_name = elem.attrib.get("sessionName")
+                # Every element, <rec> or any other, is read once it ends: freed and detached
+                # then, so the tree never grows (the parent holds at most the child being read).
+                elem.clear()
+                if stack:
+                    stack[-1].remove(elem)
     except ET.ParseError as exc:
         line, column = exc.position
         raise RecordingError(

@@ -51,16 +51,16 @@ from typing import Final
 import numpy as np
 
 from ncmeasure.errors import RecordingError
-from ncmeasure.recording import Recording
+from ncmeasure.recording import RecordingMeta
 from ncmeasure.samples import SIGNAL_UNITS
+from ncmeasure.traces import _common
 from ncmeasure.traces._common import (
     Candidate,
     ImportJob,
     Needs,
-    Series,
+    SeriesMerge,
     TextLines,
     decimal_mark,
-    merge_series,
     parse_number,
     plan_channels,
     unit_factor,
@@ -211,7 +211,7 @@ def _candidate(curve: _Curve, job: ImportJob) -> Candidate | None:
     return Candidate(curve.label, axis, signal, factor, "", rank, conversion)
 
 
-def import_tncscope(job: ImportJob) -> Recording:
+def import_tncscope(job: ImportJob) -> RecordingMeta:
     """Import a TNCscope text export (see the module docstring).
 
     Raises:
@@ -224,7 +224,7 @@ def import_tncscope(job: ImportJob) -> Recording:
         return _read(job, lines)
 
 
-def _read(job: ImportJob, lines: TextLines) -> Recording:
+def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     curves, global_keys = _read_header(lines, job)
     if not curves:
         raise RecordingError(f"{job.path}: no %[CURVE n] block before %[DATA]")
@@ -239,66 +239,90 @@ def _read(job: ImportJob, lines: TextLines) -> Recording:
         ((i, by_candidate[id(c)]) for i, c in pairs if id(c) in by_candidate),
         key=lambda pair: mapped.index(pair[1]),
     )
-    values: list[array[float]] = [array("d") for _ in used]
     longest = max(count for count, _ in timing)
+    period = min(timing[index][1] for index, _ in used) * 1e-6
+    sink = job.open_sink([m.channel for _, m in used], nominal_period_s=period)
+    merge = SeriesMerge(
+        sink,
+        [m.channel.name for _, m in used],
+        [m.factor for _, m in used],
+        batch_rows=_common.MERGE_ROWS,
+        spill_rows=_common.SPILL_ROWS,
+    )
+    values: list[array[float]] = [array("d") for _ in used]
+    handed = [0] * len(used)  # samples of each curve given to the merge
+
+    def hand_over() -> None:
+        """The values parsed so far go to the merge, at k x CYCLETIME of their curve."""
+        for k, (index, _) in enumerate(used):
+            if not values[k]:
+                continue
+            cycle_us = timing[index][1]
+            stop = handed[k] + len(values[k])
+            # whole microseconds first, so that curves at multiple cycle times meet exactly
+            time_s = np.arange(handed[k], stop, dtype=np.float64) * cycle_us / 1e6
+            merge.add(k, time_s, np.frombuffer(values[k]))
+            handed[k] = stop
+            values[k] = array("d")
+        merge.flush()
+
+    chunk_rows = _common.CHUNK_ROWS
     decimal: str | None = None
     last_time = -math.inf
     rows = 0
-    for line in lines:
-        if not line.strip():
-            continue
-        where = lines.where()
-        cells = line.strip().split(";")
-        if cells and not cells[-1].strip():
-            cells.pop()  # rows end with ';'
-        if len(cells) < 1 + len(curves):
-            shown = line.strip()[:40]
-            raise RecordingError(
-                f"{where}: {len(cells)} cells, expected a time and {len(curves)} "
-                f"curve(s): {shown!r}"
-            )
-        if decimal is None:
-            decimal = decimal_mark(cells)
-        try:
-            time_value = parse_number(cells[0], decimal or ".")
-        except ValueError as exc:
-            raise RecordingError(f"{where}: time {cells[0].strip()!r}: {exc}") from exc
-        if not time_value > last_time:
-            raise RecordingError(
-                f"{where}: time {cells[0].strip()} is not later than the row before; "
-                "times must increase"
-            )
-        last_time = time_value
-        for k, (index, _) in enumerate(used):
-            if rows >= timing[index][0]:
+    try:
+        for line in lines:
+            if not line.strip():
                 continue
-            cell = cells[1 + index]
-            try:
-                values[k].append(parse_number(cell, decimal or "."))
-            except ValueError as exc:
+            where = lines.where()
+            cells = line.strip().split(";")
+            if cells and not cells[-1].strip():
+                cells.pop()  # rows end with ';'
+            if len(cells) < 1 + len(curves):
+                shown = line.strip()[:40]
                 raise RecordingError(
-                    f"{where}: {curves[index].label}: {cell.strip()!r} is not a number ({exc})"
-                ) from exc
-        rows += 1
-    if rows < longest:
-        short = [c.label for c, (count, _) in zip(curves, timing, strict=True) if count > rows]
-        raise RecordingError(
-            f"{job.path}: %[DATA] has {rows} rows, but {', '.join(short)} declare(s) more "
-            f"(COUNT up to {longest}); the file is cut short"
-        )
+                    f"{where}: {len(cells)} cells, expected a time and {len(curves)} "
+                    f"curve(s): {shown!r}"
+                )
+            if decimal is None:
+                decimal = decimal_mark(cells)
+            try:
+                time_value = parse_number(cells[0], decimal or ".")
+            except ValueError as exc:
+                raise RecordingError(f"{where}: time {cells[0].strip()!r}: {exc}") from exc
+            if not time_value > last_time:
+                raise RecordingError(
+                    f"{where}: time {cells[0].strip()} is not later than the row before; "
+                    "times must increase"
+                )
+            last_time = time_value
+            for k, (index, _) in enumerate(used):
+                if rows >= timing[index][0]:
+                    continue
+                cell = cells[1 + index]
+                try:
+                    values[k].append(parse_number(cell, decimal or "."))
+                except ValueError as exc:
+                    raise RecordingError(
+                        f"{where}: {curves[index].label}: {cell.strip()!r} is not a number ({exc})"
+                    ) from exc
+            rows += 1
+            if rows % chunk_rows == 0:
+                hand_over()
+        if rows < longest:
+            short = [c.label for c, (count, _) in zip(curves, timing, strict=True) if count > rows]
+            raise RecordingError(
+                f"{job.path}: %[DATA] has {rows} rows, but {', '.join(short)} declare(s) more "
+                f"(COUNT up to {longest}); the file is cut short"
+            )
+        hand_over()
+    except BaseException:
+        merge.close()  # on success, finish() closes it after the last rows
+        raise
     if rows > longest:
         job.note(f"{rows - longest} row(s) after the longest curve ignored")
-    series = []
-    for k, (index, m) in enumerate(used):
-        count, cycle_us = timing[index]
-        # whole microseconds first, so that curves at multiple cycle times meet exactly
-        time_s = np.arange(count, dtype=np.float64) * cycle_us / 1e6
-        series.append(Series(m.channel.name, time_s, np.frombuffer(values[k]), m.factor))
     if decimal == ",":
         job.note("numbers use a decimal comma")
     job.note("time of sample k of a curve = k x CYCLETIME of that curve")
-    time_s, matrix = merge_series(series, job)
-    period = min(timing[index][1] for index, _ in used) * 1e-6
-    sink = job.open_sink([m.channel for _, m in used], nominal_period_s=period)
-    sink.append(time_s, matrix)
+    merge.finish(job)
     return job.finish()

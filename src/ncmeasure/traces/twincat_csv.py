@@ -56,16 +56,16 @@ from typing import Final
 import numpy as np
 
 from ncmeasure.errors import RecordingError
-from ncmeasure.recording import Recording, channel_from_name
+from ncmeasure.recording import RecordingMeta, channel_from_name
 from ncmeasure.samples import SIGNAL_UNITS
+from ncmeasure.traces import _common
 from ncmeasure.traces._common import (
     Candidate,
     ImportJob,
-    Series,
+    SeriesMerge,
     TextLines,
     decimal_mark,
     filetime_to_datetime,
-    merge_series,
     parse_number,
     plan_channels,
     unit_factor,
@@ -232,7 +232,7 @@ def _candidates(channels: list[_ScopeChannel], job: ImportJob) -> list[Candidate
     return result
 
 
-def import_twincat_csv(job: ImportJob) -> Recording:
+def import_twincat_csv(job: ImportJob) -> RecordingMeta:
     """Import a TwinCAT Scope CSV export (see the module docstring).
 
     Raises:
@@ -245,7 +245,7 @@ def import_twincat_csv(job: ImportJob) -> Recording:
         return _read(job, lines)
 
 
-def _read(job: ImportJob, lines: TextLines) -> Recording:
+def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     header = _Header(lines, job)
     candidates = _candidates(header.channels, job)
     pairs = [(ch, c) for ch, c in zip(header.channels, candidates, strict=True) if c is not None]
@@ -277,88 +277,6 @@ def _read(job: ImportJob, lines: TextLines) -> Recording:
     needed = max(ch.value_col for ch in header.channels) + 1
     first_row = True
 
-    first_data = [header.first_data] if header.first_data is not None else []
-    for line in itertools.chain(first_data, header.rows):
-        if not line.strip():
-            continue
-        where = lines.where()
-        if line.strip() == "EOF":
-            break
-        cells = line.split(separator)
-        if len(cells) > header.width and any(c.strip() for c in cells[header.width :]):
-            hint = " (a decimal comma in a comma-separated export?)" if separator == "," else ""
-            raise RecordingError(
-                f"{where}: {len(cells)} cells, the header (line {header.name_line_number}) "
-                f"has {header.width}{hint}"
-            )
-        if first_row:
-            first_row = False
-            if len(cells) < needed:
-                raise RecordingError(
-                    f"{where}: {len(cells)} cells, the header needs {needed} (a time column per "
-                    "group and the value columns); exports without time columns are not supported"
-                )
-            first_time = cells[used[0][0].time_col].strip()
-            full_timestamp = first_time.isdigit() and len(first_time) >= _FILETIME_DIGITS
-        if decimal is None:
-            decimal = decimal_mark(cells)
-        for k, (channel, _) in enumerate(used):
-            t_cell = cells[channel.time_col].strip() if channel.time_col < len(cells) else ""
-            v_cell = cells[channel.value_col].strip() if channel.value_col < len(cells) else ""
-            if not t_cell and not v_cell:
-                ended[k] = True
-                continue
-            if not t_cell or not v_cell:
-                hint = " (a decimal comma in a comma-separated export?)" if separator == "," else ""
-                raise RecordingError(
-                    f"{where}: channel {channel.name}: a time without a value or a value "
-                    f"without a time{hint}"
-                )
-            if ended[k]:
-                raise RecordingError(
-                    f"{where}: channel {channel.name} has samples again after empty cells"
-                )
-            try:
-                if full_timestamp:
-                    tick = int(t_cell)
-                    t = float(tick)
-                else:
-                    t = parse_number(t_cell, decimal or ".")
-                value = parse_number(v_cell, decimal or ".")
-            except ValueError as exc:
-                raise RecordingError(
-                    f"{where}: channel {channel.name}: not a number ({exc})"
-                ) from exc
-            if not t > last[k]:
-                raise RecordingError(
-                    f"{where}: channel {channel.name}: time {t_cell} is not later than the "
-                    "sample before; times must increase"
-                )
-            last[k] = t
-            if full_timestamp:
-                ticks[k].append(tick)
-            else:
-                times[k].append(t)
-            values[k].append(value)
-
-    if first_row:
-        raise RecordingError(f"{job.path}: no data rows after the header")
-    series: list[Series] = []
-    if full_timestamp:
-        base = header.start_ticks
-        if base is None:
-            base = min(int(t[0]) for t in ticks if len(t))
-        job.note("times are FILETIME stamps (Full Timestamp); converted to s from the export start")
-        for k, (_, m) in enumerate(used):
-            t_s = (np.frombuffer(ticks[k], dtype=np.int64) - base).astype(np.float64) * 1e-7
-            series.append(Series(m.channel.name, t_s, np.frombuffer(values[k]), m.factor))
-    else:
-        for k, (_, m) in enumerate(used):
-            t_s = np.frombuffer(times[k], dtype=np.float64) / 1000.0
-            series.append(Series(m.channel.name, t_s, np.frombuffer(values[k]), m.factor))
-    if decimal == ",":
-        job.note("numbers use a decimal comma")
-    time_s, matrix = merge_series(series, job)
     sample_times = [
         _header_number(ch.info.get("SampleTime[ms]", ch.info.get("SampleTime", "")))
         for ch, _ in used
@@ -368,5 +286,120 @@ def _read(job: ImportJob, lines: TextLines) -> Recording:
     sink = job.open_sink(
         [m.channel for _, m in used], nominal_period_s=min(periods, default=None), start_utc=start
     )
-    sink.append(time_s, matrix)
+    merge = SeriesMerge(
+        sink,
+        [m.channel.name for _, m in used],
+        [m.factor for _, m in used],
+        batch_rows=_common.MERGE_ROWS,
+        spill_rows=_common.SPILL_ROWS,
+    )
+    base = header.start_ticks
+
+    def hand_over() -> None:
+        """The samples parsed so far go to the merge, in seconds."""
+        nonlocal base
+        if full_timestamp and base is None:
+            firsts = [int(t[0]) for t in ticks if len(t)]
+            base = min(firsts) if firsts else None
+        for k in range(count):
+            if full_timestamp:
+                if base is not None and len(ticks[k]):
+                    stamps = np.frombuffer(ticks[k], dtype=np.int64)
+                    merge.add(
+                        k, (stamps - base).astype(np.float64) * 1e-7, np.frombuffer(values[k])
+                    )
+                ticks[k] = array("q")
+            else:
+                t_s = np.frombuffer(times[k], dtype=np.float64) / 1000.0
+                merge.add(k, t_s, np.frombuffer(values[k]))
+                times[k] = array("d")
+            values[k] = array("d")
+        merge.flush()
+
+    chunk_rows = _common.CHUNK_ROWS
+    rows_parsed = 0
+    first_data = [header.first_data] if header.first_data is not None else []
+    try:
+        for line in itertools.chain(first_data, header.rows):
+            if not line.strip():
+                continue
+            where = lines.where()
+            if line.strip() == "EOF":
+                break
+            cells = line.split(separator)
+            if len(cells) > header.width and any(c.strip() for c in cells[header.width :]):
+                hint = " (a decimal comma in a comma-separated export?)" if separator == "," else ""
+                raise RecordingError(
+                    f"{where}: {len(cells)} cells, the header (line {header.name_line_number}) "
+                    f"has {header.width}{hint}"
+                )
+            if first_row:
+                first_row = False
+                if len(cells) < needed:
+                    raise RecordingError(
+                        f"{where}: {len(cells)} cells, the header needs {needed} (a time column "
+                        "per group and the value columns); exports without time columns are "
+                        "not supported"
+                    )
+                first_time = cells[used[0][0].time_col].strip()
+                full_timestamp = first_time.isdigit() and len(first_time) >= _FILETIME_DIGITS
+            if decimal is None:
+                decimal = decimal_mark(cells)
+            for k, (channel, _) in enumerate(used):
+                t_cell = cells[channel.time_col].strip() if channel.time_col < len(cells) else ""
+                v_cell = cells[channel.value_col].strip() if channel.value_col < len(cells) else ""
+                if not t_cell and not v_cell:
+                    ended[k] = True
+                    continue
+                if not t_cell or not v_cell:
+                    hint = (
+                        " (a decimal comma in a comma-separated export?)"
+                        if separator == ","
+                        else ""
+                    )
+                    raise RecordingError(
+                        f"{where}: channel {channel.name}: a time without a value or a value "
+                        f"without a time{hint}"
+                    )
+                if ended[k]:
+                    raise RecordingError(
+                        f"{where}: channel {channel.name} has samples again after empty cells"
+                    )
+                try:
+                    if full_timestamp:
+                        tick = int(t_cell)
+                        t = float(tick)
+                    else:
+                        t = parse_number(t_cell, decimal or ".")
+                    value = parse_number(v_cell, decimal or ".")
+                except ValueError as exc:
+                    raise RecordingError(
+                        f"{where}: channel {channel.name}: not a number ({exc})"
+                    ) from exc
+                if not t > last[k]:
+                    raise RecordingError(
+                        f"{where}: channel {channel.name}: time {t_cell} is not later than the "
+                        "sample before; times must increase"
+                    )
+                last[k] = t
+                if full_timestamp:
+                    ticks[k].append(tick)
+                else:
+                    times[k].append(t)
+                values[k].append(value)
+            rows_parsed += 1
+            if rows_parsed % chunk_rows == 0:
+                hand_over()
+
+        if first_row:
+            raise RecordingError(f"{job.path}: no data rows after the header")
+        hand_over()
+    except BaseException:
+        merge.close()  # on success, finish() closes it after the last rows
+        raise
+    if full_timestamp:
+        job.note("times are FILETIME stamps (Full Timestamp); converted to s from the export start")
+    if decimal == ",":
+        job.note("numbers use a decimal comma")
+    merge.finish(job)
     return job.finish()
