@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy import optimize
 
+import ncmeasure.analysis.fit as fit_module
 from ncmeasure.analysis.fit import (
     MEDIAN_SE_FACTOR,
     fit_direction,
@@ -377,3 +379,94 @@ def test_separate_offset_matches_speeds_within_half_a_percent() -> None:
     far = points(np.array([110.0, 1100.0]), np.array([1.0, 1.2]), 0.01, -1, 0.5)
     assert separate_offset(up, far) is None
     assert separate_offset(up, []) is None
+
+
+# --------------------------------------------------------------------------- search
+
+
+def _reference_search(p: fit_module._Problem) -> tuple[list[np.ndarray], float, np.ndarray]:
+    """The exhaustive search the fast one must reproduce: one lstsq per grid point, full fits.
+
+    Every (v_S, δ[, k]) of the start grid solved on its own by
+    :func:`numpy.linalg.lstsq`, the three best with distinct v_S, then
+    ``least_squares`` on all parameters from each for up to 1000 evaluations.
+    Returns the starts, the lowest cost and its parameters.
+    """
+    lo, hi = fit_module._log_us_bounds(p)
+    ranked = []
+    for lus in np.linspace(lo, hi, 25)[1:-1]:
+        for delta in (0.4, 0.6, 0.8, 1.0, 1.4, 2.0, 2.8):
+            for k in (0.4, 0.7, 1.3, 1.6, 1.9) if p.extended else (None,):
+                e = np.exp(-((p.u / math.exp(lus)) ** delta))
+                cols = [np.ones_like(p.u), e, p.u] + ([] if k is None else [p.u**k])
+                basis = np.column_stack(cols) / p.s[:, None]
+                coef, *_ = np.linalg.lstsq(basis, p.y / p.s, rcond=None)
+                if coef[1] < 0:
+                    reduced, *_ = np.linalg.lstsq(
+                        np.delete(basis, 1, axis=1), p.y / p.s, rcond=None
+                    )
+                    coef = np.insert(reduced, 1, 0.0)
+                rss = float(np.sum((basis @ coef - p.y / p.s) ** 2))
+                ranked.append((rss, float(lus), delta, k, coef))
+    ranked.sort(key=lambda item: item[0])
+    starts: list[np.ndarray] = []
+    for _, lus, delta, k, coef in ranked:
+        if any(abs(lus - s[2]) < 0.3 for s in starts):
+            continue
+        x0 = [float(coef[0]), max(float(coef[1]), 1e-3), lus, delta, float(coef[2])]
+        starts.append(np.array(x0 + ([] if k is None else [float(coef[3]), k])))
+        if len(starts) == 3:
+            break
+    lower, upper = fit_module._bounds(p)
+    best_cost, best_x = math.inf, np.empty(0)
+    for x0 in starts:
+        res = optimize.least_squares(
+            lambda x: (fit_module._model_internal(x, p)[0] - p.y) / p.s,
+            np.clip(x0, np.add(lower, 1e-9), np.subtract(upper, 1e-9)),
+            jac=lambda x: fit_module._model_internal(x, p)[1] / p.s[:, None],
+            bounds=(lower, upper),
+            method="trf",
+            x_scale="jac",
+            max_nfev=1000,
+        )
+        if res.status > 0 and res.cost < best_cost:
+            best_cost, best_x = float(res.cost), res.x
+    return starts, best_cost, best_x
+
+
+def _problem(v: np.ndarray, y: np.ndarray, s: np.ndarray, extended: bool) -> fit_module._Problem:
+    v_ref, t_ref = float(v.max()), float(np.median(np.abs(y)))
+    return fit_module._Problem(
+        u=v / v_ref, y=y / t_ref, s=s / t_ref, v_ref=v_ref, t_ref=t_ref, extended=extended
+    )
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("model", ["stribeck", "extended"])
+def test_fast_search_matches_the_exhaustive_one(seed: int, model: str) -> None:
+    """Same starts, and an optimum at least as good as the exhaustive search's.
+
+    Noisy curves of the industrial schedule; the extended model on Stribeck
+    data has a valley (b against f_w as k → 1) along which full fits crawl.
+    """
+    rng = np.random.default_rng(seed)
+    sigma = np.full(SPEEDS.size, 0.01)
+    fw = (0.0, -0.3, 0.0, 0.2)[seed]
+    value = stribeck(SPEEDS, fw=fw, k=0.7) + rng.normal(0.0, 0.01, SPEEDS.size)
+    p = _problem(SPEEDS, value, sigma, model == "extended")
+    ref_starts, ref_cost, ref_x = _reference_search(p)
+    starts = fit_module._starts(p)
+    assert len(starts) == len(ref_starts)
+    for mine, theirs in zip(starts, ref_starts, strict=True):
+        np.testing.assert_allclose(mine, theirs, rtol=1e-9, atol=1e-12)
+    best = fit_module._solve(p, starts)[0]
+    assert float(best.cost) <= ref_cost * (1 + 1e-6)
+    fit = fit_nonlinear(SPEEDS, value, sigma, model=model)  # type: ignore[arg-type]
+    assert fit is not None
+    dof = SPEEDS.size - len(ref_x)
+    assert fit.chi2_reduced <= 2 * ref_cost / dof * (1 + 1e-6)
+    if fit.parameters is not None and float(best.cost) >= ref_cost * (1 - 1e-6):
+        # The same optimum: the same parameters.
+        reference = fit_module._physical(ref_x, p)
+        for name, value_ in fit.parameters.items():
+            assert value_ == pytest.approx(reference[name], rel=1e-5, abs=1e-12)

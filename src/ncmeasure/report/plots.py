@@ -24,6 +24,7 @@ from matplotlib import rc_context
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.cm import ScalarMappable
+from matplotlib.collections import PolyCollection
 from matplotlib.colors import LinearSegmentedColormap, LogNorm, Normalize
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
@@ -519,9 +520,30 @@ def _stretch(
 
 
 def _shade(ax: Axes, windows: Sequence[tuple[float, float]], start: float, end: float) -> None:
-    for t0, t1 in windows:
-        if t1 >= start and t0 <= end:
-            ax.axvspan(t0, t1, color=WINDOW_FILL, alpha=0.55, linewidth=0, zorder=0)
+    """The windows between ``start`` and ``end`` as full-height bands, in one collection.
+
+    One artist instead of one ``axvspan`` per window (a measurement has
+    thousands): the same bands, drawn and laid out in a fraction of the time.
+    They do not change the data limits, as ``axvspan`` does not where the
+    caller sets them.
+    """
+    bands = [
+        ((t0, 0.0), (t0, 1.0), (t1, 1.0), (t1, 0.0))
+        for t0, t1 in windows
+        if t1 >= start and t0 <= end
+    ]
+    if bands:
+        ax.add_collection(
+            PolyCollection(
+                bands,
+                transform=ax.get_xaxis_transform(),
+                facecolors=WINDOW_FILL,
+                alpha=0.55,
+                linewidths=0,
+                zorder=0,
+            ),
+            autolim=False,
+        )
 
 
 @_styled
