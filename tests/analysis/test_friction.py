@@ -9,7 +9,12 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.friction import friction_table, grouped_median, window_samples
+from ncmeasure.analysis.friction import (
+    friction_table,
+    grouped_median,
+    window_samples,
+    window_table,
+)
 from ncmeasure.analysis.segment import VelocityWindow
 
 
@@ -226,3 +231,72 @@ def test_repeated_windows_that_disagree_widen_the_standard_error() -> None:
     # The scatter of the two window medians over √2: about 0.05, not the 0.0003 the
     # samples would claim, nor the 0.017 of ten batches, five on each level.
     assert table.stderr[0] == pytest.approx(0.05, rel=0.1)
+
+
+def _reference(
+    current: NDArray[np.float64], windows: list[VelocityWindow], quantum: float
+) -> dict[tuple[int, int, int], tuple[float, float, int, int]]:
+    """Median, batch-scatter input and counts, one window and one batch at a time."""
+    groups: dict[tuple[int, int, int], list[NDArray[np.float64]]] = {}
+    batches: dict[tuple[int, int, int], int] = {}
+    for w in sorted(windows, key=lambda w: w.start):
+        samples = current[w.start : w.stop]
+        samples = samples[np.isfinite(samples)]
+        key = (w.position_index, w.direction, w.step)
+        groups.setdefault(key, []).append(samples)
+        count = max(1, min(5, len(samples) // 5))
+        edges = np.linspace(0, len(samples), count + 1).round().astype(int)
+        batches[key] = batches.get(key, 0) + int(np.count_nonzero(np.diff(edges) > 0))
+    return {
+        key: (
+            grouped_median(np.concatenate(parts), quantum),
+            float(np.mean(np.concatenate(parts))),
+            sum(len(p) for p in parts),
+            batches[key],
+        )
+        for key, parts in groups.items()
+        if sum(len(p) for p in parts)
+    }
+
+
+@pytest.mark.parametrize("quantum", [0.0, 0.05])
+@pytest.mark.parametrize("seed", [3, 4, 5])
+def test_medians_equal_a_straightforward_reference_for_odd_and_even_counts(
+    seed: int, quantum: float
+) -> None:
+    """Windows of 1 to 5000 samples (one-by-one sorting and padded blocks), odd and even
+    counts, missing currents, a quantised current: the same medians, bit for bit."""
+    rng = np.random.default_rng(seed)
+    current = rng.normal(1.0, 0.3, 60_000)
+    if quantum:
+        current = np.round(current / quantum) * quantum
+    current[rng.random(len(current)) < 0.01] = np.nan
+    windows = []
+    start = 0
+    for number in range(120):
+        length = int(rng.choice([1, 2, 3, 4, 9, 10, 64, 65, 333, 5000]))
+        step, position = number % 4, (number // 4) % 3
+        sign: Literal[1, -1] = 1 if number % 2 else -1
+        windows.append(_window(start, start + length, step=step, position=position,
+                               direction=sign, v=10.0 * (step + 1)))  # fmt: skip
+        start += length + int(rng.integers(0, 20))
+    table = friction_table("X", current, windows, current_quantum_a=quantum)
+    expected = _reference(current, windows, quantum)
+    assert len(table) == len(expected)
+    assert {int(n) % 2 for n in table.n} == {0, 1}
+    for i in range(len(table)):
+        key = (int(table.position_index[i]), int(table.direction[i]), int(table.step[i]))
+        median, mean, n, batches = expected[key]
+        assert table.median[i] == median
+        assert table.mean[i] == pytest.approx(mean, rel=1e-12)
+        assert (int(table.n[i]), int(table.batches[i])) == (n, batches)
+
+
+def test_window_table_from_the_window_samples_alone_equals_the_table_from_all_samples() -> None:
+    current, windows = _random_case(6)
+    whole = friction_table("X", current, windows, current_quantum_a=0.01)
+    alone = window_table(
+        "X", [current[w.start : w.stop].copy() for w in windows], windows, current_quantum_a=0.01
+    )
+    for name in ("median", "mean", "std", "stderr", "n", "windows", "batches", "step"):
+        assert np.array_equal(getattr(whole, name), getattr(alone, name), equal_nan=True)

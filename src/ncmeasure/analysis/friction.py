@@ -64,6 +64,7 @@ __all__ = [
     "friction_table",
     "grouped_median",
     "window_samples",
+    "window_table",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -76,6 +77,14 @@ MIN_BATCH_SAMPLES: Final = 5
 """A batch holds at least this many samples (a shorter window is one batch)."""
 
 _MEDIAN_SE_FACTOR: Final = math.sqrt(math.pi / 2)
+
+_SortKind = Literal["quicksort", "stable"]
+_PAD_RATIO: Final = 1.25
+"""Segments sorted in one padded block differ in length by at most this factor."""
+_PAD_LONGEST: Final = 4096
+"""Longer segments are sorted one by one."""
+_PAD_BLOCK: Final = 1 << 20
+"""Largest padded block, in values (8 MiB of float64, plus its index)."""
 
 
 @dataclass(frozen=True)
@@ -160,17 +169,6 @@ def grouped_median(values: FloatArray, quantum: float = 0.0) -> float:
     return level - half + quantum * (0.5 * count - below) / at
 
 
-def _medians(values: FloatArray, bounds: IntArray, quantum: float) -> FloatArray:
-    """:func:`grouped_median` of every contiguous group ``values[bounds[g]:bounds[g + 1]]``."""
-    return np.array(
-        [
-            grouped_median(values[bounds[g] : bounds[g + 1]], quantum)
-            for g in range(len(bounds) - 1)
-        ],
-        dtype=np.float64,
-    )
-
-
 def window_samples(windows: Sequence[VelocityWindow]) -> tuple[IntArray, IntArray]:
     """The sample indices of all windows and the window each belongs to, vectorised.
 
@@ -189,14 +187,88 @@ def window_samples(windows: Sequence[VelocityWindow]) -> tuple[IntArray, IntArra
 
 
 def _batch_bounds(window_bounds: IntArray) -> IntArray:
-    """Cut each window ``[b[w], b[w + 1])`` into up to BATCHES_PER_WINDOW equal batches."""
-    cuts = [int(window_bounds[0])] if len(window_bounds) else []
-    for w in range(len(window_bounds) - 1):
-        start, stop = int(window_bounds[w]), int(window_bounds[w + 1])
-        count = max(1, min(BATCHES_PER_WINDOW, (stop - start) // MIN_BATCH_SAMPLES))
-        edges = np.linspace(start, stop, count + 1).round().astype(np.intp)
-        cuts.extend(int(e) for e in edges[1:])
-    return np.asarray(cuts, dtype=np.intp)
+    """Cut each window ``[b[w], b[w + 1])`` into up to BATCHES_PER_WINDOW equal batches.
+
+    The edges are those of ``np.linspace(start, stop, count + 1).round()`` per
+    window (the same float arithmetic: k · ((stop − start) / count) + start,
+    the last edge exactly ``stop``), for all windows at once.
+    """
+    start = window_bounds[:-1]
+    stop = window_bounds[1:]
+    length = stop - start
+    count = np.maximum(1, np.minimum(BATCHES_PER_WINDOW, length // MIN_BATCH_SAMPLES))
+    owner = np.repeat(np.arange(len(count), dtype=np.intp), count)
+    k = np.arange(int(count.sum()), dtype=np.intp) - np.repeat(np.cumsum(count) - count, count) + 1
+    step = (length.astype(np.float64) / count)[owner]
+    edges = np.round(k * step + start[owner].astype(np.float64)).astype(np.intp)
+    last = k == count[owner]
+    edges[last] = stop[owner][last]
+    return np.concatenate((window_bounds[:1], edges)).astype(np.intp)
+
+
+def _sort_segments(buffer: FloatArray, bounds: IntArray, kind: _SortKind) -> None:
+    """Sort every segment ``buffer[bounds[s]:bounds[s + 1]]`` in place.
+
+    ``buffer`` ends in one spare slot holding +inf, after the last segment.
+    Segments of similar length (within :data:`_PAD_RATIO`) are sorted together
+    as the rows of one block: a row shorter than the block reads the spare slot
+    as padding (+inf sorts behind every finite sample) and writes it back there,
+    so a block is one gather, one vectorised sort and one scatter instead of a
+    call per segment. Segments longer than :data:`_PAD_LONGEST` are sorted one
+    by one: they are few, and a call costs little against their length.
+    """
+    spare = len(buffer) - 1
+    lengths = np.diff(bounds)
+    starts = bounds[:-1]
+    for s in np.flatnonzero(lengths > _PAD_LONGEST).tolist():
+        buffer[starts[s] : starts[s] + lengths[s]].sort(kind=kind)
+    short = np.flatnonzero((lengths > 1) & (lengths <= _PAD_LONGEST))
+    short = short[np.argsort(lengths[short], kind="stable")]
+    sorted_lengths = lengths[short]
+    first = 0
+    while first < len(short):
+        shortest = int(sorted_lengths[first])
+        end = int(np.searchsorted(sorted_lengths, math.floor(shortest * _PAD_RATIO), "right"))
+        end = min(end, first + max(1, _PAD_BLOCK // shortest))
+        rows = short[first:end]
+        width = int(sorted_lengths[end - 1])
+        columns = np.arange(width, dtype=np.intp)
+        index = starts[rows][:, None] + columns
+        if width > shortest:
+            index = np.where(columns < lengths[rows][:, None], index, spare)
+        block = buffer.take(index)
+        block.sort(axis=1, kind=kind)
+        buffer.put(index, block)
+        first = end
+
+
+def _sorted_medians(buffer: FloatArray, bounds: IntArray, quantum: float) -> FloatArray:
+    """:func:`grouped_median` of every segment of ``buffer``, each segment sorted.
+
+    ``bounds`` cut the buffer (but a spare slot) into consecutive segments; NaN for an empty
+    one. The arithmetic is :func:`grouped_median`'s, so the numbers are the same.
+    """
+    lengths = np.diff(bounds)
+    result = np.full(len(lengths), np.nan)
+    filled = np.flatnonzero(lengths > 0)
+    if not len(filled):
+        return result
+    count = lengths[filled]
+    start = bounds[:-1][filled]
+    low = buffer[start + (count - 1) // 2]
+    if quantum <= 0:
+        high = buffer[start + count // 2]
+        result[filled] = np.where(count % 2 == 1, low, (low + high) / 2)
+        return result
+    half = 0.5 * quantum
+    level = np.repeat(low, count)
+    buffer = buffer[: len(level)]  # without a spare slot after the segments
+    below = np.add.reduceat((buffer < level - half).astype(np.intp), start)
+    at = np.add.reduceat((np.abs(buffer - level) <= half).astype(np.intp), start)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        interpolated = low - half + quantum * (0.5 * count - below) / at
+    result[filled] = np.where(at == 0, low, interpolated)
+    return result
 
 
 def _scatter_over_root_n(
@@ -235,73 +307,114 @@ def friction_table(
     Returns:
         The table; rows without a single finite sample are left out.
     """
+    current = np.asarray(current_a, dtype=np.float64)
+    return window_table(
+        axis,
+        [current[w.start : w.stop] for w in windows],
+        windows,
+        torque_constant_nm_per_a=torque_constant_nm_per_a,
+        current_quantum_a=current_quantum_a,
+    )
+
+
+def window_table(
+    axis: str,
+    window_current_a: Sequence[FloatArray],
+    windows: Sequence[VelocityWindow],
+    *,
+    torque_constant_nm_per_a: float | None = None,
+    current_quantum_a: float = 0.0,
+) -> FrictionTable:
+    """:func:`friction_table` from the current of each window alone.
+
+    For an analysis that does not hold the whole recording: it keeps the
+    samples of the windows only (``window_current_a[i]`` is the current of
+    ``windows[i]``, ``stop − start`` samples) and gets the same table.
+    """
     quantity: Literal["torque_nm", "current_a"] = (
         "torque_nm" if torque_constant_nm_per_a is not None else "current_a"
     )
     unit: Literal["Nm", "A"] = "Nm" if torque_constant_nm_per_a is not None else "A"
     scale = torque_constant_nm_per_a if torque_constant_nm_per_a is not None else 1.0
-    current = np.asarray(current_a, dtype=np.float64)
+    count = len(windows)
 
-    # Group key per window; windows sorted by key make every group's samples contiguous.
-    position = np.fromiter((w.position_index for w in windows), dtype=np.intp, count=len(windows))
-    direction = np.fromiter((w.direction for w in windows), dtype=np.intp, count=len(windows))
-    step = np.fromiter((w.step for w in windows), dtype=np.intp, count=len(windows))
-    velocity = np.fromiter(
-        (w.velocity_mm_min for w in windows), dtype=np.float64, count=len(windows)
-    )
-    start = np.fromiter((w.start for w in windows), dtype=np.intp, count=len(windows))
+    # Group key per window; windows sorted by key make every group's samples contiguous,
+    # so every statistic below works on consecutive slices of one buffer.
+    position = np.fromiter((w.position_index for w in windows), dtype=np.intp, count=count)
+    direction = np.fromiter((w.direction for w in windows), dtype=np.intp, count=count)
+    step = np.fromiter((w.step for w in windows), dtype=np.intp, count=count)
+    velocity = np.fromiter((w.velocity_mm_min for w in windows), dtype=np.float64, count=count)
+    start = np.fromiter((w.start for w in windows), dtype=np.intp, count=count)
     order = np.lexsort((start, step, direction, position))
-    ordered = [windows[i] for i in order]
     keys = np.stack([position[order], direction[order], step[order]], axis=1)
-    if len(keys):
-        first = np.ones(len(keys), dtype=np.bool_)
-        first[1:] = (keys[1:] != keys[:-1]).any(axis=1)
-        group_of_window = np.cumsum(first) - 1
-    else:
-        first = np.zeros(0, dtype=np.bool_)
-        group_of_window = np.zeros(0, dtype=np.intp)
+    first = np.ones(count, dtype=np.bool_)
+    first[1:] = (keys[1:] != keys[:-1]).any(axis=1)
+    group_of_window = np.cumsum(first) - 1
     groups = int(first.sum())
 
-    index, owner = window_samples(ordered)
-    values = current[index]
+    parts = [np.asarray(window_current_a[i], dtype=np.float64) for i in order.tolist()]
+    lengths = np.fromiter((len(p) for p in parts), dtype=np.intp, count=count)
+    values = np.concatenate(parts) if parts else np.empty(0, dtype=np.float64)
     finite = np.isfinite(values)
-    if not finite.all():
-        values, owner = values[finite], owner[finite]
-    group = group_of_window[owner]
-    n = np.bincount(group, minlength=groups)
-    per_window = np.bincount(owner, minlength=len(windows))
+    if finite.all():
+        per_window = lengths
+    else:
+        kept = np.concatenate(([0], np.cumsum(finite)))
+        ends = np.cumsum(lengths)
+        per_window = kept[ends] - kept[ends - lengths]
+        values = values[finite]
+    n = np.bincount(group_of_window, weights=per_window, minlength=groups).astype(np.intp)
     used_windows = np.bincount(group_of_window[per_window > 0], minlength=groups)
+    group_bounds = np.concatenate(([0], np.cumsum(n)))
+    window_bounds = np.concatenate(([0], np.cumsum(per_window)))
+
+    filled = np.flatnonzero(n > 0)
+    total = np.zeros(groups)
+    squares = np.zeros(groups)
+    if len(filled):
+        total[filled] = np.add.reduceat(values, group_bounds[filled])
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.bincount(group, weights=values, minlength=groups) / n
-        deviation = values - mean[group]
-        variance = np.bincount(group, weights=deviation * deviation, minlength=groups) / (n - 1)
+        mean = total / n
+        deviation = values - np.repeat(mean, n)
+        if len(filled):
+            squares[filled] = np.add.reduceat(deviation * deviation, group_bounds[filled])
+        variance = squares / (n - 1)
     std = np.where(n > 1, np.sqrt(np.maximum(variance, 0.0)), np.nan)
-    bounds = np.concatenate(([0], np.cumsum(n)))
-    median = _medians(values, bounds, current_quantum_a)
+
+    # Medians of batches, windows and groups from one buffer sorted three times:
+    # batches nest in windows and windows in groups, so each sort merges sorted runs.
+    ordered = np.append(values, np.inf)  # the spare slot of _sort_segments
+    batch_bounds = _batch_bounds(window_bounds)
+    _sort_segments(ordered, batch_bounds, "quicksort")
+    batch_median_all = _sorted_medians(ordered, batch_bounds, current_quantum_a)
+    _sort_segments(ordered, window_bounds, "stable")
+    window_median_all = _sorted_medians(ordered, window_bounds, current_quantum_a)
+    _sort_segments(ordered, group_bounds, "stable")
+    median = _sorted_medians(ordered, group_bounds, current_quantum_a)
 
     # Batches: consecutive stretches of every window; their medians scatter by what
     # correlates the samples (servo loop, cogging), unlike the samples themselves.
-    window_bounds = np.concatenate(([0], np.cumsum(per_window)))
-    batch_bounds = _batch_bounds(window_bounds)
-    filled = np.diff(batch_bounds) > 0
-    batch_median = _medians(values, batch_bounds, current_quantum_a)[filled]
-    batch_group = group[batch_bounds[:-1][filled]]
-    by_batches, count = _scatter_over_root_n(batch_median, batch_group, groups)
+    batch_filled = np.diff(batch_bounds) > 0
+    batch_median = batch_median_all[batch_filled]
+    batch_window = np.repeat(
+        np.arange(count, dtype=np.intp),
+        np.maximum(1, np.minimum(BATCHES_PER_WINDOW, per_window // MIN_BATCH_SAMPLES)),
+    )
+    batch_group = group_of_window[batch_window][batch_filled]
+    by_batches, batches = _scatter_over_root_n(batch_median, batch_group, groups)
     with np.errstate(invalid="ignore", divide="ignore"):
         independent = _MEDIAN_SE_FACTOR * std / np.sqrt(n)
-    stderr = np.where(count > 1, np.fmax(by_batches, independent), independent)
+    stderr = np.where(batches > 1, np.fmax(by_batches, independent), independent)
     # Repeated windows of a step: their medians' scatter over √windows.
     filled_windows = per_window > 0
-    window_median = _medians(values, window_bounds, current_quantum_a)[filled_windows]
+    window_median = window_median_all[filled_windows]
     by_windows, _ = _scatter_over_root_n(window_median, group_of_window[filled_windows], groups)
     stderr = np.where(used_windows > 1, np.fmax(stderr, by_windows), stderr)
 
-    group_velocity = np.full(groups, np.nan)
-    if groups:
-        # All windows of a group share the step velocity; take its first window's.
-        group_velocity = velocity[order][first]
+    # All windows of a group share the step velocity; take its first window's.
+    group_velocity = velocity[order][first]
     rows = n > 0
-    head = keys[first][rows] if groups else np.zeros((0, 3), dtype=np.intp)
+    head = keys[first][rows]
     return FrictionTable(
         axis=axis,
         quantity=quantity,
@@ -317,5 +430,5 @@ def friction_table(
         stderr=stderr[rows] * scale,
         n=n[rows].astype(np.intp),
         windows=used_windows[rows].astype(np.intp),
-        batches=count[rows].astype(np.intp),
+        batches=batches[rows].astype(np.intp),
     )
