@@ -259,15 +259,26 @@ def _reference(
     }
 
 
-@pytest.mark.parametrize("quantum", [0.0, 0.05])
+@pytest.mark.parametrize(
+    ("quantum", "values"),
+    [(0.0, "normal"), (0.05, "normal"), (0.0, "float32 ties"), (0.0, "beyond float32"),
+     (1e-12, "float32 ties")],
+)  # fmt: skip
 @pytest.mark.parametrize("seed", [3, 4, 5])
 def test_medians_equal_a_straightforward_reference_for_odd_and_even_counts(
-    seed: int, quantum: float
+    seed: int, quantum: float, values: str
 ) -> None:
-    """Windows of 1 to 5000 samples (one-by-one sorting and padded blocks), odd and even
-    counts, missing currents, a quantised current: the same medians, bit for bit."""
+    """Windows of 1 to 5000 samples (one by one and padded blocks), odd and even counts,
+    missing currents, a quantised current: the same medians, bit for bit. The medians are
+    selected among float32 keys and read back exactly: values closer than a float32 step
+    (many distinct values on one key) and beyond the float32 range must not fool them."""
     rng = np.random.default_rng(seed)
     current = rng.normal(1.0, 0.3, 60_000)
+    if values == "float32 ties":  # a few float32 keys, each for many float64 values
+        current = 1.0 + 1e-7 * rng.integers(-3, 4, len(current)) + 1e-13 * current
+    elif values == "beyond float32":
+        current *= np.where(rng.random(len(current)) < 0.3, 1e39, 1.0)
+        current[rng.random(len(current)) < 0.1] *= -1
     if quantum:
         current = np.round(current / quantum) * quantum
     current[rng.random(len(current)) < 0.01] = np.nan
