@@ -20,11 +20,19 @@ from the same windows:
   (as ncmeasure builds them) so that only the groupby is pandas': the floor
   for any pandas version of the table.
 
-Both are timed from the windows to the finished table (best of several
-runs) and reported as recording rows per second. Last, the two tables are
-compared cell by cell and the largest difference printed.
+All three start from the same windows and the same in-memory recording and
+end with the finished table: each gathers the current of the window samples
+itself. They run in interleaved rounds (ncmeasure, pandas, pandas prebuilt,
+ncmeasure, ...), so a busy computer slows all alike; the median and the range
+over the rounds are printed, in window samples per second (the samples the
+step processes, not recording rows), with the ratios and the goals
+(issue "performance": >= 40 M window samples/s, >= 5 x pandas on prebuilt
+labels). Last, the tables are compared cell by cell and the largest
+difference printed.
 
-Run: python benchmarks/analysis.py [--repeats N] [--repetitions N]
+Run: python benchmarks/analysis.py [--rounds N] [--repetitions N] [--short]
+(``--short``: one repetition of a 10-step program, a few minutes of
+recording, 2 rounds: checks that it runs, the figures mean nothing.)
 """
 
 from __future__ import annotations
@@ -50,19 +58,26 @@ POSITIONS = (50.0, 212.5, 375.0, 537.5, 700.0)
 SETTINGS = SegmentSettings()
 
 
-def _best(run: Callable[[], T], repeats: int) -> tuple[float, T]:
-    """The shortest of ``repeats`` runs, in seconds, and the last result."""
-    best = float("inf")
-    result: T
-    for _ in range(repeats):
-        start = time.perf_counter()
-        result = run()
-        best = min(best, time.perf_counter() - start)
-    return best, result
+GOAL_SAMPLES_PER_S = 40e6
+GOAL_VS_PANDAS = 5.0
 
 
-def _axes(repetitions: int) -> list[SyntheticAxis]:
-    steps = geometric_velocities(10.0, 15000.0, 50)
+def _interleaved(
+    runs: dict[str, Callable[[], T]], rounds: int
+) -> tuple[dict[str, list[float]], dict[str, T]]:
+    """Every run once per round, in turn; the seconds of each round and the last results."""
+    seconds: dict[str, list[float]] = {name: [] for name in runs}
+    results: dict[str, T] = {}
+    for _ in range(rounds):
+        for name, run in runs.items():
+            start = time.perf_counter()
+            results[name] = run()
+            seconds[name].append(time.perf_counter() - start)
+    return seconds, results
+
+
+def _axes(repetitions: int, steps_count: int = 50) -> list[SyntheticAxis]:
+    steps = geometric_velocities(10.0, 15000.0, steps_count)
     common = {
         "positions_mm": POSITIONS,
         "velocities_mm_min": steps,
@@ -168,16 +183,21 @@ def _as_frame(tables: Sequence[FrictionTable]) -> pd.DataFrame:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=5, help="timed runs of each table")
+    parser.add_argument("--rounds", type=int, default=9, help="interleaved timed rounds")
     parser.add_argument(
         "--repetitions", type=int, default=2, help="program repetitions per axis (2: ~1 h)"
     )
+    parser.add_argument("--short", action="store_true", help="a few minutes, 2 rounds")
     args = parser.parse_args()
+    steps_count, rounds = (10, 2) if args.short else (50, args.rounds)
+    repetitions = 1 if args.short else args.repetitions
 
     with tempfile.TemporaryDirectory(prefix="ncmeasure-bench-") as tmp:
         start = time.perf_counter()
         recording, schedule = synthetic_recording(
-            Path(tmp) / "recording", _axes(args.repetitions), sample_period_s=1.0 / RATE_HZ
+            Path(tmp) / "recording",
+            _axes(repetitions, steps_count),
+            sample_period_s=1.0 / RATE_HZ,
         )
         rows = len(recording)
         print(
@@ -198,25 +218,44 @@ def main() -> None:
             f"(found in {time.perf_counter() - start:.2f} s, not part of the timing below)"
         )
 
-        ours_s, ours = _best(lambda: ncmeasure_tables(recording, segmentations), args.repeats)
-        plain_s, plain = _best(lambda: pandas_table(recording, segmentations), args.repeats)
-        floor_s, floor = _best(
-            lambda: pandas_table_prebuilt(recording, segmentations), args.repeats
+        seconds, results = _interleaved(
+            {
+                "ncmeasure": lambda: ncmeasure_tables(recording, segmentations),
+                "pandas": lambda: pandas_table(recording, segmentations),
+                "prebuilt": lambda: pandas_table_prebuilt(recording, segmentations),
+            },
+            rounds,
         )
 
+    median = {name: float(np.median(s)) for name, s in seconds.items()}
     print()
-    print(f"{'friction table (windows -> table)':44} {'time':>9} {'rows/s':>13}")
-    for name, seconds in (
-        ("ncmeasure (numpy)", ours_s),
-        ("pandas groupby, a frame per window", plain_s),
-        ("pandas groupby, labels built with numpy", floor_s),
+    print(f"friction table (windows -> table), {rounds} interleaved rounds")
+    print(f"{'':44} {'median':>9} {'range':>19} {'window samples/s':>17}")
+    for name, label in (
+        ("ncmeasure", "ncmeasure (numpy)"),
+        ("pandas", "pandas groupby, a frame per window"),
+        ("prebuilt", "pandas groupby, labels built with numpy"),
     ):
-        print(f"{name:44} {seconds * 1000:7.1f} ms {rows / seconds:13,.0f}")
-    print(f"ncmeasure vs plain pandas: {plain_s / ours_s:.1f} x faster; "
-          f"vs pandas on prebuilt labels: {floor_s / ours_s:.1f} x")  # fmt: skip
+        low, high = min(seconds[name]), max(seconds[name])
+        print(
+            f"{label:44} {median[name] * 1000:6.1f} ms {low * 1000:7.1f} .. {high * 1000:6.1f} ms "
+            f"{samples / median[name]:17,.0f}"
+        )
+    rate = samples / median["ncmeasure"]
+    versus = median["prebuilt"] / median["ncmeasure"]
+    print(
+        f"ncmeasure: {rate / 1e6:.1f} M window samples/s "
+        f"(goal >= {GOAL_SAMPLES_PER_S / 1e6:.0f} M: "
+        f"{'met' if rate >= GOAL_SAMPLES_PER_S else 'NOT met'}); "
+        f"{median['pandas'] / median['ncmeasure']:.1f} x plain pandas; {versus:.1f} x pandas on "
+        f"prebuilt labels (goal >= {GOAL_VS_PANDAS:g} x: "
+        f"{'met' if versus >= GOAL_VS_PANDAS else 'NOT met'})"
+    )
 
-    mine = _as_frame(ours)
-    for label, theirs in (("plain pandas", plain), ("prebuilt pandas", floor)):
+    ours = results["ncmeasure"]
+    mine = _as_frame(ours)  # type: ignore[arg-type]
+    for label, key in (("plain pandas", "pandas"), ("prebuilt pandas", "prebuilt")):
+        theirs = results[key]
         theirs = theirs.set_axis(theirs.index.set_levels(  # categorical axis level -> str
             theirs.index.levels[0].astype(str), level=0))  # fmt: skip
         joined = mine.join(theirs.add_suffix("_pandas"), how="outer")

@@ -36,6 +36,7 @@ from ncmeasure.recording import (
     RecordingWriter,
     axis_metadata,
     channel_from_name,
+    iter_chunks,
     read_recording,
 )
 from ncmeasure.recording import writer as recording_writer
@@ -865,3 +866,37 @@ def test_the_numpy_only_reader_of_the_docs(tmp_path: Path) -> None:
         {"time_s": 0.0, "kind": "info", "message": "hello", "axis": None, "lost_samples": 0,
          "details": {}}
     ]  # fmt: skip
+
+
+@pytest.mark.parametrize("rows", [1, 7, 250, 10_000])
+def test_chunks_hold_the_rows_of_the_whole_read_also_before_a_damaged_frame(
+    tmp_path: Path, rows: int
+) -> None:
+    """Chunks of any size (smaller and larger than a frame) give the rows, in order, that
+    Recording.open gives; a frame failing its checksum ends both at the same row."""
+    channels = channels_for(("X", "Y"), ("current_a", "velocity_mm_min"))
+    directory = tmp_path / "run"
+    with RecordingWriter.create(directory, channels, nominal_period_s=0.001) as writer:
+        for first in range(0, 2000, 300):
+            time_s = np.arange(first, first + 300) * 0.001
+            values = np.random.default_rng(first).normal(size=(300, len(channels)))
+            writer.append(SampleBlock(time_s, values))
+            writer.flush()
+    whole = Recording.open(directory)
+    wanted = ("Y_velocity_mm_min", "X_current_a")
+    chunks = list(iter_chunks(directory, rows, wanted))
+    assert [c.first for c in chunks] == list(range(0, len(whole), rows))
+    assert all(len(c.time_s) == rows for c in chunks[:-1])
+    assert np.array_equal(np.concatenate([c.time_s for c in chunks]), whole.time_s)
+    expected = np.column_stack([whole.column(name) for name in wanted])
+    assert np.array_equal(np.concatenate([c.values for c in chunks]), expected)
+
+    samples = directory / SAMPLES_FILE
+    data = bytearray(samples.read_bytes())
+    data[-100] ^= 0xFF  # a bit flip in the last frame's payload
+    samples.write_bytes(bytes(data))
+    damaged = Recording.open(directory)
+    problems: list[str] = []
+    rest = list(iter_chunks(directory, rows, wanted, problems))
+    assert np.array_equal(np.concatenate([c.time_s for c in rest]), damaged.time_s)
+    assert problems == [p for p in damaged.problems if "checksum" in p]

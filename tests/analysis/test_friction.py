@@ -9,7 +9,12 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.friction import friction_table, grouped_median, window_samples
+from ncmeasure.analysis.friction import (
+    friction_table,
+    grouped_median,
+    window_samples,
+    window_table,
+)
 from ncmeasure.analysis.segment import VelocityWindow
 
 
@@ -226,3 +231,83 @@ def test_repeated_windows_that_disagree_widen_the_standard_error() -> None:
     # The scatter of the two window medians over √2: about 0.05, not the 0.0003 the
     # samples would claim, nor the 0.017 of ten batches, five on each level.
     assert table.stderr[0] == pytest.approx(0.05, rel=0.1)
+
+
+def _reference(
+    current: NDArray[np.float64], windows: list[VelocityWindow], quantum: float
+) -> dict[tuple[int, int, int], tuple[float, float, int, int]]:
+    """Median, batch-scatter input and counts, one window and one batch at a time."""
+    groups: dict[tuple[int, int, int], list[NDArray[np.float64]]] = {}
+    batches: dict[tuple[int, int, int], int] = {}
+    for w in sorted(windows, key=lambda w: w.start):
+        samples = current[w.start : w.stop]
+        samples = samples[np.isfinite(samples)]
+        key = (w.position_index, w.direction, w.step)
+        groups.setdefault(key, []).append(samples)
+        count = max(1, min(5, len(samples) // 5))
+        edges = np.linspace(0, len(samples), count + 1).round().astype(int)
+        batches[key] = batches.get(key, 0) + int(np.count_nonzero(np.diff(edges) > 0))
+    return {
+        key: (
+            grouped_median(np.concatenate(parts), quantum),
+            float(np.mean(np.concatenate(parts))),
+            sum(len(p) for p in parts),
+            batches[key],
+        )
+        for key, parts in groups.items()
+        if sum(len(p) for p in parts)
+    }
+
+
+@pytest.mark.parametrize(
+    ("quantum", "values"),
+    [(0.0, "normal"), (0.05, "normal"), (0.0, "float32 ties"), (0.0, "beyond float32"),
+     (1e-12, "float32 ties")],
+)  # fmt: skip
+@pytest.mark.parametrize("seed", [3, 4, 5])
+def test_medians_equal_a_straightforward_reference_for_odd_and_even_counts(
+    seed: int, quantum: float, values: str
+) -> None:
+    """Windows of 1 to 5000 samples (one by one and padded blocks), odd and even counts,
+    missing currents, a quantised current: the same medians, bit for bit. The medians are
+    selected among float32 keys and read back exactly: values closer than a float32 step
+    (many distinct values on one key) and beyond the float32 range must not fool them."""
+    rng = np.random.default_rng(seed)
+    current = rng.normal(1.0, 0.3, 60_000)
+    if values == "float32 ties":  # a few float32 keys, each for many float64 values
+        current = 1.0 + 1e-7 * rng.integers(-3, 4, len(current)) + 1e-13 * current
+    elif values == "beyond float32":
+        current *= np.where(rng.random(len(current)) < 0.3, 1e39, 1.0)
+        current[rng.random(len(current)) < 0.1] *= -1
+    if quantum:
+        current = np.round(current / quantum) * quantum
+    current[rng.random(len(current)) < 0.01] = np.nan
+    windows = []
+    start = 0
+    for number in range(120):
+        length = int(rng.choice([1, 2, 3, 4, 9, 10, 64, 65, 333, 5000]))
+        step, position = number % 4, (number // 4) % 3
+        sign: Literal[1, -1] = 1 if number % 2 else -1
+        windows.append(_window(start, start + length, step=step, position=position,
+                               direction=sign, v=10.0 * (step + 1)))  # fmt: skip
+        start += length + int(rng.integers(0, 20))
+    table = friction_table("X", current, windows, current_quantum_a=quantum)
+    expected = _reference(current, windows, quantum)
+    assert len(table) == len(expected)
+    assert {int(n) % 2 for n in table.n} == {0, 1}
+    for i in range(len(table)):
+        key = (int(table.position_index[i]), int(table.direction[i]), int(table.step[i]))
+        median, mean, n, batches = expected[key]
+        assert table.median[i] == median
+        assert table.mean[i] == pytest.approx(mean, rel=1e-12)
+        assert (int(table.n[i]), int(table.batches[i])) == (n, batches)
+
+
+def test_window_table_from_the_window_samples_alone_equals_the_table_from_all_samples() -> None:
+    current, windows = _random_case(6)
+    whole = friction_table("X", current, windows, current_quantum_a=0.01)
+    alone = window_table(
+        "X", [current[w.start : w.stop].copy() for w in windows], windows, current_quantum_a=0.01
+    )
+    for name in ("median", "mean", "std", "stderr", "n", "windows", "batches", "step"):
+        assert np.array_equal(getattr(whole, name), getattr(alone, name), equal_nan=True)

@@ -37,11 +37,13 @@ Two properties of real drive data shape the statistics:
 With a torque constant the table is in Nm (T = k_T · I), else in A.
 
 This is the hot path of the analysis (an hour at 1 kHz is 3.6 M rows), so it
-is vectorised: the windows are sorted by group, the sample indices of all
-windows are built at once (``np.repeat`` of the window offsets), sums come
-from ``np.bincount``, and medians from one ``np.partition`` per group or
-batch on its contiguous slice. Python loops run over windows, batches and
-groups, never samples.
+is vectorised: the windows are sorted by group and their samples copied once
+into one buffer (every group, window and batch a contiguous slice), sums come
+from ``np.add.reduceat``, and the medians of all batches, windows and groups
+from ``np.partition`` of padded blocks of float32 keys, read back exactly
+(:func:`_segment_medians`): no sort, no index array per sample, nothing
+written back. Python loops run over blocks of similar segments, never
+samples.
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ from dataclasses import dataclass
 from typing import Final, Literal
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from ncmeasure.analysis.results import Point
@@ -64,6 +67,7 @@ __all__ = [
     "friction_table",
     "grouped_median",
     "window_samples",
+    "window_table",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -76,6 +80,13 @@ MIN_BATCH_SAMPLES: Final = 5
 """A batch holds at least this many samples (a shorter window is one batch)."""
 
 _MEDIAN_SE_FACTOR: Final = math.sqrt(math.pi / 2)
+
+_PAD_RATIO: Final = 1.25
+"""Segments sorted in one padded block differ in length by at most this factor."""
+_PAD_LONGEST: Final = 4096
+"""Longer segments are sorted one by one."""
+_PAD_BLOCK: Final = 1 << 20
+"""Largest padded block, in values (8 MiB of float64, plus its index)."""
 
 
 @dataclass(frozen=True)
@@ -160,17 +171,6 @@ def grouped_median(values: FloatArray, quantum: float = 0.0) -> float:
     return level - half + quantum * (0.5 * count - below) / at
 
 
-def _medians(values: FloatArray, bounds: IntArray, quantum: float) -> FloatArray:
-    """:func:`grouped_median` of every contiguous group ``values[bounds[g]:bounds[g + 1]]``."""
-    return np.array(
-        [
-            grouped_median(values[bounds[g] : bounds[g + 1]], quantum)
-            for g in range(len(bounds) - 1)
-        ],
-        dtype=np.float64,
-    )
-
-
 def window_samples(windows: Sequence[VelocityWindow]) -> tuple[IntArray, IntArray]:
     """The sample indices of all windows and the window each belongs to, vectorised.
 
@@ -189,14 +189,147 @@ def window_samples(windows: Sequence[VelocityWindow]) -> tuple[IntArray, IntArra
 
 
 def _batch_bounds(window_bounds: IntArray) -> IntArray:
-    """Cut each window ``[b[w], b[w + 1])`` into up to BATCHES_PER_WINDOW equal batches."""
-    cuts = [int(window_bounds[0])] if len(window_bounds) else []
-    for w in range(len(window_bounds) - 1):
-        start, stop = int(window_bounds[w]), int(window_bounds[w + 1])
-        count = max(1, min(BATCHES_PER_WINDOW, (stop - start) // MIN_BATCH_SAMPLES))
-        edges = np.linspace(start, stop, count + 1).round().astype(np.intp)
-        cuts.extend(int(e) for e in edges[1:])
-    return np.asarray(cuts, dtype=np.intp)
+    """Cut each window ``[b[w], b[w + 1])`` into up to BATCHES_PER_WINDOW equal batches.
+
+    The edges are those of ``np.linspace(start, stop, count + 1).round()`` per
+    window (the same float arithmetic: k · ((stop − start) / count) + start,
+    the last edge exactly ``stop``), for all windows at once.
+    """
+    start = window_bounds[:-1]
+    stop = window_bounds[1:]
+    length = stop - start
+    count = np.maximum(1, np.minimum(BATCHES_PER_WINDOW, length // MIN_BATCH_SAMPLES))
+    owner = np.repeat(np.arange(len(count), dtype=np.intp), count)
+    k = np.arange(int(count.sum()), dtype=np.intp) - np.repeat(np.cumsum(count) - count, count) + 1
+    step = (length.astype(np.float64) / count)[owner]
+    edges = np.round(k * step + start[owner].astype(np.float64)).astype(np.intp)
+    last = k == count[owner]
+    edges[last] = stop[owner][last]
+    return np.concatenate((window_bounds[:1], edges)).astype(np.intp)
+
+
+def _selection_keys(buffer: FloatArray) -> NDArray[np.float32]:
+    """Float32 keys of ``buffer``: in the same order as the values (ties aside), never ±inf.
+
+    Rounding to float32 never reverses two values, so a row's k-th smallest value
+    has the k-th smallest key, and selecting among 32-bit keys is several times
+    faster than among float64 values. Clipped to the float32 range, no key of a
+    finite value equals the ±inf padding.
+    """
+    limit = float(np.finfo(np.float32).max)
+    keys = np.empty(len(buffer), dtype=np.float32)
+    np.clip(buffer, -limit, limit, out=keys, casting="same_kind")
+    return keys
+
+
+def _row_counts(mask: NDArray[np.bool_]) -> IntArray:
+    """The True entries of each row of ``mask``, rows at most :data:`_PAD_LONGEST` wide.
+
+    Summed as bytes into uint16 (a row counts 4096 at most), several times faster
+    than ``np.count_nonzero(mask, axis=1)``.
+    """
+    counts: NDArray[np.uint16] = mask.view(np.uint8).sum(axis=1, dtype=np.uint16)
+    return counts.astype(np.intp)
+
+
+def _segment_medians(
+    buffer: FloatArray, keys: NDArray[np.float32], bounds: IntArray, quantum: float
+) -> FloatArray:
+    """:func:`grouped_median` of every segment ``buffer[bounds[s]:bounds[s + 1]]``.
+
+    NaN for an empty segment. ``buffer`` holds finite values, and at least
+    :data:`_PAD_LONGEST` values (any finite) before the first segment and after
+    the last: the margin a padded row may reach into; ``keys`` are its
+    :func:`_selection_keys`. Neither is changed.
+
+    Segments of similar length (within :data:`_PAD_RATIO`) are the rows of one
+    block, each copied from the keys as the ``width`` keys centred on it
+    (``width`` the longest row's length: the copy of a contiguous stretch, no
+    index array). The keys of a row's neighbours on its left become −inf and
+    those on its right +inf, so many that the row's lower median lands in the
+    same column ``centre = (width − 1) // 2`` for every row whatever its length.
+    One ``np.partition`` of the float32 keys at that column finds every row's
+    median key (O(width) per row, no sort); the upper median of an even row has
+    the smallest key right of it. The values are then read back exactly: those
+    whose key lies between the two median keys (mostly one or two a row; more
+    only where values repeat or differ by less than a float32 step) are sorted
+    where they differ, and the median is the one at its rank after the keys
+    below. Segments longer than :data:`_PAD_LONGEST` are few and long:
+    :func:`grouped_median` each. The arithmetic is :func:`grouped_median`'s, so
+    the numbers are the same bit for bit.
+    """
+    lengths = np.diff(bounds)
+    starts = bounds[:-1]
+    result = np.full(len(lengths), np.nan)
+    for s in np.flatnonzero(lengths > _PAD_LONGEST).tolist():
+        result[s] = grouped_median(buffer[starts[s] : starts[s] + lengths[s]], quantum)
+    short = np.flatnonzero((lengths > 0) & (lengths <= _PAD_LONGEST))
+    short = short[np.argsort(lengths[short], kind="stable")]
+    sorted_lengths = lengths[short]
+    half = 0.5 * quantum
+    first = 0
+    while first < len(short):
+        shortest = int(sorted_lengths[first])
+        end = int(np.searchsorted(sorted_lengths, math.floor(shortest * _PAD_RATIO), "right"))
+        end = min(end, first + max(1, _PAD_BLOCK // shortest))
+        rows = short[first:end]
+        length = sorted_lengths[first:end]
+        first = end
+        width = int(length[-1])
+        centre = (width - 1) // 2
+        lead = centre - (length - 1) // 2
+        origin = starts[rows] - lead
+        row_keys = sliding_window_view(keys, width)[origin]
+        if width > shortest:
+            columns = np.arange(width, dtype=np.intp)
+            left = int(lead[0])  # the shortest row has the most padding
+            np.copyto(row_keys[:, :left], -np.inf, where=columns[:left] < lead[:, None])
+            tail = lead + length
+            right = int(tail[0])
+            np.copyto(row_keys[:, right:], np.inf, where=columns[right:] >= tail[:, None])
+        selected = row_keys.copy()
+        selected.partition(centre, axis=1)
+        low_key = selected[:, centre]
+        even = (length % 2 == 0) if quantum <= 0 else np.zeros(len(rows), dtype=np.bool_)
+        high_key = low_key
+        if even.any():  # an odd row's next key may be padding: its band stays at its median
+            high_key = np.where(even, selected[:, centre + 1 :].min(axis=1), low_key)
+        # Keys below the median key: all left of the centre in the partitioned rows.
+        below = _row_counts(selected[:, :centre] < low_key[:, None])
+        del selected
+        # The values whose keys lie from the lower to the upper median key, row by row.
+        band = row_keys >= low_key[:, None]
+        band &= row_keys <= high_key[:, None]
+        flat = np.flatnonzero(band)
+        row = flat // width
+        candidates = buffer[origin[row] + flat - row * width]
+        count = np.bincount(row, minlength=len(rows))
+        offset = np.cumsum(count) - count
+        low = np.minimum.reduceat(candidates, offset)
+        high = np.maximum.reduceat(candidates, offset)
+        mixed = np.flatnonzero(low != high)
+        if len(mixed):  # values differ within a key: sort those rows' candidates
+            take = (low != high)[row]
+            part, part_row = candidates[take], row[take]
+            part = part[np.lexsort((part, part_row))]
+            part_offset = np.cumsum(count[mixed]) - count[mixed] - below[mixed]
+            low[mixed] = part[part_offset + centre]
+            if even.any():  # an odd row's band ends at its median
+                high[mixed] = part[part_offset + centre + even[mixed]]
+        if quantum > 0:  # counts below and at the level: the row's values, padded as its keys
+            values = sliding_window_view(buffer, width)[origin]
+            if width > shortest:
+                np.copyto(values[:, :left], -np.inf, where=columns[:left] < lead[:, None])
+                np.copyto(values[:, right:], np.inf, where=columns[right:] >= tail[:, None])
+            below = _row_counts(values < (low - half)[:, None]) - lead
+            np.subtract(values, low[:, None], out=values)
+            at = _row_counts(np.abs(values, out=values) <= half)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                interpolated = low - half + quantum * (0.5 * length - below) / at
+            result[rows] = np.where(at == 0, low, interpolated)
+        else:
+            result[rows] = np.where(even, (low + high) / 2, low)
+    return result
 
 
 def _scatter_over_root_n(
@@ -235,73 +368,124 @@ def friction_table(
     Returns:
         The table; rows without a single finite sample are left out.
     """
+    current = np.asarray(current_a, dtype=np.float64)
+    return window_table(
+        axis,
+        [current[w.start : w.stop] for w in windows],
+        windows,
+        torque_constant_nm_per_a=torque_constant_nm_per_a,
+        current_quantum_a=current_quantum_a,
+    )
+
+
+def window_table(
+    axis: str,
+    window_current_a: Sequence[FloatArray],
+    windows: Sequence[VelocityWindow],
+    *,
+    torque_constant_nm_per_a: float | None = None,
+    current_quantum_a: float = 0.0,
+) -> FrictionTable:
+    """:func:`friction_table` from the current of each window alone.
+
+    For an analysis that does not hold the whole recording: it keeps the
+    samples of the windows only (``window_current_a[i]`` is the current of
+    ``windows[i]``, ``stop − start`` samples) and gets the same table.
+    """
     quantity: Literal["torque_nm", "current_a"] = (
         "torque_nm" if torque_constant_nm_per_a is not None else "current_a"
     )
     unit: Literal["Nm", "A"] = "Nm" if torque_constant_nm_per_a is not None else "A"
     scale = torque_constant_nm_per_a if torque_constant_nm_per_a is not None else 1.0
-    current = np.asarray(current_a, dtype=np.float64)
+    count = len(windows)
 
-    # Group key per window; windows sorted by key make every group's samples contiguous.
-    position = np.fromiter((w.position_index for w in windows), dtype=np.intp, count=len(windows))
-    direction = np.fromiter((w.direction for w in windows), dtype=np.intp, count=len(windows))
-    step = np.fromiter((w.step for w in windows), dtype=np.intp, count=len(windows))
-    velocity = np.fromiter(
-        (w.velocity_mm_min for w in windows), dtype=np.float64, count=len(windows)
-    )
-    start = np.fromiter((w.start for w in windows), dtype=np.intp, count=len(windows))
+    # Group key per window; windows sorted by key make every group's samples contiguous,
+    # so every statistic below works on consecutive slices of one buffer.
+    position = np.fromiter((w.position_index for w in windows), dtype=np.intp, count=count)
+    direction = np.fromiter((w.direction for w in windows), dtype=np.intp, count=count)
+    step = np.fromiter((w.step for w in windows), dtype=np.intp, count=count)
+    velocity = np.fromiter((w.velocity_mm_min for w in windows), dtype=np.float64, count=count)
+    start = np.fromiter((w.start for w in windows), dtype=np.intp, count=count)
     order = np.lexsort((start, step, direction, position))
-    ordered = [windows[i] for i in order]
     keys = np.stack([position[order], direction[order], step[order]], axis=1)
-    if len(keys):
-        first = np.ones(len(keys), dtype=np.bool_)
-        first[1:] = (keys[1:] != keys[:-1]).any(axis=1)
-        group_of_window = np.cumsum(first) - 1
-    else:
-        first = np.zeros(0, dtype=np.bool_)
-        group_of_window = np.zeros(0, dtype=np.intp)
+    first = np.ones(count, dtype=np.bool_)
+    first[1:] = (keys[1:] != keys[:-1]).any(axis=1)
+    group_of_window = np.cumsum(first) - 1
     groups = int(first.sum())
 
-    index, owner = window_samples(ordered)
-    values = current[index]
+    parts = [np.asarray(window_current_a[i], dtype=np.float64) for i in order.tolist()]
+    lengths = np.fromiter((len(p) for p in parts), dtype=np.intp, count=count)
+    # The samples, by group and window, between margins a padded row may reach into.
+    margin = _PAD_LONGEST
+    buffer = np.empty(margin + int(lengths.sum()) + margin)
+    buffer[:margin] = buffer[len(buffer) - margin :] = 0.0
+    values = buffer[margin : len(buffer) - margin]
+    if parts:
+        np.concatenate(parts, out=values)
     finite = np.isfinite(values)
-    if not finite.all():
-        values, owner = values[finite], owner[finite]
-    group = group_of_window[owner]
-    n = np.bincount(group, minlength=groups)
-    per_window = np.bincount(owner, minlength=len(windows))
+    if finite.all():
+        per_window = lengths
+    else:
+        kept = np.concatenate(([0], np.cumsum(finite)))
+        ends = np.cumsum(lengths)
+        per_window = kept[ends] - kept[ends - lengths]
+        buffer = np.concatenate((buffer[:margin], values[finite], buffer[:margin]))
+        values = buffer[margin : len(buffer) - margin]
+    n = np.bincount(group_of_window, weights=per_window, minlength=groups).astype(np.intp)
     used_windows = np.bincount(group_of_window[per_window > 0], minlength=groups)
+    group_bounds = np.concatenate(([0], np.cumsum(n)))
+    window_bounds = np.concatenate(([0], np.cumsum(per_window)))
+
+    filled = np.flatnonzero(n > 0)
+    total = np.zeros(groups)
+    squares = np.zeros(groups)
+    if len(filled):
+        total[filled] = np.add.reduceat(values, group_bounds[filled])
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.bincount(group, weights=values, minlength=groups) / n
-        deviation = values - mean[group]
-        variance = np.bincount(group, weights=deviation * deviation, minlength=groups) / (n - 1)
+        mean = total / n
+        deviation = np.repeat(mean, n)  # one array of n, worked in place
+        np.subtract(values, deviation, out=deviation)
+        np.multiply(deviation, deviation, out=deviation)
+        if len(filled):
+            squares[filled] = np.add.reduceat(deviation, group_bounds[filled])
+        del deviation
+        variance = squares / (n - 1)
     std = np.where(n > 1, np.sqrt(np.maximum(variance, 0.0)), np.nan)
-    bounds = np.concatenate(([0], np.cumsum(n)))
-    median = _medians(values, bounds, current_quantum_a)
+
+    # Medians of batches, windows and groups: selections in padded blocks of the buffer.
+    batch_bounds = _batch_bounds(window_bounds)
+    order_keys = _selection_keys(buffer)
+    batch_median_all = _segment_medians(
+        buffer, order_keys, batch_bounds + margin, current_quantum_a
+    )
+    window_median_all = _segment_medians(
+        buffer, order_keys, window_bounds + margin, current_quantum_a
+    )
+    median = _segment_medians(buffer, order_keys, group_bounds + margin, current_quantum_a)
 
     # Batches: consecutive stretches of every window; their medians scatter by what
     # correlates the samples (servo loop, cogging), unlike the samples themselves.
-    window_bounds = np.concatenate(([0], np.cumsum(per_window)))
-    batch_bounds = _batch_bounds(window_bounds)
-    filled = np.diff(batch_bounds) > 0
-    batch_median = _medians(values, batch_bounds, current_quantum_a)[filled]
-    batch_group = group[batch_bounds[:-1][filled]]
-    by_batches, count = _scatter_over_root_n(batch_median, batch_group, groups)
+    batch_filled = np.diff(batch_bounds) > 0
+    batch_median = batch_median_all[batch_filled]
+    batch_window = np.repeat(
+        np.arange(count, dtype=np.intp),
+        np.maximum(1, np.minimum(BATCHES_PER_WINDOW, per_window // MIN_BATCH_SAMPLES)),
+    )
+    batch_group = group_of_window[batch_window][batch_filled]
+    by_batches, batches = _scatter_over_root_n(batch_median, batch_group, groups)
     with np.errstate(invalid="ignore", divide="ignore"):
         independent = _MEDIAN_SE_FACTOR * std / np.sqrt(n)
-    stderr = np.where(count > 1, np.fmax(by_batches, independent), independent)
+    stderr = np.where(batches > 1, np.fmax(by_batches, independent), independent)
     # Repeated windows of a step: their medians' scatter over √windows.
     filled_windows = per_window > 0
-    window_median = _medians(values, window_bounds, current_quantum_a)[filled_windows]
+    window_median = window_median_all[filled_windows]
     by_windows, _ = _scatter_over_root_n(window_median, group_of_window[filled_windows], groups)
     stderr = np.where(used_windows > 1, np.fmax(stderr, by_windows), stderr)
 
-    group_velocity = np.full(groups, np.nan)
-    if groups:
-        # All windows of a group share the step velocity; take its first window's.
-        group_velocity = velocity[order][first]
+    # All windows of a group share the step velocity; take its first window's.
+    group_velocity = velocity[order][first]
     rows = n > 0
-    head = keys[first][rows] if groups else np.zeros((0, 3), dtype=np.intp)
+    head = keys[first][rows]
     return FrictionTable(
         axis=axis,
         quantity=quantity,
@@ -317,5 +501,5 @@ def friction_table(
         stderr=stderr[rows] * scale,
         n=n[rows].astype(np.intp),
         windows=used_windows[rows].astype(np.intp),
-        batches=count[rows].astype(np.intp),
+        batches=batches[rows].astype(np.intp),
     )

@@ -29,7 +29,7 @@ from ncmeasure.recording.format import (
     channel_from_name,
     machine_axis,
 )
-from ncmeasure.recording.reader import Recording, read_recording
+from ncmeasure.recording.reader import Recording, RowChunk, iter_chunks, read_recording
 from ncmeasure.recording.sink import ImportSink, check_times
 from ncmeasure.recording.writer import RecordingWriter
 
@@ -48,9 +48,11 @@ __all__ = [
     "RecordingMeta",
     "RecordingStatus",
     "RecordingWriter",
+    "RowChunk",
     "axis_metadata",
     "channel_from_name",
     "check_times",
+    "iter_chunks",
     "machine_axis",
     "read_recording",
 ]

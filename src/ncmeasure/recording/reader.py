@@ -10,6 +10,7 @@ import io
 import logging
 import os
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -139,6 +140,101 @@ def _read_frames(path: Path, columns: int) -> tuple[NDArray[np.float64], list[st
             rows += frame.rows
     data: NDArray[np.float64] = raw[: rows * row_bytes].view(ROW_DTYPE).reshape(rows, columns)
     return data, problems
+
+
+@dataclass(frozen=True)
+class RowChunk:
+    """Consecutive rows of a recording: :func:`iter_chunks` yields them in order.
+
+    Attributes:
+        first: Index of the chunk's first row in the whole recording.
+        time_s: Times of its rows (m,).
+        values: The chosen channels of its rows (m, channels), in the order asked for.
+    """
+
+    first: int
+    time_s: NDArray[np.float64]
+    values: NDArray[np.float64]
+
+
+def iter_chunks(
+    directory: PathArg,
+    rows: int = 1 << 16,
+    channels: tuple[str, ...] | None = None,
+    problems: list[str] | None = None,
+) -> Iterator[RowChunk]:
+    """The rows of ``samples.bin`` chunk by chunk, never the whole file in memory.
+
+    The same rows as :meth:`Recording.open`, with the same checks (frame walk,
+    sequence numbers, CRC of every frame): a damaged frame ends the rows there,
+    and its problem is appended to ``problems``. Memory is one chunk of
+    ``rows`` rows (of every column, for the checksum) plus the frame index,
+    whatever the length of the recording.
+
+    Args:
+        directory: The recording directory.
+        rows: Rows per chunk (the last one may hold fewer).
+        channels: Channel names to return, in this order (default: all).
+        problems: Receives what was wrong with the file, one sentence each.
+
+    Raises:
+        RecordingError: Not a recording, or a channel it does not have.
+    """
+    if rows < 1:
+        raise ValueError("rows must be at least 1")
+    path = Path(directory)
+    meta = _read_meta(path)
+    names = [c.name for c in meta.channels]
+    wanted = tuple(names) if channels is None else channels
+    missing = [name for name in wanted if name not in names]
+    if missing:
+        raise RecordingError(f"{path}: no channel {', '.join(map(repr, missing))}")
+    columns = [1 + names.index(name) for name in wanted]
+    width = 1 + len(names)
+    row_bytes = 8 * width
+    found = problems if problems is not None else []
+    samples_path = path / SAMPLES_FILE
+    try:
+        file = samples_path.open("rb", buffering=0)
+    except FileNotFoundError as exc:
+        raise RecordingError(f"{path}: not a recording ({SAMPLES_FILE} is missing)") from exc
+    with file:
+        size = os.fstat(file.fileno()).st_size
+        frames = _walk_headers(file, size, row_bytes, found)
+        pending: list[NDArray[np.uint8]] = []  # whole frames not yet yielded
+        held = 0  # rows in pending
+        first = 0
+        for number, frame in enumerate(frames):
+            payload = np.empty(frame.rows * row_bytes, dtype=np.uint8)
+            file.seek(frame.offset + FRAME_HEADER.size)
+            rest = size - frame.offset
+            if _read_exactly(file, payload.data) < len(payload):
+                where = f"after frame {number - 1}" if number else "at the start of samples.bin"
+                found[:] = [f"torn tail: {rest} bytes {where} ignored (file shrank)"]
+                break
+            if zlib.crc32(payload.data) != frame.crc:
+                found[:] = [
+                    f"frame {number} fails its checksum: it and everything after it "
+                    f"ignored ({rest} bytes)"
+                ]
+                break
+            pending.append(payload)
+            held += frame.rows
+            if held < rows:
+                continue
+            joined = np.concatenate(pending) if len(pending) > 1 else pending[0]
+            whole = held // rows * rows
+            table = joined[: whole * row_bytes].view(ROW_DTYPE).reshape(whole, width)
+            for begin in range(0, whole, rows):
+                part = table[begin : begin + rows]
+                yield RowChunk(first, part[:, 0].copy(), part[:, columns])
+                first += rows
+            pending = [joined[whole * row_bytes :]] if held > whole else []
+            held -= whole
+        if held:
+            joined = np.concatenate(pending) if len(pending) > 1 else pending[0]
+            table = joined.view(ROW_DTYPE).reshape(held, width)
+            yield RowChunk(first, table[:, 0].copy(), table[:, columns])
 
 
 def _read_events(path: Path, problems: list[str]) -> list[LinkEvent]:
