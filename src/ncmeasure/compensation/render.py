@@ -400,7 +400,7 @@ def render_compensation(
                 f"{MIN_POINTS[controller]}…{MAX_POINTS[controller]}"
             )
     if not math.isfinite(units_per_a) or units_per_a <= 0:
-        raise ConfigError(f"--units-per-a {units_per_a}: must be a positive number")
+        raise ConfigError(f"--units-per-a {units_per_a:g}: must be a positive number")
     names = select_axes(results, axes)
     if controller == "cia402" and not axes:
         names = [n for n in names if results.axes[n].vertical]
