@@ -36,6 +36,7 @@ LAYERS: dict[str, int] = {
     "sim": 6,
     "analysis": 7,
     "report": 8,
+    "compensation": 8,
     "store": 9,
     "demo": 9,
     "web": 10,

@@ -10,7 +10,8 @@ The pipeline, one folder per stage, data flowing one way:
 5. ``recording`` crash-safe recordings on disk: format, writer, reader, import sink
 6. ``acquire``   the acquisition service: a link -> a recording, until done
 7. ``traces``    controller traces, CSV/MDF4 exchange and CAN logs -> recordings
-8. ``analysis``  recordings -> friction, fits, diagnosis, comparison; ``report`` -> HTML
+8. ``analysis``  recordings -> friction, fits, diagnosis, comparison; ``report`` -> HTML;
+                 ``compensation`` -> friction tables and offsets for controllers
 9. ``sim``       the virtual machine and simulated drives, for the demo and the tests
 10. ``cli``      the ``ncmeasure`` command
 
@@ -18,7 +19,7 @@ The layers (a module imports only from its own layer and the ones below)::
 
     cli
     demo ─────────────────────────── sim.machine, sim.axis, sim.synthetic
-    report ── analysis               sim.cia402, sim.modbus_drive (the protocol
+    report, compensation ── analysis sim.cia402, sim.modbus_drive (the protocol
     traces ── acquire                  knowledge of links.canopen.objects and
               links (base, canopen,    links.modbus.registers, not the links)
               modbus, replay)

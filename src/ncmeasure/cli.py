@@ -2237,6 +2237,86 @@ def demo_command(
     )
 
 
+@app.command("compensation")
+@_command
+def compensation_command(
+    results_file: Annotated[
+        Path, typer.Argument(help="results.json of the measurement (`ncmeasure analyze`).")
+    ],
+    controller: Annotated[
+        str,
+        typer.Option(
+            help="twincat: TwinCAT CNC friction table (frict_comp.*); linuxcnc: HAL snippet "
+            "(ddt -> lincurve -> sum2); cia402: torque offset 0x60B2 of vertical axes as SDO "
+            "writes."
+        ),
+    ],
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="File to write (default: print it).")
+    ] = None,
+    only: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--axis",
+            metavar="AXIS",
+            help="Compensate only this axis (repeat for several; default: every analysed axis, "
+            "cia402: every vertical one).",
+        ),
+    ] = None,
+    points: Annotated[
+        int | None,
+        typer.Option(
+            help="Table points per axis: twincat 3–1000 (default 20, the 0 entry included; "
+            "more than 20 needs frict_comp.max_points), linuxcnc 5–16 (default 15)."
+        ),
+    ] = None,
+    machine: Annotated[
+        Path | None,
+        typer.Option(help="Machine file; cia402 takes node_id and rated_current_a from it."),
+    ] = None,
+    units_per_a: Annotated[
+        float,
+        typer.Option(
+            help="twincat: drive current units of table[i].out per ampere (1000: mA); check "
+            "the unit of dig_drv.act_torque for your drive."
+        ),
+    ] = 1000.0,
+) -> None:
+    """Friction compensation for the controller, from a measurement, with sources and limits.
+
+    Per axis and direction the friction the analysis found (its model, the measured points
+    in the Stribeck region), averaged over the positions, at speeds between the slowest
+    and the fastest measured (denser at low speed), as motor current. The header of the
+    file names the manual pages behind every parameter and what the file leaves out;
+    docs/shop-floor.md explains how to apply each. Review before loading it.
+    Example: ncmeasure compensation run1.results.json --controller twincat --axis X -o X.lis
+    """
+    from ncmeasure.analysis.analyze import load_results
+    from ncmeasure.compensation import render_compensation
+    from ncmeasure.config import load_machine
+    from ncmeasure.files import replace_text
+
+    results = load_results(results_file)
+    text = render_compensation(
+        results,
+        controller,
+        axes=only,
+        points=points,
+        machine=load_machine(machine) if machine is not None else None,
+        units_per_a=units_per_a,
+        source=results_file.name,
+    )
+    if output is None:
+        sys.stdout.write(text)
+        return
+    try:
+        with replace_text(output, newline="\n") as handle:
+            handle.write(text)
+    except OSError as exc:
+        raise OutputError(f"{output}: cannot write ({exc.strerror or exc})") from exc
+    console.print(f"wrote {output}")
+
+
 @schema_app.command("results")
 @_command
 def schema_results() -> None:
