@@ -63,7 +63,7 @@ def receive(
 
 def stored_axes(url: str, serial: str) -> dict[str, Any]:
     with open_store(url) as store:
-        summary, measurements = store.machine(serial)
+        _, measurements = store.machine(serial)
         return {
             axis: store.trend(serial, axis)
             for axis in sorted(store.results(measurements[-1].id).axes)
@@ -179,8 +179,8 @@ def test_bad_input_stores_nothing(
 ) -> None:
     results = write_results(make_results("2030-01-10T08:00:00+00:00"), tmp_path / "r.json")
     for url in ("mqtt://u:pw@127.0.0.1", "tcp://127.0.0.1"):
-        code, out, err = run("store", "add", results, "--serial", "M17", "--store",
-                             store_with_machine, "--publish", url)  # fmt: skip
+        code, _, err = run("store", "add", results, "--serial", "M17", "--store",
+                           store_with_machine, "--publish", url)  # fmt: skip
         assert code == 2 and len(err.strip().splitlines()) == 1, err
     with open_store(store_with_machine) as store:
         assert len(store.machine("M17")[1]) == 2
