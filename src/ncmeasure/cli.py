@@ -1191,7 +1191,7 @@ def analyze_command(
         raise ConfigError("--store, --serial and --label go together: give --store and --serial")
     if publish is not None and store is None:
         raise ConfigError("--publish sends what --store stored: give --store and --serial too")
-    target = _mqtt_target(publish)
+    broker = _mqtt_target(publish)
     info = (
         _measurement_info(serial=serial, label=label, recording_location=str(run.absolute()))
         if serial is not None
@@ -1234,7 +1234,7 @@ def analyze_command(
         if not quiet:
             state = "stored as" if added.new else "already stored as"
             console.print(f"{state} measurement {added.measurement_id} of {serial}")
-        _publish_added(target, store, added, quiet)
+        _publish_added(broker, store, added, quiet)
     if quiet:
         return None
     _print_verdicts(results)

@@ -207,3 +207,33 @@ def test_credentials_and_tls(secure_broker: Broker, store_with_machine: str) -> 
     got = receive(secure_broker, 2, user=("line3", "s3cret-pw"))
     # the site stored with the machine wins over ?site=
     assert all(topic.startswith("ncmeasure/plant-2/M17/") for topic in got), got
+
+
+def test_analyze_publishes_after_storing(tmp_path: Path, broker: Broker) -> None:
+    from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
+
+    spec = SyntheticAxis(
+        positions_mm=(50.0, 375.0, 700.0),
+        coulomb=(2.0, 2.0, 2.0),
+        velocities_mm_min=geometric_velocities(10.0, 15000.0, 8),
+    )
+    folder = tmp_path / "run1"
+    _, schedule = synthetic_recording(folder, [spec], seed=1)
+    assert schedule is not None
+    schedule_file = tmp_path / "schedule.json"
+    schedule_file.write_text(schedule.model_dump_json())
+    store = tmp_path / "fleet.db"
+    publish = f"mqtt://127.0.0.1:{broker.port}/t2?site=hall-9"
+    code, _, err = run("analyze", folder, "--schedule", schedule_file, "--publish", publish)
+    assert code == 2 and "give --store and --serial" in err
+    code, out, err = run("analyze", folder, "--schedule", schedule_file, "--store", store,
+                         "--serial", "A1", "--publish", publish)  # fmt: skip
+    assert code == 0, err
+    assert "published 1 axis summaries" in out
+    got = receive(broker, 1, "t2/#")
+    ((topic, message),) = got.items()
+    trend = stored_axes(f"sqlite:///{store}", "A1")
+    ((axis, points),) = trend.items()
+    assert topic == f"t2/hall-9/A1/{axis}/fingerprint"
+    assert message["coulomb"] == points[-1].coulomb and message["measurement_id"] == 1
+    assert message["baseline_id"] is None and message["coulomb_change_percent"] is None

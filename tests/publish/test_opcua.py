@@ -246,3 +246,20 @@ def self_signed_rsa(folder: Path) -> tuple[Path, Path]:
         )
     )
     return cert_file, key_file
+
+
+def test_the_command_refuses_bad_input_in_one_line(store_with_machine: str) -> None:
+    from typer.testing import CliRunner
+
+    from ncmeasure.cli import app
+
+    for args, words in (
+        (["--endpoint", "opc.tcp://0.0.0.0:4840"], "needs a user"),
+        (["--endpoint", "opc.tcp://127.0.0.1"], "expected opc.tcp://HOST:PORT"),
+        (["--user", "line3"], "go together"),
+    ):
+        result = CliRunner().invoke(
+            app, ["publish", "opcua", "--store", store_with_machine, *args], env={}
+        )
+        lines = result.stderr.strip().splitlines()
+        assert result.exit_code == 2 and len(lines) == 1 and words in lines[0], result.stderr
