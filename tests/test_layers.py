@@ -40,6 +40,7 @@ LAYERS: dict[str, int] = {
     "store": 9,
     "demo": 9,
     "web": 10,
+    "publish": 10,
     "cli": 11,
     "__main__": 12,
 }

@@ -149,6 +149,18 @@ TemplatesDir = Annotated[
     ),
 ]
 
+PublishOption = Annotated[
+    str | None,
+    typer.Option(
+        "--publish",
+        metavar="URL",
+        help="After storing, publish the machine's axis summaries to this MQTT broker: "
+        "mqtt://[USER@]HOST[:PORT][/PREFIX] or mqtts://... (password: "
+        "$NCMEASURE_MQTT_PASSWORD; docs/shop-floor.md). Nothing is sent without it.",
+        show_default=False,
+    ),
+]
+
 
 def _exit_code(error: BaseException) -> int:
     """The exit code of an error (see the EXIT_ constants)."""
@@ -278,7 +290,7 @@ def _set_debug(debug: bool) -> None:
     )
     # The bus and protocol libraries log what ncmeasure already reports as events
     # and errors; their own lines would only repeat it less clearly.
-    for name in ("can", "canopen", "pymodbus"):
+    for name in ("can", "canopen", "pymodbus", "asyncua"):
         logging.getLogger(name).setLevel(logging.NOTSET if debug else logging.CRITICAL)
 
 
@@ -1246,6 +1258,7 @@ def analyze_command(
     label: Annotated[
         str | None, typer.Option(help="For --store: delivery, service, after-repair, ...")
     ] = None,
+    publish: PublishOption = None,
 ) -> None:
     """Friction per position, direction and velocity; fits; position diagnosis; a verdict.
 
@@ -1264,6 +1277,9 @@ def analyze_command(
     target = output or run.with_name(run.name + ".results.json")
     if (store is None) != (serial is None) or (label is not None and store is None):
         raise ConfigError("--store, --serial and --label go together: give --store and --serial")
+    if publish is not None and store is None:
+        raise ConfigError("--publish sends what --store stored: give --store and --serial too")
+    broker = _mqtt_target(publish)
     info = (
         _measurement_info(serial=serial, label=label, recording_location=str(run.absolute()))
         if serial is not None
@@ -1306,6 +1322,7 @@ def analyze_command(
         if not quiet:
             state = "stored as" if added.new else "already stored as"
             _console().print(f"{state} measurement {added.measurement_id} of {serial}")
+        _publish_added(broker, store, added, quiet)
     if quiet:
         return None
     _print_verdicts(results)
@@ -1648,6 +1665,7 @@ def store_add_command(
         typer.Option(help="Where the raw recording is kept (default: its folder in the results)."),
     ] = None,
     store: StoreOption = None,
+    publish: PublishOption = None,
 ) -> None:
     """Add a measurement's results to the store (the same results twice are stored once).
 
@@ -1665,6 +1683,7 @@ def store_add_command(
         operating_hours=operating_hours,
         recording_location=recording,
     )
+    target = _mqtt_target(publish)
     results = load_results(results_file)
     with _open_store(store, write=True) as fleet:
         added = fleet.add(results, info)
@@ -1675,6 +1694,7 @@ def store_add_command(
         _console().print(
             f"already stored as measurement {added.measurement_id} of {serial}; nothing added"
         )
+    _publish_added(target, store, added, quiet=False)
 
 
 @store_app.command("list")
@@ -2049,6 +2069,137 @@ def _no_token(where: str) -> str:
     raise ConfigError(f"{where}: empty, expected the token (at least 16 characters)")
 
 
+publish_app = typer.Typer(
+    help="The fleet store on the shop floor: MQTT messages and an OPC UA server "
+    "(docs/shop-floor.md).",
+    no_args_is_help=True,
+)
+app.add_typer(publish_app, name="publish")
+
+
+def _mqtt_target(url: str | None) -> Any:
+    """The broker of ``--publish``/``publish mqtt`` (None: none), checked before anything
+    is stored or read; paho-mqtt's absence is found here too."""
+    if url is None:
+        return None
+    from ncmeasure.publish.mqtt import MqttTarget, paho
+
+    paho()
+    return MqttTarget.from_url(url)
+
+
+def _publish_stored(target: Any, store: str | None, serials: list[str] | None) -> Any:
+    from ncmeasure.publish import axis_summaries
+    from ncmeasure.publish.mqtt import publish_summaries
+    from ncmeasure.store.overview import fleet_overview
+
+    with _open_store(store, write=False) as fleet:
+        summaries = axis_summaries(fleet_overview(fleet), serials)
+    return publish_summaries(target, summaries)
+
+
+def _publish_added(target: Any, store: str | None, added: Any, quiet: bool) -> None:
+    """Publish the machine just stored; a failure says that the measurement stays stored."""
+    if target is None:
+        return
+    from ncmeasure.errors import PublishError
+
+    try:
+        published = _publish_stored(target, store, [added.serial])
+    except PublishError as exc:
+        raise PublishError(
+            f"measurement {added.measurement_id} of {added.serial} is stored, but was not "
+            f"published: {exc.message} (`ncmeasure publish mqtt` sends it later)"
+        ) from exc
+    if not quiet:
+        _console().print(f"published {len(published.topics)} axis summaries to {published.target}")
+
+
+@publish_app.command("mqtt")
+@_command
+def publish_mqtt_command(
+    url: Annotated[
+        str,
+        typer.Argument(
+            help="The broker: mqtt://[USER@]HOST[:PORT][/PREFIX][?site=S&client_id=C&"
+            "topic=T] or mqtts://...[?ca=FILE]. The password comes from "
+            "$NCMEASURE_MQTT_PASSWORD, never from the command line.",
+            show_default=False,
+        ),
+    ],
+    serials: Annotated[
+        list[str] | None,
+        typer.Option("--serial", help="Only this machine (repeat for several; default: all)."),
+    ] = None,
+    store: StoreOption = None,
+) -> None:
+    """Publish the latest fingerprint of every machine and axis of the store (retained, QoS 1).
+
+    One JSON message per axis to PREFIX/SITE/SERIAL/AXIS/fingerprint (default prefix:
+    ncmeasure); docs/shop-floor.md describes every field.
+    Example: ncmeasure publish mqtt mqtt://line3@broker.plant:1883 --serial M17
+    """
+    published = _publish_stored(_mqtt_target(url), store, serials)
+    _console().print(f"published {len(published.topics)} axis summaries to {published.target}")
+
+
+@publish_app.command("opcua")
+@_command
+def publish_opcua_command(
+    store: StoreOption = None,
+    endpoint: Annotated[
+        str,
+        typer.Option(help="Where to listen; anything but loopback needs --user and a certificate."),
+    ] = "opc.tcp://127.0.0.1:4840",
+    refresh_s: Annotated[
+        float, typer.Option("--refresh-s", help="Read the store again every so many seconds.")
+    ] = 10.0,
+    user: Annotated[
+        str | None,
+        typer.Option(
+            help="The user clients log in as; the password from $NCMEASURE_OPCUA_PASSWORD."
+        ),
+    ] = None,
+    certificate: Annotated[
+        Path | None, typer.Option(help="The server's certificate (PEM or DER): encrypted only.")
+    ] = None,
+    private_key: Annotated[
+        Path | None, typer.Option(help="The certificate's private key (PEM).")
+    ] = None,
+) -> None:
+    """The fleet store as an OPC UA server, until Ctrl-C: Machines → Machine → Axes → Axis.
+
+    Each axis has its latest characteristics with engineering units and the measurement's
+    time, and a DeviceHealth (OPC UA DI); docs/shop-floor.md draws the address space.
+    Anonymous and read-only on loopback (the default).
+    Example: ncmeasure publish opcua --store postgresql://ncm@db/fleet
+    """
+    from ncmeasure.publish.opcua import PASSWORD_ENV, OpcUaSettings, serve_opcua
+    from ncmeasure.store import store_url
+
+    settings = OpcUaSettings(
+        endpoint=endpoint,
+        refresh_s=refresh_s,
+        username=user,
+        password=os.environ.get(PASSWORD_ENV),
+        certificate=certificate,
+        private_key=private_key,
+    ).checked()
+    url = store_url(store)
+    stop = threading.Event()
+    previous = _stop_on_signals(stop)
+    try:
+        serve_opcua(
+            url,
+            settings,
+            on_ready=lambda at: _console().print(f"serving {url} at {at}; Ctrl-C stops"),
+            stop=stop,
+        )
+    finally:
+        _restore_signals(previous)
+    _console().print("stopped")
+
+
 @app.command("simulate")
 @_command
 def simulate_command(
@@ -2314,7 +2465,7 @@ def compensation_command(
             handle.write(text)
     except OSError as exc:
         raise OutputError(f"{output}: cannot write ({exc.strerror or exc})") from exc
-    console.print(f"wrote {output}")
+    _console().print(f"wrote {output}")
 
 
 @schema_app.command("results")

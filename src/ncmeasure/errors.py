@@ -16,7 +16,8 @@ either::
     ├── StoreError (OSError)             the fleet store cannot be reached, read or written
     ├── DependencyError (ImportError)    an optional package is missing (names the extra)
     └── LinkError (ConnectionError)      a drive link failed (bus, network, drive)
-        └── LinkTimeoutError (TimeoutError)  a drive did not answer in time
+        ├── LinkTimeoutError (TimeoutError)  a drive did not answer in time
+        └── PublishError                 a broker or shop-floor client link failed
 
 Third-party exceptions are wrapped at the boundary (``raise ... from exc``).
 The command line is the only place that turns these into exit codes.
@@ -38,6 +39,7 @@ __all__ = [
     "PlanError",
     "ProgramCheckError",
     "ProgramError",
+    "PublishError",
     "RecordingError",
     "StoreError",
 ]
@@ -104,6 +106,12 @@ class LinkError(NcMeasureError, ConnectionError):
 
 class LinkTimeoutError(LinkError, TimeoutError):
     """A drive or the bus did not answer in time."""
+
+
+class PublishError(LinkError):
+    """Results could not be published: a broker cannot be reached, refuses the
+    credentials or the TLS handshake, or does not acknowledge; an OPC UA server
+    cannot start."""
 
 
 class ComparisonError(NcMeasureError, ValueError):

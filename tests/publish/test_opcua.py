@@ -1,0 +1,265 @@
+"""The OPC UA server against a real asyncua client: browse, read, subscribe, refuse.
+
+The server runs in a thread on a free loopback port over a SQLite store; the
+client browses Machines → M17 → Axes → X, reads the values the store holds with
+their units and times, subscribes to Coulomb and sees it change after a new
+``store add``. Anything but loopback without a user and certificate is refused
+in one line; a wrong password is refused by the server.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import datetime as dt
+import threading
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ncmeasure.analysis.results import Results
+from ncmeasure.errors import ConfigError
+from ncmeasure.publish.opcua import NAMESPACE, OpcUaSettings, engineering_units, serve_opcua
+from ncmeasure.store import MeasurementInfo, open_store
+from tests.publish.broker import free_port
+
+WAIT_S = 60.0
+
+
+class Running:
+    def __init__(self, endpoint: str, thread: threading.Thread, stop: threading.Event) -> None:
+        self.endpoint, self.thread, self.stop = endpoint, thread, stop
+        self.error: BaseException | None = None
+
+
+def start(url: str, tmp_path: Path, **settings: Any) -> Iterator[Running]:
+    stop, ready = threading.Event(), threading.Event()
+    endpoint = f"opc.tcp://127.0.0.1:{free_port()}"
+    running: list[Running] = []
+
+    def target() -> None:
+        try:
+            serve_opcua(
+                url,
+                OpcUaSettings(endpoint=endpoint, **settings),
+                on_ready=lambda _: ready.set(),
+                stop=stop,
+            )
+        except BaseException as exc:
+            running[0].error = exc
+            ready.set()
+
+    thread = threading.Thread(target=target, daemon=True)
+    running.append(Running(endpoint, thread, stop))
+    thread.start()
+    assert ready.wait(WAIT_S), "the server did not start"
+    assert running[0].error is None, running[0].error
+    try:
+        yield running[0]
+    finally:
+        stop.set()
+        thread.join(WAIT_S)
+        assert not thread.is_alive()
+
+
+@pytest.fixture
+def server(store_with_machine: str, tmp_path: Path) -> Iterator[Running]:
+    yield from start(store_with_machine, tmp_path, refresh_s=0.2)
+
+
+async def _browse(client: Any, *names: str) -> Any:
+    ns = await client.get_namespace_index(NAMESPACE)
+    return await client.nodes.objects.get_child([f"{ns}:{name}" for name in names])
+
+
+def test_the_client_reads_the_store_and_sees_a_change(
+    server: Running, store_with_machine: str, make_results: Callable[..., Results]
+) -> None:
+    from asyncua import Client, ua
+
+    with open_store(store_with_machine) as store:
+        trend = store.trend("M17", "X")
+
+    async def scenario() -> None:
+        async with Client(server.endpoint, timeout=30) as client:
+            machine = await _browse(client, "Machines", "M17")
+            assert (await machine.read_browse_name()).Name == "M17"
+            assert await (
+                await machine.get_child(f"{machine.nodeid.NamespaceIndex}:MachineType")
+            ).read_value()
+            axis = await _browse(client, "Machines", "M17", "Axes", "X")
+            ns = axis.nodeid.NamespaceIndex
+            coulomb = await axis.get_child(f"{ns}:Coulomb")
+            value = await coulomb.read_data_value()
+            latest = trend[-1]
+            assert value.Value.Value == pytest.approx(latest.coulomb)
+            measured = dt.datetime.fromisoformat(latest.measured_utc)
+            assert value.SourceTimestamp.replace(tzinfo=dt.UTC) == measured
+            units = await (await coulomb.get_child("0:EngineeringUnits")).read_value()
+            assert units.UnitId == engineering_units(latest.unit)[1]
+            assert units.DisplayName.Text == latest.unit
+            spread_units = await (
+                await axis.get_child(f"{ns}:Spread/0:EngineeringUnits")
+            ).read_value()
+            assert spread_units.UnitId == 20529  # P1, percent
+            change = await (await axis.get_child(f"{ns}:CoulombChange")).read_value()
+            assert change == pytest.approx(-25.0, abs=0.5)
+            health = await axis.get_child(f"{ns}:DeviceHealth")
+            assert await health.read_value() in (1, 4)  # FAILURE or MAINTENANCE_REQUIRED
+            health_type = await health.read_data_type()
+            di = await client.get_namespace_index("http://opcfoundation.org/UA/DI/")
+            assert health_type == ua.NodeId(6244, di)
+            # read-only: a write is refused
+            with pytest.raises(ua.UaStatusCodeError):
+                await coulomb.write_value(ua.DataValue(ua.Variant(1.0, ua.VariantType.Double)))
+
+            changes: asyncio.Queue[Any] = asyncio.Queue()
+
+            class Handler:
+                def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
+                    changes.put_nowait(val)
+
+            subscription = await client.create_subscription(100, Handler())
+            await subscription.subscribe_data_change(coulomb)
+            first = await asyncio.wait_for(changes.get(), WAIT_S)  # the current value
+            assert first == pytest.approx(latest.coulomb)
+
+            def add() -> None:
+                with open_store(store_with_machine, write=True) as store:
+                    store.add(
+                        make_results("2031-01-10T08:00:00+00:00", 0.5), MeasurementInfo("M17")
+                    )
+
+            await asyncio.to_thread(add)
+            newer = await asyncio.wait_for(changes.get(), WAIT_S)
+            assert newer == pytest.approx(latest.coulomb / 0.75 * 0.5, rel=0.02)
+            await subscription.delete()
+
+    asyncio.run(scenario())
+
+
+def test_settings_are_checked() -> None:
+    for settings, words in (
+        (OpcUaSettings(endpoint="http://127.0.0.1:4840"), "expected opc.tcp://HOST:PORT"),
+        (OpcUaSettings(endpoint="opc.tcp://0.0.0.0:4840"), "needs a user"),
+        (
+            OpcUaSettings(endpoint="opc.tcp://0.0.0.0:4840", username="u", password="p"),
+            "needs a user",
+        ),
+        (OpcUaSettings(username="u"), "go together"),
+        (OpcUaSettings(refresh_s=0), "between 0.1 and 86400"),
+        (OpcUaSettings(certificate=Path("c.pem")), "go together"),
+    ):
+        with pytest.raises(ConfigError) as caught:
+            settings.checked()
+        assert words in caught.value.message, (settings, caught.value.message)
+
+
+def test_a_user_and_a_certificate(store_with_machine: str, tmp_path: Path) -> None:
+    from asyncua import Client, ua
+
+    cert, key = self_signed_rsa(tmp_path)
+    running = start(
+        store_with_machine, tmp_path, username="line3", password="s3cret-pw",
+        certificate=cert, private_key=key,
+    )  # fmt: skip
+    server = next(running)
+    client_cert, client_key = self_signed_rsa(tmp_path / "client")
+
+    async def connect(password: str) -> float:
+        client = Client(server.endpoint, timeout=30)
+        client.set_user("line3")
+        client.set_password(password)
+        await client.set_security_string(
+            f"Basic256Sha256,SignAndEncrypt,{client_cert},{client_key}"
+        )
+        async with client:
+            axis = await _browse(client, "Machines", "M17", "Axes", "X")
+            return float(
+                await (await axis.get_child(f"{axis.nodeid.NamespaceIndex}:Coulomb")).read_value()
+            )
+
+    try:
+        assert asyncio.run(connect("s3cret-pw")) > 0
+        with pytest.raises(ua.UaStatusCodeError, match="BadUserAccessDenied"):
+            asyncio.run(connect("wrong"))
+    finally:
+        with pytest.raises(StopIteration):
+            next(running)
+
+
+def self_signed_rsa(folder: Path) -> tuple[Path, Path]:
+    """An RSA certificate fit for OPC UA's Basic256Sha256 (the EC one of the broker is not)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import rsa
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+    key = rsa.generate_private_key(public_exponent=65537, key_size=2048)
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "ncmeasure test")])
+    now = dt.datetime.now(dt.UTC)
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(name)
+        .issuer_name(name)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - dt.timedelta(days=1))
+        .not_valid_after(now + dt.timedelta(days=2))
+        .add_extension(
+            x509.SubjectAlternativeName(
+                [x509.UniformResourceIdentifier("urn:ncmeasure:test"), x509.DNSName("localhost")]
+            ),
+            critical=False,
+        )
+        .add_extension(
+            x509.KeyUsage(
+                digital_signature=True,
+                content_commitment=True,
+                key_encipherment=True,
+                data_encipherment=True,
+                key_agreement=False,
+                key_cert_sign=True,
+                crl_sign=False,
+                encipher_only=False,
+                decipher_only=False,
+            ),
+            critical=True,
+        )
+        .add_extension(
+            x509.ExtendedKeyUsage(
+                [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]
+            ),
+            critical=False,
+        )
+        .sign(key, hashes.SHA256())
+    )
+    cert_file, key_file = folder / "opcua-cert.pem", folder / "opcua-key.pem"
+    cert_file.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    key_file.write_bytes(
+        key.private_bytes(
+            serialization.Encoding.PEM,
+            serialization.PrivateFormat.TraditionalOpenSSL,
+            serialization.NoEncryption(),
+        )
+    )
+    return cert_file, key_file
+
+
+def test_the_command_refuses_bad_input_in_one_line(store_with_machine: str) -> None:
+    from typer.testing import CliRunner
+
+    from ncmeasure.cli import app
+
+    for args, words in (
+        (["--endpoint", "opc.tcp://0.0.0.0:4840"], "needs a user"),
+        (["--endpoint", "opc.tcp://127.0.0.1"], "expected opc.tcp://HOST:PORT"),
+        (["--user", "line3"], "go together"),
+    ):
+        result = CliRunner().invoke(
+            app, ["publish", "opcua", "--store", store_with_machine, *args], env={}
+        )
+        lines = result.stderr.strip().splitlines()
+        assert result.exit_code == 2 and len(lines) == 1 and words in lines[0], result.stderr
