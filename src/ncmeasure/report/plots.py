@@ -199,7 +199,7 @@ def _style(ax: Axes) -> None:
 
 
 def figure_png(figure: Figure) -> bytes:
-    """The figure as PNG bytes at :data:`DPI`; the figure is emptied afterwards.
+    """The figure as PNG bytes at :data:`DPI`; the figure is emptied (and left at that DPI).
 
     The PNG is RGB, without the alpha channel matplotlib writes (the background
     is white), at zlib level 3: smaller than matplotlib's PNG and written in
