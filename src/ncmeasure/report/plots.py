@@ -8,6 +8,13 @@ figure is drawn or saved (``rc_context``) and restored afterwards.
 :func:`figure_png` and :func:`save_png` turn a figure into PNG bytes / a file
 at the fixed :data:`DPI`, without a timestamp or software tag, so the same
 results give the same bytes.
+
+The report's own figures (Stribeck curves, friction along the travel, raw
+data) are laid out once, by hand: margins in inches for the titles, axis
+labels and legends, which have fixed font sizes, plus the measured width of
+the widest tick label. matplotlib's constrained layout finds the same margins
+by drawing the figure an extra time, which cost as much as the drawing itself.
+No tick label is mathtext (no ``10^4``): the figures need no math fonts.
 """
 
 from __future__ import annotations
@@ -17,20 +24,24 @@ import functools
 import io
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Final, ParamSpec
+from typing import TYPE_CHECKING, Any, Final, ParamSpec, cast
 
 import numpy as np
 from matplotlib import rc_context
+from matplotlib.artist import Artist
 from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.axis import Axis
+from matplotlib.backends.backend_agg import FigureCanvasAgg, RendererAgg
 from matplotlib.cm import ScalarMappable
-from matplotlib.collections import PolyCollection
+from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.colors import LinearSegmentedColormap, LogNorm, Normalize
 from matplotlib.figure import Figure
+from matplotlib.font_manager import FontProperties
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
-from matplotlib.ticker import FuncFormatter
+from matplotlib.ticker import FuncFormatter, LogFormatter, LogLocator
 from numpy.typing import NDArray
+from PIL import Image
 
 from ncmeasure.analysis.compare import Comparison
 from ncmeasure.analysis.results import AxisResult, DirectionResult, NonlinearFit, VelocityProfile
@@ -101,10 +112,83 @@ def _plain(text: str) -> str:
     return text.replace("$", r"\$")
 
 
-def _figure(height_in: float) -> Figure:
-    figure = Figure(figsize=(WIDTH_IN, height_in), dpi=DPI, layout="constrained")
+def _figure(height_in: float, *, constrained: bool = True) -> Figure:
+    figure = Figure(
+        figsize=(WIDTH_IN, height_in), dpi=DPI, layout="constrained" if constrained else None
+    )
     FigureCanvasAgg(figure)
     return figure
+
+
+# --- fixed layout ------------------------------------------------------------------------
+# Distances in points (1/72 in), from the rc settings in _RC and matplotlib's defaults:
+# tick length 3.5 + pad 3.5, label pad 4, title pad 6; a line of text is 1.2 em high.
+_EDGE_PT: Final = 4.0
+_TICK_PT: Final = 3.5 + 3.5
+_LABEL_PAD_PT: Final = 4.0
+_TITLE_PAD_PT: Final = 6.0
+_LINE_EM: Final = 1.2
+#: Below an axes with tick labels and an axis label.
+_X_BAND_PT: Final = _TICK_PT + _LINE_EM * 9.5 + _LABEL_PAD_PT + _LINE_EM * 9.5
+
+
+def _points(value_pt: float) -> float:
+    """Points as inches."""
+    return value_pt / 72.0
+
+
+def _renderer(figure: Figure) -> RendererAgg:
+    """The renderer of the figure's Agg canvas (:func:`_figure`), to measure without drawing."""
+    canvas = cast(FigureCanvasAgg, figure.canvas)
+    return canvas.get_renderer()  # type: ignore[no-untyped-call,no-any-return]
+
+
+def _text_width_in(figure: Figure, texts: Sequence[str], size_pt: float) -> float:
+    """Width of the widest of the texts in the report's font, in inches (no drawing)."""
+    if not texts:
+        return 0.0
+    renderer, font = _renderer(figure), FontProperties(size=size_pt)
+    measure = renderer.get_text_width_height_descent
+    widest = max(measure(t, font, ismath=False)[0] for t in texts)  # type: ignore[no-untyped-call]
+    return float(widest) / figure.dpi
+
+
+def _tick_label_width_in(figure: Figure, axis: Axis, size_pt: float) -> float:
+    """Width of the widest major tick label the axis will draw at its current limits."""
+    low, high = sorted(axis.get_view_interval())
+    slack = 1e-9 * (high - low)
+    shown = [x for x in axis.get_major_locator()() if low - slack <= x <= high + slack]
+    labels = axis.get_major_formatter().format_ticks(shown)
+    return _text_width_in(figure, [label for label in labels if label], size_pt)
+
+
+def _y_band_in(figure: Figure, axis: Axis, size_pt: float = 9.5, label_pt: float = 9.5) -> float:
+    """Room left of an axes for its tick labels and its axis label."""
+    ticks = _tick_label_width_in(figure, axis, size_pt)
+    return ticks + _points(_TICK_PT + _LABEL_PAD_PT + _LINE_EM * label_pt)
+
+
+def _place(
+    figure: Figure, ax: Axes, left_in: float, bottom_in: float, width_in: float, height_in: float
+) -> None:
+    """Put an axes at a rectangle given in inches from the figure's lower left corner."""
+    figure_w, figure_h = figure.get_size_inches()
+    ax.set_position(
+        (left_in / figure_w, bottom_in / figure_h, width_in / figure_w, height_in / figure_h)
+    )
+
+
+def _bottom_legend(figure: Figure, handles: Sequence[Artist], ncols: int) -> float:
+    """A legend centred at the bottom edge of the figure; returns the height it takes."""
+    legend = figure.legend(
+        handles=handles,
+        loc="lower center",
+        bbox_to_anchor=(0.5, _points(_EDGE_PT) / figure.get_size_inches()[1]),
+        ncols=ncols,
+        borderaxespad=0.0,
+    )
+    height_px = legend.get_window_extent(_renderer(figure)).height  # entries laid out, not drawn
+    return float(height_px) / figure.dpi + _points(_EDGE_PT)
 
 
 def _style(ax: Axes) -> None:
@@ -115,14 +199,35 @@ def _style(ax: Axes) -> None:
 
 
 def figure_png(figure: Figure) -> bytes:
-    """The figure as PNG bytes at :data:`DPI`; the figure is cleared afterwards."""
-    buffer = io.BytesIO()
+    """The figure as PNG bytes at :data:`DPI`; the figure is emptied (and left at that DPI).
+
+    The PNG is RGB, without the alpha channel matplotlib writes (the background
+    is white), at zlib level 3: smaller than matplotlib's PNG and written in
+    half the time.
+    """
+    raw = io.BytesIO()
     with rc_context(_RC):
-        figure.savefig(
-            buffer, format="png", dpi=DPI, facecolor="white", metadata={"Software": None}
-        )
-    figure.clear()
+        figure.savefig(raw, format="rgba", dpi=DPI, facecolor="white")
+    figure.set_dpi(DPI)  # the size in pixels as matplotlib rounds it for the canvas
+    width, height = figure.canvas.get_width_height(physical=True)
+    pixels = np.frombuffer(raw.getbuffer(), np.uint8).reshape(height, width, 4)
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(pixels[:, :, :3])).save(
+        buffer, format="png", compress_level=3, dpi=(DPI, DPI)
+    )
+    _empty(figure)
     return buffer.getvalue()
+
+
+def _empty(figure: Figure) -> None:
+    """Remove everything from the figure.
+
+    The axes are taken out before ``clear``, which would otherwise reset each
+    of them first (new ticks, spines, ...) only to drop them.
+    """
+    for ax in list(figure.axes):
+        figure.delaxes(ax)
+    figure.clear()
 
 
 def save_png(figure: Figure, path: str | Path) -> bytes:
@@ -155,14 +260,47 @@ def _drawn_model(direction: DirectionResult) -> NonlinearFit | None:
     return None
 
 
-def _speed_tick(sign: float) -> FuncFormatter:
-    def label(value: float, _position: float) -> str:
-        if value <= 0:
-            return ""
-        text = f"{value:,.0f}".replace(",", " ") if value >= 1 else f"{value:g}"
-        return f"−{text}" if sign < 0 else text
+def _speed_text(value: float, sign: float) -> str:
+    """A speed as a tick label: ``10 000``, ``0.5``, with ``−`` on the negative side."""
+    if value <= 0:
+        return ""
+    text = f"{value:,.0f}".replace(",", " ") if value >= 1 else f"{value:g}"
+    return f"−{text}" if sign < 0 else text
 
-    return FuncFormatter(label)
+
+def _speed_tick(sign: float) -> FuncFormatter:
+    return FuncFormatter(lambda value, _position: _speed_text(value, sign))
+
+
+def _speed_ticks(axis: Axis, sign: float, low: float, high: float) -> None:
+    """Tick labels of a logarithmic speed axis from ``low`` to ``high``: plain numbers.
+
+    Over more than one and a half decades the minor ticks sit at 2 and 5 of
+    each decade, unlabelled, instead of matplotlib's 2 to 9: every tick is a
+    handful of artists, and on these axes the minor ticks were most of them.
+    Over less the decades are too few to read the scale from, and every minor
+    tick stays, labelled where matplotlib labels it.
+    """
+    axis.set_major_formatter(_speed_tick(sign))
+    if high > low * 10**1.5:
+        axis.set_minor_locator(LogLocator(subs=(2.0, 5.0)))
+    axis.set_minor_formatter(_MinorSpeedTick(sign))
+
+
+class _MinorSpeedTick(LogFormatter):
+    """Labels of the minor ticks of a logarithmic speed axis, as plain numbers.
+
+    Which minor ticks are labelled is matplotlib's choice (none over more than
+    a decade, some over less); the text is :func:`_speed_text`, not the
+    mathtext ``2×10^2`` of matplotlib's default, which needs math fonts.
+    """
+
+    def __init__(self, sign: float) -> None:
+        super().__init__(labelOnlyBase=False, minor_thresholds=(1, 0.4))
+        self._sign = sign
+
+    def __call__(self, x: float, pos: int | None = None) -> str:
+        return _speed_text(x, self._sign) if super().__call__(x, pos) else ""
 
 
 def _draw_direction(
@@ -247,8 +385,9 @@ def plot_stribeck(axis: str, result: AxisResult) -> Figure:
     Returns:
         A new figure on an Agg canvas.
     """
-    figure = _figure(5.4)
-    negative, positive = figure.subplots(1, 2, sharey=True)
+    figure = _figure(5.4, constrained=False)
+    negative = figure.add_axes((0.1, 0.2, 0.4, 0.7))
+    positive = figure.add_axes((0.55, 0.2, 0.4, 0.7), sharey=negative)
     offset = result.offset.value if result.offset is not None else None
     significant = offset_is_significant(result.offset)
     speeds = [
@@ -284,12 +423,12 @@ def plot_stribeck(axis: str, result: AxisResult) -> Figure:
         ax.set_xlim(slowest / 1.4, fastest * 1.4)
         if sign < 0:
             ax.invert_xaxis()
-        ax.xaxis.set_major_formatter(_speed_tick(sign))
+        _speed_ticks(ax.xaxis, sign, slowest / 1.4, fastest * 1.4)
         ax.axhline(0, color="#888888", linewidth=0.8, zorder=1)
         if offset is not None and significant:
             ax.axhline(offset, color="#666666", linewidth=1.0, linestyle="-.", zorder=1)
         ax.set_xlabel("velocity [mm/min], logarithmic")
-        ax.set_title(f"{side} direction", fontsize=10, color="#444444")
+        ax.set_title(f"{side} direction", fontsize=10, color="#444444", y=1.0)
         if not drawn[side]:
             ax.text(
                 0.5,
@@ -309,7 +448,9 @@ def plot_stribeck(axis: str, result: AxisResult) -> Figure:
     figure.suptitle(
         _plain(f"Axis {axis}: friction over velocity (Stribeck curves)"),
         x=0.01,
+        y=1.0 - _points(_EDGE_PT) / figure.get_size_inches()[1],
         ha="left",
+        va="top",
         fontsize=11,
     )
     style_handles = [
@@ -326,11 +467,21 @@ def plot_stribeck(axis: str, result: AxisResult) -> Figure:
         style_handles.append(
             Line2D([], [], color="#666666", linestyle="-.", linewidth=1.0, label="offset")
         )
-    figure.legend(
-        handles=[*position_handles, *style_handles],
-        loc="outside lower center",
-        ncols=min(4, len(position_handles) + len(style_handles)),
-    )
+    handles = [*position_handles, *style_handles]
+    legend_in = _bottom_legend(figure, handles, min(4, len(handles)))
+    width_in, height_in = figure.get_size_inches()
+    bottom_in = legend_in + _points(6.0 + _X_BAND_PT)
+    top_in = _points(_EDGE_PT + _LINE_EM * 11 + 2.0 + _LINE_EM * 10 + _TITLE_PAD_PT)
+    right_in, gap_in = 0.25, 0.15  # right: half a tick label ("10 000") may stick out
+
+    def arrange(left_in: float) -> None:
+        panel_in = (width_in - left_in - right_in - gap_in) / 2
+        for number, ax in enumerate((negative, positive)):
+            left = left_in + number * (panel_in + gap_in)
+            _place(figure, ax, left, bottom_in, panel_in, height_in - bottom_in - top_in)
+
+    arrange(0.8)  # the friction ticks depend on the panel's height only: measure them now
+    arrange(_points(_EDGE_PT) + _y_band_in(figure, negative.yaxis))
     return figure
 
 
@@ -414,8 +565,8 @@ def plot_travel(axis: str, result: AxisResult, bearings: BearingLayout) -> Figur
     dependency = result.position_dependency
     if dependency is None:
         raise ValueError(f"axis {axis}: the results have no friction along the travel")
-    figure = _figure(4.6)
-    ax = figure.add_subplot()
+    figure = _figure(4.6, constrained=False)
+    ax = figure.add_axes((0.1, 0.1, 0.8, 0.8))
     _style(ax)
     per_velocity = [p for p in dependency.profiles if p.velocity_mm_min is not None]
     averages = [p for p in dependency.profiles if p.velocity_mm_min is None]
@@ -424,15 +575,21 @@ def plot_travel(axis: str, result: AxisResult, bearings: BearingLayout) -> Figur
     norm: Normalize = Normalize(vmin=slowest, vmax=fastest if fastest > slowest else slowest + 1)
     if slowest > 0 and fastest / slowest > 20:
         norm = LogNorm(vmin=slowest, vmax=fastest)
-    for profile in per_velocity:
-        speed = abs(profile.velocity_mm_min or 0.0)
-        ax.plot(
-            profile.positions_mm,
-            np.abs(profile.values),
-            color=_PROFILES(norm(speed)),
-            linewidth=0.9,
-            marker="o",
-            markersize=2.5,
+    # One collection for the thin lines and one for their points: as one line
+    # each, fifty velocities are fifty artists, each set up and drawn on its own.
+    lines = [np.column_stack([p.positions_mm, np.abs(p.values)]) for p in per_velocity]
+    if lines:
+        colours = _PROFILES(norm([abs(p.velocity_mm_min or 0.0) for p in per_velocity]))
+        ax.add_collection(
+            LineCollection(lines, colors=colours, linewidths=0.9, alpha=0.85, zorder=2)
+        )
+        ax.scatter(
+            np.concatenate([line[:, 0] for line in lines]),
+            np.concatenate([line[:, 1] for line in lines]),
+            c=np.repeat(colours, [len(line) for line in lines], axis=0),
+            s=2.5**2,  # a marker of 2.5 pt, as markersize=2.5
+            linewidths=1.0,
+            edgecolors="face",
             alpha=0.85,
             zorder=2,
         )
@@ -452,21 +609,45 @@ def plot_travel(axis: str, result: AxisResult, bearings: BearingLayout) -> Figur
     _number_positions(ax, result, averages)
     low, high = ax.get_ylim()
     ax.set_ylim(min(0.0, low), high * 1.08)
+    bar_ax: Axes | None = None
     if speeds:
-        mappable = ScalarMappable(norm=norm, cmap=_PROFILES)
-        bar = figure.colorbar(mappable, ax=ax, pad=0.01, fraction=0.035)
+        bar_ax = figure.add_axes((0.92, 0.1, 0.02, 0.8))
+        bar = figure.colorbar(ScalarMappable(norm=norm, cmap=_PROFILES), cax=bar_ax)
         bar.set_label("velocity of the thin lines [mm/min]", fontsize=8.5)
         bar.ax.tick_params(labelsize=8)
+        if isinstance(norm, LogNorm):
+            _speed_ticks(bar.ax.yaxis, 1.0, slowest, fastest)
     ax.set_xlabel("measuring position (number: place along the travel)")
     ax.set_ylabel(_unit_label(result))
     ax.set_title(
         _plain(f"Axis {axis}: friction along the travel"),
         loc="left",
         pad=18,
+        y=1.0,
     )
     if averages:
         ax.legend(loc="lower right")
+    _arrange_travel(figure, ax, bar_ax)
     return figure
+
+
+def _arrange_travel(figure: Figure, ax: Axes, bar_ax: Axes | None) -> None:
+    """The fixed layout of :func:`plot_travel`: room for the title, the bearing labels above
+    the plot and the colour bar with its tick labels and label at the right."""
+    width_in, height_in = figure.get_size_inches()
+    top_in = _points(_EDGE_PT + _LINE_EM * 11 + 18.0)  # the title's pad holds the bearing labels
+    bottom_in = _points(_EDGE_PT + _X_BAND_PT)
+    plot_h = height_in - top_in - bottom_in
+    right_in, bar_w, bar_gap = 0.2, 0.19, 0.09
+    if bar_ax is not None:
+        _place(figure, bar_ax, width_in - 1.0, bottom_in, bar_w, plot_h)  # ticks follow height
+        bar_ticks = _tick_label_width_in(figure, bar_ax.yaxis, 8.0)
+        right_in = bar_w + bar_gap + bar_ticks + _points(_TICK_PT + _LABEL_PAD_PT)
+        right_in += _points(_LINE_EM * 8.5 + _EDGE_PT)
+        _place(figure, bar_ax, width_in - right_in + bar_gap, bottom_in, bar_w, plot_h)
+    _place(figure, ax, 0.8, bottom_in, width_in - 0.8 - right_in, plot_h)
+    left_in = _points(_EDGE_PT) + _y_band_in(figure, ax.yaxis)
+    _place(figure, ax, left_in, bottom_in, width_in - left_in - right_in, plot_h)
 
 
 def _envelope(time_s: FloatArray, values: FloatArray, bins: int) -> tuple[FloatArray, FloatArray]:
@@ -577,11 +758,10 @@ def plot_raw_data(
     if f"{axis}_velocity_cmd_mm_min" in recording.channel_names:
         command = recording.axis_signal(axis, "velocity_cmd_mm_min")
     cuts = sorted((float(a), float(b)) for a, b in windows)
-    figure = _figure(6.2)
-    grid = figure.add_gridspec(3, 1, height_ratios=(1.0, 2.0, 2.0))
-    overview = figure.add_subplot(grid[0])
-    top = figure.add_subplot(grid[1])
-    bottom = figure.add_subplot(grid[2], sharex=top)
+    figure = _figure(6.2, constrained=False)
+    overview = figure.add_axes((0.1, 0.8, 0.8, 0.1))
+    top = figure.add_axes((0.1, 0.45, 0.8, 0.3))
+    bottom = figure.add_axes((0.1, 0.1, 0.8, 0.3), sharex=top)
     for ax in (overview, top, bottom):
         _style(ax)
     if len(time_s) == 0:
@@ -594,6 +774,7 @@ def plot_raw_data(
             va="center",
             color="#888888",
         )
+        _arrange_raw(figure, (overview, top, bottom), 0.0)
         return figure
     span = _axis_span(time_s, velocity, cuts)
     start, end = _stretch(span, cuts, stretch_s)
@@ -622,6 +803,7 @@ def plot_raw_data(
             "the stretch below)"
         ),
         loc="left",
+        y=1.0,
     )
 
     part = (time_s >= start) & (time_s <= end)
@@ -630,7 +812,7 @@ def plot_raw_data(
     top.plot(t_part, i_part, color=PALETTE[0], linewidth=0.8)
     top.set_ylabel("current [A]")
     top.tick_params(labelbottom=False)
-    top.set_title(_plain(f"stretch {start:.1f} – {end:.1f} s"), loc="left", fontsize=9.5)
+    top.set_title(_plain(f"stretch {start:.1f} – {end:.1f} s"), loc="left", fontsize=9.5, y=1.0)
 
     _shade(bottom, cuts, start, end)
     if command is not None:
@@ -653,8 +835,38 @@ def plot_raw_data(
         *bottom.get_legend_handles_labels()[0],
         Patch(facecolor=WINDOW_FILL, alpha=0.55, label="windows used for friction"),
     ]
-    figure.legend(handles=handles, loc="outside lower center", ncols=len(handles))
+    _arrange_raw(figure, (overview, top, bottom), _bottom_legend(figure, handles, len(handles)))
     return figure
+
+
+def _arrange_raw(figure: Figure, panels: tuple[Axes, Axes, Axes], legend_in: float) -> None:
+    """The fixed layout of :func:`plot_raw_data`: three panels 1 : 2 : 2 high, room for the
+    titles, the overview's time ticks, the bottom panel's axis labels and the legend."""
+    overview, top, bottom = panels
+    width_in, height_in = figure.get_size_inches()
+    top_in = _points(_EDGE_PT + _LINE_EM * 11 + _TITLE_PAD_PT)
+    # between overview and stretch: the overview's time ticks, then the stretch's title
+    first_gap_in = _points(_TICK_PT + _LINE_EM * 9.5 + 4.0 + _LINE_EM * 9.5 + _TITLE_PAD_PT)
+    second_gap_in = _points(9.0)
+    bottom_in = (
+        legend_in + _points(6.0 + _X_BAND_PT) if legend_in else _points(_EDGE_PT + _X_BAND_PT)
+    )
+    unit_in = (height_in - top_in - first_gap_in - second_gap_in - bottom_in) / 5
+    right_in = 0.2
+
+    def arrange(left_in: float) -> None:
+        plot_w = width_in - left_in - right_in
+        _place(figure, bottom, left_in, bottom_in, plot_w, 2 * unit_in)
+        _place(figure, top, left_in, bottom_in + 2 * unit_in + second_gap_in, plot_w, 2 * unit_in)
+        _place(figure, overview, left_in, height_in - top_in - unit_in, plot_w, unit_in)
+
+    arrange(1.0)  # the value ticks depend on the panels' heights only: measure them now
+    left_in = max(
+        _y_band_in(figure, overview.yaxis, label_pt=8.5),
+        _y_band_in(figure, top.yaxis),
+        _y_band_in(figure, bottom.yaxis),
+    )
+    arrange(_points(_EDGE_PT) + left_in)
 
 
 _STATUS_COLOURS: Final = {"ok": "#ffffff", "warning": "#e07b00", "critical": "#c0392b"}
