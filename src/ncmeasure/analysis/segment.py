@@ -75,6 +75,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.ndimage import maximum_filter1d, median_filter, minimum_filter1d
 from scipy.stats import theilslopes
 
+from ncmeasure.analysis.streaming import chunks_of, quantum_task, run_task, whole
 from ncmeasure.errors import RecordingError
 from ncmeasure.plan import AxisSummary, Schedule
 from ncmeasure.plan import Window as ScheduledWindow
@@ -110,10 +111,6 @@ MIN_WINDOW_SAMPLES: Final = 3
 COARSE_WINDOW_SAMPLES: Final = 20
 """Windows holding fewer samples than this (median over the axis) make the data coarse:
 their medians are uncertain and the Stribeck curve at low speed is not resolved."""
-
-LATTICE_SHARE: Final = 0.95
-"""A signal is quantised when this share of its sample-to-sample steps are whole
-multiples of its smallest step."""
 
 DISPLACEMENT_QUANTA: Final = 2.0
 """A window's displacement is known to this many position counts (one at each end)."""
@@ -409,21 +406,10 @@ def quantum(values: FloatArray) -> float:
     """
     data = np.asarray(values, dtype=np.float64)
     data = data[np.isfinite(data)]
-    if len(data) < 3:
-        return 0.0
-    steps = np.abs(np.diff(data))
-    scale = float(np.max(np.abs(data)))
-    steps = steps[steps > 1e-9 * scale]
-    if len(steps) < 10:
-        return 0.0
-    smallest = float(steps.min())
-    ratio = steps / smallest
-    on_lattice = np.abs(ratio - np.round(ratio)) <= 0.02
-    if np.count_nonzero(on_lattice) < LATTICE_SHARE * len(steps):
-        return 0.0
-    # The smallest step of a lattice may be a rounding-noise variant of the count.
-    counts = np.round(ratio[on_lattice])
-    return float(np.sum(steps[on_lattice]) / np.sum(counts))
+    # One computation for arrays and for recordings read chunk by chunk (the lattice
+    # steps are summed exactly, so the count does not depend on the chunks).
+    value: float = run_task(chunks_of(data, max(len(data), 1)), quantum_task(whole))
+    return value
 
 
 def _bridge(
