@@ -41,10 +41,12 @@ from ncmeasure.analysis.streaming import (
 from ncmeasure.recording import RowChunk, iter_chunks
 from ncmeasure.validity import Implausible, implausible
 
-__all__ = ["AxisStatistics", "axes_statistics", "axis_statistics"]
+__all__ = ["AxisStatistics", "axes_statistics", "axis_statistics", "bridge_chunk"]
 
 FloatArray = NDArray[np.float64]
 Good = tuple[float, float]  # (time, value) of a finite sample
+_SCANNED = ("velocity_cmd_mm_min", "marker")
+"""Signals only cleaned and counted in the first pass (no statistics of their own)."""
 
 
 @dataclass
@@ -65,6 +67,12 @@ class AxisStatistics:
         low: Smallest finite value per signal.
         high: Largest finite value per signal.
         implausible: The checker with the counts of the values left out.
+        chunk_rows: Rows per chunk of the reading (the neighbours are per chunk).
+        neighbours: Per signal and chunk, the last finite (time, value) before the
+            chunk and the first one after it: :func:`bridge_chunk` bridges a chunk's
+            gaps with them as the whole-array bridge does.
+        start_s: Time of the first row (NaN without rows).
+        end_s: Time of the last row (NaN without rows).
     """
 
     rows: int
@@ -80,6 +88,38 @@ class AxisStatistics:
     low: dict[str, float] = field(default_factory=dict)
     high: dict[str, float] = field(default_factory=dict)
     implausible: Implausible | None = None
+    chunk_rows: int = 0
+    neighbours: dict[str, tuple[list[Good | None], list[Good | None]]] = field(default_factory=dict)
+    start_s: float = math.nan
+    end_s: float = math.nan
+
+
+def bridge_chunk(
+    values: FloatArray, time_s: FloatArray, previous: Good | None, following: Good | None
+) -> FloatArray:
+    """A chunk's NaN values bridged linearly in time, as the whole-array bridge does.
+
+    ``previous`` and ``following`` are the last finite sample before the chunk
+    and the first after it (:attr:`AxisStatistics.neighbours`); a channel
+    without any finite value stays NaN.
+    """
+    bad = ~np.isfinite(values)
+    if not bad.any():
+        return values
+    good = ~bad
+    xp = [time_s[good]]
+    fp = [values[good]]
+    if previous is not None:
+        xp.insert(0, np.array([previous[0]]))
+        fp.insert(0, np.array([previous[1]]))
+    if following is not None:
+        xp.append(np.array([following[0]]))
+        fp.append(np.array([following[1]]))
+    if sum(len(x) for x in xp) == 0:
+        return values
+    filled = values.copy()
+    filled[bad] = np.interp(time_s[bad], np.concatenate(xp), np.concatenate(fp))
+    return filled
 
 
 @dataclass
@@ -89,6 +129,8 @@ class _Scan:
     channels: tuple[str, ...]
     rows: int = 0
     chunks: int = 0
+    start_s: float = math.nan
+    end_s: float = math.nan
     finite: dict[str, int] = field(default_factory=dict)
     low: dict[str, float] = field(default_factory=dict)
     high: dict[str, float] = field(default_factory=dict)
@@ -151,7 +193,7 @@ def axes_statistics(
     signals = {
         axis: tuple(
             s
-            for s in ("velocity_mm_min", "position_mm", "current_a")
+            for s in ("velocity_mm_min", "position_mm", "current_a", *_SCANNED)
             if s == "velocity_mm_min" or f"{axis}_{s}" in present
         )
         for axis in axes
@@ -186,6 +228,10 @@ def axes_statistics(
 
     def scan_task() -> Generator[Callable[[RowChunk], None], None, None]:
         def add(chunk: RowChunk) -> None:
+            if len(chunk.time_s):
+                if scan.rows == 0:
+                    scan.start_s = float(chunk.time_s[0])
+                scan.end_s = float(chunk.time_s[-1])
             scan.rows += len(chunk.time_s)
             scan.chunks += 1
             for name in channels:
@@ -208,31 +254,17 @@ def axes_statistics(
 
     run_tasks(read, {"scan": scan_task()})
 
+    neighbours = {name: scan.neighbours(name) for name in channels}
+
     def bridged(name: str) -> Callable[[], Callable[[RowChunk], FloatArray]]:
         """The channel's finite values after bridging (as segment._bridge, then finite)."""
-        before, after = scan.neighbours(name)
-        some = scan.finite[name] > 0
+        before, after = neighbours[name]
 
         def make() -> Callable[[RowChunk], FloatArray]:
             def apply(chunk: RowChunk) -> FloatArray:
-                values = clean(chunk, name)
-                bad = ~np.isfinite(values)
-                if not some or not bad.any():
-                    return values[~bad]
                 index = chunk.first // rows
-                good = ~bad
-                xp = [chunk.time_s[good]]
-                fp = [values[good]]
-                previous, following = before[index], after[index]
-                if previous is not None:
-                    xp.insert(0, np.array([previous[0]]))
-                    fp.insert(0, np.array([previous[1]]))
-                if following is not None:
-                    xp.append(np.array([following[0]]))
-                    fp.append(np.array([following[1]]))
-                filled = values.copy()
-                filled[bad] = np.interp(chunk.time_s[bad], np.concatenate(xp), np.concatenate(fp))
-                return filled
+                values = bridge_chunk(clean(chunk, name), chunk.time_s, before[index], after[index])
+                return values[np.isfinite(values)]
 
             return apply
 
@@ -288,5 +320,9 @@ def axes_statistics(
             low={n.removeprefix(f"{axis}_"): scan.low[n] for n in mine},
             high={n.removeprefix(f"{axis}_"): scan.high[n] for n in mine},
             implausible=checkers[axis],
+            chunk_rows=rows,
+            neighbours={n.removeprefix(f"{axis}_"): neighbours[n] for n in mine},
+            start_s=scan.start_s,
+            end_s=scan.end_s,
         )
     return result

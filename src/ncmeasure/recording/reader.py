@@ -293,6 +293,86 @@ def _read_meta(directory: Path) -> RecordingMeta:
         raise RecordingError(f"{path}: invalid metadata", format_validation_error(exc)) from exc
 
 
+def _add_status_problems(
+    meta: RecordingMeta, samples_path: Path, rows: int, problems: list[str]
+) -> None:
+    """What meta.json's status and sample count say about ``rows`` readable rows."""
+    if meta.status == "recording":
+        if is_being_written(samples_path):
+            problems.insert(0, f"still being recorded (status 'recording'): {rows} samples so far")
+        else:
+            problems.insert(
+                0,
+                "not closed cleanly (status 'recording'): the recorder stopped "
+                f"unexpectedly; {rows} samples recovered",
+            )
+    elif meta.samples is not None and meta.samples != rows:
+        problems.append(
+            f"{META_FILE} says {meta.samples} samples, {SAMPLES_FILE} holds {rows} readable samples"
+        )
+
+
+@dataclass
+class RecordingHead:
+    """A recording without its samples: meta.json, channels, events, problems.
+
+    For an analysis that reads the samples chunk by chunk
+    (:func:`iter_chunks`): :meth:`samples_read` adds what reading them found
+    (a damaged frame, an unfinished recording) to :attr:`problems`, in the
+    order :meth:`Recording.open` lists them.
+
+    Attributes:
+        directory: Where the recording lives.
+        meta: The contents of ``meta.json``.
+        channels: The sample columns, in order.
+        events: The link events, in file order.
+        problems: What was wrong with the files, one sentence each.
+        rows: Readable rows, once :meth:`samples_read` was called (else None).
+    """
+
+    directory: Path
+    meta: RecordingMeta
+    channels: tuple[Channel, ...]
+    events: list[LinkEvent]
+    problems: list[str]
+    rows: int | None = None
+
+    @classmethod
+    def open(cls, directory: PathArg) -> RecordingHead:
+        """Read meta.json and events.jsonl of a recording directory.
+
+        Raises:
+            RecordingError: Not a recording, or its ``meta.json`` is missing or invalid.
+        """
+        path = Path(directory)
+        meta = _read_meta(path)
+        if not (path / SAMPLES_FILE).is_file():
+            raise RecordingError(f"{path}: not a recording ({SAMPLES_FILE} is missing)")
+        problems: list[str] = []
+        events = _read_events(path / EVENTS_FILE, problems)
+        channels = tuple(c.to_channel() for c in meta.channels)
+        return cls(directory=path, meta=meta, channels=channels, events=events, problems=problems)
+
+    def samples_read(self, rows: int, problems: list[str]) -> None:
+        """Note the rows read and the problems of samples.bin (from :func:`iter_chunks`)."""
+        found = [*problems, *self.problems]
+        _add_status_problems(self.meta, self.directory / SAMPLES_FILE, rows, found)
+        for problem in found:
+            log.warning("recording %s: %s", self.directory, problem)
+        self.problems = found
+        self.rows = rows
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        """The recorded axes, in channel order."""
+        return tuple(dict.fromkeys(c.axis for c in self.channels))
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """The column names (``X_current_a``, ...), in order."""
+        return tuple(c.name for c in self.channels)
+
+
 @dataclass(frozen=True, eq=False)
 class Recording:
     """A recording read into memory.
@@ -343,22 +423,7 @@ class Recording:
             raise RecordingError(f"{samples_path}: cannot be read ({exc.strerror or exc})") from exc
         rows = len(data)
         events = _read_events(path / EVENTS_FILE, problems)
-        if meta.status == "recording":
-            if is_being_written(samples_path):
-                problems.insert(
-                    0, f"still being recorded (status 'recording'): {rows} samples so far"
-                )
-            else:
-                problems.insert(
-                    0,
-                    "not closed cleanly (status 'recording'): the recorder stopped "
-                    f"unexpectedly; {rows} samples recovered",
-                )
-        elif meta.samples is not None and meta.samples != rows:
-            problems.append(
-                f"{META_FILE} says {meta.samples} samples, {SAMPLES_FILE} holds {rows} "
-                "readable samples"
-            )
+        _add_status_problems(meta, samples_path, rows, problems)
         for problem in problems:
             log.warning("recording %s: %s", path, problem)
         return cls(
