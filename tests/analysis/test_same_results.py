@@ -45,12 +45,18 @@ def _outcome(run: Callable[[], Any]) -> Any:
 
 
 def assert_same(recording: Recording, schedule: Schedule | None = None, **options: Any) -> Any:
-    whole = _outcome(lambda: analyze(recording, schedule=schedule, **options))
+    """The same results (and window times) in memory and at every chunk size."""
+    times: dict[str, list[tuple[float, float]]] = {}
+    whole = _outcome(lambda: analyze(recording, schedule=schedule, window_times=times, **options))
     for rows in CHUNKS:
+        found: dict[str, list[tuple[float, float]]] = {}
         chunked = _outcome(
-            lambda rows=rows: analyze(recording.directory, schedule=schedule, rows=rows, **options)
+            lambda rows=rows, found=found: analyze(
+                recording.directory, schedule=schedule, rows=rows, window_times=found, **options
+            )
         )
         assert chunked == whole, rows
+        assert found == times, rows
     return whole
 
 

@@ -420,7 +420,7 @@ def analyze_axis(
     progress: Progress | None = None,
     gap_share: float = 0.0,
 ) -> AxisResult:
-    """Analyse one axis of a recording; see :func:`analyze`.
+    """Analyse one axis of a recording in memory; see :func:`analyze`.
 
     ``progress`` is called with (stage, fraction of this axis done).
 
@@ -429,6 +429,28 @@ def analyze_axis(
             velocity, a channel is dead (one value in every row), it did not
             move, or no window was found. The message says why in words.
     """
+    return _analyze_axis(
+        recording,
+        axis,
+        schedule=schedule,
+        machine=machine,
+        settings=settings,
+        progress=progress,
+        gap_share=gap_share,
+    )[0]
+
+
+def _analyze_axis(
+    recording: Recording,
+    axis: str,
+    *,
+    schedule: Schedule | None = None,
+    machine: MachineConfig | None = None,
+    settings: AnalysisSettings | None = None,
+    progress: Progress | None = None,
+    gap_share: float = 0.0,
+) -> tuple[AxisResult, list[tuple[float, float]]]:
+    """:func:`analyze_axis`, and the (first, last) sample time of every window used."""
     settings = settings or AnalysisSettings()
     report: Progress = progress or _quiet
     _check_channels(axis, recording.channel_names)
@@ -458,7 +480,7 @@ def analyze_axis(
         settings=settings,
         rapid_mm_min=facts.rapid_velocity_mm_min,
     )
-    return _finish_axis(
+    result = _finish_axis(
         axis,
         facts,
         summary,
@@ -471,6 +493,10 @@ def analyze_axis(
         report=report,
         gap_share=gap_share,
     )
+    time_s = recording.time_s
+    return result, [
+        (float(time_s[w.start]), float(time_s[w.stop - 1])) for w in segmentation.windows
+    ]
 
 
 def _finish_axis(
@@ -739,14 +765,20 @@ class _Streamed:
             self.facts[axis].rapid_velocity_mm_min,
         )
 
-    def axis(self, axis: str, progress: Progress, gap_share: float) -> AxisResult:
-        """The axis' result, as :func:`analyze_axis` gives it on the whole recording."""
+    def axis(
+        self, axis: str, progress: Progress, gap_share: float
+    ) -> tuple[AxisResult, list[tuple[float, float]]]:
+        """The axis' result and window times, as :func:`_analyze_axis` gives them in memory."""
         if axis in self.errors:
             raise self.errors[axis]
         stats = self.statistics[axis]
         finder = self.finders[axis]
         progress(f"axis {axis}: windows", 0.0)
-        segmentation = finder.run()
+        try:
+            segmentation = finder.run()
+        except RecordingError:
+            finder.release()
+            raise
         checker = self.checker[axis]
         scanned = stats.implausible
         if scanned is not None:
@@ -754,12 +786,15 @@ class _Streamed:
             checker.counts = {n: scanned.counts[n] for n in checker.limits if n in scanned.counts}
             checker.first = {n: scanned.first[n] for n in checker.limits if n in scanned.first}
         counts, lines = _implausible(checker, self.head.meta)
-        return _finish_axis(
+        window_current = [finder.window_current(w.start, w.stop) for w in segmentation.windows]
+        times = [finder.window_times(w.start, w.stop) for w in segmentation.windows]
+        finder.release()
+        result = _finish_axis(
             axis,
             self.facts[axis],
             self.summary[axis],
             segmentation,
-            [finder.window_current(w.start, w.stop) for w in segmentation.windows],
+            window_current,
             current_dead=_dead_range(
                 axis,
                 "current_a",
@@ -775,6 +810,7 @@ class _Streamed:
             report=progress,
             gap_share=gap_share,
         )
+        return result, times
 
 
 def _row_span(read: Callable[[], Iterator[RowChunk]]) -> tuple[int, float, float]:
@@ -798,6 +834,7 @@ def analyze(
     axes: Sequence[str] | None = None,
     progress: Progress | None = None,
     rows: int = CHUNK_ROWS,
+    window_times: dict[str, list[tuple[float, float]]] | None = None,
 ) -> Results:
     """Analyse every axis of a recording: friction per position, direction and velocity.
 
@@ -822,6 +859,9 @@ def analyze(
         axes: Analyse only these axes (default: every recorded axis).
         progress: Called with (stage, fraction done in 0..1).
         rows: Rows per chunk when the recording is read chunk by chunk.
+        window_times: Receives, per analysed axis, the (first, last) sample time
+            of every window the friction values come from (for the report's
+            raw data, :func:`~ncmeasure.report.write_report`'s ``windows``).
 
     Returns:
         The results, ready for :func:`write_results`.
@@ -863,15 +903,17 @@ def analyze(
         for name in chosen:
             if name not in planned:
                 common.append(f"axis {name} is not in the schedule")
-    analyse: Callable[[str, Progress, float], AxisResult]
+    analyse: Callable[[str, Progress, float], tuple[AxisResult, list[tuple[float, float]]]]
     if isinstance(head, Recording):
         whole = head
         gaps, gap_samples, gap_events = recording_gaps(whole)
         samples = len(whole)
         duration = float(whole.time_s[-1] - whole.time_s[0]) if samples else 0.0
 
-        def analyse(name: str, axis_progress: Progress, gap_share: float) -> AxisResult:
-            return analyze_axis(
+        def analyse(
+            name: str, axis_progress: Progress, gap_share: float
+        ) -> tuple[AxisResult, list[tuple[float, float]]]:
+            return _analyze_axis(
                 whole,
                 name,
                 schedule=schedule,
@@ -905,7 +947,7 @@ def analyze(
             report(stage, (number + fraction) / len(chosen))
 
         try:
-            result = analyse(name, axis_progress, gap_share)
+            result, times = analyse(name, axis_progress, gap_share)
         except RecordingError as exc:
             reason = exc.message.removeprefix(f"axis {name}: ")
             skipped[name] = reason
@@ -926,6 +968,8 @@ def analyze(
         if common:
             result = result.model_copy(update={"warnings": [*common, *result.warnings]})
         results[name] = result
+        if window_times is not None:
+            window_times[name] = times
     if not results:
         raise RecordingError(f"{head.directory}: no axis could be analysed", details)
     report("done", 1.0)

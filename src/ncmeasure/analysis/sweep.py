@@ -495,7 +495,9 @@ class SlicedFinder(_Finder):
                 merged[-1][1] = max(merged[-1][1], b)
             else:
                 merged.append([a, b])
-        names = ("t", "v", "x", "vd", "cmd", "marker", "i")
+        # The marker's values were noted by the sweep; the slices need not hold it.
+        names = ("t", "v", "x", "vd", "cmd", "i")
+        same_detect = not self.from_position  # vd is v: one copy serves both
         pieces: dict[str, list[list[FloatArray]]] = {k: [[] for _ in merged] for k in names}
         rows = self._rows(derived=True)
         starts = [a for a, _ in merged]
@@ -507,18 +509,18 @@ class SlicedFinder(_Finder):
                     if b > lo:
                         x0, x1 = max(a, lo), min(b, hi)
                         for key, values in part.items():
-                            pieces[key][k].append(values[x0 - lo : x1 - lo].copy())
+                            if key in pieces and not (key == "vd" and same_detect):
+                                pieces[key][k].append(values[x0 - lo : x1 - lo].copy())
                     k += 1
 
         def sparse(key: str) -> FloatArray:
             parts = [np.concatenate(p) if p else np.empty(0, dtype=np.float64) for p in pieces[key]]
             return _as_array(Sparse(self.n, starts, parts))
 
-        self.t, self.v, self.x, self.v_detect = sparse("t"), sparse("v"), sparse("x"), sparse("vd")
+        self.t, self.v, self.x = sparse("t"), sparse("v"), sparse("x")
+        self.v_detect = self.v if same_detect else sparse("vd")
         if self.command is not None:
             self.command = sparse("cmd")
-        if self.marker is not None:
-            self.marker = sparse("marker")
         self.current = sparse("i") if self.has["current_a"] else _as_array(Sparse(self.n, [], []))
 
     # -- the ways of finding windows, on slices ----------------------------------------
@@ -588,6 +590,18 @@ class SlicedFinder(_Finder):
             f"{count} over {duration_s:.3g} s (no position recorded)"
         )
 
+    def window_times(self, start: int, stop: int) -> tuple[float, float]:
+        """Time of a window's first and last sample (from the slices)."""
+        times = self.t[start:stop]
+        return float(times[0]), float(times[-1])
+
+    def release(self) -> None:
+        """Forget the slices (the windows' current and times were taken)."""
+        empty = _as_array(Sparse(self.n, [], []))
+        self.t = self.v = self.x = self.v_detect = self.current = empty
+        if self.command is not None:
+            self.command = empty
+
     def window_current(self, start: int, stop: int) -> FloatArray:
-        """The current of a window's samples (from the slices)."""
-        return self.current[start:stop]
+        """The current of a window's samples: a copy, the slices may be released."""
+        return self.current[start:stop].copy()
