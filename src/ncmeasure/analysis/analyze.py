@@ -701,13 +701,20 @@ class _Streamed:
         channels = tuple(bounds)
         column = {name: k for k, name in enumerate(channels)}
         problems: list[list[str]] = [[]]
+        verified: set[int] = set()  # large frames checked once for all passes
 
         def read() -> Iterator[RowChunk]:
             problems[0] = []
-            return iter_chunks(head.directory, rows, channels, problems=problems[0])
+            return iter_chunks(
+                head.directory, rows, channels, problems=problems[0], verified=verified
+            )
 
         self.statistics = (
-            axes_statistics(head.directory, ready, names, limits=bounds, rows=rows) if ready else {}
+            axes_statistics(
+                head.directory, ready, names, limits=bounds, rows=rows, verified=verified
+            )
+            if ready
+            else {}
         )
         for axis in ready:
             try:

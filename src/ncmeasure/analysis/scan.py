@@ -172,6 +172,7 @@ def axes_statistics(
     *,
     limits: Mapping[str, float | None] | None = None,
     rows: int = 1 << 16,
+    verified: set[int] | None = None,
 ) -> dict[str, AxisStatistics]:
     """The whole-signal statistics of every axis of ``axes``, read chunk by chunk.
 
@@ -185,6 +186,7 @@ def axes_statistics(
         limits: The implausibility bound per channel name
             (:meth:`~ncmeasure.validity.Implausible.for_channels`); codes only without.
         rows: Rows per chunk.
+        verified: Large frames already checked (:func:`~ncmeasure.recording.iter_chunks`).
 
     Raises:
         RecordingError: Not a recording, or an axis has no velocity channel.
@@ -207,7 +209,7 @@ def axes_statistics(
     column = {name: k for k, name in enumerate(channels)}
 
     def read() -> Iterator[RowChunk]:
-        return iter_chunks(directory, rows, channels)
+        return iter_chunks(directory, rows, channels, verified=verified)
 
     def clean(chunk: RowChunk, name: str) -> FloatArray:
         values = chunk.values[:, column[name]]

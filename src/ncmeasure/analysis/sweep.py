@@ -5,12 +5,12 @@ gave every whole-signal statistic; :class:`SlicedFinder` finds the same
 windows as :func:`~ncmeasure.analysis.segment.find_windows` on the whole
 arrays, with memory bounded by the windows, not by the recording:
 
-* a pass over the rows finds the stretches of each way of finding windows,
-  carrying state across chunk edges: runs of the marker, stretches of
-  constant commanded velocity, plateaus of the smoothed actual velocity (the
-  rolling median and the flatness filters see ``plateau_min_s`` plus the
-  filter width beyond each chunk), and the velocity derived from the
-  position (±h rows beyond each chunk);
+* a pass over the rows finds the runs of the marker and the stretches of
+  constant commanded velocity, carrying state across chunk edges; only where
+  they give no window, one more finds the plateaus of the smoothed actual
+  velocity (the rolling median and the flatness filters see
+  ``plateau_min_s`` plus the filter width beyond each chunk); the velocity
+  derived from the position looks ±h rows beyond each chunk;
 * where the velocity signal is coarse, a pass before it takes the median
   ratio of derived to read velocity (:mod:`~ncmeasure.analysis.streaming`);
 * a way that found stretches reads, in one more pass, the samples of its
@@ -47,7 +47,7 @@ from ncmeasure.analysis.segment import (
     plateau_mask,
     position_velocity,
 )
-from ncmeasure.analysis.streaming import median_task
+from ncmeasure.analysis.streaming import median_task, run_task
 from ncmeasure.errors import RecordingError
 from ncmeasure.plan import Schedule
 from ncmeasure.recording import RowChunk
@@ -178,6 +178,7 @@ class _Found:
     command: list[tuple[int, int, float]] = field(default_factory=list)
     plateaus: list[tuple[int, int]] = field(default_factory=list)
     longest_moving: int = 0
+    plateaus_swept: bool = False
 
 
 @dataclass
@@ -385,17 +386,11 @@ class SlicedFinder(_Finder):
     # -- the pass over the rows --------------------------------------------------------
 
     def sweep_task(self) -> Generator[Feed, None, None]:
-        """Pass: marker runs, command stretches, plateaus (see the module docstring)."""
+        """Pass: marker runs and command stretches (see the module docstring)."""
         assert not self.needs_agreement
-        found = self.found = _Found()
+        self.found = _Found()
         rows = self._rows(derived=True)
-        n = self.n
-        reach = self.plateau_n + self.filter_n + 2
-        state = _Sweep(
-            plateaus=_Ahead(reach, reach, n),
-            want_plateaus=n >= self.plateau_n,
-            want_still=not self.positions_known,
-        )
+        state = _Sweep(plateaus=_Ahead(0, 0, self.n), want_plateaus=False, want_still=False)
 
         def feed(chunk: RowChunk) -> None:
             for lo, hi, part in rows(chunk):
@@ -403,16 +398,39 @@ class SlicedFinder(_Finder):
                     self._marker_runs(state, part["marker"], lo, hi)
                 if "cmd" in part:
                     self._command_stretches(state, part["cmd"], lo, hi)
-                if state.want_plateaus or state.want_still:
-                    self._plateaus(state, part["vd"])
 
         yield feed
-        found.plateaus = [
+
+    def _plateau_task(self) -> Generator[Feed, None, None]:
+        """Pass: plateaus, and without a position the longest stretch above standstill.
+
+        Only where the marker and the command gave no window, as on the whole
+        arrays (the rolling median over every row is the costly part).
+        """
+        rows = self._rows(derived=True)
+        reach = self.plateau_n + self.filter_n + 2
+        state = _Sweep(
+            plateaus=_Ahead(reach, reach, self.n),
+            want_plateaus=self.n >= self.plateau_n,
+            want_still=not self.positions_known,
+        )
+
+        def feed(chunk: RowChunk) -> None:
+            for _, _, part in rows(chunk):
+                self._plateaus(state, part["vd"])
+
+        yield feed
+        self.found.plateaus = [
             (a, b)
             for a, b in zip(state.plateau_runs.starts, state.plateau_runs.stops, strict=True)
             if b - a >= self.plateau_n
         ]
-        found.longest_moving = state.moving_best
+        self.found.longest_moving = state.moving_best
+        self.found.plateaus_swept = True
+
+    def _sweep_plateaus(self) -> None:
+        if not self.found.plateaus_swept:
+            run_task(self.read, self._plateau_task())
 
     def _marker_runs(self, state: _Sweep, marker: FloatArray, lo: int, hi: int) -> None:
         """Runs of a set marker that break where its value changes (as _value_runs)."""
@@ -549,6 +567,7 @@ class SlicedFinder(_Finder):
     def plateau_candidates(self) -> list[_Candidate]:
         if self.plateau_too_short():
             return []
+        self._sweep_plateaus()
         runs = self.found.plateaus
         levels = []
         if runs:
@@ -583,6 +602,7 @@ class SlicedFinder(_Finder):
                 f"the axis did not move: its position stays within {span_mm * 1000:.3g} µm "
                 f"over {duration_s:.3g} s (whatever its velocity signal reads)"
             )
+        self._sweep_plateaus()
         if self.found.longest_moving >= self.min_n:
             return None
         return (

@@ -90,8 +90,10 @@ def read_raw_traces(
             channels.append(f"{entry.name}_velocity_cmd_mm_min")
     column = {name: k for k, name in enumerate(channels)}
 
+    verified: set[int] = set()
+
     def read() -> Iterator[tuple[FloatArray, FloatArray]]:
-        for chunk in iter_chunks(head.directory, rows, tuple(channels)):
+        for chunk in iter_chunks(head.directory, rows, tuple(channels), verified=verified):
             yield chunk.time_s, chunk.values
 
     def velocity(values: FloatArray, entry: _Axis) -> FloatArray:
