@@ -168,6 +168,42 @@ class _Runs:
         self.stops.extend(stops)
 
 
+def _merged(stretches: Iterable[tuple[int, int]]) -> list[tuple[int, int]]:
+    """Stretches sorted, overlapping or touching ones joined."""
+    merged: list[list[int]] = []
+    for a, b in sorted(stretches):
+        if merged and a <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], b)
+        else:
+            merged.append([a, b])
+    return [(a, b) for a, b in merged]
+
+
+class _Keeper:
+    """The samples of one signal inside given stretches, from blocks of rows in order."""
+
+    def __init__(self, stretches: Sequence[tuple[int, int]]) -> None:
+        self.stretches = stretches
+        self.starts = [a for a, _ in stretches]
+        self.pieces: list[list[FloatArray]] = [[] for _ in stretches]
+
+    def add(self, lo: int, hi: int, values: FloatArray) -> None:
+        k = max(0, bisect.bisect_right(self.starts, lo) - 1)
+        while k < len(self.stretches) and self.stretches[k][0] < hi:
+            a, b = self.stretches[k]
+            if b > lo:
+                self.pieces[k].append(values[max(a, lo) - lo : min(b, hi) - lo].copy())
+            k += 1
+
+    def sparse(self, rows: int) -> Sparse:
+        parts = [
+            np.concatenate(p) if len(p) > 1 else (p[0] if p else np.empty(0, dtype=np.float64))
+            for p in self.pieces
+        ]
+        self.pieces = []
+        return Sparse(rows, self.starts, parts)
+
+
 @dataclass
 class _Found:
     """What the pass over the rows found for one axis."""
@@ -501,39 +537,34 @@ class SlicedFinder(_Finder):
     # -- slices ------------------------------------------------------------------------
 
     def _gather(self, stretches: Sequence[tuple[int, int]]) -> None:
-        """Read the samples of ``stretches`` with the margins trimming needs; keep them."""
+        """Read the samples of ``stretches`` and keep them as slices.
+
+        Trimming reads the velocity the windows are found by ``settle_s`` plus
+        the filter width before a stretch and the filter width after it; every
+        other signal is read inside the stretches only (matching, cutting runs,
+        the position check and labelling look at a window's own samples, which
+        lie inside its stretch).
+        """
         margin_before = self.settle_n + self.filter_n
         margin_after = self.filter_n
-        wanted = sorted(
+        outer = _merged(
             (max(0, a - margin_before), min(self.n, b + margin_after)) for a, b in stretches
         )
-        merged: list[list[int]] = []
-        for a, b in wanted:
-            if merged and a <= merged[-1][1]:
-                merged[-1][1] = max(merged[-1][1], b)
-            else:
-                merged.append([a, b])
+        inner = _merged(stretches)
         # The marker's values were noted by the sweep; the slices need not hold it.
-        names = ("t", "v", "x", "vd", "cmd", "i")
         same_detect = not self.from_position  # vd is v: one copy serves both
-        pieces: dict[str, list[list[FloatArray]]] = {k: [[] for _ in merged] for k in names}
+        wide = ("vd",) if not same_detect else ("v",)
+        narrow = tuple(k for k in ("t", "v", "x", "cmd", "i") if k not in wide)
+        kept = {k: _Keeper(outer) for k in wide} | {k: _Keeper(inner) for k in narrow}
         rows = self._rows(derived=True)
-        starts = [a for a, _ in merged]
         for chunk in self.read():
             for lo, hi, part in rows(chunk):
-                k = max(0, bisect.bisect_right(starts, lo) - 1)
-                while k < len(merged) and merged[k][0] < hi:
-                    a, b = merged[k]
-                    if b > lo:
-                        x0, x1 = max(a, lo), min(b, hi)
-                        for key, values in part.items():
-                            if key in pieces and not (key == "vd" and same_detect):
-                                pieces[key][k].append(values[x0 - lo : x1 - lo].copy())
-                    k += 1
+                for key, keeper in kept.items():
+                    if key in part:
+                        keeper.add(lo, hi, part[key])
 
         def sparse(key: str) -> FloatArray:
-            parts = [np.concatenate(p) if p else np.empty(0, dtype=np.float64) for p in pieces[key]]
-            return _as_array(Sparse(self.n, starts, parts))
+            return _as_array(kept[key].sparse(self.n))
 
         self.t, self.v, self.x = sparse("t"), sparse("v"), sparse("x")
         self.v_detect = self.v if same_detect else sparse("vd")
