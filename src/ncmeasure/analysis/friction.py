@@ -354,7 +354,13 @@ def window_table(
 
     parts = [np.asarray(window_current_a[i], dtype=np.float64) for i in order.tolist()]
     lengths = np.fromiter((len(p) for p in parts), dtype=np.intp, count=count)
-    values = np.concatenate(parts) if parts else np.empty(0, dtype=np.float64)
+    # One buffer for the samples and, after them, the spare slot of _sort_segments:
+    # the statistics and the sorts below work in it and one more array at most.
+    buffer = np.empty(int(lengths.sum()) + 1, dtype=np.float64)
+    if parts:
+        np.concatenate(parts, out=buffer[:-1])
+    del parts
+    values = buffer[:-1]
     finite = np.isfinite(values)
     if finite.all():
         per_window = lengths
@@ -362,7 +368,11 @@ def window_table(
         kept = np.concatenate(([0], np.cumsum(finite)))
         ends = np.cumsum(lengths)
         per_window = kept[ends] - kept[ends - lengths]
-        values = values[finite]
+        count_finite = int(kept[-1])
+        buffer[:count_finite] = values[finite]
+        buffer = buffer[: count_finite + 1]
+        values = buffer[:-1]
+    del finite
     n = np.bincount(group_of_window, weights=per_window, minlength=groups).astype(np.intp)
     used_windows = np.bincount(group_of_window[per_window > 0], minlength=groups)
     group_bounds = np.concatenate(([0], np.cumsum(n)))
@@ -375,15 +385,20 @@ def window_table(
         total[filled] = np.add.reduceat(values, group_bounds[filled])
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = total / n
-        deviation = values - np.repeat(mean, n)
+        deviation = np.repeat(mean, n)
+        np.subtract(values, deviation, out=deviation)
+        deviation *= deviation
         if len(filled):
-            squares[filled] = np.add.reduceat(deviation * deviation, group_bounds[filled])
+            squares[filled] = np.add.reduceat(deviation, group_bounds[filled])
+        del deviation
         variance = squares / (n - 1)
     std = np.where(n > 1, np.sqrt(np.maximum(variance, 0.0)), np.nan)
 
     # Medians of batches, windows and groups from one buffer sorted three times:
     # batches nest in windows and windows in groups, so each sort merges sorted runs.
-    ordered = np.append(values, np.inf)  # the spare slot of _sort_segments
+    ordered = buffer  # sorted in place from here on: ``values`` is not read again
+    ordered[-1] = np.inf  # the spare slot of _sort_segments
+    del values
     batch_bounds = _batch_bounds(window_bounds)
     _sort_segments(ordered, batch_bounds, "quicksort")
     batch_median_all = _sorted_medians(ordered, batch_bounds, current_quantum_a)
