@@ -212,3 +212,17 @@ def test_the_demo_recordings(tmp_path: Path) -> None:
         assert_same(Recording.open(directory))
         for path in schedules:
             assert_same(Recording.open(directory), load_schedule(path))
+
+
+def test_a_missing_current_and_an_empty_recording(tmp_path: Path) -> None:
+    recording, schedule = synthetic_recording(tmp_path / "rec", TWO)
+    keep = [i for i, c in enumerate(recording.meta.channels) if c.name != "Z_current_a"]
+    channels = [recording.meta.channels[i].to_channel() for i in keep]
+    with RecordingWriter.create(tmp_path / "no-current", channels, nominal_period_s=0.004) as w:
+        w.append(SampleBlock(recording.time_s, recording.values[:, keep]))
+    without = Recording.open(tmp_path / "no-current")
+    assert "Z_current_a" in assert_same(without, schedule)["skipped"]["Z"]
+    assert assert_same(without, schedule, axes=["Z"])[0] == "error"
+    with RecordingWriter.create(tmp_path / "empty", channels, nominal_period_s=0.004):
+        pass
+    assert assert_same(Recording.open(tmp_path / "empty"))[0] == "error"
