@@ -40,7 +40,7 @@ import sys
 import time
 from pathlib import Path
 
-from ncmeasure.recording import SAMPLES_FILE, Recording, RecordingWriter
+from ncmeasure.recording import SAMPLES_FILE, RecordingHead, RecordingWriter
 from ncmeasure.samples import SampleBlock
 from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, simulate
 
@@ -74,7 +74,7 @@ def _write(directory: Path, copies: int, steps: int, repetitions: int) -> Path:
     schedule_path = directory.with_name(directory.name + ".schedule.json")
     if directory.exists() and schedule_path.exists():
         try:
-            if Recording.open(directory).meta.status == "complete":
+            if RecordingHead.open(directory).meta.status == "complete":
                 return schedule_path
         except Exception:
             pass
@@ -152,7 +152,7 @@ def main() -> None:
         written_s = time.perf_counter() - start
         samples = directory / SAMPLES_FILE
         size = samples.stat().st_size
-        rows = Recording.open(directory).meta.samples or 0
+        rows = RecordingHead.open(directory).meta.samples or 0
         hours = rows / RATE_HZ / 3600
         read_s, _, _ = _run(
             [python, "-c", f"f=open({str(samples)!r},'rb',buffering=0)\nwhile f.read(8<<20): pass"],

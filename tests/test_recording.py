@@ -900,3 +900,31 @@ def test_chunks_hold_the_rows_of_the_whole_read_also_before_a_damaged_frame(
     rest = list(iter_chunks(directory, rows, wanted, problems))
     assert np.array_equal(np.concatenate([c.time_s for c in rest]), damaged.time_s)
     assert problems == [p for p in damaged.problems if "checksum" in p]
+
+
+def test_frames_larger_than_a_chunk_are_checked_once_for_many_reads(tmp_path: Path) -> None:
+    """A frame larger than a chunk is read in chunks, never whole; a damaged one gives no
+    row at all, wherever its damage; the frames checked once are not checked again."""
+    channels = channels_for(("X",), ("current_a",))
+    directory = tmp_path / "run"
+    with RecordingWriter.create(directory, channels, nominal_period_s=0.001) as writer:
+        for first in range(0, 3000, 1000):
+            time_s = np.arange(first, first + 1000) * 0.001
+            writer.append(SampleBlock(time_s, np.full((1000, 1), float(first))))
+            writer.flush()
+    samples = directory / SAMPLES_FILE
+    offsets = frame_offsets(samples, 2)
+    verified: set[int] = set()
+    for _ in range(2):
+        chunks = list(iter_chunks(directory, 64, verified=verified))
+        assert np.array_equal(
+            np.concatenate([c.time_s for c in chunks]), Recording.open(directory).time_s
+        )
+    assert verified == set(offsets)
+    data = bytearray(samples.read_bytes())
+    data[offsets[1] + FRAME_HEADER.size + 8] ^= 0x01  # the first row of frame 1
+    samples.write_bytes(bytes(data))
+    problems: list[str] = []
+    rows = np.concatenate([c.time_s for c in iter_chunks(directory, 64, problems=problems)])
+    assert len(rows) == 1000
+    assert problems and problems[0].startswith("frame 1 fails its checksum")

@@ -1272,7 +1272,7 @@ def analyze_command(
     from ncmeasure.analysis.analyze import AnalysisSettings, analyze, write_results
     from ncmeasure.config import format_validation_error, load_machine
     from ncmeasure.program import load_schedule
-    from ncmeasure.recording import read_recording
+    from ncmeasure.recording import RecordingHead
 
     target = output or run.with_name(run.name + ".results.json")
     if (store is None) != (serial is None) or (label is not None and store is None):
@@ -1293,12 +1293,14 @@ def analyze_command(
         raise ConfigError(
             "--set: not valid analysis settings", format_validation_error(exc)
         ) from exc
-    recording = read_recording(run)
+    # Read chunk by chunk: memory follows the windows, not the recording's length.
+    recording = RecordingHead.open(run)
     plan_schedule = load_schedule(schedule) if schedule else None
     config = load_machine(machine) if machine else None
     bar, update = _progress_bar(quiet)
     if bar is not None:
         bar.start()
+    windows: dict[str, list[tuple[float, float]]] = {}
     try:
         results = analyze(
             recording,
@@ -1307,6 +1309,7 @@ def analyze_command(
             settings=settings,
             axes=only or None,
             progress=update,
+            window_times=windows,
         )
     finally:
         if bar is not None:
@@ -1315,7 +1318,7 @@ def analyze_command(
     if report is not None:
         from ncmeasure.report import write_report
 
-        write_report(results, report, recording=recording)
+        write_report(results, report, recording=recording, windows=windows)
     if info is not None:
         with _open_store(store, write=True) as fleet:
             added = fleet.add(results, info)

@@ -28,7 +28,7 @@ import datetime as dt
 import logging
 import math
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -39,7 +39,7 @@ from pydantic import ValidationError
 
 from ncmeasure.analysis.diagnosis import position_dependency
 from ncmeasure.analysis.fit import fit_direction, separate_offset
-from ncmeasure.analysis.friction import FrictionTable, friction_table
+from ncmeasure.analysis.friction import FrictionTable, window_table
 from ncmeasure.analysis.results import (
     RESULTS_FORMAT,
     RESULTS_FORMAT_VERSION,
@@ -53,14 +53,18 @@ from ncmeasure.analysis.results import (
     Results,
     Verdict,
 )
+from ncmeasure.analysis.scan import axes_statistics
 from ncmeasure.analysis.segment import Segmentation, SegmentSettings, find_windows, quantum
+from ncmeasure.analysis.streaming import run_tasks
+from ncmeasure.analysis.sweep import SlicedFinder
 from ncmeasure.analysis.verdict import axis_verdict
 from ncmeasure.config import MachineConfig, format_validation_error
 from ncmeasure.errors import ConfigError, OutputError, RecordingError
 from ncmeasure.files import replace_text
 from ncmeasure.inputs import parse_json, read_text
 from ncmeasure.plan import AxisSummary, Schedule
-from ncmeasure.recording import Recording
+from ncmeasure.recording import Recording, RecordingHead, RecordingMeta, RowChunk, iter_chunks
+from ncmeasure.samples import LinkEvent
 from ncmeasure.validity import Implausible
 
 __all__ = [
@@ -75,6 +79,9 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 Progress = Callable[[str, float], None]
+
+CHUNK_ROWS = 1 << 16
+"""Rows per chunk where a recording is read chunk by chunk (about 0.5 MiB per channel)."""
 
 FloatArray = NDArray[np.float64]
 _DIRECTIONS: tuple[tuple[Literal[1, -1], Literal["positive", "negative"]], ...] = (
@@ -128,7 +135,7 @@ _FACT_KEYS = (
 
 def _axis_facts(
     name: str,
-    recording: Recording,
+    recording: Recording | RecordingHead,
     machine: MachineConfig | None,
     summary: AxisSummary | None,
 ) -> AxisFacts:
@@ -300,35 +307,46 @@ def _dependency(
 _SIGNALS_CHECKED = ("current_a", "velocity_mm_min", "position_mm", "velocity_cmd_mm_min")
 
 
-def _signals(
-    recording: Recording, axis: str, facts: AxisFacts
-) -> tuple[dict[str, FloatArray], dict[str, int], list[str]]:
-    """The axis' channels with the values no drive can report (no-value codes) as NaN."""
+def _checker(channel_names: Sequence[str], axis: str, facts: AxisFacts) -> Implausible:
+    """The implausibility check of the axis' channels (no-value codes, beyond its range)."""
     names = {
         f"{axis}_{signal}": signal
         for signal in (*_SIGNALS_CHECKED, "marker")
-        if f"{axis}_{signal}" in recording.channel_names
+        if f"{axis}_{signal}" in channel_names
     }
     limits = {"rated_current_a": facts.rated_current_a, "max_velocity_mm_min": None}
     if facts.max_velocity_mm_min is not None:
         limits["max_velocity_mm_min"] = facts.max_velocity_mm_min
-    checker = Implausible.for_channels(names, dict.fromkeys(names, limits))
-    cleaned = {
-        signal: checker.clean(name, recording.time_s, recording.column(name))
-        for name, signal in names.items()
-    }
+    return Implausible.for_channels(names, dict.fromkeys(names, limits))
+
+
+def _implausible(checker: Implausible, meta: RecordingMeta) -> tuple[dict[str, int], list[str]]:
+    """Counts and lines of the values left out, with those an import left out (meta.json)."""
     counts = dict(checker.counts)
     lines = checker.lines()
     # An import already left such values out (NaN): its count travels in meta.json.
-    imported = recording.meta.link.get("implausible")
+    imported = meta.link.get("implausible")
     if isinstance(imported, dict):
         for name, count in imported.items():
-            if name in names and isinstance(count, int) and count > 0:
+            if name in checker.limits and isinstance(count, int) and count > 0:
                 counts[name] = counts.get(name, 0) + count
                 lines.append(
                     f"{name}: {count} value(s) left out at the import as not physically "
                     "possible (a 'no value' code such as -999999, or beyond the axis' range)"
                 )
+    return counts, lines
+
+
+def _signals(
+    recording: Recording, axis: str, facts: AxisFacts
+) -> tuple[dict[str, FloatArray], dict[str, int], list[str]]:
+    """The axis' channels with the values no drive can report (no-value codes) as NaN."""
+    checker = _checker(recording.channel_names, axis, facts)
+    cleaned = {
+        name.removeprefix(f"{axis}_"): checker.clean(name, recording.time_s, recording.column(name))
+        for name in checker.limits
+    }
+    counts, lines = _implausible(checker, recording.meta)
     return cleaned, counts, lines
 
 
@@ -344,15 +362,52 @@ def _creep_mm_min(time_s: FloatArray, position_mm: FloatArray) -> float:
 def _dead_channel(axis: str, signal: str, values: FloatArray, unit: str) -> str | None:
     """Why a channel holds no information (all NaN, or one value in every row), else None."""
     finite = values[np.isfinite(values)]
-    name = f"{axis}_{signal}"
     if len(finite) == 0:
+        return _dead_range(axis, signal, len(values), 0, math.nan, math.nan, unit)
+    return _dead_range(
+        axis, signal, len(values), len(finite), float(finite.min()), float(finite.max()), unit
+    )
+
+
+def _dead_range(
+    axis: str, signal: str, rows: int, finite: int, low: float, high: float, unit: str
+) -> str | None:
+    """:func:`_dead_channel` from the count and range of the finite values."""
+    name = f"{axis}_{signal}"
+    if finite == 0:
         return f"{name} holds no valid value: the channel is empty"
-    if len(values) > 1 and float(finite.min()) == float(finite.max()):
+    if rows > 1 and low == high:
         return (
-            f"{name} is {float(finite[0]):g} {unit} in every row: a dead channel (the drive "
+            f"{name} is {low:g} {unit} in every row: a dead channel (the drive "
             "does not report it, or the wrong object or register is read)"
         )
     return None
+
+
+def _check_channels(axis: str, channels: Sequence[str]) -> None:
+    missing = [
+        f"{axis}_{signal}"
+        for signal in ("current_a", "velocity_mm_min")
+        if f"{axis}_{signal}" not in channels
+    ]
+    if missing:
+        raise RecordingError(
+            f"axis {axis} cannot be analysed without {' and '.join(missing)}; the friction "
+            "analysis needs the motor current and the actual velocity of every axis "
+            f"(recorded: {', '.join(channels)})"
+        )
+
+
+def _summary(schedule: Schedule | None, axis: str) -> AxisSummary | None:
+    if schedule is None:
+        return None
+    return next((a for a in schedule.axes if a.name == axis), None)
+
+
+def _check_velocity(axis: str, dead: str | None, moving: bool, first: float | None) -> None:
+    """A dead velocity channel stops the axis, unless it reads 0 and nothing moves."""
+    if dead is not None and (moving or first is None or first != 0.0):
+        raise RecordingError(dead)
 
 
 def analyze_axis(
@@ -365,7 +420,7 @@ def analyze_axis(
     progress: Progress | None = None,
     gap_share: float = 0.0,
 ) -> AxisResult:
-    """Analyse one axis of a recording; see :func:`analyze`.
+    """Analyse one axis of a recording in memory; see :func:`analyze`.
 
     ``progress`` is called with (stage, fraction of this axis done).
 
@@ -374,37 +429,45 @@ def analyze_axis(
             velocity, a channel is dead (one value in every row), it did not
             move, or no window was found. The message says why in words.
     """
+    return _analyze_axis(
+        recording,
+        axis,
+        schedule=schedule,
+        machine=machine,
+        settings=settings,
+        progress=progress,
+        gap_share=gap_share,
+    )[0]
+
+
+def _analyze_axis(
+    recording: Recording,
+    axis: str,
+    *,
+    schedule: Schedule | None = None,
+    machine: MachineConfig | None = None,
+    settings: AnalysisSettings | None = None,
+    progress: Progress | None = None,
+    gap_share: float = 0.0,
+) -> tuple[AxisResult, list[tuple[float, float]]]:
+    """:func:`analyze_axis`, and the (first, last) sample time of every window used."""
     settings = settings or AnalysisSettings()
     report: Progress = progress or _quiet
-    channels = recording.channel_names
-    missing = [
-        f"{axis}_{signal}"
-        for signal in ("current_a", "velocity_mm_min")
-        if f"{axis}_{signal}" not in channels
-    ]
-    if missing:
-        raise RecordingError(
-            f"axis {axis} cannot be analysed without {' and '.join(missing)}; the friction "
-            "analysis needs the motor current and the actual velocity of every axis "
-            f"(recorded: {', '.join(channels)})"
-        )
-    summary = None
-    if schedule is not None:
-        summary = next((a for a in schedule.axes if a.name == axis), None)
+    _check_channels(axis, recording.channel_names)
+    summary = _summary(schedule, axis)
     facts = _axis_facts(axis, recording, machine, summary)
     signals, implausible_counts, implausible_lines = _signals(recording, axis, facts)
     current = signals["current_a"]
     velocity = signals["velocity_mm_min"]
     position = signals.get("position_mm")
-    dead = _dead_channel(axis, "velocity_mm_min", velocity, "mm/min")
-    moving = position is not None and _creep_mm_min(recording.time_s, position) > (
-        settings.standstill_mm_min
+    finite = velocity[np.isfinite(velocity)]
+    _check_velocity(
+        axis,
+        _dead_channel(axis, "velocity_mm_min", velocity, "mm/min"),
+        position is not None
+        and _creep_mm_min(recording.time_s, position) > settings.standstill_mm_min,
+        float(finite[0]) if len(finite) else None,
     )
-    if dead is not None:
-        finite = velocity[np.isfinite(velocity)]
-        # One value in every row: dead, unless it is 0 and nothing moves (a standstill).
-        if moving or len(finite) == 0 or finite[0] != 0.0:
-            raise RecordingError(dead)
     report(f"axis {axis}: windows", 0.0)
     segmentation = find_windows(
         axis,
@@ -417,19 +480,52 @@ def analyze_axis(
         settings=settings,
         rapid_mm_min=facts.rapid_velocity_mm_min,
     )
-    dead = _dead_channel(axis, "current_a", current, "A")
+    result = _finish_axis(
+        axis,
+        facts,
+        summary,
+        segmentation,
+        [current[w.start : w.stop] for w in segmentation.windows],
+        current_dead=_dead_channel(axis, "current_a", current, "A"),
+        current_quantum=quantum(current),
+        implausible_counts=implausible_counts,
+        implausible_lines=implausible_lines,
+        report=report,
+        gap_share=gap_share,
+    )
+    time_s = recording.time_s
+    return result, [
+        (float(time_s[w.start]), float(time_s[w.stop - 1])) for w in segmentation.windows
+    ]
+
+
+def _finish_axis(
+    axis: str,
+    facts: AxisFacts,
+    summary: AxisSummary | None,
+    segmentation: Segmentation,
+    window_current: Sequence[FloatArray],
+    *,
+    current_dead: str | None,
+    current_quantum: float,
+    implausible_counts: dict[str, int],
+    implausible_lines: list[str],
+    report: Progress,
+    gap_share: float,
+) -> AxisResult:
+    """An axis' result from its windows and their current: table, fits, dependency, verdict."""
+    dead = current_dead
     if dead is None and segmentation.windows:
-        in_windows = np.concatenate([current[w.start : w.stop] for w in segmentation.windows])
+        in_windows = np.concatenate(window_current)
         dead = _dead_channel(axis, "current_a", in_windows, "A")
         if dead is not None:
             dead = dead.replace("in every row", "in every window")
     if dead is not None:
         raise RecordingError(dead)
     report(f"axis {axis}: friction table", 0.1)
-    current_quantum = quantum(current)
-    table = friction_table(
+    table = window_table(
         axis,
-        current,
+        window_current,
         segmentation.windows,
         torque_constant_nm_per_a=facts.torque_constant_nm_per_a,
         current_quantum_a=current_quantum,
@@ -534,19 +630,218 @@ def recording_gaps(recording: Recording) -> tuple[int, int, int]:
     steps = np.diff(recording.time_s)
     holes = steps > 1.5 * period
     lost = int(np.sum(np.round(steps[holes] / period) - 1)) if holes.any() else 0
-    events = [e for e in recording.events if e.kind == "gap"]
-    reported = sum(e.lost_samples for e in events)
-    return max(int(np.count_nonzero(holes)), len(events)), max(lost, reported), len(events)
+    return _with_events(int(np.count_nonzero(holes)), lost, recording.events)
+
+
+def _with_events(holes: int, lost: int, events: Sequence[LinkEvent]) -> tuple[int, int, int]:
+    gap_events = [e for e in events if e.kind == "gap"]
+    reported = sum(e.lost_samples for e in gap_events)
+    return max(holes, len(gap_events)), max(lost, reported), len(gap_events)
+
+
+def _holes_task(period: float) -> Generator[Callable[[RowChunk], None], None, tuple[int, int]]:
+    """Holes of the time axis and the samples lost in them, chunk by chunk (as recording_gaps)."""
+    found = {"holes": 0, "lost": 0}
+    last: list[float] = []
+
+    def feed(chunk: RowChunk) -> None:
+        times = chunk.time_s
+        if len(times) == 0:
+            return
+        steps = np.diff(np.concatenate((last[-1:], times)))
+        holes = steps > 1.5 * period
+        if holes.any():
+            found["holes"] += int(np.count_nonzero(holes))
+            found["lost"] += int(np.sum(np.round(steps[holes] / period) - 1))
+        last[:] = [float(times[-1])]
+
+    yield feed
+    return found["holes"], found["lost"]
+
+
+class _Streamed:
+    """The axes of a recording analysed chunk by chunk, memory bounded by their windows.
+
+    The constructor reads the recording in a few passes shared by all axes
+    (:mod:`~ncmeasure.analysis.scan`, then :mod:`~ncmeasure.analysis.sweep`);
+    :meth:`axis` then reads the slices of each axis' windows and gives the same
+    result as :func:`analyze_axis` on the whole recording. What stops an axis
+    early is kept and raised by :meth:`axis`, in the order analyze_axis meets it.
+    """
+
+    def __init__(
+        self,
+        head: RecordingHead,
+        axes: Sequence[str],
+        schedule: Schedule | None,
+        machine: MachineConfig | None,
+        settings: AnalysisSettings,
+        rows: int,
+    ) -> None:
+        self.head = head
+        self.settings = settings
+        self.errors: dict[str, Exception] = {}
+        self.facts: dict[str, AxisFacts] = {}
+        self.summary: dict[str, AxisSummary | None] = {}
+        self.checker: dict[str, Implausible] = {}
+        self.finders: dict[str, SlicedFinder] = {}
+        names = head.channel_names
+        ready: list[str] = []
+        for axis in axes:
+            try:
+                _check_channels(axis, names)
+            except RecordingError as exc:
+                self.errors[axis] = exc
+                continue
+            self.summary[axis] = _summary(schedule, axis)
+            self.facts[axis] = _axis_facts(axis, head, machine, self.summary[axis])
+            self.checker[axis] = _checker(names, axis, self.facts[axis])
+            ready.append(axis)
+        bounds = {n: b for c in self.checker.values() for n, b in c.limits.items()}
+        channels = tuple(bounds)
+        column = {name: k for k, name in enumerate(channels)}
+        problems: list[list[str]] = [[]]
+        verified: set[int] = set()  # large frames checked once for all passes
+
+        def read() -> Iterator[RowChunk]:
+            problems[0] = []
+            return iter_chunks(
+                head.directory, rows, channels, problems=problems[0], verified=verified
+            )
+
+        self.statistics = (
+            axes_statistics(
+                head.directory, ready, names, limits=bounds, rows=rows, verified=verified
+            )
+            if ready
+            else {}
+        )
+        for axis in ready:
+            try:
+                self.finders[axis] = self._finder(axis, read, column, schedule)
+            except (RecordingError, ValueError, IndexError, ArithmeticError) as exc:
+                self.errors[axis] = exc
+        agreeing = {a: f.agreement_task() for a, f in self.finders.items() if f.needs_agreement}
+        if agreeing:
+            run_tasks(read, agreeing)
+        tasks: dict[str, Generator[Callable[[RowChunk], None], None, Any]] = {
+            a: f.sweep_task() for a, f in self.finders.items()
+        }
+        tasks[""] = _holes_task(head.meta.nominal_period_s)
+        found = run_tasks(read, tasks)
+        holes, lost = found[""]
+        first = next(iter(self.statistics.values()), None)
+        if first is not None:
+            self.rows, self.start_s, self.end_s = first.rows, first.start_s, first.end_s
+        else:
+            self.rows, self.start_s, self.end_s = _row_span(read)
+        self.gaps = _with_events(holes, lost, head.events)
+        head.samples_read(self.rows, problems[0])
+
+    def _finder(
+        self,
+        axis: str,
+        read: Callable[[], Iterator[RowChunk]],
+        column: Mapping[str, int],
+        schedule: Schedule | None,
+    ) -> SlicedFinder:
+        stats = self.statistics[axis]
+        finite = stats.finite.get("velocity_mm_min", 0)
+        low, high = stats.low["velocity_mm_min"], stats.high["velocity_mm_min"]
+        moving = False
+        if "position_mm" in stats.finite:
+            duration = stats.end_s - stats.start_s if stats.rows > 1 else 0.0
+            if duration > 0 and stats.finite["position_mm"]:
+                span = stats.high["position_mm"] - stats.low["position_mm"]
+                moving = span / duration * 60.0 > self.settings.standstill_mm_min
+        _check_velocity(
+            axis,
+            _dead_range(axis, "velocity_mm_min", stats.rows, finite, low, high, "mm/min"),
+            moving,
+            low if finite else None,
+        )
+        return SlicedFinder(
+            axis,
+            stats,
+            self.head.channel_names,
+            self.checker[axis].limits,
+            read,
+            column,
+            schedule,
+            self.settings,
+            self.facts[axis].rapid_velocity_mm_min,
+        )
+
+    def axis(
+        self, axis: str, progress: Progress, gap_share: float
+    ) -> tuple[AxisResult, list[tuple[float, float]]]:
+        """The axis' result and window times, as :func:`_analyze_axis` gives them in memory."""
+        if axis in self.errors:
+            raise self.errors[axis]
+        stats = self.statistics[axis]
+        finder = self.finders[axis]
+        progress(f"axis {axis}: windows", 0.0)
+        try:
+            segmentation = finder.run()
+        except RecordingError:
+            finder.release()
+            raise
+        checker = self.checker[axis]
+        scanned = stats.implausible
+        if scanned is not None:
+            # In the channel order of the whole-array check, whatever order the chunks met them.
+            checker.counts = {n: scanned.counts[n] for n in checker.limits if n in scanned.counts}
+            checker.first = {n: scanned.first[n] for n in checker.limits if n in scanned.first}
+        counts, lines = _implausible(checker, self.head.meta)
+        window_current = [finder.window_current(w.start, w.stop) for w in segmentation.windows]
+        times = [finder.window_times(w.start, w.stop) for w in segmentation.windows]
+        finder.release()
+        result = _finish_axis(
+            axis,
+            self.facts[axis],
+            self.summary[axis],
+            segmentation,
+            window_current,
+            current_dead=_dead_range(
+                axis,
+                "current_a",
+                stats.rows,
+                stats.finite.get("current_a", 0),
+                stats.low.get("current_a", math.nan),
+                stats.high.get("current_a", math.nan),
+                "A",
+            ),
+            current_quantum=stats.current_quantum_a,
+            implausible_counts=counts,
+            implausible_lines=lines,
+            report=progress,
+            gap_share=gap_share,
+        )
+        return result, times
+
+
+def _row_span(read: Callable[[], Iterator[RowChunk]]) -> tuple[int, float, float]:
+    """Rows, first and last time of a recording (one pass)."""
+    rows, start, end = 0, math.nan, math.nan
+    for chunk in read():
+        if len(chunk.time_s):
+            if rows == 0:
+                start = float(chunk.time_s[0])
+            end = float(chunk.time_s[-1])
+        rows += len(chunk.time_s)
+    return rows, start, end
 
 
 def analyze(
-    recording: Recording,
+    recording: Recording | RecordingHead | str | os.PathLike[str],
     *,
     schedule: Schedule | None = None,
     machine: MachineConfig | None = None,
     settings: AnalysisSettings | None = None,
     axes: Sequence[str] | None = None,
     progress: Progress | None = None,
+    rows: int = CHUNK_ROWS,
+    window_times: dict[str, list[tuple[float, float]]] | None = None,
 ) -> Results:
     """Analyse every axis of a recording: friction per position, direction and velocity.
 
@@ -554,8 +849,14 @@ def analyze(
     did not move, no window) does not stop the others: it is listed in
     ``skipped`` with the reason.
 
+    A recording given by its directory (or a :class:`RecordingHead`) is read
+    chunk by chunk (``rows`` rows each) and never held whole: memory grows with
+    the windows, not with the length (``ncmeasure analyze`` reads it so). A
+    :class:`Recording` already in memory is analysed as it is. Both give the
+    same results.
+
     Args:
-        recording: The recording (recorded, imported or synthetic).
+        recording: The recording (recorded, imported or synthetic), or its directory.
         schedule: The schedule.json of the program that ran: labels every
             window with its step, position and direction, and tells rapids
             from windows. Without it, steps and positions are clustered.
@@ -564,6 +865,10 @@ def analyze(
         settings: How windows are found; :class:`AnalysisSettings` defaults.
         axes: Analyse only these axes (default: every recorded axis).
         progress: Called with (stage, fraction done in 0..1).
+        rows: Rows per chunk when the recording is read chunk by chunk.
+        window_times: Receives, per analysed axis, the (first, last) sample time
+            of every window the friction values come from (for the report's
+            raw data, :func:`~ncmeasure.report.write_report`'s ``windows``).
 
     Returns:
         The results, ready for :func:`write_results`.
@@ -573,14 +878,19 @@ def analyze(
             by axis), or ``axes`` names an axis that was not recorded.
     """
     settings = settings or AnalysisSettings()
-    recorded = recording.axes
+    head = (
+        recording
+        if isinstance(recording, Recording | RecordingHead)
+        else RecordingHead.open(recording)
+    )
+    recorded = head.axes
     if not recorded:
-        raise RecordingError(f"{recording.directory}: the recording has no channels")
+        raise RecordingError(f"{head.directory}: the recording has no channels")
     if axes is not None:
         unknown = [a for a in axes if a not in recorded]
         if unknown:
             raise RecordingError(
-                f"{recording.directory}: axis {', '.join(unknown)} not recorded "
+                f"{head.directory}: axis {', '.join(unknown)} not recorded "
                 f"(recorded: {', '.join(recorded)})"
             )
     chosen = tuple(dict.fromkeys(axes)) if axes is not None else recorded
@@ -588,20 +898,46 @@ def analyze(
     common: list[str] = []
     if (
         schedule is not None
-        and recording.meta.config_hash is not None
-        and schedule.config_hash != recording.meta.config_hash
+        and head.meta.config_hash is not None
+        and schedule.config_hash != head.meta.config_hash
     ):
         common.append(
             f"the schedule belongs to another program (config hash {schedule.config_hash}, "
-            f"the recording's {recording.meta.config_hash})"
+            f"the recording's {head.meta.config_hash})"
         )
     if schedule is not None:
         planned = {a.name for a in schedule.axes}
         for name in chosen:
             if name not in planned:
                 common.append(f"axis {name} is not in the schedule")
-    gaps, gap_samples, gap_events = recording_gaps(recording)
-    total = len(recording) + gap_samples
+    analyse: Callable[[str, Progress, float], tuple[AxisResult, list[tuple[float, float]]]]
+    if isinstance(head, Recording):
+        whole = head
+        gaps, gap_samples, gap_events = recording_gaps(whole)
+        samples = len(whole)
+        duration = float(whole.time_s[-1] - whole.time_s[0]) if samples else 0.0
+
+        def analyse(
+            name: str, axis_progress: Progress, gap_share: float
+        ) -> tuple[AxisResult, list[tuple[float, float]]]:
+            return _analyze_axis(
+                whole,
+                name,
+                schedule=schedule,
+                machine=machine,
+                settings=settings,
+                progress=axis_progress,
+                gap_share=gap_share,
+            )
+
+    else:
+        report("reading the recording", 0.0)
+        streamed = _Streamed(head, chosen, schedule, machine, settings, rows)
+        gaps, gap_samples, gap_events = streamed.gaps
+        samples = streamed.rows
+        duration = streamed.end_s - streamed.start_s if samples else 0.0
+        analyse = streamed.axis
+    total = samples + gap_samples
     gap_share = gap_samples / total if total else 0.0
     if gaps:
         common.append(
@@ -612,21 +948,13 @@ def analyze(
     skipped: dict[str, str] = {}
     details: list[str] = []
     for number, name in enumerate(chosen):
-        log.info("analysing axis %s of %s", name, recording.directory)
+        log.info("analysing axis %s of %s", name, head.directory)
 
         def axis_progress(stage: str, fraction: float, number: int = number) -> None:
             report(stage, (number + fraction) / len(chosen))
 
         try:
-            result = analyze_axis(
-                recording,
-                name,
-                schedule=schedule,
-                machine=machine,
-                settings=settings,
-                progress=axis_progress,
-                gap_share=gap_share,
-            )
+            result, times = analyse(name, axis_progress, gap_share)
         except RecordingError as exc:
             reason = exc.message.removeprefix(f"axis {name}: ")
             skipped[name] = reason
@@ -647,21 +975,22 @@ def analyze(
         if common:
             result = result.model_copy(update={"warnings": [*common, *result.warnings]})
         results[name] = result
+        if window_times is not None:
+            window_times[name] = times
     if not results:
-        raise RecordingError(f"{recording.directory}: no axis could be analysed", details)
+        raise RecordingError(f"{head.directory}: no axis could be analysed", details)
     report("done", 1.0)
-    meta = recording.meta
-    duration = float(recording.time_s[-1] - recording.time_s[0]) if len(recording) else 0.0
+    meta = head.meta
     return Results(
         created_utc=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         recording=RecordingInfo(
-            directory=str(recording.directory),
+            directory=str(head.directory),
             machine=meta.machine,
             start_utc=meta.start_utc,
             config_hash=meta.config_hash,
             source=meta.source,
             status=meta.status,
-            samples=len(recording),
+            samples=samples,
             duration_s=duration,
             gaps=gaps,
             gap_samples=gap_samples,

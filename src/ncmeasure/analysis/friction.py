@@ -37,13 +37,11 @@ Two properties of real drive data shape the statistics:
 With a torque constant the table is in Nm (T = k_T · I), else in A.
 
 This is the hot path of the analysis (an hour at 1 kHz is 3.6 M rows), so it
-is vectorised: the windows are sorted by group and their samples copied once
-into one buffer (every group, window and batch a contiguous slice), sums come
-from ``np.add.reduceat``, and the medians of all batches, windows and groups
-from ``np.partition`` of padded blocks of float32 keys, read back exactly
-(:func:`_segment_medians`): no sort, no index array per sample, nothing
-written back. Python loops run over blocks of similar segments, never
-samples.
+is vectorised: the windows are sorted by group, the sample indices of all
+windows are built at once (``np.repeat`` of the window offsets), sums come
+from ``np.bincount``, and medians from one ``np.partition`` per group or
+batch on its contiguous slice. Python loops run over windows, batches and
+groups, never samples.
 """
 
 from __future__ import annotations
@@ -54,7 +52,6 @@ from dataclasses import dataclass
 from typing import Final, Literal
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from ncmeasure.analysis.results import Point
@@ -81,6 +78,7 @@ MIN_BATCH_SAMPLES: Final = 5
 
 _MEDIAN_SE_FACTOR: Final = math.sqrt(math.pi / 2)
 
+_SortKind = Literal["quicksort", "stable"]
 _PAD_RATIO: Final = 1.25
 """Segments sorted in one padded block differ in length by at most this factor."""
 _PAD_LONGEST: Final = 4096
@@ -208,127 +206,68 @@ def _batch_bounds(window_bounds: IntArray) -> IntArray:
     return np.concatenate((window_bounds[:1], edges)).astype(np.intp)
 
 
-def _selection_keys(buffer: FloatArray) -> NDArray[np.float32]:
-    """Float32 keys of ``buffer``: in the same order as the values (ties aside), never ±inf.
+def _sort_segments(buffer: FloatArray, bounds: IntArray, kind: _SortKind) -> None:
+    """Sort every segment ``buffer[bounds[s]:bounds[s + 1]]`` in place.
 
-    Rounding to float32 never reverses two values, so a row's k-th smallest value
-    has the k-th smallest key, and selecting among 32-bit keys is several times
-    faster than among float64 values. Clipped to the float32 range, no key of a
-    finite value equals the ±inf padding.
+    ``buffer`` ends in one spare slot holding +inf, after the last segment.
+    Segments of similar length (within :data:`_PAD_RATIO`) are sorted together
+    as the rows of one block: a row shorter than the block reads the spare slot
+    as padding (+inf sorts behind every finite sample) and writes it back there,
+    so a block is one gather, one vectorised sort and one scatter instead of a
+    call per segment. Segments longer than :data:`_PAD_LONGEST` are sorted one
+    by one: they are few, and a call costs little against their length.
     """
-    limit = float(np.finfo(np.float32).max)
-    keys = np.empty(len(buffer), dtype=np.float32)
-    np.clip(buffer, -limit, limit, out=keys, casting="same_kind")
-    return keys
-
-
-def _row_counts(mask: NDArray[np.bool_]) -> IntArray:
-    """The True entries of each row of ``mask``, rows at most :data:`_PAD_LONGEST` wide.
-
-    Summed as bytes into uint16 (a row counts 4096 at most), several times faster
-    than ``np.count_nonzero(mask, axis=1)``.
-    """
-    counts: NDArray[np.uint16] = mask.view(np.uint8).sum(axis=1, dtype=np.uint16)
-    return counts.astype(np.intp)
-
-
-def _segment_medians(
-    buffer: FloatArray, keys: NDArray[np.float32], bounds: IntArray, quantum: float
-) -> FloatArray:
-    """:func:`grouped_median` of every segment ``buffer[bounds[s]:bounds[s + 1]]``.
-
-    NaN for an empty segment. ``buffer`` holds finite values, and at least
-    :data:`_PAD_LONGEST` values (any finite) before the first segment and after
-    the last: the margin a padded row may reach into; ``keys`` are its
-    :func:`_selection_keys`. Neither is changed.
-
-    Segments of similar length (within :data:`_PAD_RATIO`) are the rows of one
-    block, each copied from the keys as the ``width`` keys centred on it
-    (``width`` the longest row's length: the copy of a contiguous stretch, no
-    index array). The keys of a row's neighbours on its left become −inf and
-    those on its right +inf, so many that the row's lower median lands in the
-    same column ``centre = (width − 1) // 2`` for every row whatever its length.
-    One ``np.partition`` of the float32 keys at that column finds every row's
-    median key (O(width) per row, no sort); the upper median of an even row has
-    the smallest key right of it. The values are then read back exactly: those
-    whose key lies between the two median keys (mostly one or two a row; more
-    only where values repeat or differ by less than a float32 step) are sorted
-    where they differ, and the median is the one at its rank after the keys
-    below. Segments longer than :data:`_PAD_LONGEST` are few and long:
-    :func:`grouped_median` each. The arithmetic is :func:`grouped_median`'s, so
-    the numbers are the same bit for bit.
-    """
+    spare = len(buffer) - 1
     lengths = np.diff(bounds)
     starts = bounds[:-1]
-    result = np.full(len(lengths), np.nan)
     for s in np.flatnonzero(lengths > _PAD_LONGEST).tolist():
-        result[s] = grouped_median(buffer[starts[s] : starts[s] + lengths[s]], quantum)
-    short = np.flatnonzero((lengths > 0) & (lengths <= _PAD_LONGEST))
+        buffer[starts[s] : starts[s] + lengths[s]].sort(kind=kind)
+    short = np.flatnonzero((lengths > 1) & (lengths <= _PAD_LONGEST))
     short = short[np.argsort(lengths[short], kind="stable")]
     sorted_lengths = lengths[short]
-    half = 0.5 * quantum
     first = 0
     while first < len(short):
         shortest = int(sorted_lengths[first])
         end = int(np.searchsorted(sorted_lengths, math.floor(shortest * _PAD_RATIO), "right"))
         end = min(end, first + max(1, _PAD_BLOCK // shortest))
         rows = short[first:end]
-        length = sorted_lengths[first:end]
-        first = end
-        width = int(length[-1])
-        centre = (width - 1) // 2
-        lead = centre - (length - 1) // 2
-        origin = starts[rows] - lead
-        row_keys = sliding_window_view(keys, width)[origin]
+        width = int(sorted_lengths[end - 1])
+        columns = np.arange(width, dtype=np.intp)
+        index = starts[rows][:, None] + columns
         if width > shortest:
-            columns = np.arange(width, dtype=np.intp)
-            left = int(lead[0])  # the shortest row has the most padding
-            np.copyto(row_keys[:, :left], -np.inf, where=columns[:left] < lead[:, None])
-            tail = lead + length
-            right = int(tail[0])
-            np.copyto(row_keys[:, right:], np.inf, where=columns[right:] >= tail[:, None])
-        selected = row_keys.copy()
-        selected.partition(centre, axis=1)
-        low_key = selected[:, centre]
-        even = (length % 2 == 0) if quantum <= 0 else np.zeros(len(rows), dtype=np.bool_)
-        high_key = low_key
-        if even.any():  # an odd row's next key may be padding: its band stays at its median
-            high_key = np.where(even, selected[:, centre + 1 :].min(axis=1), low_key)
-        # Keys below the median key: all left of the centre in the partitioned rows.
-        below = _row_counts(selected[:, :centre] < low_key[:, None])
-        del selected
-        # The values whose keys lie from the lower to the upper median key, row by row.
-        band = row_keys >= low_key[:, None]
-        band &= row_keys <= high_key[:, None]
-        flat = np.flatnonzero(band)
-        row = flat // width
-        candidates = buffer[origin[row] + flat - row * width]
-        count = np.bincount(row, minlength=len(rows))
-        offset = np.cumsum(count) - count
-        low = np.minimum.reduceat(candidates, offset)
-        high = np.maximum.reduceat(candidates, offset)
-        mixed = np.flatnonzero(low != high)
-        if len(mixed):  # values differ within a key: sort those rows' candidates
-            take = (low != high)[row]
-            part, part_row = candidates[take], row[take]
-            part = part[np.lexsort((part, part_row))]
-            part_offset = np.cumsum(count[mixed]) - count[mixed] - below[mixed]
-            low[mixed] = part[part_offset + centre]
-            if even.any():  # an odd row's band ends at its median
-                high[mixed] = part[part_offset + centre + even[mixed]]
-        if quantum > 0:  # counts below and at the level: the row's values, padded as its keys
-            values = sliding_window_view(buffer, width)[origin]
-            if width > shortest:
-                np.copyto(values[:, :left], -np.inf, where=columns[:left] < lead[:, None])
-                np.copyto(values[:, right:], np.inf, where=columns[right:] >= tail[:, None])
-            below = _row_counts(values < (low - half)[:, None]) - lead
-            np.subtract(values, low[:, None], out=values)
-            at = _row_counts(np.abs(values, out=values) <= half)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                interpolated = low - half + quantum * (0.5 * length - below) / at
-            result[rows] = np.where(at == 0, low, interpolated)
-        else:
-            result[rows] = np.where(even, (low + high) / 2, low)
+            index = np.where(columns < lengths[rows][:, None], index, spare)
+        block = buffer.take(index)
+        block.sort(axis=1, kind=kind)
+        buffer.put(index, block)
+        first = end
+
+
+def _sorted_medians(buffer: FloatArray, bounds: IntArray, quantum: float) -> FloatArray:
+    """:func:`grouped_median` of every segment of ``buffer``, each segment sorted.
+
+    ``bounds`` cut the buffer (but a spare slot) into consecutive segments; NaN for an empty
+    one. The arithmetic is :func:`grouped_median`'s, so the numbers are the same.
+    """
+    lengths = np.diff(bounds)
+    result = np.full(len(lengths), np.nan)
+    filled = np.flatnonzero(lengths > 0)
+    if not len(filled):
+        return result
+    count = lengths[filled]
+    start = bounds[:-1][filled]
+    low = buffer[start + (count - 1) // 2]
+    if quantum <= 0:
+        high = buffer[start + count // 2]
+        result[filled] = np.where(count % 2 == 1, low, (low + high) / 2)
+        return result
+    half = 0.5 * quantum
+    level = np.repeat(low, count)
+    buffer = buffer[: len(level)]  # without a spare slot after the segments
+    below = np.add.reduceat((buffer < level - half).astype(np.intp), start)
+    at = np.add.reduceat((np.abs(buffer - level) <= half).astype(np.intp), start)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        interpolated = low - half + quantum * (0.5 * count - below) / at
+    result[filled] = np.where(at == 0, low, interpolated)
     return result
 
 
@@ -415,13 +354,13 @@ def window_table(
 
     parts = [np.asarray(window_current_a[i], dtype=np.float64) for i in order.tolist()]
     lengths = np.fromiter((len(p) for p in parts), dtype=np.intp, count=count)
-    # The samples, by group and window, between margins a padded row may reach into.
-    margin = _PAD_LONGEST
-    buffer = np.empty(margin + int(lengths.sum()) + margin)
-    buffer[:margin] = buffer[len(buffer) - margin :] = 0.0
-    values = buffer[margin : len(buffer) - margin]
+    # One buffer for the samples and, after them, the spare slot of _sort_segments:
+    # the statistics and the sorts below work in it and one more array at most.
+    buffer = np.empty(int(lengths.sum()) + 1, dtype=np.float64)
     if parts:
-        np.concatenate(parts, out=values)
+        np.concatenate(parts, out=buffer[:-1])
+    del parts
+    values = buffer[:-1]
     finite = np.isfinite(values)
     if finite.all():
         per_window = lengths
@@ -429,8 +368,11 @@ def window_table(
         kept = np.concatenate(([0], np.cumsum(finite)))
         ends = np.cumsum(lengths)
         per_window = kept[ends] - kept[ends - lengths]
-        buffer = np.concatenate((buffer[:margin], values[finite], buffer[:margin]))
-        values = buffer[margin : len(buffer) - margin]
+        count_finite = int(kept[-1])
+        buffer[:count_finite] = values[finite]
+        buffer = buffer[: count_finite + 1]
+        values = buffer[:-1]
+    del finite
     n = np.bincount(group_of_window, weights=per_window, minlength=groups).astype(np.intp)
     used_windows = np.bincount(group_of_window[per_window > 0], minlength=groups)
     group_bounds = np.concatenate(([0], np.cumsum(n)))
@@ -443,25 +385,27 @@ def window_table(
         total[filled] = np.add.reduceat(values, group_bounds[filled])
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = total / n
-        deviation = np.repeat(mean, n)  # one array of n, worked in place
+        deviation = np.repeat(mean, n)
         np.subtract(values, deviation, out=deviation)
-        np.multiply(deviation, deviation, out=deviation)
+        deviation *= deviation
         if len(filled):
             squares[filled] = np.add.reduceat(deviation, group_bounds[filled])
         del deviation
         variance = squares / (n - 1)
     std = np.where(n > 1, np.sqrt(np.maximum(variance, 0.0)), np.nan)
 
-    # Medians of batches, windows and groups: selections in padded blocks of the buffer.
+    # Medians of batches, windows and groups from one buffer sorted three times:
+    # batches nest in windows and windows in groups, so each sort merges sorted runs.
+    ordered = buffer  # sorted in place from here on: ``values`` is not read again
+    ordered[-1] = np.inf  # the spare slot of _sort_segments
+    del values
     batch_bounds = _batch_bounds(window_bounds)
-    order_keys = _selection_keys(buffer)
-    batch_median_all = _segment_medians(
-        buffer, order_keys, batch_bounds + margin, current_quantum_a
-    )
-    window_median_all = _segment_medians(
-        buffer, order_keys, window_bounds + margin, current_quantum_a
-    )
-    median = _segment_medians(buffer, order_keys, group_bounds + margin, current_quantum_a)
+    _sort_segments(ordered, batch_bounds, "quicksort")
+    batch_median_all = _sorted_medians(ordered, batch_bounds, current_quantum_a)
+    _sort_segments(ordered, window_bounds, "stable")
+    window_median_all = _sorted_medians(ordered, window_bounds, current_quantum_a)
+    _sort_segments(ordered, group_bounds, "stable")
+    median = _sorted_medians(ordered, group_bounds, current_quantum_a)
 
     # Batches: consecutive stretches of every window; their medians scatter by what
     # correlates the samples (servo loop, cogging), unlike the samples themselves.

@@ -65,7 +65,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Final, Literal
 
@@ -75,6 +75,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.ndimage import maximum_filter1d, median_filter, minimum_filter1d
 from scipy.stats import theilslopes
 
+from ncmeasure.analysis.streaming import chunks_of, quantum_task, run_task, whole
 from ncmeasure.errors import RecordingError
 from ncmeasure.plan import AxisSummary, Schedule
 from ncmeasure.plan import Window as ScheduledWindow
@@ -110,10 +111,6 @@ MIN_WINDOW_SAMPLES: Final = 3
 COARSE_WINDOW_SAMPLES: Final = 20
 """Windows holding fewer samples than this (median over the axis) make the data coarse:
 their medians are uncertain and the Stribeck curve at low speed is not resolved."""
-
-LATTICE_SHARE: Final = 0.95
-"""A signal is quantised when this share of its sample-to-sample steps are whole
-multiples of its smallest step."""
 
 DISPLACEMENT_QUANTA: Final = 2.0
 """A window's displacement is known to this many position counts (one at each end)."""
@@ -409,21 +406,10 @@ def quantum(values: FloatArray) -> float:
     """
     data = np.asarray(values, dtype=np.float64)
     data = data[np.isfinite(data)]
-    if len(data) < 3:
-        return 0.0
-    steps = np.abs(np.diff(data))
-    scale = float(np.max(np.abs(data)))
-    steps = steps[steps > 1e-9 * scale]
-    if len(steps) < 10:
-        return 0.0
-    smallest = float(steps.min())
-    ratio = steps / smallest
-    on_lattice = np.abs(ratio - np.round(ratio)) <= 0.02
-    if np.count_nonzero(on_lattice) < LATTICE_SHARE * len(steps):
-        return 0.0
-    # The smallest step of a lattice may be a rounding-noise variant of the count.
-    counts = np.round(ratio[on_lattice])
-    return float(np.sum(steps[on_lattice]) / np.sum(counts))
+    # One computation for arrays and for recordings read chunk by chunk (the lattice
+    # steps are summed exactly, so the count does not depend on the chunks).
+    value: float = run_task(chunks_of(data, max(len(data), 1)), quantum_task(whole))
+    return value
 
 
 def _bridge(
@@ -543,6 +529,82 @@ def _clusters(values: FloatArray, labels: IntArray) -> list[Cluster]:
     return result
 
 
+def position_velocity(
+    time_s: FloatArray, position_mm: FloatArray, h: int, lo: int, hi: int, offset: int, n: int
+) -> FloatArray:
+    """Velocity from the position by central differences over ±h rows, in mm/min.
+
+    For the rows ``lo`` .. ``hi`` of a recording of ``n`` rows, from arrays that
+    hold its rows from ``offset`` on (at least ``lo − h`` .. ``hi + h``, clipped
+    to the recording): the same values whether the arrays hold the whole
+    recording or a stretch of it.
+    """
+    rows = np.arange(lo, hi)
+    ahead = np.minimum(rows + h, n - 1) - offset
+    behind = np.maximum(rows - h, 0) - offset
+    span = time_s[ahead] - time_s[behind]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        velocity = np.where(span > 0, (position_mm[ahead] - position_mm[behind]) / span * 60.0, 0.0)
+    return np.asarray(velocity, dtype=np.float64)
+
+
+def command_repeats(command: FloatArray) -> BoolArray:
+    """Per row after the first: whether it repeats the row before (within rounding)."""
+    jump = np.abs(np.diff(command))
+    limit = 1e-4 * np.abs(command[1:]) + 1e-3
+    repeats: BoolArray = jump <= limit
+    return repeats
+
+
+def command_stretches(command: FloatArray, n: int) -> tuple[IntArray, IntArray]:
+    """Begin and end (exclusive) of the stretches of constant commanded velocity."""
+    constant = np.zeros(n, dtype=np.bool_)
+    constant[1:] = command_repeats(command)  # sample i repeats sample i - 1
+    # A constant stretch starts one sample before its first repeat.
+    begins = np.flatnonzero(~constant)
+    ends = np.append(begins[1:], n)
+    return begins, ends
+
+
+def _keep_stretches(levels: FloatArray, lengths: IntArray, finder: _Finder) -> BoolArray:
+    keep: BoolArray = (np.abs(levels) >= finder.settings.standstill_mm_min) & (
+        lengths >= finder.min_n
+    )
+    return keep
+
+
+def plateau_mask(
+    smooth: FloatArray,
+    band: Callable[[FloatArray], FloatArray],
+    standstill: float,
+    length: int,
+    n: int,
+    offset: int = 0,
+) -> BoolArray:
+    """The rows covered by a flat span of ``length`` rows of the smoothed velocity.
+
+    ``smooth`` holds the rows ``offset`` .. ``offset + len(smooth)`` of a
+    recording of ``n`` rows. A row's value needs the smoothed velocity
+    ``length`` rows either side: it is exact where ``smooth`` reaches that far
+    or to the recording's ends.
+    """
+    count = len(smooth)
+    # ok[j]: the smoothed velocity stays within the tolerance over [j, j + length).
+    low = minimum_filter1d(smooth, length, mode="nearest", origin=-(length // 2))
+    high = maximum_filter1d(smooth, length, mode="nearest", origin=-(length // 2))
+    slowest = minimum_filter1d(np.abs(smooth), length, mode="nearest", origin=-(length // 2))
+    ok = (high - low) <= band(smooth)
+    ok &= slowest >= standstill
+    ok[max(0, n - length + 1 - offset) :] = False
+    # Samples covered by any good span of `length` samples.
+    covered = maximum_filter1d(ok.astype(np.int8), length, origin=(length - 1) // 2) > 0
+    # Two levels that touch without a ramp between them are two plateaus.
+    jump = np.zeros(count, dtype=np.bool_)
+    jump[1:] = np.abs(np.diff(smooth)) > 0.5 * band(smooth[1:])
+    mask: BoolArray = covered & ~jump
+    return mask
+
+
 # --- the finder ------------------------------------------------------------------------
 
 
@@ -599,6 +661,29 @@ class _Finder:
             )
         else:
             self.x = position
+        self.setup_schedule(schedule)
+        self.v = velocity
+        self.t = time_s
+        self.setup_counts()
+        self.setup_resolution(
+            quantum(velocity),
+            quantum(position) if position is not None else 0.0,
+            noise_sigma(velocity),
+        )
+        ratio: float | None = None
+        if self.from_position:
+            h = self.position_h(noise_sigma(self.x))
+            by_position = self._position_velocity(h)
+            ratio = _agreement(by_position, velocity, 5 * self.resolution)
+            self.v_detect = velocity
+            if ratio is not None and 0.9 <= ratio <= 1.1:
+                self.v_detect = by_position
+        else:
+            self.v_detect = velocity
+        self.setup_detection(ratio)
+
+    def setup_schedule(self, schedule: Schedule | None) -> None:
+        """The axis' part of the schedule, and how its program writes the marker."""
         self.summary: AxisSummary | None = None
         self.scope: Literal["window", "run", "none"] = "window"
         self.marker_values: Literal["window_id", "flag"] = "window_id"
@@ -606,47 +691,49 @@ class _Finder:
             self.scope = schedule.marker_scope
             self.marker_values = schedule.marker_values
             for summary in schedule.axes:
-                if summary.name == axis:
+                if summary.name == self.axis:
                     self.summary = summary
             if self.summary is None:
                 self.warnings.append(
                     "the schedule has no windows for this axis: windows clustered instead"
                 )
-        self.v = velocity
-        self.t = time_s
+
+    def setup_counts(self) -> None:
+        """Sample counts of the settings' durations at the sample period ``dt``."""
+        settings = self.settings
         self.detect_resolution = 0.0
         self.settle_n = round(settings.settle_s / self.dt)
         self.filter_n = _odd(settings.plateau_filter_s / self.dt)
         self.min_n = max(MIN_WINDOW_SAMPLES, math.ceil(settings.min_window_s / self.dt - 1e-9))
         self.plateau_n = max(MIN_WINDOW_SAMPLES, round(settings.plateau_min_s / self.dt))
+
+    def setup_resolution(self, v_quantum: float, x_quantum: float, sigma: float) -> None:
+        """What the velocity signal resolves, and whether windows come from the position."""
         # What the velocity signal can resolve: one count, and the noise of the
         # rolling median over filter_n samples (√(π/2)·σ/√n).
-        self.v_quantum = quantum(velocity)
-        self.x_quantum = quantum(position) if position is not None else 0.0
-        sigma = noise_sigma(velocity)
+        self.v_quantum = v_quantum
+        self.x_quantum = x_quantum
         smoothed_noise = math.sqrt(math.pi / 2) * sigma / math.sqrt(self.filter_n)
         self.resolution = max(self.v_quantum, _NOISE_BAND_FACTOR * smoothed_noise)
         # A velocity signal coarser than the tolerance floor cannot tell the slow steps
         # apart: find and measure windows by the position instead, where recorded.
         self.from_position = (
-            self.positions_known and self.resolution > settings.velocity_floor_mm_min
+            self.positions_known and self.resolution > self.settings.velocity_floor_mm_min
         )
-        self.v_detect = velocity
-        if self.from_position:
-            by_position = self._position_velocity()
-            ratio = _agreement(by_position, velocity, 5 * self.resolution)
-            if ratio is None or not 0.9 <= ratio <= 1.1:
-                self.warnings.append(
-                    "the velocity signal is coarse, but the position does not move as the "
-                    "velocity says"
-                    + (f" (its rate is {ratio:.3g} × the velocity)" if ratio is not None else "")
-                    + ": windows are found by the velocity readings (another unit of the "
-                    "position?)"
-                )
-                self.from_position = False
-                self.detect_resolution = 0.0
-            else:
-                self.v_detect = by_position
+
+    def setup_detection(self, ratio: float | None) -> None:
+        """Keep the position's velocity when it agrees with the readings (``ratio``)."""
+        settings = self.settings
+        if self.from_position and (ratio is None or not 0.9 <= ratio <= 1.1):
+            self.warnings.append(
+                "the velocity signal is coarse, but the position does not move as the "
+                "velocity says"
+                + (f" (its rate is {ratio:.3g} × the velocity)" if ratio is not None else "")
+                + ": windows are found by the velocity readings (another unit of the "
+                "position?)"
+            )
+            self.from_position = False
+            self.detect_resolution = 0.0
         if self.from_position:
             self.warnings.append(
                 f"the velocity signal resolves {self.resolution:.3g} mm/min"
@@ -657,8 +744,8 @@ class _Finder:
         else:
             self.standstill = max(settings.standstill_mm_min, self.v_quantum * (1 + 1e-6))
 
-    def _position_velocity(self) -> FloatArray:
-        """Velocity from the position by central differences over ±h samples, in mm/min.
+    def position_h(self, sigma_x: float) -> int:
+        """Half-width h of the position's central differences; sets their resolution.
 
         h is long enough that a position count, or the position's noise, moves
         the estimate by at most a quarter of the tolerance floor, and at most a
@@ -667,23 +754,19 @@ class _Finder:
         tolerance band like the velocity readings' resolution does.
         """
         floor = max(self.settings.velocity_floor_mm_min, 1e-9)
-        sigma_x = noise_sigma(self.x)
         step = max(self.x_quantum, 2.0 * sigma_x)
         wanted = math.ceil(60.0 * step / (0.25 * floor * 2 * self.dt))
         h = int(min(max(1, wanted), max(1, self.plateau_n // 4)))
-        x = self.x
-        n = self.n
-        ahead = np.minimum(np.arange(n) + h, n - 1)
-        behind = np.maximum(np.arange(n) - h, 0)
-        span = self.t[ahead] - self.t[behind]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            velocity = np.where(span > 0, (x[ahead] - x[behind]) / span * 60.0, 0.0)
         # The estimate's noise: two position samples of σ_x over 2h samples.
         noise = 60.0 * math.sqrt(2.0) * sigma_x / (2 * h * self.dt)
         self.detect_resolution = max(
             60.0 * self.x_quantum / (2 * h * self.dt), _NOISE_BAND_FACTOR * noise
         )
-        return np.asarray(velocity, dtype=np.float64)
+        return h
+
+    def _position_velocity(self, h: int) -> FloatArray:
+        """Velocity from the position by central differences over ±h samples, in mm/min."""
+        return position_velocity(self.t, self.x, h, 0, len(self.x), 0, self.n)
 
     def band(self, level: float | FloatArray) -> FloatArray:
         """The accepted |velocity − level|: the settings' tolerance, at least the resolution."""
@@ -694,14 +777,27 @@ class _Finder:
 
     def marker_candidates(self) -> list[_Candidate]:
         marker = self.marker
-        if marker is None:
-            self.tried.append("marker: not recorded")
+        if not self.marker_wanted():
             return []
-        if self.summary is not None and self.scope == "none":
-            self.tried.append("marker: the schedule says the program writes none")
-            return []
+        assert marker is not None
         on = np.isfinite(marker) & (marker > 0)
         starts, stops = _value_runs(on, marker)
+        return self.marker_levels(starts.tolist(), stops.tolist(), marker[starts].tolist())
+
+    def marker_wanted(self) -> bool:
+        """Whether there is a marker to look at (else why not, in ``tried``)."""
+        if self.marker is None:
+            self.tried.append("marker: not recorded")
+            return False
+        if self.summary is not None and self.scope == "none":
+            self.tried.append("marker: the schedule says the program writes none")
+            return False
+        return True
+
+    def marker_levels(
+        self, starts: Sequence[int], stops: Sequence[int], values: Sequence[float]
+    ) -> list[_Candidate]:
+        """Candidates of the marker runs that move (level: commanded, else actual velocity)."""
         if len(starts) == 0:
             self.tried.append("marker: recorded but never set")
             return []
@@ -710,11 +806,11 @@ class _Finder:
             self.settings.standstill_mm_min if self.command is not None else self.standstill
         )
         result = []
-        for start, stop in zip(starts.tolist(), stops.tolist(), strict=True):
+        for start, stop, value in zip(starts, stops, values, strict=True):
             level = float(np.nanmedian(reference[start:stop]))
             if not abs(level) >= standstill:
                 continue
-            result.append(_Candidate(start, stop, level, marker_value=float(marker[start])))
+            result.append(_Candidate(start, stop, level, marker_value=float(value)))
         if not result:
             self.tried.append(f"marker: {len(starts)} marker windows, all at standstill")
         return result
@@ -724,59 +820,56 @@ class _Finder:
         if command is None:
             self.tried.append("commanded velocity: not recorded")
             return []
-        settings = self.settings
         if self.n < 2:
             return []
-        jump = np.abs(np.diff(command))
-        limit = 1e-4 * np.abs(command[1:]) + 1e-3
-        constant = np.zeros(self.n, dtype=np.bool_)
-        constant[1:] = jump <= limit  # sample i repeats sample i - 1
-        # A constant stretch starts one sample before its first repeat.
-        begins = np.flatnonzero(~constant)
-        ends = np.append(begins[1:], self.n)
-        lengths = ends - begins
-        moving = np.abs(command[begins]) >= settings.standstill_mm_min
-        keep = moving & (lengths >= self.min_n)
+        begins, ends = command_stretches(command, self.n)
+        keep = _keep_stretches(command[begins], ends - begins, self)
+        return self.command_found(
+            begins[keep].tolist(), ends[keep].tolist(), command[begins[keep]].tolist()
+        )
+
+    def command_found(
+        self, begins: Sequence[int], ends: Sequence[int], levels: Sequence[float]
+    ) -> list[_Candidate]:
         result = [
-            _Candidate(int(b), int(e), float(command[b]))
-            for b, e in zip(begins[keep].tolist(), ends[keep].tolist(), strict=True)
+            _Candidate(int(b), int(e), float(c))
+            for b, e, c in zip(begins, ends, levels, strict=True)
         ]
         if not result:
             self.tried.append(
                 f"commanded velocity: no constant stretch of {self.min_n} samples "
-                f"({settings.min_window_s:g} s) above {settings.standstill_mm_min:g} mm/min"
+                f"({self.settings.min_window_s:g} s) above "
+                f"{self.settings.standstill_mm_min:g} mm/min"
             )
         return result
 
     def plateau_candidates(self) -> list[_Candidate]:
-        settings = self.settings
         length = self.plateau_n
-        if self.n < length:
-            self.tried.append(
-                "plateaus: the recording is shorter than plateau_min_s "
-                f"({settings.plateau_min_s:g} s)"
-            )
+        if self.plateau_too_short():
             return []
         finite = np.where(np.isfinite(self.v_detect), self.v_detect, 0.0)
         smooth = median_filter(finite, size=self.filter_n, mode="nearest")
-        # ok[j]: the smoothed velocity stays within the tolerance over [j, j + length).
-        low = minimum_filter1d(smooth, length, mode="nearest", origin=-(length // 2))
-        high = maximum_filter1d(smooth, length, mode="nearest", origin=-(length // 2))
-        slowest = minimum_filter1d(np.abs(smooth), length, mode="nearest", origin=-(length // 2))
-        ok = (high - low) <= self.band(smooth)
-        ok &= slowest >= self.standstill
-        ok[self.n - length + 1 :] = False
-        # Samples covered by any good span of `length` samples.
-        covered = maximum_filter1d(ok.astype(np.int8), length, origin=(length - 1) // 2) > 0
-        # Two levels that touch without a ramp between them are two plateaus.
-        jump = np.zeros(self.n, dtype=np.bool_)
-        jump[1:] = np.abs(np.diff(smooth)) > 0.5 * self.band(smooth[1:])
-        starts, stops = _runs(covered & ~jump)
-        result = []
-        for start, stop in zip(starts.tolist(), stops.tolist(), strict=True):
-            if stop - start < length:
-                continue
-            result.append(_Candidate(start, stop, float(np.median(smooth[start:stop]))))
+        starts, stops = _runs(plateau_mask(smooth, self.band, self.standstill, length, self.n))
+        return self.plateau_found(
+            [
+                (start, stop, float(np.median(smooth[start:stop])))
+                for start, stop in zip(starts.tolist(), stops.tolist(), strict=True)
+                if stop - start >= length
+            ]
+        )
+
+    def plateau_too_short(self) -> bool:
+        if self.n < self.plateau_n:
+            self.tried.append(
+                "plateaus: the recording is shorter than plateau_min_s "
+                f"({self.settings.plateau_min_s:g} s)"
+            )
+            return True
+        return False
+
+    def plateau_found(self, runs: Sequence[tuple[int, int, float]]) -> list[_Candidate]:
+        settings = self.settings
+        result = [_Candidate(start, stop, level) for start, stop, level in runs]
         if not result:
             self.tried.append(
                 f"plateaus: no stretch of {settings.plateau_min_s:g} s where the actual velocity "

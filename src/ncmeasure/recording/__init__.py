@@ -29,7 +29,13 @@ from ncmeasure.recording.format import (
     channel_from_name,
     machine_axis,
 )
-from ncmeasure.recording.reader import Recording, RowChunk, iter_chunks, read_recording
+from ncmeasure.recording.reader import (
+    Recording,
+    RecordingHead,
+    RowChunk,
+    iter_chunks,
+    read_recording,
+)
 from ncmeasure.recording.sink import ImportSink, check_times
 from ncmeasure.recording.writer import RecordingWriter
 
@@ -45,6 +51,7 @@ __all__ = [
     "ChannelMeta",
     "ImportSink",
     "Recording",
+    "RecordingHead",
     "RecordingMeta",
     "RecordingStatus",
     "RecordingWriter",

@@ -162,20 +162,26 @@ def iter_chunks(
     rows: int = 1 << 16,
     channels: tuple[str, ...] | None = None,
     problems: list[str] | None = None,
+    verified: set[int] | None = None,
 ) -> Iterator[RowChunk]:
     """The rows of ``samples.bin`` chunk by chunk, never the whole file in memory.
 
     The same rows as :meth:`Recording.open`, with the same checks (frame walk,
     sequence numbers, CRC of every frame): a damaged frame ends the rows there,
-    and its problem is appended to ``problems``. Memory is one chunk of
-    ``rows`` rows (of every column, for the checksum) plus the frame index,
-    whatever the length of the recording.
+    and its problem is appended to ``problems``; no row of a damaged frame is
+    given. Memory is one chunk of ``rows`` rows (of every column) plus the
+    frame index, whatever the length of the recording and of its frames: a
+    frame larger than a chunk is checked in pieces first, then read again
+    chunk by chunk.
 
     Args:
         directory: The recording directory.
         rows: Rows per chunk (the last one may hold fewer).
         channels: Channel names to return, in this order (default: all).
         problems: Receives what was wrong with the file, one sentence each.
+        verified: Byte offsets of large frames whose checksum was checked; a
+            caller reading the same file several times passes the same set, so
+            each large frame is checked once (and read once more) in all.
 
     Raises:
         RecordingError: Not a recording, or a channel it does not have.
@@ -201,40 +207,98 @@ def iter_chunks(
     with file:
         size = os.fstat(file.fileno()).st_size
         frames = _walk_headers(file, size, row_bytes, found)
-        pending: list[NDArray[np.uint8]] = []  # whole frames not yet yielded
+        pending: list[NDArray[np.uint8]] = []  # rows read, not yet yielded
         held = 0  # rows in pending
         first = 0
         for number, frame in enumerate(frames):
-            payload = np.empty(frame.rows * row_bytes, dtype=np.uint8)
-            file.seek(frame.offset + FRAME_HEADER.size)
             rest = size - frame.offset
-            if _read_exactly(file, payload.data) < len(payload):
-                where = f"after frame {number - 1}" if number else "at the start of samples.bin"
-                found[:] = [f"torn tail: {rest} bytes {where} ignored (file shrank)"]
+            where = f"after frame {number - 1}" if number else "at the start of samples.bin"
+            start = frame.offset + FRAME_HEADER.size
+            torn = f"torn tail: {rest} bytes {where} ignored (file shrank)"
+            bad = (
+                f"frame {number} fails its checksum: it and everything after it ignored "
+                f"({rest} bytes)"
+            )
+            if frame.rows <= rows:
+                # A small frame is read whole and checked before any of its rows is given.
+                payload = np.empty(frame.rows * row_bytes, dtype=np.uint8)
+                file.seek(start)
+                if _read_exactly(file, payload.data) < len(payload):
+                    found[:] = [torn]
+                    break
+                if zlib.crc32(payload.data) != frame.crc:
+                    found[:] = [bad]
+                    break
+                pieces: Iterator[NDArray[np.uint8] | None] = iter([payload])
+            else:
+                # A large frame is checked in pieces first, then read again piece by
+                # piece: never held whole, and no row of a damaged frame is given.
+                if verified is None or frame.offset not in verified:
+                    checked = _frame_crc(file, start, frame.rows * row_bytes)
+                    if checked is None:
+                        found[:] = [torn]
+                        break
+                    if checked != frame.crc:
+                        found[:] = [bad]
+                        break
+                    if verified is not None:
+                        verified.add(frame.offset)
+                pieces = _frame_pieces(file, start, frame.rows, rows, row_bytes)
+            shrank = False
+            for piece in pieces:
+                if piece is None:
+                    shrank = True
+                    break
+                pending.append(piece)
+                held += len(piece) // row_bytes
+                if held < rows:
+                    continue
+                joined = np.concatenate(pending) if len(pending) > 1 else pending[0]
+                whole = held // rows * rows
+                table = joined[: whole * row_bytes].view(ROW_DTYPE).reshape(whole, width)
+                for begin in range(0, whole, rows):
+                    part = table[begin : begin + rows]
+                    yield RowChunk(first, part[:, 0].copy(), part[:, columns])
+                    first += rows
+                pending = [joined[whole * row_bytes :]] if held > whole else []
+                held -= whole
+            if shrank:
+                found[:] = [torn]
                 break
-            if zlib.crc32(payload.data) != frame.crc:
-                found[:] = [
-                    f"frame {number} fails its checksum: it and everything after it "
-                    f"ignored ({rest} bytes)"
-                ]
-                break
-            pending.append(payload)
-            held += frame.rows
-            if held < rows:
-                continue
-            joined = np.concatenate(pending) if len(pending) > 1 else pending[0]
-            whole = held // rows * rows
-            table = joined[: whole * row_bytes].view(ROW_DTYPE).reshape(whole, width)
-            for begin in range(0, whole, rows):
-                part = table[begin : begin + rows]
-                yield RowChunk(first, part[:, 0].copy(), part[:, columns])
-                first += rows
-            pending = [joined[whole * row_bytes :]] if held > whole else []
-            held -= whole
         if held:
             joined = np.concatenate(pending) if len(pending) > 1 else pending[0]
             table = joined.view(ROW_DTYPE).reshape(held, width)
             yield RowChunk(first, table[:, 0].copy(), table[:, columns])
+
+
+def _frame_crc(file: io.FileIO, start: int, size: int) -> int | None:
+    """The CRC-32 of ``size`` bytes from ``start``, read in pieces (None: the file is shorter)."""
+    crc = 0
+    piece = bytearray(min(size, 8 << 20))
+    file.seek(start)
+    left = size
+    while left:
+        view = memoryview(piece)[: min(left, len(piece))]
+        got = _read_exactly(file, view)
+        crc = zlib.crc32(view[:got], crc)
+        if got < len(view):
+            return None
+        left -= got
+    return crc
+
+
+def _frame_pieces(
+    file: io.FileIO, start: int, frame_rows: int, rows: int, row_bytes: int
+) -> Iterator[NDArray[np.uint8] | None]:
+    """A frame's payload ``rows`` rows at a time (None where the file turned out shorter)."""
+    file.seek(start)
+    for begin in range(0, frame_rows, rows):
+        count = min(rows, frame_rows - begin)
+        piece = np.empty(count * row_bytes, dtype=np.uint8)
+        if _read_exactly(file, piece.data) < len(piece):
+            yield None
+            return
+        yield piece
 
 
 def _read_events(path: Path, problems: list[str]) -> list[LinkEvent]:
@@ -293,6 +357,86 @@ def _read_meta(directory: Path) -> RecordingMeta:
         raise RecordingError(f"{path}: invalid metadata", format_validation_error(exc)) from exc
 
 
+def _add_status_problems(
+    meta: RecordingMeta, samples_path: Path, rows: int, problems: list[str]
+) -> None:
+    """What meta.json's status and sample count say about ``rows`` readable rows."""
+    if meta.status == "recording":
+        if is_being_written(samples_path):
+            problems.insert(0, f"still being recorded (status 'recording'): {rows} samples so far")
+        else:
+            problems.insert(
+                0,
+                "not closed cleanly (status 'recording'): the recorder stopped "
+                f"unexpectedly; {rows} samples recovered",
+            )
+    elif meta.samples is not None and meta.samples != rows:
+        problems.append(
+            f"{META_FILE} says {meta.samples} samples, {SAMPLES_FILE} holds {rows} readable samples"
+        )
+
+
+@dataclass
+class RecordingHead:
+    """A recording without its samples: meta.json, channels, events, problems.
+
+    For an analysis that reads the samples chunk by chunk
+    (:func:`iter_chunks`): :meth:`samples_read` adds what reading them found
+    (a damaged frame, an unfinished recording) to :attr:`problems`, in the
+    order :meth:`Recording.open` lists them.
+
+    Attributes:
+        directory: Where the recording lives.
+        meta: The contents of ``meta.json``.
+        channels: The sample columns, in order.
+        events: The link events, in file order.
+        problems: What was wrong with the files, one sentence each.
+        rows: Readable rows, once :meth:`samples_read` was called (else None).
+    """
+
+    directory: Path
+    meta: RecordingMeta
+    channels: tuple[Channel, ...]
+    events: list[LinkEvent]
+    problems: list[str]
+    rows: int | None = None
+
+    @classmethod
+    def open(cls, directory: PathArg) -> RecordingHead:
+        """Read meta.json and events.jsonl of a recording directory.
+
+        Raises:
+            RecordingError: Not a recording, or its ``meta.json`` is missing or invalid.
+        """
+        path = Path(directory)
+        meta = _read_meta(path)
+        if not (path / SAMPLES_FILE).is_file():
+            raise RecordingError(f"{path}: not a recording ({SAMPLES_FILE} is missing)")
+        problems: list[str] = []
+        events = _read_events(path / EVENTS_FILE, problems)
+        channels = tuple(c.to_channel() for c in meta.channels)
+        return cls(directory=path, meta=meta, channels=channels, events=events, problems=problems)
+
+    def samples_read(self, rows: int, problems: list[str]) -> None:
+        """Note the rows read and the problems of samples.bin (from :func:`iter_chunks`)."""
+        found = [*problems, *self.problems]
+        _add_status_problems(self.meta, self.directory / SAMPLES_FILE, rows, found)
+        for problem in found:
+            log.warning("recording %s: %s", self.directory, problem)
+        self.problems = found
+        self.rows = rows
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        """The recorded axes, in channel order."""
+        return tuple(dict.fromkeys(c.axis for c in self.channels))
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """The column names (``X_current_a``, ...), in order."""
+        return tuple(c.name for c in self.channels)
+
+
 @dataclass(frozen=True, eq=False)
 class Recording:
     """A recording read into memory.
@@ -343,22 +487,7 @@ class Recording:
             raise RecordingError(f"{samples_path}: cannot be read ({exc.strerror or exc})") from exc
         rows = len(data)
         events = _read_events(path / EVENTS_FILE, problems)
-        if meta.status == "recording":
-            if is_being_written(samples_path):
-                problems.insert(
-                    0, f"still being recorded (status 'recording'): {rows} samples so far"
-                )
-            else:
-                problems.insert(
-                    0,
-                    "not closed cleanly (status 'recording'): the recorder stopped "
-                    f"unexpectedly; {rows} samples recovered",
-                )
-        elif meta.samples is not None and meta.samples != rows:
-            problems.append(
-                f"{META_FILE} says {meta.samples} samples, {SAMPLES_FILE} holds {rows} "
-                "readable samples"
-            )
+        _add_status_problems(meta, samples_path, rows, problems)
         for problem in problems:
             log.warning("recording %s: %s", path, problem)
         return cls(

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from ncmeasure.analysis.results import AxisResult
-from ncmeasure.recording import Recording
+from ncmeasure.recording import Recording, RecordingHead
 from ncmeasure.report.words import format_mm
 
 __all__ = ["BearingLayout", "bearing_layout"]
@@ -74,7 +74,9 @@ def _travel(value: Any) -> tuple[float, float] | None:
 
 
 def bearing_layout(
-    axis: str, recording: Recording | None = None, result: AxisResult | None = None
+    axis: str,
+    recording: Recording | RecordingHead | None = None,
+    result: AxisResult | None = None,
 ) -> BearingLayout:
     """The bearing layout of ``axis``: from its results, else the recording's axis metadata.
 

@@ -49,7 +49,7 @@ from ncmeasure.analysis.summary import (
     axis_headline,
 )
 from ncmeasure.analysis.verdict import percent_text
-from ncmeasure.recording import Recording
+from ncmeasure.recording import Recording, RecordingHead
 from ncmeasure.report.bearings import BearingLayout
 from ncmeasure.report.curves import offset_is_significant
 from ncmeasure.report.words import (
@@ -366,12 +366,12 @@ def _against_cell(against: AxisComparison | None) -> Cell:
     return _c(against.status, status=against.status, note=against.change)
 
 
-def _recording_facts(results: Results, recording: Recording | None) -> list[Fact]:
+def _recording_facts(results: Results, recording: Recording | RecordingHead | None) -> list[Fact]:
     """Samples, duration, how the recording ended and what it lost: never hidden."""
     info = results.recording
     samples, duration_s, status = info.samples, info.duration_s, info.status
     gaps, lost, share, events = info.gaps, info.gap_samples, info.gap_share, info.gap_events
-    if samples is None and recording is not None:
+    if samples is None and isinstance(recording, Recording):
         samples = len(recording)
         duration_s = float(recording.time_s[-1] - recording.time_s[0]) if samples else 0.0
         status = recording.meta.status
@@ -400,7 +400,7 @@ def _recording_facts(results: Results, recording: Recording | None) -> list[Fact
     return facts
 
 
-def _facts(results: Results, recording: Recording | None) -> tuple[Fact, ...]:
+def _facts(results: Results, recording: Recording | RecordingHead | None) -> tuple[Fact, ...]:
     info = results.recording
     machine = info.machine or (recording.meta.machine if recording is not None else None)
     facts = [
@@ -493,7 +493,9 @@ def _summary(
     return table, note
 
 
-def _notes(sections: Sequence[AxisSection], recording: Recording | None) -> Folded | None:
+def _notes(
+    sections: Sequence[AxisSection], recording: Recording | RecordingHead | None
+) -> Folded | None:
     """Recording problems, then the warnings of the analysis: each shared one once."""
     warnings: list[str] = [f"Recording: {p}" for p in recording.problems] if recording else []
     shared = set.intersection(*(set(s.result.warnings) for s in sections)) if sections else set()
@@ -1052,7 +1054,7 @@ def page_view(
     sections: Sequence[AxisSection],
     *,
     title: str,
-    recording: Recording | None = None,
+    recording: Recording | RecordingHead | None = None,
     comparison: BaseModel | None = None,
     comparison_figure: Figure | None = None,
 ) -> PageView:
@@ -1116,7 +1118,7 @@ def render_page(
     sections: Sequence[AxisSection],
     *,
     title: str,
-    recording: Recording | None = None,
+    recording: Recording | RecordingHead | None = None,
     comparison: BaseModel | None = None,
     comparison_figure: Figure | None = None,
 ) -> str:

@@ -23,6 +23,7 @@ import datetime as dt
 import functools
 import io
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, ParamSpec, cast
 
@@ -59,12 +60,15 @@ __all__ = [
     "DPI",
     "PALETTE",
     "WIDTH_IN",
+    "RawTrace",
     "figure_png",
     "plot_comparison",
     "plot_raw_data",
     "plot_stribeck",
+    "plot_trace",
     "plot_travel",
     "plot_trend",
+    "raw_trace",
     "save_png",
 ]
 
@@ -727,7 +731,84 @@ def _shade(ax: Axes, windows: Sequence[tuple[float, float]], start: float, end: 
         )
 
 
-@_styled
+@dataclass(frozen=True)
+class RawTrace:
+    """What the raw-data figure of an axis shows: bounded, whatever the recording's length.
+
+    Attributes:
+        axis: The axis.
+        windows: The windows shaded, (t_start, t_end) in s, in time order.
+        span: The time the axis was measured (the overview's range).
+        stretch: The stretch shown in detail.
+        overview_time_s: Times of the overview's velocity (at most 4000 points, peaks kept).
+        overview_velocity: The overview's velocity.
+        time_s: Times of the stretch's samples.
+        current: Current over the stretch.
+        velocity: Actual velocity over the stretch.
+        command: Commanded velocity over the stretch, where recorded.
+        rows: Samples of the recording (0: an empty recording).
+    """
+
+    axis: str
+    windows: tuple[tuple[float, float], ...]
+    span: tuple[float, float]
+    stretch: tuple[float, float]
+    overview_time_s: FloatArray
+    overview_velocity: FloatArray
+    time_s: FloatArray
+    current: FloatArray
+    velocity: FloatArray
+    command: FloatArray | None
+    rows: int
+
+
+OVERVIEW_BINS: Final = 2000
+"""The overview keeps the lowest and highest velocity of this many bins."""
+
+
+def raw_trace(
+    recording: Recording,
+    axis: str,
+    windows: Sequence[tuple[float, float]] = (),
+    *,
+    stretch_s: float = 30.0,
+) -> RawTrace:
+    """The raw-data figure's data of one axis of a recording in memory.
+
+    Raises:
+        RecordingError: The recording lacks the current or velocity of the axis.
+    """
+    time_s = recording.time_s
+    current = recording.axis_signal(axis, "current_a")
+    velocity = recording.axis_signal(axis, "velocity_mm_min")
+    command: FloatArray | None = None
+    if f"{axis}_velocity_cmd_mm_min" in recording.channel_names:
+        command = recording.axis_signal(axis, "velocity_cmd_mm_min")
+    cuts = tuple(sorted((float(a), float(b)) for a, b in windows))
+    empty = np.empty(0, dtype=np.float64)
+    if len(time_s) == 0:
+        return RawTrace(axis, cuts, (0.0, 0.0), (0.0, 0.0), empty, empty, empty, empty, empty,
+                        None, 0)  # fmt: skip
+    span = _axis_span(time_s, velocity, cuts)
+    start, end = _stretch(span, cuts, stretch_s)
+    inside = (time_s >= span[0]) & (time_s <= span[1])
+    t_all, v_all = _envelope(time_s[inside], velocity[inside], OVERVIEW_BINS)
+    part = (time_s >= start) & (time_s <= end)
+    return RawTrace(
+        axis,
+        cuts,
+        span,
+        (start, end),
+        t_all,
+        v_all,
+        time_s[part],
+        current[part],
+        velocity[part],
+        None if command is None else command[part],
+        len(time_s),
+    )
+
+
 def plot_raw_data(
     recording: Recording,
     axis: str,
@@ -751,20 +832,21 @@ def plot_raw_data(
     Raises:
         RecordingError: The recording lacks the current or velocity of the axis.
     """
-    time_s = recording.time_s
-    current = recording.axis_signal(axis, "current_a")
-    velocity = recording.axis_signal(axis, "velocity_mm_min")
-    command: FloatArray | None = None
-    if f"{axis}_velocity_cmd_mm_min" in recording.channel_names:
-        command = recording.axis_signal(axis, "velocity_cmd_mm_min")
-    cuts = sorted((float(a), float(b)) for a, b in windows)
+    return plot_trace(raw_trace(recording, axis, windows, stretch_s=stretch_s))
+
+
+@_styled
+def plot_trace(trace: RawTrace) -> Figure:
+    """:func:`plot_raw_data` from its data (:func:`raw_trace`, or read chunk by chunk)."""
+    axis = trace.axis
+    cuts = trace.windows
     figure = _figure(6.2, constrained=False)
     overview = figure.add_axes((0.1, 0.8, 0.8, 0.1))
     top = figure.add_axes((0.1, 0.45, 0.8, 0.3))
     bottom = figure.add_axes((0.1, 0.1, 0.8, 0.3), sharex=top)
     for ax in (overview, top, bottom):
         _style(ax)
-    if len(time_s) == 0:
+    if trace.rows == 0:
         top.text(
             0.5,
             0.5,
@@ -776,13 +858,10 @@ def plot_raw_data(
         )
         _arrange_raw(figure, (overview, top, bottom), 0.0)
         return figure
-    span = _axis_span(time_s, velocity, cuts)
-    start, end = _stretch(span, cuts, stretch_s)
-
-    inside = (time_s >= span[0]) & (time_s <= span[1])
-    t_all, v_all = _envelope(time_s[inside], velocity[inside], 2000)
+    span = trace.span
+    start, end = trace.stretch
     _shade(overview, cuts, *span)
-    overview.plot(t_all, v_all, color=PALETTE[1], linewidth=0.7)
+    overview.plot(trace.overview_time_s, trace.overview_velocity, color=PALETTE[1], linewidth=0.7)
     overview.add_patch(
         Rectangle(
             (start, 0.0),
@@ -806,8 +885,9 @@ def plot_raw_data(
         y=1.0,
     )
 
-    part = (time_s >= start) & (time_s <= end)
-    t_part, i_part = _envelope(time_s[part], current[part], 4000)
+    time_s, current, velocity, command = trace.time_s, trace.current, trace.velocity, trace.command
+
+    t_part, i_part = _envelope(time_s, current, 4000)
     _shade(top, cuts, start, end)
     top.plot(t_part, i_part, color=PALETTE[0], linewidth=0.8)
     top.set_ylabel("current [A]")
@@ -816,7 +896,7 @@ def plot_raw_data(
 
     _shade(bottom, cuts, start, end)
     if command is not None:
-        t_cmd, c_part = _envelope(time_s[part], command[part], 4000)
+        t_cmd, c_part = _envelope(time_s, command, 4000)
         bottom.plot(
             t_cmd,
             c_part,
@@ -825,7 +905,7 @@ def plot_raw_data(
             linestyle=(0, (4, 2)),
             label="commanded velocity",
         )
-    t_vel, v_part = _envelope(time_s[part], velocity[part], 4000)
+    t_vel, v_part = _envelope(time_s, velocity, 4000)
     bottom.plot(t_vel, v_part, color=PALETTE[1], linewidth=1.0, label="actual velocity")
     bottom.set_ylabel("velocity [mm/min]")
     bottom.set_xlabel("time [s]")

@@ -21,14 +21,16 @@ from ncmeasure.analysis.compare import Comparison
 from ncmeasure.analysis.results import Results
 from ncmeasure.errors import NcMeasureError, OutputError, RecordingError
 from ncmeasure.files import replace_text
-from ncmeasure.recording import Recording
+from ncmeasure.recording import Recording, RecordingHead
 from ncmeasure.report.bearings import bearing_layout
 from ncmeasure.report.page import AxisSection, Figure, render_page
 from ncmeasure.report.plots import (
+    RawTrace,
     plot_comparison,
-    plot_raw_data,
     plot_stribeck,
+    plot_trace,
     plot_travel,
+    raw_trace,
     save_png,
 )
 from ncmeasure.report.windows import find_window_times
@@ -61,7 +63,7 @@ def _safe_name(name: str) -> str:
     return cleaned[:40] or "axis"
 
 
-def _default_title(results: Results, recording: Recording | None) -> str:
+def _default_title(results: Results, recording: Recording | RecordingHead | None) -> str:
     machine = results.recording.machine or (
         recording.meta.machine if recording is not None else None
     )
@@ -72,7 +74,7 @@ def write_report(
     results: Results,
     path: str | os.PathLike[str],
     *,
-    recording: Recording | None = None,
+    recording: Recording | RecordingHead | None = None,
     windows: Windows | None = None,
     comparison: BaseModel | None = None,
     title: str | None = None,
@@ -133,6 +135,11 @@ def write_report(
         png = save_png(figure, plots_dir / filename)
         return Figure(png=png, filename=f"{plots_dir.name}/{filename}", alt=alt, caption=caption)
 
+    traces: dict[str, RawTrace | RecordingError] = {}
+    if isinstance(recording, RecordingHead):
+        from ncmeasure.report.traces import read_raw_traces
+
+        traces = read_raw_traces(recording, list(results.axes), windows or {})
     sections: list[AxisSection] = []
     for index, (name, result) in enumerate(results.axes.items(), start=1):
         stem = f"{index:02d}_{_safe_name(name)}"
@@ -165,7 +172,7 @@ def write_report(
                 "a rise towards the bearing that bends the screw.",
             )
         advance(f"axis {name}: friction along the travel")
-        _raw_section(section, recording, windows, results.settings, keep, stem)
+        _raw_section(section, recording, windows, traces, results.settings, keep, stem)
         advance(f"axis {name}: raw data")
         sections.append(section)
 
@@ -201,8 +208,9 @@ def write_report(
 
 def _raw_section(
     section: AxisSection,
-    recording: Recording | None,
+    recording: Recording | RecordingHead | None,
     windows: Windows | None,
+    traces: Mapping[str, RawTrace | RecordingError],
     settings: Mapping[str, object],
     keep: Callable[[MplFigure, str, str, str], Figure],
     stem: str,
@@ -212,23 +220,34 @@ def _raw_section(
     if recording is None:
         section.raw_note = "No recording was given, so no raw data is shown."
         return
-    if windows is not None and name in windows:
-        cuts = [(float(a), float(b)) for a, b in windows[name]]
+    if isinstance(recording, RecordingHead):
+        # Read chunk by chunk: the analysis' windows, or none (finding them again
+        # would read the whole recording once more).
+        trace = traces[name]
+        if windows is None or name not in windows:
+            section.raw_note = "No windows are shaded: the analysis' windows were not given."
+        if isinstance(trace, RecordingError):
+            section.raw_note = f"The recording has no raw data of this axis ({trace.message})."
+            return
+        figure = plot_trace(trace)
     else:
+        if windows is not None and name in windows:
+            cuts = [(float(a), float(b)) for a, b in windows[name]]
+        else:
+            try:
+                cuts = find_window_times(recording, name, settings)
+                section.raw_note = (
+                    "The shaded windows were found again in the recording with the analysis "
+                    "settings (without the schedule)."
+                )
+            except NcMeasureError as exc:
+                cuts = []
+                section.raw_note = f"No windows are shaded: {exc.message}"
         try:
-            cuts = find_window_times(recording, name, settings)
-            section.raw_note = (
-                "The shaded windows were found again in the recording with the analysis "
-                "settings (without the schedule)."
-            )
-        except NcMeasureError as exc:
-            cuts = []
-            section.raw_note = f"No windows are shaded: {exc.message}"
-    try:
-        figure = plot_raw_data(recording, name, cuts)
-    except RecordingError as exc:
-        section.raw_note = f"The recording has no raw data of this axis ({exc.message})."
-        return
+            figure = plot_trace(raw_trace(recording, name, cuts))
+        except RecordingError as exc:
+            section.raw_note = f"The recording has no raw data of this axis ({exc.message})."
+            return
     section.raw = keep(
         figure,
         f"{stem}_raw.png",

@@ -1,0 +1,330 @@
+"""The whole-signal statistics of an axis, read from a recording chunk by chunk.
+
+The first pass of an analysis whose memory does not grow with the recording:
+everything :mod:`~ncmeasure.analysis.segment` and
+:mod:`~ncmeasure.analysis.analyze` derive from a whole signal before they
+look for windows (the median sample period, the count of the velocity,
+position and current signals, the noise of velocity and position, how many
+values are missing or implausible), computed from
+:func:`~ncmeasure.recording.iter_chunks` with
+:mod:`~ncmeasure.analysis.streaming`, and equal, bit for bit, to what the
+analysis computes on the whole arrays:
+
+* implausible values (:mod:`ncmeasure.validity`) become NaN first;
+* a channel's missing values are bridged as :func:`segment._bridge
+  <ncmeasure.analysis.segment>` bridges them (linear in time between the
+  neighbouring values, the nearest value at the ends); a first pass notes the
+  first and last finite value of every chunk, so a later pass bridges a gap
+  across chunk boundaries without reading ahead;
+* the position is used only where at least half of its rows hold a value.
+
+Memory is a chunk plus a few numbers per chunk, whatever the length.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ncmeasure.analysis.streaming import (
+    differences,
+    median_task,
+    noise_sigma_task,
+    quantum_task,
+    run_tasks,
+)
+from ncmeasure.recording import RowChunk, iter_chunks
+from ncmeasure.validity import Implausible, implausible
+
+__all__ = ["AxisStatistics", "axes_statistics", "axis_statistics", "bridge_chunk"]
+
+FloatArray = NDArray[np.float64]
+Good = tuple[float, float]  # (time, value) of a finite sample
+_SCANNED = ("velocity_cmd_mm_min", "marker")
+"""Signals only cleaned and counted in the first pass (no statistics of their own)."""
+
+
+@dataclass
+class AxisStatistics:
+    """The whole-signal statistics of one axis (see the module docstring).
+
+    Attributes:
+        rows: Rows of the recording.
+        sample_period_s: Median time step (NaN under 2 rows).
+        velocity_quantum_mm_min: One count of the (bridged) velocity, 0 if continuous.
+        position_quantum_mm: One count of the (bridged) position; 0 without a usable one.
+        current_quantum_a: One count of the current (0 without a current channel).
+        velocity_sigma_mm_min: Noise of the bridged velocity (second differences).
+        position_sigma_mm: Noise of the bridged position (0 without a usable one).
+        position_usable: A position channel holding a value in at least half of the rows.
+        velocity_bridged: Velocity values without a value, bridged (0 if none at all).
+        finite: Finite values per signal, after the implausible ones are left out.
+        low: Smallest finite value per signal.
+        high: Largest finite value per signal.
+        implausible: The checker with the counts of the values left out.
+        chunk_rows: Rows per chunk of the reading (the neighbours are per chunk).
+        neighbours: Per signal and chunk, the last finite (time, value) before the
+            chunk and the first one after it: :func:`bridge_chunk` bridges a chunk's
+            gaps with them as the whole-array bridge does.
+        start_s: Time of the first row (NaN without rows).
+        end_s: Time of the last row (NaN without rows).
+    """
+
+    rows: int
+    sample_period_s: float
+    velocity_quantum_mm_min: float
+    position_quantum_mm: float
+    current_quantum_a: float
+    velocity_sigma_mm_min: float
+    position_sigma_mm: float
+    position_usable: bool
+    velocity_bridged: int
+    finite: dict[str, int] = field(default_factory=dict)
+    low: dict[str, float] = field(default_factory=dict)
+    high: dict[str, float] = field(default_factory=dict)
+    implausible: Implausible | None = None
+    chunk_rows: int = 0
+    neighbours: dict[str, tuple[list[Good | None], list[Good | None]]] = field(default_factory=dict)
+    start_s: float = math.nan
+    end_s: float = math.nan
+
+
+def bridge_chunk(
+    values: FloatArray, time_s: FloatArray, previous: Good | None, following: Good | None
+) -> FloatArray:
+    """A chunk's NaN values bridged linearly in time, as the whole-array bridge does.
+
+    ``previous`` and ``following`` are the last finite sample before the chunk
+    and the first after it (:attr:`AxisStatistics.neighbours`); a channel
+    without any finite value stays NaN.
+    """
+    bad = ~np.isfinite(values)
+    if not bad.any():
+        return values
+    good = ~bad
+    xp = [time_s[good]]
+    fp = [values[good]]
+    if previous is not None:
+        xp.insert(0, np.array([previous[0]]))
+        fp.insert(0, np.array([previous[1]]))
+    if following is not None:
+        xp.append(np.array([following[0]]))
+        fp.append(np.array([following[1]]))
+    if sum(len(x) for x in xp) == 0:
+        return values
+    filled = values.copy()
+    filled[bad] = np.interp(time_s[bad], np.concatenate(xp), np.concatenate(fp))
+    return filled
+
+
+@dataclass
+class _Scan:
+    """The first pass: rows, finite counts, ranges and each chunk's first and last good."""
+
+    channels: tuple[str, ...]
+    rows: int = 0
+    chunks: int = 0
+    start_s: float = math.nan
+    end_s: float = math.nan
+    finite: dict[str, int] = field(default_factory=dict)
+    low: dict[str, float] = field(default_factory=dict)
+    high: dict[str, float] = field(default_factory=dict)
+    first_good: dict[str, list[Good | None]] = field(default_factory=dict)
+    last_good: dict[str, list[Good | None]] = field(default_factory=dict)
+
+    def neighbours(self, name: str) -> tuple[list[Good | None], list[Good | None]]:
+        """Per chunk, the last good before it and the first good after it."""
+        before: list[Good | None] = []
+        carried: Good | None = None
+        for last in self.last_good[name]:
+            before.append(carried)
+            carried = last if last is not None else carried
+        after: list[Good | None] = [None] * self.chunks
+        carried = None
+        for index in range(self.chunks - 1, -1, -1):
+            after[index] = carried
+            first = self.first_good[name][index]
+            carried = first if first is not None else carried
+        return before, after
+
+
+def axis_statistics(
+    directory: str | Path,
+    axis: str,
+    channel_names: Sequence[str],
+    *,
+    limits: Mapping[str, float | None] | None = None,
+    rows: int = 1 << 16,
+) -> AxisStatistics:
+    """The whole-signal statistics of one axis; see :func:`axes_statistics`."""
+    return axes_statistics(directory, (axis,), channel_names, limits=limits, rows=rows)[axis]
+
+
+def axes_statistics(
+    directory: str | Path,
+    axes: Sequence[str],
+    channel_names: Sequence[str],
+    *,
+    limits: Mapping[str, float | None] | None = None,
+    rows: int = 1 << 16,
+    verified: set[int] | None = None,
+) -> dict[str, AxisStatistics]:
+    """The whole-signal statistics of every axis of ``axes``, read chunk by chunk.
+
+    All axes share every reading of the file: a few passes in all, whatever
+    the number of axes.
+
+    Args:
+        directory: The recording.
+        axes: The axes; the ``velocity_mm_min`` channel of each must be recorded.
+        channel_names: The recording's channels (its meta.json).
+        limits: The implausibility bound per channel name
+            (:meth:`~ncmeasure.validity.Implausible.for_channels`); codes only without.
+        rows: Rows per chunk.
+        verified: Large frames already checked (:func:`~ncmeasure.recording.iter_chunks`).
+
+    Raises:
+        RecordingError: Not a recording, or an axis has no velocity channel.
+    """
+    present = set(channel_names)
+    signals = {
+        axis: tuple(
+            s
+            for s in ("velocity_mm_min", "position_mm", "current_a", *_SCANNED)
+            if s == "velocity_mm_min" or f"{axis}_{s}" in present
+        )
+        for axis in axes
+    }
+    channels = tuple(f"{axis}_{s}" for axis in axes for s in signals[axis])
+    bounds = dict(limits or {})
+    checkers = {
+        axis: Implausible({f"{axis}_{s}": bounds.get(f"{axis}_{s}") for s in signals[axis]})
+        for axis in axes
+    }
+    column = {name: k for k, name in enumerate(channels)}
+
+    def read() -> Iterator[RowChunk]:
+        return iter_chunks(directory, rows, channels, verified=verified)
+
+    def clean(chunk: RowChunk, name: str) -> FloatArray:
+        values = chunk.values[:, column[name]]
+        bad = implausible(values, bounds.get(name))
+        if bad.any():
+            values = values.copy()
+            values[bad] = np.nan
+        return np.ascontiguousarray(values, dtype=np.float64)
+
+    scan = _Scan(channels)
+    for name in channels:
+        scan.finite[name] = 0
+        scan.low[name] = math.inf
+        scan.high[name] = -math.inf
+        scan.first_good[name] = []
+        scan.last_good[name] = []
+    owner = {f"{axis}_{s}": axis for axis in axes for s in signals[axis]}
+
+    def scan_task() -> Generator[Callable[[RowChunk], None], None, None]:
+        def add(chunk: RowChunk) -> None:
+            if len(chunk.time_s):
+                if scan.rows == 0:
+                    scan.start_s = float(chunk.time_s[0])
+                scan.end_s = float(chunk.time_s[-1])
+            scan.rows += len(chunk.time_s)
+            scan.chunks += 1
+            for name in channels:
+                checker = checkers[owner[name]]
+                values = checker.clean(name, chunk.time_s, chunk.values[:, column[name]])
+                good = np.flatnonzero(np.isfinite(values))
+                scan.finite[name] += len(good)
+                if len(good):
+                    kept = values[good]
+                    scan.low[name] = min(scan.low[name], float(kept.min()))
+                    scan.high[name] = max(scan.high[name], float(kept.max()))
+                    first, last = int(good[0]), int(good[-1])
+                    scan.first_good[name].append((float(chunk.time_s[first]), float(values[first])))
+                    scan.last_good[name].append((float(chunk.time_s[last]), float(values[last])))
+                else:
+                    scan.first_good[name].append(None)
+                    scan.last_good[name].append(None)
+
+        yield add
+
+    run_tasks(read, {"scan": scan_task()})
+
+    neighbours = {name: scan.neighbours(name) for name in channels}
+
+    def bridged(name: str) -> Callable[[], Callable[[RowChunk], FloatArray]]:
+        """The channel's finite values after bridging (as segment._bridge, then finite)."""
+        before, after = neighbours[name]
+
+        def make() -> Callable[[RowChunk], FloatArray]:
+            def apply(chunk: RowChunk) -> FloatArray:
+                index = chunk.first // rows
+                values = bridge_chunk(clean(chunk, name), chunk.time_s, before[index], after[index])
+                return values[np.isfinite(values)]
+
+            return apply
+
+        return make
+
+    def cleaned(name: str) -> Callable[[], Callable[[RowChunk], FloatArray]]:
+        def make() -> Callable[[RowChunk], FloatArray]:
+            def apply(chunk: RowChunk) -> FloatArray:
+                values = clean(chunk, name)
+                return values[np.isfinite(values)]
+
+            return apply
+
+        return make
+
+    def times() -> Callable[[RowChunk], FloatArray]:
+        return lambda chunk: chunk.time_s
+
+    tasks: dict[tuple[str, str], Generator[Callable[[RowChunk], None], None, float]] = {
+        ("", "dt"): median_task(differences(times))
+    }
+    usable: dict[str, bool] = {}
+    for axis in axes:
+        velocity, position, current = (
+            f"{axis}_velocity_mm_min",
+            f"{axis}_position_mm",
+            f"{axis}_current_a",
+        )
+        tasks[axis, "v_quantum"] = quantum_task(bridged(velocity))
+        tasks[axis, "v_sigma"] = noise_sigma_task(bridged(velocity))
+        usable[axis] = position in column and scan.finite[position] >= 0.5 * scan.rows
+        if usable[axis]:
+            tasks[axis, "x_quantum"] = quantum_task(bridged(position))
+            tasks[axis, "x_sigma"] = noise_sigma_task(bridged(position))
+        if current in column:
+            tasks[axis, "i_quantum"] = quantum_task(cleaned(current))
+    found = run_tasks(read, tasks)
+    result = {}
+    for axis in axes:
+        missing = scan.rows - scan.finite[f"{axis}_velocity_mm_min"]
+        mine = [f"{axis}_{s}" for s in signals[axis]]
+        result[axis] = AxisStatistics(
+            rows=scan.rows,
+            sample_period_s=found["", "dt"],
+            velocity_quantum_mm_min=found[axis, "v_quantum"],
+            position_quantum_mm=found.get((axis, "x_quantum"), 0.0),
+            current_quantum_a=found.get((axis, "i_quantum"), 0.0),
+            velocity_sigma_mm_min=found[axis, "v_sigma"],
+            position_sigma_mm=found.get((axis, "x_sigma"), 0.0),
+            position_usable=usable[axis],
+            velocity_bridged=missing if missing < scan.rows else 0,
+            finite={n.removeprefix(f"{axis}_"): scan.finite[n] for n in mine},
+            low={n.removeprefix(f"{axis}_"): scan.low[n] for n in mine},
+            high={n.removeprefix(f"{axis}_"): scan.high[n] for n in mine},
+            implausible=checkers[axis],
+            chunk_rows=rows,
+            neighbours={n.removeprefix(f"{axis}_"): neighbours[n] for n in mine},
+            start_s=scan.start_s,
+            end_s=scan.end_s,
+        )
+    return result

@@ -1,0 +1,145 @@
+"""Exact streaming statistics against numpy on the whole array, bit for bit."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+
+from ncmeasure.analysis.segment import noise_sigma, quantum
+from ncmeasure.analysis.streaming import (
+    ExactSum,
+    chunks_of,
+    differences,
+    median_task,
+    noise_sigma_task,
+    quantum_task,
+    run_task,
+    run_tasks,
+    select_task,
+    whole,
+)
+
+FloatArray = NDArray[np.float64]
+
+
+def _datasets() -> list[tuple[str, FloatArray]]:
+    rng = np.random.default_rng(7)
+    return [
+        ("normal odd", rng.normal(size=10_001)),
+        ("normal even", rng.normal(size=10_000)),
+        ("one value", np.array([3.5])),
+        ("two values", np.array([1.0, -2.0])),
+        ("ties", rng.integers(0, 3, size=5_000).astype(np.float64)),
+        ("all equal", np.full(4_000, 0.25)),
+        ("quantised", np.round(rng.normal(scale=40.0, size=20_000) / 8.5) * 8.5),
+        ("sorted", np.arange(9_999, dtype=np.float64)),
+        ("reversed", np.arange(8_000, dtype=np.float64)[::-1].copy()),
+        ("spread", rng.standard_cauchy(size=7_777) * 1e6),
+        ("periodic", np.tile(np.array([5.0, -1.0, 2.0, 2.0, 9.0]), 3_001)),
+    ]
+
+
+DATA = _datasets()
+
+
+@pytest.mark.parametrize("rows", [1, 7, 1000, 1 << 16])
+@pytest.mark.parametrize(("name", "values"), DATA, ids=[n for n, _ in DATA])
+def test_median_equals_numpy(name: str, values: FloatArray, rows: int) -> None:
+    if rows == 1 and len(values) > 3000:
+        values = values[:2999]
+    found = run_task(chunks_of(values, rows), median_task(whole))
+    assert found == float(np.median(values)), name
+
+
+@pytest.mark.parametrize(("name", "values"), DATA, ids=[n for n, _ in DATA])
+def test_tiny_budgets_narrow_the_bracket_by_histogram(name: str, values: FloatArray) -> None:
+    # A subsample of 16 and at most 10 values kept per pass: the histogram narrows.
+    task = median_task(whole, sample_budget=16, collect_budget=10)
+    assert run_task(chunks_of(values, 333), task) == float(np.median(values)), name
+
+
+def test_selection_gives_every_rank() -> None:
+    values = np.random.default_rng(3).normal(size=2_001)
+    ordered = np.sort(values)
+    ranks = (0, 17, 1000, 2000)
+    count, picked = run_task(
+        chunks_of(values, 100), select_task(whole, lambda n: ranks, collect_budget=50)
+    )
+    assert count == len(values)
+    assert picked == [float(ordered[r]) for r in ranks]
+
+
+def test_median_of_nothing_is_nan() -> None:
+    assert math.isnan(run_task(chunks_of(np.empty(0), 10), median_task(whole)))
+
+
+@pytest.mark.parametrize("order", [1, 2])
+@pytest.mark.parametrize("rows", [1, 2, 3, 50])
+def test_differences_cross_chunk_boundaries(order: int, rows: int) -> None:
+    values = np.random.default_rng(1).normal(size=203)
+    parts: list[FloatArray] = []
+    apply = differences(whole, order)()
+    for chunk in chunks_of(values, rows)():
+        parts.append(apply(chunk))
+    np.testing.assert_array_equal(np.concatenate(parts), np.diff(values, n=order))
+
+
+def _signals() -> list[tuple[str, FloatArray]]:
+    rng = np.random.default_rng(11)
+    ramp = np.cumsum(rng.integers(-3, 4, size=30_000)) * 8.5
+    return [
+        ("counts of 8.5", ramp),
+        ("counts with rounding noise", ramp * (1 + 1e-13 * rng.normal(size=len(ramp)))),
+        ("per mille current", np.round(rng.normal(2.0, 0.3, size=20_001) * 1000) / 1000),
+        ("continuous", rng.normal(size=10_000)),
+        ("constant", np.full(100, 4.0)),
+        ("short", np.array([1.0, 2.0, 4.0])),
+        ("noisy ramp", np.linspace(0, 500, 12_345) + rng.normal(scale=0.01, size=12_345)),
+    ]
+
+
+SIGNALS = _signals()
+
+
+def _reference_quantum(values: FloatArray) -> float:
+    """The count as segment.quantum defined it on a whole array, its sum exactly rounded."""
+    data = values[np.isfinite(values)]
+    if len(data) < 3:
+        return 0.0
+    steps = np.abs(np.diff(data))
+    steps = steps[steps > 1e-9 * float(np.max(np.abs(data)))]
+    if len(steps) < 10:
+        return 0.0
+    ratio = steps / float(steps.min())
+    on = np.abs(ratio - np.round(ratio)) <= 0.02
+    if np.count_nonzero(on) < 0.95 * len(steps):
+        return 0.0
+    return math.fsum(steps[on].tolist()) / float(np.sum(np.round(ratio[on])))
+
+
+@pytest.mark.parametrize("rows", [5, 4096])
+@pytest.mark.parametrize(("name", "values"), SIGNALS, ids=[n for n, _ in SIGNALS])
+def test_quantum_and_noise_equal_the_whole_array(name: str, values: FloatArray, rows: int) -> None:
+    found = run_tasks(
+        chunks_of(values, rows), {"q": quantum_task(whole), "sigma": noise_sigma_task(whole)}
+    )
+    assert found["q"] == quantum(values) == _reference_quantum(values), name
+    assert found["sigma"] == noise_sigma(values), name
+
+
+def test_quantum_finds_the_count() -> None:
+    assert quantum(SIGNALS[0][1]) == pytest.approx(8.5, rel=1e-12)
+    assert quantum(SIGNALS[3][1]) == 0.0
+
+
+def test_exact_sum_does_not_depend_on_order_or_chunks() -> None:
+    rng = np.random.default_rng(5)
+    values = rng.normal(size=10_000) * 10.0 ** rng.integers(-8, 8, size=10_000)
+    forward, backward = ExactSum(), ExactSum()
+    for part in np.array_split(values, 37):
+        forward.add(part)
+    backward.add(values[::-1].copy())
+    assert forward.value() == backward.value() == math.fsum(values.tolist())

@@ -1,0 +1,71 @@
+"""The raw-data figure read chunk by chunk: the same stretch, a bounded overview."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ncmeasure.analysis.analyze import analyze
+from ncmeasure.recording import RecordingHead
+from ncmeasure.report import write_report
+from ncmeasure.report.plots import OVERVIEW_BINS, RawTrace, plot_trace, raw_trace
+from ncmeasure.report.traces import read_raw_traces
+from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
+
+AXES = [
+    SyntheticAxis(name="X", velocities_mm_min=geometric_velocities(10.0, 15000.0, 6)),
+    SyntheticAxis(name="Z", velocities_mm_min=geometric_velocities(10.0, 6000.0, 4)),
+]
+
+
+@pytest.mark.parametrize("given", [True, False], ids=["windows", "no-windows"])
+def test_traces_read_chunk_by_chunk_show_what_the_whole_recording_shows(
+    tmp_path: Path, given: bool
+) -> None:
+    recording, schedule = synthetic_recording(tmp_path / "rec", AXES)
+    windows: dict[str, list[tuple[float, float]]] = {}
+    analyze(recording, schedule=schedule, window_times=windows)
+    shaded = windows if given else {}
+    head = RecordingHead.open(recording.directory)
+    traces = read_raw_traces(head, ["X", "Z"], shaded, stretch_s=20.0, rows=777)
+    for axis in ("X", "Z"):
+        chunked = traces[axis]
+        whole = raw_trace(recording, axis, shaded.get(axis, ()), stretch_s=20.0)
+        assert isinstance(chunked, RawTrace)
+        assert chunked.windows == whole.windows
+        assert chunked.span == whole.span
+        assert chunked.stretch == whole.stretch
+        assert chunked.rows == whole.rows == len(recording)
+        for key in ("time_s", "current", "velocity", "command"):
+            assert np.array_equal(getattr(chunked, key), getattr(whole, key)), key
+        # The overview: at most two points per bin, every extreme of the span kept.
+        assert len(chunked.overview_time_s) <= 2 * OVERVIEW_BINS
+        assert np.all(np.diff(chunked.overview_time_s) >= 0)
+        inside = (recording.time_s >= whole.span[0]) & (recording.time_s <= whole.span[1])
+        velocity = recording.column(f"{axis}_velocity_mm_min")[inside]
+        assert chunked.overview_velocity.max() == velocity.max()
+        assert chunked.overview_velocity.min() == velocity.min()
+        plot_trace(chunked)
+
+
+def test_a_missing_channel_is_said(tmp_path: Path) -> None:
+    recording, _ = synthetic_recording(tmp_path / "rec", AXES[:1])
+    traces = read_raw_traces(RecordingHead.open(recording.directory), ["X", "Q"], {})
+    assert isinstance(traces["X"], RawTrace)
+    assert "no channel 'Q_current_a'" in str(traces["Q"])
+
+
+def test_the_report_of_a_recording_read_chunk_by_chunk(tmp_path: Path) -> None:
+    recording, schedule = synthetic_recording(tmp_path / "rec", AXES)
+    head = RecordingHead.open(recording.directory)
+    windows: dict[str, list[tuple[float, float]]] = {}
+    results = analyze(head, schedule=schedule, window_times=windows)
+    page = write_report(results, tmp_path / "r.html", recording=head, windows=windows)
+    text = page.read_text()
+    assert (tmp_path / "r_plots" / "01_X_raw.png").is_file()
+    assert (tmp_path / "r_plots" / "02_Z_raw.png").is_file()
+    assert "found again" not in text and "not given" not in text
+    unshaded = write_report(results, tmp_path / "u.html", recording=head).read_text()
+    assert unshaded.count("the analysis&#39; windows were not given") == 2
