@@ -226,3 +226,17 @@ def test_a_missing_current_and_an_empty_recording(tmp_path: Path) -> None:
     with RecordingWriter.create(tmp_path / "empty", channels, nominal_period_s=0.004):
         pass
     assert assert_same(Recording.open(tmp_path / "empty"))[0] == "error"
+
+
+def test_progress_while_reading(tmp_path: Path) -> None:
+    recording, schedule = synthetic_recording(tmp_path / "rec", [SMALL])
+    seen: list[tuple[str, float]] = []
+    analyze(
+        recording.directory, schedule=schedule, rows=500, progress=lambda s, f: seen.append((s, f))
+    )
+    reading = [(s, f) for s, f in seen if s.startswith("reading the recording, pass ")]
+    assert reading[0] == ("reading the recording, pass 1", 500 / len(recording))
+    assert ("reading the recording, pass 1", 1.0) in reading
+    assert all(0.0 < f <= 1.0 for _, f in reading)
+    assert "axis X: friction table" in [s for s, _ in seen]
+    assert seen[-1] == ("done", 1.0)

@@ -63,7 +63,14 @@ from ncmeasure.errors import ConfigError, OutputError, RecordingError
 from ncmeasure.files import replace_text
 from ncmeasure.inputs import parse_json, read_text
 from ncmeasure.plan import AxisSummary, Schedule
-from ncmeasure.recording import Recording, RecordingHead, RecordingMeta, RowChunk, iter_chunks
+from ncmeasure.recording import (
+    SAMPLES_FILE,
+    Recording,
+    RecordingHead,
+    RecordingMeta,
+    RowChunk,
+    iter_chunks,
+)
 from ncmeasure.samples import LinkEvent
 from ncmeasure.validity import Implausible
 
@@ -677,6 +684,7 @@ class _Streamed:
         machine: MachineConfig | None,
         settings: AnalysisSettings,
         rows: int,
+        progress: Progress,
     ) -> None:
         self.head = head
         self.settings = settings
@@ -703,15 +711,34 @@ class _Streamed:
         problems: list[list[str]] = [[]]
         verified: set[int] = set()  # large frames checked once for all passes
 
+        # Progress while reading: the pass and the share of its rows read so far.
+        samples_bytes = (head.directory / SAMPLES_FILE).stat().st_size
+        expected = max(1, samples_bytes // (8 * (1 + len(head.channels))))
+        passes = [0]
+
+        def seen(chunk: RowChunk) -> None:
+            if chunk.first == 0:
+                passes[0] += 1
+            done = (chunk.first + len(chunk.time_s)) / expected
+            progress(f"reading the recording, pass {passes[0]}", min(1.0, done))
+
         def read() -> Iterator[RowChunk]:
             problems[0] = []
-            return iter_chunks(
+            for chunk in iter_chunks(
                 head.directory, rows, channels, problems=problems[0], verified=verified
-            )
+            ):
+                seen(chunk)
+                yield chunk
 
         self.statistics = (
             axes_statistics(
-                head.directory, ready, names, limits=bounds, rows=rows, verified=verified
+                head.directory,
+                ready,
+                names,
+                limits=bounds,
+                rows=rows,
+                verified=verified,
+                on_chunk=seen,
             )
             if ready
             else {}
@@ -864,7 +891,9 @@ def analyze(
             fixed-bearing end and vertical axes where the recording lacks them.
         settings: How windows are found; :class:`AnalysisSettings` defaults.
         axes: Analyse only these axes (default: every recorded axis).
-        progress: Called with (stage, fraction done in 0..1).
+        progress: Called with (stage, fraction done in 0..1); while a recording
+            is read chunk by chunk, with ``reading the recording, pass N`` and
+            the share of that pass read.
         rows: Rows per chunk when the recording is read chunk by chunk.
         window_times: Receives, per analysed axis, the (first, last) sample time
             of every window the friction values come from (for the report's
@@ -931,8 +960,7 @@ def analyze(
             )
 
     else:
-        report("reading the recording", 0.0)
-        streamed = _Streamed(head, chosen, schedule, machine, settings, rows)
+        streamed = _Streamed(head, chosen, schedule, machine, settings, rows, report)
         gaps, gap_samples, gap_events = streamed.gaps
         samples = streamed.rows
         duration = streamed.end_s - streamed.start_s if samples else 0.0

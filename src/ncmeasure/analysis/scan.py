@@ -173,6 +173,7 @@ def axes_statistics(
     limits: Mapping[str, float | None] | None = None,
     rows: int = 1 << 16,
     verified: set[int] | None = None,
+    on_chunk: Callable[[RowChunk], None] | None = None,
 ) -> dict[str, AxisStatistics]:
     """The whole-signal statistics of every axis of ``axes``, read chunk by chunk.
 
@@ -187,6 +188,7 @@ def axes_statistics(
             (:meth:`~ncmeasure.validity.Implausible.for_channels`); codes only without.
         rows: Rows per chunk.
         verified: Large frames already checked (:func:`~ncmeasure.recording.iter_chunks`).
+        on_chunk: Called with every chunk read (progress).
 
     Raises:
         RecordingError: Not a recording, or an axis has no velocity channel.
@@ -209,7 +211,10 @@ def axes_statistics(
     column = {name: k for k, name in enumerate(channels)}
 
     def read() -> Iterator[RowChunk]:
-        return iter_chunks(directory, rows, channels, verified=verified)
+        for chunk in iter_chunks(directory, rows, channels, verified=verified):
+            if on_chunk is not None:
+                on_chunk(chunk)
+            yield chunk
 
     def clean(chunk: RowChunk, name: str) -> FloatArray:
         values = chunk.values[:, column[name]]
