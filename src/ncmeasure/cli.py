@@ -5,12 +5,8 @@ exit codes: 0 success, 1 a check found problems, 2 bad input (machine file,
 options, paths). ``--debug`` shows tracebacks; nobody else ever sees one.
 """
 
-from __future__ import annotations
-
 import contextlib
 import functools
-import importlib.abc
-import importlib.machinery
 import importlib.util
 import inspect
 import json
@@ -33,8 +29,9 @@ from ncmeasure._version import __version__
 from ncmeasure.errors import ConfigError, LinkError, NcMeasureError, OutputError, ProgramCheckError
 
 if TYPE_CHECKING:
+    import importlib.machinery
+
     from rich.console import Console
-    from rich.live import Live
     from rich.table import Table
     from rich.text import Text
 
@@ -117,7 +114,7 @@ app.add_typer(schema_app, name="schema")
 
 
 @functools.cache
-def _console(stderr: bool = False) -> Console:
+def _console(stderr: bool = False) -> "Console":
     """The console on stdout (or stderr), made at its first use: ``--help`` needs no rich.
 
     No markup: messages carry user text (machine names, paths, controller names) that
@@ -365,7 +362,7 @@ def controllers(
     _console().print(table)
 
 
-def _print_plan(schedule: Schedule) -> None:
+def _print_plan(schedule: "Schedule") -> None:
     from rich.table import Table
     from rich.text import Text
 
@@ -523,7 +520,7 @@ def check(
     )
 
 
-class _CanWithoutMdf(importlib.abc.MetaPathFinder):
+class _CanWithoutMdf:
     """Imports python-can, the first time a command needs it, without its MF4 log support.
 
     ``import can`` imports asammdf, and with it pandas, whenever the ``mdf`` extra is
@@ -536,7 +533,7 @@ class _CanWithoutMdf(importlib.abc.MetaPathFinder):
 
     def find_spec(
         self, name: str, path: Sequence[str] | None, target: types.ModuleType | None = None
-    ) -> importlib.machinery.ModuleSpec | None:
+    ) -> "importlib.machinery.ModuleSpec | None":
         if name != "can":
             return None
         sys.meta_path.remove(self)
@@ -545,9 +542,9 @@ class _CanWithoutMdf(importlib.abc.MetaPathFinder):
             return spec
         loader = spec.loader
 
-        class _Loader(importlib.abc.Loader):
+        class _Loader:  # a loader by protocol (importlib.abc costs --help 15 ms)
             def create_module(
-                self, spec: importlib.machinery.ModuleSpec
+                self, spec: "importlib.machinery.ModuleSpec"
             ) -> types.ModuleType | None:
                 return loader.create_module(spec)
 
@@ -558,7 +555,7 @@ class _CanWithoutMdf(importlib.abc.MetaPathFinder):
                 finally:
                     del sys.modules["asammdf"]
 
-        spec.loader = _Loader()
+        spec.loader = _Loader()  # type: ignore[assignment]
         return spec
 
 
@@ -658,7 +655,7 @@ def _restore_signals(previous: dict[int, Any]) -> None:
         signal.signal(sig, handler)
 
 
-def _progress_table(progress: Progress) -> Table:
+def _progress_table(progress: "Progress") -> "Table":
     from rich.table import Table
 
     table = Table(
@@ -846,7 +843,7 @@ def record_command(
     previous = _stop_on_signals(stop)
     live: Live | None = None
 
-    def show(progress: Progress) -> None:
+    def show(progress: "Progress") -> None:
         if live is not None:
             live.update(_progress_table(progress))
 
@@ -1336,7 +1333,7 @@ def analyze_command(
 _LEVEL_STYLE = {"ok": "bold green", "check": "bold yellow", "fault": "bold red"}
 
 
-def _verdict_line(name: str, headline: Headline) -> Text:
+def _verdict_line(name: str, headline: "Headline") -> "Text":
     """``axis X: fault · Coulomb friction 1.58 Nm (...); spread ...; why; what to do``.
 
     The Coulomb figure is :attr:`Headline.coulomb_text`, the report's headline.
@@ -1356,7 +1353,7 @@ def _verdict_line(name: str, headline: Headline) -> Text:
 
 
 def _print_verdicts(
-    results: Results, comparison: Comparison | None = None, indent: str = ""
+    results: "Results", comparison: "Comparison | None" = None, indent: str = ""
 ) -> None:
     """One line per analysed axis, verdict first; then the axes not analysed and why.
 
@@ -1369,7 +1366,7 @@ def _print_verdicts(
 
 
 def _print_verdict(
-    results: Results, name: str, comparison: Comparison | None = None, indent: str = ""
+    results: "Results", name: str, comparison: "Comparison | None" = None, indent: str = ""
 ) -> None:
     from rich.text import Text
 
@@ -1383,7 +1380,7 @@ def _print_verdict(
     _console().print(line)
 
 
-def _append_change(line: Text, headline: Headline, against: AxisComparison) -> None:
+def _append_change(line: "Text", headline: "Headline", against: "AxisComparison") -> None:
     """The change against the base, unless the verdict says it already, and its likely cause."""
     from ncmeasure.report.words import CAUSE_TITLES
 
@@ -1394,7 +1391,7 @@ def _append_change(line: Text, headline: Headline, against: AxisComparison) -> N
         line.append(f" Likely cause of the change: {title} (score {against.cause.score:.2f}).")
 
 
-def _print_skipped(results: Results, indent: str = "") -> None:
+def _print_skipped(results: "Results", indent: str = "") -> None:
     from rich.text import Text
 
     for name, reason in results.skipped.items():
@@ -1404,7 +1401,7 @@ def _print_skipped(results: Results, indent: str = "") -> None:
         _console().print(line)
 
 
-def _print_warnings(results: Results, problems: list[str]) -> None:
+def _print_warnings(results: "Results", problems: list[str]) -> None:
     """Recording problems and analysis warnings on stderr; one shared by every axis once."""
     from rich.text import Text
 
@@ -1544,7 +1541,7 @@ def _compare_labels(base: Path, others: list[Path], given: list[str] | None) -> 
     return list(given)
 
 
-def _print_comparison(comparison: Comparison, runs: list[Results]) -> None:
+def _print_comparison(comparison: "Comparison", runs: "list[Results]") -> None:
     """Per compared run and axis: its verdict with the change, the report's headline figure."""
     from rich.text import Text
 
@@ -1728,7 +1725,7 @@ def store_list_command(store: StoreOption = None) -> None:
     _console().print(table)
 
 
-def _verdict_text(verdicts: dict[str, str]) -> Text:
+def _verdict_text(verdicts: dict[str, str]) -> "Text":
     from rich.text import Text
 
     text = Text()
