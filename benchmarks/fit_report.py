@@ -14,15 +14,12 @@ a real recording and read back. Two rows, each timed in interleaved rounds
   whole analysis of the same recording (``analyze``, which includes these
   fits), so the share of the fits is printed next to the goal (≤ 1 s).
 * **report**: what ``ncmeasure analyze RUN --schedule S --report R`` does,
-  against the same command without ``--report``: the recording read, analysed
-  and results.json written (A), and the same plus
-  :func:`~ncmeasure.report.write_report` (B). Goal: B/A ≤ 1.3. The command
-  does not hand the analysis' windows to the report, which finds them again
-  (:func:`~ncmeasure.report.find_window_times`: the analysis' segmentation
-  once more); a third run (C) gives ``write_report`` the windows, found once
-  before the rounds, to show what the report costs without that. Wall and
-  CPU time of the process are printed: on a shared machine CPU time is the
-  steadier figure (nothing here runs in parallel).
+  against the same command without ``--report``: the recording read chunk by
+  chunk and analysed, results.json written (A), and the same plus
+  :func:`~ncmeasure.report.write_report` with the windows the analysis used
+  (B), as the command hands them over. Goal: B/A ≤ 1.3. Wall and CPU time of
+  the process are printed: on a shared machine CPU time is the steadier
+  figure (nothing here runs in parallel).
 
 ``--short`` runs tiny data (3 positions, 8 steps, 250 Hz) once: it checks that
 everything runs (``.ci/run``) and prints figures that mean nothing.
@@ -45,14 +42,13 @@ from ncmeasure.analysis.analyze import analyze, write_results
 from ncmeasure.analysis.fit import fit_nonlinear, point_sigma
 from ncmeasure.analysis.results import Results
 from ncmeasure.plan import Schedule
-from ncmeasure.recording import read_recording
-from ncmeasure.report import find_window_times, write_report
+from ncmeasure.recording import RecordingHead
+from ncmeasure.report import write_report
 from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
 
 FIT_GOAL_S = 1.0
 REPORT_GOAL_RATIO = 1.3
 Series = tuple[np.ndarray, np.ndarray, np.ndarray | None]
-Windows = dict[str, list[tuple[float, float]]]
 
 
 def _axes(positions: Sequence[float], steps: int, repetitions: int) -> list[SyntheticAxis]:
@@ -97,18 +93,16 @@ def all_fits(series: Sequence[Series]) -> int:
 
 def analysis(run: Path, schedule: Schedule, out: Path) -> Results:
     """What ``ncmeasure analyze`` does without ``--report``: read, analyse, write results.json."""
-    recording = read_recording(run)
-    results = analyze(recording, schedule=schedule)
+    results = analyze(RecordingHead.open(run), schedule=schedule)
     write_results(results, out / "results.json")
     return results
 
 
-def analysis_and_report(
-    run: Path, schedule: Schedule, out: Path, windows: Windows | None = None
-) -> Results:
-    """The same, then the HTML report as ``--report`` writes it (or with the windows given)."""
-    recording = read_recording(run)
-    results = analyze(recording, schedule=schedule)
+def analysis_and_report(run: Path, schedule: Schedule, out: Path) -> Results:
+    """The same, then the HTML report as ``--report`` writes it, with the analysis' windows."""
+    recording = RecordingHead.open(run)
+    windows: dict[str, list[tuple[float, float]]] = {}
+    results = analyze(recording, schedule=schedule, window_times=windows)
     write_results(results, out / "results.json")
     write_report(results, out / "report.html", recording=recording, windows=windows)
     return results
@@ -194,20 +188,14 @@ def main() -> None:
         )
 
         print("\nreport: ncmeasure analyze with and without --report, same recording")
-        windows = {
-            axis: find_window_times(recording, axis, results.settings) for axis in results.axes
-        }
-        plain_t, report_t, given_t = interleaved(
+        plain_t, report_t = interleaved(
             lambda: analysis(run, schedule, out),
             lambda: analysis_and_report(run, schedule, out),
-            lambda: analysis_and_report(run, schedule, out, windows),
             rounds=rounds,
         )
         print(_line("A baseline: analyze (read, analyse, results.json)", plain_t))
         print(_line("B analyze --report", report_t))
-        print(_line("C analyze --report, the windows handed over", given_t))
         print(_ratio("B/A", report_t, plain_t))
-        print(_ratio("C/A (the analysis does not hand its windows over yet)", given_t, plain_t))
         if args.short:
             print("(--short: tiny data, one round: the figures mean nothing)")
 
