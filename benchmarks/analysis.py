@@ -46,15 +46,15 @@ from typing import TypeVar
 
 import numpy as np
 import pandas as pd  # type: ignore[import-untyped]
+from measurement import measurement_axes
 
 from ncmeasure.analysis.friction import FrictionTable, friction_table
 from ncmeasure.analysis.segment import Segmentation, SegmentSettings, windows_of
 from ncmeasure.recording import Recording
-from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
+from ncmeasure.sim.synthetic import synthetic_recording
 
 T = TypeVar("T")
 RATE_HZ = 1000
-POSITIONS = (50.0, 212.5, 375.0, 537.5, 700.0)
 SETTINGS = SegmentSettings()
 
 
@@ -74,21 +74,6 @@ def _interleaved(
             results[name] = run()
             seconds[name].append(time.perf_counter() - start)
     return seconds, results
-
-
-def _axes(repetitions: int, steps_count: int = 50) -> list[SyntheticAxis]:
-    steps = geometric_velocities(10.0, 15000.0, steps_count)
-    common = {
-        "positions_mm": POSITIONS,
-        "velocities_mm_min": steps,
-        "repetitions": repetitions,
-        "dwell_s": 0.2,
-    }
-    return [
-        SyntheticAxis(name="X", coulomb=(2.0, 2.1, 2.2, 2.3, 2.4), **common),  # type: ignore[arg-type]
-        SyntheticAxis(name="Y", coulomb=1.5, **common),  # type: ignore[arg-type]
-        SyntheticAxis(name="Z", coulomb=2.5, offset=3.0, vertical=True, **common),  # type: ignore[arg-type]
-    ]
 
 
 def ncmeasure_tables(
@@ -196,7 +181,7 @@ def main() -> None:
         start = time.perf_counter()
         recording, schedule = synthetic_recording(
             Path(tmp) / "recording",
-            _axes(repetitions, steps_count),
+            measurement_axes(steps_count, repetitions),
             sample_period_s=1.0 / RATE_HZ,
         )
         rows = len(recording)

@@ -40,12 +40,13 @@ import sys
 import time
 from pathlib import Path
 
+from measurement import measurement_axes
+
 from ncmeasure.recording import SAMPLES_FILE, RecordingHead, RecordingWriter
 from ncmeasure.samples import SampleBlock
-from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, simulate
+from ncmeasure.sim.synthetic import simulate
 
 RATE_HZ = 1000
-POSITIONS = (50.0, 212.5, 375.0, 537.5, 700.0)
 ROWS_PER_FRAME = 250  # as the writer's flush thread writes them at 1 kHz
 GOAL_BYTES = 1 << 30
 IMPORTS = (
@@ -53,20 +54,6 @@ IMPORTS = (
     "from ncmeasure.analysis.analyze import analyze, write_results; "
     "from ncmeasure.program import load_schedule; from ncmeasure.recording import read_recording"
 )
-
-
-def _axes(steps: int, repetitions: int) -> list[SyntheticAxis]:
-    common = {
-        "positions_mm": POSITIONS,
-        "velocities_mm_min": geometric_velocities(10.0, 15000.0, steps),
-        "repetitions": repetitions,
-        "dwell_s": 0.2,
-    }
-    return [
-        SyntheticAxis(name="X", coulomb=(2.0, 2.1, 2.2, 2.3, 2.4), **common),  # type: ignore[arg-type]
-        SyntheticAxis(name="Y", coulomb=1.5, **common),  # type: ignore[arg-type]
-        SyntheticAxis(name="Z", coulomb=2.5, offset=3.0, vertical=True, **common),  # type: ignore[arg-type]
-    ]
 
 
 def _write(directory: Path, copies: int, steps: int, repetitions: int) -> Path:
@@ -78,7 +65,7 @@ def _write(directory: Path, copies: int, steps: int, repetitions: int) -> Path:
                 return schedule_path
         except Exception:
             pass
-    data = simulate(_axes(steps, repetitions), sample_period_s=1.0 / RATE_HZ)
+    data = simulate(measurement_axes(steps, repetitions), sample_period_s=1.0 / RATE_HZ)
     period = len(data.time_s) / RATE_HZ
     if directory.exists():
         for item in directory.iterdir():

@@ -37,6 +37,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
+from measurement import measurement_axes
 
 from ncmeasure.analysis.analyze import analyze, write_results
 from ncmeasure.analysis.fit import fit_nonlinear, point_sigma
@@ -44,25 +45,11 @@ from ncmeasure.analysis.results import Results
 from ncmeasure.plan import Schedule
 from ncmeasure.recording import RecordingHead
 from ncmeasure.report import write_report
-from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
+from ncmeasure.sim.synthetic import synthetic_recording
 
 FIT_GOAL_S = 1.0
 REPORT_GOAL_RATIO = 1.3
 Series = tuple[np.ndarray, np.ndarray, np.ndarray | None]
-
-
-def _axes(positions: Sequence[float], steps: int, repetitions: int) -> list[SyntheticAxis]:
-    common = {
-        "positions_mm": tuple(positions),
-        "velocities_mm_min": geometric_velocities(10.0, 15000.0, steps),
-        "repetitions": repetitions,
-        "dwell_s": 0.2,
-    }
-    return [
-        SyntheticAxis(name="X", coulomb=(2.0, 2.1, 2.2, 2.3, 2.4)[: len(positions)], **common),  # type: ignore[arg-type]
-        SyntheticAxis(name="Y", coulomb=1.5, **common),  # type: ignore[arg-type]
-        SyntheticAxis(name="Z", coulomb=2.5, offset=3.0, vertical=True, **common),  # type: ignore[arg-type]
-    ]
 
 
 def fit_inputs(results: Results) -> list[Series]:
@@ -164,7 +151,7 @@ def main() -> None:
         out.mkdir()
         start = time.perf_counter()
         recording, schedule = synthetic_recording(
-            run, _axes(positions, steps, repetitions), sample_period_s=1.0 / rate
+            run, measurement_axes(steps, repetitions, positions), sample_period_s=1.0 / rate
         )
         print(
             f"recording: 3 axes x {len(positions)} positions x {steps} steps x 2 directions, "
