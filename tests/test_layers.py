@@ -20,6 +20,7 @@ LAYERS: dict[str, int] = {
     "_version": 0,
     "errors": 0,
     "inputs": 0,
+    "hosts": 0,
     "samples": 0,
     "validity": 0,
     "resources": 0,

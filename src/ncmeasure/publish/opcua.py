@@ -33,7 +33,6 @@ from __future__ import annotations
 import asyncio
 import datetime as dt
 import hmac
-import ipaddress
 import logging
 import math
 import threading
@@ -44,6 +43,7 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from ncmeasure.errors import ConfigError, DependencyError, PublishError, StoreError
+from ncmeasure.hosts import is_loopback
 from ncmeasure.publish.summary import DEVICE_HEALTH, AxisSummary, device_health, worst_health
 from ncmeasure.store import open_store
 from ncmeasure.store.overview import FleetOverview, MachineOverview, fleet_overview
@@ -144,25 +144,13 @@ class OpcUaSettings:
         for path in (self.certificate, self.private_key):
             if path is not None and not path.is_file():
                 raise ConfigError(f"{path}: no such file")
-        if not _is_loopback(parts.hostname) and (self.username is None or self.certificate is None):
+        if not is_loopback(parts.hostname) and (self.username is None or self.certificate is None):
             raise ConfigError(
                 f"{where}: an address other than loopback needs a user (--user, "
                 f"${PASSWORD_ENV}) and a server certificate (--certificate, --private-key); "
                 "anonymous, unencrypted access is for this computer only"
             )
         return self
-
-
-def _is_loopback(host: str) -> bool:
-    """The rule of :func:`ncmeasure.web.guard.is_loopback` (importing the web package
-    would import FastAPI): ``localhost`` and the loopback addresses."""
-    name = host.strip().lower()
-    if name in {"localhost", "localhost.", "ip6-localhost"}:
-        return True
-    try:
-        return ipaddress.ip_address(name).is_loopback
-    except ValueError:
-        return False
 
 
 def _asyncua() -> Any:

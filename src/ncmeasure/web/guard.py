@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import hashlib
 import hmac
-import ipaddress
 import json
 import logging
 import re
@@ -31,6 +30,7 @@ from typing import Any
 from urllib.parse import parse_qsl, quote, urlencode
 
 from ncmeasure.errors import ConfigError
+from ncmeasure.hosts import is_loopback
 
 __all__ = [
     "COOKIE",
@@ -49,7 +49,6 @@ MAX_BODY_BYTES = 32 * 1024 * 1024
 """The largest request body: a results.json of a big machine is a few MB."""
 COOKIE = "ncmeasure_session"
 """The session cookie a browser gets after opening a page with ``?token=``."""
-_LOOPBACK_NAMES = frozenset({"localhost", "localhost.", "ip6-localhost"})
 _TOKEN_CHARACTERS = re.compile(r"[!-~]+")
 _TOKEN_IN_QUERY = re.compile(r"(?<=[?&])token=[^&\s\"]*")
 
@@ -58,19 +57,6 @@ Message = MutableMapping[str, Any]
 Receive = Callable[[], Awaitable[Message]]
 Send = Callable[[Message], Awaitable[None]]
 App = Callable[[Scope, Receive, Send], Awaitable[None]]
-
-
-def is_loopback(host: str) -> bool:
-    """True for ``localhost`` and loopback addresses (``127.0.0.0/8``, ``::1``)."""
-    name = host.strip().lower()
-    if name.startswith("[") and name.endswith("]"):
-        name = name[1:-1]
-    if name in _LOOPBACK_NAMES:
-        return True
-    try:
-        return ipaddress.ip_address(name).is_loopback
-    except ValueError:
-        return False
 
 
 def check_token(token: str | None) -> str | None:
