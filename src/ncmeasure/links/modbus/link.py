@@ -44,7 +44,7 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Annotated, Any, ClassVar, Final, Literal
 
 import serial  # type: ignore[import-untyped]
 from pydantic import Field, ValidationInfo, field_validator, model_validator
@@ -230,6 +230,24 @@ def _rtu_silence_s(settings: ModbusSettings) -> float:
 
 #: Margin on the bare RTU frame times for the drives' own answer delay.
 RTU_MARGIN = 1.25
+
+
+#: How far behind its schedule a paced link still polls every cycle (catching up back
+#: to back) after a stall of the computer or a slow answer; cycles further behind are
+#: skipped and reported as a gap.
+CATCH_UP_S: Final = 0.05
+
+
+def next_slot(slot: int, now: float, catch_up: float) -> int:
+    """The poll cycle to run after cycle ``slot``, ``now`` in poll periods since the start.
+
+    Never a wait before a cycle that is due already. The cycles due within the
+    last ``catch_up`` periods are polled back to back (each row has its own time
+    stamp, so a stall of the computer costs no row where polling can go faster
+    than the pace); only cycles further behind are skipped. ``catch_up`` 0: the
+    next cycle is the newest one due.
+    """
+    return max(slot + 1, math.floor(now - catch_up))
 
 
 class ModbusLink(DriveLink):
@@ -696,6 +714,7 @@ class ModbusLink(DriveLink):
         last_row_slot = -1
         outage: _Outage | None = None
         next_connect = 0.0
+        catch_up = CATCH_UP_S / period
         late = (
             f"poll cycles took longer than the poll period of {period * 1000:.3g} ms (slow answers)"
         )
@@ -772,10 +791,10 @@ class ModbusLink(DriveLink):
                         LinkEvent(now - self._t0, "fault", self._fatal.message, axis=failure.axis)
                     )
                     return
-            # The next cycle is the newest one due: at once when this one ran late (never a
-            # wait before a cycle that is due already), and the cycles wholly missed skipped.
+            # After a complete cycle the link catches up on the cycles of a short stall; after
+            # a failed one (an outage) the cycles missed are skipped.
             now = clock.now()
-            slot = max(slot + 1, math.floor((now - self._t0) / period))
+            slot = next_slot(slot, (now - self._t0) / period, catch_up if row is not None else 0.0)
             if not self._connected() and next_connect > now:
                 slot = max(slot, math.ceil((next_connect - self._t0) / period))
 
