@@ -2161,18 +2161,41 @@ def publish_opcua_command(
         ),
     ] = None,
     certificate: Annotated[
-        Path | None, typer.Option(help="The server's certificate (PEM or DER): encrypted only.")
+        Path | None,
+        typer.Option(
+            help="The server's certificate (RSA, PEM or DER): the only endpoint is then "
+            "Basic256Sha256, sign and encrypt."
+        ),
     ] = None,
     private_key: Annotated[
         Path | None, typer.Option(help="The certificate's private key (PEM).")
+    ] = None,
+    trusted_clients: Annotated[
+        Path | None,
+        typer.Option(
+            metavar="FOLDER",
+            help="Only clients whose certificate, or the CA that issued it, is in this folder "
+            "(*.pem, *.der, *.crt, *.cer) may connect; without it any client certificate "
+            "opens the encrypted channel and the password decides.",
+        ),
     ] = None,
 ) -> None:
     """The fleet store as an OPC UA server, until Ctrl-C: Machines → Machine → Axes → Axis.
 
     Each axis has its latest characteristics with engineering units and the measurement's
     time, and a DeviceHealth (OPC UA DI); docs/shop-floor.md draws the address space.
-    Anonymous and read-only on loopback (the default).
+    The store is read again every --refresh-s: a new measurement reaches subscribers as
+    a data change.
+
+    Access: anonymous and read-only on loopback (the default endpoint). Any other address
+    needs --user (password from $NCMEASURE_OPCUA_PASSWORD) and --certificate/--private-key;
+    --trusted-clients limits who may connect. Nobody can write.
+
     Example: ncmeasure publish opcua --store postgresql://ncm@db/fleet
+
+    Example: NCMEASURE_OPCUA_PASSWORD=... ncmeasure publish opcua --endpoint
+    opc.tcp://0.0.0.0:4840 --user line3 --certificate server.pem --private-key server-key.pem
+    --trusted-clients clients/
     """
     from ncmeasure.publish.opcua import PASSWORD_ENV, OpcUaSettings, serve_opcua
     from ncmeasure.store import store_url
@@ -2184,6 +2207,7 @@ def publish_opcua_command(
         password=os.environ.get(PASSWORD_ENV),
         certificate=certificate,
         private_key=private_key,
+        trusted_clients=trusted_clients,
     ).checked()
     url = store_url(store)
     stop = threading.Event()
