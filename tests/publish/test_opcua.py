@@ -18,6 +18,7 @@ from typing import Any
 
 import pytest
 
+from ncmeasure.analysis.compare import Limits
 from ncmeasure.analysis.results import Results
 from ncmeasure.errors import ConfigError
 from ncmeasure.publish.opcua import NAMESPACE, OpcUaSettings, engineering_units, serve_opcua
@@ -34,7 +35,9 @@ class Running:
         self.error: BaseException | None = None
 
 
-def start(url: str, tmp_path: Path, **settings: Any) -> Iterator[Running]:
+def start(
+    url: str, tmp_path: Path, limits: Limits | None = None, **settings: Any
+) -> Iterator[Running]:
     stop, ready = threading.Event(), threading.Event()
     endpoint = f"opc.tcp://127.0.0.1:{free_port()}"
     running: list[Running] = []
@@ -44,6 +47,7 @@ def start(url: str, tmp_path: Path, **settings: Any) -> Iterator[Running]:
             serve_opcua(
                 url,
                 OpcUaSettings(endpoint=endpoint, **settings),
+                limits=limits,
                 on_ready=lambda _: ready.set(),
                 stop=stop,
             )
@@ -138,6 +142,64 @@ def test_the_client_reads_the_store_and_sees_a_change(
             await subscription.delete()
 
     asyncio.run(scenario())
+
+
+def test_the_limits_judge_status_and_health(store_with_machine: str, tmp_path: Path) -> None:
+    """--warning/--critical as for store report: −25 % beyond a 20 % critical limit."""
+    running = start(store_with_machine, tmp_path, Limits(warning_percent=10, critical_percent=20))
+    server = next(running)
+
+    async def scenario() -> None:
+        from asyncua import Client
+
+        async with Client(server.endpoint, timeout=30) as client:
+            machines = await _browse(client, "Machines")
+            ns = machines.nodeid.NamespaceIndex
+            assert await (await machines.get_child(f"{ns}:WarningLimit")).read_value() == 10.0
+            assert await (await machines.get_child(f"{ns}:CriticalLimit")).read_value() == 20.0
+            for name in ("X", "Z"):
+                axis = await _browse(client, "Machines", "M17", "Axes", name)
+                verdict = await (await axis.get_child(f"{ns}:Verdict")).read_value()
+                status = await (await axis.get_child(f"{ns}:Status")).read_value()
+                health = await (await axis.get_child(f"{ns}:DeviceHealth")).read_value()
+                assert status == "critical"
+                assert health == (1 if verdict == "fault" else 3)  # FAILURE, else OFF_SPEC
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        with pytest.raises(StopIteration):
+            next(running)
+
+
+def test_the_docs_draw_the_address_space(server: Running) -> None:
+    """Every node docs/shop-floor.md draws under Machines is there, and nothing else."""
+    import re
+
+    doc = (Path(__file__).parents[2] / "docs" / "shop-floor.md").read_text(encoding="utf-8")
+    tree = doc[doc.index("### The address space") :]
+    tree = tree[tree.index("```\nObjects") : tree.index("```", tree.index("Objects"))]
+    drawn = [
+        name for line in tree.splitlines() for name in re.findall(r"[├└]── ([\w, ]+?)  ", line)
+    ]
+    names = {n.strip() for group in drawn for n in group.split(",")}
+
+    async def browse() -> tuple[set[str], set[str], set[str]]:
+        from asyncua import Client
+
+        async with Client(server.endpoint, timeout=30) as client:
+            machines = await _browse(client, "Machines")
+            machine = await _browse(client, "Machines", "M17")
+            axis = await _browse(client, "Machines", "M17", "Axes", "X")
+
+            async def children(node: Any) -> set[str]:
+                return {(await c.read_browse_name()).Name for c in await node.get_children()}
+
+            return await children(machines), await children(machine), await children(axis)
+
+    under_machines, under_machine, under_axis = asyncio.run(browse())
+    assert under_machines == {"WarningLimit", "CriticalLimit", "M17"}
+    assert names == {"Machines", "X"} | under_machines | under_machine | under_axis
 
 
 def test_settings_are_checked() -> None:

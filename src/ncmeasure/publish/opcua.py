@@ -45,6 +45,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
+from ncmeasure.analysis.compare import Limits
 from ncmeasure.errors import ConfigError, DependencyError, PublishError, StoreError
 from ncmeasure.hosts import is_loopback
 from ncmeasure.publish.summary import DEVICE_HEALTH, AxisSummary, device_health, worst_health
@@ -279,15 +280,16 @@ class TrustList:
             raise ServiceError(StatusCodes.BadCertificateUntrusted)
 
 
-def _read_overview(url: str) -> FleetOverview:
+def _read_overview(url: str, limits: Limits | None = None) -> FleetOverview:
     with open_store(url) as store:
-        return fleet_overview(store)
+        return fleet_overview(store, limits)
 
 
 def serve_opcua(
     url: str,
     settings: OpcUaSettings,
     *,
+    limits: Limits | None = None,
     on_ready: Callable[[str], None] | None = None,
     stop: threading.Event | None = None,
 ) -> None:
@@ -296,6 +298,8 @@ def serve_opcua(
     Args:
         url: The store's URL.
         settings: Endpoint, refresh period, user, certificate.
+        limits: The warning and critical limits of the change since the baseline
+            (default: those of ``store report`` and the dashboard, 20 % and 40 %).
         on_ready: Called with the endpoint once clients can connect.
         stop: Set it to stop the server.
 
@@ -312,7 +316,7 @@ def serve_opcua(
         if settings.trusted_clients is not None
         else None
     )
-    overview = _read_overview(url)  # fails here, in words, before anything listens
+    overview = _read_overview(url, limits)  # fails here, in words, before anything listens
     asyncio.run(_serve(url, settings, overview, trust, on_ready, stop or threading.Event()))
 
 
@@ -406,7 +410,7 @@ async def _serve(
                 continue
             next_refresh = loop.time() + settings.refresh_s
             try:
-                overview = await asyncio.to_thread(_read_overview, url)
+                overview = await asyncio.to_thread(_read_overview, url, overview.limits)
             except StoreError as exc:  # the last values stay; the next refresh tries again
                 _log.warning("the store could not be read: %s", exc.message)
                 continue
@@ -514,8 +518,24 @@ class _Space:
 
     async def update(self, overview: FleetOverview) -> None:
         """Bring every machine and axis to ``overview``."""
+        await self._limit("WarningLimit", overview.limits.warning_percent)
+        await self._limit("CriticalLimit", overview.limits.critical_percent)
         for machine in overview.machines:
             await self._machine(machine)
+
+    async def _limit(self, name: str, percent: float) -> None:
+        """A property of the Machines folder: a limit the changes are judged by, in %.
+
+        Its NodeId is ``Limits/<name>``, apart from the machines' ``Machines/<serial>``.
+        """
+        path = f"Limits/{name}"
+        if path in self._nodes:
+            return
+        ua = self._ua
+        self._nodes[path] = await self._nodes["Machines"].add_property(
+            self._id(path), self._name(name), ua.Variant(percent, ua.VariantType.Double)
+        )
+        await self._engineering_units(path, "%")
 
     async def _machine(self, machine: MachineOverview) -> None:
         base = f"Machines/{machine.serial}"
