@@ -2516,6 +2516,111 @@ def compensation_command(
     _console().print(f"wrote {output}")
 
 
+@app.command("apply-compensation")
+@_command
+def apply_compensation_command(
+    file: Annotated[
+        Path,
+        typer.Argument(
+            help="The torque offsets to write: the file of `ncmeasure compensation "
+            "--controller cia402`, reviewed."
+        ),
+    ],
+    machine: Annotated[
+        Path,
+        typer.Option(
+            help="Machine file: its [link] (type canopen) and the axes' node ids, as for "
+            "`ncmeasure record`.",
+            show_default=False,
+        ),
+    ],
+    yes: Annotated[
+        bool,
+        typer.Option("--yes", help="Write. Without it nothing is sent: the writes are listed."),
+    ] = False,
+    interface: Annotated[
+        str | None,
+        typer.Option(
+            help="python-can interface (socketcan, pcan, ...), over the machine file's.",
+            rich_help_panel="CANopen",
+        ),
+    ] = None,
+    channel: Annotated[
+        str | None, typer.Option(help="python-can channel.", rich_help_panel="CANopen")
+    ] = None,
+    bitrate: Annotated[
+        int | None, typer.Option(help="Bit rate in bit/s.", rich_help_panel="CANopen")
+    ] = None,
+    set_: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            help="Any other link setting, KEY=VALUE (e.g. sdo_timeout_s=2).",
+            metavar="KEY=VALUE",
+        ),
+    ] = None,
+) -> None:
+    """Write the torque offset 0x60B2 of vertical axes to their CiA 402 drives over SDO.
+
+    Reads the reviewed file of `ncmeasure compensation --controller cia402`, checks it
+    against the machine file (CANopen link, each axis with the node id the file names)
+    and lists what it would write. With --yes it writes each axis: the value before is
+    read, the new one written, and read back; another value read back is an error. Only
+    0x60B2:00 is ever written; no NMT, no SYNC, no "store parameters": a drive keeps the
+    offset until it is switched off unless you store it (its manual says how).
+
+    Exit code 0: listed, or written and read back; 2: bad input; 4: the bus or a drive
+    failed (the line says what was written before).
+
+    Example: ncmeasure apply-compensation z-offset.toml --machine machine.toml --yes
+    """
+    from ncmeasure.compensation.apply import (
+        apply_offsets,
+        link_for_offsets,
+        read_offset_file,
+    )
+    from ncmeasure.config import load_machine
+
+    writes = read_offset_file(file)
+    overrides: dict[str, Any] = {
+        key: value
+        for key, value in {"interface": interface, "channel": channel, "bitrate": bitrate}.items()
+        if value is not None
+    }
+    overrides.update(_settings(set_ or [], example="--set sdo_timeout_s=2"))
+    settings = link_for_offsets(writes, load_machine(machine), overrides)
+    bus = (
+        f"interface {settings.interface or '(python-can config)'}, channel "
+        f"{settings.channel or '(default)'}, {settings.bitrate} bit/s"
+    )
+    console = _console()
+    if not yes:
+        console.print(f"{len(writes)} torque offset(s) of {file} over CANopen ({bus}):")
+        for write in writes:
+            console.print(
+                f"  axis {write.axis}: node {write.node_id}, 0x60B2:00 = {write.value} "
+                f"(‰ of the rated torque, {write.value / 10:g} %)"
+            )
+        console.print(
+            "nothing was sent: review the file, then add --yes to write (each value is read "
+            "before and read back after)"
+        )
+        return
+
+    def written(done: Any) -> None:
+        w = done.write
+        console.print(
+            f"axis {w.axis}: node {w.node_id}, 0x60B2:00 was {done.before}, wrote {w.value}, "
+            f"read back {done.after}"
+        )
+
+    done = apply_offsets(writes, settings, on_written=written)
+    console.print(
+        f"wrote {len(done)} torque offset(s) over CANopen ({bus}); a drive keeps them until "
+        "it is switched off unless it stores them"
+    )
+
+
 @schema_app.command("results")
 @_command
 def schema_results() -> None:
