@@ -2487,7 +2487,12 @@ def compensation_command(
     in the Stribeck region), averaged over the positions, at speeds between the slowest
     and the fastest measured (denser at low speed), as motor current. The header of the
     file names the manual pages behind every parameter and what the file leaves out;
-    docs/shop-floor.md explains how to apply each. Review before loading it.
+    docs/shop-floor.md explains how to apply each. Review before loading it; a cia402 file
+    is then written to the drives by `ncmeasure apply-compensation FILE --machine M --yes`.
+
+    An axis the analysis could not fit in both directions, or not vertical for cia402, is
+    refused in one line (exit 2).
+
     Example: ncmeasure compensation run1.results.json --controller twincat --axis X -o X.lis
     """
     from ncmeasure.analysis.analyze import load_results
@@ -2660,5 +2665,10 @@ def _polish_help(info: typer.models.CommandInfo, done: set[int]) -> None:
 
 
 _polished: set[int] = set()
-for _info in [*app.registered_commands, *schema_app.registered_commands]:
+for _info in [
+    *app.registered_commands,
+    *schema_app.registered_commands,
+    *store_app.registered_commands,
+    *publish_app.registered_commands,
+]:
     _polish_help(_info, _polished)
