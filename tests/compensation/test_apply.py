@@ -100,10 +100,20 @@ def test_without_yes_nothing_is_sent(
 
 
 def test_yes_writes_reads_back_and_writes_nothing_else(
-    offsets: Path, machine_file: Path, drives: SimulatedDrives
+    offsets: Path, machine_file: Path, drives: SimulatedDrives, channel: str
 ) -> None:
-    code, out, err = run("apply-compensation", offsets, "--machine", machine_file, "--yes")
+    import can
+
+    with can.Bus(interface="virtual", channel=channel) as listener:  # what goes over the bus
+        code, out, err = run("apply-compensation", offsets, "--machine", machine_file, "--yes")
+        frames = []
+        while (frame := listener.recv(timeout=0)) is not None:
+            frames.append((frame.arbitration_id, bytes(frame.data).hex().upper()))
     assert code == 0, err
+    sent = [data for cob_id, data in frames if cob_id == 0x603]  # the client's SDO requests
+    assert sent == ["40B2600000000000", "2BB2600071000000", "40B2600000000000"]
+    assert f"data {sent[1]}" in offsets.read_text(encoding="utf-8")  # the frame the file lists
+    assert {cob_id for cob_id, _ in frames} == {0x603, 0x583}  # SDO only: no NMT, no SYNC
     assert f"axis Z: node 3, 0x60B2:00 was 0, wrote {VALUE}, read back {VALUE}" in out
     assert "wrote 1 torque offset(s)" in out
     z = drives.node(3)

@@ -247,17 +247,30 @@ def test_analyze_publishes_after_storing(tmp_path: Path, broker: Broker) -> None
     publish = f"mqtt://127.0.0.1:{broker.port}/t2?site=hall-9"
     code, _, err = run("analyze", folder, "--schedule", schedule_file, "--publish", publish)
     assert code == 2 and "give --store and --serial" in err
+    down = f"mqtt://127.0.0.1:{free_port()}"
     code, out, err = run("analyze", folder, "--schedule", schedule_file, "--store", store,
-                         "--serial", "A1", "--publish", publish)  # fmt: skip
+                         "--serial", "A1", "--publish", down)  # fmt: skip
+    assert code == 4, (out, err)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "measurement 1 of A1 is stored, but was not published" in lines[0]
+    assert (tmp_path / "run1.results.json").is_file() and "Traceback" not in err
+    code, out, err = run("publish", "mqtt", publish, "--store", store)  # later, as the line says
     assert code == 0, err
-    assert "published 1 axis summaries" in out
-    got = receive(broker, "t2")
-    ((topic, message),) = got.items()
+    ((topic, message),) = receive(broker, "t2").items()
     trend = stored_axes(f"sqlite:///{store}", "A1")
     ((axis, points),) = trend.items()
     assert topic == f"t2/hall-9/A1/{axis}/fingerprint"
     assert message["coulomb"] == points[-1].coulomb and message["measurement_id"] == 1
     assert message["baseline_id"] is None and message["coulomb_change_percent"] is None
+    other = tmp_path / "other.db"  # a broker that is up: published right after storing
+    publish = f"mqtt://127.0.0.1:{broker.port}/t2b?site=hall-9"
+    code, out, err = run("analyze", folder, "--schedule", schedule_file, "--store", other,
+                         "--serial", "A1", "--publish", publish)  # fmt: skip
+    assert code == 0, err
+    assert "stored as measurement 1 of A1" in out and "published 1 axis summaries" in out
+    ((topic, message),) = receive(broker, "t2b").items()
+    assert topic == f"t2b/hall-9/A1/{axis}/fingerprint" and message["measurement_id"] == 1
+    assert message["coulomb"] == stored_axes(f"sqlite:///{other}", "A1")[axis][-1].coulomb
 
 
 def test_publish_on_demand_sends_exactly_what_is_stored(
