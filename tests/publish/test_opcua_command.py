@@ -67,6 +67,14 @@ def _pump(stream: Any, lines: queue.Queue[str | None]) -> None:
     lines.put(None)
 
 
+def _source_path() -> str:
+    """PYTHONPATH for the command: the ncmeasure these tests import, then the caller's."""
+    import ncmeasure
+
+    here = str(Path(ncmeasure.__file__).resolve().parents[1])
+    return os.pathsep.join(p for p in (here, os.environ.get("PYTHONPATH")) if p)
+
+
 @contextmanager
 def command(store: str, *options: str, env: dict[str, str] | None = None) -> Iterator[Server]:
     """``ncmeasure publish opcua`` on a free loopback port, until the block ends.
@@ -80,7 +88,7 @@ def command(store: str, *options: str, env: dict[str, str] | None = None) -> Ite
             [sys.executable, "-m", "ncmeasure", "publish", "opcua", "--store", store,
              "--endpoint", endpoint, "--refresh-s", "0.2", *options],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-            env={**os.environ, **(env or {}), "COLUMNS": "200"},
+            env={**os.environ, **(env or {}), "COLUMNS": "200", "PYTHONPATH": _source_path()},
         )  # fmt: skip
         server = Server(process, endpoint)
         threading.Thread(target=_pump, args=(process.stdout, server.lines), daemon=True).start()
