@@ -1621,22 +1621,27 @@ def _measurement_info(**fields: Any) -> Any:
 
 
 def _limits(warning: float | None, critical: float | None) -> Any:
+    """The limits of --warning/--critical; bad ones in one line, named as options."""
     from pydantic import ValidationError
 
     from ncmeasure.analysis.compare import Limits
-    from ncmeasure.config import format_validation_error
 
+    options = {"warning_percent": "--warning", "critical_percent": "--critical"}
     updates = {
-        k: v
-        for k, v in {"warning_percent": warning, "critical_percent": critical}.items()
+        k: v for k, v in {"warning_percent": warning, "critical_percent": critical}.items()
         if v is not None
-    }
+    }  # fmt: skip
     try:
         return Limits.model_validate(updates)
     except ValidationError as exc:
-        raise ConfigError(
-            "--warning/--critical: not valid limits", format_validation_error(exc)
-        ) from exc
+        problems = []
+        for error in exc.errors(include_url=False):
+            text = str(error["msg"]).removeprefix("Value error, ")
+            for field, option in options.items():
+                text = text.replace(field, option)
+            field = str(error["loc"][0]) if error["loc"] else ""
+            problems.append(f"{options[field]} {updates[field]:g}: {text}" if field else text)
+        raise ConfigError("; ".join(problems)) from exc
 
 
 @store_app.command("add")
@@ -2088,13 +2093,15 @@ def _mqtt_target(url: str | None) -> Any:
     return MqttTarget.from_url(url)
 
 
-def _publish_stored(target: Any, store: str | None, serials: list[str] | None) -> Any:
+def _publish_stored(
+    target: Any, store: str | None, serials: list[str] | None, limits: Any = None
+) -> Any:
     from ncmeasure.publish import axis_summaries
     from ncmeasure.publish.mqtt import publish_summaries
     from ncmeasure.store.overview import fleet_overview
 
     with _open_store(store, write=False) as fleet:
-        summaries = axis_summaries(fleet_overview(fleet), serials)
+        summaries = axis_summaries(fleet_overview(fleet, limits), serials)
     return publish_summaries(target, summaries)
 
 
@@ -2122,24 +2129,37 @@ def publish_mqtt_command(
         str,
         typer.Argument(
             help="The broker: mqtt://[USER@]HOST[:PORT][/PREFIX][?site=S&client_id=C&"
-            "topic=T] or mqtts://...[?ca=FILE]. The password comes from "
+            "topic=T&protocol=5] or mqtts://...[?ca=FILE]. The password comes from "
             "$NCMEASURE_MQTT_PASSWORD, never from the command line.",
             show_default=False,
         ),
     ],
     serials: Annotated[
         list[str] | None,
-        typer.Option("--serial", help="Only this machine (repeat for several; default: all)."),
+        typer.Option(
+            "--serial",
+            metavar="SERIAL",
+            help="Only this machine (repeat for several; default: all).",
+        ),
     ] = None,
+    warning: WarningOption = None,
+    critical: CriticalOption = None,
     store: StoreOption = None,
 ) -> None:
     """Publish the latest fingerprint of every machine and axis of the store (retained, QoS 1).
 
     One JSON message per axis to PREFIX/SITE/SERIAL/AXIS/fingerprint (default prefix:
-    ncmeasure); docs/shop-floor.md describes every field.
-    Example: ncmeasure publish mqtt mqtt://line3@broker.plant:1883 --serial M17
+    ncmeasure): verdict, Coulomb and viscous friction, spread, their change since the
+    baseline, DeviceHealth; docs/shop-floor.md describes every field. The status and
+    health are those of `store report` with the same --warning/--critical.
+
+    A broker that cannot be reached, refuses the user or a message: one line, exit 4.
+
+    Example: NCMEASURE_MQTT_PASSWORD=... ncmeasure publish mqtt
+    mqtts://line3@broker.plant?site=hall-2 --serial M17
     """
-    published = _publish_stored(_mqtt_target(url), store, serials)
+    limits = _limits(warning, critical)
+    published = _publish_stored(_mqtt_target(url), store, serials, limits)
     _console().print(f"published {len(published.topics)} axis summaries to {published.target}")
 
 
@@ -2154,6 +2174,8 @@ def publish_opcua_command(
     refresh_s: Annotated[
         float, typer.Option("--refresh-s", help="Read the store again every so many seconds.")
     ] = 10.0,
+    warning: WarningOption = None,
+    critical: CriticalOption = None,
     user: Annotated[
         str | None,
         typer.Option(
@@ -2161,18 +2183,41 @@ def publish_opcua_command(
         ),
     ] = None,
     certificate: Annotated[
-        Path | None, typer.Option(help="The server's certificate (PEM or DER): encrypted only.")
+        Path | None,
+        typer.Option(
+            help="The server's certificate (RSA, PEM or DER): the only endpoint is then "
+            "Basic256Sha256, sign and encrypt."
+        ),
     ] = None,
     private_key: Annotated[
         Path | None, typer.Option(help="The certificate's private key (PEM).")
+    ] = None,
+    trusted_clients: Annotated[
+        Path | None,
+        typer.Option(
+            metavar="FOLDER",
+            help="Only clients whose certificate, or the CA that issued it, is in this folder "
+            "(*.pem, *.der, *.crt, *.cer) may connect; without it any client certificate "
+            "opens the encrypted channel and the password decides.",
+        ),
     ] = None,
 ) -> None:
     """The fleet store as an OPC UA server, until Ctrl-C: Machines → Machine → Axes → Axis.
 
     Each axis has its latest characteristics with engineering units and the measurement's
     time, and a DeviceHealth (OPC UA DI); docs/shop-floor.md draws the address space.
-    Anonymous and read-only on loopback (the default).
+    The store is read again every --refresh-s: a new measurement reaches subscribers as
+    a data change.
+
+    Access: anonymous and read-only on loopback (the default endpoint). Any other address
+    needs --user (password from $NCMEASURE_OPCUA_PASSWORD) and --certificate/--private-key;
+    --trusted-clients limits who may connect. Nobody can write.
+
     Example: ncmeasure publish opcua --store postgresql://ncm@db/fleet
+
+    Example: NCMEASURE_OPCUA_PASSWORD=... ncmeasure publish opcua --endpoint
+    opc.tcp://0.0.0.0:4840 --user line3 --certificate server.pem --private-key server-key.pem
+    --trusted-clients clients/
     """
     from ncmeasure.publish.opcua import PASSWORD_ENV, OpcUaSettings, serve_opcua
     from ncmeasure.store import store_url
@@ -2184,7 +2229,9 @@ def publish_opcua_command(
         password=os.environ.get(PASSWORD_ENV),
         certificate=certificate,
         private_key=private_key,
+        trusted_clients=trusted_clients,
     ).checked()
+    limits = _limits(warning, critical)
     url = store_url(store)
     stop = threading.Event()
     previous = _stop_on_signals(stop)
@@ -2192,6 +2239,7 @@ def publish_opcua_command(
         serve_opcua(
             url,
             settings,
+            limits=limits,
             on_ready=lambda at: _console().print(f"serving {url} at {at}; Ctrl-C stops"),
             stop=stop,
         )
@@ -2439,7 +2487,12 @@ def compensation_command(
     in the Stribeck region), averaged over the positions, at speeds between the slowest
     and the fastest measured (denser at low speed), as motor current. The header of the
     file names the manual pages behind every parameter and what the file leaves out;
-    docs/shop-floor.md explains how to apply each. Review before loading it.
+    docs/shop-floor.md explains how to apply each. Review before loading it; a cia402 file
+    is then written to the drives by `ncmeasure apply-compensation FILE --machine M --yes`.
+
+    An axis the analysis could not fit in both directions, or not vertical for cia402, is
+    refused in one line (exit 2).
+
     Example: ncmeasure compensation run1.results.json --controller twincat --axis X -o X.lis
     """
     from ncmeasure.analysis.analyze import load_results
@@ -2466,6 +2519,111 @@ def compensation_command(
     except OSError as exc:
         raise OutputError(f"{output}: cannot write ({exc.strerror or exc})") from exc
     _console().print(f"wrote {output}")
+
+
+@app.command("apply-compensation")
+@_command
+def apply_compensation_command(
+    file: Annotated[
+        Path,
+        typer.Argument(
+            help="The torque offsets to write: the file of `ncmeasure compensation "
+            "--controller cia402`, reviewed."
+        ),
+    ],
+    machine: Annotated[
+        Path,
+        typer.Option(
+            help="Machine file: its [link] (type canopen) and the axes' node ids, as for "
+            "`ncmeasure record`.",
+            show_default=False,
+        ),
+    ],
+    yes: Annotated[
+        bool,
+        typer.Option("--yes", help="Write. Without it nothing is sent: the writes are listed."),
+    ] = False,
+    interface: Annotated[
+        str | None,
+        typer.Option(
+            help="python-can interface (socketcan, pcan, ...), over the machine file's.",
+            rich_help_panel="CANopen",
+        ),
+    ] = None,
+    channel: Annotated[
+        str | None, typer.Option(help="python-can channel.", rich_help_panel="CANopen")
+    ] = None,
+    bitrate: Annotated[
+        int | None, typer.Option(help="Bit rate in bit/s.", rich_help_panel="CANopen")
+    ] = None,
+    set_: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            help="Any other link setting, KEY=VALUE (e.g. sdo_timeout_s=2).",
+            metavar="KEY=VALUE",
+        ),
+    ] = None,
+) -> None:
+    """Write the torque offset 0x60B2 of vertical axes to their CiA 402 drives over SDO.
+
+    Reads the reviewed file of `ncmeasure compensation --controller cia402`, checks it
+    against the machine file (CANopen link, each axis with the node id the file names)
+    and lists what it would write. With --yes it writes each axis: the value before is
+    read, the new one written, and read back; another value read back is an error. Only
+    0x60B2:00 is ever written; no NMT, no SYNC, no "store parameters": a drive keeps the
+    offset until it is switched off unless you store it (its manual says how).
+
+    Exit code 0: listed, or written and read back; 2: bad input; 4: the bus or a drive
+    failed (the line says what was written before).
+
+    Example: ncmeasure apply-compensation z-offset.toml --machine machine.toml --yes
+    """
+    from ncmeasure.compensation.apply import (
+        apply_offsets,
+        link_for_offsets,
+        read_offset_file,
+    )
+    from ncmeasure.config import load_machine
+
+    writes = read_offset_file(file)
+    overrides: dict[str, Any] = {
+        key: value
+        for key, value in {"interface": interface, "channel": channel, "bitrate": bitrate}.items()
+        if value is not None
+    }
+    overrides.update(_settings(set_ or [], example="--set sdo_timeout_s=2"))
+    settings = link_for_offsets(writes, load_machine(machine), overrides)
+    bus = (
+        f"interface {settings.interface or '(python-can config)'}, channel "
+        f"{settings.channel or '(default)'}, {settings.bitrate} bit/s"
+    )
+    console = _console()
+    if not yes:
+        console.print(f"{len(writes)} torque offset(s) of {file} over CANopen ({bus}):")
+        for write in writes:
+            console.print(
+                f"  axis {write.axis}: node {write.node_id}, 0x60B2:00 = {write.value} "
+                f"(‰ of the rated torque, {write.value / 10:g} %)"
+            )
+        console.print(
+            "nothing was sent: review the file, then add --yes to write (each value is read "
+            "before and read back after)"
+        )
+        return
+
+    def written(done: Any) -> None:
+        w = done.write
+        console.print(
+            f"axis {w.axis}: node {w.node_id}, 0x60B2:00 was {done.before}, wrote {w.value}, "
+            f"read back {done.after}"
+        )
+
+    done = apply_offsets(writes, settings, on_written=written)
+    console.print(
+        f"wrote {len(done)} torque offset(s) over CANopen ({bus}); a drive keeps them until "
+        "it is switched off unless it stores them"
+    )
 
 
 @schema_app.command("results")
@@ -2507,5 +2665,10 @@ def _polish_help(info: typer.models.CommandInfo, done: set[int]) -> None:
 
 
 _polished: set[int] = set()
-for _info in [*app.registered_commands, *schema_app.registered_commands]:
+for _info in [
+    *app.registered_commands,
+    *schema_app.registered_commands,
+    *store_app.registered_commands,
+    *publish_app.registered_commands,
+]:
     _polish_help(_info, _polished)

@@ -2,9 +2,10 @@
 
 Debian's ``mosquitto`` runs from a configuration file in a temporary folder,
 listening on 127.0.0.1 only, on a free port: anonymous, or with a password file
-(``mosquitto_passwd``), optionally with TLS (a self-signed certificate for
-127.0.0.1 made here with ``cryptography``). As root it stays root (``user
-root``): the files live in the test's private temporary folder.
+(``mosquitto_passwd``) and optionally an access control list, optionally with
+TLS (a self-signed certificate for 127.0.0.1 made here with ``cryptography``).
+As root it stays root (``user root``): the files live in the test's private
+temporary folder.
 """
 
 from __future__ import annotations
@@ -85,7 +86,11 @@ def self_signed(folder: Path) -> tuple[Path, Path]:
 
 @contextlib.contextmanager
 def temporary_mosquitto(
-    folder: Path, *, user: tuple[str, str] | None = None, tls: bool = False
+    folder: Path,
+    *,
+    user: tuple[str, str] | None = None,
+    tls: bool = False,
+    acl: str | None = None,
 ) -> Iterator[Broker]:
     """A running broker on a free loopback port; stopped on exit.
 
@@ -93,6 +98,8 @@ def temporary_mosquitto(
         folder: Where its configuration (and password file, certificate) go.
         user: (name, password): the only client let in; else anonymous clients.
         tls: Listen with TLS (a self-signed certificate for 127.0.0.1).
+        acl: The text of mosquitto's acl_file (mosquitto.conf(5)): what each user
+            may read and write.
     """
     binary = _mosquitto()
     folder.mkdir(parents=True, exist_ok=True)
@@ -109,6 +116,11 @@ def temporary_mosquitto(
         lines += ["allow_anonymous false", f"password_file {passwords}"]
     else:
         lines.append("allow_anonymous true")
+    if acl is not None:
+        acl_file = folder / "acl"
+        acl_file.write_text(acl, encoding="utf-8")
+        acl_file.chmod(0o600)
+        lines.append(f"acl_file {acl_file}")
     ca_file = None
     if tls:
         ca_file, key_file = self_signed(folder)

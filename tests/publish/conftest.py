@@ -43,6 +43,23 @@ def secure_broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Broker]:
     )
 
 
+@pytest.fixture(scope="session")
+def password_broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Broker]:
+    """A plain (no TLS) broker that lets in the user ``line3`` with the password ``s3cret-pw``."""
+    yield from _broker(tmp_path_factory.mktemp("mosquitto-user"), user=("line3", "s3cret-pw"))
+
+
+@pytest.fixture(scope="session")
+def read_only_broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Broker]:
+    """A broker whose access rules let ``line3`` (password ``s3cret-pw``) read, not write,
+    ``ncmeasure/#`` (and write ``probe/#``, for the subscriber's end marker)."""
+    yield from _broker(
+        tmp_path_factory.mktemp("mosquitto-acl"),
+        user=("line3", "s3cret-pw"),
+        acl="user line3\ntopic read ncmeasure/#\ntopic readwrite probe/#\n",
+    )
+
+
 @pytest.fixture
 def store_with_machine(tmp_path: Path, make_results: Callable[..., Results]) -> str:
     """A SQLite store: M17 (site plant-2) at delivery and at a service 25 % lower."""

@@ -18,11 +18,13 @@ from typing import Any
 
 import pytest
 
+from ncmeasure.analysis.compare import Limits
 from ncmeasure.analysis.results import Results
 from ncmeasure.errors import ConfigError
 from ncmeasure.publish.opcua import NAMESPACE, OpcUaSettings, engineering_units, serve_opcua
 from ncmeasure.store import MeasurementInfo, open_store
 from tests.publish.broker import free_port
+from tests.publish.certificates import self_signed_rsa
 
 WAIT_S = 60.0
 
@@ -33,7 +35,9 @@ class Running:
         self.error: BaseException | None = None
 
 
-def start(url: str, tmp_path: Path, **settings: Any) -> Iterator[Running]:
+def start(
+    url: str, tmp_path: Path, limits: Limits | None = None, **settings: Any
+) -> Iterator[Running]:
     stop, ready = threading.Event(), threading.Event()
     endpoint = f"opc.tcp://127.0.0.1:{free_port()}"
     running: list[Running] = []
@@ -43,6 +47,7 @@ def start(url: str, tmp_path: Path, **settings: Any) -> Iterator[Running]:
             serve_opcua(
                 url,
                 OpcUaSettings(endpoint=endpoint, **settings),
+                limits=limits,
                 on_ready=lambda _: ready.set(),
                 stop=stop,
             )
@@ -139,6 +144,64 @@ def test_the_client_reads_the_store_and_sees_a_change(
     asyncio.run(scenario())
 
 
+def test_the_limits_judge_status_and_health(store_with_machine: str, tmp_path: Path) -> None:
+    """--warning/--critical as for store report: −25 % beyond a 20 % critical limit."""
+    running = start(store_with_machine, tmp_path, Limits(warning_percent=10, critical_percent=20))
+    server = next(running)
+
+    async def scenario() -> None:
+        from asyncua import Client
+
+        async with Client(server.endpoint, timeout=30) as client:
+            machines = await _browse(client, "Machines")
+            ns = machines.nodeid.NamespaceIndex
+            assert await (await machines.get_child(f"{ns}:WarningLimit")).read_value() == 10.0
+            assert await (await machines.get_child(f"{ns}:CriticalLimit")).read_value() == 20.0
+            for name in ("X", "Z"):
+                axis = await _browse(client, "Machines", "M17", "Axes", name)
+                verdict = await (await axis.get_child(f"{ns}:Verdict")).read_value()
+                status = await (await axis.get_child(f"{ns}:Status")).read_value()
+                health = await (await axis.get_child(f"{ns}:DeviceHealth")).read_value()
+                assert status == "critical"
+                assert health == (1 if verdict == "fault" else 3)  # FAILURE, else OFF_SPEC
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        with pytest.raises(StopIteration):
+            next(running)
+
+
+def test_the_docs_draw_the_address_space(server: Running) -> None:
+    """Every node docs/shop-floor.md draws under Machines is there, and nothing else."""
+    import re
+
+    doc = (Path(__file__).parents[2] / "docs" / "shop-floor.md").read_text(encoding="utf-8")
+    tree = doc[doc.index("### The address space") :]
+    tree = tree[tree.index("```\nObjects") : tree.index("```", tree.index("Objects"))]
+    drawn = [
+        name for line in tree.splitlines() for name in re.findall(r"[├└]── ([\w, ]+?)  ", line)
+    ]
+    names = {n.strip() for group in drawn for n in group.split(",")}
+
+    async def browse() -> tuple[set[str], set[str], set[str]]:
+        from asyncua import Client
+
+        async with Client(server.endpoint, timeout=30) as client:
+            machines = await _browse(client, "Machines")
+            machine = await _browse(client, "Machines", "M17")
+            axis = await _browse(client, "Machines", "M17", "Axes", "X")
+
+            async def children(node: Any) -> set[str]:
+                return {(await c.read_browse_name()).Name for c in await node.get_children()}
+
+            return await children(machines), await children(machine), await children(axis)
+
+    under_machines, under_machine, under_axis = asyncio.run(browse())
+    assert under_machines == {"WarningLimit", "CriticalLimit", "M17"}
+    assert names == {"Machines", "X"} | under_machines | under_machine | under_axis
+
+
 def test_settings_are_checked() -> None:
     for settings, words in (
         (OpcUaSettings(endpoint="http://127.0.0.1:4840"), "expected opc.tcp://HOST:PORT"),
@@ -187,65 +250,6 @@ def test_a_user_and_a_certificate(store_with_machine: str, tmp_path: Path) -> No
     finally:
         with pytest.raises(StopIteration):
             next(running)
-
-
-def self_signed_rsa(folder: Path) -> tuple[Path, Path]:
-    """An RSA certificate fit for OPC UA's Basic256Sha256 (the EC one of the broker is not)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    from cryptography import x509
-    from cryptography.hazmat.primitives import hashes, serialization
-    from cryptography.hazmat.primitives.asymmetric import rsa
-    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
-
-    key = rsa.generate_private_key(public_exponent=65537, key_size=2048)
-    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "ncmeasure test")])
-    now = dt.datetime.now(dt.UTC)
-    cert = (
-        x509.CertificateBuilder()
-        .subject_name(name)
-        .issuer_name(name)
-        .public_key(key.public_key())
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(now - dt.timedelta(days=1))
-        .not_valid_after(now + dt.timedelta(days=2))
-        .add_extension(
-            x509.SubjectAlternativeName(
-                [x509.UniformResourceIdentifier("urn:ncmeasure:test"), x509.DNSName("localhost")]
-            ),
-            critical=False,
-        )
-        .add_extension(
-            x509.KeyUsage(
-                digital_signature=True,
-                content_commitment=True,
-                key_encipherment=True,
-                data_encipherment=True,
-                key_agreement=False,
-                key_cert_sign=True,
-                crl_sign=False,
-                encipher_only=False,
-                decipher_only=False,
-            ),
-            critical=True,
-        )
-        .add_extension(
-            x509.ExtendedKeyUsage(
-                [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]
-            ),
-            critical=False,
-        )
-        .sign(key, hashes.SHA256())
-    )
-    cert_file, key_file = folder / "opcua-cert.pem", folder / "opcua-key.pem"
-    cert_file.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-    key_file.write_bytes(
-        key.private_bytes(
-            serialization.Encoding.PEM,
-            serialization.PrivateFormat.TraditionalOpenSSL,
-            serialization.NoEncryption(),
-        )
-    )
-    return cert_file, key_file
 
 
 def test_the_command_refuses_bad_input_in_one_line(store_with_machine: str) -> None:

@@ -2,7 +2,7 @@
 
 The broker is named by a URL, the form ``--store`` has taught::
 
-    mqtt://[USER@]HOST[:PORT][/PREFIX][?site=SITE&client_id=ID&topic=TEMPLATE]
+    mqtt://[USER@]HOST[:PORT][/PREFIX][?site=SITE&client_id=ID&topic=TEMPLATE&protocol=5]
     mqtts://...                 TLS (port 8883), the system's CAs or ?ca=FILE
 
 The password never comes from the command line (other users can read it
@@ -11,11 +11,16 @@ there): it is read from ``$NCMEASURE_MQTT_PASSWORD``. Each axis goes to
 machine's site in the store, else ``?site=``, else ``unknown``), retained, so
 a subscriber that connects later gets the latest fingerprint at once.
 
+MQTT 5 by default: the broker acknowledges each message with a reason code,
+so a message its access rules refuse (PUBACK "Not authorized") is an error
+naming the topic, not a silent loss. ``?protocol=3.1.1`` speaks to a broker
+without MQTT 5; that protocol acknowledges refused messages like accepted ones.
+
 paho-mqtt 2.x with its version 2 callbacks (CallbackAPIVersion.VERSION2,
 https://eclipse.dev/paho/files/paho.mqtt.python/html/migrations.html); the
 client's network loop is run here, in bounded steps, so that every wait has
 a time-out and no thread is left behind. Every failure (no broker, refused
-credentials, TLS, a message not acknowledged) is one :class:`PublishError`.
+credentials, TLS, a message refused or not acknowledged) is one :class:`PublishError`.
 """
 
 from __future__ import annotations
@@ -54,7 +59,8 @@ DEFAULT_TOPIC = "{site}/{serial}/{axis}/fingerprint"
 """Below the prefix; ``?topic=`` replaces it (fields: site, serial, axis, machine_type)."""
 UNKNOWN_SITE = "unknown"
 _FIELDS = {"site", "serial", "axis", "machine_type"}
-_QUERY = {"site", "client_id", "topic", "ca"}
+_QUERY = {"site", "client_id", "topic", "ca", "protocol"}
+PROTOCOLS = ("5", "3.1.1")
 _DEFAULT_PORTS = {"mqtt": 1883, "mqtts": 8883}
 _ESCAPED = {"%": "%25", "/": "%2F", "+": "%2B", "#": "%23"}
 
@@ -89,6 +95,8 @@ class MqttTarget:
     topic: str = DEFAULT_TOPIC
     site: str | None = None
     client_id: str = ""
+    protocol: str = "5"
+    """MQTT version: ``5`` (refused messages are reported) or ``3.1.1``."""
     timeout_s: float = 10.0
 
     @property
@@ -137,6 +145,9 @@ class MqttTarget:
             raise ConfigError(f"{where}: the topic prefix {prefix!r} holds a wildcard (+ or #)")
         topic = query.get("topic", DEFAULT_TOPIC).strip("/")
         _check_template(topic, where)
+        protocol = query.get("protocol", "5")
+        if protocol not in PROTOCOLS:
+            raise ConfigError(f"{where}: protocol={protocol!r}: 5 or 3.1.1")
         ca = Path(query["ca"]) if query.get("ca") else None
         if ca is not None and parts.scheme != "mqtts":
             raise ConfigError(f"{where}: ca= is for TLS; use mqtts://")
@@ -159,6 +170,7 @@ class MqttTarget:
             topic=topic,
             site=query.get("site") or None,
             client_id=query.get("client_id", ""),
+            protocol=protocol,
         )
 
     def topic_of(self, summary: AxisSummary) -> str:
@@ -218,6 +230,8 @@ class _Session:
         self.connected = False
         self.refused: str | None = None
         self.lost: str | None = None
+        self.rejected: dict[int, str] = {}
+        """Message id -> the broker's reason for refusing it (MQTT 5 PUBACK)."""
 
     def on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
         if reason.is_failure:
@@ -232,6 +246,10 @@ class _Session:
             self.lost = str(reason)
         self.connected = False
 
+    def on_publish(self, client: Any, userdata: Any, mid: int, reason: Any, props: Any) -> None:
+        if reason.is_failure:
+            self.rejected[mid] = str(reason)
+
 
 def publish_summaries(target: MqttTarget, summaries: Sequence[AxisSummary]) -> Published:
     """Publish one retained QoS 1 message per axis summary and wait for the broker's acks.
@@ -239,7 +257,8 @@ def publish_summaries(target: MqttTarget, summaries: Sequence[AxisSummary]) -> P
     Raises:
         DependencyError: paho-mqtt is not installed.
         PublishError: The broker cannot be reached, refuses the client (credentials,
-            not authorised), TLS fails, or a message is not acknowledged in time.
+            not authorised), TLS fails, refuses a message (MQTT 5: its access rules),
+            or does not acknowledge one in time.
     """
     mqtt = paho()
     messages = [
@@ -250,10 +269,11 @@ def publish_summaries(target: MqttTarget, summaries: Sequence[AxisSummary]) -> P
     client = mqtt.Client(
         callback_api_version=mqtt.CallbackAPIVersion.VERSION2,
         client_id=target.client_id,
-        protocol=mqtt.MQTTv311,
+        protocol=mqtt.MQTTv5 if target.protocol == "5" else mqtt.MQTTv311,
     )
     client.on_connect = session.on_connect
     client.on_disconnect = session.on_disconnect
+    client.on_publish = session.on_publish
     client.connect_timeout = target.timeout_s
     if target.username is not None:
         client.username_pw_set(target.username, target.password)
@@ -267,17 +287,29 @@ def publish_summaries(target: MqttTarget, summaries: Sequence[AxisSummary]) -> P
         try:
             client.connect(target.host, target.port, keepalive=max(10, int(target.timeout_s * 2)))
         except ssl.SSLError as exc:
-            hint = " (trust its CA with ?ca=FILE)" if "VERIFY" in str(exc.reason) else ""
+            if "VERIFY" in str(exc.reason):
+                hint = " (trust its CA with ?ca=FILE)"
+            elif isinstance(exc, ssl.SSLEOFError | ssl.SSLZeroReturnError):
+                hint = "; a plain MQTT port wants mqtt://"
+            else:
+                hint = ""
             raise PublishError(f"{target.where}: TLS failed ({exc.reason or exc}){hint}") from exc
         except OSError as exc:
+            hint = (
+                "; a plain MQTT port wants mqtt://"
+                if target.tls and isinstance(exc, ConnectionResetError)
+                else ""
+            )
             raise PublishError(
-                f"{target.where}: cannot reach the broker ({exc.strerror or exc})"
+                f"{target.where}: cannot reach the broker ({exc.strerror or exc}){hint}"
             ) from exc
         while not session.connected:
             _step(client, session, target, deadline, "connecting")
         infos = [client.publish(topic, payload, qos=1, retain=True) for topic, payload in messages]
         while not all(info.is_published() for info in infos):
             _step(client, session, target, deadline, "waiting for the broker's acknowledgements")
+        sent = [(info.mid, topic) for info, (topic, _) in zip(infos, messages, strict=True)]
+        _rejected(session, target, sent)
     finally:
         client.disconnect()  # harmless when not connected
         for _ in range(20):  # let DISCONNECT leave; the loop fails once the socket is closed
@@ -298,18 +330,39 @@ def _step(client: Any, session: _Session, target: MqttTarget, deadline: float, d
     _refused(session, target)
     if rc != 0 or session.lost is not None:
         reason = session.lost or str(rc)
-        hint = "" if target.tls or session.connected else "; a TLS port wants mqtts://"
+        hint = (
+            ""
+            if target.tls or session.connected
+            else "; a TLS port wants mqtts://"
+            + ("; a broker without MQTT 5 ?protocol=3.1.1" if target.protocol == "5" else "")
+        )
         raise PublishError(
             f"{target.where}: the broker closed the connection ({reason}; {doing}{hint})"
         )
 
 
+def _rejected(session: _Session, target: MqttTarget, sent: list[tuple[int, str]]) -> None:
+    """A :class:`PublishError` if the broker refused any message (MQTT 5 PUBACK)."""
+    refused = [(topic, session.rejected[mid]) for mid, topic in sent if mid in session.rejected]
+    if not refused:
+        return
+    topic, reason = refused[0]
+    raise PublishError(
+        f"{target.where}: the broker refused {len(refused)} of {len(sent)} message(s) "
+        f"({reason}: {topic}{', ...' if len(refused) > 1 else ''}); check its access rules "
+        "(ACL) for this user and topic"
+    )
+
+
 def _refused(session: _Session, target: MqttTarget) -> None:
     if session.refused is None:
         return
+    reason = session.refused.lower()
     hint = (
         f"; check the user name and ${PASSWORD_ENV}"
-        if "authori" in session.refused.lower() or "password" in session.refused.lower()
+        if "authori" in reason or "password" in reason
+        else "; a broker without MQTT 5 wants ?protocol=3.1.1"
+        if "protocol" in reason
         else ""
     )
     raise PublishError(

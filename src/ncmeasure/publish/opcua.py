@@ -24,8 +24,11 @@ changed, so a subscriber gets a data change when ``store add`` brings a new
 measurement. Access: anonymous and read-only on a loopback address (the
 default ``opc.tcp://127.0.0.1:4840``); any other address needs a user name
 and password and a server certificate (Basic256Sha256, sign and encrypt, the
-only endpoint then). Nobody may write, add or delete nodes: the built-in admin
-is switched off and every user is an ordinary one.
+only endpoint then). With a folder of trusted client certificates
+(``trusted_clients``) only clients whose application instance certificate, or
+the CA that issued it, lies there may open a session (BadCertificateUntrusted
+for the others). Nobody may write, add or delete nodes: the built-in admin is
+switched off and every user is an ordinary one.
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
+from ncmeasure.analysis.compare import Limits
 from ncmeasure.errors import ConfigError, DependencyError, PublishError, StoreError
 from ncmeasure.hosts import is_loopback
 from ncmeasure.publish.summary import DEVICE_HEALTH, AxisSummary, device_health, worst_health
@@ -54,7 +58,9 @@ __all__ = [
     "NAMESPACE",
     "PASSWORD_ENV",
     "OpcUaSettings",
+    "TrustList",
     "engineering_units",
+    "load_trusted_clients",
     "serve_opcua",
 ]
 
@@ -111,6 +117,8 @@ class OpcUaSettings:
     password: str | None = None
     certificate: Path | None = None
     private_key: Path | None = None
+    trusted_clients: Path | None = None
+    """A folder of client certificates (or their CAs), PEM or DER: only those may connect."""
 
     @property
     def host_port(self) -> tuple[str, int]:
@@ -144,6 +152,14 @@ class OpcUaSettings:
         for path in (self.certificate, self.private_key):
             if path is not None and not path.is_file():
                 raise ConfigError(f"{path}: no such file")
+        if self.trusted_clients is not None:
+            if self.certificate is None:
+                raise ConfigError(
+                    "--trusted-clients checks the certificates of encrypted connections: "
+                    "give --certificate and --private-key too"
+                )
+            if not self.trusted_clients.is_dir():
+                raise ConfigError(f"--trusted-clients {self.trusted_clients}: no such folder")
         if not is_loopback(parts.hostname) and (self.username is None or self.certificate is None):
             raise ConfigError(
                 f"{where}: an address other than loopback needs a user (--user, "
@@ -164,15 +180,116 @@ def _asyncua() -> Any:
     return asyncua
 
 
-def _read_overview(url: str) -> FleetOverview:
+_CERTIFICATE_SUFFIXES = (".pem", ".der", ".crt", ".cer")
+
+
+def load_trusted_clients(folder: Path) -> list[Any]:
+    """The certificates of a trust list folder: each ``*.pem``, ``*.der``, ``*.crt``, ``*.cer``.
+
+    Raises:
+        ConfigError: A file that is not one certificate (PEM or DER), or no certificate at all.
+    """
+    from cryptography import x509
+
+    found = []
+    try:
+        paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in _CERTIFICATE_SUFFIXES)
+    except OSError as exc:
+        raise ConfigError(f"--trusted-clients {folder}: {exc.strerror or exc}") from exc
+    for path in paths:
+        try:
+            data = path.read_bytes()
+            certificate = (
+                x509.load_pem_x509_certificate(data)
+                if b"-----BEGIN" in data
+                else x509.load_der_x509_certificate(data)
+            )
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot be read ({exc.strerror or exc})") from exc
+        except ValueError as exc:
+            raise ConfigError(
+                f"{path}: not a certificate (PEM or DER); the --trusted-clients folder holds "
+                "the clients' certificates or their CAs' and nothing else"
+            ) from exc
+        found.append(certificate)
+    if not found:
+        raise ConfigError(
+            f"--trusted-clients {folder}: no certificate in it "
+            f"({', '.join('*' + s for s in _CERTIFICATE_SUFFIXES)})"
+        )
+    return found
+
+
+class TrustList:
+    """Which client certificates may open a session: those in the list, or issued by a CA in it.
+
+    Used as asyncua's certificate validator (called at CreateSession): an untrusted,
+    expired or not yet valid client certificate is refused with BadCertificateUntrusted.
+    """
+
+    def __init__(self, certificates: list[Any]) -> None:
+        from cryptography import x509
+        from cryptography.hazmat.primitives.serialization import Encoding
+
+        self._exact = {c.public_bytes(Encoding.DER) for c in certificates}
+        self._cas = []
+        for certificate in certificates:
+            try:
+                constraints = certificate.extensions.get_extension_for_class(
+                    x509.BasicConstraints
+                ).value
+            except x509.ExtensionNotFound:
+                continue
+            if constraints.ca:
+                self._cas.append(certificate)
+
+    @staticmethod
+    def _valid(certificate: Any, now: dt.datetime) -> bool:
+        return bool(certificate.not_valid_before_utc <= now <= certificate.not_valid_after_utc)
+
+    def trusts(self, certificate: Any, now: dt.datetime | None = None) -> bool:
+        """True if ``certificate`` is valid now and in the list or issued by a CA in it."""
+        from cryptography.exceptions import InvalidSignature
+        from cryptography.hazmat.primitives.serialization import Encoding
+
+        now = now or dt.datetime.now(dt.UTC)
+        if not self._valid(certificate, now):
+            return False
+        if certificate.public_bytes(Encoding.DER) in self._exact:
+            return True
+        for ca in self._cas:
+            if not self._valid(ca, now):
+                continue
+            try:
+                certificate.verify_directly_issued_by(ca)
+            except (ValueError, TypeError, InvalidSignature):
+                continue
+            return True
+        return False
+
+    async def __call__(self, certificate: Any, application: Any) -> None:
+        from asyncua.common.utils import ServiceError
+        from asyncua.ua.status_codes import StatusCodes
+
+        if not self.trusts(certificate):
+            _log.warning(
+                "refused the client %s: its certificate (%s) is not trusted",
+                getattr(application, "ApplicationUri", "?"),
+                certificate.subject.rfc4514_string(),
+            )
+            raise ServiceError(StatusCodes.BadCertificateUntrusted)
+
+
+def _read_overview(url: str, limits: Limits | None = None) -> FleetOverview:
     with open_store(url) as store:
-        return fleet_overview(store)
+        return fleet_overview(store, limits)
 
 
 def serve_opcua(
     url: str,
     settings: OpcUaSettings,
     *,
+    limits: Limits | None = None,
     on_ready: Callable[[str], None] | None = None,
     stop: threading.Event | None = None,
 ) -> None:
@@ -181,6 +298,8 @@ def serve_opcua(
     Args:
         url: The store's URL.
         settings: Endpoint, refresh period, user, certificate.
+        limits: The warning and critical limits of the change since the baseline
+            (default: those of ``store report`` and the dashboard, 20 % and 40 %).
         on_ready: Called with the endpoint once clients can connect.
         stop: Set it to stop the server.
 
@@ -192,8 +311,13 @@ def serve_opcua(
     """
     settings = settings.checked()
     _asyncua()
-    overview = _read_overview(url)  # fails here, in words, before anything listens
-    asyncio.run(_serve(url, settings, overview, on_ready, stop or threading.Event()))
+    trust = (
+        TrustList(load_trusted_clients(settings.trusted_clients))
+        if settings.trusted_clients is not None
+        else None
+    )
+    overview = _read_overview(url, limits)  # fails here, in words, before anything listens
+    asyncio.run(_serve(url, settings, overview, trust, on_ready, stop or threading.Event()))
 
 
 class _Users:
@@ -225,6 +349,7 @@ async def _serve(
     url: str,
     settings: OpcUaSettings,
     overview: FleetOverview,
+    trust: TrustList | None,
     on_ready: Callable[[str], None] | None,
     stop: threading.Event,
 ) -> None:
@@ -250,6 +375,8 @@ async def _serve(
                 f"and private key ({exc})"
             ) from exc
         server.set_security_policy([ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt])
+        if trust is not None:
+            server.set_certificate_validator(trust)
     else:
         server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
     tokens = [ua.UserNameIdentityToken] if settings.username else [ua.AnonymousIdentityToken]
@@ -283,7 +410,7 @@ async def _serve(
                 continue
             next_refresh = loop.time() + settings.refresh_s
             try:
-                overview = await asyncio.to_thread(_read_overview, url)
+                overview = await asyncio.to_thread(_read_overview, url, overview.limits)
             except StoreError as exc:  # the last values stay; the next refresh tries again
                 _log.warning("the store could not be read: %s", exc.message)
                 continue
@@ -391,8 +518,24 @@ class _Space:
 
     async def update(self, overview: FleetOverview) -> None:
         """Bring every machine and axis to ``overview``."""
+        await self._limit("WarningLimit", overview.limits.warning_percent)
+        await self._limit("CriticalLimit", overview.limits.critical_percent)
         for machine in overview.machines:
             await self._machine(machine)
+
+    async def _limit(self, name: str, percent: float) -> None:
+        """A property of the Machines folder: a limit the changes are judged by, in %.
+
+        Its NodeId is ``Limits/<name>``, apart from the machines' ``Machines/<serial>``.
+        """
+        path = f"Limits/{name}"
+        if path in self._nodes:
+            return
+        ua = self._ua
+        self._nodes[path] = await self._nodes["Machines"].add_property(
+            self._id(path), self._name(name), ua.Variant(percent, ua.VariantType.Double)
+        )
+        await self._engineering_units(path, "%")
 
     async def _machine(self, machine: MachineOverview) -> None:
         base = f"Machines/{machine.serial}"
@@ -401,13 +544,20 @@ class _Space:
         await self._set(f"{base}/Site", machine.site, "String")
         await self._set(f"{base}/Measurements", machine.measurements, "UInt32")
         healths = [device_health(axis) for axis in machine.axes.values()]
-        await self._health(f"{base}/DeviceHealth", worst_health(healths))
+        when = _timestamp(machine.latest_utc)
+        await self._health(f"{base}/DeviceHealth", worst_health(healths), when)
         await self._object(f"{base}/Axes", "Axes", base, folder=True)
         for axis in machine.axes.values():
             await self._axis(f"{base}/Axes/{axis.axis}", AxisSummary(machine, axis))
 
-    async def _health(self, path: str, health: str) -> None:
-        await self._set(path, DEVICE_HEALTH[health], "Int32", datatype=self._health_type)  # type: ignore[index]
+    async def _health(self, path: str, health: str, when: dt.datetime | None) -> None:
+        await self._set(
+            path,
+            DEVICE_HEALTH[health],  # type: ignore[index]
+            "Int32",
+            when=when,
+            datatype=self._health_type,
+        )
 
     async def _axis(self, path: str, summary: AxisSummary) -> None:
         machine, axis = summary.machine, summary.axis
@@ -428,4 +578,4 @@ class _Space:
         await self._set(f"{path}/Status", axis.status, "String", when=when)
         await self._set(f"{path}/MeasurementId", machine.latest_id, "Int64", when=when)
         await self._set(f"{path}/MeasuredTime", when, "DateTime", when=when)
-        await self._health(f"{path}/DeviceHealth", summary.health)
+        await self._health(f"{path}/DeviceHealth", summary.health, when)

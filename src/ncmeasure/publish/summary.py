@@ -25,10 +25,10 @@ measurement in progress, so it is never set from the store.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from ncmeasure.analysis.compare import Status, worst_status
+from ncmeasure.analysis.compare import Limits, Status, worst_status
 from ncmeasure.store.overview import AxisOverview, FleetOverview, MachineOverview
 
 __all__ = [
@@ -89,6 +89,8 @@ class AxisSummary:
 
     machine: MachineOverview
     axis: AxisOverview
+    limits: Limits = field(default_factory=Limits)
+    """The warning and critical limits the changes were judged by (the overview's)."""
 
     @property
     def health(self) -> Health:
@@ -134,6 +136,8 @@ class AxisSummary:
             "viscous_change_percent": self.change("viscous_per_m_min"),
             "spread_change_points": self.change("spread_percent"),
             "change_status": self.change_status,
+            "warning_percent": self.limits.warning_percent,
+            "critical_percent": self.limits.critical_percent,
             "outliers": sorted(o.characteristic for o in axis.outliers),
         }
 
@@ -159,4 +163,4 @@ def axis_summaries(
                 "(ncmeasure store list shows the machines)"
             )
         machines = [m for m in machines if m.serial in set(wanted)]
-    return [AxisSummary(m, a) for m in machines for a in m.axes.values()]
+    return [AxisSummary(m, a, overview.limits) for m in machines for a in m.axes.values()]

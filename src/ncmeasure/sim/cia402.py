@@ -320,10 +320,21 @@ class SimulatedDrive:
     def builtin(
         cls, node_id: int, axis: int, object_map: ObjectMap, scaling: DriveScaling = DriveScaling()
     ) -> SimulatedDrive:
-        """A drive with the built-in CiA 402 dictionary of ``object_map``."""
+        """A drive with the built-in CiA 402 dictionary of ``object_map``.
+
+        It also has the torque offset 0x60B2:00 (INTEGER16, read-write, 0), which
+        ``ncmeasure apply-compensation`` writes.
+        """
         od = build_dictionary(
             object_map, node_id, rated_current_ma=round(scaling.rated_current_a * 1000)
         )
+        if 0x60B2 not in od:
+            offset = ODVariable("torque offset", 0x60B2, 0)
+            offset.data_type = 0x03  # INTEGER16
+            offset.access_type = "rw"
+            offset.default = 0
+            offset.pdo_mappable = True
+            od.add_object(offset)
         return cls(node_id, axis, od, object_map, scaling)
 
     def _set_rated_current(self, obj: MapObject | None) -> None:
