@@ -201,6 +201,7 @@ def _entry(**changes: Any) -> str:
         (_entry(subindex=1), "writes 0x60B2:01"),
         (_entry(data_type='"INTEGER32"'), "0x60B2 is INTEGER16, not 'INTEGER32'"),
         (_entry(value=40000), "value must be an INTEGER16, not 40000"),
+        (_entry(value=-1200), "value -1200 is -120 % of the rated torque"),
         (_entry(node_id=4), "the file writes to node 4, the machine file names node 3"),
         (_entry(axis='"W"'), "axis W of the file is not in the machine file"),
         (_entry() + _entry(), "axis Z more than once"),

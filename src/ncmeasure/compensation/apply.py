@@ -43,6 +43,8 @@ __all__ = [
 TORQUE_OFFSET = (0x60B2, 0)
 """CiA 402 torque offset, sub-index 0: INTEGER16, per mille of the rated torque."""
 INT16 = (-32768, 32767)
+MAX_OFFSET_PER_MILLE = 1000
+"""The largest torque offset written: the rated torque. More holds no axis up; it is a typo."""
 _KEYS = {"axis", "node_id", "index", "subindex", "data_type", "value"}
 _ABORT_READ_ONLY = 0x06010002
 
@@ -99,6 +101,12 @@ def read_offset_file(path: Path) -> list[OffsetWrite]:
             raise ConfigError(f"{where}: node_id must be 1…127, not {node_id!r}")
         if not _is_int(value) or not INT16[0] <= value <= INT16[1]:
             raise ConfigError(f"{where}: value must be an INTEGER16, not {value!r}")
+        if abs(value) > MAX_OFFSET_PER_MILLE:
+            raise ConfigError(
+                f"{where}: value {value} is {value / 10:g} % of the rated torque; a gravity "
+                f"compensation stays within ±{MAX_OFFSET_PER_MILLE} (the rated torque): "
+                "check the file"
+            )
         writes.append(OffsetWrite(axis, node_id, value))
     for field in ("axis", "node_id"):
         seen = [getattr(w, field) for w in writes]
