@@ -904,21 +904,20 @@ def export_command(
     ] = None,
 ) -> None:
     """Write a recording as one CSV (time_s, then <AXIS>_<signal> columns) or MDF4 file."""
-    from ncmeasure.recording import read_recording
+    from ncmeasure.recording import RecordingHead
     from ncmeasure.traces.csv import export_csv
     from ncmeasure.traces.mdf4 import export_mdf4
 
     if fmt not in _FORMATS:
         raise ConfigError(f"--format {fmt!r}: expected one of {', '.join(_FORMATS)}")
     target = output or run.with_suffix(_FORMATS[fmt])
-    recording = read_recording(run)
-    for problem in recording.problems:
-        _warn(problem)
+    head = RecordingHead.open(run)  # the samples are read chunk by chunk while written
     if fmt == "csv":
-        export_csv(recording, target)
+        export_csv(head, target)
     else:
-        export_mdf4(recording, target)
-    _console().print(f"wrote {target} ({len(recording.time_s)} samples)")
+        export_mdf4(head, target)
+    # what was wrong with the recording is logged as a warning when read, as for analyze
+    _console().print(f"wrote {target} ({head.rows} samples)")
 
 
 @app.command("import")

@@ -302,3 +302,50 @@ def test_mdf4_export_is_written_whole_under_the_name_asked_for(tmp_path: Path) -
     ]
     copy = import_mdf4(target, tmp_path / "copy")
     assert len(copy) == 5
+
+
+# --- export chunk by chunk -------------------------------------------------------------------
+
+
+def _never_whole(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Reading a whole recording into memory fails: an export from a directory must not."""
+
+    def refuse(*args: object, **kwargs: object) -> Recording:
+        raise AssertionError("the whole recording was read into memory")
+
+    monkeypatch.setattr(Recording, "open", classmethod(refuse))
+
+
+def test_export_from_a_directory_reads_chunk_by_chunk_and_writes_the_same_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Several chunks (> 20,000 rows for CSV, > 8,192 for MDF4): the same bytes as from memory."""
+    original = awkward_recording(tmp_path / "r", rows=45_000)
+    from_memory = export_csv(original, tmp_path / "memory.csv").read_bytes()
+    mdf_ok = True
+    try:
+        export_mdf4(original, tmp_path / "memory.mf4")
+    except DependencyError:
+        mdf_ok = False
+    _never_whole(monkeypatch)
+    assert export_csv(tmp_path / "r", tmp_path / "chunks.csv").read_bytes() == from_memory
+    if mdf_ok:
+        export_mdf4(tmp_path / "r", tmp_path / "chunks.mf4")
+        monkeypatch.undo()
+        copy = import_mdf4(tmp_path / "chunks.mf4", tmp_path / "copy")
+        assert same_bits(copy.time_s, original.time_s)
+        assert same_bits(copy.values, original.values)
+        assert copy.channel_names == original.channel_names
+
+
+def test_export_of_a_damaged_recording_says_so_and_keeps_the_good_rows(tmp_path: Path) -> None:
+    from ncmeasure.recording import RecordingHead
+
+    write_frames(tmp_path / "r", frames=3, rows_per_frame=5)
+    samples = tmp_path / "r" / "samples.bin"
+    samples.write_bytes(samples.read_bytes()[:-3])  # the last frame torn
+    head = RecordingHead.open(tmp_path / "r")
+    export_csv(head, tmp_path / "out.csv")
+    assert head.rows == 10
+    assert any("torn tail" in problem for problem in head.problems), head.problems
+    assert len((tmp_path / "out.csv").read_text(encoding="utf-8").splitlines()) == 11

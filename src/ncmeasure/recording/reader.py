@@ -547,8 +547,37 @@ def as_recording(recording: Recording | PathArg) -> Recording:
     return recording if isinstance(recording, Recording) else Recording.open(recording)
 
 
-def frame_rows(recording: Recording, start: int, stop: int) -> NDArray[np.float64]:
-    rows = np.empty((stop - start, 1 + len(recording.channels)), dtype=np.float64)
-    rows[:, 0] = recording.time_s[start:stop]
-    rows[:, 1:] = recording.values[start:stop]
-    return rows
+def rows_of(
+    recording: Recording | RecordingHead | PathArg, rows: int = 1 << 16
+) -> tuple[Recording | RecordingHead, Iterator[RowChunk]]:
+    """A recording and its rows chunk by chunk, for a writer of the whole recording.
+
+    A :class:`Recording` gives its rows from memory. A directory or a
+    :class:`RecordingHead` is read chunk by chunk (:func:`iter_chunks`, memory
+    bounded by one chunk whatever the length); once the chunks are exhausted,
+    the head's :attr:`~RecordingHead.rows` and :attr:`~RecordingHead.problems`
+    say what was read and what was wrong.
+
+    Raises:
+        RecordingError: Not a recording.
+    """
+    if isinstance(recording, Recording):
+        rec = recording
+
+        def from_memory() -> Iterator[RowChunk]:
+            for start in range(0, len(rec), rows):
+                stop = min(start + rows, len(rec))
+                yield RowChunk(start, rec.time_s[start:stop], rec.values[start:stop])
+
+        return rec, from_memory()
+    head = recording if isinstance(recording, RecordingHead) else RecordingHead.open(recording)
+
+    def from_file() -> Iterator[RowChunk]:
+        problems: list[str] = []
+        count = 0
+        for chunk in iter_chunks(head.directory, rows, problems=problems):
+            count += len(chunk.time_s)
+            yield chunk
+        head.samples_read(count, problems)
+
+    return head, from_file()

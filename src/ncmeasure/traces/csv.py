@@ -23,7 +23,7 @@ from ncmeasure.recording.format import (
     RecordingMeta,
     channel_from_name,
 )
-from ncmeasure.recording.reader import Recording, as_recording, frame_rows
+from ncmeasure.recording.reader import Recording, RecordingHead, rows_of
 from ncmeasure.recording.sink import ImportSink, check_times
 from ncmeasure.samples import SIGNAL_UNITS, Channel
 
@@ -32,17 +32,19 @@ log = logging.getLogger(__name__)
 _CSV_CHUNK_ROWS = 20_000
 
 
-def export_csv(recording: Recording | PathArg, path: PathArg) -> Path:
+def export_csv(recording: Recording | RecordingHead | PathArg, path: PathArg) -> Path:
     """Write a recording as one CSV file: ``time_s`` and the channels, bit-exact.
 
     The header row names the columns (``time_s,X_current_a,...``); every value
     is written as Python's shortest repr that reads back to the same float64
     (``0.1``, ``1e-300``, ``-0.0``, ``nan``), so :func:`import_csv` restores the
     samples bit for bit. The file is written in chunks and renamed into place
-    when complete.
+    when complete; a recording given by its directory (or head) is read chunk
+    by chunk, so memory does not grow with its length.
 
     Args:
-        recording: A recording, or the directory of one.
+        recording: A recording, its head, or its directory. A head's ``rows``
+            and ``problems`` are filled in by the export.
         path: The CSV file to write (replaced if it exists).
 
     Returns:
@@ -51,18 +53,22 @@ def export_csv(recording: Recording | PathArg, path: PathArg) -> Path:
     Raises:
         RecordingError: The recording cannot be read or the file cannot be written.
     """
-    rec = as_recording(recording)
+    rec, chunks = rows_of(recording, _CSV_CHUNK_ROWS)
     target = Path(path)
+    count = 0
     try:
         with replace_text(target, newline="\n") as file:
             file.write(",".join(["time_s", *rec.channel_names]) + "\n")
-            for start in range(0, len(rec), _CSV_CHUNK_ROWS):
-                rows = frame_rows(rec, start, min(start + _CSV_CHUNK_ROWS, len(rec)))
+            for chunk in chunks:
+                rows = np.empty((len(chunk.time_s), 1 + chunk.values.shape[1]))
+                rows[:, 0] = chunk.time_s
+                rows[:, 1:] = chunk.values
+                count += len(rows)
                 # float.__repr__ is the shortest text that round-trips exactly.
                 file.write("".join([",".join(map(repr, row)) + "\n" for row in rows.tolist()]))
     except OSError as exc:
         raise RecordingError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
-    log.info("exported %d samples of %s to %s", len(rec), rec.directory, target)
+    log.info("exported %d samples of %s to %s", count, rec.directory, target)
     return target
 
 

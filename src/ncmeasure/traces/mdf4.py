@@ -32,7 +32,7 @@ from ncmeasure.recording.format import (
     channel_from_name,
     event_line,
 )
-from ncmeasure.recording.reader import Recording, as_recording
+from ncmeasure.recording.reader import Recording, RecordingHead, rows_of
 from ncmeasure.recording.sink import ImportSink, check_times
 from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent
 
@@ -49,14 +49,17 @@ def _import_asammdf() -> ModuleType:
     return asammdf
 
 
-def export_mdf4(recording: Recording | PathArg, path: PathArg) -> Path:
+def export_mdf4(recording: Recording | RecordingHead | PathArg, path: PathArg) -> Path:
     """Write a recording as an ASAM MDF4 file (one channel group, one time base).
 
     Channel names and units are kept; ``meta.json`` and ``events.jsonl`` are
-    embedded as attachments, so :func:`import_mdf4` restores them.
+    embedded as attachments, so :func:`import_mdf4` restores them. A recording
+    given by its directory (or head) is read and appended chunk by chunk
+    (asammdf keeps the samples in a temporary file until it saves).
 
     Args:
-        recording: A recording, or the directory of one.
+        recording: A recording, its head, or its directory. A head's ``rows``
+            and ``problems`` are filled in by the export.
         path: The ``.mf4`` file to write (replaced if it exists).
 
     Returns:
@@ -67,30 +70,45 @@ def export_mdf4(recording: Recording | PathArg, path: PathArg) -> Path:
         RecordingError: The recording cannot be read or the file cannot be written.
     """
     asammdf = _import_asammdf()
-    rec = as_recording(recording)
+    rec, chunks = rows_of(recording, IMPORT_CHUNK_ROWS)
     target = Path(path)
-    events = b"".join(event_line(event) for event in rec.events)
     meta = json.dumps(rec.meta.model_dump(mode="json"), indent=2, default=str).encode("utf-8")
+    count = 0
     try:
         mdf = asammdf.MDF(version="4.10")
         try:
             mdf.header.start_time = dt.datetime.fromisoformat(rec.meta.start_utc)
-            signals = [
-                asammdf.Signal(
-                    samples=np.ascontiguousarray(rec.values[:, index]),
-                    timestamps=rec.time_s,
-                    name=channel.name,
-                    unit=channel.unit,
-                    comment=f"axis {channel.axis}, {channel.signal}",
+
+            def first_group(time_s: np.ndarray, values: np.ndarray) -> None:
+                mdf.append(
+                    [
+                        asammdf.Signal(
+                            samples=np.ascontiguousarray(values[:, index]),
+                            timestamps=time_s,
+                            name=channel.name,
+                            unit=channel.unit,
+                            comment=f"axis {channel.axis}, {channel.signal}",
+                        )
+                        for index, channel in enumerate(rec.channels)
+                    ],
+                    acq_name=rec.meta.source or "ncmeasure",
+                    comment=f"ncmeasure recording of {rec.meta.machine or 'a machine'}",
+                    common_timebase=True,
                 )
-                for index, channel in enumerate(rec.channels)
-            ]
-            mdf.append(
-                signals,
-                acq_name=rec.meta.source or "ncmeasure",
-                comment=f"ncmeasure recording of {rec.meta.machine or 'a machine'}",
-                common_timebase=True,
-            )
+
+            for chunk in chunks:
+                if count == 0:
+                    first_group(chunk.time_s, chunk.values)
+                else:
+                    columns = chunk.values.T
+                    mdf.extend(
+                        0,
+                        [(chunk.time_s, None), *((np.ascontiguousarray(c), None) for c in columns)],
+                    )
+                count += len(chunk.time_s)
+            if count == 0:
+                first_group(np.empty(0), np.empty((0, len(rec.channels))))
+            events = b"".join(event_line(event) for event in rec.events)
             mdf.attach(meta, file_name=META_FILE, comment="ncmeasure recording metadata",
                        mime="application/json")  # fmt: skip
             mdf.attach(events, file_name=EVENTS_FILE, comment="ncmeasure link events",
@@ -101,11 +119,13 @@ def export_mdf4(recording: Recording | PathArg, path: PathArg) -> Path:
                 mdf.save(temporary, overwrite=True)
         finally:
             mdf.close()
+    except RecordingError:
+        raise
     except OSError as exc:
         raise RecordingError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
     except Exception as exc:  # asammdf's own errors
         raise RecordingError(f"{target}: cannot be written as MDF4 ({exc})") from exc
-    log.info("exported %d samples of %s to %s", len(rec), rec.directory, target)
+    log.info("exported %d samples of %s to %s", count, rec.directory, target)
     return target
 
 
