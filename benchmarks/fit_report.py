@@ -16,10 +16,13 @@ a real recording and read back. Two rows, each timed in interleaved rounds
 * **report**: what ``ncmeasure analyze RUN --schedule S --report R`` does,
   against the same command without ``--report``: the recording read chunk by
   chunk and analysed, results.json written (A), and the same plus
-  :func:`~ncmeasure.report.write_report` with the windows the analysis used
-  (B), as the command hands them over. Goal: B/A ≤ 1.3. Wall and CPU time of
-  the process are printed: on a shared machine CPU time is the steadier
-  figure (nothing here runs in parallel).
+  :func:`~ncmeasure.report.write_report` (B), as the command does it: the
+  raw-data figures' data gathered on the analysis' readings of the recording
+  (:class:`~ncmeasure.report.traces.RawTraces`, the last axis' on one more
+  reading of its span), then handed to the report with the windows the
+  analysis used. Goal: B/A ≤ 1.3. Wall and CPU time of the process are
+  printed: on a shared machine CPU time is the steadier figure (nothing here
+  runs in parallel).
 
 ``--short`` runs tiny data (3 positions, 8 steps, 250 Hz) once: it checks that
 everything runs (``.ci/run``) and prints figures that mean nothing.
@@ -45,6 +48,7 @@ from ncmeasure.analysis.results import Results
 from ncmeasure.plan import Schedule
 from ncmeasure.recording import RecordingHead
 from ncmeasure.report import write_report
+from ncmeasure.report.traces import RawTraces
 from ncmeasure.sim.synthetic import synthetic_recording
 
 FIT_GOAL_S = 1.0
@@ -86,12 +90,16 @@ def analysis(run: Path, schedule: Schedule, out: Path) -> Results:
 
 
 def analysis_and_report(run: Path, schedule: Schedule, out: Path) -> Results:
-    """The same, then the HTML report as ``--report`` writes it, with the analysis' windows."""
+    """The same, then the HTML report as ``--report`` writes it: the analysis' windows and the
+    raw-data figures' data gathered on the analysis' readings handed over."""
     recording = RecordingHead.open(run)
     windows: dict[str, list[tuple[float, float]]] = {}
-    results = analyze(recording, schedule=schedule, window_times=windows)
+    traces = RawTraces(recording)
+    results = analyze(recording, schedule=schedule, window_times=windows, on_windows=traces.watch)
     write_results(results, out / "results.json")
-    write_report(results, out / "report.html", recording=recording, windows=windows)
+    write_report(
+        results, out / "report.html", recording=recording, windows=windows, traces=traces.found
+    )
     return results
 
 

@@ -902,6 +902,42 @@ def test_chunks_hold_the_rows_of_the_whole_read_also_before_a_damaged_frame(
     assert problems == [p for p in damaged.problems if "checksum" in p]
 
 
+@pytest.mark.parametrize("rows", [64, 250, 10_000])
+def test_chunks_from_a_row_on_begin_with_its_frame_and_read_none_before(
+    tmp_path: Path, rows: int
+) -> None:
+    """first_row: the frames before the one holding it are neither read nor checked; the
+    rows from that frame on are the whole read's, at their place in the recording."""
+    channels = channels_for(("X", "Y"), ("current_a", "velocity_mm_min"))
+    directory = tmp_path / "run"
+    with RecordingWriter.create(directory, channels, nominal_period_s=0.001) as writer:
+        for first in range(0, 2000, 300):  # frames of 300 rows (the last of 200)
+            time_s = np.arange(first, first + 300) * 0.001
+            values = np.random.default_rng(first).normal(size=(300, len(channels)))
+            writer.append(SampleBlock(time_s, values))
+            writer.flush()
+    whole = Recording.open(directory)
+    wanted = ("Y_velocity_mm_min", "X_current_a")
+    samples = directory / SAMPLES_FILE
+    data = bytearray(samples.read_bytes())
+    data[frame_offsets(samples, 1 + len(channels))[1] + FRAME_HEADER.size] ^= 0xFF  # frame 1
+    samples.write_bytes(bytes(data))
+    for first_row, frame_start in [(0, None), (599, None), (600, 600), (1000, 900), (1999, 1800)]:
+        problems: list[str] = []
+        chunks = list(iter_chunks(directory, rows, wanted, problems, first_row=first_row))
+        if frame_start is None:  # frame 1 is read: its damage ends the rows there
+            assert problems and problems[0].startswith("frame 1 fails its checksum")
+            continue
+        assert not problems
+        assert chunks[0].first == frame_start
+        assert [c.first for c in chunks] == list(range(frame_start, len(whole), rows))
+        assert np.array_equal(
+            np.concatenate([c.time_s for c in chunks]), whole.time_s[frame_start:]
+        )
+        expected = np.column_stack([whole.column(name) for name in wanted])[frame_start:]
+        assert np.array_equal(np.concatenate([c.values for c in chunks]), expected)
+
+
 def test_frames_larger_than_a_chunk_are_checked_once_for_many_reads(tmp_path: Path) -> None:
     """A frame larger than a chunk is read in chunks, never whole; a damaged one gives no
     row at all, wherever its damage; the frames checked once are not checked again."""

@@ -1293,6 +1293,12 @@ def analyze_command(
     recording = RecordingHead.open(run)
     plan_schedule = load_schedule(schedule) if schedule else None
     config = load_machine(machine) if machine else None
+    traces = None
+    if report is not None:
+        # The raw-data figures' data is gathered on the analysis' own readings.
+        from ncmeasure.report.traces import RawTraces
+
+        traces = RawTraces(recording)
     bar, update = _progress_bar(quiet)
     if bar is not None:
         bar.start()
@@ -1306,6 +1312,7 @@ def analyze_command(
             axes=only or None,
             progress=update,
             window_times=windows,
+            on_windows=traces.watch if traces is not None else None,
         )
     finally:
         if bar is not None:
@@ -1314,7 +1321,13 @@ def analyze_command(
     if report is not None:
         from ncmeasure.report import write_report
 
-        write_report(results, report, recording=recording, windows=windows)
+        write_report(
+            results,
+            report,
+            recording=recording,
+            windows=windows,
+            traces=traces.found if traces is not None else None,
+        )
     if info is not None:
         with _open_store(store, write=True) as fleet:
             added = fleet.add(results, info)

@@ -11,12 +11,15 @@ from __future__ import annotations
 
 import base64
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 import pytest
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 from pydantic import BaseModel
 
 from ncmeasure.analysis.analyze import analyze
@@ -394,6 +397,81 @@ def test_plots_without_optional_parts(example: Example) -> None:
     assert figure.axes
     with pytest.raises(ValueError, match="no friction along the travel"):
         plot_travel("X", x.model_copy(update={"position_dependency": None}), bearing_layout("X"))
+
+
+def test_figures_on_shared_renderers_are_those_drawn_alone(example: Example) -> None:
+    """Inside shared_renderers the figures of one size draw on one renderer (text measured
+    once), one after the other, to the same pixels as each on its own."""
+    from ncmeasure.report.plots import figure_png, plot_comparison, shared_renderers
+
+    def figures() -> list[Figure]:
+        made: list[Figure] = []
+        for name, axis in example.results.axes.items():
+            made += [plot_stribeck(name, axis), plot_travel(name, axis, bearing_layout(name))]
+        return [*made, plot_comparison(example.comparison)]
+
+    alone = [figure_png(f) for f in figures()]
+    with shared_renderers():
+        drawn = figures()
+        renderers = {f.canvas.get_renderer() for f in drawn}  # type: ignore[attr-defined]
+        shared = [figure_png(f) for f in drawn]
+    assert shared == alone
+    assert len(renderers) == len({f.get_size_inches().tobytes() for f in drawn}) < len(drawn)
+    apart = figures()[:2]
+    assert apart[0].canvas.get_renderer() is not apart[1].canvas.get_renderer()  # type: ignore[attr-defined]
+
+
+def test_the_png_holds_the_pixels_savefig_draws(example: Example) -> None:
+    """Taken from the canvas (a figure of the report) or through savefig (any other canvas):
+    the pixels matplotlib draws, without the alpha channel."""
+    import io
+
+    from matplotlib.backend_bases import FigureCanvasBase
+    from PIL import Image
+
+    from ncmeasure.report.plots import DPI, figure_png
+
+    def pixels(png: bytes) -> np.ndarray:
+        return np.asarray(Image.open(io.BytesIO(png)))
+
+    axis = example.results.axes["X"]
+    raw = io.BytesIO()
+    reference = plot_stribeck("X", axis)
+    reference.savefig(raw, format="rgba", dpi=DPI, facecolor="white")
+    width, height = reference.canvas.get_width_height(physical=True)
+    drawn = np.frombuffer(raw.getvalue(), np.uint8).reshape(height, width, 4)[:, :, :3]
+    assert np.array_equal(pixels(figure_png(plot_stribeck("X", axis))), drawn)
+    other = plot_stribeck("X", axis)
+    FigureCanvasBase(other)  # not an Agg canvas: drawn through savefig
+    assert np.array_equal(pixels(figure_png(other)), drawn)
+
+
+def test_error_bars_are_drawn_as_errorbar_draws_them() -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from ncmeasure.report.plots import _error_bars, figure_png
+
+    x = np.array([10.0, 30.0, 100.0, 300.0, 1000.0])
+    y = np.array([2.0, 1.6, 1.5, 1.7, 2.4])
+    error = np.array([0.2, 0.0, 0.1, 0.35, 0.15])
+
+    def drawn(bars: Callable[[Axes, str], None]) -> bytes:
+        figure = Figure(figsize=(4, 3), dpi=110)
+        FigureCanvasAgg(figure)
+        ax = figure.add_subplot()
+        ax.set_xscale("log")
+        for colour in PALETTE[:2]:  # the second set overlaps the first: the order counts
+            bars(ax, colour)
+        return figure_png(figure)
+
+    def errorbar(ax: Axes, colour: str) -> None:
+        ax.errorbar(x, y + (colour == PALETTE[1]) * 0.05, yerr=error, fmt="o", markersize=4.5,
+                    color=colour, ecolor=colour, elinewidth=1.0, capsize=2.5, zorder=3)  # fmt: skip
+
+    def ours(ax: Axes, colour: str) -> None:
+        _error_bars(ax, x, y + (colour == PALETTE[1]) * 0.05, error, colour)
+
+    assert drawn(ours) == drawn(errorbar)
 
 
 def test_fit_lines_follow_the_points(example: Example) -> None:

@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+import ncmeasure.report.traces as traces_module
 from ncmeasure.analysis.analyze import analyze
 from ncmeasure.recording import RecordingHead
 from ncmeasure.report import write_report
 from ncmeasure.report.plots import OVERVIEW_BINS, RawTrace, plot_trace, raw_trace
-from ncmeasure.report.traces import read_raw_traces
+from ncmeasure.report.traces import RawTraces, read_raw_traces
 from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
 
 AXES = [
@@ -69,3 +71,55 @@ def test_the_report_of_a_recording_read_chunk_by_chunk(tmp_path: Path) -> None:
     assert "found again" not in text and "not given" not in text
     unshaded = write_report(results, tmp_path / "u.html", recording=head).read_text()
     assert unshaded.count("the analysis&#39; windows were not given") == 2
+
+
+def _same(a: RawTrace, b: RawTrace) -> bool:
+    return all(
+        np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y
+        for x, y in ((getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(RawTrace))
+    )
+
+
+@pytest.mark.parametrize("rows", [777, 1 << 16])
+@pytest.mark.parametrize("whole", [False, True], ids=["chunks", "in-memory"])
+def test_traces_gathered_by_the_analysis_are_those_read_on_their_own(
+    tmp_path: Path, rows: int, whole: bool
+) -> None:
+    """On the analysis' readings (the last axis' on one more, of its span) or from a recording
+    in memory: the same traces, to the bit, as reading them after the analysis."""
+    recording, schedule = synthetic_recording(tmp_path / "rec", AXES)
+    head = RecordingHead.open(recording.directory)
+    gathered = RawTraces(head, stretch_s=20.0)
+    windows: dict[str, list[tuple[float, float]]] = {}
+    analyze(recording if whole else head, schedule=schedule, window_times=windows, rows=rows,
+            on_windows=gathered.watch)  # fmt: skip
+    read = read_raw_traces(head, ["X", "Z"], windows, stretch_s=20.0, rows=rows)
+    assert list(gathered.found) == ["X", "Z"]
+    for axis in ("X", "Z"):
+        alone = read[axis]
+        assert isinstance(alone, RawTrace)
+        assert _same(gathered.found[axis], alone), axis
+        assert len(alone.time_s) and len(alone.overview_time_s)
+
+
+def test_a_report_with_gathered_traces_reads_no_rows_and_draws_the_same(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    recording, schedule = synthetic_recording(tmp_path / "rec", AXES)
+    head = RecordingHead.open(recording.directory)
+    gathered = RawTraces(head)
+    windows: dict[str, list[tuple[float, float]]] = {}
+    results = analyze(head, schedule=schedule, window_times=windows, on_windows=gathered.watch)
+    read = write_report(results, tmp_path / "read.html", recording=head, windows=windows)
+
+    def unread(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the recording was read again")
+
+    monkeypatch.setattr(traces_module, "iter_chunks", unread)
+    given = write_report(results, tmp_path / "given.html", recording=head, windows=windows,
+                         traces=gathered.found)  # fmt: skip
+    for name in ("01_X_raw.png", "02_Z_raw.png"):
+        assert (tmp_path / "given_plots" / name).read_bytes() == (
+            tmp_path / "read_plots" / name
+        ).read_bytes()
+    assert given.read_text().replace("given_plots", "read_plots") == read.read_text()

@@ -25,10 +25,11 @@ then the schedule, supply what it lacks. :func:`write_results` and
 from __future__ import annotations
 
 import datetime as dt
+import functools
 import logging
 import math
 import os
-from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
+from collections.abc import Callable, Generator, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -58,6 +59,7 @@ from ncmeasure.analysis.segment import Segmentation, SegmentSettings, find_windo
 from ncmeasure.analysis.streaming import run_tasks
 from ncmeasure.analysis.sweep import SlicedFinder
 from ncmeasure.analysis.verdict import axis_verdict
+from ncmeasure.analysis.watch import AxisWindows, OnWindows, Reader, Watchers
 from ncmeasure.config import MachineConfig, format_validation_error
 from ncmeasure.errors import ConfigError, OutputError, RecordingError
 from ncmeasure.files import replace_text
@@ -710,25 +712,52 @@ class _Streamed:
         column = {name: k for k, name in enumerate(channels)}
         problems: list[list[str]] = [[]]
         verified: set[int] = set()  # large frames checked once for all passes
+        # Tasks of on_windows ride along the readings after their axis' windows are found.
+        self.watchers = Watchers(column)
 
         # Progress while reading: the pass and the share of its rows read so far.
         samples_bytes = (head.directory / SAMPLES_FILE).stat().st_size
         expected = max(1, samples_bytes // (8 * (1 + len(head.channels))))
         passes = [0]
 
+        chunk_times: dict[int, float] = {}  # first row -> its time, of every chunk read
+
         def seen(chunk: RowChunk) -> None:
             if chunk.first == 0:
                 passes[0] += 1
+            if len(chunk.time_s):
+                chunk_times[chunk.first] = float(chunk.time_s[0])
             done = (chunk.first + len(chunk.time_s)) / expected
             progress(f"reading the recording, pass {passes[0]}", min(1.0, done))
 
         def read() -> Iterator[RowChunk]:
             problems[0] = []
-            for chunk in iter_chunks(
-                head.directory, rows, channels, problems=problems[0], verified=verified
+            for chunk in self.watchers.reading(
+                iter_chunks(head.directory, rows, channels, problems=problems[0], verified=verified)
             ):
                 seen(chunk)
                 yield chunk
+
+        def read_channels(
+            wanted: tuple[str, ...], between_s: tuple[float, float] | None
+        ) -> Iterator[RowChunk]:
+            # With a stretch of time: from the last chunk that began before it (its
+            # first row as the passes noted it; the frames before are not read) up
+            # to the one that holds its end. Times increase strictly.
+            first_row = 0
+            if between_s is not None:
+                begun = [row for row, t in chunk_times.items() if t < between_s[0]]
+                first_row = max(begun, default=0)
+            for chunk in iter_chunks(
+                head.directory, rows, wanted, verified=verified, first_row=first_row
+            ):
+                if between_s is not None and len(chunk.time_s) and chunk.time_s[0] > between_s[1]:
+                    return
+                done = (chunk.first + len(chunk.time_s)) / expected
+                progress("reading the recording once more", min(1.0, done))
+                yield chunk
+
+        self.read_channels = read_channels
 
         self.statistics = (
             axes_statistics(
@@ -869,6 +898,7 @@ def analyze(
     progress: Progress | None = None,
     rows: int = CHUNK_ROWS,
     window_times: dict[str, list[tuple[float, float]]] | None = None,
+    on_windows: OnWindows | None = None,
 ) -> Results:
     """Analyse every axis of a recording: friction per position, direction and velocity.
 
@@ -898,6 +928,12 @@ def analyze(
         window_times: Receives, per analysed axis, the (first, last) sample time
             of every window the friction values come from (for the report's
             raw data, :func:`~ncmeasure.report.write_report`'s ``windows``).
+        on_windows: Called with every analysed axis' windows; the task it
+            returns is fed the recording's rows on the readings that follow
+            (:mod:`~ncmeasure.analysis.watch`; the report's
+            :class:`~ncmeasure.report.traces.RawTraces`). Where no reading
+            follows, the recording is read once more, only the channels the
+            tasks need; a recording in memory is handed over whole.
 
     Returns:
         The results, ready for :func:`write_results`.
@@ -940,11 +976,21 @@ def analyze(
             if name not in planned:
                 common.append(f"axis {name} is not in the schedule")
     analyse: Callable[[str, Progress, float], tuple[AxisResult, list[tuple[float, float]]]]
+    read_channels: Reader
     if isinstance(head, Recording):
         whole = head
         gaps, gap_samples, gap_events = recording_gaps(whole)
         samples = len(whole)
-        duration = float(whole.time_s[-1] - whole.time_s[0]) if samples else 0.0
+        start_s = float(whole.time_s[0]) if samples else math.nan
+        end_s = float(whole.time_s[-1]) if samples else math.nan
+        duration = end_s - start_s if samples else 0.0
+        watchers = Watchers({})
+
+        def read_channels(
+            wanted: tuple[str, ...], between_s: tuple[float, float] | None
+        ) -> Iterable[RowChunk]:
+            index = [whole.channel_names.index(name) for name in wanted]
+            return [RowChunk(0, whole.time_s, whole.values[:, index])]
 
         def analyse(
             name: str, axis_progress: Progress, gap_share: float
@@ -963,8 +1009,10 @@ def analyze(
         streamed = _Streamed(head, chosen, schedule, machine, settings, rows, report)
         gaps, gap_samples, gap_events = streamed.gaps
         samples = streamed.rows
-        duration = streamed.end_s - streamed.start_s if samples else 0.0
+        start_s, end_s = streamed.start_s, streamed.end_s
+        duration = end_s - start_s if samples else 0.0
         analyse = streamed.axis
+        watchers, read_channels = streamed.watchers, streamed.read_channels
     total = samples + gap_samples
     gap_share = gap_samples / total if total else 0.0
     if gaps:
@@ -1005,8 +1053,12 @@ def analyze(
         results[name] = result
         if window_times is not None:
             window_times[name] = times
+        if on_windows is not None:
+            found = AxisWindows(name, tuple(times), samples, start_s, end_s)
+            watchers.add(functools.partial(on_windows, found))
     if not results:
         raise RecordingError(f"{head.directory}: no axis could be analysed", details)
+    watchers.finish(read_channels)
     report("done", 1.0)
     meta = head.meta
     return Results(

@@ -163,6 +163,7 @@ def iter_chunks(
     channels: tuple[str, ...] | None = None,
     problems: list[str] | None = None,
     verified: set[int] | None = None,
+    first_row: int = 0,
 ) -> Iterator[RowChunk]:
     """The rows of ``samples.bin`` chunk by chunk, never the whole file in memory.
 
@@ -182,6 +183,11 @@ def iter_chunks(
         verified: Byte offsets of large frames whose checksum was checked; a
             caller reading the same file several times passes the same set, so
             each large frame is checked once (and read once more) in all.
+        first_row: Begin with the frame that holds this row: the frames
+            before it are neither read nor checked (a caller that read the
+            file before and wants only its later rows). The chunks keep their
+            place in the whole recording (:attr:`RowChunk.first`) and begin at
+            that frame's first row.
 
     Raises:
         RecordingError: Not a recording, or a channel it does not have.
@@ -211,6 +217,9 @@ def iter_chunks(
         held = 0  # rows in pending
         first = 0
         for number, frame in enumerate(frames):
+            if first + frame.rows <= first_row and not held:
+                first += frame.rows  # wholly before the rows wanted: not read
+                continue
             rest = size - frame.offset
             where = f"after frame {number - 1}" if number else "at the start of samples.bin"
             start = frame.offset + FRAME_HEADER.size

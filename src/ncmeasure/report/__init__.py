@@ -7,8 +7,11 @@
 
 writes ``report.html`` (plots embedded, inline CSS, no scripts or external
 resources; prints on A4) and the same plots as PNGs in ``report_plots/``.
-The ``plot_*`` functions return matplotlib figures on their own Agg canvas,
-for use elsewhere; :func:`save_png` writes one.
+For a recording read chunk by chunk, :class:`RawTraces` gathers the raw-data
+figures' data while the analysis reads it (``analyze(..., on_windows=
+traces.watch)``, then ``write_report(..., traces=traces.found)``), instead of
+the report reading it again. The ``plot_*`` functions return matplotlib
+figures on their own Agg canvas, for use elsewhere; :func:`save_png` writes one.
 """
 
 from __future__ import annotations
@@ -23,12 +26,14 @@ from ncmeasure.report.plots import (
     plot_travel,
     save_png,
 )
+from ncmeasure.report.traces import RawTraces
 from ncmeasure.report.windows import find_window_times, window_times
 from ncmeasure.report.write import ReportProgress, write_report
 
 __all__ = [
     "PALETTE",
     "BearingLayout",
+    "RawTraces",
     "ReportProgress",
     "bearing_layout",
     "figure_png",

@@ -7,10 +7,12 @@ beside it, in ``<stem>_plots/``, for use in other documents.
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 import re
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +34,7 @@ from ncmeasure.report.plots import (
     plot_travel,
     raw_trace,
     save_png,
+    shared_renderers,
 )
 from ncmeasure.report.windows import find_window_times
 
@@ -79,6 +82,7 @@ def write_report(
     comparison: BaseModel | None = None,
     title: str | None = None,
     on_progress: Callable[[ReportProgress], None] | None = None,
+    traces: Mapping[str, RawTrace] | None = None,
 ) -> Path:
     """Write the friction report as one self-contained HTML file, PNGs beside it.
 
@@ -108,6 +112,10 @@ def write_report(
             fields in a table).
         title: The page title; default ``Friction report: <machine>``.
         on_progress: Called with a :class:`ReportProgress` after every step.
+        traces: Per axis, the raw-data figure's data, gathered while the
+            analysis read the recording with these ``windows``
+            (:class:`~ncmeasure.report.traces.RawTraces`); the raw data of an
+            axis missing here is read from ``recording``.
 
     Returns:
         The path of the HTML file.
@@ -115,7 +123,43 @@ def write_report(
     Raises:
         OutputError: The HTML file or a PNG cannot be written.
     """
-    target = Path(path)
+    with _heap_frozen(), shared_renderers():
+        return _write_report(
+            results, Path(path), recording, windows, comparison, title, on_progress, traces
+        )
+
+
+@contextmanager
+def _heap_frozen() -> Iterator[None]:
+    """Keep the objects alive before the report out of the garbage collector's full passes.
+
+    Drawing makes hundreds of thousands of short-lived objects, and every so
+    often the collector walks every object of the program: after an analysis,
+    0.1 s and more each time, one to three times a report. Frozen
+    (:func:`gc.freeze`), the objects that were there before are not walked;
+    the figures' own garbage is collected as before. Where the program froze
+    objects itself, nothing is changed.
+    """
+    if gc.get_freeze_count():
+        yield
+        return
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+
+
+def _write_report(
+    results: Results,
+    target: Path,
+    recording: Recording | RecordingHead | None,
+    windows: Windows | None,
+    comparison: BaseModel | None,
+    title: str | None,
+    on_progress: Callable[[ReportProgress], None] | None,
+    traces: Mapping[str, RawTrace] | None,
+) -> Path:
     plots_dir = target.with_name(f"{target.stem}_plots")
     try:
         plots_dir.mkdir(parents=True, exist_ok=True)
@@ -135,11 +179,12 @@ def write_report(
         png = save_png(figure, plots_dir / filename)
         return Figure(png=png, filename=f"{plots_dir.name}/{filename}", alt=alt, caption=caption)
 
-    traces: dict[str, RawTrace | RecordingError] = {}
-    if isinstance(recording, RecordingHead):
+    raw: dict[str, RawTrace | RecordingError] = dict(traces or {})
+    missing = [name for name in results.axes if name not in raw]
+    if isinstance(recording, RecordingHead) and missing:
         from ncmeasure.report.traces import read_raw_traces
 
-        traces = read_raw_traces(recording, list(results.axes), windows or {})
+        raw.update(read_raw_traces(recording, missing, windows or {}))
     sections: list[AxisSection] = []
     for index, (name, result) in enumerate(results.axes.items(), start=1):
         stem = f"{index:02d}_{_safe_name(name)}"
@@ -172,7 +217,7 @@ def write_report(
                 "a rise towards the bearing that bends the screw.",
             )
         advance(f"axis {name}: friction along the travel")
-        _raw_section(section, recording, windows, traces, results.settings, keep, stem)
+        _raw_section(section, recording, windows, raw, results.settings, keep, stem)
         advance(f"axis {name}: raw data")
         sections.append(section)
 
@@ -220,9 +265,9 @@ def _raw_section(
     if recording is None:
         section.raw_note = "No recording was given, so no raw data is shown."
         return
-    if isinstance(recording, RecordingHead):
-        # Read chunk by chunk: the analysis' windows, or none (finding them again
-        # would read the whole recording once more).
+    if isinstance(recording, RecordingHead) or name in traces:
+        # Gathered while the analysis read the recording, or read chunk by chunk: the
+        # analysis' windows, or none (finding them again would read it once more).
         trace = traces[name]
         if windows is None or name not in windows:
             section.raw_note = "No windows are shaded: the analysis' windows were not given."
