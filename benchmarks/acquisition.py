@@ -39,7 +39,7 @@ def main() -> None:
         if args.short
         else ["--seconds", str(args.seconds), "--rounds", str(args.rounds)]
     )
-    print("== CANopen CiA 402, SYNC 1 kHz, the drives in a process of their own ==")
+    print("== CANopen CiA 402 over the virtual bus, SYNC 1 kHz ==")
     sys.argv = [program, *common]
     acquisition_canopen.main()
     print()

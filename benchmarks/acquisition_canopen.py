@@ -2,12 +2,8 @@
 
 Three simulated CiA 402 drives answer SYNC at 1 kHz with 3 TPDOs each
 (position + statusword, velocity + current, velocity demand: 9 PDOs per
-cycle). They run in a process of their own, as real drives answer from
-their own hardware, and the frames cross over UDP on 127.0.0.1
-(``udp_can.py``; ``--drives thread``: in a thread of this process, on
-python-can's virtual bus, where they compete with the link for the
-interpreter). Rounds alternate (A B A B …, the order swapped every round),
-each with fresh drives:
+cycle) on python-can's virtual bus. Rounds alternate (A B A B …, the order
+swapped every round), each on a fresh bus with fresh drives:
 
 - **link**: ``CanOpenLink`` produces SYNC, receives the PDOs, assembles the
   rows by SYNC cycle, decodes and scales them to A, mm/min, mm; the main
@@ -24,13 +20,13 @@ for the bare round the link is closed again and the drives started by NMT.
 
 CPU is taken per thread (``pthread_getcpuclockid``): the link's threads
 (receive, SYNC, worker) plus the reading main thread, against the bare
-receive, SYNC and main threads. The simulated drives count on neither
-side. Printed per round and as median [min–max]: CPU % of one core, µs per
-PDO, rows, rows lost, SYNC cycles skipped; the ratio link / bare of each
-round, and the goal.
+receive, SYNC and main threads. The simulated drives run in their own
+thread, excluded from both. Printed per round and as median [min–max]: CPU %
+of one core, µs per PDO, rows, rows lost, SYNC cycles skipped; the ratio
+link / bare of each round, and the goal.
 
-Neither bus has a bitrate, so the bus-load check is relaxed here (9 PDOs at
-1 kHz would need about 103 % of a real 1 Mbit/s bus, worst case).
+The virtual bus has no bitrate, so the bus-load check is relaxed here (9
+PDOs at 1 kHz would need about 103 % of a real 1 Mbit/s bus, worst case).
 
 Run: python benchmarks/acquisition_canopen.py [--seconds 5] [--rounds 5] [--short]
 ``--short`` (CI): one round of 1 s each; fails only on a crash, never on a figure.
@@ -45,13 +41,12 @@ import struct
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import can
 import numpy as np
-import udp_can
 
 from ncmeasure.config import AxisConfig
 from ncmeasure.links.canopen.link import CanOpenLink
@@ -71,9 +66,6 @@ _STRUCT_CODES = {
     "uint16": "H",
     "uint32": "I",
 }
-
-
-udp_can.register()
 
 
 def _thread_cpu_s(threads: list[threading.Thread]) -> dict[str, float]:
@@ -96,7 +88,7 @@ def _new_threads(before: set[threading.Thread]) -> list[threading.Thread]:
     return [t for t in threading.enumerate() if t not in before]
 
 
-def _link(channel: str, sync_hz: float, interface: str) -> CanOpenLink:
+def _link(channel: str, sync_hz: float) -> CanOpenLink:
     axes = [
         (
             AxisConfig(
@@ -114,8 +106,7 @@ def _link(channel: str, sync_hz: float, interface: str) -> CanOpenLink:
         for i, name in enumerate(AXES)
     ]
     return CanOpenLink.from_tables(
-        {"interface": interface, "channel": channel, "sync_hz": sync_hz, "max_bus_load": 2.0},
-        axes,
+        {"channel": channel, "sync_hz": sync_hz, "max_bus_load": 2.0}, axes
     )
 
 
@@ -149,24 +140,13 @@ def _window(seconds: float, step: Callable[[], None]) -> float:
     return time.perf_counter() - start
 
 
-@contextlib.contextmanager
-def _drives(where: str) -> Iterator[tuple[str, str]]:
-    """Fresh simulated drives; yields the interface and channel that reach them."""
+def run_link(seconds: float, sync_hz: float) -> Round:
+    """One round of the link: SYNC, PDOs, rows read in blocks by the main thread."""
+    channel = f"bench-canopen-{uuid.uuid4().hex}"
     nodes = {i: i + 1 for i in range(len(AXES))}
     scaling = DriveScaling(increments_per_rev=IPR, screw_lead_mm=LEAD_MM, rated_current_a=RATED_A)
-    if where == "process":
-        with udp_can.drives_in_a_process(nodes, scaling) as channel:
-            yield udp_can.INTERFACE, channel
-    else:
-        channel = f"bench-canopen-{uuid.uuid4().hex}"
-        with SimulatedDrives.start(channel, nodes, PatternSource(), scaling=scaling):
-            yield "virtual", channel
-
-
-def run_link(seconds: float, sync_hz: float, drives: str) -> Round:
-    """One round of the link: SYNC, PDOs, rows read in blocks by the main thread."""
-    with _drives(drives) as (interface, channel):
-        link = _link(channel, sync_hz, interface)
+    link = _link(channel, sync_hz)
+    with SimulatedDrives.start(channel, nodes, PatternSource(), scaling=scaling):
         before = set(threading.enumerate())
         with link:
             threads = [*_new_threads(before), threading.main_thread()]
@@ -253,14 +233,17 @@ def _bare_layout(link: CanOpenLink) -> tuple[dict[int, tuple[int, struct.Struct]
     return layout, scales
 
 
-def run_bare(seconds: float, sync_hz: float, drives: str) -> Round:
+def run_bare(seconds: float, sync_hz: float) -> Round:
     """One round of the baseline: the same SYNC, PDOs, rows and scaled blocks, python-can only."""
-    with _drives(drives) as (interface, channel):
-        link = _link(channel, sync_hz, interface)
+    channel = f"bench-canopen-{uuid.uuid4().hex}"
+    nodes = {i: i + 1 for i in range(len(AXES))}
+    scaling = DriveScaling(increments_per_rev=IPR, screw_lead_mm=LEAD_MM, rated_current_a=RATED_A)
+    with SimulatedDrives.start(channel, nodes, PatternSource(), scaling=scaling):
+        link = _link(channel, sync_hz)
         with link:  # configures the drives' TPDOs over SDO, as in the link's round
             layout, scales = _bare_layout(link)
         period = 1.0 / sync_hz
-        bus = can.Bus(interface=interface, channel=channel, receive_own_messages=True)
+        bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=True)
         receiver = BareReceiver(layout, len(scales))
         stop = threading.Event()
         skipped = 0
@@ -323,12 +306,7 @@ def _spread(values: list[float], fmt: str = "{:.1f}") -> str:
 
 
 def measure(
-    seconds: float,
-    rounds: int,
-    sync_hz: float,
-    show: bool = True,
-    threads: bool = False,
-    drives: str = "process",
+    seconds: float, rounds: int, sync_hz: float, show: bool = True, threads: bool = False
 ) -> dict[str, Any]:
     """Alternate link and bare rounds; return per-side rounds and the per-round ratios."""
     results: dict[str, list[Round]] = {"link": [], "bare": []}
@@ -336,7 +314,7 @@ def measure(
         order = ("link", "bare") if index % 2 == 0 else ("bare", "link")
         for side in order:
             run = run_link if side == "link" else run_bare
-            result = run(seconds, sync_hz, drives)
+            result = run(seconds, sync_hz)
             results[side].append(result)
             if show:
                 print(
@@ -362,25 +340,14 @@ def main() -> None:
     parser.add_argument("--sync-hz", type=float, default=1000.0)
     parser.add_argument("--short", action="store_true", help="one round of 1 s (CI)")
     parser.add_argument("--threads", action="store_true", help="CPU of each thread too")
-    parser.add_argument(
-        "--drives",
-        choices=("process", "thread"),
-        default="process",
-        help="the simulated drives in a process of their own, over UDP on 127.0.0.1, as real "
-        "drives answer from their own hardware (default); or in a thread of this process, on "
-        "python-can's virtual bus",
-    )
     args = parser.parse_args()
     if args.short:
         args.seconds, args.rounds = 1.0, 1
     print(
-        f"CANopen, {len(AXES)} drives × 3 TPDOs, SYNC {args.sync_hz:g} Hz, drives "
-        + ("in their own process, UDP on 127.0.0.1" if args.drives == "process" else "in a thread")
-        + f"; {args.rounds} rounds of {args.seconds:g} s per side, interleaved"
+        f"CANopen, {len(AXES)} drives × 3 TPDOs, SYNC {args.sync_hz:g} Hz, virtual bus; "
+        f"{args.rounds} rounds of {args.seconds:g} s per side, interleaved"
     )
-    result = measure(
-        args.seconds, args.rounds, args.sync_hz, threads=args.threads, drives=args.drives
-    )
+    result = measure(args.seconds, args.rounds, args.sync_hz, threads=args.threads)
     print(f"{'':<6} {'CPU % of a core':>24} {'µs CPU per PDO':>24} {'lost':>6} {'skipped':>8}")
     for side in ("link", "bare"):
         rounds: list[Round] = result[side]
