@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
+from ncmeasure.analysis import friction
 from ncmeasure.analysis.friction import (
     friction_table,
     grouped_median,
@@ -311,3 +312,71 @@ def test_window_table_from_the_window_samples_alone_equals_the_table_from_all_sa
     )
     for name in ("median", "mean", "std", "stderr", "n", "windows", "batches", "step"):
         assert np.array_equal(getattr(whole, name), getattr(alone, name), equal_nan=True)
+
+
+def _same_tables(first: object, second: object) -> None:
+    for name in ("position_index", "direction", "step", "velocity_mm_min", "median", "mean",
+                 "std", "stderr", "n", "windows", "batches"):  # fmt: skip
+        a, b = getattr(first, name), getattr(second, name)
+        assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), name
+
+
+@pytest.mark.parametrize("quantum", [0.0, 0.02])
+@pytest.mark.parametrize("chunk", [1, 700, 5000])
+def test_chunks_of_groups_give_the_same_table_bit_for_bit(
+    monkeypatch: pytest.MonkeyPatch, chunk: int, quantum: float
+) -> None:
+    """The table is built a chunk of groups at a time; missing currents in an early chunk
+    shift the batch edges of later ones (they are rounded from offsets among all finite
+    samples), so every chunk size must give the same numbers, from a contiguous current,
+    a recording's column (gathered by index) and the windows' own currents."""
+    rng = np.random.default_rng(11)
+    current = rng.normal(1.0, 0.3, 40_000)
+    if quantum:
+        current = np.round(current / quantum) * quantum
+    current[rng.random(len(current)) < 0.02] = np.nan
+    current[100:140] = np.inf
+    windows = []
+    start = 0
+    for number in range(160):
+        length = int(rng.choice([0, 1, 2, 3, 7, 24, 25, 26, 71, 350, 357, 2000]))
+        step, position = number % 8, (number // 8) % 2
+        sign: Literal[1, -1] = 1 if (number // 16) % 2 else -1
+        windows.append(_window(start, start + length, step=step, position=position,
+                               direction=sign, v=10.0 * (step + 1)))  # fmt: skip
+        start += length + int(rng.integers(0, 5))
+    whole = friction_table("X", current, windows, current_quantum_a=quantum)
+    parts = [current[w.start : w.stop].copy() for w in windows]
+    column = np.stack([np.zeros_like(current), current], axis=1)[:, 1]  # gathered by index
+    monkeypatch.setattr(friction, "_CHUNK_SAMPLES", chunk)
+    _same_tables(friction_table("X", current, windows, current_quantum_a=quantum), whole)
+    _same_tables(friction_table("X", column, windows, current_quantum_a=quantum), whole)
+    _same_tables(window_table("X", parts, windows, current_quantum_a=quantum), whole)
+
+
+def test_window_medians_where_every_batch_has_the_same_median() -> None:
+    """Batches that agree on their median, with different values around it: the window's
+    median is that value without a look at the values, and equals the plain median."""
+    batch = np.array([0.0, 5.0, 2.0, 9.0, -4.0, 2.0, 3.0, 1.0, 2.0])  # median 2.0
+    current = np.concatenate([batch, batch[::-1] + 0.0, np.roll(batch, 3), batch * 1.0, batch])
+    windows = [_window(0, len(current), step=0, position=0, direction=1, v=100.0)]
+    table = friction_table("X", current, windows)
+    assert table.batches.tolist() == [5]
+    assert table.median.tolist() == [float(np.median(current))] == [2.0]
+
+
+@pytest.mark.parametrize("lengths", [(1,), (2,), (1, 1), (1, 2), (2, 2, 1), (4,), (9, 1)])
+def test_windows_of_one_or_two_samples(lengths: tuple[int, ...]) -> None:
+    """Windows of a sample or two (one batch each) in one group, quantised with ties."""
+    current = np.array([1.0, 1.0, 2.0, 1.0, 3.0, 2.0, 2.0, 1.0, 1.0, 2.0, 2.0, 3.0, 1.0])
+    windows, start = [], 0
+    for length in lengths:
+        windows.append(_window(start, start + length, step=0, position=0, direction=1, v=1.0))
+        start += length
+    values = current[:start]
+    for quantum in (0.0, 1.0):
+        table = friction_table("X", current, windows, current_quantum_a=quantum)
+        assert table.median.tolist() == [grouped_median(values, quantum)]
+        assert table.n.tolist() == [start]
+        assert table.windows.tolist() == [len(lengths)]
+        assert table.batches.tolist() == [len(lengths)]

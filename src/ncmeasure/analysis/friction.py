@@ -37,18 +37,31 @@ Two properties of real drive data shape the statistics:
 With a torque constant the table is in Nm (T = k_T · I), else in A.
 
 This is the hot path of the analysis (an hour at 1 kHz is 3.6 M rows), so it
-is vectorised: the windows are sorted by group, the sample indices of all
-windows are built at once (``np.repeat`` of the window offsets), sums come
-from ``np.bincount``, and medians from one ``np.partition`` per group or
-batch on its contiguous slice. Python loops run over windows, batches and
-groups, never samples.
+is vectorised, and it works through the groups in chunks of about
+:data:`_CHUNK_SAMPLES` samples (its memory does not grow with the recording,
+and a chunk stays in the processor's cache). The windows are sorted by group;
+a chunk's samples are gathered at once (an index built with ``np.repeat`` of
+the window offsets) and its sums come from ``np.add.reduceat``. The batches
+are sorted as the rows of one padded block (numpy sorts short rows with
+vectorised sorting networks), which gives the batch medians. The window and
+group medians are *selected*, not sorted for: the median of a union lies
+between the least and the largest median of its parts (:func:`_within`), so
+each window needs only its values between its batches' medians, each group
+those between its windows' medians, counted and picked in the sorted batch
+rows by a bisection in all rows at once, and those few are sorted. Every
+median is the exact order statistic, so the table is the same, bit for bit,
+as one sorted group by group. Python loops run over chunks (and, for
+segments of very different lengths, over blocks of similar length), never
+windows or samples.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from operator import attrgetter
 from typing import Final, Literal
 
 import numpy as np
@@ -78,13 +91,11 @@ MIN_BATCH_SAMPLES: Final = 5
 
 _MEDIAN_SE_FACTOR: Final = math.sqrt(math.pi / 2)
 
-_SortKind = Literal["quicksort", "stable"]
-_PAD_RATIO: Final = 1.25
-"""Segments sorted in one padded block differ in length by at most this factor."""
-_PAD_LONGEST: Final = 4096
-"""Longer segments are sorted one by one."""
-_PAD_BLOCK: Final = 1 << 20
-"""Largest padded block, in values (8 MiB of float64, plus its index)."""
+_CHUNK_SAMPLES: Final = 1 << 17
+"""Whole groups are worked through in chunks of about this many samples (1 MiB of float64)."""
+_PAD_WASTE: Final = 2
+"""A padded block holds at most this many slots per value (plus :data:`_PAD_SLACK`)."""
+_PAD_SLACK: Final = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -186,6 +197,13 @@ def window_samples(windows: Sequence[VelocityWindow]) -> tuple[IntArray, IntArra
     return index, owner
 
 
+def _sample_index(starts: IntArray, lengths: IntArray) -> IntArray:
+    """The indices ``starts[i] ..< starts[i] + lengths[i]`` of all ``i``, concatenated."""
+    index = np.repeat(starts - (np.cumsum(lengths) - lengths), lengths)
+    index += np.arange(len(index))
+    return index
+
+
 def _batch_bounds(window_bounds: IntArray) -> IntArray:
     """Cut each window ``[b[w], b[w + 1])`` into up to BATCHES_PER_WINDOW equal batches.
 
@@ -206,47 +224,187 @@ def _batch_bounds(window_bounds: IntArray) -> IntArray:
     return np.concatenate((window_bounds[:1], edges)).astype(np.intp)
 
 
-def _sort_segments(buffer: FloatArray, bounds: IntArray, kind: _SortKind) -> None:
-    """Sort every segment ``buffer[bounds[s]:bounds[s + 1]]`` in place.
+def _sorted_rows(values: FloatArray, lengths: IntArray) -> FloatArray | None:
+    """Consecutive segments of ``values`` as the rows of one block, each row sorted.
 
-    ``buffer`` ends in one spare slot holding +inf, after the last segment.
-    Segments of similar length (within :data:`_PAD_RATIO`) are sorted together
-    as the rows of one block: a row shorter than the block reads the spare slot
-    as padding (+inf sorts behind every finite sample) and writes it back there,
-    so a block is one gather, one vectorised sort and one scatter instead of a
-    call per segment. Segments longer than :data:`_PAD_LONGEST` are sorted one
-    by one: they are few, and a call costs little against their length.
+    Row s holds the ``lengths[s]`` values of segment s, then +inf (which sorts
+    behind every finite value) up to the longest segment; numpy sorts a short
+    row with a vectorised network, all rows in one call. None when the block
+    would hold more than :data:`_PAD_WASTE` slots per value (plus
+    :data:`_PAD_SLACK`): segments of very different lengths.
     """
-    spare = len(buffer) - 1
+    width = int(lengths.max()) if len(lengths) else 0
+    if width == 0 or len(lengths) * width > _PAD_WASTE * len(values) + _PAD_SLACK:
+        return None
+    block = np.full((len(lengths), width), np.inf)
+    if width < 1 << 15:  # the mask of the slots is faster to build in int16
+        slots = np.arange(width, dtype=np.int16) < lengths.astype(np.int16)[:, None]
+    else:
+        slots = np.arange(width) < lengths[:, None]
+    block[slots] = values
+    block.sort(axis=1)
+    return block
+
+
+def _count_below(block: FloatArray, threshold: FloatArray) -> IntArray:
+    """Per sorted row r of ``block``: how many of its values are below ``threshold[r]``.
+
+    ``threshold`` may hold several thresholds per row, one after the other
+    (``threshold[i]`` is for row ``i % rows``). A bisection in all rows at
+    once: a step per power of two, each step taken where the value before the
+    new count is still below (a step beyond the row's end goes to its end).
+    """
+    rows, width = block.shape
+    flat = block.ravel()
+    before = np.tile(np.arange(-1, block.size - 1, width), len(threshold) // max(rows, 1))
+    count = np.zeros(len(threshold), dtype=np.intp)
+    step = 1 << width.bit_length()
+    while step > 1:
+        step >>= 1
+        reach = np.minimum(count + step, width)
+        count = np.where(flat[before + reach] < threshold, reach, count)
+    return count
+
+
+def _order_statistics(
+    values: FloatArray, bounds: IntArray, low_rank: IntArray, high_rank: IntArray
+) -> tuple[FloatArray, FloatArray]:
+    """Two order statistics of every segment ``values[bounds[s]:bounds[s + 1]]``.
+
+    ``low_rank[s]`` and ``high_rank[s]`` are 0-based ranks within segment s
+    (the ``low_rank[s]``-th smallest value), each below its length; NaN for an
+    empty segment. The segments are sorted as the rows of padded blocks
+    (:func:`_sorted_rows`): all at once, or, where their lengths differ
+    widely, in blocks of segments up to :data:`_PAD_WASTE` times as long as
+    the shortest of each.
+    """
+    values = values[bounds[0] : bounds[-1]]
     lengths = np.diff(bounds)
-    starts = bounds[:-1]
-    for s in np.flatnonzero(lengths > _PAD_LONGEST).tolist():
-        buffer[starts[s] : starts[s] + lengths[s]].sort(kind=kind)
-    short = np.flatnonzero((lengths > 1) & (lengths <= _PAD_LONGEST))
-    short = short[np.argsort(lengths[short], kind="stable")]
-    sorted_lengths = lengths[short]
+    count = len(lengths)
+    low = np.full(count, np.nan)
+    high = np.full(count, np.nan)
+    block = _sorted_rows(values, lengths)
+    if block is not None:
+        filled = np.flatnonzero(lengths > 0)
+        low[filled] = block[filled, low_rank[filled]]
+        high[filled] = block[filled, high_rank[filled]]
+        return low, high
+    by_length = np.argsort(lengths, kind="stable")
+    by_length = by_length[lengths[by_length] > 0]
+    ordered = lengths[by_length]
     first = 0
-    while first < len(short):
-        shortest = int(sorted_lengths[first])
-        end = int(np.searchsorted(sorted_lengths, math.floor(shortest * _PAD_RATIO), "right"))
-        end = min(end, first + max(1, _PAD_BLOCK // shortest))
-        rows = short[first:end]
-        width = int(sorted_lengths[end - 1])
-        columns = np.arange(width, dtype=np.intp)
-        index = starts[rows][:, None] + columns
-        if width > shortest:
-            index = np.where(columns < lengths[rows][:, None], index, spare)
-        block = buffer.take(index)
-        block.sort(axis=1, kind=kind)
-        buffer.put(index, block)
+    while first < len(by_length):
+        end = int(np.searchsorted(ordered, _PAD_WASTE * ordered[first], "right"))
+        rows = by_length[first:end]
+        row_lengths = lengths[rows]
+        offsets = np.cumsum(row_lengths) - row_lengths
+        index = np.arange(int(row_lengths.sum()), dtype=np.intp)
+        index += np.repeat(bounds[rows] - bounds[0] - offsets, row_lengths)
+        block = _sorted_rows(values[index], row_lengths)
+        assert block is not None  # lengths within a factor _PAD_WASTE
+        at = np.arange(len(rows))
+        low[rows] = block[at, low_rank[rows]]
+        high[rows] = block[at, high_rank[rows]]
         first = end
+    return low, high
 
 
-def _sorted_medians(buffer: FloatArray, bounds: IntArray, quantum: float) -> FloatArray:
-    """:func:`grouped_median` of every segment of ``buffer``, each segment sorted.
+def _within(
+    values: FloatArray,
+    bounds: IntArray,
+    part_low: FloatArray,
+    part_high: FloatArray,
+    parts: IntArray,
+    rows: tuple[FloatArray, IntArray] | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """The lower and upper median of every segment, from the medians of its parts.
 
-    ``bounds`` cut the buffer (but a spare slot) into consecutive segments; NaN for an empty
-    one. The arithmetic is :func:`grouped_median`'s, so the numbers are the same.
+    A segment ``values[bounds[s]:bounds[s + 1]]`` (a window, a group) is the
+    union of ``parts[s]`` parts (its batches, its windows; those of segment
+    s + 1 follow those of s) whose lower medians ``part_low`` and upper medians
+    ``part_high`` are known. The lower median of a union lies between the
+    least and the largest lower median of its parts, the upper median between
+    those of the upper medians: at most Σ⌊(n_j − 1)/2⌋ ≤ ⌊(n − 1)/2⌋ values lie
+    below the least, at least Σ⌈n_j/2⌉ ≥ ⌈n/2⌉ at or below the largest. So
+    both are found among the segment's values within [least lower, largest
+    upper] (the candidates: few where the parts agree) at their ranks less the
+    values below; where the parts agree exactly, or a segment is one part,
+    that value is the answer. Exact whatever the values; NaN for an empty segment.
+
+    ``rows``: the values again as the sorted rows of a block
+    (:func:`_sorted_rows`), and the first row of every segment (and the end):
+    the candidates are then found in each row's run of them, else in ``values``.
+    """
+    lengths = np.diff(bounds)
+    count = len(lengths)
+    least = np.full(count, np.nan)
+    largest = np.full(count, np.nan)
+    with_parts = np.flatnonzero(parts > 0)
+    if not len(with_parts):
+        return least, largest
+    first = (np.cumsum(parts) - parts)[with_parts]
+    least[with_parts] = np.minimum.reduceat(part_low, first)
+    largest[with_parts] = np.maximum.reduceat(part_high, first)
+    least[lengths == 0] = np.nan
+    largest[lengths == 0] = np.nan
+    need = (parts > 1) & (least < largest)
+    chosen = np.flatnonzero(need)
+    if not len(chosen):
+        return least, largest
+    floor = np.where(need, least, np.inf)
+    ceiling = np.where(need, largest, -np.inf)
+    if rows is not None:  # sorted rows: the candidates are a run in each
+        block, row_bounds = rows
+        per_row = np.diff(row_bounds)
+        # Per row, the values below the floor and those up to the ceiling (below the
+        # next float), by a bisection in all rows at once.
+        floor = np.repeat(floor, per_row)
+        ceiling = np.nextafter(np.repeat(ceiling, per_row), np.inf)
+        under, up_to = np.split(_count_below(block, np.concatenate((floor, ceiling))), 2)
+        run = np.maximum(up_to - under, 0)
+        below = np.add.reduceat(under, row_bounds[:-1])
+        counts = np.add.reduceat(run, row_bounds[:-1])
+        starts = np.arange(0, block.size, block.shape[1]) + under
+        picked = block.ravel()[_sample_index(starts, run)]
+    else:
+        has = np.flatnonzero(lengths > 0)
+        values = values[bounds[0] : bounds[-1]]
+        floor = np.repeat(floor, lengths)
+        ceiling = np.repeat(ceiling, lengths)
+        starts = bounds[:-1][has] - bounds[0]
+        below = np.zeros(count, dtype=np.intp)
+        below[has] = np.add.reduceat(values < floor, starts, dtype=np.intp)
+        candidate = values >= floor
+        candidate &= values <= ceiling
+        picked = values[candidate]
+        counts = np.zeros(count, dtype=np.intp)
+        counts[has] = np.add.reduceat(candidate, starts, dtype=np.intp)
+        del candidate
+    del floor, ceiling
+    shift = below[chosen]
+    least[chosen], largest[chosen] = _order_statistics(
+        picked,
+        np.concatenate(([0], np.cumsum(counts[chosen]))),
+        (lengths[chosen] - 1) // 2 - shift,
+        lengths[chosen] // 2 - shift,
+    )
+    return least, largest
+
+
+def _medians(lengths: IntArray, low: FloatArray, high: FloatArray) -> FloatArray:
+    """The median of every segment from its lower and upper median; NaN for an empty one."""
+    with np.errstate(invalid="ignore"):
+        middle = np.where(lengths % 2 == 1, low, (low + high) / 2)
+    return np.where(lengths > 0, middle, np.nan)
+
+
+def _grouped_medians(
+    values: FloatArray, bounds: IntArray, low: FloatArray, quantum: float
+) -> FloatArray:
+    """:func:`grouped_median` of every segment of ``values``, from its lower median ``low``.
+
+    ``bounds`` cut ``values`` into consecutive segments; NaN for an empty one.
+    The arithmetic is :func:`grouped_median`'s, so the numbers are the same.
     """
     lengths = np.diff(bounds)
     result = np.full(len(lengths), np.nan)
@@ -254,17 +412,13 @@ def _sorted_medians(buffer: FloatArray, bounds: IntArray, quantum: float) -> Flo
     if not len(filled):
         return result
     count = lengths[filled]
-    start = bounds[:-1][filled]
-    low = buffer[start + (count - 1) // 2]
-    if quantum <= 0:
-        high = buffer[start + count // 2]
-        result[filled] = np.where(count % 2 == 1, low, (low + high) / 2)
-        return result
+    low = low[filled]
     half = 0.5 * quantum
+    start = bounds[:-1][filled] - bounds[0]
     level = np.repeat(low, count)
-    buffer = buffer[: len(level)]  # without a spare slot after the segments
-    below = np.add.reduceat((buffer < level - half).astype(np.intp), start)
-    at = np.add.reduceat((np.abs(buffer - level) <= half).astype(np.intp), start)
+    values = values[bounds[0] : bounds[-1]]
+    below = np.add.reduceat(values < level - half, start, dtype=np.intp)
+    at = np.add.reduceat(np.abs(values - level) <= half, start, dtype=np.intp)
     with np.errstate(invalid="ignore", divide="ignore"):
         interpolated = low - half + quantum * (0.5 * count - below) / at
     result[filled] = np.where(at == 0, low, interpolated)
@@ -308,12 +462,17 @@ def friction_table(
         The table; rows without a single finite sample are left out.
     """
     current = np.asarray(current_a, dtype=np.float64)
-    return window_table(
-        axis,
-        [current[w.start : w.stop] for w in windows],
-        windows,
-        torque_constant_nm_per_a=torque_constant_nm_per_a,
-        current_quantum_a=current_quantum_a,
+    start = np.fromiter(map(attrgetter("start"), windows), dtype=np.intp, count=len(windows))
+    stop = np.fromiter(map(attrgetter("stop"), windows), dtype=np.intp, count=len(windows))
+    # A column of a wider array (a recording's) is gathered faster by index than slice by
+    # slice; a contiguous one, and windows beyond its ends (slices clip), by slices.
+    if current.strides[0] == current.itemsize or (
+        len(windows) and (start.min() < 0 or stop.max() > len(current))
+    ):
+        parts = [current[w.start : w.stop] for w in windows]
+        return _table(axis, windows, parts, None, torque_constant_nm_per_a, current_quantum_a)
+    return _table(
+        axis, windows, None, (current, start, stop), torque_constant_nm_per_a, current_quantum_a
     )
 
 
@@ -331,6 +490,21 @@ def window_table(
     samples of the windows only (``window_current_a[i]`` is the current of
     ``windows[i]``, ``stop − start`` samples) and gets the same table.
     """
+    return _table(
+        axis, windows, window_current_a, None, torque_constant_nm_per_a, current_quantum_a
+    )
+
+
+def _table(
+    axis: str,
+    windows: Sequence[VelocityWindow],
+    window_current: Sequence[FloatArray] | None,
+    samples: tuple[FloatArray, IntArray, IntArray] | None,
+    torque_constant_nm_per_a: float | None,
+    current_quantum_a: float,
+) -> FrictionTable:
+    """The table from the current of every window, or from ``samples``: the whole
+    current and the windows' starts and stops."""
     quantity: Literal["torque_nm", "current_a"] = (
         "torque_nm" if torque_constant_nm_per_a is not None else "current_a"
     )
@@ -338,13 +512,17 @@ def window_table(
     scale = torque_constant_nm_per_a if torque_constant_nm_per_a is not None else 1.0
     count = len(windows)
 
-    # Group key per window; windows sorted by key make every group's samples contiguous,
-    # so every statistic below works on consecutive slices of one buffer.
-    position = np.fromiter((w.position_index for w in windows), dtype=np.intp, count=count)
-    direction = np.fromiter((w.direction for w in windows), dtype=np.intp, count=count)
-    step = np.fromiter((w.step for w in windows), dtype=np.intp, count=count)
-    velocity = np.fromiter((w.velocity_mm_min for w in windows), dtype=np.float64, count=count)
-    start = np.fromiter((w.start for w in windows), dtype=np.intp, count=count)
+    # Group key per window; windows sorted by key make every group's samples contiguous.
+    position = np.fromiter(map(attrgetter("position_index"), windows), dtype=np.intp, count=count)
+    direction = np.fromiter(map(attrgetter("direction"), windows), dtype=np.intp, count=count)
+    step = np.fromiter(map(attrgetter("step"), windows), dtype=np.intp, count=count)
+    velocity = np.fromiter(
+        map(attrgetter("velocity_mm_min"), windows), dtype=np.float64, count=count
+    )
+    if samples is None:
+        start = np.fromiter(map(attrgetter("start"), windows), dtype=np.intp, count=count)
+    else:
+        current, start, stop = samples
     order = np.lexsort((start, step, direction, position))
     keys = np.stack([position[order], direction[order], step[order]], axis=1)
     first = np.ones(count, dtype=np.bool_)
@@ -352,84 +530,155 @@ def window_table(
     group_of_window = np.cumsum(first) - 1
     groups = int(first.sum())
 
-    parts = [np.asarray(window_current_a[i], dtype=np.float64) for i in order.tolist()]
-    lengths = np.fromiter((len(p) for p in parts), dtype=np.intp, count=count)
-    # One buffer for the samples and, after them, the spare slot of _sort_segments:
-    # the statistics and the sorts below work in it and one more array at most.
-    buffer = np.empty(int(lengths.sum()) + 1, dtype=np.float64)
-    if parts:
-        np.concatenate(parts, out=buffer[:-1])
-    del parts
-    values = buffer[:-1]
-    finite = np.isfinite(values)
-    if finite.all():
-        per_window = lengths
-    else:
-        kept = np.concatenate(([0], np.cumsum(finite)))
-        ends = np.cumsum(lengths)
-        per_window = kept[ends] - kept[ends - lengths]
-        count_finite = int(kept[-1])
-        buffer[:count_finite] = values[finite]
-        buffer = buffer[: count_finite + 1]
-        values = buffer[:-1]
-    del finite
-    n = np.bincount(group_of_window, weights=per_window, minlength=groups).astype(np.intp)
-    used_windows = np.bincount(group_of_window[per_window > 0], minlength=groups)
-    group_bounds = np.concatenate(([0], np.cumsum(n)))
-    window_bounds = np.concatenate(([0], np.cumsum(per_window)))
+    if window_current is not None:
+        parts = [window_current[i] for i in order.tolist()]
+        lengths = np.fromiter(map(len, parts), dtype=np.intp, count=count)
+    else:  # the samples by index, a chunk at a time
+        lengths = np.maximum(stop - start, 0)[order]
+        start = start[order]
+    quantised = current_quantum_a > 0
+    # Chunks of whole groups, about _CHUNK_SAMPLES each: every statistic below works
+    # on one chunk's samples at a time (little memory, in the processor's cache).
+    window_of_group = np.concatenate(([0], np.flatnonzero(first[1:]) + 1, [count]))
+    sample_bounds = np.concatenate(([0], np.cumsum(lengths)))
+    cut = np.flatnonzero(np.diff(sample_bounds[window_of_group[:-1]] // _CHUNK_SAMPLES)) + 1
+    chunk_groups = np.concatenate(([0], cut, [groups])).tolist() if groups else [0]
+    # The batches of every window, were every sample finite (the usual case).
+    batches_all = np.maximum(1, np.minimum(BATCHES_PER_WINDOW, lengths // MIN_BATCH_SAMPLES))
+    first_batch_all = np.concatenate(([0], np.cumsum(batches_all)))
+    batch_bounds_all = _batch_bounds(sample_bounds)
 
-    filled = np.flatnonzero(n > 0)
     total = np.zeros(groups)
     squares = np.zeros(groups)
-    if len(filled):
-        total[filled] = np.add.reduceat(values, group_bounds[filled])
+    per_window = np.zeros(count, dtype=np.intp)
+    window_low = np.full(count, np.nan)
+    window_high = np.full(count, np.nan)
+    window_median = np.full(count, np.nan)
+    group_low = np.full(groups, np.nan)
+    group_high = np.full(groups, np.nan)
+    median = np.full(groups, np.nan)
+    batch_low: list[FloatArray] = [np.zeros(0)]
+    batch_high: list[FloatArray] = [np.zeros(0)]
+    batch_lengths: list[IntArray] = [np.zeros(0, dtype=np.intp)]
+    batch_median: list[FloatArray] = [np.zeros(0)]
+    offset = 0  # finite samples before the chunk
+    for g0, g1 in itertools.pairwise(chunk_groups):
+        w0, w1 = int(window_of_group[g0]), int(window_of_group[g1])
+        if window_current is not None:
+            values = np.concatenate(parts[w0:w1], dtype=np.float64)
+        else:
+            values = current[_sample_index(start[w0:w1], lengths[w0:w1])]
+        # Every sample finite (the usual case) when every group's sum is: then the
+        # windows and batches are those of all samples, else they are recounted.
+        kept = lengths[w0:w1]
+        window_bounds = sample_bounds[w0 : w1 + 1] - sample_bounds[w0]
+        group_bounds = window_bounds[window_of_group[g0 : g1 + 1] - w0]
+        n = np.diff(group_bounds)
+        filled = np.flatnonzero(n > 0)
+        sums = np.add.reduceat(values, group_bounds[filled]) if len(filled) else np.zeros(0)
+        if np.isfinite(sums).all() and offset == sample_bounds[w0]:
+            batches = batches_all[w0:w1]
+            cuts = batch_bounds_all[first_batch_all[w0] : first_batch_all[w1] + 1] - offset
+        else:
+            finite = np.isfinite(values)
+            cumulative = np.concatenate(([0], np.cumsum(finite)))
+            ends = sample_bounds[w0 + 1 : w1 + 1] - sample_bounds[w0]
+            kept = cumulative[ends] - cumulative[ends - kept]
+            values = values[finite]
+            del finite
+            batches = np.maximum(1, np.minimum(BATCHES_PER_WINDOW, kept // MIN_BATCH_SAMPLES))
+            # Batch edges are rounded from offsets among all finite samples: the same here.
+            window_bounds = np.concatenate(([0], np.cumsum(kept)))
+            cuts = _batch_bounds(window_bounds + offset) - offset
+            group_bounds = window_bounds[window_of_group[g0 : g1 + 1] - w0]
+            n = np.diff(group_bounds)
+            filled = np.flatnonzero(n > 0)
+            sums = np.add.reduceat(values, group_bounds[filled]) if len(filled) else sums[:0]
+        per_window[w0:w1] = kept
+        if len(filled):
+            total[g0 + filled] = sums
+            with np.errstate(invalid="ignore", divide="ignore"):
+                deviation = np.repeat(sums / n[filled], n[filled])
+            np.subtract(values, deviation, out=deviation)
+            deviation *= deviation
+            squares[g0 + filled] = np.add.reduceat(deviation, group_bounds[filled])
+            del deviation
+
+        # Batch medians from a sort of every batch (short rows); window and group
+        # medians from their parts' medians and the few values between them.
+        sizes = np.diff(cuts)
+        block = _sorted_rows(values, sizes)
+        window_rows: tuple[FloatArray, IntArray] | None = None
+        group_rows: tuple[FloatArray, IntArray] | None = None
+        if block is not None:  # the usual case: batches of similar length
+            every = np.arange(len(block))
+            low = block[every, np.maximum(sizes - 1, 0) // 2]
+            high = block[every, sizes // 2]
+            first_batch = np.concatenate(([0], np.cumsum(batches)))
+            window_rows = (block, first_batch)
+            group_rows = (block, first_batch[window_of_group[g0 : g1 + 1] - w0])
+        else:
+            low, high = _order_statistics(values, cuts, (sizes - 1) // 2, sizes // 2)
+        batch_low.append(low)
+        batch_high.append(high)
+        batch_lengths.append(sizes)
+        w_low, w_high = _within(values, window_bounds, low, high, batches, window_rows)
+        window_low[w0:w1] = w_low
+        window_high[w0:w1] = w_high
+        used = kept > 0
+        w_parts = np.add.reduceat(used, window_of_group[g0:g1] - w0, dtype=np.intp)
+        group_low[g0:g1], group_high[g0:g1] = _within(
+            values, group_bounds, w_low[used], w_high[used], w_parts, group_rows
+        )
+        if quantised:
+            batch_median.append(_grouped_medians(values, cuts, low, current_quantum_a))
+            window_median[w0:w1] = _grouped_medians(values, window_bounds, w_low, current_quantum_a)
+            median[g0:g1] = _grouped_medians(
+                values, group_bounds, group_low[g0:g1], current_quantum_a
+            )
+        offset += len(values)
+        del values, block, window_rows, group_rows
+
+    sizes = np.concatenate(batch_lengths)
+    if not quantised:
+        batch_median = [_medians(sizes, np.concatenate(batch_low), np.concatenate(batch_high))]
+        window_median = _medians(per_window, window_low, window_high)
+    n = np.zeros(groups, dtype=np.intp)
+    if groups:
+        n[:] = np.add.reduceat(per_window, window_of_group[:-1])
+        if not quantised:
+            median = _medians(n, group_low, group_high)
+    used_windows = np.bincount(group_of_window[per_window > 0], minlength=groups)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = total / n
-        deviation = np.repeat(mean, n)
-        np.subtract(values, deviation, out=deviation)
-        deviation *= deviation
-        if len(filled):
-            squares[filled] = np.add.reduceat(deviation, group_bounds[filled])
-        del deviation
         variance = squares / (n - 1)
     std = np.where(n > 1, np.sqrt(np.maximum(variance, 0.0)), np.nan)
 
-    # Medians of batches, windows and groups from one buffer sorted three times:
-    # batches nest in windows and windows in groups, so each sort merges sorted runs.
-    ordered = buffer  # sorted in place from here on: ``values`` is not read again
-    ordered[-1] = np.inf  # the spare slot of _sort_segments
-    del values
-    batch_bounds = _batch_bounds(window_bounds)
-    _sort_segments(ordered, batch_bounds, "quicksort")
-    batch_median_all = _sorted_medians(ordered, batch_bounds, current_quantum_a)
-    _sort_segments(ordered, window_bounds, "stable")
-    window_median_all = _sorted_medians(ordered, window_bounds, current_quantum_a)
-    _sort_segments(ordered, group_bounds, "stable")
-    median = _sorted_medians(ordered, group_bounds, current_quantum_a)
-
     # Batches: consecutive stretches of every window; their medians scatter by what
     # correlates the samples (servo loop, cogging), unlike the samples themselves.
-    batch_filled = np.diff(batch_bounds) > 0
-    batch_median = batch_median_all[batch_filled]
-    batch_window = np.repeat(
-        np.arange(count, dtype=np.intp),
-        np.maximum(1, np.minimum(BATCHES_PER_WINDOW, per_window // MIN_BATCH_SAMPLES)),
+    batch_filled = sizes > 0
+    by_batches, batches_used = _scatter_over_root_n(
+        np.concatenate(batch_median)[batch_filled],
+        np.repeat(
+            group_of_window,
+            np.maximum(1, np.minimum(BATCHES_PER_WINDOW, per_window // MIN_BATCH_SAMPLES)),
+        )[batch_filled],
+        groups,
     )
-    batch_group = group_of_window[batch_window][batch_filled]
-    by_batches, batches = _scatter_over_root_n(batch_median, batch_group, groups)
     with np.errstate(invalid="ignore", divide="ignore"):
         independent = _MEDIAN_SE_FACTOR * std / np.sqrt(n)
-    stderr = np.where(batches > 1, np.fmax(by_batches, independent), independent)
+    stderr = np.where(batches_used > 1, np.fmax(by_batches, independent), independent)
     # Repeated windows of a step: their medians' scatter over √windows.
     filled_windows = per_window > 0
-    window_median = window_median_all[filled_windows]
-    by_windows, _ = _scatter_over_root_n(window_median, group_of_window[filled_windows], groups)
+    by_windows, _ = _scatter_over_root_n(
+        window_median[filled_windows], group_of_window[filled_windows], groups
+    )
     stderr = np.where(used_windows > 1, np.fmax(stderr, by_windows), stderr)
 
     # All windows of a group share the step velocity; take its first window's.
     group_velocity = velocity[order][first]
-    rows = n > 0
-    head = keys[first][rows]
+    filled_rows = n > 0
+    head = keys[first][filled_rows]
     return FrictionTable(
         axis=axis,
         quantity=quantity,
@@ -438,12 +687,12 @@ def window_table(
         position_index=head[:, 0].astype(np.intp),
         direction=head[:, 1].astype(np.intp),
         step=head[:, 2].astype(np.intp),
-        velocity_mm_min=group_velocity[rows],
-        median=median[rows] * scale,
-        mean=mean[rows] * scale,
-        std=std[rows] * scale,
-        stderr=stderr[rows] * scale,
-        n=n[rows].astype(np.intp),
-        windows=used_windows[rows].astype(np.intp),
-        batches=batches[rows].astype(np.intp),
+        velocity_mm_min=group_velocity[filled_rows],
+        median=median[filled_rows] * scale,
+        mean=mean[filled_rows] * scale,
+        std=std[filled_rows] * scale,
+        stderr=stderr[filled_rows] * scale,
+        n=n[filled_rows].astype(np.intp),
+        windows=used_windows[filled_rows].astype(np.intp),
+        batches=batches_used[filled_rows].astype(np.intp),
     )
