@@ -25,6 +25,7 @@ from ncmeasure.publish.opcua import NAMESPACE, OpcUaSettings, engineering_units,
 from ncmeasure.store import MeasurementInfo, open_store
 from tests.publish.broker import free_port
 from tests.publish.certificates import self_signed_rsa
+from tests.publish.opcua_client import subscribe_changes
 
 WAIT_S = 60.0
 
@@ -119,14 +120,7 @@ def test_the_client_reads_the_store_and_sees_a_change(
             with pytest.raises(ua.UaStatusCodeError):
                 await coulomb.write_value(ua.DataValue(ua.Variant(1.0, ua.VariantType.Double)))
 
-            changes: asyncio.Queue[Any] = asyncio.Queue()
-
-            class Handler:
-                def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
-                    changes.put_nowait(val)
-
-            subscription = await client.create_subscription(100, Handler())
-            await subscription.subscribe_data_change(coulomb)
+            subscription, changes = await subscribe_changes(client, coulomb)
             first = await asyncio.wait_for(changes.get(), WAIT_S)  # the current value
             assert first == pytest.approx(latest.coulomb)
 

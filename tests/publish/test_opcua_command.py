@@ -34,6 +34,7 @@ from ncmeasure.publish.opcua import NAMESPACE, PASSWORD_ENV, TrustList, load_tru
 from ncmeasure.store import open_store
 from tests.publish.broker import free_port
 from tests.publish.certificates import rsa_certificate
+from tests.publish.opcua_client import subscribe_changes
 
 WAIT_S = 60.0
 """A guard against a hang, never part of what a test asserts."""
@@ -149,14 +150,7 @@ def test_the_command_serves_the_store_and_notifies_a_change(
                 with pytest.raises(ua.UaStatusCodeError, match="BadUserAccessDenied"):
                     await client.nodes.objects.add_folder(f"ns={ns};s=Intruder", f"{ns}:Intruder")
 
-                changes: asyncio.Queue[float] = asyncio.Queue()
-
-                class Handler:
-                    def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
-                        changes.put_nowait(val)
-
-                subscription = await client.create_subscription(100, Handler())
-                await subscription.subscribe_data_change(coulomb)
+                subscription, changes = await subscribe_changes(client, coulomb)
                 first = await asyncio.wait_for(changes.get(), WAIT_S)  # the current value
 
                 def store_add() -> None:  # another process' store add, as on the shop floor
