@@ -216,6 +216,20 @@ def test_window_samples_are_the_concatenated_ranges() -> None:
     assert owner.tolist() == [0, 0, 0, 1, 1, 2, 2]
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_sample_index_is_the_concatenated_ranges_whatever_their_lengths(seed: int) -> None:
+    """Runs in any order, overlapping, empty ones first, between and last."""
+    rng = np.random.default_rng(seed)
+    for _ in range(400):
+        count = int(rng.integers(0, 7))
+        starts = rng.integers(0, 40, count).astype(np.intp)
+        lengths = (rng.integers(0, 5, count) * rng.integers(0, 2, count)).astype(np.intp)
+        expected = [i for s, n in zip(starts, lengths, strict=True) for i in range(s, s + n)]
+        index = friction._sample_index(starts, lengths)
+        assert index.dtype == np.intp
+        assert index.tolist() == expected
+
+
 def test_repeated_windows_that_disagree_widen_the_standard_error() -> None:
     """Two repetitions of a step whose levels differ (drift, the cogging phase at the
     window's place): each window is one draw of that difference, whatever its samples."""
