@@ -122,6 +122,8 @@ class Round:
     lost: int
     skipped: int
     by_thread: dict[str, float]
+    late: int = 0
+    """SYNCs the simulated drives' thread answered more than a period late (host stalls)."""
 
     @property
     def cpu_percent(self) -> float:
@@ -146,7 +148,7 @@ def run_link(seconds: float, sync_hz: float) -> Round:
     nodes = {i: i + 1 for i in range(len(AXES))}
     scaling = DriveScaling(increments_per_rev=IPR, screw_lead_mm=LEAD_MM, rated_current_a=RATED_A)
     link = _link(channel, sync_hz)
-    with SimulatedDrives.start(channel, nodes, PatternSource(), scaling=scaling):
+    with SimulatedDrives.start(channel, nodes, PatternSource(), scaling=scaling) as drives:
         before = set(threading.enumerate())
         with link:
             threads = [*_new_threads(before), threading.main_thread()]
@@ -159,9 +161,9 @@ def run_link(seconds: float, sync_hz: float) -> Round:
                 block = link.read(0.1)
                 rows += 0 if block is None else len(block)
 
-            stats0, cpu0 = link.statistics(), _thread_cpu_s(threads)
+            stats0, cpu0, late0 = link.statistics(), _thread_cpu_s(threads), drives.late_answers
             wall = _window(seconds, step)
-            cpu1, stats1 = _thread_cpu_s(threads), link.statistics()
+            cpu1, stats1, late = _thread_cpu_s(threads), link.statistics(), drives.late_answers
 
     def delta(key: str) -> int:
         return stats1.get(key, 0) - stats0.get(key, 0)
@@ -170,7 +172,7 @@ def run_link(seconds: float, sync_hz: float) -> Round:
     return Round(
         "link", wall, sum(cpu.values()), delta("pdo_frames"), rows,
         max(0, delta("lost_rows") - delta("sync_skipped")),  # skipped: their own column
-        delta("sync_skipped"), cpu,
+        delta("sync_skipped"), cpu, late - late0,
     )  # fmt: skip
 
 
@@ -238,7 +240,7 @@ def run_bare(seconds: float, sync_hz: float) -> Round:
     channel = f"bench-canopen-{uuid.uuid4().hex}"
     nodes = {i: i + 1 for i in range(len(AXES))}
     scaling = DriveScaling(increments_per_rev=IPR, screw_lead_mm=LEAD_MM, rated_current_a=RATED_A)
-    with SimulatedDrives.start(channel, nodes, PatternSource(), scaling=scaling):
+    with SimulatedDrives.start(channel, nodes, PatternSource(), scaling=scaling) as drives:
         link = _link(channel, sync_hz)
         with link:  # configures the drives' TPDOs over SDO, as in the link's round
             layout, scales = _bare_layout(link)
@@ -285,9 +287,9 @@ def run_bare(seconds: float, sync_hz: float) -> Round:
                     rows += len(taken)
 
             pdos0, lost0, skipped0 = receiver.pdos, receiver.lost, skipped
-            cpu0 = _thread_cpu_s(threads)
+            cpu0, late0 = _thread_cpu_s(threads), drives.late_answers
             wall = _window(seconds, step)
-            cpu1 = _thread_cpu_s(threads)
+            cpu1, late = _thread_cpu_s(threads), drives.late_answers - late0
             pdos, lost, skip = receiver.pdos - pdos0, receiver.lost - lost0, skipped - skipped0
         finally:
             stop.set()
@@ -295,7 +297,26 @@ def run_bare(seconds: float, sync_hz: float) -> Round:
             notifier.stop()
             bus.shutdown()
     cpu = _cpu_delta(cpu0, cpu1)
-    return Round("bare", wall, sum(cpu.values()), pdos, rows, lost, skip, cpu)
+    return Round("bare", wall, sum(cpu.values()), pdos, rows, lost, skip, cpu, late)
+
+
+def wake_ups(seconds: float, period_s: float) -> tuple[int, int, float]:
+    """A lone Python thread waking on an absolute schedule of ``period_s``, as the SYNC
+    producer and the drives' thread do: (wake-ups, those more than a period late,
+    the latest in s). What this computer's scheduler allows any 1 kHz thread here."""
+    wake = threading.Event()
+    start = time.perf_counter()
+    count = late = 0
+    worst = 0.0
+    while (due := start + count * period_s) < start + seconds:
+        delay = due - time.perf_counter()
+        if delay > 0:
+            wake.wait(delay)
+        behind = time.perf_counter() - due
+        late += behind > period_s
+        worst = max(worst, behind)
+        count += 1
+    return count, late, worst
 
 
 def _spread(values: list[float], fmt: str = "{:.1f}") -> str:
@@ -320,7 +341,8 @@ def measure(
                 print(
                     f"round {index + 1} {side:<4}: {result.cpu_percent:5.1f} % CPU, "
                     f"{result.us_per_pdo:5.1f} µs/PDO, {result.rows} rows, "
-                    f"{result.lost} lost, {result.skipped} SYNC skipped",
+                    f"{result.lost} lost, {result.skipped} SYNC skipped, "
+                    f"{result.late} late drive answers",
                     flush=True,
                 )
                 if threads:
@@ -347,14 +369,29 @@ def main() -> None:
         f"CANopen, {len(AXES)} drives × 3 TPDOs, SYNC {args.sync_hz:g} Hz, virtual bus; "
         f"{args.rounds} rounds of {args.seconds:g} s per side, interleaved"
     )
+    probe_s = min(args.seconds, 5.0)
+    count, late, worst = wake_ups(probe_s, 1.0 / args.sync_hz)
+    print(
+        f"this computer: a lone thread woken every {1e3 / args.sync_hz:g} ms for {probe_s:g} s "
+        f"woke more than a period late {late} times in {count} (latest {worst * 1e3:.1f} ms)"
+    )
     result = measure(args.seconds, args.rounds, args.sync_hz, threads=args.threads)
-    print(f"{'':<6} {'CPU % of a core':>24} {'µs CPU per PDO':>24} {'lost':>6} {'skipped':>8}")
+    print(
+        f"{'':<6} {'CPU % of a core':>24} {'µs CPU per PDO':>24} {'lost':>6} {'skipped':>8} "
+        f"{'late answers':>13}"
+    )
     for side in ("link", "bare"):
         rounds: list[Round] = result[side]
         print(
             f"{side:<6} {_spread([r.cpu_percent for r in rounds]):>24} "
             f"{_spread([r.us_per_pdo for r in rounds], '{:.2f}'):>24} "
-            f"{sum(r.lost for r in rounds):>6} {sum(r.skipped for r in rounds):>8}"
+            f"{sum(r.lost for r in rounds):>6} {sum(r.skipped for r in rounds):>8} "
+            f"{sum(r.late for r in rounds):>13}"
+        )
+        unexplained = sum(max(0, r.lost - 2 * r.late) for r in rounds)
+        print(
+            f"{'':<6} rows lost beyond two per late drive answer (the link's own losses): "
+            f"{unexplained}"
         )
     print(
         f"ratio link/bare CPU per PDO: {_spread(result['ratios'], '{:.2f}')} "

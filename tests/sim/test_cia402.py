@@ -196,6 +196,25 @@ def test_tpdos_on_sync_carry_the_source_encoded_like_a_drive(
     assert drives.sync_count == 20
 
 
+def test_a_sync_answered_after_the_next_one_was_sent_counts_as_late(
+    drives: SimulatedDrives, channel: str
+) -> None:
+    """What a stalled host does to the simulation: a SYNC's answer goes out after the
+    next SYNC. The SYNCs carry their send time stamps (python-can's), here set by hand:
+    the second one was sent, by its stamp, before the first was answered."""
+    now = time.time()
+    sender = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+    try:
+        for count, stamp in enumerate((now - 100, now - 200, now + 1000, now + 2000), 1):
+            sync = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
+            sync.timestamp = stamp
+            sender.send(sync)
+            assert eventually(lambda count=count: drives.sync_count == count)
+    finally:
+        sender.shutdown()
+    assert drives.late_answers == 1
+
+
 def test_cycle_period_written_by_the_master_sets_the_sample_time(
     drives: SimulatedDrives, network: canopen.Network
 ) -> None:

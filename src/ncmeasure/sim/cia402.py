@@ -814,6 +814,12 @@ class SimulatedDrives:
         self.clock = clock
         self.frames_sent = 0
         """Frames sent on the bus so far (all kinds)."""
+        self.late_answers = 0
+        """SYNCs answered (their TPDOs sent) after the next SYNC was sent, by the time
+        stamps python-can gives the frames: the host ran the drives' thread too late, as a
+        real drive never is. The master then sees the frames after the next SYNC and drops
+        that cycle (and may doubt the next): a stall of the host, not a fault of the master."""
+        self._answered_at: float | None = None
         self._at_sync: dict[int, list[Callable[[], None]]] = {}
         self.started = time.monotonic()
         self._own_bus = own_bus
@@ -1005,7 +1011,11 @@ class SimulatedDrives:
             can_id = msg.arbitration_id
             try:
                 if can_id == 0x080:
+                    answered = self._answered_at
+                    if answered is not None and msg.timestamp and msg.timestamp < answered:
+                        self.late_answers += 1  # the previous SYNC's answer came after this one
                     self._on_sync(bytes(msg.data))
+                    self._answered_at = time.time()
                 elif can_id == 0x000 and len(msg.data) >= 2:
                     for drive in self.drives:
                         if msg.data[1] in (0, drive.node_id):
