@@ -41,8 +41,8 @@ is vectorised, and it works through the groups in chunks of about
 :data:`_CHUNK_SAMPLES` samples (its memory does not grow with the recording:
 about 20 MiB for an axis of 24 h; the per-chunk cost of some 150 numpy calls
 is paid once per half million samples). The windows are sorted by group;
-a chunk's samples are gathered at once (an index built with ``np.repeat`` of
-the window offsets) and its sums come from ``np.add.reduceat``. The batches
+a chunk's samples are gathered at once (an index built as a running sum of
+steps) and its sums come from ``np.add.reduceat``. The batches
 are sorted as the rows of one padded block (numpy sorts short rows with
 vectorised sorting networks), which gives the batch medians. The window and
 group medians are *selected*, not sorted for: the median of a union lies
