@@ -215,6 +215,48 @@ def test_a_sync_answered_after_the_next_one_was_sent_counts_as_late(
     assert drives.late_answers == 1
 
 
+def test_drives_answering_on_the_bus_put_every_answer_between_its_sync_and_the_next(
+    channel: str,
+) -> None:
+    """``answer="on_send"``: the answer is on the bus before the SYNC's send returns, so
+    a bus that joined later sees SYNC, TPDO, SYNC, TPDO ... however its threads run."""
+    with SimulatedDrives.start(
+        channel, {0: 1}, SOURCE, scaling=SCALING, period_s=PERIOD_S, answer="on_send"
+    ) as sim:
+        net = canopen.Network()
+        net.connect(interface="virtual", channel=channel)
+        probe = can.Bus(interface="virtual", channel=channel)
+        try:
+            remote = node(net)
+            configure_tpdo(remote, 1, [0x60640020])
+            remote.nmt.state = "OPERATIONAL"
+            assert eventually(lambda: sim[0].nmt_state == "OPERATIONAL")
+            while probe.recv(0) is not None:  # the set-up's frames
+                pass
+            seen = []
+            for _ in range(200):
+                net.sync.transmit()
+                seen += [probe.recv(0), probe.recv(0)]  # no waiting: both are there
+            assert probe.recv(0) is None
+        finally:
+            probe.shutdown()
+            net.disconnect()
+    assert [m.arbitration_id if m else None for m in seen] == [0x080, 0x181] * 200
+    assert sim.sync_count == 200
+    assert sim.late_answers == 0
+    assert sim.answer_cpu_s > 0
+
+
+def test_drives_answer_on_the_bus_only_when_first_on_a_virtual_channel(channel: str) -> None:
+    first = can.Bus(interface="virtual", channel=channel)
+    try:
+        with pytest.raises(ValueError, match="open the virtual channel .* first"):
+            SimulatedDrives.start(channel, {0: 1}, SOURCE, answer="on_send")
+    finally:
+        first.shutdown()
+    assert channel not in can.interfaces.virtual.channels  # the refused drives' bus is shut
+
+
 def test_cycle_period_written_by_the_master_sets_the_sample_time(
     drives: SimulatedDrives, network: canopen.Network
 ) -> None:

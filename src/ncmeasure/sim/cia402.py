@@ -25,6 +25,15 @@ the source's state at ``t``. A SYNC with a one-byte counter (1..240, CiA 301
 0x1019) sets the index to the next one that is congruent to ``counter - 1``
 modulo 240: cycles the producer skipped are skipped here too.
 
+On python-can's ``virtual`` bus the drives can also answer SYNC *on the bus*
+(``answer="on_send"``): within the sender's ``send`` call, right after the
+SYNC reached every other bus and before that call returns, as a drive
+answers in its synchronous window whatever the host does. The frames are
+then behind their SYNC and ahead of the next one, however late the host runs
+any thread. (The drives' thread still serves NMT and SDO.) The
+time spent answering is the sender's thread's; :attr:`SimulatedDrives.answer_cpu_s`
+says how much, for a benchmark that must not count it.
+
 In lockstep with a link on a :class:`~ncmeasure.samples.SimulatedClock`
 (``clock``), the drives report every SYNC answered, with the number of frames
 they have sent, and the link sends the next SYNC only when it has received
@@ -47,6 +56,7 @@ import heapq
 import itertools
 import logging
 import math
+import queue
 import struct
 import threading
 import time
@@ -54,7 +64,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Self
+from typing import Any, Literal, Self
 
 import can
 from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable
@@ -774,6 +784,68 @@ def _make_drive(
     return SimulatedDrive.builtin(node_id, axis, object_map, scaling)
 
 
+class _AnsweringQueue(queue.Queue[can.Message]):
+    """The drives' receive queue on python-can's virtual bus, answering SYNC as it is put.
+
+    The virtual bus delivers a frame by putting a copy into every other bus'
+    queue, one after the other, in the sender's thread. Kept behind every other
+    queue of the channel (:class:`_DrivesLast`), this one receives the SYNC
+    last and answers it at once: the answers reach the others after the SYNC
+    and before the sender's next frame.
+    """
+
+    def __init__(self, host: SimulatedDrives) -> None:
+        super().__init__()
+        self.host = host
+
+    def put(self, item: can.Message, block: bool = True, timeout: float | None = None) -> None:
+        if (
+            item.arbitration_id == 0x080
+            and not item.is_extended_id
+            and not item.is_remote_frame
+            and not item.is_error_frame
+        ):
+            self.host._answer_on_send(item)
+            return
+        super().put(item, block, timeout)
+
+
+class _DrivesLast(list[Any]):
+    """A virtual channel's queues, with the drives' answering queues always last."""
+
+    def append(self, item: Any) -> None:
+        hooks = sum(isinstance(q, _AnsweringQueue) for q in self)
+        self.insert(len(self) - hooks, item)
+
+
+def _answer_on_the_bus(bus: can.BusABC, host: SimulatedDrives) -> None:
+    """Give the drives' virtual bus a queue that answers SYNC as it is put (see above).
+
+    Raises:
+        ValueError: Not python-can's virtual bus, or other buses joined the channel
+            first (their frames could not be kept ahead of the answers).
+    """
+    from can.interfaces import virtual
+
+    if not isinstance(bus, virtual.VirtualBus):
+        raise ValueError(
+            "answering SYNC on the bus needs python-can's virtual bus; "
+            f"this is {type(bus).__name__}"
+        )
+    with virtual.channels_lock:
+        channel = bus.channel
+        if len(channel) != 1 or channel[0] is not bus.queue:
+            raise ValueError(
+                "answering SYNC on the bus needs the drives to open the virtual channel "
+                f"{bus.channel_id!r} first, before any other bus"
+            )
+        hook = _AnsweringQueue(host)
+        ordered = _DrivesLast([hook])
+        virtual.channels[bus.channel_id] = ordered
+        bus.channel = ordered
+        bus.queue = hook
+
+
 class SimulatedDrives:
     """The simulated drives of a machine on one bus, served by one thread.
 
@@ -790,6 +862,9 @@ class SimulatedDrives:
         own_bus: Shut the bus down on :meth:`stop`.
         clock: The link's :class:`~ncmeasure.samples.SimulatedClock`: answer in
             lockstep with it (every SYNC reported done). ``None``: real time.
+        answer: ``thread``: the drives' thread answers SYNC as it receives it;
+            ``on_send``: the SYNC's sender answers it within its ``send``
+            (python-can's virtual bus only, the drives first on the channel).
     """
 
     def __init__(
@@ -801,9 +876,12 @@ class SimulatedDrives:
         period_s: float = 0.004,
         own_bus: bool = False,
         clock: SimulatedClock | None = None,
+        answer: Literal["thread", "on_send"] = "thread",
     ) -> None:
         if not drives:
             raise ValueError("no drives to simulate")
+        if answer == "on_send" and clock is not None:
+            raise ValueError("answering SYNC on the bus is for real time, not lockstep")
         ids = [d.node_id for d in drives]
         if len(set(ids)) != len(ids):
             raise ValueError(f"node ids repeat: {ids}")
@@ -820,6 +898,9 @@ class SimulatedDrives:
         real drive never is. The master then sees the frames after the next SYNC and drops
         that cycle (and may doubt the next): a stall of the host, not a fault of the master."""
         self._answered_at: float | None = None
+        self.answer_cpu_s = 0.0
+        """CPU time the senders' threads spent answering SYNC (``answer="on_send"``)."""
+        self._answer = answer
         self._at_sync: dict[int, list[Callable[[], None]]] = {}
         self.started = time.monotonic()
         self._own_bus = own_bus
@@ -852,6 +933,7 @@ class SimulatedDrives:
         scaling: DriveScaling | Mapping[int, DriveScaling] | None = None,
         bus_options: Mapping[str, Any] | None = None,
         clock: SimulatedClock | None = None,
+        answer: Literal["thread", "on_send"] = "thread",
     ) -> SimulatedDrives:
         """Create the drives, open the bus if a channel name is given, and start serving.
 
@@ -866,6 +948,7 @@ class SimulatedDrives:
             scaling: For all drives, or per axis index.
             bus_options: Extra python-can arguments for a channel name.
             clock: The link's :class:`~ncmeasure.samples.SimulatedClock` (lockstep).
+            answer: Who answers SYNC (see the class): ``thread`` or ``on_send``.
         """
         the_map = object_map if isinstance(object_map, ObjectMap) else load_object_map(object_map)
         drives = []
@@ -894,9 +977,20 @@ class SimulatedDrives:
                 kwargs["interface"] = interface
             bus = can.Bus(channel=bus_or_channel, **kwargs)
         drives_host = cls(
-            bus, drives, source or PatternSource(), period_s=period_s, own_bus=own, clock=clock
+            bus,
+            drives,
+            source or PatternSource(),
+            period_s=period_s,
+            own_bus=own,
+            clock=clock,
+            answer=answer,
         )
-        drives_host.run()
+        try:
+            drives_host.run()
+        except ValueError:
+            if own:
+                bus.shutdown()
+            raise
         return drives_host
 
     def run(self) -> None:
@@ -907,6 +1001,8 @@ class SimulatedDrives:
             {"can_id": 0x600, "can_mask": 0x780, "extended": False},
         ]
         self.bus.set_filters(filters)
+        if self._answer == "on_send":
+            _answer_on_the_bus(self.bus, self)
         self._thread.start()
 
     def __getitem__(self, axis: int) -> SimulatedDrive:
@@ -1026,6 +1122,17 @@ class SimulatedDrives:
                         target._on_sdo(bytes(msg.data))
             except Exception:  # a simulator bug must not kill the bus for the others
                 log.exception("simulated drives: frame 0x%03X not handled", can_id)
+
+    def _answer_on_send(self, message: can.Message) -> None:
+        """Answer a SYNC in its sender's thread (``answer="on_send"``)."""
+        if self._stop.is_set():
+            return
+        start = time.thread_time()
+        try:
+            self._on_sync(bytes(message.data))
+        except Exception:  # a simulator bug must not break the sender's send
+            log.exception("simulated drives: SYNC not answered")
+        self.answer_cpu_s += time.thread_time() - start
 
     def _on_sync(self, data: bytes = b"") -> None:
         with self._sync_cond:

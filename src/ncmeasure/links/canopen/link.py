@@ -455,6 +455,7 @@ class CanOpenLink(DriveLink):
             "sync_cycles": 0,
             "rows": 0,
             "lost_rows": 0,
+            "lost_no_sync": 0,
             "bad_frames": 0,
             "sdo_polls": 0,
             "sync_skipped": 0,
@@ -752,7 +753,12 @@ class CanOpenLink(DriveLink):
         )
 
     def statistics(self) -> dict[str, int]:
-        """Counters since open: PDO frames, SYNC cycles, rows, lost rows, SDO polls, ..."""
+        """Counters since open: PDO frames, SYNC cycles, rows, lost rows, SDO polls, ...
+
+        ``lost_rows`` counts every cycle without a row; ``lost_no_sync`` those of them
+        that had no SYNC on the bus (skipped by the producer, ``sync_skipped``, once
+        their next SYNC was seen; or missed polls).
+        """
         with self._lock:
             stats = dict(self._stats)
             stats["pdo_frames"] = self._pdo_frames
@@ -1234,9 +1240,12 @@ class CanOpenLink(DriveLink):
     def _send_sync(self, cycle: int) -> None:
         network = self._network
         assert network is not None and network.bus is not None
-        with self._lock:
-            self._sent.append(cycle)
-            self._sent_cycle = cycle
+        # Not under the link's lock: the receive thread holds it while it assembles
+        # frames, and on a busy host a SYNC waiting for it came late and was skipped.
+        # A deque's append is atomic, and it comes before the send, so the receive
+        # thread finds the cycle when it sees the SYNC.
+        self._sent.append(cycle)
+        self._sent_cycle = cycle
         try:
             with network.send_lock:  # SDO transfers of the worker share the bus
                 network.bus.send(self._sync_message)
@@ -1540,6 +1549,7 @@ class CanOpenLink(DriveLink):
         axes = {self._slots[i].axis.position for i in lost.missing if i < len(self._slots)}
         if lost.reason == "no_sync":
             gap.no_sync += 1
+            self._stats["lost_no_sync"] += 1
         elif lost.reason == "doubled":
             gap.doubled += 1
             gap.doubled_slots |= set(lost.missing)
