@@ -250,7 +250,7 @@ def test_drives_answering_on_the_bus_put_every_answer_between_its_sync_and_the_n
 def test_drives_answer_on_the_bus_only_when_first_on_a_virtual_channel(channel: str) -> None:
     first = can.Bus(interface="virtual", channel=channel)
     try:
-        with pytest.raises(ValueError, match="open the virtual channel .* first"):
+        with pytest.raises(ValueError, match=r"open the virtual channel .* first"):
             SimulatedDrives.start(channel, {0: 1}, SOURCE, answer="on_send")
     finally:
         first.shutdown()
