@@ -3,7 +3,9 @@
 1. CANopen (``acquisition_canopen.py``): 3 simulated CiA 402 drives, 3 TPDOs
    each, SYNC at 1 kHz on python-can's virtual bus: CPU per PDO of
    ``CanOpenLink`` against a bare python-can SYNC producer and receiver that
-   decodes the same PDOs into rows (goal ≤ 1.2×), rows lost, SYNC skipped.
+   decodes the same PDOs into rows (goal ≤ 1.2×), rows lost, SYNC skipped;
+   the drives answer SYNC on the bus, as real drives in their synchronous
+   window (``acquisition_canopen.py --drives thread``: from their own thread).
 2. Modbus TCP (``acquisition_modbus.py``): rows per second of ``ModbusLink``
    polling flat out against pymodbus' async client reading, decoding and
    scaling the same registers (goal ≥ 0.9×); then paced: skipped and stale rows.
