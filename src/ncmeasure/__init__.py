@@ -13,11 +13,15 @@ The pipeline, one folder per stage, data flowing one way:
 8. ``analysis``  recordings -> friction, fits, diagnosis, comparison; ``report`` -> HTML;
                  ``compensation`` -> friction tables and offsets for controllers
 9. ``sim``       the virtual machine and simulated drives, for the demo and the tests
-10. ``cli``      the ``ncmeasure`` command
+10. ``store``    the fleet store: every fingerprint of every machine, in a database;
+                 ``web`` serves it as a dashboard and a REST API, ``publish`` on the
+                 shop floor (MQTT, OPC UA)
+11. ``cli``      the ``ncmeasure`` command
 
 The layers (a module imports only from its own layer and the ones below)::
 
     cli
+    web, publish ── store
     demo ─────────────────────────── sim.machine, sim.axis, sim.synthetic
     report, compensation ── analysis sim.cia402, sim.modbus_drive (the protocol
     traces ── acquire                  knowledge of links.canopen.objects and
@@ -25,7 +29,9 @@ The layers (a module imports only from its own layer and the ones below)::
               modbus, replay)
     recording (format, writer, reader, sink)
     program ── plan ── profile
-    config, errors, validity, samples (the sample vocabulary and the clocks), _version
+    config, errors, validity, samples (the sample vocabulary and the clocks), _version,
+    examples, and the helpers files (whole-file writes), inputs (bounded user
+    files), resources (built-in controllers), hosts (which addresses are loopback)
 
 The public API is re-exported here::
 
