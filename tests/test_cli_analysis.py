@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -59,6 +61,24 @@ def test_analyze_writes_results_and_report(tmp_path: Path) -> None:
     assert x.verdict.level == "fault" and "rising towards the loose bearing" in line
     assert "likely a shifted or tilted loose bearing" in line
     assert "What to do: Check the alignment" in line
+
+
+def test_a_recording_problem_is_told_once(tmp_path: Path) -> None:
+    """A torn tail: the reader's line says so, and the command does not repeat it."""
+    run_dir, schedule = _run(tmp_path / "run1", (2.0, 2.3, 2.6))
+    with (run_dir / "samples.bin").open("ab") as file:
+        file.write(b"\x13" * 40)  # half a frame header, as a crash leaves it
+    done = subprocess.run(
+        [sys.executable, "-m", "ncmeasure", "analyze", run_dir, "--schedule", schedule],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    said = done.stdout + done.stderr
+    assert said.count("torn tail: 40 bytes") == 1, said
+    assert "axis X:" in done.stdout
 
 
 def test_console_line_is_the_report_headline(tmp_path: Path) -> None:

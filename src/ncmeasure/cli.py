@@ -1338,7 +1338,7 @@ def analyze_command(
     if quiet:
         return None
     _print_verdicts(results)
-    _print_warnings(results, recording.problems)
+    _print_warnings(results)
     _console().print(f"wrote {target}" + (f" and {report}" if report else ""))
 
 
@@ -1413,12 +1413,14 @@ def _print_skipped(results: "Results", indent: str = "") -> None:
         _console().print(line)
 
 
-def _print_warnings(results: "Results", problems: list[str]) -> None:
-    """Recording problems and analysis warnings on stderr; one shared by every axis once."""
+def _print_warnings(results: "Results") -> None:
+    """Analysis warnings on stderr; one shared by every axis once.
+
+    The recording's own problems (a torn tail, missing samples) are not repeated
+    here: the reader logs each as it reads the recording, before the results.
+    """
     from rich.text import Text
 
-    for problem in problems:
-        _console(stderr=True).print(Text.assemble(("warning:", "yellow"), f" {problem}"))
     lists = [axis.warnings for axis in results.axes.values()]
     shared = set.intersection(*(set(w) for w in lists)) if len(lists) > 1 else set()
     for warning in lists[0] if lists else []:
