@@ -191,11 +191,8 @@ def window_samples(windows: Sequence[VelocityWindow]) -> tuple[IntArray, IntArra
     starts = np.fromiter((w.start for w in windows), dtype=np.intp, count=len(windows))
     stops = np.fromiter((w.stop for w in windows), dtype=np.intp, count=len(windows))
     lengths = np.maximum(stops - starts, 0)
-    offsets = np.cumsum(lengths) - lengths
-    total = int(lengths.sum())
     owner = np.repeat(np.arange(len(windows), dtype=np.intp), lengths)
-    index = np.arange(total, dtype=np.intp) + np.repeat(starts - offsets, lengths)
-    return index, owner
+    return _sample_index(starts, lengths), owner
 
 
 def _sample_index(starts: IntArray, lengths: IntArray) -> IntArray:
@@ -215,6 +212,11 @@ def _sample_index(starts: IntArray, lengths: IntArray) -> IntArray:
     return np.cumsum(step, out=step)
 
 
+def _batch_count(lengths: IntArray) -> IntArray:
+    """The batches of windows of ``lengths`` finite samples (one for a short or empty window)."""
+    return np.maximum(1, np.minimum(BATCHES_PER_WINDOW, lengths // MIN_BATCH_SAMPLES))
+
+
 def _batch_bounds(window_bounds: IntArray) -> IntArray:
     """Cut each window ``[b[w], b[w + 1])`` into up to BATCHES_PER_WINDOW equal batches.
 
@@ -225,7 +227,7 @@ def _batch_bounds(window_bounds: IntArray) -> IntArray:
     start = window_bounds[:-1]
     stop = window_bounds[1:]
     length = stop - start
-    count = np.maximum(1, np.minimum(BATCHES_PER_WINDOW, length // MIN_BATCH_SAMPLES))
+    count = _batch_count(length)
     owner = np.repeat(np.arange(len(count), dtype=np.intp), count)
     k = np.arange(int(count.sum()), dtype=np.intp) - np.repeat(np.cumsum(count) - count, count) + 1
     step = (length.astype(np.float64) / count)[owner]
@@ -308,10 +310,9 @@ def _order_statistics(
         end = int(np.searchsorted(ordered, _PAD_WASTE * ordered[first], "right"))
         rows = by_length[first:end]
         row_lengths = lengths[rows]
-        offsets = np.cumsum(row_lengths) - row_lengths
-        index = np.arange(int(row_lengths.sum()), dtype=np.intp)
-        index += np.repeat(bounds[rows] - bounds[0] - offsets, row_lengths)
-        block = _sorted_rows(values[index], row_lengths)
+        block = _sorted_rows(
+            values[_sample_index(bounds[rows] - bounds[0], row_lengths)], row_lengths
+        )
         assert block is not None  # lengths within a factor _PAD_WASTE
         at = np.arange(len(rows))
         low[rows] = block[at, low_rank[rows]]
@@ -555,7 +556,7 @@ def _table(
     cut = np.flatnonzero(np.diff(sample_bounds[window_of_group[:-1]] // _CHUNK_SAMPLES)) + 1
     chunk_groups = np.concatenate(([0], cut, [groups])).tolist() if groups else [0]
     # The batches of every window, were every sample finite (the usual case).
-    batches_all = np.maximum(1, np.minimum(BATCHES_PER_WINDOW, lengths // MIN_BATCH_SAMPLES))
+    batches_all = _batch_count(lengths)
     first_batch_all = np.concatenate(([0], np.cumsum(batches_all)))
     batch_bounds_all = _batch_bounds(sample_bounds)
 
@@ -597,7 +598,7 @@ def _table(
             kept = cumulative[ends] - cumulative[ends - kept]
             values = values[finite]
             del finite
-            batches = np.maximum(1, np.minimum(BATCHES_PER_WINDOW, kept // MIN_BATCH_SAMPLES))
+            batches = _batch_count(kept)
             # Batch edges are rounded from offsets among all finite samples: the same here.
             window_bounds = np.concatenate(([0], np.cumsum(kept)))
             cuts = _batch_bounds(window_bounds + offset) - offset
@@ -670,10 +671,7 @@ def _table(
     batch_filled = sizes > 0
     by_batches, batches_used = _scatter_over_root_n(
         np.concatenate(batch_median)[batch_filled],
-        np.repeat(
-            group_of_window,
-            np.maximum(1, np.minimum(BATCHES_PER_WINDOW, per_window // MIN_BATCH_SAMPLES)),
-        )[batch_filled],
+        np.repeat(group_of_window, _batch_count(per_window))[batch_filled],
         groups,
     )
     with np.errstate(invalid="ignore", divide="ignore"):
