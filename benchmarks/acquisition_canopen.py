@@ -136,7 +136,7 @@ class Round:
     skipped: int
     by_thread: dict[str, float]
     late: int = 0
-    """SYNCs the simulated drives' thread answered more than a period late (host stalls)."""
+    """SYNCs the simulated drives' thread answered after the next SYNC (host stalls)."""
 
     @property
     def cpu_percent(self) -> float:
@@ -155,15 +155,25 @@ def _window(seconds: float, step: Callable[[], None]) -> float:
     return time.perf_counter() - start
 
 
-def run_link(seconds: float, sync_hz: float, answer: Answer = "on_send") -> Round:
-    """One round of the link: SYNC, PDOs, rows read in blocks by the main thread."""
+def _drives(answer: Answer) -> tuple[str, SimulatedDrives]:
+    """Fresh simulated drives, started on a fresh virtual channel, and that channel."""
     channel = f"bench-canopen-{uuid.uuid4().hex}"
     nodes = {i: i + 1 for i in range(len(AXES))}
     scaling = DriveScaling(increments_per_rev=IPR, screw_lead_mm=LEAD_MM, rated_current_a=RATED_A)
-    link = _link(channel, sync_hz)
-    with SimulatedDrives.start(
-        channel, nodes, PatternSource(), scaling=scaling, answer=answer
-    ) as drives:
+    drives = SimulatedDrives.start(channel, nodes, PatternSource(), scaling=scaling, answer=answer)
+    return channel, drives
+
+
+def _drives_cost(drives: SimulatedDrives) -> tuple[int, float]:
+    """The drives' late answers and the CPU seconds spent answering in the senders' threads."""
+    return drives.late_answers, drives.answer_cpu_s
+
+
+def run_link(seconds: float, sync_hz: float, answer: Answer = "on_send") -> Round:
+    """One round of the link: SYNC, PDOs, rows read in blocks by the main thread."""
+    channel, drives = _drives(answer)
+    with drives:
+        link = _link(channel, sync_hz)
         before = set(threading.enumerate())
         with link:
             threads = [*_new_threads(before), threading.main_thread()]
@@ -176,20 +186,18 @@ def run_link(seconds: float, sync_hz: float, answer: Answer = "on_send") -> Roun
                 block = link.read(0.1)
                 rows += 0 if block is None else len(block)
 
-            stats0, cpu0, late0 = link.statistics(), _thread_cpu_s(threads), drives.late_answers
-            answering0 = drives.answer_cpu_s
+            stats0, cpu0, cost0 = link.statistics(), _thread_cpu_s(threads), _drives_cost(drives)
             wall = _window(seconds, step)
-            cpu1, stats1, late = _thread_cpu_s(threads), link.statistics(), drives.late_answers
-            answering = drives.answer_cpu_s - answering0
+            cpu1, stats1, cost1 = _thread_cpu_s(threads), link.statistics(), _drives_cost(drives)
 
     def delta(key: str) -> int:
         return stats1.get(key, 0) - stats0.get(key, 0)
 
     cpu = _cpu_delta(cpu0, cpu1)
     return Round(
-        "link", wall, sum(cpu.values()) - answering, delta("pdo_frames"), rows,
+        "link", wall, sum(cpu.values()) - (cost1[1] - cost0[1]), delta("pdo_frames"), rows,
         delta("lost_rows") - delta("lost_no_sync"),  # cycles without SYNC: skipped, apart
-        delta("sync_skipped"), cpu, late - late0,
+        delta("sync_skipped"), cpu, cost1[0] - cost0[0],
     )  # fmt: skip
 
 
@@ -254,12 +262,8 @@ def _bare_layout(link: CanOpenLink) -> tuple[dict[int, tuple[int, struct.Struct]
 
 def run_bare(seconds: float, sync_hz: float, answer: Answer = "on_send") -> Round:
     """One round of the baseline: the same SYNC, PDOs, rows and scaled blocks, python-can only."""
-    channel = f"bench-canopen-{uuid.uuid4().hex}"
-    nodes = {i: i + 1 for i in range(len(AXES))}
-    scaling = DriveScaling(increments_per_rev=IPR, screw_lead_mm=LEAD_MM, rated_current_a=RATED_A)
-    with SimulatedDrives.start(
-        channel, nodes, PatternSource(), scaling=scaling, answer=answer
-    ) as drives:
+    channel, drives = _drives(answer)
+    with drives:
         link = _link(channel, sync_hz)
         with link:  # configures the drives' TPDOs over SDO, as in the link's round
             layout, scales = _bare_layout(link)
@@ -306,11 +310,9 @@ def run_bare(seconds: float, sync_hz: float, answer: Answer = "on_send") -> Roun
                     rows += len(taken)
 
             pdos0, lost0, skipped0 = receiver.pdos, receiver.lost, skipped
-            cpu0, late0 = _thread_cpu_s(threads), drives.late_answers
-            answering0 = drives.answer_cpu_s
+            cpu0, cost0 = _thread_cpu_s(threads), _drives_cost(drives)
             wall = _window(seconds, step)
-            cpu1, late = _thread_cpu_s(threads), drives.late_answers - late0
-            answering = drives.answer_cpu_s - answering0
+            cpu1, cost1 = _thread_cpu_s(threads), _drives_cost(drives)
             pdos, lost, skip = receiver.pdos - pdos0, receiver.lost - lost0, skipped - skipped0
         finally:
             stop.set()
@@ -318,8 +320,8 @@ def run_bare(seconds: float, sync_hz: float, answer: Answer = "on_send") -> Roun
             notifier.stop()
             bus.shutdown()
     cpu = _cpu_delta(cpu0, cpu1)
-    cpu_s = sum(cpu.values()) - answering
-    return Round("bare", wall, cpu_s, pdos, rows, lost, skip, cpu, late)
+    cpu_s = sum(cpu.values()) - (cost1[1] - cost0[1])
+    return Round("bare", wall, cpu_s, pdos, rows, lost, skip, cpu, cost1[0] - cost0[0])
 
 
 def wake_ups(seconds: float, period_s: float) -> tuple[int, int, float]:
