@@ -5,7 +5,9 @@ other (50 geometric steps 10..15 000 mm/min, 5 positions, both directions,
 2 repetitions: 1000 windows per axis), sampled at 1 kHz (about 3.5 M rows,
 16 float64 columns: time and five signals per axis), and writes it as a real
 recording with :class:`~ncmeasure.recording.RecordingWriter` into a
-temporary directory, then reads it back. The windows are found once (marker
+temporary directory, then reads it back (:meth:`Recording.open
+<ncmeasure.recording.Recording.open>`: every channel one contiguous column,
+the layout every side below gathers from). The windows are found once (marker
 and schedule; the time is printed). Then, in the same run, the table
 (median, mean, standard deviation and count of the current per axis,
 position, direction and step, over every sample of the windows) is built

@@ -5,7 +5,8 @@ current, velocity, position, commanded velocity, marker; 16 float64 columns
 with time_s, 3.6 M rows, about 460 MB) into a temporary directory with the
 real :class:`~ncmeasure.recording.RecordingWriter`, one frame per 250 rows as
 its flush thread would write them (4 frames/s). Then it times
-:meth:`Recording.open` (frame walk, CRC check of every frame, one array)
+:meth:`Recording.open` (frame walk, CRC check of every frame, one array held
+column by column)
 against ``np.fromfile`` of the same file (raw bytes into memory, no checks:
 the floor any reader pays) in the same run, and prints both and their ratio.
 Last, the CSV export time of a one-minute slice (60 000 rows).

@@ -39,6 +39,7 @@ from ncmeasure.recording import (
     iter_chunks,
     read_recording,
 )
+from ncmeasure.recording import reader as recording_reader
 from ncmeasure.recording import writer as recording_writer
 from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent, SampleBlock, channels_for
 
@@ -425,6 +426,45 @@ def test_a_corrupt_frame_stops_the_read_at_the_frame_before(tmp_path: Path) -> N
     path.write_bytes(bytes(data))
     rec = Recording.open(directory)
     assert same_bits(rec.values, rows_for(0, 40, len(XY))[1])
+    assert any(p.startswith("frame 2 fails its checksum") for p in rec.problems)
+
+
+@pytest.mark.parametrize("read_rows", [1 << 16, 7])
+def test_every_channel_is_one_contiguous_run_of_memory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, read_rows: int
+) -> None:
+    """The analysis reads a recording channel by channel: in rows of every channel, each
+    sample of a channel would sit in a cache line of its own. Frames larger than one
+    read (7 rows here) are read in pieces, each piece into its columns."""
+    monkeypatch.setattr(recording_reader, "_READ_ROWS", read_rows)
+    directory = tmp_path / "r"
+    write_frames(directory, frames=3, rows_per_frame=20)
+    rec = Recording.open(directory)
+    time_s, values = rows_for(0, 60, len(XY))
+    assert same_bits(rec.time_s, time_s)
+    assert same_bits(rec.values, values)
+    for name in ("time_s", *rec.channel_names):
+        column = rec.column(name)
+        assert column.flags.c_contiguous, name
+        assert column.base is not None  # a view, not a copy per call
+    assert rec.problems == []
+
+
+def test_a_corrupt_piece_of_a_frame_read_in_pieces_stops_the_read_at_the_frame_before(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(recording_reader, "_READ_ROWS", 7)
+    directory = tmp_path / "r"
+    write_frames(directory, frames=4, rows_per_frame=20)
+    path = directory / SAMPLES_FILE
+    offsets = frame_offsets(path, 1 + len(XY))
+    data = bytearray(path.read_bytes())
+    row_bytes = 8 * (1 + len(XY))
+    data[offsets[2] + FRAME_HEADER.size + 15 * row_bytes + 3] ^= 0x10  # its third piece
+    path.write_bytes(bytes(data))
+    rec = Recording.open(directory)
+    assert same_bits(rec.values, rows_for(0, 40, len(XY))[1])
+    assert same_bits(rec.time_s, rows_for(0, 40, len(XY))[0])
     assert any(p.startswith("frame 2 fails its checksum") for p in rec.problems)
 
 

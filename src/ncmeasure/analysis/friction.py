@@ -41,8 +41,10 @@ is vectorised, and it works through the groups in chunks of about
 :data:`_CHUNK_SAMPLES` samples (its memory does not grow with the recording,
 and a chunk's arrays stay small enough for the allocator to hand the same
 memory back chunk after chunk). The windows are sorted by group;
-a chunk's samples are gathered at once (an index built as a running sum of
-steps) and its sums come from ``np.add.reduceat``. The batches
+a chunk's samples are gathered at once (its windows' slices of a contiguous
+current, as a recording holds its channels; from a column of a wider array
+by an index built as a running sum of steps) and its sums come from
+``np.add.reduceat``. The batches
 are sorted as the rows of one padded block (numpy sorts short rows with
 vectorised sorting networks), which gives the batch medians. The window and
 group medians are *selected*, not sorted for: the median of a union lies
@@ -482,8 +484,9 @@ def friction_table(
     current = np.asarray(current_a, dtype=np.float64)
     start = np.fromiter(map(attrgetter("start"), windows), dtype=np.intp, count=len(windows))
     stop = np.fromiter(map(attrgetter("stop"), windows), dtype=np.intp, count=len(windows))
-    # A column of a wider array (a recording's) is gathered faster by index than slice by
-    # slice; a contiguous one, and windows beyond its ends (slices clip), by slices.
+    # A contiguous column (a recording's, as Recording.open holds them) is gathered
+    # slice by slice, and so are windows beyond its ends (slices clip); a column of a
+    # wider array, faster by index.
     if current.strides[0] == current.itemsize or (
         len(windows) and (start.min() < 0 or stop.max() > len(current))
     ):

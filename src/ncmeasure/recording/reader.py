@@ -102,14 +102,25 @@ def _walk_headers(file: io.FileIO, size: int, row_bytes: int, problems: list[str
     return frames
 
 
+_READ_ROWS = 1 << 12
+"""Rows read from ``samples.bin`` at a time and spread into their columns.
+
+512 KiB for 16 columns: a piece stays in the processor's cache while it is
+spread. Reading the benchmark's hour (3.5 M rows) took 0.26 s, against 0.40 s
+with pieces of 32,768 rows and 0.34 s for the rows read whole (``time_s``
+copied out of them)."""
+
+
 def _read_frames(path: Path, columns: int) -> tuple[NDArray[np.float64], list[str]]:
-    """Read every intact frame of ``samples.bin`` straight into one array.
+    """Read every intact frame of ``samples.bin`` straight into one array, column by column.
 
     Two passes: the headers first, which give the number of rows, then every
-    payload into its place in an array of exactly that size, with its CRC
-    checked. Memory follows the rows the headers announce, never the file
-    size: a file with a huge (sparse) damaged tail costs no more than its
-    intact frames.
+    payload, :data:`_READ_ROWS` rows at a time, into its place in an array of
+    exactly that size, with the frame's CRC checked over its pieces. The file
+    holds rows; the array holds columns (Fortran order): every channel's
+    samples are one contiguous run of memory, as the analysis reads them.
+    Memory follows the rows the headers announce, never the file size: a file
+    with a huge (sparse) damaged tail costs no more than its intact frames.
 
     Returns:
         The rows of the intact frames (n, columns), and the problems found.
@@ -119,27 +130,32 @@ def _read_frames(path: Path, columns: int) -> tuple[NDArray[np.float64], list[st
     with path.open("rb", buffering=0) as file:
         size = os.fstat(file.fileno()).st_size  # a live writer may append more: ignored
         frames = _walk_headers(file, size, row_bytes, problems)
-        raw = np.empty(sum(f.rows for f in frames) * row_bytes, dtype=np.uint8)
-        buffer = raw.data
+        total = sum(f.rows for f in frames)
+        data = np.empty((total, columns), dtype=np.float64, order="F")
+        piece = np.empty(min(total, _READ_ROWS) * row_bytes, dtype=np.uint8)
         rows = 0
         for number, frame in enumerate(frames):
-            payload_bytes = frame.rows * row_bytes
             rest = size - frame.offset
-            target = buffer[rows * row_bytes : rows * row_bytes + payload_bytes]
             file.seek(frame.offset + FRAME_HEADER.size)
-            if _read_exactly(file, target) < payload_bytes:
-                where = f"after frame {number - 1}" if number else "at the start of samples.bin"
-                problems[:] = [f"torn tail: {rest} bytes {where} ignored (file shrank)"]
-                break
-            if zlib.crc32(target) != frame.crc:
+            crc = 0
+            for first in range(0, frame.rows, _READ_ROWS):
+                count = min(_READ_ROWS, frame.rows - first)
+                target = piece[: count * row_bytes]
+                if _read_exactly(file, target.data) < len(target):
+                    where = f"after frame {number - 1}" if number else "at the start of samples.bin"
+                    problems[:] = [f"torn tail: {rest} bytes {where} ignored (file shrank)"]
+                    return data[:rows], problems
+                crc = zlib.crc32(target.data, crc)
+                at = rows + first
+                data[at : at + count] = target.view(ROW_DTYPE).reshape(count, columns)
+            if crc != frame.crc:
                 problems[:] = [
                     f"frame {number} fails its checksum: it and everything after it "
                     f"ignored ({rest} bytes)"
                 ]
                 break
             rows += frame.rows
-    data: NDArray[np.float64] = raw[: rows * row_bytes].view(ROW_DTYPE).reshape(rows, columns)
-    return data, problems
+    return data[:rows], problems
 
 
 @dataclass(frozen=True)
@@ -450,8 +466,9 @@ class RecordingHead:
 class Recording:
     """A recording read into memory.
 
-    ``values`` is a view into one array that also holds ``time_s`` as its
-    first column; :meth:`column` returns views as well (no copies).
+    ``time_s`` and ``values`` are views into one array held column by column
+    (``time_s`` its first column): every channel's samples are contiguous,
+    and :meth:`column` returns views of them (no copies).
 
     Attributes:
         directory: Where the recording lives.
@@ -503,7 +520,7 @@ class Recording:
             directory=path,
             meta=meta,
             channels=channels,
-            time_s=np.ascontiguousarray(data[:, 0]),
+            time_s=data[:, 0],
             values=data[:, 1:],
             events=events,
             problems=problems,
