@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from ncmeasure.files import replace_binary, replace_text
+from ncmeasure.errors import OutputError
+from ncmeasure.files import replace_binary, replace_text, write_whole
 
 
 def test_the_file_is_replaced_whole_with_the_usual_permissions(tmp_path: Path) -> None:
@@ -48,3 +49,29 @@ def test_a_symlink_at_the_target_is_replaced_not_followed(tmp_path: Path) -> Non
     assert victim.read_text(encoding="utf-8") == "keep me"
     assert not (tmp_path / "out.txt").is_symlink()
     assert (tmp_path / "out.txt").read_text(encoding="utf-8") == "new"
+
+
+def test_write_whole_writes_text_or_bytes_and_creates_the_folder_when_asked(
+    tmp_path: Path,
+) -> None:
+    text = write_whole(tmp_path / "a" / "b" / "out.json", "{}\n", parents=True, fsync=True)
+    assert text == tmp_path / "a" / "b" / "out.json"
+    assert text.read_bytes() == b"{}\n"
+    binary = write_whole(tmp_path / "out.png", b"\x89PNG\r\n")
+    assert binary.read_bytes() == b"\x89PNG\r\n"
+    with pytest.raises(OutputError, match="cannot be written"):
+        write_whole(tmp_path / "missing" / "out.json", "{}")  # no parents: no folder
+
+
+def test_write_whole_names_the_file_and_leaves_nothing_behind(tmp_path: Path) -> None:
+    (tmp_path / "blocker").write_text("a file, not a folder", encoding="utf-8")
+    with pytest.raises(OutputError) as caught:
+        write_whole(tmp_path / "blocker" / "out.txt", "new", parents=True)
+    assert str(caught.value).startswith(f"{tmp_path / 'blocker' / 'out.txt'}: cannot be written (")
+    folder = tmp_path / "results.json"  # a folder where the file is to go
+    folder.mkdir()
+    (folder / "keep").write_text("kept", encoding="utf-8")
+    with pytest.raises(OutputError, match=r"results\.json: cannot be written \(Is a directory"):
+        write_whole(folder, "{}")
+    assert (folder / "keep").read_text(encoding="utf-8") == "kept"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blocker", "results.json"]

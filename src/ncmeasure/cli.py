@@ -2512,7 +2512,7 @@ def compensation_command(
     from ncmeasure.analysis.analyze import load_results
     from ncmeasure.compensation import render_compensation
     from ncmeasure.config import load_machine
-    from ncmeasure.files import replace_text
+    from ncmeasure.files import write_whole
 
     results = load_results(results_file)
     text = render_compensation(
@@ -2527,11 +2527,7 @@ def compensation_command(
     if output is None:
         sys.stdout.write(text)
         return
-    try:
-        with replace_text(output, newline="\n") as handle:
-            handle.write(text)
-    except OSError as exc:
-        raise OutputError(f"{output}: cannot write ({exc.strerror or exc})") from exc
+    write_whole(output, text, newline="\n")
     _console().print(f"wrote {output}")
 
 

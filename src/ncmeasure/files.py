@@ -2,10 +2,12 @@
 
 Every file ncmeasure writes in one piece (``meta.json``, ``results.json``, the
 report page and its plots, exports) goes through :func:`replace_text` or
-:func:`replace_binary`. The temporary file gets a name nobody can predict and
-is created exclusively (``O_CREAT | O_EXCL``, and ``O_NOFOLLOW`` where the
-system has it): a file or symlink someone placed beside the target is never
-followed, written or replaced, and two writers never share a temporary file.
+:func:`replace_binary`; :func:`write_whole` writes a finished text or bytes and
+turns a failure into one :class:`~ncmeasure.errors.OutputError` naming the
+file. The temporary file gets a name nobody can predict and is created
+exclusively (``O_CREAT | O_EXCL``, and ``O_NOFOLLOW`` where the system has
+it): a file or symlink someone placed beside the target is never followed,
+written or replaced, and two writers never share a temporary file.
 A reader sees the old file or the new one, whole; a failure removes the
 temporary file and leaves the target as it was.
 """
@@ -19,7 +21,9 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, AnyStr, Final
 
-__all__ = ["replace_binary", "replace_by_path", "replace_text"]
+from ncmeasure.errors import OutputError
+
+__all__ = ["replace_binary", "replace_by_path", "replace_text", "write_whole"]
 
 _FLAGS: Final = (
     os.O_WRONLY
@@ -104,6 +108,43 @@ def replace_binary(path: str | os.PathLike[str], *, fsync: bool = False) -> Iter
 
     with _replace(Path(path), opener, fsync) as file:
         yield file
+
+
+def write_whole(
+    path: str | os.PathLike[str],
+    data: str | bytes,
+    *,
+    fsync: bool = False,
+    parents: bool = False,
+    newline: str | None = None,
+) -> Path:
+    """Write ``data`` (text as UTF-8, or bytes) to ``path`` whole, and return the path.
+
+    Args:
+        path: The file to replace (or create).
+        data: Its whole contents.
+        fsync: Also fsync the file before the rename (survives a power cut).
+        parents: Create its folder (and theirs) when missing.
+        newline: For text, as for :func:`open` (``"\\n"`` for the same line ends
+            everywhere).
+
+    Raises:
+        OutputError: The file (or its folder) cannot be written; the message names
+            the file and the system's reason. The file stays as it was.
+    """
+    target = Path(path)
+    try:
+        if parents:
+            target.parent.mkdir(parents=True, exist_ok=True)
+        if isinstance(data, bytes):
+            with replace_binary(target, fsync=fsync) as binary:
+                binary.write(data)
+        else:
+            with replace_text(target, newline=newline, fsync=fsync) as text:
+                text.write(data)
+    except OSError as exc:
+        raise OutputError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
+    return target
 
 
 @contextlib.contextmanager

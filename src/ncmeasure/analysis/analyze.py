@@ -61,8 +61,8 @@ from ncmeasure.analysis.sweep import SlicedFinder
 from ncmeasure.analysis.verdict import axis_verdict
 from ncmeasure.analysis.watch import AxisWindows, OnWindows, Reader, Watchers
 from ncmeasure.config import MachineConfig, format_validation_error
-from ncmeasure.errors import ConfigError, OutputError, RecordingError
-from ncmeasure.files import replace_text
+from ncmeasure.errors import ConfigError, RecordingError
+from ncmeasure.files import write_whole
 from ncmeasure.inputs import parse_json, read_text
 from ncmeasure.plan import AxisSummary, Schedule
 from ncmeasure.recording import (
@@ -1089,14 +1089,7 @@ def write_results(results: Results, path: str | os.PathLike[str]) -> Path:
     Raises:
         OutputError: The file cannot be written.
     """
-    target = Path(path)
-    text = results.model_dump_json(indent=2)
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        with replace_text(target, fsync=True) as file:
-            file.write(text + "\n")
-    except OSError as exc:
-        raise OutputError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
+    target = write_whole(path, results.model_dump_json(indent=2) + "\n", fsync=True, parents=True)
     log.info("wrote %s", target)
     return target
 

@@ -51,8 +51,8 @@ from ncmeasure.analysis.results import (
     Results,
     Signature,
 )
-from ncmeasure.errors import ComparisonError, OutputError
-from ncmeasure.files import replace_text
+from ncmeasure.errors import ComparisonError
+from ncmeasure.files import write_whole
 
 __all__ = [
     "CHANGE_SHAPE",
@@ -1057,12 +1057,8 @@ def write_comparison(comparison: Comparison, path: str | os.PathLike[str]) -> Pa
     Raises:
         OutputError: The file or its folder cannot be written.
     """
-    target = Path(path)
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        with replace_text(target, fsync=True) as file:
-            file.write(comparison.model_dump_json(indent=2) + "\n")
-    except OSError as exc:
-        raise OutputError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
+    target = write_whole(
+        path, comparison.model_dump_json(indent=2) + "\n", fsync=True, parents=True
+    )
     log.info("wrote %s", target)
     return target

@@ -48,8 +48,7 @@ from PIL import Image
 
 from ncmeasure.analysis.compare import Comparison
 from ncmeasure.analysis.results import AxisResult, DirectionResult, NonlinearFit, VelocityProfile
-from ncmeasure.errors import OutputError
-from ncmeasure.files import replace_binary
+from ncmeasure.files import write_whole
 from ncmeasure.recording import Recording
 from ncmeasure.report.bearings import BearingLayout
 from ncmeasure.report.curves import linear_curve, offset_is_significant, stribeck_curve
@@ -299,12 +298,7 @@ def save_png(figure: Figure, path: str | Path) -> bytes:
         OutputError: The file cannot be written.
     """
     data = figure_png(figure)
-    target = Path(path)
-    try:
-        with replace_binary(target) as file:
-            file.write(data)
-    except OSError as exc:
-        raise OutputError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
+    write_whole(path, data)
     return data
 
 

@@ -22,7 +22,7 @@ from pydantic import BaseModel
 from ncmeasure.analysis.compare import Comparison
 from ncmeasure.analysis.results import Results
 from ncmeasure.errors import NcMeasureError, OutputError, RecordingError
-from ncmeasure.files import replace_text
+from ncmeasure.files import write_whole
 from ncmeasure.recording import Recording, RecordingHead
 from ncmeasure.report.bearings import bearing_layout
 from ncmeasure.report.page import AxisSection, Figure, render_page
@@ -241,11 +241,7 @@ def _write_report(
         comparison=comparison,
         comparison_figure=comparison_figure,
     )
-    try:
-        with replace_text(target) as file:
-            file.write(page)
-    except OSError as exc:
-        raise OutputError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
+    write_whole(target, page)
     advance("report page")
     log.info("report written to %s (plots in %s)", target, plots_dir)
     return target

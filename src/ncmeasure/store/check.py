@@ -37,8 +37,8 @@ from ncmeasure.analysis.compare import (
     worst_status,
 )
 from ncmeasure.analysis.results import Results
-from ncmeasure.errors import ComparisonError, OutputError
-from ncmeasure.files import replace_text
+from ncmeasure.errors import ComparisonError
+from ncmeasure.files import write_whole
 from ncmeasure.store import schema as t
 from ncmeasure.store.overview import is_outlier
 from ncmeasure.store.rows import CHARACTERISTICS
@@ -347,11 +347,4 @@ def write_check(check: StoreCheck, path: str | os.PathLike[str]) -> Path:
     Raises:
         OutputError: The file cannot be written.
     """
-    target = Path(path)
-    try:
-        with replace_text(target) as file:
-            json.dump(check_json(check), file, indent=2, allow_nan=False)
-            file.write("\n")
-    except OSError as exc:
-        raise OutputError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
-    return target
+    return write_whole(path, json.dumps(check_json(check), indent=2, allow_nan=False) + "\n")

@@ -23,8 +23,7 @@ from matplotlib.figure import Figure
 
 from ncmeasure._version import __version__
 from ncmeasure.analysis.compare import Limits
-from ncmeasure.errors import OutputError
-from ncmeasure.files import replace_text
+from ncmeasure.files import write_whole
 from ncmeasure.report.words import format_date, format_number
 from ncmeasure.store.overview import AxisOverview, Change, FleetOverview, MachineOverview
 from ncmeasure.store.rows import CHARACTERISTICS
@@ -234,10 +233,4 @@ def write_fleet_report(
         trends=drawn,
         format_number=format_number,
     )
-    target = Path(path)
-    try:
-        with replace_text(target) as file:
-            file.write(text)
-    except OSError as exc:
-        raise OutputError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
-    return target
+    return write_whole(path, text)
