@@ -240,6 +240,55 @@ def test_large_flushes_are_split_into_frames(
     assert rec.problems == []
 
 
+def test_a_writer_fed_faster_than_real_time_writes_bounded_frames(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A replay or an import appends rows far faster than the flush thread's interval:
+    the rows waiting in memory (and lost by a crash) stay bounded by FLUSH_ROWS, and so
+    do the frames, whatever the pace."""
+    monkeypatch.setattr(recording_writer, "FLUSH_ROWS", 2500)
+    directory = tmp_path / "r"
+    writer = RecordingWriter.create(directory, XY, nominal_period_s=0.001, flush_interval_s=0.5)
+    for index in range(10):
+        writer.append(block(index * 1000, 1000))
+    assert writer.rows_written >= 9000  # on disk before any flush of the thread is due
+    writer.close()
+    columns = 1 + len(XY)
+    data = (directory / SAMPLES_FILE).read_bytes()
+    sizes = [
+        FRAME_HEADER.unpack_from(data, o)[1]
+        for o in frame_offsets(directory / SAMPLES_FILE, columns)
+    ]
+    assert sum(sizes) == 10_000
+    assert max(sizes) <= 3000  # under FLUSH_ROWS when the last block came, plus that block
+    assert same_bits(Recording.open(directory).values, rows_for(0, 10_000, len(XY))[1])
+
+
+def test_a_flush_that_fails_inside_append_is_raised_by_the_next_call_and_keeps_the_rows(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(recording_writer, "FLUSH_ROWS", 100)
+    directory = tmp_path / "r"
+    writer = RecordingWriter.create(directory, XY, nominal_period_s=0.001, flush_interval_s=0.5)
+    real_fsync = os.fsync
+    failing = [True]
+
+    def fsync(fd: int) -> None:
+        if failing[0]:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real_fsync(fd)
+
+    monkeypatch.setattr(recording_writer.os, "fsync", fsync)
+    writer.append(block(0, 150))  # its flush fails: the rows stay buffered, append returns
+    with pytest.raises(RecordingError, match="No space left on device"):
+        writer.append(block(150, 10))
+    failing[0] = False
+    writer.flush()  # the retry writes what was buffered
+    writer.append(block(150, 10))
+    writer.close()
+    assert same_bits(Recording.open(directory).values, rows_for(0, 160, len(XY))[1])
+
+
 def test_appends_and_events_from_several_threads(tmp_path: Path) -> None:
     directory = tmp_path / "r"
     with RecordingWriter.create(directory, XY, nominal_period_s=0.001) as writer:

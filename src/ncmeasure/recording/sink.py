@@ -37,9 +37,6 @@ log = logging.getLogger(__name__)
 
 #: Time steps read back at a time when their median is selected.
 _STEP_READ: Final = 1 << 20
-#: Rows an import buffers before it writes them as a frame and fsyncs it: few enough to
-#: bound its memory (16 channels: 17 MB), many enough that fsync does not set its pace.
-_FLUSH_ROWS: Final = 1 << 17
 #: Bits of the step's sort key per counting pass (4 passes cover 64 bits; a table of
 #: 65,536 counts, not megabytes).
 _DIGIT_BITS: Final = (16, 16, 16, 16)
@@ -200,7 +197,6 @@ class ImportSink:
         self.meta = meta
         self.existed = directory.exists()
         self.rows = 0
-        self._unflushed = 0
         self.writer: RecordingWriter | None = None
         facts: dict[str, dict[str, Any]] = {}
         for channel in self.channels:
@@ -239,11 +235,7 @@ class ImportSink:
                 writer.append(SampleBlock(t, v))
             writer.flush()
             return
-        self.writer.append(SampleBlock(time_s, values))
-        self._unflushed += len(time_s)
-        if self._unflushed >= _FLUSH_ROWS:
-            self.writer.flush()
-            self._unflushed = 0
+        self.writer.append(SampleBlock(time_s, values))  # it writes a frame per FLUSH_ROWS
 
     def ensure_writer(self) -> RecordingWriter:
         """The writer, created on first use (with the period known by then).
