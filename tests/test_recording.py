@@ -18,6 +18,7 @@ import time
 import zlib
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -287,6 +288,45 @@ def test_a_flush_that_fails_inside_append_is_raised_by_the_next_call_and_keeps_t
     writer.append(block(150, 10))
     writer.close()
     assert same_bits(Recording.open(directory).values, rows_for(0, 160, len(XY))[1])
+
+
+def test_an_interrupt_in_the_middle_of_a_frame_leaves_no_partial_frame(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A Ctrl-C (KeyboardInterrupt) while append writes a frame on the caller's thread: the
+    partial frame is cut away and the rows stay buffered, so closing the recording as
+    interrupted writes them after the last whole frame and every row reads back."""
+    monkeypatch.setattr(recording_writer, "FLUSH_ROWS", 1000)
+    real_write_all = recording_writer._write_all
+    payloads = [0]
+
+    def write_all(file: Any, data: Any) -> None:
+        # The second frame append writes (not the flush thread's): half of it, then Ctrl-C.
+        if threading.current_thread() is threading.main_thread() and len(data) > 16:
+            payloads[0] += 1
+            if payloads[0] == 2:
+                view = memoryview(data).cast("B")
+                file.write(view[: len(view) // 2])
+                raise KeyboardInterrupt
+        real_write_all(file, data)
+
+    monkeypatch.setattr(recording_writer, "_write_all", write_all)
+    directory = tmp_path / "r"
+    appended = 0
+    with (
+        pytest.raises(KeyboardInterrupt),
+        RecordingWriter.create(
+            directory, XY, nominal_period_s=0.001, flush_interval_s=0.5
+        ) as writer,
+    ):
+        for index in range(100):
+            appended += 500  # the block of the interrupted append was buffered
+            writer.append(block(index * 500, 500))
+    rec = Recording.open(directory)
+    assert rec.problems == []
+    assert rec.meta.status == "interrupted"
+    assert rec.meta.samples == len(rec) == appended
+    assert same_bits(rec.values, rows_for(0, appended, len(XY))[1])
 
 
 def test_appends_and_events_from_several_threads(tmp_path: Path) -> None:

@@ -601,15 +601,19 @@ class RecordingWriter:
                 what = EVENTS_FILE
                 _write_all(self._events, b"".join(self._pending_events))
                 os.fsync(self._events.fileno())
-        except OSError as exc:
-            # Cut partial writes away, so the next frame follows a whole one.
+        except BaseException as exc:
+            # Cut partial writes away, so the next frame follows a whole one: after a
+            # full disk, and after an interrupt (Ctrl-C) while append flushes on the
+            # caller's thread. The rows stay buffered.
             for file, size in (
                 (self._samples, self._samples_size),
                 (self._events, self._events_size),
             ):
                 with contextlib.suppress(OSError):
                     file.truncate(size)
-            raise RecordingError(write_failure(self.directory, what, exc)) from exc
+            if isinstance(exc, OSError):
+                raise RecordingError(write_failure(self.directory, what, exc)) from exc
+            raise
         self._frames = frames
         self._rows_written += self._pending_count
         self._samples_size = self._samples.tell()
@@ -620,8 +624,8 @@ class RecordingWriter:
         self._error = None
 
     def _flush_or_keep_error(self) -> None:
-        """Flush (the lock held); a failure is kept, and the next append, flush or close
-        raises it. The rows stay buffered for the next attempt."""
+        """Flush (the lock held); a failure is kept: the next append or add_event raises
+        it, and flush and close try again. The rows stay buffered for the next attempt."""
         try:
             self._flush_locked()
         except RecordingError as exc:
