@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import errno
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -12,6 +14,7 @@ import pytest
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import DependencyError, RecordingError
 from ncmeasure.recording import Recording, RecordingWriter
+from ncmeasure.recording import writer as recording_writer
 from ncmeasure.samples import Channel, LinkEvent, SampleBlock
 from ncmeasure.traces import csv as csv_module
 from ncmeasure.traces.csv import export_csv, import_csv
@@ -192,6 +195,39 @@ def test_a_failed_import_keeps_what_was_in_the_directory(tmp_path: Path) -> None
 
 
 # --- MDF4 ------------------------------------------------------------------------------------
+
+
+def test_an_import_the_disk_refuses_says_so_and_promises_nothing_of_its_files(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The disk fills while the import closes its recording: the message names the
+    recording and the disk, and says the import is not kept. It does not say the samples
+    on disk are readable, nor that a later recording moves them aside: the failed import
+    removes them."""
+    original = awkward_recording(tmp_path / "original")
+    csv_path = export_csv(original, tmp_path / "out.csv")
+
+    real_fsync, real_close = recording_writer.os.fsync, RecordingWriter.close
+    closing = [False]
+
+    def fsync(fd: int) -> None:
+        if closing[0]:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real_fsync(fd)
+
+    def close(self: RecordingWriter, *args: Any, **kwargs: Any) -> None:
+        closing[0] = True
+        real_close(self, *args, **kwargs)
+
+    monkeypatch.setattr(recording_writer.os, "fsync", fsync)
+    monkeypatch.setattr(RecordingWriter, "close", close)
+    with pytest.raises(RecordingError) as caught:
+        import_csv(csv_path, tmp_path / "copy")
+    message = str(caught.value)
+    assert message.startswith(f"{tmp_path / 'copy'}: disk full (No space left on device)")
+    assert "the import is not kept" in message
+    assert "readable" not in message and "aside" not in message
+    assert not (tmp_path / "copy").exists()
 
 
 def test_mdf4_round_trip(tmp_path: Path, make_config: Make) -> None:

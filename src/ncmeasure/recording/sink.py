@@ -274,7 +274,8 @@ class ImportSink:
             Its ``meta.json`` as written.
 
         Raises:
-            RecordingError: no rows, or a single row and no sample period.
+            RecordingError: no rows, or a single row and no sample period; or the
+                recording could not be finished (a full disk): the caller discards it.
         """
         if self.writer is None and not self._pending:
             raise RecordingError(f"{self.directory}: {self.what} holds no complete sample")
@@ -289,7 +290,13 @@ class ImportSink:
             link["implausible"] = dict(self.validity.counts)
             updates["link"] = link
         self._steps.close()
-        writer.close(status, **updates)
+        try:
+            writer.close(status, **updates)
+        except RecordingError as exc:
+            # The writer's message tells a recorder what stays on disk; a failed import
+            # keeps nothing (its caller discards it), so say that instead.
+            cause = exc.__cause__ if isinstance(exc.__cause__, RecordingError) else exc
+            raise RecordingError(f"{cause.message}; the import is not kept") from exc
         log.info("imported into %s: %d samples", self.directory, writer.rows_written)
         return writer.meta
 
