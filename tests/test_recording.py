@@ -271,19 +271,12 @@ def test_a_flush_that_fails_inside_append_is_raised_by_the_next_call_and_keeps_t
     monkeypatch.setattr(recording_writer, "FLUSH_ROWS", 100)
     directory = tmp_path / "r"
     writer = RecordingWriter.create(directory, XY, nominal_period_s=0.001, flush_interval_s=0.5)
-    real_fsync = os.fsync
-    failing = [True]
-
-    def fsync(fd: int) -> None:
-        if failing[0]:
-            raise OSError(errno.ENOSPC, "No space left on device")
-        real_fsync(fd)
-
-    monkeypatch.setattr(recording_writer.os, "fsync", fsync)
+    disk = FullDisk(monkeypatch)
+    disk.fill()
     writer.append(block(0, 150))  # its flush fails: the rows stay buffered, append returns
     with pytest.raises(RecordingError, match="No space left on device"):
         writer.append(block(150, 10))
-    failing[0] = False
+    disk.free()
     writer.flush()  # the retry writes what was buffered
     writer.append(block(150, 10))
     writer.close()

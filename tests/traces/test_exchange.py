@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import errno
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -14,12 +13,11 @@ import pytest
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import DependencyError, RecordingError
 from ncmeasure.recording import Recording, RecordingWriter
-from ncmeasure.recording import writer as recording_writer
 from ncmeasure.samples import Channel, LinkEvent, SampleBlock
 from ncmeasure.traces import csv as csv_module
 from ncmeasure.traces.csv import export_csv, import_csv
 from ncmeasure.traces.mdf4 import export_mdf4, import_mdf4
-from tests.test_recording import ALL_SIGNALS, LINK, same_bits, write_frames
+from tests.test_recording import ALL_SIGNALS, LINK, FullDisk, same_bits, write_frames
 
 Make = Callable[..., MachineConfig]
 
@@ -207,19 +205,13 @@ def test_an_import_the_disk_refuses_says_so_and_promises_nothing_of_its_files(
     original = awkward_recording(tmp_path / "original")
     csv_path = export_csv(original, tmp_path / "out.csv")
 
-    real_fsync, real_close = recording_writer.os.fsync, RecordingWriter.close
-    closing = [False]
-
-    def fsync(fd: int) -> None:
-        if closing[0]:
-            raise OSError(errno.ENOSPC, "No space left on device")
-        real_fsync(fd)
+    disk = FullDisk(monkeypatch)
+    real_close = RecordingWriter.close
 
     def close(self: RecordingWriter, *args: Any, **kwargs: Any) -> None:
-        closing[0] = True
+        disk.fill()  # while the import closes its recording
         real_close(self, *args, **kwargs)
 
-    monkeypatch.setattr(recording_writer.os, "fsync", fsync)
     monkeypatch.setattr(RecordingWriter, "close", close)
     with pytest.raises(RecordingError) as caught:
         import_csv(csv_path, tmp_path / "copy")
