@@ -51,8 +51,10 @@ ROWS_PER_FRAME = 250  # as the writer's flush thread writes them at 1 kHz
 GOAL_BYTES = 1 << 30
 IMPORTS = (
     "import numpy, scipy.ndimage, scipy.stats, pydantic; import ncmeasure.cli; "
-    "from ncmeasure.analysis.analyze import analyze, write_results; "
-    "from ncmeasure.program import load_schedule; from ncmeasure.recording import read_recording"
+    "from ncmeasure.analysis.analyze import analyze; "
+    "from ncmeasure.formats.results import write_results; "
+    "from ncmeasure.formats.schedule import load_schedule; "
+    "from ncmeasure.recording import read_recording"
 )
 
 

@@ -42,10 +42,10 @@ from pathlib import Path
 import numpy as np
 from measurement import measurement_axes
 
-from ncmeasure.analysis.analyze import analyze, write_results
+from ncmeasure.analysis.analyze import analyze
 from ncmeasure.analysis.fit import fit_nonlinear, point_sigma
-from ncmeasure.analysis.results import Results
-from ncmeasure.plan import Schedule
+from ncmeasure.formats.results import Results, write_results
+from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import RecordingHead
 from ncmeasure.report import write_report
 from ncmeasure.report.traces import RawTraces

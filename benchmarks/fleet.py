@@ -53,9 +53,10 @@ from pathlib import Path
 import numpy as np
 from sqlalchemy import func, select
 
-from ncmeasure.analysis.analyze import analyze, write_results
-from ncmeasure.analysis.compare import Limits, compare_results, modified_z_against
-from ncmeasure.analysis.results import Results
+from ncmeasure.analysis.analyze import analyze
+from ncmeasure.analysis.compare import compare_results, modified_z_against
+from ncmeasure.formats.comparison import Limits
+from ncmeasure.formats.results import Results, write_results
 from ncmeasure.inputs import read_text
 from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
 from ncmeasure.store import MeasurementInfo, open_store

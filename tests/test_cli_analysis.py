@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from ncmeasure.analysis.analyze import load_results
 from ncmeasure.analysis.summary import axis_headline
 from ncmeasure.cli import app
+from ncmeasure.formats.results import load_results
 from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
 from tests.report.example import DEAD_Y_REASON, healthy_recording
 

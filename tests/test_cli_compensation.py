@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from ncmeasure.analysis.analyze import write_results
 from ncmeasure.cli import app
+from ncmeasure.formats.results import write_results
 from tests.compensation.example import example_results
 
 runner = CliRunner()

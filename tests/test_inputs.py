@@ -107,8 +107,8 @@ def test_results_and_recordings_are_read_as_bounded_regular_files(
 ) -> None:
     """results.json and a recording's meta.json: brackets nested deep, or a device, are
     located errors, never a traceback or a read without end."""
-    from ncmeasure.analysis.analyze import load_results
     from ncmeasure.errors import NcMeasureError
+    from ncmeasure.formats.results import load_results
     from ncmeasure.recording import read_recording
 
     folder = tmp_path / "run"

@@ -145,7 +145,7 @@ def test_write_close_read_back(tmp_path: Path, make_config: Make) -> None:
     assert meta.ncmeasure_version == ncmeasure.__version__
     assert meta.machine == config.machine.name
     assert meta.axes == [axis_metadata(config.axis("X")), axis_metadata(config.axis("Y"))]
-    assert meta.axes[0]["torque_constant_nm_per_a"] == config.axis("X").torque_constant_nm_per_a
+    assert meta.axes[0].torque_constant_nm_per_a == config.axis("X").torque_constant_nm_per_a
     assert meta.link == LINK
     assert [(c.name, c.axis, c.signal, c.unit) for c in meta.channels] == [
         (c.name, c.axis, c.signal, c.unit) for c in XY

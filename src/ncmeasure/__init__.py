@@ -61,7 +61,8 @@ from ncmeasure.errors import (
 if TYPE_CHECKING:
     from ncmeasure.acquire import record
     from ncmeasure.config import MachineConfig, config_hash, load_machine
-    from ncmeasure.plan import Schedule, plan_machine
+    from ncmeasure.formats.schedule import Schedule
+    from ncmeasure.plan import plan_machine
     from ncmeasure.program import GeneratedPrograms, check_programs, generate_programs
     from ncmeasure.recording import Recording, read_recording
 
@@ -70,7 +71,7 @@ _LAZY = {
     "MachineConfig": "ncmeasure.config",
     "config_hash": "ncmeasure.config",
     "load_machine": "ncmeasure.config",
-    "Schedule": "ncmeasure.plan",
+    "Schedule": "ncmeasure.formats.schedule",
     "plan_machine": "ncmeasure.plan",
     "GeneratedPrograms": "ncmeasure.program",
     "check_programs": "ncmeasure.program",

@@ -36,8 +36,8 @@ import numpy as np
 
 from ncmeasure.config import MachineConfig, load_machine
 from ncmeasure.errors import ConfigError, LinkError, RecordingError
+from ncmeasure.formats.schedule import Schedule
 from ncmeasure.links import DriveLink, make_link
-from ncmeasure.plan import Schedule
 from ncmeasure.recording import RecordingWriter
 from ncmeasure.samples import LinkClock, LinkEvent, SampleBlock
 

@@ -36,10 +36,10 @@ if TYPE_CHECKING:
     from rich.text import Text
 
     from ncmeasure.acquire import Progress
-    from ncmeasure.analysis.compare import Comparison
-    from ncmeasure.analysis.results import Results
     from ncmeasure.analysis.summary import AxisComparison, Headline
-    from ncmeasure.plan import Schedule
+    from ncmeasure.formats.comparison import Comparison
+    from ncmeasure.formats.results import Results
+    from ncmeasure.formats.schedule import Schedule
 
 __all__ = ["app", "main"]
 
@@ -323,7 +323,7 @@ def schema_machine() -> None:
 @_command
 def schema_schedule() -> None:
     """JSON Schema of schedule.json, the velocity file generate writes."""
-    from ncmeasure.plan import Schedule
+    from ncmeasure.formats.schedule import Schedule
 
     sys.stdout.write(json.dumps(Schedule.model_json_schema(), indent=2) + "\n")
 
@@ -805,7 +805,7 @@ def record_command(
 
     from ncmeasure.acquire import record
     from ncmeasure.config import load_machine
-    from ncmeasure.program import load_schedule
+    from ncmeasure.formats.schedule import load_schedule
 
     config = load_machine(machine)
     overrides: dict[str, Any] = {
@@ -1265,9 +1265,10 @@ def analyze_command(
     """
     from pydantic import ValidationError
 
-    from ncmeasure.analysis.analyze import AnalysisSettings, analyze, write_results
+    from ncmeasure.analysis.analyze import AnalysisSettings, analyze
     from ncmeasure.config import format_validation_error, load_machine
-    from ncmeasure.program import load_schedule
+    from ncmeasure.formats.results import write_results
+    from ncmeasure.formats.schedule import load_schedule
     from ncmeasure.recording import RecordingHead
 
     target = output or run.with_name(run.name + ".results.json")
@@ -1481,8 +1482,9 @@ def compare_command(
 
     Example: ncmeasure compare m17/results.json m18/results.json m19/results.json
     """
-    from ncmeasure.analysis.analyze import load_results
-    from ncmeasure.analysis.compare import compare_results, write_comparison
+    from ncmeasure.analysis.compare import compare_results
+    from ncmeasure.formats.comparison import write_comparison
+    from ncmeasure.formats.results import load_results
 
     labels = _compare_labels(base, others, label)
     reference = load_results(base)
@@ -1638,7 +1640,7 @@ def _limits(warning: float | None, critical: float | None) -> Any:
     """The limits of --warning/--critical; bad ones in one line, named as options."""
     from pydantic import ValidationError
 
-    from ncmeasure.analysis.compare import Limits
+    from ncmeasure.formats.comparison import Limits
 
     options = {"warning_percent": "--warning", "critical_percent": "--critical"}
     updates = {
@@ -1690,7 +1692,7 @@ def store_add_command(
 
     Example: ncmeasure store add m17.results.json --serial M17 --label delivery --temperature-c 21.5
     """
-    from ncmeasure.analysis.analyze import load_results
+    from ncmeasure.formats.results import load_results
 
     info = _measurement_info(
         serial=serial,
@@ -1929,7 +1931,7 @@ def store_report_command(
 
     Example: ncmeasure store report -o fleet.html
     """
-    from ncmeasure.analysis.compare import worst_status
+    from ncmeasure.formats.comparison import worst_status
     from ncmeasure.store.overview import fleet_overview
     from ncmeasure.store.report import write_fleet_report
 
@@ -2509,10 +2511,10 @@ def compensation_command(
 
     Example: ncmeasure compensation run1.results.json --controller twincat --axis X -o X.lis
     """
-    from ncmeasure.analysis.analyze import load_results
     from ncmeasure.compensation import render_compensation
     from ncmeasure.config import load_machine
     from ncmeasure.files import write_whole
+    from ncmeasure.formats.results import load_results
 
     results = load_results(results_file)
     text = render_compensation(
@@ -2640,7 +2642,7 @@ def apply_compensation_command(
 @_command
 def schema_results() -> None:
     """JSON Schema of results.json, what `ncmeasure analyze` writes."""
-    from ncmeasure.analysis.results import Results
+    from ncmeasure.formats.results import Results
 
     sys.stdout.write(json.dumps(Results.model_json_schema(), indent=2) + "\n")
 

@@ -17,7 +17,7 @@ import hashlib
 import json
 import math
 import re
-from collections.abc import Collection, Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal, Optional
 
@@ -33,7 +33,8 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from ncmeasure.errors import ConfigError
-from ncmeasure.inputs import MAX_TOML_BYTES, parse_toml, read_text
+from ncmeasure.formats.axis import StatedMechanics
+from ncmeasure.inputs import MAX_TOML_BYTES, format_validation_error, parse_toml, read_text
 
 __all__ = [
     "AxisConfig",
@@ -327,13 +328,20 @@ else:
     )
 
 
-class AxisConfig(_Model):
-    """One ``[[axes]]`` table: a feed axis, its limits and its drive."""
+class AxisConfig(StatedMechanics):
+    """One ``[[axes]]`` table: a feed axis, its limits and its drive.
+
+    The mechanical facts (travel, vertical, fixed-bearing end, torque constant,
+    rated current, screw lead) are :class:`~ncmeasure.formats.axis.StatedMechanics`.
+    """
+
+    model_config = _Model.model_config
 
     name: str = Field(
         description="Axis address as the controller writes it (X, Y, Z, Z1, ...). "
         "The dialect decides which names it allows.",
     )
+    # The machine file's positions are bounded (MAX_POSITION_MM) and TOML gives lists.
     travel_mm: Annotated[tuple[Position, Position], BeforeValidator(_tuple)] = Field(
         description="Soft limits [min, max] in mm. No program position ever leaves them."
     )
@@ -353,21 +361,6 @@ class AxisConfig(_Model):
     )
     max_jerk_m_s3: Annotated[float, Field(ge=0.001, le=100_000)] = Field(
         description="Maximum axis jerk in m/s³."
-    )
-    fixed_bearing_end: Literal["min", "max"] = Field(
-        default="min", description="Which end of the travel carries the screw's fixed bearing."
-    )
-    vertical: bool = Field(
-        default=False, description="A vertical axis (gravity acts on the motor torque)."
-    )
-    torque_constant_nm_per_a: Annotated[float, Field(gt=0, le=1000)] | None = Field(
-        default=None, description="Motor torque constant k_T in Nm/A (for the analysis)."
-    )
-    rated_current_a: Annotated[float, Field(gt=0, le=10_000)] | None = Field(
-        default=None, description="Motor rated current in A (drives report current in ‰ of it)."
-    )
-    screw_lead_mm: Annotated[float, Field(gt=0, le=1000)] | None = Field(
-        default=None, description="Ball-screw lead in mm per revolution."
     )
     measurement: MeasurementOverride | None = Field(
         default=None, description="Per-axis replacement of [measurement] fields."
@@ -472,107 +465,6 @@ class MachineConfig(_Model):
             merged.pop("window_s", None)
         merged.update(override)
         return Measurement.model_validate(merged)
-
-
-_BRANCH_TAGS = {"int", "float", "bool", "str", "list", "tuple", "dict", "none"}
-"""Names pydantic gives the branches of a union in an error's location."""
-_TYPE_ERRORS = {
-    "int_type": "an integer",
-    "float_type": "a number",
-    "bool_type": "true/false",
-    "string_type": "text in quotes",
-    "tuple_type": "a list",
-    "list_type": "a list",
-    "dict_type": "a table",
-}
-
-
-def _shown(value: Any) -> str:
-    if isinstance(value, str):
-        return f"the text {value!r}"
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, list | tuple | dict):
-        return "a list" if not isinstance(value, dict) else "a table"
-    return repr(value)
-
-
-def _loc_text(loc: Iterable[int | str], tables: Collection[str] = ()) -> str:
-    text = ""
-    previous: int | str | None = None
-    for part in loc:
-        if isinstance(part, int):
-            text += f"[{part}]"
-        elif isinstance(previous, str) and previous in tables:
-            # a key the user chose (X_current_a), not a field name: kept as written
-            text += f".{part}" if re.fullmatch(r"\w+", part) else f"[{part!r}]"
-        elif re.fullmatch(r"[a-z_][a-z0-9_]*", part) and part not in _BRANCH_TAGS:
-            text += f".{part}" if text else part
-        # union branch tags such as 'list[float]' or 'function-after[...]' add nothing
-        previous = part
-    return text or "(file)"
-
-
-def format_validation_error(
-    exc: ValidationError,
-    prefix: str = "",
-    schema_hint: str = "",
-    tables: Collection[str] = (),
-) -> list[str]:
-    """Turn a pydantic error into ``location: message`` lines, one per problem.
-
-    Args:
-        exc: The validation error.
-        prefix: Location the error's locations are relative to (``link``).
-        schema_hint: Where the valid keys are listed, added to unknown-key messages.
-        tables: Fields that are tables keyed by names the user chose (such as
-            channel names); their keys stay in the location as written.
-    """
-    lines: list[str] = []
-    seen: set[str] = set()
-    expected_at: dict[str, int] = {}  # a place's "expected ..." line: union branches join it
-    judged: set[str] = set()  # places with a message other than "expected ..."
-    for error in exc.errors(include_url=False):
-        loc = _loc_text(error["loc"], tables)
-        if error["type"] == "extra_forbidden" and error["loc"]:
-            # the last part is the user's own key, kept as written (Park_mm, park-mm)
-            parent, key = error["loc"][:-1], str(error["loc"][-1])
-            loc = _loc_text(parent, tables) if parent else ""
-            shown = f".{key}" if re.fullmatch(r"\w+", key) else f"[{key!r}]"
-            loc = (loc + shown).lstrip(".") if loc != "(file)" else shown.lstrip(".")
-        if prefix:
-            loc = prefix if loc == "(file)" else f"{prefix}.{loc}"
-        message = error["msg"]
-        if error["type"] == "extra_forbidden":
-            message = "unknown key (check the spelling" + (
-                f"; see {schema_hint})" if schema_hint else ")"
-            )
-        elif error["type"] == "missing":
-            message = "required key is missing"
-        elif error["type"] in _TYPE_ERRORS:
-            # strict types: "40" is no number and "no" no boolean; say what was given
-            message = f"expected {_TYPE_ERRORS[error['type']]}, got {_shown(error['input'])}"
-        expected = message.startswith("expected ")
-        if expected and loc in expected_at:  # a union's branches: one line per place
-            number = expected_at[loc]
-            joined = f"{lines[number].split(', got ')[0]} or {message.removeprefix('expected ')}"
-            seen.discard(lines[number])
-            lines[number] = joined
-            seen.add(joined)
-            continue
-        line = f"{loc}: {message}"
-        if line in seen:
-            continue
-        if expected:
-            expected_at[loc] = len(lines)
-        else:
-            judged.add(loc)
-        lines.append(line)
-        seen.add(line)
-    # A union whose branch of the right type judged the value (100000 for an integer up
-    # to 99999, or true/false): the other branches' "expected ..." says nothing more.
-    dropped = {expected_at[loc] for loc in judged if loc in expected_at}
-    return [line for number, line in enumerate(lines) if number not in dropped]
 
 
 def _cross_checks(config: MachineConfig) -> Iterator[str]:

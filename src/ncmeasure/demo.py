@@ -41,14 +41,15 @@ from typing import Any
 import numpy as np
 
 from ncmeasure.acquire import AcquisitionResult, record
-from ncmeasure.analysis.analyze import analyze, load_results, write_results
-from ncmeasure.analysis.compare import Comparison, compare_results, write_comparison
-from ncmeasure.analysis.results import Results
+from ncmeasure.analysis.analyze import analyze
+from ncmeasure.analysis.compare import compare_results
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.errors import ConfigError, LinkError, OutputError
 from ncmeasure.examples import DEMO_LINKS, demo_machine
-from ncmeasure.plan import Schedule
-from ncmeasure.program import SCHEDULE_FILE, generate_programs, load_dialect
+from ncmeasure.formats.comparison import Comparison, write_comparison
+from ncmeasure.formats.results import Results, load_results, write_results
+from ncmeasure.formats.schedule import SCHEDULE_FILE, Schedule
+from ncmeasure.program import generate_programs, load_dialect
 from ncmeasure.recording import read_recording
 from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.axis import Variation

@@ -17,14 +17,17 @@ import re
 import stat
 import sys
 import tomllib
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Iterable
 from pathlib import Path
 from typing import Any
+
+from pydantic import ValidationError
 
 from ncmeasure.errors import ConfigError, NcMeasureError
 
 __all__ = [
     "MAX_TOML_BYTES",
+    "format_validation_error",
     "parse_json",
     "parse_toml",
     "plain_file_name",
@@ -219,3 +222,104 @@ def parse_json(text: str, where: str, error: type[NcMeasureError]) -> Any:
             Python's recursion allows.
     """
     return _parse(json.loads, json.JSONDecodeError, "JSON", text, where, error)
+
+
+_BRANCH_TAGS = {"int", "float", "bool", "str", "list", "tuple", "dict", "none"}
+"""Names pydantic gives the branches of a union in an error's location."""
+_TYPE_ERRORS = {
+    "int_type": "an integer",
+    "float_type": "a number",
+    "bool_type": "true/false",
+    "string_type": "text in quotes",
+    "tuple_type": "a list",
+    "list_type": "a list",
+    "dict_type": "a table",
+}
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, str):
+        return f"the text {value!r}"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, list | tuple | dict):
+        return "a list" if not isinstance(value, dict) else "a table"
+    return repr(value)
+
+
+def _loc_text(loc: Iterable[int | str], tables: Collection[str] = ()) -> str:
+    text = ""
+    previous: int | str | None = None
+    for part in loc:
+        if isinstance(part, int):
+            text += f"[{part}]"
+        elif isinstance(previous, str) and previous in tables:
+            # a key the user chose (X_current_a), not a field name: kept as written
+            text += f".{part}" if re.fullmatch(r"\w+", part) else f"[{part!r}]"
+        elif re.fullmatch(r"[a-z_][a-z0-9_]*", part) and part not in _BRANCH_TAGS:
+            text += f".{part}" if text else part
+        # union branch tags such as 'list[float]' or 'function-after[...]' add nothing
+        previous = part
+    return text or "(file)"
+
+
+def format_validation_error(
+    exc: ValidationError,
+    prefix: str = "",
+    schema_hint: str = "",
+    tables: Collection[str] = (),
+) -> list[str]:
+    """Turn a pydantic error into ``location: message`` lines, one per problem.
+
+    Args:
+        exc: The validation error.
+        prefix: Location the error's locations are relative to (``link``).
+        schema_hint: Where the valid keys are listed, added to unknown-key messages.
+        tables: Fields that are tables keyed by names the user chose (such as
+            channel names); their keys stay in the location as written.
+    """
+    lines: list[str] = []
+    seen: set[str] = set()
+    expected_at: dict[str, int] = {}  # a place's "expected ..." line: union branches join it
+    judged: set[str] = set()  # places with a message other than "expected ..."
+    for error in exc.errors(include_url=False):
+        loc = _loc_text(error["loc"], tables)
+        if error["type"] == "extra_forbidden" and error["loc"]:
+            # the last part is the user's own key, kept as written (Park_mm, park-mm)
+            parent, key = error["loc"][:-1], str(error["loc"][-1])
+            loc = _loc_text(parent, tables) if parent else ""
+            shown = f".{key}" if re.fullmatch(r"\w+", key) else f"[{key!r}]"
+            loc = (loc + shown).lstrip(".") if loc != "(file)" else shown.lstrip(".")
+        if prefix:
+            loc = prefix if loc == "(file)" else f"{prefix}.{loc}"
+        message = error["msg"]
+        if error["type"] == "extra_forbidden":
+            message = "unknown key (check the spelling" + (
+                f"; see {schema_hint})" if schema_hint else ")"
+            )
+        elif error["type"] == "missing":
+            message = "required key is missing"
+        elif error["type"] in _TYPE_ERRORS:
+            # strict types: "40" is no number and "no" no boolean; say what was given
+            message = f"expected {_TYPE_ERRORS[error['type']]}, got {_shown(error['input'])}"
+        expected = message.startswith("expected ")
+        if expected and loc in expected_at:  # a union's branches: one line per place
+            number = expected_at[loc]
+            joined = f"{lines[number].split(', got ')[0]} or {message.removeprefix('expected ')}"
+            seen.discard(lines[number])
+            lines[number] = joined
+            seen.add(joined)
+            continue
+        line = f"{loc}: {message}"
+        if line in seen:
+            continue
+        if expected:
+            expected_at[loc] = len(lines)
+        else:
+            judged.add(loc)
+        lines.append(line)
+        seen.add(line)
+    # A union whose branch of the right type judged the value (100000 for an integer up
+    # to 99999, or true/false): the other branches' "expected ..." says nothing more.
+    dropped = {expected_at[loc] for loc in judged if loc in expected_at}
+    return [line for number, line in enumerate(lines) if number not in dropped]

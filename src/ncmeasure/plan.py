@@ -33,12 +33,8 @@ import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Annotated, Literal
+from typing import Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, field_validator
-from pydantic_core import PydanticCustomError
-
-from ncmeasure._version import __version__
 from ncmeasure.config import (
     MAX_WINDOWS,
     AxisConfig,
@@ -51,7 +47,7 @@ from ncmeasure.config import (
     usable_um,
 )
 from ncmeasure.errors import PlanError
-from ncmeasure.inputs import plain_file_name
+from ncmeasure.formats.schedule import AxisSummary, Schedule, Window
 from ncmeasure.profile import move_time_s, ramp
 
 __all__ = [
@@ -66,9 +62,7 @@ __all__ = [
     "Rapid",
     "Run",
     "RunLengths",
-    "Schedule",
     "SizeLimit",
-    "Window",
     "axis_duration_bound",
     "duration_bound",
     "move_blocks",
@@ -77,21 +71,6 @@ __all__ = [
     "run_lengths",
     "velocity_steps",
 ]
-
-
-def _file_name(value: str) -> str:
-    if not plain_file_name(value):
-        raise PydanticCustomError(
-            "file_name", "{name} is not a plain file name", {"name": repr(value)}
-        )
-    return value
-
-
-FileName = Annotated[str, AfterValidator(_file_name)]
-"""A file name that stays in its folder (see :func:`~ncmeasure.inputs.plain_file_name`)."""
-
-SCHEDULE_FORMAT = "ncmeasure-schedule"
-SCHEDULE_FORMAT_VERSION = 1
 
 
 def _mm(value_um: int) -> float:
@@ -166,114 +145,6 @@ class Comment:
 
 
 Move = Rapid | Feed | Run | Dwell | Comment
-
-
-class Window(BaseModel):
-    """One constant-velocity measuring window, as schedule.json lists it."""
-
-    model_config = ConfigDict(frozen=True)
-
-    id: int
-    """Window number within the axis, starting at 1; the marker value."""
-    axis: str
-    repetition: int
-    step: int
-    """Velocity step index, 0 = slowest."""
-    velocity_mm_min: float
-    """Signed velocity: negative in negative direction."""
-    direction: Literal[1, -1]
-    position_index: int
-    nominal_position_mm: float
-    position_mm: float
-    """Window centre; differs from the nominal position where the run-up did not fit."""
-    start_mm: float
-    """Where the run starts, at rest."""
-    window_start_mm: float
-    window_end_mm: float
-    stop_mm: float
-    """Where the run stops, at rest."""
-    t_start_s: float
-    t_window_start_s: float
-    t_window_end_s: float
-    t_stop_s: float
-    """Expected times from the start of the main program."""
-
-
-class AxisSummary(BaseModel):
-    """Per-axis part of a schedule."""
-
-    model_config = ConfigDict(frozen=True)
-
-    name: str
-    travel_mm: tuple[float, float]
-    usable_mm: tuple[float, float]
-    park_mm: float
-    max_velocity_mm_min: float
-    vertical: bool
-    fixed_bearing_end: Literal["min", "max"]
-    torque_constant_nm_per_a: float | None
-    rated_current_a: float | None
-    screw_lead_mm: float | None
-    nominal_positions_mm: list[float]
-    shifted_positions_mm: list[float]
-    """Nominal positions whose windows move inward at high velocities, where the
-    run-up would not fit; each window's own position_mm says where it is."""
-    velocities_mm_min: list[float]
-    dropped_velocities_mm_min: list[float]
-    runup_at_max_velocity_mm: float
-    window_s: float
-    settle_s: float
-    sample_period_ms: float
-    warmup_strokes: int
-    repetitions: int
-    both_directions: bool
-    order: Literal["velocity", "position"] = "velocity"
-    """The order of the runs (the machine file's ``measurement.order``)."""
-    t_start_s: float
-    duration_s: float
-    full_travel_duration_s: float
-    blocks: int = 0
-    """Motion and dwell blocks of the axis' measurement (a run is three feed blocks)."""
-    windows: list[Window]
-
-
-class Schedule(BaseModel):
-    """What the programs do and when: the velocity file the analysis reads."""
-
-    model_config = ConfigDict(frozen=True)
-
-    format: str = SCHEDULE_FORMAT
-    format_version: int = SCHEDULE_FORMAT_VERSION
-    ncmeasure_version: str = __version__
-    config_hash: str
-    machine: str
-    controller: str
-    program: str
-    duration_s: float
-    """Estimated duration of the whole program (parking, warm-up, runs, rapids)."""
-    full_travel_duration_s: float
-    """The same measurement driving the full usable travel at every step."""
-    blocks: int = 0
-    """Motion, dwell and call blocks of all programs together: what the control must store."""
-    warnings: list[str]
-    main_program: Annotated[str, AfterValidator(lambda v: v and _file_name(v))] = ""
-    """File name of the main program (set when programs are generated)."""
-    program_files: list[FileName] = []
-    """Every program file of the generated set, the main program first; ``check``
-    refuses a program file in the folder that is not listed here."""
-    marker_scope: Literal["window", "run", "none"] = "window"
-    """What the marker brackets in the generated programs (see the dialect)."""
-    marker_values: Literal["window_id", "flag"] = "window_id"
-    controller_options: dict[str, int | bool] = {}
-    """The dialect options the programs were written with."""
-    axes: list[AxisSummary]
-
-    @field_validator("program_files")
-    @classmethod
-    def _check_program_files(cls, value: list[str]) -> list[str]:
-        if len({name.lower() for name in value}) != len(value):
-            raise PydanticCustomError("file_names", "names a file twice")
-        return value
 
 
 @dataclass

@@ -33,10 +33,16 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from ncmeasure.analysis.analyze import AnalysisSettings, analyze, load_results, write_results
-from ncmeasure.analysis.results import RESULTS_FORMAT_VERSION, AxisResult, Results
+from ncmeasure.analysis.analyze import AnalysisSettings, analyze
 from ncmeasure.errors import ConfigError, OutputError, RecordingError
-from ncmeasure.plan import Schedule
+from ncmeasure.formats.results import (
+    RESULTS_FORMAT_VERSION,
+    AxisResult,
+    Results,
+    load_results,
+    write_results,
+)
+from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import Recording, RecordingWriter
 from ncmeasure.samples import SIGNAL_UNITS, Channel, SampleBlock
 from ncmeasure.sim.synthetic import (
@@ -507,7 +513,7 @@ def test_writing_where_a_file_blocks_the_directory(tmp_path: Path, small_results
 @pytest.mark.parametrize(
     ("content", "message"),
     [
-        ("not json", "not a results file: invalid JSON"),
+        ("not json", "x.json: invalid JSON"),
         ('{"format": "ncmeasure-schedule"}', "not an ncmeasure results file"),
         ("[1, 2]", "not an ncmeasure results file"),
         ('{"format": "ncmeasure-results", "format_version": 99}', "update ncmeasure"),

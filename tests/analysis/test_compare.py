@@ -13,15 +13,13 @@ from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from ncmeasure.analysis.compare import (
-    AxisChange,
-    Comparison,
     ComparisonError,
-    Limits,
     compare_results,
     modified_z_against,
     modified_z_leave_one_out,
 )
-from ncmeasure.analysis.results import (
+from ncmeasure.formats.comparison import AxisChange, Comparison, Limits
+from ncmeasure.formats.results import (
     AxisResult,
     DirectionResult,
     Point,

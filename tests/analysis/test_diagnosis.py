@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ncmeasure.analysis.diagnosis import FLAT_THRESHOLD_PERCENT, position_dependency
-from ncmeasure.analysis.results import PositionDependency
+from ncmeasure.formats.results import PositionDependency
 
 TRAVEL = (0.0, 750.0)  # the test rig's travel
 SPEEDS = np.geomspace(10.0, 15000.0, 50)

@@ -19,7 +19,7 @@ from ncmeasure.analysis.fit import (
     point_sigma,
     separate_offset,
 )
-from ncmeasure.analysis.results import Point
+from ncmeasure.formats.results import Point
 
 # The schedule of the example machine: 50 geometric steps, 10..15000 mm/min.
 SPEEDS = np.geomspace(10.0, 15000.0, 50)

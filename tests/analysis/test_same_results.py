@@ -22,7 +22,7 @@ import pytest
 
 from ncmeasure.analysis.analyze import analyze
 from ncmeasure.errors import RecordingError
-from ncmeasure.plan import Schedule
+from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import Recording, RecordingHead, RecordingWriter
 from ncmeasure.samples import SampleBlock
 from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
@@ -202,7 +202,7 @@ def test_a_recording_head_gets_the_problems_of_its_samples(tmp_path: Path) -> No
 
 def test_the_demo_recordings(tmp_path: Path) -> None:
     from ncmeasure.demo import run_demo
-    from ncmeasure.program import load_schedule
+    from ncmeasure.formats.schedule import load_schedule
 
     result = run_demo(tmp_path / "demo", report=False)
     recordings = sorted(p.parent for p in (tmp_path / "demo").rglob("meta.json"))

@@ -24,7 +24,7 @@ from ncmeasure.analysis.segment import (
     find_windows,
 )
 from ncmeasure.errors import RecordingError
-from ncmeasure.plan import Schedule
+from ncmeasure.formats.schedule import Schedule
 from ncmeasure.sim.synthetic import SyntheticAxis, SyntheticData, simulate
 
 SPEC = SyntheticAxis()

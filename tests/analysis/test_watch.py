@@ -11,7 +11,7 @@ import ncmeasure.analysis.analyze as analyze_module
 from ncmeasure.analysis.analyze import analyze
 from ncmeasure.analysis.streaming import Task
 from ncmeasure.analysis.watch import AxisWindows, NamedChunk, Watch, Watchers
-from ncmeasure.plan import Schedule
+from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import Recording, RecordingHead, RecordingWriter, RowChunk
 from ncmeasure.samples import SampleBlock
 from ncmeasure.sim.synthetic import (

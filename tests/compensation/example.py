@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-from ncmeasure.analysis.results import (
+from ncmeasure.formats.results import (
     AxisResult,
     DirectionResult,
     LinearFit,

@@ -18,8 +18,8 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-from ncmeasure.analysis.analyze import write_results
 from ncmeasure.cli import app
+from ncmeasure.formats.results import write_results
 from ncmeasure.sim.cia402 import (
     ABORT_READ_ONLY,
     DriveScaling,

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from ncmeasure.analysis.fit import fit_direction, separate_offset
-from ncmeasure.analysis.results import AxisResult, Point, PositionResult
 from ncmeasure.compensation.points import axis_friction, speed_grid
 from ncmeasure.errors import ConfigError
+from ncmeasure.formats.results import AxisResult, Point, PositionResult
 from tests.compensation.example import (
     SPEEDS_MM_MIN,
     TORQUE_CONSTANT,

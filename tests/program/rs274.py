@@ -14,7 +14,7 @@ import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
-from ncmeasure.plan import Schedule
+from ncmeasure.formats.schedule import Schedule
 
 RS274 = shutil.which("rs274")
 AXES = ("X", "Y", "Z", "A", "B", "C")

@@ -12,6 +12,7 @@ import pytest
 
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.errors import ConfigError, DialectError, ProgramCheckError, ProgramError
+from ncmeasure.formats import schedule as schedule_format
 from ncmeasure.program import check, check_programs, generate_programs, load_dialect, reader
 from ncmeasure.program.reader import read_programs
 from ncmeasure.resources import builtin_dir
@@ -279,7 +280,7 @@ def test_a_schedule_that_is_no_regular_file_is_not_read(
     special_file: Callable[[str, Path], Path],
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    monkeypatch.setattr(check, "MAX_SCHEDULE_BYTES", 16 * 1024 * 1024)
+    monkeypatch.setattr(schedule_format, "MAX_SCHEDULE_BYTES", 16 * 1024 * 1024)
     folder = _generate(make_config, "linuxcnc", tmp_path)
     path = special_file(kind, folder / "schedule.json")
     with pytest.raises(ProgramError) as caught:

@@ -27,8 +27,8 @@ from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from ncmeasure.cli import app
+from ncmeasure.formats.schedule import load_schedule
 from ncmeasure.program import check_programs, load_dialect
-from ncmeasure.program.check import load_schedule
 from tests.conftest import DIALECTS, machine_toml
 from tests.program.rs274 import AXES, RS274, check_against_schedule, fanuc_as_one_file, run_rs274
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from ncmeasure.analysis.results import Results
+from ncmeasure.formats.results import Results
 from tests.publish.broker import Broker, MosquittoMissingError, temporary_mosquitto
 from tests.store.conftest import base_results, make_results
 

@@ -16,10 +16,9 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-from ncmeasure.analysis.analyze import write_results
-from ncmeasure.analysis.results import Results
 from ncmeasure.cli import app
 from ncmeasure.errors import ConfigError
+from ncmeasure.formats.results import Results, write_results
 from ncmeasure.publish.mqtt import PASSWORD_ENV, MqttTarget, topic_level
 from ncmeasure.store import open_store
 from tests.publish.broker import Broker, free_port

@@ -18,9 +18,9 @@ from typing import Any
 
 import pytest
 
-from ncmeasure.analysis.compare import Limits
-from ncmeasure.analysis.results import Results
 from ncmeasure.errors import ConfigError
+from ncmeasure.formats.comparison import Limits
+from ncmeasure.formats.results import Results
 from ncmeasure.publish.opcua import NAMESPACE, OpcUaSettings, engineering_units, serve_opcua
 from ncmeasure.store import MeasurementInfo, open_store
 from tests.publish.broker import free_port

@@ -27,9 +27,8 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-from ncmeasure.analysis.analyze import write_results
-from ncmeasure.analysis.results import Results
 from ncmeasure.cli import app
+from ncmeasure.formats.results import Results, write_results
 from ncmeasure.publish.opcua import NAMESPACE, PASSWORD_ENV, TrustList, load_trusted_clients
 from ncmeasure.store import open_store
 from tests.publish.broker import free_port

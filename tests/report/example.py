@@ -33,7 +33,10 @@ from numpy.typing import NDArray
 
 from ncmeasure.analysis.analyze import AnalysisSettings, recording_gaps
 from ncmeasure.analysis.fit import fit_direction, separate_offset
-from ncmeasure.analysis.results import (
+from ncmeasure.analysis.verdict import axis_verdict
+from ncmeasure.config import MachineConfig, parse_machine
+from ncmeasure.examples import example_machine
+from ncmeasure.formats.results import (
     AxisResult,
     Cause,
     DirectionResult,
@@ -45,10 +48,7 @@ from ncmeasure.analysis.results import (
     VelocityProfile,
     Verdict,
 )
-from ncmeasure.analysis.verdict import axis_verdict
-from ncmeasure.config import MachineConfig, parse_machine
-from ncmeasure.examples import example_machine
-from ncmeasure.plan import Schedule
+from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import Recording, RecordingWriter
 from ncmeasure.samples import SampleBlock, channels_for
 from ncmeasure.sim.synthetic import (

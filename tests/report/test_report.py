@@ -23,15 +23,16 @@ from matplotlib.figure import Figure
 from pydantic import BaseModel
 
 from ncmeasure.analysis.analyze import analyze
-from ncmeasure.analysis.compare import Comparison, compare_results
-from ncmeasure.analysis.results import (
+from ncmeasure.analysis.compare import compare_results
+from ncmeasure.analysis.summary import axis_headline
+from ncmeasure.formats.comparison import Comparison
+from ncmeasure.formats.results import (
     AxisResult,
     Cause,
     PositionDependency,
     RecordingInfo,
     Results,
 )
-from ncmeasure.analysis.summary import axis_headline
 from ncmeasure.recording import Recording
 from ncmeasure.report import (
     PALETTE,

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from ncmeasure.analysis.diagnosis import position_dependency
-from ncmeasure.analysis.results import CauseName
 from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError
+from ncmeasure.formats.results import CauseName
 from ncmeasure.sim.axis import (
     EXAMPLE_VARIATIONS,
     AxisModel,

@@ -13,7 +13,7 @@ import pytest
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.errors import ConfigError, ProgramError
 from ncmeasure.examples import demo_machine
-from ncmeasure.plan import Schedule
+from ncmeasure.formats.schedule import Schedule
 from ncmeasure.program import generate_programs
 from ncmeasure.sim.axis import Variation
 from ncmeasure.sim.machine import MachineRun, VirtualMachine

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from ncmeasure.analysis.results import Results
+from ncmeasure.formats.results import Results
 from tests.pg import PostgresMissingError, temporary_postgres
 from tests.report.example import build_results, scaled_axis, simulate
 

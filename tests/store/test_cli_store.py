@@ -13,9 +13,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from ncmeasure.analysis.analyze import write_results
-from ncmeasure.analysis.results import Results
 from ncmeasure.cli import app
+from ncmeasure.formats.results import Results, write_results
 
 runner = CliRunner()
 

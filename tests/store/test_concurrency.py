@@ -9,8 +9,7 @@ from pathlib import Path
 
 from sqlalchemy import func, select
 
-from ncmeasure.analysis.analyze import write_results
-from ncmeasure.analysis.results import Results
+from ncmeasure.formats.results import Results, write_results
 from ncmeasure.store import open_store
 from ncmeasure.store import schema as t
 
@@ -34,7 +33,7 @@ def test_eight_processes_add_concurrently(
             files[machine].append(path)
     script = (  # one process: open the store, add its files one after the other
         "import sys\n"
-        "from ncmeasure.analysis.analyze import load_results\n"
+        "from ncmeasure.formats.results import load_results\n"
         "from ncmeasure.store import MeasurementInfo, open_store\n"
         "with open_store(sys.argv[1], write=True) as store:\n"
         "    for serial, path in zip(sys.argv[2::2], sys.argv[3::2]):\n"

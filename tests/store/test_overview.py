@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from ncmeasure.analysis.compare import Limits
-from ncmeasure.analysis.results import Results
 from ncmeasure.cli import app
+from ncmeasure.formats.comparison import Limits
+from ncmeasure.formats.results import Results
 from ncmeasure.store import MeasurementInfo, open_store
 from ncmeasure.store.check import check_machine
 from ncmeasure.store.overview import fleet_overview

@@ -7,8 +7,8 @@ from collections.abc import Callable
 import pytest
 from sqlalchemy import func, select
 
-from ncmeasure.analysis.results import Results
 from ncmeasure.errors import ConfigError
+from ncmeasure.formats.results import Results
 from ncmeasure.store import MeasurementInfo, open_store
 from ncmeasure.store import schema as t
 from ncmeasure.store.check import check_machine

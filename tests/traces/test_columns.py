@@ -76,8 +76,8 @@ def test_data_collector_layout(tmp_path: Path, machine: MachineConfig) -> None:
     np.testing.assert_array_equal(rec.time_s, np.arange(4) * 0.1)
     assert rec.meta.nominal_period_s == 0.1
     assert rec.meta.source == "import:columns"
-    assert [axis["name"] for axis in rec.meta.axes] == ["X"]  # --machine: axis data
-    assert rec.meta.axes[0]["screw_lead_mm"] == 20.0
+    assert [axis.name for axis in rec.meta.axes] == ["X"]  # --machine: axis data
+    assert rec.meta.axes[0].screw_lead_mm == 20.0
     report = result.report
     assert "time_s [s]: no time column; row k is at k x 0.1 s" in report
     assert "X_velocity_mm_min [mm/min]: from column 'X1_ActualVelocity' (x 60)" in report

@@ -104,7 +104,7 @@ def test_csv_round_trip_is_bit_exact(tmp_path: Path, make_config: Make) -> None:
     assert [c.unit for c in copy.channels][:5] == ["A", "mm/min", "mm", "mm/min", "1"]
     assert copy.meta.source == "import:csv"
     assert copy.meta.machine == config.machine.name
-    assert [a["name"] for a in copy.meta.axes] == ["X", "Y", "Z"]
+    assert [a.name for a in copy.meta.axes] == ["X", "Y", "Z"]
     assert copy.meta.nominal_period_s == float(np.median(np.diff(original.time_s)))
     assert copy.meta.status == "complete"
     assert copy.problems == []

@@ -25,7 +25,7 @@ from pathlib import Path
 import pytest
 
 from ncmeasure.analysis.analyze import analyze
-from ncmeasure.analysis.results import Results
+from ncmeasure.formats.results import Results
 from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
 from ncmeasure.store import MeasurementInfo, open_store
 from ncmeasure.web import ServerInfo, serve

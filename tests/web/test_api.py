@@ -11,8 +11,8 @@ from typing import Any
 import httpx
 import pytest
 
-from ncmeasure.analysis.results import Results
 from ncmeasure.errors import ConfigError, StoreError
+from ncmeasure.formats.results import Results
 from ncmeasure.store import open_store
 from ncmeasure.web import MAX_BODY_BYTES, ServerInfo, check_binding, create_app, is_loopback, serve
 from tests.web.conftest import TOKEN, WAIT_S, Fleet, running

@@ -18,8 +18,9 @@ assembly causes (:func:`~ncmeasure.analysis.diagnosis.position_dependency`).
 
 What the recording's ``meta.json`` says about an axis (torque constant,
 travel, fixed-bearing end, vertical, screw lead) wins; the machine file,
-then the schedule, supply what it lacks. :func:`write_results` and
-:func:`load_results` write and read ``results.json``.
+then the schedule, supply what it lacks.
+:func:`~ncmeasure.formats.results.write_results` and
+:func:`~ncmeasure.formats.results.load_results` write and read ``results.json``.
 """
 
 from __future__ import annotations
@@ -31,19 +32,24 @@ import math
 import os
 from collections.abc import Callable, Generator, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import ValidationError
 
 from ncmeasure.analysis.diagnosis import position_dependency
 from ncmeasure.analysis.fit import fit_direction, separate_offset
 from ncmeasure.analysis.friction import FrictionTable, window_table
-from ncmeasure.analysis.results import (
-    RESULTS_FORMAT,
-    RESULTS_FORMAT_VERSION,
+from ncmeasure.analysis.scan import axes_statistics
+from ncmeasure.analysis.segment import Segmentation, SegmentSettings, find_windows, quantum
+from ncmeasure.analysis.streaming import run_tasks
+from ncmeasure.analysis.sweep import SlicedFinder
+from ncmeasure.analysis.verdict import axis_verdict
+from ncmeasure.analysis.watch import AxisWindows, OnWindows, Reader, Watchers
+from ncmeasure.config import MachineConfig
+from ncmeasure.errors import RecordingError
+from ncmeasure.formats.recording import RecordingMeta
+from ncmeasure.formats.results import (
     AxisResult,
     DirectionResult,
     OffsetResult,
@@ -54,25 +60,8 @@ from ncmeasure.analysis.results import (
     Results,
     Verdict,
 )
-from ncmeasure.analysis.scan import axes_statistics
-from ncmeasure.analysis.segment import Segmentation, SegmentSettings, find_windows, quantum
-from ncmeasure.analysis.streaming import run_tasks
-from ncmeasure.analysis.sweep import SlicedFinder
-from ncmeasure.analysis.verdict import axis_verdict
-from ncmeasure.analysis.watch import AxisWindows, OnWindows, Reader, Watchers
-from ncmeasure.config import MachineConfig, format_validation_error
-from ncmeasure.errors import ConfigError, RecordingError
-from ncmeasure.files import write_whole
-from ncmeasure.inputs import parse_json, read_text
-from ncmeasure.plan import AxisSummary, Schedule
-from ncmeasure.recording import (
-    SAMPLES_FILE,
-    Recording,
-    RecordingHead,
-    RecordingMeta,
-    RowChunk,
-    iter_chunks,
-)
+from ncmeasure.formats.schedule import AxisSummary, Schedule
+from ncmeasure.recording import SAMPLES_FILE, Recording, RecordingHead, RowChunk, iter_chunks
 from ncmeasure.samples import LinkEvent
 from ncmeasure.validity import Implausible
 
@@ -81,8 +70,6 @@ __all__ = [
     "AxisFacts",
     "analyze",
     "analyze_axis",
-    "load_results",
-    "write_results",
 ]
 
 log = logging.getLogger(__name__)
@@ -152,8 +139,8 @@ def _axis_facts(
     facts = AxisFacts(name)
     sources: list[tuple[str, Mapping[str, Any]]] = []
     for entry in recording.meta.axes:
-        if entry.get("name") == name:
-            sources.append(("the recording", entry))
+        if entry.name == name:
+            sources.append(("the recording", entry.model_dump()))
     if machine is not None:
         for axis in machine.axes:
             if axis.name == name:
@@ -936,7 +923,7 @@ def analyze(
             tasks need; a recording in memory is handed over whole.
 
     Returns:
-        The results, ready for :func:`write_results`.
+        The results, ready for :func:`~ncmeasure.formats.results.write_results`.
 
     Raises:
         RecordingError: No axis could be analysed (the message lists why, axis
@@ -1081,55 +1068,3 @@ def analyze(
         axes=results,
         skipped=skipped,
     )
-
-
-def write_results(results: Results, path: str | os.PathLike[str]) -> Path:
-    """Write ``results.json`` atomically: a reader sees the old file or the new one, whole.
-
-    Raises:
-        OutputError: The file cannot be written.
-    """
-    target = write_whole(path, results.model_dump_json(indent=2) + "\n", fsync=True, parents=True)
-    log.info("wrote %s", target)
-    return target
-
-
-MAX_RESULTS_BYTES = 256 * 1024 * 1024
-"""Largest results.json read."""
-
-
-def load_results(path: str | os.PathLike[str]) -> Results:
-    """Read a ``results.json`` written by :func:`write_results`.
-
-    Raises:
-        ConfigError: The file is missing, not JSON, not an ncmeasure results
-            file, of another format version, or not valid (one line per problem).
-    """
-    source = Path(path)
-    text = read_text(
-        source, "a results file", MAX_RESULTS_BYTES, missing=f"{source}: no such results file"
-    )
-    data = parse_json(text, f"{source}: not a results file", ConfigError)
-    if not isinstance(data, dict) or data.get("format") != RESULTS_FORMAT:
-        found = data.get("format") if isinstance(data, dict) else type(data).__name__
-        raise ConfigError(
-            f"{source}: not an ncmeasure results file (format is {found!r}, expected "
-            f"{RESULTS_FORMAT!r}; `ncmeasure analyze` writes one)"
-        )
-    version = data.get("format_version")
-    if version != RESULTS_FORMAT_VERSION:
-        hint = (
-            "update ncmeasure"
-            if isinstance(version, int) and version > RESULTS_FORMAT_VERSION
-            else "analyse the recording again"
-        )
-        raise ConfigError(
-            f"{source}: results format_version {version!r}, this ncmeasure reads "
-            f"{RESULTS_FORMAT_VERSION}; {hint}"
-        )
-    try:
-        return Results.model_validate(data)
-    except ValidationError as exc:
-        raise ConfigError(
-            f"{source}: not a valid results file", format_validation_error(exc)
-        ) from exc

@@ -10,7 +10,7 @@ for every velocity) by a least-squares fit of
 (α_j: the level of velocity j, β_k: the effect of position k). Working in
 logarithms normalises every velocity by its own level, so high and low
 speeds weigh alike, and missing cells need no special case. The shape of
-the profile is then classified into a :data:`~ncmeasure.analysis.results.Signature`
+the profile is then classified into a :data:`~ncmeasure.formats.results.Signature`
 and mapped to ranked causes following method.md, "What the patterns mean".
 The rules and the scores are written out in ``docs/analysis-models.md``.
 """
@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import stats
 
-from ncmeasure.analysis.results import (
+from ncmeasure.formats.results import (
     Cause,
     CauseName,
     PositionDependency,

@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import optimize, stats
 
-from ncmeasure.analysis.results import (
+from ncmeasure.formats.results import (
     DirectionResult,
     LinearFit,
     ModelName,

@@ -70,8 +70,8 @@ from typing import Final, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.results import Point
 from ncmeasure.analysis.segment import VelocityWindow
+from ncmeasure.formats.results import Point
 
 __all__ = [
     "BATCHES_PER_WINDOW",

@@ -77,8 +77,8 @@ from scipy.stats import theilslopes
 
 from ncmeasure.analysis.streaming import chunks_of, quantum_task, run_task, whole
 from ncmeasure.errors import RecordingError
-from ncmeasure.plan import AxisSummary, Schedule
-from ncmeasure.plan import Window as ScheduledWindow
+from ncmeasure.formats.schedule import AxisSummary, Schedule
+from ncmeasure.formats.schedule import Window as ScheduledWindow
 from ncmeasure.recording import Recording
 
 __all__ = [

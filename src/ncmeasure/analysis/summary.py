@@ -28,15 +28,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final, Literal
 
-from ncmeasure.analysis.compare import (
-    CHANGE_SHAPE,
-    AxisChange,
-    Comparison,
-    GroupDeviation,
-    worst_status,
-)
-from ncmeasure.analysis.results import AxisResult, Cause, Signature, Verdict
+from ncmeasure.analysis.compare import CHANGE_SHAPE
 from ncmeasure.analysis.verdict import comparison_verdict, percent_text
+from ncmeasure.formats.comparison import AxisChange, Comparison, GroupDeviation, worst_status
+from ncmeasure.formats.results import AxisResult, Cause, Signature, Verdict
 
 __all__ = [
     "SIGNATURE_WORDS",

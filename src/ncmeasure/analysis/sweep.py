@@ -49,7 +49,7 @@ from ncmeasure.analysis.segment import (
 )
 from ncmeasure.analysis.streaming import median_task, run_task
 from ncmeasure.errors import RecordingError
-from ncmeasure.plan import Schedule
+from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import RowChunk
 from ncmeasure.validity import implausible
 

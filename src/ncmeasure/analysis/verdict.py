@@ -33,7 +33,7 @@ from collections.abc import Sequence
 from typing import Final, Literal
 
 from ncmeasure.analysis.diagnosis import FLAT_THRESHOLD_PERCENT
-from ncmeasure.analysis.results import AxisResult, PositionDependency, Verdict
+from ncmeasure.formats.results import AxisResult, PositionDependency, Verdict
 
 __all__ = [
     "FAULT_SPREAD_PERCENT",

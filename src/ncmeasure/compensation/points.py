@@ -32,8 +32,8 @@ from typing import Literal
 
 import numpy as np
 
-from ncmeasure.analysis.results import AxisResult, DirectionResult, Results
 from ncmeasure.errors import ConfigError
+from ncmeasure.formats.results import AxisResult, DirectionResult, Results
 
 __all__ = [
     "AxisFriction",

@@ -27,10 +27,10 @@ from typing import Any, Literal
 import jinja2
 
 from ncmeasure._version import __version__
-from ncmeasure.analysis.results import Results
 from ncmeasure.compensation.points import AxisFriction, axis_friction, select_axes, speed_grid
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, DialectError
+from ncmeasure.formats.results import Results
 from ncmeasure.program.sandbox import TemplateSandbox
 from ncmeasure.resources import builtin_dir
 

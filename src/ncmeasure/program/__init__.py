@@ -8,12 +8,11 @@ templates, and holds it against the soft limits, the maximum feeds, the
 schedule and the dialect's allowed codes.
 """
 
-from ncmeasure.program.check import CheckReport, check_programs, load_schedule
+from ncmeasure.program.check import CheckReport, check_programs
 from ncmeasure.program.dialect import Dialect, available_dialects, load_dialect
-from ncmeasure.program.render import SCHEDULE_FILE, GeneratedPrograms, generate_programs
+from ncmeasure.program.render import GeneratedPrograms, generate_programs
 
 __all__ = [
-    "SCHEDULE_FILE",
     "CheckReport",
     "Dialect",
     "GeneratedPrograms",
@@ -21,5 +20,4 @@ __all__ = [
     "check_programs",
     "generate_programs",
     "load_dialect",
-    "load_schedule",
 ]

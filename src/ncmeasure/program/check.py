@@ -17,12 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pydantic import ValidationError
-
-from ncmeasure.config import format_validation_error
 from ncmeasure.errors import ProgramCheckError, ProgramError
-from ncmeasure.inputs import parse_json, read_text
-from ncmeasure.plan import AxisSummary, Schedule
+from ncmeasure.formats.schedule import SCHEDULE_FILE, AxisSummary, Schedule, load_schedule
 from ncmeasure.program.dialect import (
     Dialect,
     load_dialect,
@@ -36,19 +32,15 @@ from ncmeasure.program.reader import (
     ProgramTrace,
     read_programs,
 )
-from ncmeasure.program.render import SCHEDULE_FILE
 
 __all__ = [
     "CheckReport",
     "check_programs",
     "check_trace",
     "code_problems",
-    "load_schedule",
     "read_generated",
 ]
 
-MAX_SCHEDULE_BYTES = 64 * 1024 * 1024
-"""Largest schedule.json read (the [limits] keep a generated one far below it)."""
 _TOL_MM = 0.0005
 _TOL_FEED = 0.0005
 _MAX_LISTED = 20
@@ -70,27 +62,6 @@ class CheckReport:
     def ok(self) -> bool:
         """True when no problem was found."""
         return not self.problems
-
-
-def load_schedule(path: str | Path) -> Schedule:
-    """Read a schedule.json.
-
-    Raises:
-        ProgramError: missing, not JSON, or not a schedule.
-    """
-    path = Path(path)
-    text = read_text(
-        path,
-        f"a schedule ({SCHEDULE_FILE})",
-        MAX_SCHEDULE_BYTES,
-        ProgramError,
-        missing=f"{path}: no schedule here (generate writes {SCHEDULE_FILE})",
-    )
-    data = parse_json(text, str(path), ProgramError)
-    try:
-        return Schedule.model_validate(data)
-    except ValidationError as exc:
-        raise ProgramError(f"{path}: not a valid schedule", format_validation_error(exc)) from exc
 
 
 def _num(value: float) -> str:

@@ -36,8 +36,9 @@ from ncmeasure.errors import (
     ProgramCheckError,
     ProgramError,
 )
+from ncmeasure.formats.schedule import SCHEDULE_FILE, Schedule
 from ncmeasure.inputs import plain_file_name, read_text
-from ncmeasure.plan import SMALLER, AxisPlan, Move, Schedule, SizeLimit, plan_machine
+from ncmeasure.plan import SMALLER, AxisPlan, Move, SizeLimit, plan_machine
 from ncmeasure.program.dialect import (
     Dialect,
     dialect_warnings,
@@ -50,8 +51,6 @@ from ncmeasure.program.sandbox import TemplateSandbox
 from ncmeasure.resources import builtin_dir
 
 __all__ = ["GeneratedPrograms", "ProgramRef", "generate_programs", "generation_time"]
-
-SCHEDULE_FILE = "schedule.json"
 
 
 @dataclass(frozen=True)
@@ -325,7 +324,7 @@ def _previous_generation(directory: Path, dialect: Dialect, new: list[str]) -> l
     schedule_path = directory / SCHEDULE_FILE
     if SCHEDULE_FILE in present:
         # Imported here: check imports this module.
-        from ncmeasure.program.check import load_schedule
+        from ncmeasure.formats.schedule import load_schedule
 
         try:
             old = load_schedule(schedule_path)

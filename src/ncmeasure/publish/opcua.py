@@ -45,8 +45,8 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
-from ncmeasure.analysis.compare import Limits
 from ncmeasure.errors import ConfigError, DependencyError, PublishError, StoreError
+from ncmeasure.formats.comparison import Limits
 from ncmeasure.hosts import is_loopback
 from ncmeasure.publish.summary import DEVICE_HEALTH, AxisSummary, device_health, worst_health
 from ncmeasure.store import open_store

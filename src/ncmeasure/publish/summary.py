@@ -28,7 +28,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from ncmeasure.analysis.compare import Limits, Status, worst_status
+from ncmeasure.formats.comparison import Limits, Status, worst_status
 from ncmeasure.store.overview import AxisOverview, FleetOverview, MachineOverview
 
 __all__ = [

@@ -20,16 +20,14 @@ import os
 import re
 import struct
 from pathlib import Path
-from typing import Any, Final, Literal, Self
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from ncmeasure._version import __version__
 from ncmeasure.config import AXIS_NAME_PATTERN, AxisConfig, MachineConfig
 from ncmeasure.errors import RecordingError
 from ncmeasure.files import replace_text
-from ncmeasure.samples import SIGNAL_UNITS, Channel, EventKind, LinkEvent
+from ncmeasure.formats.recording import RecordedAxis, RecordingMeta
+from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent
 
 try:  # advisory locks tell a reader that a writer is still at work (POSIX only)
     import fcntl
@@ -40,8 +38,6 @@ log = logging.getLogger(__name__)
 
 PathArg = str | os.PathLike[str]
 
-FORMAT_NAME: Final = "ncmeasure-recording"
-FORMAT_VERSION: Final = 1
 META_FILE = "meta.json"
 SAMPLES_FILE = "samples.bin"
 EVENTS_FILE = "events.jsonl"
@@ -56,105 +52,25 @@ MAX_FRAME_ROWS = 1 << 20
 ROW_DTYPE = np.dtype("<f8")
 IMPORT_CHUNK_ROWS = 100_000
 
-RecordingStatus = Literal[
-    "recording", "complete", "incomplete", "interrupted", "link_lost", "failed"
-]
-"""How a recording ended. ``complete``: as planned and without a gap; ``incomplete``: as
-planned, but samples were lost (``gaps``, ``lost_samples`` and the gap events say where)."""
-
-
 # --- metadata --------------------------------------------------------------------------
 
 
-class ChannelMeta(BaseModel):
-    """One sample column in ``meta.json``: its name, axis, signal and unit."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    name: str
-    axis: str = Field(min_length=1)
-    signal: str = Field(min_length=1)
-    unit: str
-
-    @model_validator(mode="after")
-    def _check_name(self) -> Self:
-        if self.name != f"{self.axis}_{self.signal}":
-            raise ValueError(
-                f"name {self.name!r} must be <axis>_<signal> ({self.axis}_{self.signal})"
-            )
-        return self
-
-    @classmethod
-    def from_channel(cls, channel: Channel) -> ChannelMeta:
-        """The metadata entry of a link channel."""
-        return cls(name=channel.name, axis=channel.axis, signal=channel.signal, unit=channel.unit)
-
-    def to_channel(self) -> Channel:
-        """The link channel this entry describes."""
-        return Channel(self.axis, self.signal, self.unit)
-
-
-class RecordingMeta(BaseModel):
-    """The contents of ``meta.json``: what was recorded, how, and how it ended."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    format: Literal["ncmeasure-recording"] = FORMAT_NAME
-    format_version: Literal[1] = FORMAT_VERSION
-    ncmeasure_version: str = __version__
-    machine: str | None = None
-    axes: list[dict[str, Any]] = Field(default_factory=list)
-    link: dict[str, Any] = Field(default_factory=dict)
-    channels: list[ChannelMeta] = Field(min_length=1)
-    nominal_period_s: float = Field(gt=0, allow_inf_nan=False)
-    start_utc: str
-    config_hash: str | None = None
-    notes: str = ""
-    source: str = ""
-    faster_than_real_time: bool = False
-    time_scale: float = Field(default=1.0, ge=0, allow_inf_nan=False)
-    """Seconds of ``time_s`` per wall-clock second while recording: the link clock's
-    speed or the replay speed (0: a replay as fast as possible); 1 is real time."""
-    status: RecordingStatus = "recording"
-    end_utc: str | None = None
-    samples: int | None = Field(default=None, ge=0)
-    gaps: int | None = Field(default=None, ge=0)
-    """Gap events in ``events.jsonl`` (written at close)."""
-    lost_samples: int | None = Field(default=None, ge=0)
-    """Samples the gap events say were lost (written at close)."""
-
-    @model_validator(mode="after")
-    def _check_unique_channels(self) -> Self:
-        names = [c.name for c in self.channels]
-        doubled = sorted({n for n in names if names.count(n) > 1})
-        if doubled:
-            raise ValueError(f"channels appear twice: {', '.join(doubled)}")
-        return self
-
-
-def axis_metadata(axis: AxisConfig) -> dict[str, Any]:
+def axis_metadata(axis: AxisConfig) -> RecordedAxis:
     """The facts about an axis that the analysis of a recording needs.
 
     Args:
         axis: An axis of the machine file.
 
     Returns:
-        A JSON-ready dict: name, travel_mm, vertical, fixed_bearing_end,
-        torque_constant_nm_per_a, rated_current_a, screw_lead_mm,
-        max_velocity_mm_min, rapid_velocity_mm_min (the last two tell rapids and
+        Its mechanics, with the maximum and rapid velocity (they tell rapids and
         impossible values apart).
     """
-    return {
-        "name": axis.name,
-        "travel_mm": list(axis.travel_mm),
-        "max_velocity_mm_min": axis.max_velocity_mm_min,
-        "rapid_velocity_mm_min": axis.rapid_mm_min,
-        "vertical": axis.vertical,
-        "fixed_bearing_end": axis.fixed_bearing_end,
-        "torque_constant_nm_per_a": axis.torque_constant_nm_per_a,
-        "rated_current_a": axis.rated_current_a,
-        "screw_lead_mm": axis.screw_lead_mm,
-    }
+    return RecordedAxis(
+        name=axis.name,
+        **axis.mechanics().model_dump(),
+        max_velocity_mm_min=axis.max_velocity_mm_min,
+        rapid_velocity_mm_min=axis.rapid_mm_min,
+    )
 
 
 def machine_axis(machine: MachineConfig | None, name: str) -> AxisConfig | None:
@@ -266,26 +182,3 @@ def event_line(event: LinkEvent) -> bytes:
         "details": dict(event.details),
     }
     return (json.dumps(record, ensure_ascii=False, default=str) + "\n").encode("utf-8")
-
-
-class EventRecord(BaseModel):
-    """One line of ``events.jsonl`` (unknown keys from newer writers are ignored)."""
-
-    model_config = ConfigDict(extra="ignore")
-
-    time_s: float
-    kind: EventKind
-    message: str
-    axis: str | None = None
-    lost_samples: int = 0
-    details: dict[str, Any] = Field(default_factory=dict)
-
-    def to_event(self) -> LinkEvent:
-        return LinkEvent(
-            time_s=self.time_s,
-            kind=self.kind,
-            message=self.message,
-            axis=self.axis,
-            lost_samples=self.lost_samples,
-            details=self.details,
-        )

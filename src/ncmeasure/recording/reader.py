@@ -18,21 +18,18 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import ValidationError
 
-from ncmeasure.config import format_validation_error
 from ncmeasure.errors import RecordingError
-from ncmeasure.inputs import parse_json, read_bytes, read_text
+from ncmeasure.formats.header import read_file
+from ncmeasure.formats.recording import EventRecord, RecordingMeta
+from ncmeasure.inputs import read_bytes
 from ncmeasure.recording.format import (
     EVENTS_FILE,
-    FORMAT_NAME,
-    FORMAT_VERSION,
     FRAME_HEADER,
     FRAME_MAGIC,
     META_FILE,
     ROW_DTYPE,
     SAMPLES_FILE,
-    EventRecord,
     PathArg,
-    RecordingMeta,
     is_being_written,
 )
 from ncmeasure.samples import Channel, LinkEvent
@@ -363,23 +360,14 @@ def _read_meta(directory: Path) -> RecordingMeta:
         raise RecordingError(f"{directory}: not a recording (a recording is a directory)")
     path = directory / META_FILE
     missing = f"{directory}: not a recording ({META_FILE} is missing)"
-    text = read_text(path, "a recording's meta.json", MAX_META_BYTES, RecordingError, missing)
-    data = parse_json(text, str(path), RecordingError)
-    if not isinstance(data, dict) or data.get("format") != FORMAT_NAME:
-        found = data.get("format") if isinstance(data, dict) else type(data).__name__
-        raise RecordingError(
-            f"{path}: not an ncmeasure recording (format is {found!r}, expected {FORMAT_NAME!r})"
-        )
-    version = data.get("format_version")
-    if isinstance(version, int) and version > FORMAT_VERSION:
-        raise RecordingError(
-            f"{path}: format_version {version} is newer than this ncmeasure reads "
-            f"({FORMAT_VERSION}); update ncmeasure"
-        )
-    try:
-        return RecordingMeta.model_validate(data)
-    except ValidationError as exc:
-        raise RecordingError(f"{path}: invalid metadata", format_validation_error(exc)) from exc
+    return read_file(
+        path,
+        RecordingMeta,
+        RecordingError,
+        what="recording",
+        max_bytes=MAX_META_BYTES,
+        missing=missing,
+    )
 
 
 def _add_status_problems(

@@ -19,13 +19,12 @@ from numpy.typing import NDArray
 
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
+from ncmeasure.formats.recording import RecordingMeta, RecordingStatus
 from ncmeasure.recording.format import (
     EVENTS_FILE,
     MAX_FLUSH_INTERVAL_S,
     META_FILE,
     SAMPLES_FILE,
-    RecordingMeta,
-    RecordingStatus,
     machine_axis,
 )
 from ncmeasure.recording.reader import Recording

@@ -28,6 +28,7 @@ from pydantic import ValidationError
 
 from ncmeasure.config import MachineConfig, format_validation_error
 from ncmeasure.errors import LinkError, RecordingError
+from ncmeasure.formats.recording import ChannelMeta, RecordedAxis, RecordingMeta, RecordingStatus
 from ncmeasure.inputs import parse_json, read_text
 from ncmeasure.recording.format import (
     EVENTS_FILE,
@@ -38,10 +39,7 @@ from ncmeasure.recording.format import (
     META_FILE,
     ROW_DTYPE,
     SAMPLES_FILE,
-    ChannelMeta,
     PathArg,
-    RecordingMeta,
-    RecordingStatus,
     axis_metadata,
     event_line,
     fsync_directory,
@@ -274,7 +272,7 @@ class RecordingWriter:
         if not (np.isfinite(time_scale) and time_scale >= 0):
             raise ValueError(f"time_scale must be 0 or positive, not {time_scale!r}")
         path = Path(directory)
-        axes: list[dict[str, Any]] = []
+        axes: list[RecordedAxis] = []
         if machine is not None:
             known = {a.name: a for a in machine.axes}
             for name in dict.fromkeys(c.axis for c in channels):

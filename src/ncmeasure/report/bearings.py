@@ -9,11 +9,11 @@ default is assumed (fixed bearing at the min end) and the report says so.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from ncmeasure.analysis.results import AxisResult
+from ncmeasure.formats.results import AxisResult
 from ncmeasure.recording import Recording, RecordingHead
 from ncmeasure.report.words import format_mm
 
@@ -91,13 +91,12 @@ def bearing_layout(
     """
     if result is not None and result.fixed_bearing_end is not None:
         return BearingLayout(result.travel_mm, result.fixed_bearing_end, known=True)
-    entries: Sequence[Mapping[str, Any]] = recording.meta.axes if recording is not None else ()
+    entries = recording.meta.axes if recording is not None else []
     for entry in entries:
-        if entry.get("name") != axis:
+        if entry.name != axis:
             continue
-        end = entry.get("fixed_bearing_end")
-        travel = _travel(entry.get("travel_mm"))
-        if end in ("min", "max"):
-            return BearingLayout(travel, "min" if end == "min" else "max", known=True)
+        travel = _travel(entry.travel_mm)
+        if entry.fixed_bearing_end is not None:
+            return BearingLayout(travel, entry.fixed_bearing_end, known=True)
         return BearingLayout(travel, "min", known=False)
     return BearingLayout(None, "min", known=False)

@@ -21,7 +21,7 @@ from ncmeasure.analysis.fit import (
     ROLLING_REFERENCE_MM_MIN,
     STRIBECK_PARAMETERS,
 )
-from ncmeasure.analysis.results import LinearFit, NonlinearFit, OffsetResult, Point
+from ncmeasure.formats.results import LinearFit, NonlinearFit, OffsetResult, Point
 
 __all__ = ["linear_curve", "offset_is_significant", "stribeck_curve", "stribeck_magnitude"]
 

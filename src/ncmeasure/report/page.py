@@ -32,8 +32,15 @@ from pydantic import BaseModel
 
 from ncmeasure._version import __version__
 from ncmeasure.analysis.analyze import recording_gaps
-from ncmeasure.analysis.compare import Comparison, GroupDeviation
-from ncmeasure.analysis.results import (
+from ncmeasure.analysis.summary import (
+    AxisComparison,
+    Headline,
+    axis_comparison,
+    axis_headline,
+)
+from ncmeasure.analysis.verdict import percent_text
+from ncmeasure.formats.comparison import Comparison, GroupDeviation
+from ncmeasure.formats.results import (
     AxisResult,
     DirectionResult,
     LinearFit,
@@ -42,13 +49,6 @@ from ncmeasure.analysis.results import (
     PositionResult,
     Results,
 )
-from ncmeasure.analysis.summary import (
-    AxisComparison,
-    Headline,
-    axis_comparison,
-    axis_headline,
-)
-from ncmeasure.analysis.verdict import percent_text
 from ncmeasure.recording import Recording, RecordingHead
 from ncmeasure.report.bearings import BearingLayout
 from ncmeasure.report.curves import offset_is_significant

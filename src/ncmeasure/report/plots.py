@@ -46,9 +46,9 @@ from matplotlib.ticker import FuncFormatter, LogFormatter, LogLocator
 from numpy.typing import NDArray
 from PIL import Image
 
-from ncmeasure.analysis.compare import Comparison
-from ncmeasure.analysis.results import AxisResult, DirectionResult, NonlinearFit, VelocityProfile
 from ncmeasure.files import write_whole
+from ncmeasure.formats.comparison import Comparison
+from ncmeasure.formats.results import AxisResult, DirectionResult, NonlinearFit, VelocityProfile
 from ncmeasure.recording import Recording
 from ncmeasure.report.bearings import BearingLayout
 from ncmeasure.report.curves import linear_curve, offset_is_significant, stribeck_curve

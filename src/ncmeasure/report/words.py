@@ -11,8 +11,8 @@ import datetime as dt
 import math
 from typing import Final
 
-from ncmeasure.analysis.results import CauseName, Signature
 from ncmeasure.analysis.summary import format_number
+from ncmeasure.formats.results import CauseName, Signature
 
 __all__ = [
     "CAUSE_CHECKS",

@@ -19,10 +19,10 @@ from pathlib import Path
 from matplotlib.figure import Figure as MplFigure
 from pydantic import BaseModel
 
-from ncmeasure.analysis.compare import Comparison
-from ncmeasure.analysis.results import Results
 from ncmeasure.errors import NcMeasureError, OutputError, RecordingError
 from ncmeasure.files import write_whole
+from ncmeasure.formats.comparison import Comparison
+from ncmeasure.formats.results import Results
 from ncmeasure.recording import Recording, RecordingHead
 from ncmeasure.report.bearings import bearing_layout
 from ncmeasure.report.page import AxisSection, Figure, render_page

@@ -495,7 +495,7 @@ EXAMPLE_VARIATIONS: Mapping[str, Variation] = MappingProxyType(
     }
 )
 """One variation per assembly cause (keys: values of
-:data:`~ncmeasure.analysis.results.CauseName`), each of a size that the analysis
+:data:`~ncmeasure.formats.results.CauseName`), each of a size that the analysis
 recognises on the rig axis; ``preload_or_carriage`` is a constant offset, which a
 position profile shows as flat."""
 

@@ -53,7 +53,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ncmeasure.config import AxisConfig, MachineConfig, MachineSection, Measurement
-from ncmeasure.plan import AxisSummary, RunLengths, Schedule, Window, run_lengths
+from ncmeasure.formats.schedule import AxisSummary, Schedule, Window
+from ncmeasure.plan import RunLengths, run_lengths
 from ncmeasure.recording import Recording, RecordingWriter
 from ncmeasure.samples import SIGNAL_UNITS, Channel, SampleBlock
 from ncmeasure.sim.servo import follow, servo

@@ -29,16 +29,13 @@ from sqlalchemy import func, select
 
 from ncmeasure.analysis.compare import (
     POSITION_MATCH_TOLERANCE_MM,
-    Comparison,
-    Limits,
-    Status,
     compare_results,
     modified_z_against,
-    worst_status,
 )
-from ncmeasure.analysis.results import Results
 from ncmeasure.errors import ComparisonError
 from ncmeasure.files import write_whole
+from ncmeasure.formats.comparison import Comparison, Limits, Status, worst_status
+from ncmeasure.formats.results import Results
 from ncmeasure.store import schema as t
 from ncmeasure.store.overview import is_outlier
 from ncmeasure.store.rows import CHARACTERISTICS

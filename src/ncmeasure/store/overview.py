@@ -27,13 +27,9 @@ from typing import Any
 import numpy as np
 from sqlalchemy import select
 
-from ncmeasure.analysis.compare import (
-    Limits,
-    Status,
-    modified_z_leave_one_out,
-    worst_status,
-)
+from ncmeasure.analysis.compare import modified_z_leave_one_out
 from ncmeasure.analysis.diagnosis import FLAT_THRESHOLD_PERCENT
+from ncmeasure.formats.comparison import Limits, Status, worst_status
 from ncmeasure.store import schema as t
 from ncmeasure.store.rows import CHARACTERISTICS, Characteristic
 from ncmeasure.store.store import Store

@@ -22,8 +22,8 @@ import jinja2
 from matplotlib.figure import Figure
 
 from ncmeasure._version import __version__
-from ncmeasure.analysis.compare import Limits
 from ncmeasure.files import write_whole
+from ncmeasure.formats.comparison import Limits
 from ncmeasure.report.words import format_date, format_number
 from ncmeasure.store.overview import AxisOverview, Change, FleetOverview, MachineOverview
 from ncmeasure.store.rows import CHARACTERISTICS

@@ -15,8 +15,8 @@ import zlib
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from ncmeasure.analysis.results import AxisResult, LinearFit, NonlinearFit, Results
 from ncmeasure.analysis.summary import axis_headline
+from ncmeasure.formats.results import AxisResult, LinearFit, NonlinearFit, Results
 
 __all__ = [
     "CHARACTERISTICS",

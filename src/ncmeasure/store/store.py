@@ -13,8 +13,8 @@ from typing import Any
 from sqlalchemy import Connection, Engine, and_, func, insert, or_, select, update
 from sqlalchemy.exc import SQLAlchemyError
 
-from ncmeasure.analysis.results import Results
 from ncmeasure.errors import ConfigError
+from ncmeasure.formats.results import Results
 from ncmeasure.store import schema as t
 from ncmeasure.store.database import connect, display_url, translate, write_begin
 from ncmeasure.store.rows import (

@@ -16,8 +16,8 @@ from typing import IO, Any
 from pydantic import ValidationError
 from sqlalchemy import select
 
-from ncmeasure.analysis.results import Results
 from ncmeasure.errors import ConfigError
+from ncmeasure.formats.results import Results
 from ncmeasure.store import schema as t
 from ncmeasure.store.rows import decompress
 from ncmeasure.store.store import MeasurementInfo, Store

@@ -46,7 +46,7 @@ from typing import Final
 
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
-from ncmeasure.recording import RecordingMeta
+from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.traces._common import (
     ImportJob,
     ProgressFn,

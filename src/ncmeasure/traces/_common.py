@@ -36,7 +36,8 @@ from numpy.typing import NDArray
 
 from ncmeasure.config import AXIS_NAME_PATTERN, MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
-from ncmeasure.recording import ImportSink, Recording, RecordingMeta, machine_axis
+from ncmeasure.formats.recording import RecordingMeta
+from ncmeasure.recording import ImportSink, Recording, machine_axis
 from ncmeasure.samples import SIGNAL_UNITS, Channel
 
 __all__ = [

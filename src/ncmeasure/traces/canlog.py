@@ -21,8 +21,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Final
 
 from ncmeasure.errors import ConfigError, RecordingError
+from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.links import make_link
-from ncmeasure.recording import RecordingMeta
 from ncmeasure.traces._common import ImportJob
 
 if TYPE_CHECKING:

@@ -51,7 +51,8 @@ from pydantic_core import PydanticCustomError
 
 from ncmeasure.config import MachineConfig, format_validation_error, read_toml
 from ncmeasure.errors import ConfigError, RecordingError
-from ncmeasure.recording import RecordingMeta, channel_from_name, check_times
+from ncmeasure.formats.recording import RecordingMeta
+from ncmeasure.recording import channel_from_name, check_times
 from ncmeasure.samples import SIGNAL_UNITS, Channel
 from ncmeasure.traces._common import (
     CHUNK_ROWS,

@@ -17,12 +17,8 @@ import numpy as np
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
 from ncmeasure.files import replace_text
-from ncmeasure.recording.format import (
-    IMPORT_CHUNK_ROWS,
-    PathArg,
-    RecordingMeta,
-    channel_from_name,
-)
+from ncmeasure.formats.recording import RecordingMeta
+from ncmeasure.recording.format import IMPORT_CHUNK_ROWS, PathArg, channel_from_name
 from ncmeasure.recording.reader import Recording, RecordingHead, rows_of
 from ncmeasure.recording.sink import ImportSink, check_times
 from ncmeasure.samples import SIGNAL_UNITS, Channel

@@ -21,14 +21,12 @@ from pydantic import ValidationError
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import DependencyError, RecordingError
 from ncmeasure.files import replace_by_path
+from ncmeasure.formats.recording import FORMAT_NAME, EventRecord, RecordingStatus
 from ncmeasure.recording.format import (
     EVENTS_FILE,
-    FORMAT_NAME,
     IMPORT_CHUNK_ROWS,
     META_FILE,
-    EventRecord,
     PathArg,
-    RecordingStatus,
     channel_from_name,
     event_line,
 )

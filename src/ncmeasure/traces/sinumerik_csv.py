@@ -38,7 +38,7 @@ from collections.abc import Callable, Iterator
 from typing import Final
 
 from ncmeasure.errors import RecordingError
-from ncmeasure.recording import RecordingMeta
+from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.traces._common import (
     CarryForward,
     ImportJob,

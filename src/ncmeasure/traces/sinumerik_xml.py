@@ -99,7 +99,7 @@ from types import TracebackType
 from typing import IO, Final
 
 from ncmeasure.errors import RecordingError
-from ncmeasure.recording import RecordingMeta
+from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.traces._common import (
     PROGRESS_STEP_BYTES,
     Candidate,

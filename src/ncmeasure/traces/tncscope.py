@@ -51,7 +51,7 @@ from typing import Final
 import numpy as np
 
 from ncmeasure.errors import RecordingError
-from ncmeasure.recording import RecordingMeta
+from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.samples import SIGNAL_UNITS
 from ncmeasure.traces import _common
 from ncmeasure.traces._common import (

@@ -56,7 +56,8 @@ from typing import Final
 import numpy as np
 
 from ncmeasure.errors import RecordingError
-from ncmeasure.recording import RecordingMeta, channel_from_name
+from ncmeasure.formats.recording import RecordingMeta
+from ncmeasure.recording import channel_from_name
 from ncmeasure.samples import SIGNAL_UNITS
 from ncmeasure.traces import _common
 from ncmeasure.traces._common import (

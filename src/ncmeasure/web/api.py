@@ -14,9 +14,9 @@ from fastapi import APIRouter, Depends, Path, Response, status
 from fastapi.security import HTTPBearer
 from pydantic import BaseModel, ConfigDict, Field
 
-from ncmeasure.analysis.compare import Comparison, Status
-from ncmeasure.analysis.results import RESULTS_FORMAT_VERSION, Results, VerdictLevel
 from ncmeasure.errors import ConfigError
+from ncmeasure.formats.comparison import Comparison, Status
+from ncmeasure.formats.results import RESULTS_FORMAT_VERSION, Results, VerdictLevel
 from ncmeasure.store import MeasurementInfo
 from ncmeasure.store.rows import canonical_json
 from ncmeasure.web.context import Context, context

@@ -26,7 +26,7 @@ from matplotlib.dates import AutoDateLocator, ConciseDateFormatter
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from ncmeasure.analysis.results import AxisResult
+from ncmeasure.formats.results import AxisResult
 from ncmeasure.report import bearing_layout, plot_stribeck, plot_travel
 from ncmeasure.store import TrendPoint
 

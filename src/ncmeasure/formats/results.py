@@ -26,11 +26,17 @@ that the data do not determine publishes ``null`` parameters and its
 
 from __future__ import annotations
 
-from typing import Literal
+import logging
+import os
+from pathlib import Path
+from typing import ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from ncmeasure._version import __version__
+from ncmeasure.errors import ConfigError
+from ncmeasure.files import write_whole
+from ncmeasure.formats.axis import AxisMechanics
+from ncmeasure.formats.header import FileHeader, read_file
 
 __all__ = [
     "RESULTS_FORMAT",
@@ -52,7 +58,11 @@ __all__ = [
     "VelocityProfile",
     "Verdict",
     "VerdictLevel",
+    "load_results",
+    "write_results",
 ]
+
+log = logging.getLogger(__name__)
 
 RESULTS_FORMAT = "ncmeasure-results"
 RESULTS_FORMAT_VERSION = 2
@@ -244,19 +254,18 @@ class Verdict(_Model):
     action: str = Field(description="What to do.")
 
 
-class AxisResult(_Model):
-    """Everything found for one axis."""
+class AxisResult(AxisMechanics):
+    """Everything found for one axis, and its mechanics as far as they were known.
+
+    The mechanics come from the recording's meta.json, the machine file and the
+    schedule, in that order; a fact none of them stated is null.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
 
     verdict: Verdict
     quantity: Literal["torque_nm", "current_a"]
     unit: Literal["Nm", "A"]
-    torque_constant_nm_per_a: float | None
-    travel_mm: tuple[float, float] | None = Field(
-        default=None, description="Soft limits, when known (recording or machine file)."
-    )
-    fixed_bearing_end: Literal["min", "max"] | None = None
-    vertical: bool | None = None
-    screw_lead_mm: float | None = None
     window_source: Literal["marker", "command", "plateau", "schedule"]
     windows: int
     samples_used: int
@@ -298,16 +307,52 @@ class RecordingInfo(_Model):
     gap_events: int = Field(default=0, description="Gap events the link reported.")
 
 
-class Results(_Model):
+class Results(FileHeader):
     """The whole results.json."""
 
-    format: Literal["ncmeasure-results"] = "ncmeasure-results"
-    format_version: int = RESULTS_FORMAT_VERSION
-    ncmeasure_version: str = __version__
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    FORMAT: ClassVar[str] = RESULTS_FORMAT
+    FORMAT_VERSION: ClassVar[int] = RESULTS_FORMAT_VERSION
+    WRITTEN_BY: ClassVar[str] = "ncmeasure analyze"
+
     created_utc: str
     recording: RecordingInfo
     settings: dict[str, float | str | bool | None]
     axes: dict[str, AxisResult]
     skipped: dict[str, str] = Field(
         default_factory=dict, description="Axes that could not be analysed, with the reason."
+    )
+
+
+def write_results(results: Results, path: str | os.PathLike[str]) -> Path:
+    """Write ``results.json`` atomically: a reader sees the old file or the new one, whole.
+
+    Raises:
+        OutputError: The file cannot be written.
+    """
+    target = write_whole(path, results.model_dump_json(indent=2) + "\n", fsync=True, parents=True)
+    log.info("wrote %s", target)
+    return target
+
+
+MAX_RESULTS_BYTES = 256 * 1024 * 1024
+"""Largest results.json read."""
+
+
+def load_results(path: str | os.PathLike[str]) -> Results:
+    """Read a ``results.json`` written by :func:`write_results`.
+
+    Raises:
+        ConfigError: The file is missing, not JSON, not an ncmeasure results
+            file, of another format version, or not valid (one line per problem).
+    """
+    return read_file(
+        Path(path),
+        Results,
+        ConfigError,
+        what="results file",
+        max_bytes=MAX_RESULTS_BYTES,
+        missing=f"{path}: no such results file",
+        older="analyse the recording again",
     )
