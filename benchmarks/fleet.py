@@ -110,7 +110,7 @@ def _fleet(
                 update={"axes": axes, "recording": recording, "created_utc": when}
             )
             label = "delivery" if k == 0 else "service"
-            yield serial, k, results, MeasurementInfo(serial, label, measured_utc=when)
+            yield serial, k, results, MeasurementInfo(serial=serial, label=label, measured_utc=when)
 
 
 def _median_s(run: Callable[[], object], rounds: int) -> tuple[float, float, float]:

@@ -1631,9 +1631,9 @@ def _open_store(url: str | None, *, write: bool) -> Any:
 
 
 def _measurement_info(**fields: Any) -> Any:
-    from ncmeasure.store import MeasurementInfo
+    from ncmeasure.store import measurement_info
 
-    return MeasurementInfo(**fields).checked()
+    return measurement_info(**fields)
 
 
 def _limits(warning: float | None, critical: float | None) -> Any:

@@ -13,7 +13,7 @@ import pytest
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.errors import ConfigError, DialectError, ProgramCheckError, ProgramError
 from ncmeasure.formats import schedule as schedule_format
-from ncmeasure.program import check, check_programs, generate_programs, load_dialect, reader
+from ncmeasure.program import check_programs, generate_programs, load_dialect, reader
 from ncmeasure.program.reader import read_programs
 from ncmeasure.resources import builtin_dir
 from tests.conftest import DIALECTS, FIXED_TIME, SPECIAL_REFUSALS, small_data

@@ -68,9 +68,11 @@ def store_with_machine(tmp_path: Path, make_results: Callable[..., Results]) -> 
     url = f"sqlite:///{tmp_path / 'fleet.db'}"
     with open_store(url, write=True) as store:
         store.add(
-            make_results("2026-01-10T08:00:00+00:00"), MeasurementInfo("M17", "delivery", "plant-2")
+            make_results("2026-01-10T08:00:00+00:00"),
+            MeasurementInfo(serial="M17", label="delivery", site="plant-2"),
         )
         store.add(
-            make_results("2029-01-10T08:00:00+00:00", 0.75), MeasurementInfo("M17", "service")
+            make_results("2029-01-10T08:00:00+00:00", 0.75),
+            MeasurementInfo(serial="M17", label="service"),
         )
     return url

@@ -127,7 +127,8 @@ def test_the_client_reads_the_store_and_sees_a_change(
             def add() -> None:
                 with open_store(store_with_machine, write=True) as store:
                     store.add(
-                        make_results("2031-01-10T08:00:00+00:00", 0.5), MeasurementInfo("M17")
+                        make_results("2031-01-10T08:00:00+00:00", 0.5),
+                        MeasurementInfo(serial="M17"),
                     )
 
             await asyncio.to_thread(add)

@@ -39,12 +39,14 @@ def _fill(url: str, make_results: Make) -> None:
         for index, (serial, (delivered, now)) in enumerate(FLEET.items()):
             store.add(
                 make_results(f"2026-01-{10 + index}T08:00:00+00:00", delivered),
-                MeasurementInfo(serial, "delivery", site="Hall 3" if index % 2 else None),
+                MeasurementInfo(
+                    serial=serial, label="delivery", site="Hall 3" if index % 2 else None
+                ),
             )
             if now is not None:
                 store.add(
                     make_results(f"2029-01-{10 + index}T08:00:00+00:00", now),
-                    MeasurementInfo(serial, "service"),
+                    MeasurementInfo(serial=serial, label="service"),
                 )
 
 
@@ -127,7 +129,9 @@ def test_the_report_command_writes_the_grid_outliers_and_trends(
 def test_serials_and_sites_are_text_in_the_report(tmp_path: Path, make_results: Make) -> None:
     url = f"sqlite:///{tmp_path / 'fleet.db'}"
     with open_store(url, write=True) as store:
-        store.add(make_results("2026-01-10T08:00:00+00:00"), MeasurementInfo("M1", site="<b>x"))
+        store.add(
+            make_results("2026-01-10T08:00:00+00:00"), MeasurementInfo(serial="M1", site="<b>x")
+        )
         overview = fleet_overview(store)
         write_fleet_report(store, overview, tmp_path / "f.html")
     page = (tmp_path / "f.html").read_text(encoding="utf-8")
@@ -165,7 +169,7 @@ def test_a_fleet_at_noise_level_names_no_outlier_for_a_small_difference(
         for index, (serial, factor) in enumerate(factors.items()):
             store.add(
                 make_results(f"2026-02-{index + 1:02d}T08:00:00+00:00", factor),
-                MeasurementInfo(serial, "delivery"),
+                MeasurementInfo(serial=serial, label="delivery"),
             )
         check = check_machine(store, "M6")
         overview = fleet_overview(store)

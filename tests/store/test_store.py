@@ -9,7 +9,7 @@ from sqlalchemy import func, select
 
 from ncmeasure.errors import ConfigError
 from ncmeasure.formats.results import Results
-from ncmeasure.store import MeasurementInfo, open_store
+from ncmeasure.store import MeasurementInfo, measurement_info, open_store
 from ncmeasure.store import schema as t
 from ncmeasure.store.check import check_machine
 
@@ -106,15 +106,18 @@ def test_machines_measurements_and_trend(store_url: str, make_results: Make) -> 
 
 def test_check_against_delivery_and_fleet(store_url: str, make_results: Make) -> None:
     with open_store(store_url, write=True) as store:
-        store.add(make_results("2026-01-10T08:00:00+00:00"), MeasurementInfo("M17", "delivery"))
+        store.add(
+            make_results("2026-01-10T08:00:00+00:00"),
+            MeasurementInfo(serial="M17", label="delivery"),
+        )
         store.add(
             make_results("2029-01-10T08:00:00+00:00", factor=0.5),  # lost half its friction
-            MeasurementInfo("M17", "service"),
+            MeasurementInfo(serial="M17", label="service"),
         )
         for index, factor in enumerate((0.96, 1.0, 1.03, 0.98, 1.02)):
             store.add(
                 make_results(f"2026-0{index + 2}-01T08:00:00+00:00", factor),
-                MeasurementInfo(f"M{20 + index}", "delivery"),
+                MeasurementInfo(serial=f"M{20 + index}", label="delivery"),
             )
         check = check_machine(store, "M17")
         other = check_machine(store, "M21")
@@ -138,9 +141,9 @@ def test_comparability_is_stated(store_url: str, make_results: Make) -> None:
     with open_store(store_url, write=True) as store:
         store.add(
             make_results("2026-01-10T08:00:00+00:00"),
-            MeasurementInfo("M17", "delivery", temperature_c=20.0),
+            MeasurementInfo(serial="M17", label="delivery", temperature_c=20.0),
         )
-        store.add(later, MeasurementInfo("M17", "service", temperature_c=32.0))
+        store.add(later, MeasurementInfo(serial="M17", label="service", temperature_c=32.0))
         check = check_machine(store, "M17")
     assert check.comparability is not None and check.comparability.refused is None
     text = " ".join(check.comparability.differences)
@@ -151,19 +154,19 @@ def test_comparability_is_stated(store_url: str, make_results: Make) -> None:
 def test_a_failed_add_leaves_nothing(
     store_url: str, make_results: Make, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from ncmeasure.store.store import Store
+    from ncmeasure.store import writing
 
-    original = Store._add_axes
+    original = writing._add_axes
 
-    def failing(self, db, machine_id, measurement_id, results):  # type: ignore[no-untyped-def]
-        original(self, db, machine_id, measurement_id, results)  # every row is written ...
+    def failing(db, machine_id, measurement_id, results):  # type: ignore[no-untyped-def]
+        original(db, machine_id, measurement_id, results)  # every row is written ...
         assert db.execute(select(func.count()).select_from(t.points)).scalar_one() > 0
         raise ConfigError("injected failure after the rows")  # ... and then it fails
 
-    monkeypatch.setattr(Store, "_add_axes", failing)
+    monkeypatch.setattr(writing, "_add_axes", failing)
     with open_store(store_url, write=True) as store:
         with pytest.raises(ConfigError, match="injected"):
-            store.add(make_results("2026-01-10T08:00:00+00:00"), MeasurementInfo("M17"))
+            store.add(make_results("2026-01-10T08:00:00+00:00"), MeasurementInfo(serial="M17"))
         for table in (t.measurements, t.machines, t.axes, t.axis_results, t.points):
             assert _count(store, table) == 0, table.name
 
@@ -187,5 +190,5 @@ def test_bad_info_is_refused_before_anything_is_written(
     info = {"serial": "M17", field: value}
     with open_store(url, write=True) as store:
         with pytest.raises(ConfigError, match=message):
-            store.add(make_results("2026-01-10T08:00:00+00:00"), MeasurementInfo(**info))  # type: ignore[arg-type]
+            store.add(make_results("2026-01-10T08:00:00+00:00"), measurement_info(**info))
         assert store.machines() == []

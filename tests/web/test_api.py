@@ -134,11 +134,21 @@ def test_openapi_describes_every_endpoint(api: httpx.Client) -> None:
     } == set(paths)
     assert set(paths["/api/v1/measurements"]) == {"post"}
     schemas = described["components"]["schemas"]
-    assert {"Results", "StoreCheckOut", "NewMeasurement", "ErrorOut", "TrendPointOut"} <= set(
-        schemas
-    )
+    assert {"Results", "StoreCheck", "NewMeasurement", "ErrorOut", "TrendPoint"} <= set(schemas)
     assert "bearer" in str(described["components"]["securitySchemes"]).lower()
-    assert api.get("/docs").status_code == 200
+
+
+def test_the_docs_page_needs_nothing_beyond_the_server(api: httpx.Client) -> None:
+    # A shop-floor network is often offline: no script or style from elsewhere.
+    page = api.get("/docs")
+    assert page.status_code == 200
+    sources = re.findall(r"""(?:src|href)=["']?([^"' >]+)""", page.text)
+    sources += re.findall(r"""url: ['"]([^'"]+)['"]""", page.text)
+    assert any(s.endswith(".js") for s in sources) and any(s.endswith(".css") for s in sources)
+    for source in sources:
+        assert not re.match(r"(https?:)?//", source), source
+        fetched = api.get(source)
+        assert fetched.status_code == 200 and fetched.content, source
 
 
 # --- adding ------------------------------------------------------------------------

@@ -15,16 +15,16 @@ Needs the ``store`` extra: ``pip install 'ncmeasure[store]'``.
 from __future__ import annotations
 
 from ncmeasure.store.database import STORE_ENV, default_store, store_url
-from ncmeasure.store.store import (
+from ncmeasure.store.records import (
     Added,
     MachineSummary,
     MeasurementInfo,
     MeasurementSummary,
-    Store,
     TrendPoint,
     check_serial,
-    open_store,
+    measurement_info,
 )
+from ncmeasure.store.store import Store, open_store
 
 __all__ = [
     "STORE_ENV",
@@ -36,6 +36,7 @@ __all__ = [
     "TrendPoint",
     "check_serial",
     "default_store",
+    "measurement_info",
     "open_store",
     "store_url",
 ]

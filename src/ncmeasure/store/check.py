@@ -15,16 +15,15 @@ name no outlier.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 from collections import defaultdict
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import func, select
 
 from ncmeasure.analysis.compare import (
@@ -38,8 +37,9 @@ from ncmeasure.formats.comparison import Comparison, Limits, Status, worst_statu
 from ncmeasure.formats.results import Results
 from ncmeasure.store import schema as t
 from ncmeasure.store.overview import is_outlier
+from ncmeasure.store.records import MeasurementSummary, check_serial
 from ncmeasure.store.rows import CHARACTERISTICS
-from ncmeasure.store.store import MeasurementSummary, Store, check_serial
+from ncmeasure.store.store import Store
 
 __all__ = [
     "TEMPERATURE_WARNING_K",
@@ -57,19 +57,21 @@ TEMPERATURE_WARNING_K = 5.0
 viscosity, and with it viscous friction, changes by several percent per kelvin."""
 
 
-@dataclass(frozen=True)
-class Comparability:
+class Comparability(BaseModel):
     """What differs between two measurements, and whether that invalidates comparing them."""
 
-    differences: list[str] = field(default_factory=list)
-    """Differences that weaken the comparison (warnings)."""
-    refused: str | None = None
-    """Why the two cannot be compared at all."""
+    model_config = ConfigDict(frozen=True)
+
+    differences: list[str] = Field(
+        default_factory=list, description="Differences that weaken the comparison."
+    )
+    refused: str | None = Field(default=None, description="Why the two cannot be compared at all.")
 
 
-@dataclass(frozen=True)
-class FleetFigure:
+class FleetFigure(BaseModel):
     """One characteristic of one axis against the other machines of the type."""
+
+    model_config = ConfigDict(frozen=True)
 
     axis: str
     characteristic: str
@@ -79,25 +81,27 @@ class FleetFigure:
     fleet_low: float
     fleet_high: float
     machines: int
-    modified_z: float | None
-    """None when the fleet is too small to name outliers."""
+    modified_z: float | None = Field(description="None when the fleet is too small.")
     outlier: bool
 
 
-@dataclass(frozen=True)
-class StoreCheck:
-    """The result of :func:`check_machine`."""
+class StoreCheck(BaseModel):
+    """A machine's latest measurement against its delivery baseline and its fleet."""
+
+    model_config = ConfigDict(frozen=True)
 
     serial: str
     machine_type: str
     latest: MeasurementSummary
-    baseline: MeasurementSummary | None
+    baseline: MeasurementSummary | None = Field(
+        description="The first measurement labelled delivery, else the first; None if only one."
+    )
     comparability: Comparability | None
-    comparison: Comparison | None
+    comparison: Comparison | None = Field(description="The comparison with the baseline.")
     fleet: list[FleetFigure]
-    fleet_machines: int
+    fleet_machines: int = Field(description="Other machines of the type with a measurement.")
     findings: list[str]
-    status: Status
+    status: Status = Field(description="ok, warning or critical.")
 
 
 def _positions(results: Results, axis: str) -> list[float]:
@@ -296,7 +300,7 @@ def check_machine(store: Store, serial: str, limits: Limits | None = None) -> St
                     base_results, [latest_results], labels=[base_label, other_label], limits=limits
                 )
             except ComparisonError as exc:
-                rules = Comparability(rules.differences, refused=exc.message)
+                rules = Comparability(differences=rules.differences, refused=exc.message)
                 findings.append(f"not compared with the baseline: {exc.message}")
             else:
                 status = comparison.status
@@ -331,11 +335,7 @@ def check_machine(store: Store, serial: str, limits: Limits | None = None) -> St
 
 def check_json(check: StoreCheck) -> dict[str, Any]:
     """The check as a JSON object (``store check -o``, the REST API)."""
-    data = dataclasses.asdict(dataclasses.replace(check, comparison=None))
-    data["comparison"] = (
-        check.comparison.model_dump(mode="json") if check.comparison is not None else None
-    )
-    return {"format": "ncmeasure-store-check", "format_version": 1, **data}
+    return {"format": "ncmeasure-store-check", "format_version": 1, **check.model_dump(mode="json")}
 
 
 def write_check(check: StoreCheck, path: str | os.PathLike[str]) -> Path:

@@ -26,8 +26,9 @@ from ncmeasure.files import write_whole
 from ncmeasure.formats.comparison import Limits
 from ncmeasure.report.words import format_date, format_number
 from ncmeasure.store.overview import AxisOverview, Change, FleetOverview, MachineOverview
+from ncmeasure.store.records import TrendPoint
 from ncmeasure.store.rows import CHARACTERISTICS
-from ncmeasure.store.store import Store, TrendPoint
+from ncmeasure.store.store import Store
 
 __all__ = ["DEFAULT_TRENDS", "MAX_OUTLIER_ROWS", "trend_figure", "write_fleet_report"]
 

@@ -2,189 +2,33 @@
 
 from __future__ import annotations
 
-import datetime as dt
-import math
-import re
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import Connection, Engine, and_, func, insert, or_, select, update
+from sqlalchemy import Connection, Engine, func, select
 from sqlalchemy.exc import SQLAlchemyError
 
 from ncmeasure.errors import ConfigError
 from ncmeasure.formats.results import Results
 from ncmeasure.store import schema as t
 from ncmeasure.store.database import connect, display_url, translate, write_begin
+from ncmeasure.store.records import (
+    Added,
+    MachineSummary,
+    MeasurementInfo,
+    MeasurementSummary,
+    TrendPoint,
+    check_serial,
+)
 from ncmeasure.store.rows import (
     canonical_json,
-    compress,
     decompress,
     results_digest,
-    rows_of_axis,
 )
+from ncmeasure.store.writing import add_measurement, find_machine
 
-__all__ = [
-    "Added",
-    "MachineSummary",
-    "MeasurementInfo",
-    "MeasurementSummary",
-    "Store",
-    "TrendPoint",
-    "open_store",
-]
-
-SERIAL_PATTERN = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9 ._+#-]{0,62}[A-Za-z0-9._+#-])?")
-"""A serial: letters, digits, space and ``. _ + # -``, 1–64 characters, no space at an end."""
-LABEL_PATTERN = re.compile(r"[a-z0-9](?:[a-z0-9._-]{0,62})?")
-"""A label such as ``delivery``, ``service``, ``after-repair``: lower case, digits, ``._-``."""
-TEXT_LIMIT = 200
-TEMPERATURE_RANGE_C = (-40.0, 120.0)
-OPERATING_HOURS_MAX = 1_000_000.0
-
-
-def _check_text(value: str | None, what: str, pattern: re.Pattern[str] | None) -> str | None:
-    if value is None:
-        return None
-    if pattern is not None and not pattern.fullmatch(value):
-        allowed = (
-            "letters, digits, space and . _ + # - (1 to 64 characters)"
-            if pattern is SERIAL_PATTERN
-            else "lower-case letters, digits and . _ - (1 to 64 characters, e.g. delivery)"
-        )
-        raise ConfigError(f"{what} {value!r}: use {allowed}")
-    if pattern is None and (
-        not value.strip() or len(value) > TEXT_LIMIT or not value.isprintable()
-    ):
-        raise ConfigError(f"{what} {value!r}: printable text of 1 to {TEXT_LIMIT} characters")
-    return value
-
-
-def check_serial(serial: str) -> str:
-    """``serial`` if it is one the store takes, else a :class:`ConfigError` in words."""
-    return _check_text(serial, "serial", SERIAL_PATTERN) or ""
-
-
-def _utc(text: str | None, what: str) -> str:
-    if text is None:
-        return dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
-    try:
-        when = dt.datetime.fromisoformat(text)
-    except ValueError as exc:
-        raise ConfigError(f"{what} {text!r}: not an ISO 8601 time") from exc
-    if when.tzinfo is None:
-        when = when.replace(tzinfo=dt.UTC)
-    return when.astimezone(dt.UTC).isoformat(timespec="milliseconds")
-
-
-@dataclass(frozen=True)
-class MeasurementInfo:
-    """What the store keeps about a measurement beside its results.
-
-    Attributes:
-        serial: The machine's serial number (letters, digits, space, ``._+#-``).
-        label: ``delivery``, ``service``, ``after-repair``, ... (lower case).
-        site: Where the machine stands (updates the machine's site).
-        machine_type: The type's name; default: the machine name in the results.
-        operator: Who measured.
-        temperature_c: Machine temperature during the measurement.
-        operating_hours: The machine's operating hours.
-        recording_location: Where the raw recording is kept (it stays a file).
-        measured_utc: When it was measured; default: the recording's start.
-    """
-
-    serial: str
-    label: str | None = None
-    site: str | None = None
-    machine_type: str | None = None
-    operator: str | None = None
-    temperature_c: float | None = None
-    operating_hours: float | None = None
-    recording_location: str | None = None
-    measured_utc: str | None = None
-
-    def checked(self) -> MeasurementInfo:
-        """This info if every field is valid, else a :class:`ConfigError` naming the field."""
-        check_serial(self.serial)
-        _check_text(self.label, "label", LABEL_PATTERN)
-        _check_text(self.site, "site", None)
-        _check_text(self.machine_type, "machine type", None)
-        _check_text(self.operator, "operator", None)
-        for name, value, low, high in (
-            ("temperature", self.temperature_c, *TEMPERATURE_RANGE_C),
-            ("operating hours", self.operating_hours, 0.0, OPERATING_HOURS_MAX),
-        ):
-            if value is not None and not (math.isfinite(value) and low <= value <= high):
-                raise ConfigError(f"{name} {value!r}: must lie within {low:g} to {high:g}")
-        if self.recording_location is not None and len(self.recording_location) > 4096:
-            raise ConfigError("recording location: longer than 4096 characters")
-        return self
-
-
-@dataclass(frozen=True)
-class Added:
-    """The outcome of :meth:`Store.add`."""
-
-    measurement_id: int
-    serial: str
-    new: bool
-    """False when the same results were stored before (nothing was added)."""
-
-
-@dataclass(frozen=True)
-class MeasurementSummary:
-    """One measurement of a machine, as ``store show`` lists it."""
-
-    id: int
-    measured_utc: str
-    label: str | None
-    operator: str | None
-    temperature_c: float | None
-    operating_hours: float | None
-    link: str | None
-    config_hash: str
-    ncmeasure_version: str
-    recording_location: str | None
-    verdicts: dict[str, str]
-
-
-@dataclass(frozen=True)
-class MachineSummary:
-    """One machine, as ``store list`` lists it."""
-
-    serial: str
-    machine_type: str
-    config_hash: str
-    site: str | None
-    measurements: int
-    latest_utc: str | None
-    latest_label: str | None
-    latest_verdicts: dict[str, str]
-
-
-@dataclass(frozen=True)
-class TrendPoint:
-    """One axis' characteristics at one measurement."""
-
-    measurement_id: int
-    measured_utc: str
-    label: str | None
-    operating_hours: float | None
-    unit: str
-    verdict: str
-    coulomb: float | None
-    coulomb_positive: float | None
-    coulomb_negative: float | None
-    viscous_per_m_min: float | None
-    spread_percent: float | None
-    signature: str | None
-    offset: float | None
-
-    def value(self, characteristic: str) -> float | None:
-        """The value of a characteristic by its name (:data:`~.rows.CHARACTERISTICS`)."""
-        found = getattr(self, characteristic)
-        return float(found) if found is not None else None
+__all__ = ["Store", "open_store"]
 
 
 class Store:
@@ -243,7 +87,6 @@ class Store:
         """
         prepared = []
         for results, info in measurements:
-            info.checked()
             if not results.axes:
                 raise ConfigError("these results hold no analysed axis; there is nothing to store")
             canonical = canonical_json(results)
@@ -251,195 +94,14 @@ class Store:
         with self._writing(
             "add the measurement" if len(prepared) == 1 else "add measurements"
         ) as db:
-            return [self._add(db, *one) for one in prepared]
-
-    def _existing(self, db: Connection, digest: str, serial: str) -> Added | None:
-        found = db.execute(
-            select(t.measurements.c.id, t.machines.c.serial)
-            .join(t.machines, t.machines.c.id == t.measurements.c.machine_id)
-            .where(t.measurements.c.results_sha256 == digest)
-        ).first()
-        if found is None:
-            return None
-        if found.serial != serial:
-            raise ConfigError(
-                f"these results are already stored as measurement {found.id} of machine "
-                f"{found.serial!r}, not {serial!r}; one measurement belongs to one machine"
-            )
-        return Added(found.id, serial, new=False)
-
-    def _get_or_create(
-        self, db: Connection, table: Any, key: dict[str, Any], extra: dict[str, Any]
-    ) -> Any:
-        where = and_(*(table.c[name] == value for name, value in key.items()))
-        row = db.execute(select(table).where(where)).first()
-        if row is not None:
-            return row
-        db.execute(_insert_ignore(db, table).values(**key, **extra))
-        return db.execute(select(table).where(where)).one()
-
-    def _add(
-        self, db: Connection, results: Results, info: MeasurementInfo, canonical: bytes, digest: str
-    ) -> Added:
-        existing = self._existing(db, digest, info.serial)
-        if existing is not None:
-            return existing
-        now = _utc(None, "now")
-        config_hash = results.recording.config_hash or ""
-        type_name = info.machine_type or results.recording.machine or "(unnamed)"
-        machine = self._find_machine(db, info.serial)
-        if machine is not None and info.machine_type and machine.type_name != info.machine_type:
-            raise ConfigError(
-                f"machine {info.serial!r} is of type {machine.type_name!r}, "
-                f"not {info.machine_type!r}"
-            )
-        if machine is None:
-            kind = self._get_or_create(
-                db,
-                t.machine_types,
-                {"name": type_name, "config_hash": config_hash},
-                {"created_utc": now},
-            )
-            self._get_or_create(
-                db,
-                t.machines,
-                {"serial": info.serial},
-                {"type_id": kind.id, "site": info.site, "created_utc": now},
-            )
-            machine = self._find_machine(db, info.serial)
-            assert machine is not None
-        if info.site is not None and machine.site != info.site:
-            db.execute(
-                update(t.machines).where(t.machines.c.id == machine.id).values(site=info.site)
-            )
-        measured = _utc(
-            info.measured_utc or results.recording.start_utc or results.created_utc, "measured time"
-        )
-        kind = self._get_or_create(
-            db,
-            t.machine_types,
-            {"name": machine.type_name, "config_hash": config_hash},
-            {"created_utc": now},
-        )
-        inserted = db.execute(
-            _insert_ignore(db, t.measurements)
-            .values(
-                machine_id=machine.id,
-                type_id=kind.id,
-                measured_utc=measured,
-                added_utc=now,
-                label=info.label,
-                operator=info.operator,
-                temperature_c=info.temperature_c,
-                operating_hours=info.operating_hours,
-                link=results.recording.source,
-                config_hash=config_hash,
-                ncmeasure_version=results.ncmeasure_version,
-                results_format_version=results.format_version,
-                recording_location=info.recording_location or results.recording.directory,
-                results_sha256=digest,
-                results_json=compress(canonical),
-            )
-            .returning(t.measurements.c.id)
-        ).first()
-        if inserted is None:  # another writer stored the same results meanwhile
-            again = self._existing(db, digest, info.serial)
-            assert again is not None
-            return again
-        measurement_id = int(inserted.id)
-        self._add_axes(db, machine.id, measurement_id, results)
-        latest = (
-            select(t.measurements.c.measured_utc)
-            .where(t.measurements.c.id == t.machines.c.latest_measurement_id)
-            .scalar_subquery()
-        )
-        db.execute(
-            update(t.machines)
-            .where(t.machines.c.id == machine.id)
-            .where(or_(t.machines.c.latest_measurement_id.is_(None), latest <= measured))
-            .values(latest_measurement_id=measurement_id)
-        )
-        return Added(measurement_id, info.serial, new=True)
-
-    def _add_axes(
-        self, db: Connection, machine_id: int, measurement_id: int, results: Results
-    ) -> None:
-        """Every axis' rows of one measurement, table by table (a few statements in all)."""
-        names = list(results.axes)
-        axis_ids = self._axis_ids(db, machine_id, names)
-        rows = [rows_of_axis(name, axis) for name, axis in results.axes.items()]
-        result_ids = (
-            db.execute(
-                insert(t.axis_results).returning(t.axis_results.c.id, sort_by_parameter_order=True),
-                [
-                    {"measurement_id": measurement_id, "axis_id": axis_ids[name], **r.axis}
-                    for name, r in zip(names, rows, strict=True)
-                ],
-            )
-            .scalars()
-            .all()
-        )
-        owned = list(zip(result_ids, rows, strict=True))
-        points = [{**p, "axis_result_id": rid} for rid, r in owned for p in r.points]
-        if points:
-            db.execute(insert(t.points), points)
-        fits = [(rid, fit, params) for rid, r in owned for fit, params in r.fits]
-        if fits:
-            fit_ids = (
-                db.execute(
-                    insert(t.fits).returning(t.fits.c.id, sort_by_parameter_order=True),
-                    [{**fit, "axis_result_id": rid} for rid, fit, _ in fits],
-                )
-                .scalars()
-                .all()
-            )
-            parameters = [
-                {**p, "fit_id": fit_id}
-                for fit_id, (_, _, params) in zip(fit_ids, fits, strict=True)
-                for p in params
-            ]
-            if parameters:
-                db.execute(insert(t.fit_parameters), parameters)
-        causes = [{**c, "axis_result_id": rid} for rid, r in owned for c in r.causes]
-        if causes:
-            db.execute(insert(t.causes), causes)
-
-    @staticmethod
-    def _axis_ids(db: Connection, machine_id: int, names: list[str]) -> dict[str, int]:
-        """The ids of the machine's axes of these names; the missing ones are created."""
-        where = and_(t.axes.c.machine_id == machine_id, t.axes.c.name.in_(names))
-        found = {row.name: row.id for row in db.execute(select(t.axes).where(where))}
-        missing = [name for name in names if name not in found]
-        if missing:
-            db.execute(
-                _insert_ignore(db, t.axes), [{"machine_id": machine_id, "name": n} for n in missing]
-            )
-            found = {row.name: row.id for row in db.execute(select(t.axes).where(where))}
-        return found
+            return [add_measurement(db, *one) for one in prepared]
 
     # ----------------------------------------------------------------------- reading
-
-    @staticmethod
-    def _find_machine(db: Connection, serial: str) -> Any:
-        """The machine's row with its type (see :meth:`machine_row`), None when absent."""
-        return db.execute(
-            select(
-                t.machines.c.id,
-                t.machines.c.serial,
-                t.machines.c.site,
-                t.machines.c.type_id,
-                t.machines.c.latest_measurement_id,
-                t.machine_types.c.name.label("type_name"),
-                t.machine_types.c.config_hash,
-            )
-            .join(t.machine_types, t.machine_types.c.id == t.machines.c.type_id)
-            .where(t.machines.c.serial == serial)
-        ).first()
 
     def machine_row(self, db: Connection, serial: str) -> Any:
         """The machine's row (id, serial, site, type_id, latest_measurement_id, type_name,
         config_hash); a :class:`ConfigError` when there is no such machine."""
-        row = self._find_machine(db, serial)
+        row = find_machine(db, serial)
         if row is None:
             raise ConfigError(
                 f"no machine {serial!r} in the store {self.where} (ncmeasure store list shows "
@@ -620,17 +282,6 @@ class Store:
             )
             for r in rows
         ]
-
-
-def _insert_ignore(db: Connection, table: Any) -> Any:
-    """INSERT that does nothing where a unique key exists (both dialects)."""
-    if db.dialect.name == "postgresql":
-        from sqlalchemy.dialects.postgresql import insert as pg_insert
-
-        return pg_insert(table).on_conflict_do_nothing()
-    from sqlalchemy.dialects.sqlite import insert as sqlite_insert
-
-    return sqlite_insert(table).on_conflict_do_nothing()
 
 
 @contextmanager

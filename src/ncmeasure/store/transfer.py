@@ -19,8 +19,9 @@ from sqlalchemy import select
 from ncmeasure.errors import ConfigError
 from ncmeasure.formats.results import Results
 from ncmeasure.store import schema as t
+from ncmeasure.store.records import MeasurementInfo, measurement_info
 from ncmeasure.store.rows import decompress
-from ncmeasure.store.store import MeasurementInfo, Store
+from ncmeasure.store.store import Store
 
 __all__ = ["EXPORT_FORMAT", "EXPORT_FORMAT_VERSION", "export_lines", "import_lines"]
 
@@ -148,9 +149,9 @@ def _checked(
             raise ConfigError(f"{where}:{number}: no serial")
         try:
             results = Results.model_validate(data.get("results"))
-            info = MeasurementInfo(
+            info = measurement_info(
                 serial=data["serial"], **{name: data.get(name) for name in _INFO_FIELDS}
-            ).checked()
+            )
         except ValidationError as exc:
             first = exc.errors()[0]
             place = ".".join(str(part) for part in first["loc"])

@@ -74,13 +74,45 @@ def create_app(url: str, *, token: str | None = None) -> FastAPI:
         version=__version__,
         description=_DESCRIPTION,
         lifespan=lifespan,
+        docs_url=None,  # FastAPI's own pages load their scripts from a CDN: see _docs
+        redoc_url=None,
     )
     app.state.where = display_url(url)
+    _docs(app)
     app.include_router(api.router)
     app.include_router(pages.router)
     app.add_middleware(Guard, token=token)
     _errors(app)
     return app
+
+
+DOCS_ASSETS = "/docs/assets"
+"""Where the API docs' scripts and styles are served from (the package, not a CDN)."""
+
+
+def _docs(app: FastAPI) -> None:
+    """``/docs``: Swagger UI with its scripts and styles served by this server.
+
+    A shop-floor network is often offline; FastAPI's default page loads Swagger
+    UI from a CDN and stays blank there. The assets come from the
+    ``swagger-ui-bundle`` package (the ``serve`` extra).
+    """
+    from fastapi.openapi.docs import get_swagger_ui_html
+    from fastapi.responses import HTMLResponse
+    from fastapi.staticfiles import StaticFiles
+    from swagger_ui_bundle import swagger_ui_path
+
+    app.mount(DOCS_ASSETS, StaticFiles(directory=swagger_ui_path), name="docs-assets")
+
+    @app.get("/docs", include_in_schema=False)
+    def docs() -> HTMLResponse:
+        return get_swagger_ui_html(
+            openapi_url="/openapi.json",
+            title=f"{app.title}: API",
+            swagger_js_url=f"{DOCS_ASSETS}/swagger-ui-bundle.js",
+            swagger_css_url=f"{DOCS_ASSETS}/swagger-ui.css",
+            swagger_favicon_url=f"{DOCS_ASSETS}/favicon-32x32.png",
+        )
 
 
 def _one_line(error: NcMeasureError) -> str:
