@@ -16,7 +16,7 @@ import ncmeasure
 SRC = Path(ncmeasure.__file__).parent
 
 #: Top-level module or package -> its layer; a module imports from its layer and below.
-LAYERS: dict[str, int] = {
+LAYERS: dict[str, float] = {
     "_version": 0,
     "errors": 0,
     "inputs": 0,
@@ -27,6 +27,7 @@ LAYERS: dict[str, int] = {
     "profile": 0,
     "examples": 0,
     "files": 0,
+    "formats": 0.5,
     "config": 1,
     "plan": 2,
     "program": 3,

@@ -16,11 +16,11 @@ from ncmeasure.plan import (
     Feed,
     Rapid,
     Run,
-    _floor_feed,
     duration_bound,
     plan_axis,
     plan_machine,
 )
+from ncmeasure.plan.moves import floor_feed
 from ncmeasure.profile import ramp
 from tests.conftest import example_data
 
@@ -309,7 +309,7 @@ def test_explicit_positions_are_used() -> None:
 @given(st.floats(min_value=0.01, max_value=1_000_000.0, allow_nan=False, allow_infinity=False))
 def test_feeds_are_rounded_down_to_what_a_program_writes(value: float) -> None:
     """Never above the value (no float noise rounds up), never a whole 0.001 below it."""
-    written = float(f"{_floor_feed(value):.3f}")  # what a control reads
+    written = float(f"{floor_feed(value):.3f}")  # what a control reads
     assert written <= value
     assert value - written < 0.001 + 1e-9 * value
 

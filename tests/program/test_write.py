@@ -17,7 +17,6 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-from ncmeasure import plan
 from ncmeasure.cli import app
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.errors import (
@@ -27,6 +26,7 @@ from ncmeasure.errors import (
     PlanError,
     ProgramCheckError,
 )
+from ncmeasure.plan import machine as planner
 from ncmeasure.program import GeneratedPrograms, check_programs, generate_programs
 from ncmeasure.program.check import read_generated
 from ncmeasure.resources import builtin_dir
@@ -130,7 +130,7 @@ def test_too_many_windows_are_refused_before_any_window_is_planned(
     def never(*args: object, **kwargs: object) -> None:
         raise AssertionError("a window was planned")
 
-    monkeypatch.setattr(plan, "plan_axis", never)
+    monkeypatch.setattr(planner, "plan_axis", never)
     with pytest.raises(PlanError) as caught:
         generate_programs(config)
     text = "\n".join(caught.value.problems)
