@@ -11,8 +11,7 @@ import pytest
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.traces import FORMATS, TraceImport, detect_format, import_trace
-
-from .conftest import FIXTURES
+from tests.traces.conftest import FIXTURES
 
 DETECTED = {
     "sinumerik_trace.xml": "sinumerik-xml",

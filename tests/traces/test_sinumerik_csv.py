@@ -11,8 +11,7 @@ import pytest
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
 from ncmeasure.traces import import_trace
-
-from .conftest import FIXTURES
+from tests.traces.conftest import FIXTURES
 
 NAN = float("nan")
 CHANNELS = ("X_current_a", "X_velocity_mm_min", "X_position_mm", "Y_current_a")

@@ -15,8 +15,7 @@ from ncmeasure.errors import RecordingError
 from ncmeasure.recording import RecordingWriter, read_recording
 from ncmeasure.traces import import_trace
 from ncmeasure.traces.sinumerik_xml import parse_signal_name
-
-from .conftest import FIXTURES
+from tests.traces.conftest import FIXTURES
 
 XML = FIXTURES / "sinumerik_trace.xml"
 NAN = float("nan")

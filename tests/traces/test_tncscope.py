@@ -10,8 +10,7 @@ import pytest
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
 from ncmeasure.traces import import_trace
-
-from .conftest import FIXTURES
+from tests.traces.conftest import FIXTURES
 
 SCO = FIXTURES / "tncscope.sco"
 

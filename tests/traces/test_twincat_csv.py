@@ -11,8 +11,7 @@ import pytest
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
 from ncmeasure.traces import import_trace
-
-from .conftest import FIXTURES
+from tests.traces.conftest import FIXTURES
 
 PER_CHANNEL = FIXTURES / "twincat_per_channel.csv"
 SHARED = FIXTURES / "twincat_shared.csv"
