@@ -19,7 +19,7 @@ end with LF, CRLF or CR; quoted cells are read as the :mod:`csv` module reads
 them. Columns the map does not name are never parsed (text columns are
 fine) and are listed in the report; an empty cell becomes NaN and is
 counted. The file is read as a stream: rows go to the recording in chunks of
-:data:`~ncmeasure.traces._common.CHUNK_ROWS`.
+:data:`~ncmeasure.traces.merge.CHUNK_ROWS`.
 
 Reference of every key: ``docs/traces.md``, section "Any CSV with a column map".
 """
@@ -53,18 +53,16 @@ from ncmeasure.config import MachineConfig, format_validation_error, read_toml
 from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.recording import RecordingMeta, channel_from_name, check_times
 from ncmeasure.samples import SIGNAL_UNITS, Channel
-from ncmeasure.traces._common import (
-    CHUNK_ROWS,
+from ncmeasure.traces.job import (
     ImportJob,
     ProgressFn,
-    TextLines,
     TraceImport,
     check_source,
     check_target,
-    decimal_mark,
-    parse_number,
     run_import,
 )
+from ncmeasure.traces.merge import CHUNK_ROWS
+from ncmeasure.traces.text import TextLines, decimal_mark, parse_number
 
 __all__ = ["ChannelColumn", "ColumnMap", "TimeColumn", "import_columns", "load_column_map"]
 

@@ -53,18 +53,11 @@ import numpy as np
 from ncmeasure.errors import RecordingError
 from ncmeasure.recording import RecordingMeta
 from ncmeasure.samples import SIGNAL_UNITS
-from ncmeasure.traces import _common
-from ncmeasure.traces._common import (
-    Candidate,
-    ImportJob,
-    Needs,
-    SeriesMerge,
-    TextLines,
-    decimal_mark,
-    parse_number,
-    plan_channels,
-    unit_factor,
-)
+from ncmeasure.traces import merge as merging
+from ncmeasure.traces.axes import Candidate, Needs, plan_channels
+from ncmeasure.traces.job import ImportJob
+from ncmeasure.traces.merge import SeriesMerge
+from ncmeasure.traces.text import TextLines, decimal_mark, parse_number, unit_factor
 
 __all__ = ["import_tncscope"]
 
@@ -246,8 +239,8 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
         sink,
         [m.channel.name for _, m in used],
         [m.factor for _, m in used],
-        batch_rows=_common.MERGE_ROWS,
-        spill_rows=_common.SPILL_ROWS,
+        batch_rows=merging.MERGE_ROWS,
+        spill_rows=merging.SPILL_ROWS,
     )
     values: list[array[float]] = [array("d") for _ in used]
     handed = [0] * len(used)  # samples of each curve given to the merge
@@ -266,7 +259,7 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
             values[k] = array("d")
         merge.flush()
 
-    chunk_rows = _common.CHUNK_ROWS
+    chunk_rows = merging.CHUNK_ROWS
     decimal: str | None = None
     last_time = -math.inf
     rows = 0

@@ -58,16 +58,15 @@ import numpy as np
 from ncmeasure.errors import RecordingError
 from ncmeasure.recording import RecordingMeta, channel_from_name
 from ncmeasure.samples import SIGNAL_UNITS
-from ncmeasure.traces import _common
-from ncmeasure.traces._common import (
-    Candidate,
-    ImportJob,
-    SeriesMerge,
+from ncmeasure.traces import merge as merging
+from ncmeasure.traces.axes import Candidate, plan_channels
+from ncmeasure.traces.job import ImportJob
+from ncmeasure.traces.merge import SeriesMerge
+from ncmeasure.traces.text import (
     TextLines,
     decimal_mark,
     filetime_to_datetime,
     parse_number,
-    plan_channels,
     unit_factor,
 )
 
@@ -290,8 +289,8 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
         sink,
         [m.channel.name for _, m in used],
         [m.factor for _, m in used],
-        batch_rows=_common.MERGE_ROWS,
-        spill_rows=_common.SPILL_ROWS,
+        batch_rows=merging.MERGE_ROWS,
+        spill_rows=merging.SPILL_ROWS,
     )
     base = header.start_ticks
 
@@ -316,7 +315,7 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
             values[k] = array("d")
         merge.flush()
 
-    chunk_rows = _common.CHUNK_ROWS
+    chunk_rows = merging.CHUNK_ROWS
     rows_parsed = 0
     first_data = [header.first_data] if header.first_data is not None else []
     try:
