@@ -25,7 +25,7 @@ from ncmeasure.errors import NcMeasureError, OutputError, RecordingError
 from ncmeasure.files import write_whole
 from ncmeasure.recording import Recording, RecordingHead
 from ncmeasure.report.bearings import bearing_layout
-from ncmeasure.report.page import AxisSection, Figure, render_page
+from ncmeasure.report.page import render_page
 from ncmeasure.report.plots import (
     RawTrace,
     plot_comparison,
@@ -36,6 +36,7 @@ from ncmeasure.report.plots import (
     save_png,
     shared_renderers,
 )
+from ncmeasure.report.view import AxisSection, Figure
 from ncmeasure.report.windows import find_window_times
 
 __all__ = ["ReportProgress", "write_report"]
