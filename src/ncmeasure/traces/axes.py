@@ -13,7 +13,7 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, TypeVar
 
 from ncmeasure.config import AXIS_NAME_PATTERN, MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
@@ -21,7 +21,9 @@ from ncmeasure.recording import machine_axis
 from ncmeasure.samples import SIGNAL_UNITS, Channel
 from ncmeasure.traces.job import ImportJob
 
-__all__ = ["Candidate", "Mapped", "Needs", "plan_channels", "resolve_axes"]
+__all__ = ["Candidate", "Mapped", "Needs", "plan_channels", "plan_sources", "resolve_axes"]
+
+_S = TypeVar("_S")
 
 
 Needs = Literal["", "screw_lead", "torque_constant"]
@@ -253,6 +255,24 @@ def plan_channels(candidates: Sequence[Candidate], job: ImportJob) -> list[Mappe
             job.report,
         )
     return mapped
+
+
+def plan_sources(
+    sources: Sequence[_S], candidates: Sequence[Candidate | None], job: ImportJob
+) -> list[tuple[_S, Mapped]]:
+    """:func:`plan_channels` over the sources (trace columns, curves) that have a candidate.
+
+    Returns:
+        Each source that becomes a channel, with its :class:`Mapped`, in the
+        order of the channels.
+    """
+    pairs = [(s, c) for s, c in zip(sources, candidates, strict=True) if c is not None]
+    mapped = plan_channels([c for _, c in pairs], job)
+    by_candidate = {id(m.candidate): m for m in mapped}
+    return sorted(
+        ((s, by_candidate[id(c)]) for s, c in pairs if id(c) in by_candidate),
+        key=lambda pair: mapped.index(pair[1]),
+    )
 
 
 def _quantity(signal: str) -> str:
