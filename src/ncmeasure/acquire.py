@@ -171,7 +171,7 @@ def acquire(
     check_duration(duration_s)
     stop = stop or threading.Event()
     started = time.monotonic()
-    next_progress = started + progress_interval_s
+    meter = _ProgressMeter(on_progress, progress_interval_s, started)
     rows = 0
     first_time_s: float | None = None
     link_time_s = 0.0
@@ -180,7 +180,6 @@ def acquire(
     names = [c.name for c in link.channels]
     status: Status = "interrupted"
     error: str | None = None
-    rate_window: list[tuple[float, int]] = [(started, 0)]
 
     def take_events() -> None:
         for event in link.events():
@@ -198,39 +197,13 @@ def acquire(
             if duration_s is not None:
                 if len(block) and first_time_s is None:
                     first_time_s = float(block.time_s[0])
-                end_s = (first_time_s or 0.0) + duration_s
-                cut = int(np.searchsorted(block.time_s, end_s, "left"))
-                if cut < len(block):
-                    block = SampleBlock(block.time_s[:cut], block.values[:cut])
-                    reached_end = True
-                now_s = link.now_s() if not len(block) else None
-                if now_s is not None and now_s >= end_s + IN_FLIGHT_S:
-                    # nothing is waiting in the link and its time is past the end: the
-                    # drives fell silent (a link ahead of its reader still has rows)
-                    reached_end = True
+                block, reached_end = _until_end(link, block, (first_time_s or 0.0) + duration_s)
             if len(block):
                 writer.append(block)
                 rows += len(block)
                 link_time_s = float(block.time_s[-1])
                 latest = dict(zip(names, block.values[-1].tolist(), strict=True))
-            now = time.monotonic()
-            if on_progress is not None and now >= next_progress:
-                rate_window = [*rate_window, (now, rows)][-6:]
-                (t0, r0), (t1, r1) = rate_window[0], rate_window[-1]
-                on_progress(
-                    Progress(
-                        elapsed_s=now - started,
-                        link_time_s=link_time_s,
-                        rows=rows,
-                        rows_per_s=(r1 - r0) / (t1 - t0) if t1 > t0 else 0.0,
-                        latest=latest,
-                        gaps=sum(1 for e in events if e.kind == "gap"),
-                        lost_samples=sum(e.lost_samples for e in events),
-                        faults=sum(1 for e in events if e.kind in ("fault", "emcy")),
-                        last_event=f"{events[-1].kind}: {events[-1].message}" if events else None,
-                    )
-                )
-                next_progress = now + progress_interval_s
+            meter.tick(rows, link_time_s, latest, events)
         status = "complete" if reached_end else "interrupted"
     except RecordingError:
         # The disk refused the rows. close() raises in its turn while it still does,
@@ -258,6 +231,63 @@ def acquire(
         error=error,
         moved_aside=writer.moved_aside,
     )
+
+
+def _until_end(link: DriveLink, block: SampleBlock, end_s: float) -> tuple[SampleBlock, bool]:
+    """The rows of ``block`` before ``end_s`` on the link's clock, and whether the end came.
+
+    The end has come when a row reaches it, or when the link has no row
+    waiting and its own time is :data:`IN_FLIGHT_S` past it.
+    """
+    reached_end = False
+    cut = int(np.searchsorted(block.time_s, end_s, "left"))
+    if cut < len(block):
+        block = SampleBlock(block.time_s[:cut], block.values[:cut])
+        reached_end = True
+    now_s = link.now_s() if not len(block) else None
+    if now_s is not None and now_s >= end_s + IN_FLIGHT_S:
+        # nothing is waiting in the link and its time is past the end: the
+        # drives fell silent (a link ahead of its reader still has rows)
+        reached_end = True
+    return block, reached_end
+
+
+class _ProgressMeter:
+    """Hands a :class:`Progress` to ``on_progress`` every ``interval_s`` of wall-clock time."""
+
+    def __init__(
+        self, on_progress: Callable[[Progress], None] | None, interval_s: float, started: float
+    ) -> None:
+        self._on_progress = on_progress
+        self._interval_s = interval_s
+        self._started = started
+        self._next = started + interval_s
+        # the rate is taken over the last few progress calls
+        self._rate_window: list[tuple[float, int]] = [(started, 0)]
+
+    def tick(
+        self, rows: int, link_time_s: float, latest: dict[str, float], events: list[LinkEvent]
+    ) -> None:
+        """Report progress if it is time to."""
+        now = time.monotonic()
+        if self._on_progress is None or now < self._next:
+            return
+        self._rate_window = [*self._rate_window, (now, rows)][-6:]
+        (t0, r0), (t1, r1) = self._rate_window[0], self._rate_window[-1]
+        self._on_progress(
+            Progress(
+                elapsed_s=now - self._started,
+                link_time_s=link_time_s,
+                rows=rows,
+                rows_per_s=(r1 - r0) / (t1 - t0) if t1 > t0 else 0.0,
+                latest=latest,
+                gaps=sum(1 for e in events if e.kind == "gap"),
+                lost_samples=sum(e.lost_samples for e in events),
+                faults=sum(1 for e in events if e.kind in ("fault", "emcy")),
+                last_event=f"{events[-1].kind}: {events[-1].message}" if events else None,
+            )
+        )
+        self._next = now + self._interval_s
 
 
 def record(

@@ -429,15 +429,9 @@ def run_demo(
     _prepare(directory, force)
 
     report_progress("writing the machine file and the programs", None)
-    text = demo_machine(controller, link)
-    config = parse_machine(tomllib.loads(text))
-    machine_file = directory / "machine.toml"
-    machine_file.write_text(text, encoding="utf-8")
-    generated = generate_programs(config)
-    programs = directory / "programs"
-    generated.write(programs)
-    schedule = generated.schedule
-    assert (programs / SCHEDULE_FILE).is_file()
+    config, machine_file, programs, schedule = _write_machine_and_programs(
+        directory, controller, link
+    )
 
     result = DemoResult(directory, link, machine_file, programs)
     varied = variation != Variation()
@@ -478,14 +472,39 @@ def run_demo(
         )
         write_comparison(result.comparison, directory / "comparison.json")
     if report:
-        from ncmeasure.report import write_report
-
         report_progress("writing the report", None)
-        result.report = write_report(
-            result.measured.results,
-            directory / "report.html",
-            recording=read_recording(result.measured.recording),
-            comparison=result.comparison,
-            title="ncmeasure demo: friction of the virtual machine",
-        )
+        result.report = _write_report(result)
     return result
+
+
+def _write_machine_and_programs(
+    directory: Path, controller: str, link: str
+) -> tuple[MachineConfig, Path, Path, Schedule]:
+    """The demo machine's file and its measurement programs, written into ``directory``.
+
+    Returns:
+        The machine, its file, the programs' folder and their schedule.
+    """
+    text = demo_machine(controller, link)
+    config = parse_machine(tomllib.loads(text))
+    machine_file = directory / "machine.toml"
+    machine_file.write_text(text, encoding="utf-8")
+    generated = generate_programs(config)
+    programs = directory / "programs"
+    generated.write(programs)
+    schedule = generated.schedule
+    assert (programs / SCHEDULE_FILE).is_file()
+    return config, machine_file, programs, schedule
+
+
+def _write_report(result: DemoResult) -> Path:
+    """The report of the measured machine (with the comparison, if any) in the demo folder."""
+    from ncmeasure.report import write_report
+
+    return write_report(
+        result.measured.results,
+        result.directory / "report.html",
+        recording=read_recording(result.measured.recording),
+        comparison=result.comparison,
+        title="ncmeasure demo: friction of the virtual machine",
+    )

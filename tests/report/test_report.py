@@ -450,7 +450,8 @@ def test_the_png_holds_the_pixels_savefig_draws(example: Example) -> None:
 def test_error_bars_are_drawn_as_errorbar_draws_them() -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from ncmeasure.report.plots import _error_bars, figure_png
+    from ncmeasure.report.friction_plots import _error_bars
+    from ncmeasure.report.plots import figure_png
 
     x = np.array([10.0, 30.0, 100.0, 300.0, 1000.0])
     y = np.array([2.0, 1.6, 1.5, 1.7, 2.4])

@@ -12,7 +12,7 @@ import ncmeasure.report.traces as traces_module
 from ncmeasure.analysis.analyze import analyze
 from ncmeasure.recording import RecordingHead
 from ncmeasure.report import write_report
-from ncmeasure.report.plots import OVERVIEW_BINS, RawTrace, plot_trace, raw_trace
+from ncmeasure.report.raw_plots import OVERVIEW_BINS, RawTrace, plot_trace, raw_trace
 from ncmeasure.report.traces import RawTraces, read_raw_traces
 from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
 

@@ -19,8 +19,11 @@ from ncmeasure.cli import app
 from ncmeasure.errors import RecordingError
 from ncmeasure.recording import Recording
 from ncmeasure.recording.sink import StepMedian
-from ncmeasure.traces import _common, import_trace, sinumerik_xml
-from ncmeasure.traces._common import ImportJob, Series, SeriesMerge, merge_series
+from ncmeasure.traces import import_trace, sinumerik_xml
+from ncmeasure.traces import merge as merging
+from ncmeasure.traces import text as trace_text
+from ncmeasure.traces.job import ImportJob
+from ncmeasure.traces.merge import Series, SeriesMerge, merge_series
 
 FIXTURES = Path(__file__).parent / "fixtures"
 TRACES = [
@@ -38,10 +41,10 @@ TRACES = [
 
 
 def _tiny_chunks(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(_common, "CHUNK_ROWS", 2)
-    monkeypatch.setattr(_common, "MERGE_ROWS", 2)
-    monkeypatch.setattr(_common, "SPILL_ROWS", 1)
-    monkeypatch.setattr(_common, "_READ_BYTES", 7)
+    monkeypatch.setattr(merging, "CHUNK_ROWS", 2)
+    monkeypatch.setattr(merging, "MERGE_ROWS", 2)
+    monkeypatch.setattr(merging, "SPILL_ROWS", 1)
+    monkeypatch.setattr(trace_text, "_READ_BYTES", 7)
     monkeypatch.setattr(sinumerik_xml, "_READ_BYTES", 5)
 
 
@@ -91,9 +94,9 @@ def test_a_channel_far_ahead_waits_on_disk_and_merges_exactly(
     path = tmp_path / "multirate.csv"
     path.write_text(_multirate_twincat(501), encoding="utf-8")
     normal = import_trace(path, tmp_path / "normal")
-    monkeypatch.setattr(_common, "CHUNK_ROWS", 3)
-    monkeypatch.setattr(_common, "MERGE_ROWS", 4)
-    monkeypatch.setattr(_common, "SPILL_ROWS", 5)
+    monkeypatch.setattr(merging, "CHUNK_ROWS", 3)
+    monkeypatch.setattr(merging, "MERGE_ROWS", 4)
+    monkeypatch.setattr(merging, "SPILL_ROWS", 5)
     tiny = import_trace(path, tmp_path / "tiny")
     assert tiny.report == normal.report
     assert _summary(tiny.recording) == _summary(normal.recording)
@@ -121,9 +124,9 @@ def test_a_channel_still_waiting_on_disk_at_the_end_is_read_back(
     path = tmp_path / "ahead.csv"
     path.write_text(_multirate_twincat(300, position_rows=300), encoding="utf-8")
     normal = import_trace(path, tmp_path / "normal")
-    monkeypatch.setattr(_common, "CHUNK_ROWS", 50)
-    monkeypatch.setattr(_common, "MERGE_ROWS", 4)
-    monkeypatch.setattr(_common, "SPILL_ROWS", 5)
+    monkeypatch.setattr(merging, "CHUNK_ROWS", 50)
+    monkeypatch.setattr(merging, "MERGE_ROWS", 4)
+    monkeypatch.setattr(merging, "SPILL_ROWS", 5)
     tiny = import_trace(path, tmp_path / "tiny")
     assert tiny.report == normal.report
     assert _summary(tiny.recording) == _summary(normal.recording)

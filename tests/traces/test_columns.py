@@ -16,7 +16,7 @@ from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.recording import read_recording
 from ncmeasure.traces import ColumnMap, import_columns, import_trace, load_column_map
-from ncmeasure.traces._common import CHUNK_ROWS
+from ncmeasure.traces.merge import CHUNK_ROWS
 
 #: The data collector's export: no time column (100 ms), three significant digits,
 #: velocities in mm/s, a timestamp string and a status word that are not numbers.

@@ -18,7 +18,7 @@ import re
 import shutil
 import tempfile
 import unicodedata
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -537,52 +537,9 @@ def generate_programs(
     """
     dialect = load_dialect(config.machine.controller, controllers_dirs)
     options = validate_for_dialect(config, dialect)
-    limit_kb = config.limits.max_program_kb or dialect.memory.program_kb
-    if config.limits.max_program_kb:
-        memory = f"limits.max_program_kb = {limit_kb}"
-    else:
-        memory = (
-            f"the {limit_kb} kB of program memory assumed for {dialect.title} "
-            "(limits.max_program_kb; `ncmeasure controllers --details`)"
-        )
-    # Every block holds at least an axis word (letter, number with the dialect's decimals)
-    # and a line end: a floor no rendered program stays under.
-    decimals = dialect.numbers.decimals
-    block_floor = 3 + decimals + (1 if decimals else 0)
-    limit = SizeLimit(
-        config.limits.max_duration_h * 3600,
-        limit_kb * 1024 // block_floor,
-        memory,
-        config.limits.max_windows,
-    )
+    limit, limit_kb, memory = _size_limit(config, dialect)
     schedule, plans = plan_machine(config, limit)
-    names = dialect.names
-    program = config.machine.program
-    number = config.machine.program_number
-
-    def ref(template: str, axis: str = "", offset: int = 0) -> ProgramRef:
-        name = dialect.program_name(template, program, axis, number + offset)
-        file_template = names.main_file if not axis else names.sub_file
-        return ProgramRef(
-            name, file_template.format(name=name), number + offset if names.numbered else None
-        )
-
-    main = ref(names.main)
-    subs = {
-        p.axis.name: ref(names.sub, p.axis.name, i + 1) if dialect.subprograms else None
-        for i, p in enumerate(plans)
-    }
-    taken = {SCHEDULE_FILE: "schedule"}
-    for key, named in [("main_file", main)] + [("sub_file", s) for s in subs.values() if s]:
-        if named.file_name.lower() in taken:
-            raise DialectError(
-                f"controller {dialect.name}: two files of the same name",
-                [
-                    f"names.{key}: {named.file_name!r} is the file of two programs "
-                    "(a name given twice); each program needs its own"
-                ],
-            )
-        taken[named.file_name.lower()] = named.name
+    main, subs = _program_refs(config, dialect, plans)
     by_name = {p.axis.name: p for p in plans}
 
     def view_of(axis_name: str) -> AxisView:
@@ -599,7 +556,7 @@ def generate_programs(
     when = (generated or generation_time()).astimezone(dt.UTC)
     view = ProgramView(
         machine=config.machine.name,
-        program=program,
+        program=config.machine.program,
         controller=dialect.name,
         title=dialect.title,
         generated=when.strftime("%Y-%m-%d %H:%M UTC"),
@@ -644,6 +601,72 @@ def generate_programs(
         _env=env,
         _moves=total_moves,
     )
+
+
+def _size_limit(config: MachineConfig, dialect: Dialect) -> tuple[SizeLimit, int, str]:
+    """What the programs must fit: duration, blocks of program memory, windows.
+
+    Returns:
+        The limit for the planner, the program memory in kB and where that
+        figure comes from (for the messages).
+    """
+    limit_kb = config.limits.max_program_kb or dialect.memory.program_kb
+    if config.limits.max_program_kb:
+        memory = f"limits.max_program_kb = {limit_kb}"
+    else:
+        memory = (
+            f"the {limit_kb} kB of program memory assumed for {dialect.title} "
+            "(limits.max_program_kb; `ncmeasure controllers --details`)"
+        )
+    # Every block holds at least an axis word (letter, number with the dialect's decimals)
+    # and a line end: a floor no rendered program stays under.
+    decimals = dialect.numbers.decimals
+    block_floor = 3 + decimals + (1 if decimals else 0)
+    limit = SizeLimit(
+        config.limits.max_duration_h * 3600,
+        limit_kb * 1024 // block_floor,
+        memory,
+        config.limits.max_windows,
+    )
+    return limit, limit_kb, memory
+
+
+def _program_refs(
+    config: MachineConfig, dialect: Dialect, plans: Sequence[AxisPlan]
+) -> tuple[ProgramRef, dict[str, ProgramRef | None]]:
+    """The main program's name and file, and each axis' subprogram's (None without them).
+
+    Raises:
+        DialectError: Two programs would get the same file (or the schedule's).
+    """
+    names = dialect.names
+    program = config.machine.program
+    number = config.machine.program_number
+
+    def ref(template: str, axis: str = "", offset: int = 0) -> ProgramRef:
+        name = dialect.program_name(template, program, axis, number + offset)
+        file_template = names.main_file if not axis else names.sub_file
+        return ProgramRef(
+            name, file_template.format(name=name), number + offset if names.numbered else None
+        )
+
+    main = ref(names.main)
+    subs = {
+        p.axis.name: ref(names.sub, p.axis.name, i + 1) if dialect.subprograms else None
+        for i, p in enumerate(plans)
+    }
+    taken = {SCHEDULE_FILE: "schedule"}
+    for key, named in [("main_file", main)] + [("sub_file", s) for s in subs.values() if s]:
+        if named.file_name.lower() in taken:
+            raise DialectError(
+                f"controller {dialect.name}: two files of the same name",
+                [
+                    f"names.{key}: {named.file_name!r} is the file of two programs "
+                    "(a name given twice); each program needs its own"
+                ],
+            )
+        taken[named.file_name.lower()] = named.name
+    return main, subs
 
 
 def _generate(env: TemplateSandbox, name: str, **context: object) -> Iterator[str]:

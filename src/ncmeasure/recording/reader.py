@@ -208,14 +208,7 @@ def iter_chunks(
     if rows < 1:
         raise ValueError("rows must be at least 1")
     path = Path(directory)
-    meta = _read_meta(path)
-    names = [c.name for c in meta.channels]
-    wanted = tuple(names) if channels is None else channels
-    missing = [name for name in wanted if name not in names]
-    if missing:
-        raise RecordingError(f"{path}: no channel {', '.join(map(repr, missing))}")
-    columns = [1 + names.index(name) for name in wanted]
-    width = 1 + len(names)
+    columns, width = _chunk_columns(path, channels)
     row_bytes = 8 * width
     found = problems if problems is not None else []
     samples_path = path / SAMPLES_FILE
@@ -226,71 +219,134 @@ def iter_chunks(
     with file:
         size = os.fstat(file.fileno()).st_size
         frames = _walk_headers(file, size, row_bytes, found)
-        pending: list[NDArray[np.uint8]] = []  # rows read, not yet yielded
-        held = 0  # rows in pending
-        first = 0
+        chunks = _Chunker(rows, width, columns)
         for number, frame in enumerate(frames):
-            if first + frame.rows <= first_row and not held:
-                first += frame.rows  # wholly before the rows wanted: not read
+            if chunks.first + frame.rows <= first_row and not chunks.held:
+                chunks.first += frame.rows  # wholly before the rows wanted: not read
                 continue
-            rest = size - frame.offset
-            where = f"after frame {number - 1}" if number else "at the start of samples.bin"
-            start = frame.offset + FRAME_HEADER.size
-            torn = f"torn tail: {rest} bytes {where} ignored (file shrank)"
-            bad = (
-                f"frame {number} fails its checksum: it and everything after it ignored "
-                f"({rest} bytes)"
-            )
-            if frame.rows <= rows:
-                # A small frame is read whole and checked before any of its rows is given.
-                payload = np.empty(frame.rows * row_bytes, dtype=np.uint8)
-                file.seek(start)
-                if _read_exactly(file, payload.data) < len(payload):
-                    found[:] = [torn]
-                    break
-                if zlib.crc32(payload.data) != frame.crc:
-                    found[:] = [bad]
-                    break
-                pieces: Iterator[NDArray[np.uint8] | None] = iter([payload])
-            else:
-                # A large frame is checked in pieces first, then read again piece by
-                # piece: never held whole, and no row of a damaged frame is given.
-                if verified is None or frame.offset not in verified:
-                    checked = _frame_crc(file, start, frame.rows * row_bytes)
-                    if checked is None:
-                        found[:] = [torn]
-                        break
-                    if checked != frame.crc:
-                        found[:] = [bad]
-                        break
-                    if verified is not None:
-                        verified.add(frame.offset)
-                pieces = _frame_pieces(file, start, frame.rows, rows, row_bytes)
+            pieces = _checked_frame(file, number, frame, size, rows, row_bytes, verified)
+            if isinstance(pieces, str):
+                found[:] = [pieces]
+                break
             shrank = False
             for piece in pieces:
                 if piece is None:
                     shrank = True
                     break
-                pending.append(piece)
-                held += len(piece) // row_bytes
-                if held < rows:
-                    continue
-                joined = np.concatenate(pending) if len(pending) > 1 else pending[0]
-                whole = held // rows * rows
-                table = joined[: whole * row_bytes].view(ROW_DTYPE).reshape(whole, width)
-                for begin in range(0, whole, rows):
-                    part = table[begin : begin + rows]
-                    yield RowChunk(first, part[:, 0].copy(), part[:, columns])
-                    first += rows
-                pending = [joined[whole * row_bytes :]] if held > whole else []
-                held -= whole
+                yield from chunks.add(piece)
             if shrank:
-                found[:] = [torn]
+                found[:] = [_torn(number, frame, size)]
                 break
-        if held:
-            joined = np.concatenate(pending) if len(pending) > 1 else pending[0]
-            table = joined.view(ROW_DTYPE).reshape(held, width)
-            yield RowChunk(first, table[:, 0].copy(), table[:, columns])
+        last = chunks.rest()
+        if last is not None:
+            yield last
+
+
+def _chunk_columns(path: Path, channels: tuple[str, ...] | None) -> tuple[list[int], int]:
+    """The row columns of ``channels`` (all when None) and the width of a row.
+
+    Raises:
+        RecordingError: Not a recording, or a channel it does not have.
+    """
+    meta = _read_meta(path)
+    names = [c.name for c in meta.channels]
+    wanted = tuple(names) if channels is None else channels
+    missing = [name for name in wanted if name not in names]
+    if missing:
+        raise RecordingError(f"{path}: no channel {', '.join(map(repr, missing))}")
+    return [1 + names.index(name) for name in wanted], 1 + len(names)
+
+
+def _torn(number: int, frame: _Frame, size: int) -> str:
+    """The problem of frame ``number`` whose payload the file no longer holds."""
+    where = f"after frame {number - 1}" if number else "at the start of samples.bin"
+    return f"torn tail: {size - frame.offset} bytes {where} ignored (file shrank)"
+
+
+def _checked_frame(
+    file: io.FileIO,
+    number: int,
+    frame: _Frame,
+    size: int,
+    rows: int,
+    row_bytes: int,
+    verified: set[int] | None,
+) -> Iterator[NDArray[np.uint8] | None] | str:
+    """The payload of a frame whose checksum holds, in pieces of at most ``rows`` rows.
+
+    Returns:
+        The pieces (None where the file turned out shorter while they were
+        read), or the problem that ends the rows at this frame.
+    """
+    start = frame.offset + FRAME_HEADER.size
+    if frame.rows <= rows:
+        # A small frame is read whole and checked before any of its rows is given.
+        payload = np.empty(frame.rows * row_bytes, dtype=np.uint8)
+        file.seek(start)
+        if _read_exactly(file, payload.data) < len(payload):
+            return _torn(number, frame, size)
+        if zlib.crc32(payload.data) != frame.crc:
+            return _bad(number, frame, size)
+        return iter([payload])
+    # A large frame is checked in pieces first, then read again piece by
+    # piece: never held whole, and no row of a damaged frame is given.
+    if verified is None or frame.offset not in verified:
+        checked = _frame_crc(file, start, frame.rows * row_bytes)
+        if checked is None:
+            return _torn(number, frame, size)
+        if checked != frame.crc:
+            return _bad(number, frame, size)
+        if verified is not None:
+            verified.add(frame.offset)
+    return _frame_pieces(file, start, frame.rows, rows, row_bytes)
+
+
+def _bad(number: int, frame: _Frame, size: int) -> str:
+    """The problem of frame ``number`` whose checksum fails."""
+    return (
+        f"frame {number} fails its checksum: it and everything after it ignored "
+        f"({size - frame.offset} bytes)"
+    )
+
+
+class _Chunker:
+    """Pieces of rows in, chunks of exactly ``rows`` rows (of the chosen columns) out."""
+
+    def __init__(self, rows: int, width: int, columns: list[int]) -> None:
+        self._rows = rows
+        self._width = width
+        self._row_bytes = 8 * width
+        self._columns = columns
+        self._pending: list[NDArray[np.uint8]] = []  # rows read, not yet yielded
+        self.held = 0  # rows in pending
+        self.first = 0  # the row of the whole recording the next chunk begins with
+
+    def add(self, piece: NDArray[np.uint8]) -> Iterator[RowChunk]:
+        """Take the rows of ``piece``; the chunks that are now whole."""
+        rows, width, row_bytes, columns = self._rows, self._width, self._row_bytes, self._columns
+        self._pending.append(piece)
+        self.held += len(piece) // row_bytes
+        if self.held < rows:
+            return
+        pending = self._pending
+        joined = np.concatenate(pending) if len(pending) > 1 else pending[0]
+        whole = self.held // rows * rows
+        table = joined[: whole * row_bytes].view(ROW_DTYPE).reshape(whole, width)
+        for begin in range(0, whole, rows):
+            part = table[begin : begin + rows]
+            yield RowChunk(self.first, part[:, 0].copy(), part[:, columns])
+            self.first += rows
+        self._pending = [joined[whole * row_bytes :]] if self.held > whole else []
+        self.held -= whole
+
+    def rest(self) -> RowChunk | None:
+        """The rows left over at the end, fewer than a chunk."""
+        if not self.held:
+            return None
+        pending = self._pending
+        joined = np.concatenate(pending) if len(pending) > 1 else pending[0]
+        table = joined.view(ROW_DTYPE).reshape(self.held, self._width)
+        return RowChunk(self.first, table[:, 0].copy(), table[:, self._columns])
 
 
 def _frame_crc(file: io.FileIO, start: int, size: int) -> int | None:

@@ -144,6 +144,223 @@ def _move_failed_attempt_aside(path: Path) -> Path:
     return aside
 
 
+def _check_arguments(
+    channels: Sequence[Channel],
+    nominal_period_s: float,
+    time_scale: float,
+    flush_interval_s: float,
+) -> None:
+    """Raise ValueError for the arguments of :meth:`RecordingWriter.create` out of range."""
+    if not channels:
+        raise ValueError("a recording needs at least one channel")
+    if not 0 < flush_interval_s <= MAX_FLUSH_INTERVAL_S:
+        raise ValueError(
+            f"flush_interval_s must be in (0, {MAX_FLUSH_INTERVAL_S}] s, not {flush_interval_s!r}"
+        )
+    if not (np.isfinite(nominal_period_s) and nominal_period_s > 0):
+        raise ValueError(f"nominal_period_s must be positive, not {nominal_period_s!r}")
+    if not (np.isfinite(time_scale) and time_scale >= 0):
+        raise ValueError(f"time_scale must be 0 or positive, not {time_scale!r}")
+
+
+def _recorded_axes(
+    path: Path, channels: Sequence[Channel], machine: MachineConfig | None
+) -> list[RecordedAxis]:
+    """The machine data of the channels' axes for ``meta.json`` (none without a machine).
+
+    Raises:
+        RecordingError: A channel's axis is not an axis of ``machine``.
+    """
+    axes: list[RecordedAxis] = []
+    if machine is not None:
+        known = {a.name: a for a in machine.axes}
+        for name in dict.fromkeys(c.axis for c in channels):
+            if name not in known:
+                raise RecordingError(
+                    f"{path}: channel axis {name} is not an axis of machine "
+                    f"{machine.machine.name!r} ({', '.join(known)})"
+                )
+            axes.append(axis_metadata(known[name]))
+    return axes
+
+
+def _make_room(path: Path) -> Path | None:
+    """Check that ``path`` can take a new recording; move an unfinished attempt aside.
+
+    Returns:
+        Where an unfinished attempt was moved (see :func:`_move_failed_attempt_aside`).
+
+    Raises:
+        RecordingError: ``path`` is not a directory, or holds what may not be moved.
+    """
+    if path.exists():
+        if not path.is_dir():
+            raise RecordingError(f"{path}: exists and is not a directory")
+        if any(path.iterdir()):
+            return _move_failed_attempt_aside(path)
+    return None
+
+
+def _open_files(path: Path, meta: RecordingMeta) -> tuple[IO[bytes], IO[bytes]]:
+    """Create the directory, write ``meta`` and open the samples and events files.
+
+    Returns:
+        ``samples.bin`` (locked while written, where the platform can) and
+        ``events.jsonl``, both unbuffered, for appending.
+
+    Raises:
+        RecordingError: Something cannot be created or written; nothing half
+            made stays behind.
+    """
+    made = not path.exists()
+    created: list[IO[bytes]] = []
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        write_meta(path, meta)
+        samples = (path / SAMPLES_FILE).open("ab", buffering=0)
+        created.append(samples)
+        events = (path / EVENTS_FILE).open("ab", buffering=0)
+        created.append(events)
+    except (OSError, RecordingError) as exc:
+        # Nothing half made stays behind: the directory was new or empty.
+        for file in created:
+            file.close()
+        for name in (META_FILE, SAMPLES_FILE, EVENTS_FILE):
+            with contextlib.suppress(OSError):
+                (path / name).unlink()
+        if made:
+            with contextlib.suppress(OSError):
+                path.rmdir()
+        if isinstance(exc, RecordingError):
+            raise
+        raise RecordingError(
+            f"{path}: cannot create a recording here ({exc.strerror or exc})"
+        ) from exc
+    if fcntl is not None:
+        with contextlib.suppress(OSError):  # only a hint for readers
+            fcntl.flock(samples.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    fsync_directory(path)
+    return samples, events
+
+
+def _check_close(
+    directory: Path, meta: RecordingMeta, status: RecordingStatus, meta_updates: Mapping[str, Any]
+) -> None:
+    """Refuse a closing status or ``meta.json`` update that :meth:`RecordingWriter.close`
+    must not write, before anything is closed.
+
+    Raises:
+        RecordingError: The status is not a final one, an update changes a
+            field that describes the data, or makes the metadata invalid.
+    """
+    if status not in _STATUSES or status == "recording":
+        raise RecordingError(
+            f"{directory}: cannot close with status {status!r} "
+            "(complete, incomplete, interrupted, link_lost or failed)"
+        )
+    fixed = sorted(_FIXED_FIELDS.intersection(meta_updates))
+    if fixed:
+        raise RecordingError(f"{directory}: close() cannot change {', '.join(fixed)} in meta.json")
+    try:
+        RecordingMeta.model_validate({**meta.model_dump(), **meta_updates})
+    except ValidationError as exc:
+        raise RecordingError(
+            f"{directory}: invalid metadata update", format_validation_error(exc)
+        ) from exc
+
+
+def _unfinished_message(
+    directory: Path,
+    cause: RecordingError,
+    rows_written: int,
+    *,
+    flush_failed: bool,
+    meta_failed: bool,
+) -> str:
+    """What a close that failed (``cause``) left on disk, and what the next recording does."""
+    message = f"{cause.message}. " + ("The recording stopped there; its" if flush_failed else "Its")
+    message += f" {rows_written} samples on disk are whole and readable"
+    if meta_failed:
+        message += f" ({META_FILE} could not be updated and still says 'recording')"
+    message += (
+        f"; a new recording into {directory} moves this attempt aside to "
+        f"{directory.name}.failed-<n>"
+    )
+    return message
+
+
+class _FrameFiles:
+    """A recording's ``samples.bin`` and ``events.jsonl`` and how much of them is whole.
+
+    Each :meth:`write` appends rows as checksummed frames and events as lines,
+    fsyncs both, and only then counts them; a write that fails cuts both files
+    back to where the last whole write ended. Not thread-safe: the
+    :class:`RecordingWriter` calls it under its lock.
+    """
+
+    def __init__(self, directory: Path, samples: IO[bytes], events: IO[bytes]) -> None:
+        self.directory = directory
+        self._samples = samples
+        self._events = events
+        self.frames = 0
+        self.rows_written = 0
+        self._samples_size = 0
+        self._events_size = 0
+
+    def write(
+        self, pending_rows: Sequence[NDArray[np.float64]], rows: int, events: Sequence[bytes]
+    ) -> None:
+        """Append ``rows`` rows (in blocks) as frames and the event lines; fsync.
+
+        Raises:
+            RecordingError: The disk refused the data (the files are cut back
+                to their last good state).
+        """
+        frames = self.frames
+        what = SAMPLES_FILE
+        try:
+            if pending_rows:
+                block = pending_rows[0] if len(pending_rows) == 1 else np.concatenate(pending_rows)
+                for start in range(0, len(block), MAX_FRAME_ROWS):
+                    payload = np.ascontiguousarray(block[start : start + MAX_FRAME_ROWS], ROW_DTYPE)
+                    header = FRAME_HEADER.pack(
+                        FRAME_MAGIC, len(payload), zlib.crc32(payload.data), frames
+                    )
+                    _write_all(self._samples, header)
+                    _write_all(self._samples, payload.data)
+                    frames += 1
+                os.fsync(self._samples.fileno())
+            if events:
+                what = EVENTS_FILE
+                _write_all(self._events, b"".join(events))
+                os.fsync(self._events.fileno())
+        except BaseException as exc:
+            # Cut partial writes away, so the next frame follows a whole one: after a
+            # full disk, and after an interrupt (Ctrl-C) while append flushes on the
+            # caller's thread. The rows stay buffered.
+            for file, size in (
+                (self._samples, self._samples_size),
+                (self._events, self._events_size),
+            ):
+                with contextlib.suppress(OSError):
+                    file.truncate(size)
+            if isinstance(exc, OSError):
+                raise RecordingError(write_failure(self.directory, what, exc)) from exc
+            raise
+        self.frames = frames
+        self.rows_written += rows
+        self._samples_size = self._samples.tell()
+        self._events_size = self._events.tell()
+
+    def close(self) -> None:
+        """Close both files (which also releases the writer's lock); failures are logged."""
+        for file in (self._samples, self._events):
+            try:
+                file.close()  # also releases the writer's lock
+            except OSError:
+                log.exception("closing %s", getattr(file, "name", file))
+
+
 FLUSH_ROWS = 1 << 17
 """An append that leaves this many rows waiting writes them as a frame and fsyncs it
 at once: few enough to bound the memory of a fast writer (16 columns: 17 MB), many
@@ -184,8 +401,7 @@ class RecordingWriter:
         self.directory = directory
         self._meta = meta
         self._channels = tuple(c.to_channel() for c in meta.channels)
-        self._samples = samples_file
-        self._events = events_file
+        self._files = _FrameFiles(directory, samples_file, events_file)
         self._flush_interval_s = flush_interval_s
         self._lock = threading.Lock()
         self._pending_rows: list[NDArray[np.float64]] = []
@@ -193,12 +409,8 @@ class RecordingWriter:
         self._pending_events: list[bytes] = []
         self._last_time_s = -np.inf
         self._rows_appended = 0
-        self._rows_written = 0
         self._gaps = 0
         self._lost_samples = 0
-        self._frames = 0
-        self._samples_size = 0
-        self._events_size = 0
         self._closed = False
         self._error: RecordingError | None = None
         self.moved_aside: Path | None = None
@@ -260,28 +472,9 @@ class RecordingWriter:
                 nothing behind), or a channel's axis is not in ``machine``.
             ValueError: An argument is out of range.
         """
-        if not channels:
-            raise ValueError("a recording needs at least one channel")
-        if not 0 < flush_interval_s <= MAX_FLUSH_INTERVAL_S:
-            raise ValueError(
-                f"flush_interval_s must be in (0, {MAX_FLUSH_INTERVAL_S}] s, "
-                f"not {flush_interval_s!r}"
-            )
-        if not (np.isfinite(nominal_period_s) and nominal_period_s > 0):
-            raise ValueError(f"nominal_period_s must be positive, not {nominal_period_s!r}")
-        if not (np.isfinite(time_scale) and time_scale >= 0):
-            raise ValueError(f"time_scale must be 0 or positive, not {time_scale!r}")
+        _check_arguments(channels, nominal_period_s, time_scale, flush_interval_s)
         path = Path(directory)
-        axes: list[RecordedAxis] = []
-        if machine is not None:
-            known = {a.name: a for a in machine.axes}
-            for name in dict.fromkeys(c.axis for c in channels):
-                if name not in known:
-                    raise RecordingError(
-                        f"{path}: channel axis {name} is not an axis of machine "
-                        f"{machine.machine.name!r} ({', '.join(known)})"
-                    )
-                axes.append(axis_metadata(known[name]))
+        axes = _recorded_axes(path, channels, machine)
         start = (start_utc or dt.datetime.now(dt.UTC)).astimezone(dt.UTC)
         try:
             meta = RecordingMeta(
@@ -302,40 +495,8 @@ class RecordingWriter:
                 f"{path}: invalid recording metadata", format_validation_error(exc)
             ) from exc
 
-        moved_aside: Path | None = None
-        if path.exists():
-            if not path.is_dir():
-                raise RecordingError(f"{path}: exists and is not a directory")
-            if any(path.iterdir()):
-                moved_aside = _move_failed_attempt_aside(path)
-        made = not path.exists()
-        created: list[IO[bytes]] = []
-        try:
-            path.mkdir(parents=True, exist_ok=True)
-            write_meta(path, meta)
-            samples = (path / SAMPLES_FILE).open("ab", buffering=0)
-            created.append(samples)
-            events = (path / EVENTS_FILE).open("ab", buffering=0)
-            created.append(events)
-        except (OSError, RecordingError) as exc:
-            # Nothing half made stays behind: the directory was new or empty.
-            for file in created:
-                file.close()
-            for name in (META_FILE, SAMPLES_FILE, EVENTS_FILE):
-                with contextlib.suppress(OSError):
-                    (path / name).unlink()
-            if made:
-                with contextlib.suppress(OSError):
-                    path.rmdir()
-            if isinstance(exc, RecordingError):
-                raise
-            raise RecordingError(
-                f"{path}: cannot create a recording here ({exc.strerror or exc})"
-            ) from exc
-        if fcntl is not None:
-            with contextlib.suppress(OSError):  # only a hint for readers
-                fcntl.flock(samples.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        fsync_directory(path)
+        moved_aside = _make_room(path)
+        samples, events = _open_files(path, meta)
         log.info(
             "recording to %s: %d channels, nominal period %g s",
             path,
@@ -361,7 +522,7 @@ class RecordingWriter:
     @property
     def rows_written(self) -> int:
         """Rows on disk (fsynced)."""
-        return self._rows_written
+        return self._files.rows_written
 
     @property
     def rows_appended(self) -> int:
@@ -475,22 +636,7 @@ class RecordingWriter:
         """
         if self._closed:
             return
-        if status not in _STATUSES or status == "recording":
-            raise RecordingError(
-                f"{self.directory}: cannot close with status {status!r} "
-                "(complete, incomplete, interrupted, link_lost or failed)"
-            )
-        fixed = sorted(_FIXED_FIELDS.intersection(meta_updates))
-        if fixed:
-            raise RecordingError(
-                f"{self.directory}: close() cannot change {', '.join(fixed)} in meta.json"
-            )
-        try:
-            RecordingMeta.model_validate({**self._meta.model_dump(), **meta_updates})
-        except ValidationError as exc:
-            raise RecordingError(
-                f"{self.directory}: invalid metadata update", format_validation_error(exc)
-            ) from exc
+        _check_close(self.directory, self._meta, status, meta_updates)
 
         self._stop.set()
         if self._thread is not threading.current_thread():
@@ -507,18 +653,14 @@ class RecordingWriter:
             self._closed = True
             if status == "complete" and self._gaps:
                 status = "incomplete"
-            for file in (self._samples, self._events):
-                try:
-                    file.close()  # also releases the writer's lock
-                except OSError:
-                    log.exception("closing %s", getattr(file, "name", file))
+            self._files.close()
             final = RecordingMeta.model_validate(
                 {
                     **self._meta.model_dump(),
                     **meta_updates,
                     "status": status,
                     "end_utc": now_utc(),
-                    "samples": self._rows_written,
+                    "samples": self._files.rows_written,
                     "gaps": self._gaps,
                     "lost_samples": self._lost_samples,
                 }
@@ -529,20 +671,21 @@ class RecordingWriter:
                 self._meta = final
             except RecordingError as exc:
                 meta_error = exc
-        log.info("recording %s closed: %s, %d samples", self.directory, status, self._rows_written)
+        rows_written = self._files.rows_written
+        log.info("recording %s closed: %s, %d samples", self.directory, status, rows_written)
         if error is None and meta_error is None:
             return
         cause = error or meta_error
         assert cause is not None
-        message = f"{cause.message}. " + ("The recording stopped there; its" if error else "Its")
-        message += f" {self._rows_written} samples on disk are whole and readable"
-        if meta_error is not None:
-            message += f" ({META_FILE} could not be updated and still says 'recording')"
-        message += (
-            f"; a new recording into {self.directory} moves this attempt aside to "
-            f"{self.directory.name}.failed-<n>"
-        )
-        raise RecordingError(message) from cause
+        raise RecordingError(
+            _unfinished_message(
+                self.directory,
+                cause,
+                rows_written,
+                flush_failed=error is not None,
+                meta_failed=meta_error is not None,
+            )
+        ) from cause
 
     def __enter__(self) -> Self:
         return self
@@ -577,45 +720,8 @@ class RecordingWriter:
     def _flush_locked(self) -> None:
         if not self._pending_rows and not self._pending_events:
             return
-        frames = self._frames
-        what = SAMPLES_FILE
-        try:
-            if self._pending_rows:
-                rows = (
-                    self._pending_rows[0]
-                    if len(self._pending_rows) == 1
-                    else np.concatenate(self._pending_rows)
-                )
-                for start in range(0, len(rows), MAX_FRAME_ROWS):
-                    payload = np.ascontiguousarray(rows[start : start + MAX_FRAME_ROWS], ROW_DTYPE)
-                    header = FRAME_HEADER.pack(
-                        FRAME_MAGIC, len(payload), zlib.crc32(payload.data), frames
-                    )
-                    _write_all(self._samples, header)
-                    _write_all(self._samples, payload.data)
-                    frames += 1
-                os.fsync(self._samples.fileno())
-            if self._pending_events:
-                what = EVENTS_FILE
-                _write_all(self._events, b"".join(self._pending_events))
-                os.fsync(self._events.fileno())
-        except BaseException as exc:
-            # Cut partial writes away, so the next frame follows a whole one: after a
-            # full disk, and after an interrupt (Ctrl-C) while append flushes on the
-            # caller's thread. The rows stay buffered.
-            for file, size in (
-                (self._samples, self._samples_size),
-                (self._events, self._events_size),
-            ):
-                with contextlib.suppress(OSError):
-                    file.truncate(size)
-            if isinstance(exc, OSError):
-                raise RecordingError(write_failure(self.directory, what, exc)) from exc
-            raise
-        self._frames = frames
-        self._rows_written += self._pending_count
-        self._samples_size = self._samples.tell()
-        self._events_size = self._events.tell()
+        # on failure the rows and events stay buffered for the next attempt
+        self._files.write(self._pending_rows, self._pending_count, self._pending_events)
         self._pending_rows.clear()
         self._pending_count = 0
         self._pending_events.clear()

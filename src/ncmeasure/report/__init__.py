@@ -17,15 +17,9 @@ figures on their own Agg canvas, for use elsewhere; :func:`save_png` writes one.
 from __future__ import annotations
 
 from ncmeasure.report.bearings import BearingLayout, bearing_layout
-from ncmeasure.report.plots import (
-    PALETTE,
-    figure_png,
-    plot_comparison,
-    plot_raw_data,
-    plot_stribeck,
-    plot_travel,
-    save_png,
-)
+from ncmeasure.report.friction_plots import plot_stribeck, plot_travel
+from ncmeasure.report.plots import PALETTE, figure_png, plot_comparison, save_png
+from ncmeasure.report.raw_plots import plot_raw_data
 from ncmeasure.report.traces import RawTraces
 from ncmeasure.report.windows import find_window_times, window_times
 from ncmeasure.report.write import ReportProgress, write_report

@@ -25,17 +25,11 @@ from ncmeasure.formats.comparison import Comparison
 from ncmeasure.formats.results import Results
 from ncmeasure.recording import Recording, RecordingHead
 from ncmeasure.report.bearings import bearing_layout
-from ncmeasure.report.page import AxisSection, Figure, render_page
-from ncmeasure.report.plots import (
-    RawTrace,
-    plot_comparison,
-    plot_stribeck,
-    plot_trace,
-    plot_travel,
-    raw_trace,
-    save_png,
-    shared_renderers,
-)
+from ncmeasure.report.friction_plots import plot_stribeck, plot_travel
+from ncmeasure.report.page import render_page
+from ncmeasure.report.plots import plot_comparison, save_png, shared_renderers
+from ncmeasure.report.raw_plots import RawTrace, plot_trace, raw_trace
+from ncmeasure.report.view import AxisSection, Figure
 from ncmeasure.report.windows import find_window_times
 
 __all__ = ["ReportProgress", "write_report"]

@@ -496,26 +496,9 @@ def simulate(
         raise ValueError(f"axis names repeat: {', '.join(names)}")
     dt = float(sample_period_s)
     rng = np.random.default_rng(seed)
-    programs: list[_Program] = []
-    schedules: list[list[Window]] = []
-    t_s = 0.0
-    next_index = 0
-    starts: list[float] = []
-    first_rows: list[int] = []
-    for spec in axes:
-        middle = (spec.travel_mm[0] + spec.travel_mm[1]) / 2
-        program = _Program(dt, spec.acceleration_m_s2 * 1000.0, t_s, middle, next_index=next_index)
-        starts.append(t_s)
-        first_rows.append(next_index)
-        program.dwell(0.5)
-        windows = _plan_axis(spec, program, marker_scope=marker_scope, marker_values=marker_values)
-        program.move(middle, spec.rapid_mm_min)
-        program.dwell(0.5)
-        programs.append(program)
-        schedules.append(windows)
-        t_s = program.t_s
-        next_index = program.next_index
-    total = next_index
+    programs, schedules, starts, first_rows = _programs(axes, dt, marker_scope, marker_values)
+    t_s = programs[-1].t_s
+    total = programs[-1].next_index
     time_s = np.arange(total, dtype=np.float64) * dt
 
     signals = ["current_a", "velocity_mm_min", "position_mm"]
@@ -527,23 +510,7 @@ def simulate(
     values = np.empty((total, len(channels)), dtype=np.float64)
     column = 0
     for spec, program, begin in zip(axes, programs, first_rows, strict=True):
-        middle = (spec.travel_mm[0] + spec.travel_mm[1]) / 2
-        own = np.concatenate(program.position)
-        end = begin + len(own)
-        position_cmd = np.full(total, middle)
-        velocity_cmd = np.zeros(total)
-        marker = np.zeros(total)
-        position_cmd[begin:end] = own
-        velocity_cmd[begin:end] = np.concatenate(program.velocity)
-        marker[begin:end] = np.concatenate(program.marker)
-        position, velocity, current = _signals(spec, position_cmd, velocity_cmd, dt, rng)
-        per_axis = {
-            "current_a": current,
-            "velocity_mm_min": velocity,
-            "position_mm": position,
-            "velocity_cmd_mm_min": velocity_cmd,
-            "marker": marker,
-        }
+        per_axis = _axis_signals(spec, program, begin, total, dt, rng)
         for signal in signals:
             values[:, column] = per_axis[signal]
             column += 1
@@ -565,6 +532,70 @@ def simulate(
         axes=summaries,
     )
     return SyntheticData(time_s=time_s, channels=channels, values=values, schedule=schedule)
+
+
+def _programs(
+    axes: Sequence[SyntheticAxis],
+    dt: float,
+    marker_scope: Literal["window", "run"],
+    marker_values: Literal["window_id", "flag"],
+) -> tuple[list[_Program], list[list[Window]], list[float], list[int]]:
+    """The commanded motion of the axes, one after the other, each from and back to its middle.
+
+    Returns:
+        Per axis: its program, its windows, the time and the row it starts at.
+    """
+    programs: list[_Program] = []
+    schedules: list[list[Window]] = []
+    t_s = 0.0
+    next_index = 0
+    starts: list[float] = []
+    first_rows: list[int] = []
+    for spec in axes:
+        middle = (spec.travel_mm[0] + spec.travel_mm[1]) / 2
+        program = _Program(dt, spec.acceleration_m_s2 * 1000.0, t_s, middle, next_index=next_index)
+        starts.append(t_s)
+        first_rows.append(next_index)
+        program.dwell(0.5)
+        windows = _plan_axis(spec, program, marker_scope=marker_scope, marker_values=marker_values)
+        program.move(middle, spec.rapid_mm_min)
+        program.dwell(0.5)
+        programs.append(program)
+        schedules.append(windows)
+        t_s = program.t_s
+        next_index = program.next_index
+    return programs, schedules, starts, first_rows
+
+
+def _axis_signals(
+    spec: SyntheticAxis,
+    program: _Program,
+    begin: int,
+    total: int,
+    dt: float,
+    rng: np.random.Generator,
+) -> dict[str, FloatArray]:
+    """Every signal of one axis over all ``total`` rows; it stands at its middle outside its run.
+
+    Its program occupies the rows from ``begin``.
+    """
+    middle = (spec.travel_mm[0] + spec.travel_mm[1]) / 2
+    own = np.concatenate(program.position)
+    end = begin + len(own)
+    position_cmd = np.full(total, middle)
+    velocity_cmd = np.zeros(total)
+    marker = np.zeros(total)
+    position_cmd[begin:end] = own
+    velocity_cmd[begin:end] = np.concatenate(program.velocity)
+    marker[begin:end] = np.concatenate(program.marker)
+    position, velocity, current = _signals(spec, position_cmd, velocity_cmd, dt, rng)
+    return {
+        "current_a": current,
+        "velocity_mm_min": velocity,
+        "position_mm": position,
+        "velocity_cmd_mm_min": velocity_cmd,
+        "marker": marker,
+    }
 
 
 def _summary(

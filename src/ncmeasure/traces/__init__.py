@@ -47,7 +47,10 @@ from typing import Final
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.formats.recording import RecordingMeta
-from ncmeasure.traces._common import (
+from ncmeasure.traces.canlog import import_can_log, is_can_log
+from ncmeasure.traces.columns import ColumnMap, import_columns, load_column_map
+from ncmeasure.traces.csv import import_csv_meta
+from ncmeasure.traces.job import (
     ImportJob,
     ProgressFn,
     TraceImport,
@@ -55,9 +58,6 @@ from ncmeasure.traces._common import (
     check_target,
     run_import,
 )
-from ncmeasure.traces.canlog import import_can_log, is_can_log
-from ncmeasure.traces.columns import ColumnMap, import_columns, load_column_map
-from ncmeasure.traces.csv import import_csv_meta
 from ncmeasure.traces.sinumerik_csv import import_sinumerik_csv
 from ncmeasure.traces.sinumerik_xml import import_sinumerik_xml
 from ncmeasure.traces.tncscope import import_tncscope

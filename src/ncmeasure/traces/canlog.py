@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Final
 from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.links import make_link
-from ncmeasure.traces._common import ImportJob
+from ncmeasure.traces.job import ImportJob
 
 if TYPE_CHECKING:
     # python-can and canopen load when a CAN log is read, not for every import.

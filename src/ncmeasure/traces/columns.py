@@ -19,7 +19,7 @@ end with LF, CRLF or CR; quoted cells are read as the :mod:`csv` module reads
 them. Columns the map does not name are never parsed (text columns are
 fine) and are listed in the report; an empty cell becomes NaN and is
 counted. The file is read as a stream: rows go to the recording in chunks of
-:data:`~ncmeasure.traces._common.CHUNK_ROWS`.
+:data:`~ncmeasure.traces.merge.CHUNK_ROWS`.
 
 Reference of every key: ``docs/traces.md``, section "Any CSV with a column map".
 """
@@ -54,18 +54,16 @@ from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.recording import channel_from_name, check_times
 from ncmeasure.samples import SIGNAL_UNITS, Channel
-from ncmeasure.traces._common import (
-    CHUNK_ROWS,
+from ncmeasure.traces.job import (
     ImportJob,
     ProgressFn,
-    TextLines,
     TraceImport,
     check_source,
     check_target,
-    decimal_mark,
-    parse_number,
     run_import,
 )
+from ncmeasure.traces.merge import CHUNK_ROWS
+from ncmeasure.traces.text import TextLines, decimal_mark, parse_number
 
 __all__ = ["ChannelColumn", "ColumnMap", "TimeColumn", "import_columns", "load_column_map"]
 
@@ -449,34 +447,11 @@ class _Reader:
         indices = [c.index for c in read]
         needed = max(indices) + 1
         width = len(header)
-        scales = np.array([c.scale for c in columns], dtype=np.float64)
-        offsets = np.array([c.offset for c in columns], dtype=np.float64)
         empty = [0] * len(read)
         first_empty: list[str | None] = [None] * len(read)
-        raw: array[float] = array("d")
-        line_numbers: array[int] = array("q")
         period_s = self.mapping.period_s if time_column is None else None
-        rows = 0  # rows handed on before the current chunk
-        previous_s = -math.inf
-
-        def flush() -> None:
-            nonlocal rows, previous_s
-            count = len(line_numbers)
-            if not count:
-                return
-            block = np.array(raw, dtype=np.float64).reshape(count, len(read))
-            if period_s is not None:
-                time_s = np.arange(rows, rows + count, dtype=np.float64) * period_s
-                values = block
-            elif time_column is not None:
-                time_s = block[:, 0] * time_column.scale + time_column.offset
-                numbers = line_numbers.tolist()
-                check_times(time_s, previous_s, lambda i: f"{path}:{numbers[i]}")
-                previous_s = float(time_s[-1])
-                values = block[:, 1:]
-            append(time_s, values * scales + offsets)
-            rows += count
-            del raw[:], line_numbers[:]
+        chunk = _Chunk(path, columns, time_column, period_s, append)
+        raw, line_numbers = chunk.raw, chunk.line_numbers  # emptied in place by each flush
 
         for cells in reader:
             if not any(cell.strip() for cell in cells):
@@ -518,15 +493,9 @@ class _Reader:
                     ) from exc
             line_numbers.append(line)
             if len(line_numbers) >= CHUNK_ROWS:
-                flush()
-        flush()
-        if rows == 0:
-            raise RecordingError(f"{path}: no data rows after the header (line {header_line})")
-        if rows == 1 and period_s is None:
-            raise RecordingError(
-                f"{path}: a single data row; the sample period needs at least two rows "
-                "(or period_s in the column map instead of a time column)"
-            )
+                chunk.flush()
+        chunk.flush()
+        self._check_rows(chunk.rows, header_line, period_s)
         for column, count, first in zip(read, empty, first_empty, strict=True):
             if count:
                 self.job.note(
@@ -534,6 +503,66 @@ class _Reader:
                     f"as NaN; first at {first}"
                 )
         return decimal
+
+    def _check_rows(self, rows: int, header_line: int, period_s: float | None) -> None:
+        """Refuse a file with too few data rows to be a recording."""
+        path = self.job.path
+        if rows == 0:
+            raise RecordingError(f"{path}: no data rows after the header (line {header_line})")
+        if rows == 1 and period_s is None:
+            raise RecordingError(
+                f"{path}: a single data row; the sample period needs at least two rows "
+                "(or period_s in the column map instead of a time column)"
+            )
+
+
+class _Chunk:
+    """The rows parsed since the last flush, as raw numbers, with their line numbers.
+
+    :meth:`flush` converts them (the time from the time column or the
+    period, the values scaled) and hands them on as one block.
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        columns: Sequence[_Column],
+        time_column: _Column | None,
+        period_s: float | None,
+        append: Callable[[NDArray[np.float64], NDArray[np.float64]], None],
+    ) -> None:
+        self._path = path
+        self._width = len(columns) + (time_column is not None)
+        self._time_column = time_column
+        self._period_s = period_s
+        self._append = append
+        self._scales = np.array([c.scale for c in columns], dtype=np.float64)
+        self._offsets = np.array([c.offset for c in columns], dtype=np.float64)
+        self.raw: array[float] = array("d")
+        self.line_numbers: array[int] = array("q")
+        self.rows = 0  # rows handed on before the current chunk
+        self._previous_s = -math.inf
+
+    def flush(self) -> None:
+        """Hand the rows on (none: nothing to do) and start an empty chunk."""
+        raw, line_numbers, path = self.raw, self.line_numbers, self._path
+        time_column, period_s, rows = self._time_column, self._period_s, self.rows
+        count = len(line_numbers)
+        if not count:
+            return
+        block = np.array(raw, dtype=np.float64).reshape(count, self._width)
+        if period_s is not None:
+            time_s = np.arange(rows, rows + count, dtype=np.float64) * period_s
+            values = block
+        elif time_column is not None:
+            time_s = block[:, 0] * time_column.scale + time_column.offset
+            numbers = line_numbers.tolist()
+            check_times(time_s, self._previous_s, lambda i: f"{path}:{numbers[i]}")
+            self._previous_s = float(time_s[-1])
+            values = block[:, 1:]
+        self._append(time_s, values * self._scales + self._offsets)
+        self.rows += count
+        del raw[:], line_numbers[:]
 
 
 def _detect_separator(line: str, wanted: Sequence[str], decimal: str | None) -> str:

@@ -16,6 +16,7 @@ from types import ModuleType
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from ncmeasure.config import MachineConfig
@@ -192,38 +193,8 @@ def import_mdf4(
         raise RecordingError(f"{source}: not a readable MDF file ({exc})") from exc
     try:
         embedded, events = _mdf_attachments(mdf, source)
-        found: list[tuple[Channel, int, int]] = []
-        for group_index, group in enumerate(mdf.groups):
-            master = mdf.masters_db.get(group_index)
-            for channel_index, mdf_channel in enumerate(group.channels):
-                if channel_index == master:
-                    continue
-                channel = channel_from_name(mdf_channel.name)
-                if channel is None:
-                    raise RecordingError(
-                        f"{source}: channel {mdf_channel.name!r} (group {group_index}) is not "
-                        f"<AXIS>_<signal> with a known signal ({', '.join(SIGNAL_UNITS)})"
-                    )
-                unit = mdf_channel.unit
-                if unit and unit != channel.unit:
-                    raise RecordingError(
-                        f"{source}: channel {channel.name} is in {unit!r}; ncmeasure "
-                        f"records {channel.signal} in {channel.unit!r}"
-                    )
-                if channel in (f[0] for f in found):
-                    raise RecordingError(f"{source}: channel {channel.name} appears twice")
-                found.append((channel, group_index, channel_index))
-        if not found:
-            raise RecordingError(f"{source}: no data channels")
-        signals = [mdf.get(c.name, group=g, index=i, raw=False) for c, g, i in found]
-        time_s = np.asarray(signals[0].timestamps, dtype=np.float64)
-        for (channel, _, _), signal in zip(found, signals, strict=True):
-            if not np.array_equal(np.asarray(signal.timestamps, dtype=np.float64), time_s):
-                raise RecordingError(
-                    f"{source}: channel {channel.name} has a time base other than "
-                    f"{found[0][0].name}'s; ncmeasure needs one time base (resample first)"
-                )
-        values = np.column_stack([np.asarray(s.samples, dtype=np.float64) for s in signals])
+        found = _mdf_channels(mdf, source)
+        time_s, values = _mdf_samples(mdf, source, found)
         start_time = mdf.header.start_time
     except RecordingError:
         raise
@@ -235,13 +206,7 @@ def import_mdf4(
     meta: dict[str, Any] = {"source": "import:mdf4", "notes": f"imported from {source.name}"}
     status: RecordingStatus = "complete"
     if embedded is not None:
-        original = {k: embedded.get(k) for k in ("link", "config_hash", "notes")}
-        meta.update({k: v for k, v in original.items() if v is not None})
-        meta["faster_than_real_time"] = bool(embedded.get("faster_than_real_time", False))
-        with contextlib.suppress(TypeError, ValueError):
-            scale = float(embedded.get("time_scale", 1.0))
-            if np.isfinite(scale) and scale >= 0:
-                meta["time_scale"] = scale
+        meta.update(_embedded_meta(embedded))
         if nominal_period_s is None and embedded.get("nominal_period_s"):
             nominal_period_s = float(embedded["nominal_period_s"])
         if embedded.get("status") in ("incomplete", "interrupted", "link_lost", "failed"):
@@ -276,3 +241,68 @@ def import_mdf4(
     except BaseException:
         job.discard()
         raise
+
+
+def _mdf_channels(mdf: Any, source: Path) -> list[tuple[Channel, int, int]]:
+    """The data channels of the file with their group and index (time masters left out).
+
+    Raises:
+        RecordingError: A channel's name or unit does not fit, a channel
+            appears twice, or there is none.
+    """
+    found: list[tuple[Channel, int, int]] = []
+    for group_index, group in enumerate(mdf.groups):
+        master = mdf.masters_db.get(group_index)
+        for channel_index, mdf_channel in enumerate(group.channels):
+            if channel_index == master:
+                continue
+            channel = channel_from_name(mdf_channel.name)
+            if channel is None:
+                raise RecordingError(
+                    f"{source}: channel {mdf_channel.name!r} (group {group_index}) is not "
+                    f"<AXIS>_<signal> with a known signal ({', '.join(SIGNAL_UNITS)})"
+                )
+            unit = mdf_channel.unit
+            if unit and unit != channel.unit:
+                raise RecordingError(
+                    f"{source}: channel {channel.name} is in {unit!r}; ncmeasure "
+                    f"records {channel.signal} in {channel.unit!r}"
+                )
+            if channel in (f[0] for f in found):
+                raise RecordingError(f"{source}: channel {channel.name} appears twice")
+            found.append((channel, group_index, channel_index))
+    if not found:
+        raise RecordingError(f"{source}: no data channels")
+    return found
+
+
+def _mdf_samples(
+    mdf: Any, source: Path, found: list[tuple[Channel, int, int]]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The channels' common time base and their values, one column each.
+
+    Raises:
+        RecordingError: The channels do not share one time base.
+    """
+    signals = [mdf.get(c.name, group=g, index=i, raw=False) for c, g, i in found]
+    time_s = np.asarray(signals[0].timestamps, dtype=np.float64)
+    for (channel, _, _), signal in zip(found, signals, strict=True):
+        if not np.array_equal(np.asarray(signal.timestamps, dtype=np.float64), time_s):
+            raise RecordingError(
+                f"{source}: channel {channel.name} has a time base other than "
+                f"{found[0][0].name}'s; ncmeasure needs one time base (resample first)"
+            )
+    values = np.column_stack([np.asarray(s.samples, dtype=np.float64) for s in signals])
+    return time_s, values
+
+
+def _embedded_meta(embedded: dict[str, Any]) -> dict[str, Any]:
+    """The fields of embedded metadata that the new recording keeps."""
+    original = {k: embedded.get(k) for k in ("link", "config_hash", "notes")}
+    meta: dict[str, Any] = {k: v for k, v in original.items() if v is not None}
+    meta["faster_than_real_time"] = bool(embedded.get("faster_than_real_time", False))
+    with contextlib.suppress(TypeError, ValueError):
+        scale = float(embedded.get("time_scale", 1.0))
+        if np.isfinite(scale) and scale >= 0:
+            meta["time_scale"] = scale
+    return meta

@@ -39,15 +39,11 @@ from typing import Final
 
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.recording import RecordingMeta
-from ncmeasure.traces._common import (
-    CarryForward,
-    ImportJob,
-    TextLines,
-    decimal_mark,
-    parse_number,
-    plan_channels,
-)
+from ncmeasure.traces.axes import plan_channels
+from ncmeasure.traces.job import ImportJob
+from ncmeasure.traces.merge import CarryForward
 from ncmeasure.traces.sinumerik_xml import parse_signal_name, sinumerik_candidates
+from ncmeasure.traces.text import TextLines, decimal_mark, parse_number
 
 __all__ = ["import_sinumerik_csv"]
 

@@ -100,15 +100,10 @@ from typing import IO, Final
 
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.recording import RecordingMeta
-from ncmeasure.traces._common import (
-    PROGRESS_STEP_BYTES,
-    Candidate,
-    CarryForward,
-    ImportJob,
-    Mapped,
-    Needs,
-    plan_channels,
-)
+from ncmeasure.traces.axes import Candidate, Mapped, Needs, plan_channels
+from ncmeasure.traces.job import ImportJob
+from ncmeasure.traces.merge import CarryForward
+from ncmeasure.traces.text import PROGRESS_STEP_BYTES
 
 __all__ = ["SinumerikSignal", "import_sinumerik_xml", "parse_signal_name", "sinumerik_candidates"]
 
@@ -271,7 +266,7 @@ def sinumerik_candidates(names: Sequence[str], job: ImportJob) -> list[Candidate
 
     Position and velocity candidates name their measuring system; those of the
     system that the axis' command position refers to (else system 1) rank first,
-    so :func:`~ncmeasure.traces._common.plan_channels` takes both from it.
+    so :func:`~ncmeasure.traces.axes.plan_channels` takes both from it.
     """
     parsed = [parse_signal_name(name) for name in names]
     systems = _axis_systems([p for p in parsed if p is not None])

@@ -53,18 +53,11 @@ import numpy as np
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.samples import SIGNAL_UNITS
-from ncmeasure.traces import _common
-from ncmeasure.traces._common import (
-    Candidate,
-    ImportJob,
-    Needs,
-    SeriesMerge,
-    TextLines,
-    decimal_mark,
-    parse_number,
-    plan_channels,
-    unit_factor,
-)
+from ncmeasure.traces import merge as merging
+from ncmeasure.traces.axes import Candidate, Needs, plan_sources
+from ncmeasure.traces.job import ImportJob
+from ncmeasure.traces.merge import SeriesMerge
+from ncmeasure.traces.text import TextLines, decimal_mark, parse_number, unit_factor
 
 __all__ = ["import_tncscope"]
 
@@ -232,13 +225,7 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
         job.link["global"] = global_keys
     timing = [_timing(curve, job) for curve in curves]
     candidates = [_candidate(curve, job) for curve in curves]
-    pairs = [(i, c) for i, c in enumerate(candidates) if c is not None]
-    mapped = plan_channels([c for _, c in pairs], job)
-    by_candidate = {id(m.candidate): m for m in mapped}
-    used = sorted(
-        ((i, by_candidate[id(c)]) for i, c in pairs if id(c) in by_candidate),
-        key=lambda pair: mapped.index(pair[1]),
-    )
+    used = plan_sources(range(len(curves)), candidates, job)
     longest = max(count for count, _ in timing)
     period = min(timing[index][1] for index, _ in used) * 1e-6
     sink = job.open_sink([m.channel for _, m in used], nominal_period_s=period)
@@ -246,27 +233,13 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
         sink,
         [m.channel.name for _, m in used],
         [m.factor for _, m in used],
-        batch_rows=_common.MERGE_ROWS,
-        spill_rows=_common.SPILL_ROWS,
+        batch_rows=merging.MERGE_ROWS,
+        spill_rows=merging.SPILL_ROWS,
     )
-    values: list[array[float]] = [array("d") for _ in used]
-    handed = [0] * len(used)  # samples of each curve given to the merge
+    samples = _CurveSamples(merge, [timing[index][1] for index, _ in used])
+    values = samples.values  # the list stays, its arrays are replaced by each hand-over
 
-    def hand_over() -> None:
-        """The values parsed so far go to the merge, at k x CYCLETIME of their curve."""
-        for k, (index, _) in enumerate(used):
-            if not values[k]:
-                continue
-            cycle_us = timing[index][1]
-            stop = handed[k] + len(values[k])
-            # whole microseconds first, so that curves at multiple cycle times meet exactly
-            time_s = np.arange(handed[k], stop, dtype=np.float64) * cycle_us / 1e6
-            merge.add(k, time_s, np.frombuffer(values[k]))
-            handed[k] = stop
-            values[k] = array("d")
-        merge.flush()
-
-    chunk_rows = _common.CHUNK_ROWS
+    chunk_rows = merging.CHUNK_ROWS
     decimal: str | None = None
     last_time = -math.inf
     rows = 0
@@ -308,14 +281,14 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
                     ) from exc
             rows += 1
             if rows % chunk_rows == 0:
-                hand_over()
+                samples.hand_over()
         if rows < longest:
             short = [c.label for c, (count, _) in zip(curves, timing, strict=True) if count > rows]
             raise RecordingError(
                 f"{job.path}: %[DATA] has {rows} rows, but {', '.join(short)} declare(s) more "
                 f"(COUNT up to {longest}); the file is cut short"
             )
-        hand_over()
+        samples.hand_over()
     except BaseException:
         merge.close()  # on success, finish() closes it after the last rows
         raise
@@ -326,3 +299,27 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     job.note("time of sample k of a curve = k x CYCLETIME of that curve")
     merge.finish(job)
     return job.finish()
+
+
+class _CurveSamples:
+    """The values parsed of each imported curve since the last hand-over to the merge."""
+
+    def __init__(self, merge: SeriesMerge, cycles_us: list[float]) -> None:
+        self._merge = merge
+        self._cycles_us = cycles_us
+        self.values: list[array[float]] = [array("d") for _ in cycles_us]
+        self._handed = [0] * len(cycles_us)  # samples of each curve given to the merge
+
+    def hand_over(self) -> None:
+        """The values parsed so far go to the merge, at k x CYCLETIME of their curve."""
+        values, handed, merge = self.values, self._handed, self._merge
+        for k, cycle_us in enumerate(self._cycles_us):
+            if not values[k]:
+                continue
+            stop = handed[k] + len(values[k])
+            # whole microseconds first, so that curves at multiple cycle times meet exactly
+            time_s = np.arange(handed[k], stop, dtype=np.float64) * cycle_us / 1e6
+            merge.add(k, time_s, np.frombuffer(values[k]))
+            handed[k] = stop
+            values[k] = array("d")
+        merge.flush()

@@ -59,16 +59,15 @@ from ncmeasure.errors import RecordingError
 from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.recording import channel_from_name
 from ncmeasure.samples import SIGNAL_UNITS
-from ncmeasure.traces import _common
-from ncmeasure.traces._common import (
-    Candidate,
-    ImportJob,
-    SeriesMerge,
+from ncmeasure.traces import merge as merging
+from ncmeasure.traces.axes import Candidate, Mapped, plan_sources
+from ncmeasure.traces.job import ImportJob
+from ncmeasure.traces.merge import SeriesMerge
+from ncmeasure.traces.text import (
     TextLines,
     decimal_mark,
     filetime_to_datetime,
     parse_number,
-    plan_channels,
     unit_factor,
 )
 
@@ -248,76 +247,23 @@ def import_twincat_csv(job: ImportJob) -> RecordingMeta:
 
 def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     header = _Header(lines, job)
-    candidates = _candidates(header.channels, job)
-    pairs = [(ch, c) for ch, c in zip(header.channels, candidates, strict=True) if c is not None]
-    mapped = plan_channels([c for _, c in pairs], job)
-    by_candidate = {id(m.candidate): m for m in mapped}
-    used = sorted(
-        ((ch, by_candidate[id(c)]) for ch, c in pairs if id(c) in by_candidate),
-        key=lambda pair: mapped.index(pair[1]),
-    )
-    for channel, _ in used:
-        scale = _header_number(channel.info.get("ScaleFactor", "1"))
-        offset = _header_number(channel.info.get("Offset", "0"))
-        if (scale is not None and scale != 1) or (offset is not None and offset != 0):
-            job.note(
-                f"{channel.name}: ScaleFactor {channel.info.get('ScaleFactor')}, Offset "
-                f"{channel.info.get('Offset')} in the header; values taken as exported (the file "
-                "does not say whether 'Scale values before export' was set)"
-            )
+    used = plan_sources(header.channels, _candidates(header.channels, job), job)
+    _note_scaling(used, job)
 
     separator = header.separator
     decimal: str | None = "." if separator == "," else None
     full_timestamp: bool | None = None
     count = len(used)
-    times: list[array[float]] = [array("d") for _ in range(count)]
-    ticks: list[array[int]] = [array("q") for _ in range(count)]
-    values: list[array[float]] = [array("d") for _ in range(count)]
+    merge = _open_merge(job, header, used)
+    samples = _ChannelSamples(merge, count, header.start_ticks)
+    # the lists stay, their arrays are replaced by each hand-over
+    times, ticks, values = samples.times, samples.ticks, samples.values
     last = [-math.inf] * count
     ended = [False] * count
     needed = max(ch.value_col for ch in header.channels) + 1
     first_row = True
 
-    sample_times = [
-        _header_number(ch.info.get("SampleTime[ms]", ch.info.get("SampleTime", "")))
-        for ch, _ in used
-    ]
-    periods = [p / 1000.0 for p in sample_times if p is not None and p > 0]
-    start = filetime_to_datetime(header.start_ticks) if header.start_ticks else None
-    sink = job.open_sink(
-        [m.channel for _, m in used], nominal_period_s=min(periods, default=None), start_utc=start
-    )
-    merge = SeriesMerge(
-        sink,
-        [m.channel.name for _, m in used],
-        [m.factor for _, m in used],
-        batch_rows=_common.MERGE_ROWS,
-        spill_rows=_common.SPILL_ROWS,
-    )
-    base = header.start_ticks
-
-    def hand_over() -> None:
-        """The samples parsed so far go to the merge, in seconds."""
-        nonlocal base
-        if full_timestamp and base is None:
-            firsts = [int(t[0]) for t in ticks if len(t)]
-            base = min(firsts) if firsts else None
-        for k in range(count):
-            if full_timestamp:
-                if base is not None and len(ticks[k]):
-                    stamps = np.frombuffer(ticks[k], dtype=np.int64)
-                    merge.add(
-                        k, (stamps - base).astype(np.float64) * 1e-7, np.frombuffer(values[k])
-                    )
-                ticks[k] = array("q")
-            else:
-                t_s = np.frombuffer(times[k], dtype=np.float64) / 1000.0
-                merge.add(k, t_s, np.frombuffer(values[k]))
-                times[k] = array("d")
-            values[k] = array("d")
-        merge.flush()
-
-    chunk_rows = _common.CHUNK_ROWS
+    chunk_rows = merging.CHUNK_ROWS
     rows_parsed = 0
     first_data = [header.first_data] if header.first_data is not None else []
     try:
@@ -329,21 +275,12 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
                 break
             cells = line.split(separator)
             if len(cells) > header.width and any(c.strip() for c in cells[header.width :]):
-                hint = " (a decimal comma in a comma-separated export?)" if separator == "," else ""
-                raise RecordingError(
-                    f"{where}: {len(cells)} cells, the header (line {header.name_line_number}) "
-                    f"has {header.width}{hint}"
-                )
+                raise _too_many_cells(where, len(cells), header)
             if first_row:
                 first_row = False
-                if len(cells) < needed:
-                    raise RecordingError(
-                        f"{where}: {len(cells)} cells, the header needs {needed} (a time column "
-                        "per group and the value columns); exports without time columns are "
-                        "not supported"
-                    )
-                first_time = cells[used[0][0].time_col].strip()
-                full_timestamp = first_time.isdigit() and len(first_time) >= _FILETIME_DIGITS
+                full_timestamp = samples.full_timestamp = _full_timestamp(
+                    where, cells, needed, used[0][0]
+                )
             if decimal is None:
                 decimal = decimal_mark(cells)
             for k, (channel, _) in enumerate(used):
@@ -353,15 +290,7 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
                     ended[k] = True
                     continue
                 if not t_cell or not v_cell:
-                    hint = (
-                        " (a decimal comma in a comma-separated export?)"
-                        if separator == ","
-                        else ""
-                    )
-                    raise RecordingError(
-                        f"{where}: channel {channel.name}: a time without a value or a value "
-                        f"without a time{hint}"
-                    )
+                    raise _half_sample(where, channel, separator)
                 if ended[k]:
                     raise RecordingError(
                         f"{where}: channel {channel.name} has samples again after empty cells"
@@ -390,11 +319,11 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
                 values[k].append(value)
             rows_parsed += 1
             if rows_parsed % chunk_rows == 0:
-                hand_over()
+                samples.hand_over()
 
         if first_row:
             raise RecordingError(f"{job.path}: no data rows after the header")
-        hand_over()
+        samples.hand_over()
     except BaseException:
         merge.close()  # on success, finish() closes it after the last rows
         raise
@@ -404,3 +333,110 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
         job.note("numbers use a decimal comma")
     merge.finish(job)
     return job.finish()
+
+
+def _note_scaling(used: list[tuple[_ScopeChannel, Mapped]], job: ImportJob) -> None:
+    """Report the channels whose header declares a scale or offset (not applied)."""
+    for channel, _ in used:
+        scale = _header_number(channel.info.get("ScaleFactor", "1"))
+        offset = _header_number(channel.info.get("Offset", "0"))
+        if (scale is not None and scale != 1) or (offset is not None and offset != 0):
+            job.note(
+                f"{channel.name}: ScaleFactor {channel.info.get('ScaleFactor')}, Offset "
+                f"{channel.info.get('Offset')} in the header; values taken as exported (the file "
+                "does not say whether 'Scale values before export' was set)"
+            )
+
+
+def _open_merge(
+    job: ImportJob, header: _Header, used: list[tuple[_ScopeChannel, Mapped]]
+) -> SeriesMerge:
+    """The recording of the imported channels (period: the shortest SampleTime) and its merge."""
+    sample_times = [
+        _header_number(ch.info.get("SampleTime[ms]", ch.info.get("SampleTime", "")))
+        for ch, _ in used
+    ]
+    periods = [p / 1000.0 for p in sample_times if p is not None and p > 0]
+    start = filetime_to_datetime(header.start_ticks) if header.start_ticks else None
+    sink = job.open_sink(
+        [m.channel for _, m in used], nominal_period_s=min(periods, default=None), start_utc=start
+    )
+    return SeriesMerge(
+        sink,
+        [m.channel.name for _, m in used],
+        [m.factor for _, m in used],
+        batch_rows=merging.MERGE_ROWS,
+        spill_rows=merging.SPILL_ROWS,
+    )
+
+
+def _full_timestamp(where: str, cells: list[str], needed: int, first: _ScopeChannel) -> bool:
+    """Whether the times are FILETIME stamps (Full Timestamp), from the first data row.
+
+    Raises:
+        RecordingError: The row lacks the time columns.
+    """
+    if len(cells) < needed:
+        raise RecordingError(
+            f"{where}: {len(cells)} cells, the header needs {needed} (a time column "
+            "per group and the value columns); exports without time columns are "
+            "not supported"
+        )
+    first_time = cells[first.time_col].strip()
+    return first_time.isdigit() and len(first_time) >= _FILETIME_DIGITS
+
+
+def _too_many_cells(where: str, cells: int, header: _Header) -> RecordingError:
+    """The error of a row with more cells than the header."""
+    hint = " (a decimal comma in a comma-separated export?)" if header.separator == "," else ""
+    return RecordingError(
+        f"{where}: {cells} cells, the header (line {header.name_line_number}) "
+        f"has {header.width}{hint}"
+    )
+
+
+def _half_sample(where: str, channel: _ScopeChannel, separator: str) -> RecordingError:
+    """The error of a channel's time without its value, or a value without its time."""
+    hint = " (a decimal comma in a comma-separated export?)" if separator == "," else ""
+    return RecordingError(
+        f"{where}: channel {channel.name}: a time without a value or a value without a time{hint}"
+    )
+
+
+class _ChannelSamples:
+    """The samples parsed of each imported channel since the last hand-over to the merge.
+
+    Times are kept as the export writes them: ms, or FILETIME ticks once the
+    first row shows Full Timestamps (:attr:`full_timestamp`).
+    """
+
+    def __init__(self, merge: SeriesMerge, count: int, start_ticks: int | None) -> None:
+        self._merge = merge
+        self.times: list[array[float]] = [array("d") for _ in range(count)]
+        self.ticks: list[array[int]] = [array("q") for _ in range(count)]
+        self.values: list[array[float]] = [array("d") for _ in range(count)]
+        self.full_timestamp: bool | None = None
+        self._base = start_ticks
+
+    def hand_over(self) -> None:
+        """The samples parsed so far go to the merge, in seconds."""
+        full_timestamp, merge = self.full_timestamp, self._merge
+        times, ticks, values = self.times, self.ticks, self.values
+        if full_timestamp and self._base is None:
+            firsts = [int(t[0]) for t in ticks if len(t)]
+            self._base = min(firsts) if firsts else None
+        base = self._base
+        for k in range(len(values)):
+            if full_timestamp:
+                if base is not None and len(ticks[k]):
+                    stamps = np.frombuffer(ticks[k], dtype=np.int64)
+                    merge.add(
+                        k, (stamps - base).astype(np.float64) * 1e-7, np.frombuffer(values[k])
+                    )
+                ticks[k] = array("q")
+            else:
+                t_s = np.frombuffer(times[k], dtype=np.float64) / 1000.0
+                merge.add(k, t_s, np.frombuffer(values[k]))
+                times[k] = array("d")
+            values[k] = array("d")
+        merge.flush()

@@ -18,6 +18,8 @@ branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 
 
+# One function, as long as the schema: a migration is a frozen record of the schema at
+# its revision, applied once and never edited, so it stays whole rather than split.
 def upgrade() -> None:
     op.create_table(
         "machine_types",

@@ -1,0 +1,182 @@
+"""The import job: one import's arguments, report and progress, and the driver that runs it.
+
+Every importer is a function ``read(job) -> RecordingMeta`` that streams rows
+into the :class:`~ncmeasure.recording.ImportSink` that :meth:`ImportJob.open_sink`
+creates; :func:`run_import` runs it and turns its result into a
+:class:`TraceImport`. A failed import removes everything it wrote
+(:meth:`~ncmeasure.recording.ImportSink.discard`).
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as dt
+import functools
+import logging
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ncmeasure.config import MachineConfig
+from ncmeasure.errors import RecordingError
+from ncmeasure.formats.recording import RecordingMeta
+from ncmeasure.recording import ImportSink, Recording
+from ncmeasure.samples import Channel
+
+__all__ = [
+    "ImportJob",
+    "ProgressFn",
+    "TraceImport",
+    "check_source",
+    "check_target",
+    "run_import",
+]
+
+log = logging.getLogger(__name__)
+
+ProgressFn = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class TraceImport:
+    """The result of an import: the new recording and what happened on the way.
+
+    Attributes:
+        directory: The new recording's directory.
+        meta: Its ``meta.json`` (channels, number of samples, period, report).
+        report: One sentence per fact: which trace signal became which
+            channel (with unit conversions), what was not imported and why,
+            invalid samples, dropped rows.
+    """
+
+    directory: Path
+    meta: RecordingMeta
+    report: list[str]
+
+    @functools.cached_property
+    def recording(self) -> Recording:
+        """The recording, read from disk on first use (an import itself never holds it whole)."""
+        return Recording.open(self.directory)
+
+
+class ImportJob:
+    """One import: its arguments, the report it builds and the progress it reports."""
+
+    def __init__(
+        self,
+        path: Path,
+        directory: Path,
+        format_name: str,
+        *,
+        machine: MachineConfig | None,
+        axis_names: Mapping[str, str] | None,
+        progress: ProgressFn | None,
+    ) -> None:
+        self.path = path
+        self.directory = directory
+        self.format_name = format_name
+        self.machine = machine
+        self.axis_names = dict(axis_names) if axis_names is not None else None
+        self._progress = progress
+        self.total_bytes = path.stat().st_size
+        self.report: list[str] = []
+        self.link: dict[str, Any] = {"type": "import", "format": format_name, "file": path.name}
+        self.sink: ImportSink | None = None
+
+    def note(self, line: str) -> None:
+        """Add a sentence to the report."""
+        log.info("%s: %s", self.path.name, line)
+        self.report.append(line)
+
+    def tick(self, bytes_read: int) -> None:
+        """Tell the progress callback how far the import got."""
+        if self._progress is not None:
+            self._progress(min(bytes_read, self.total_bytes), self.total_bytes)
+
+    def open_sink(
+        self,
+        channels: Sequence[Channel],
+        *,
+        nominal_period_s: float | None,
+        start_utc: dt.datetime | None = None,
+    ) -> ImportSink:
+        """The recording the rows go to (created on disk when the first rows arrive)."""
+        self.sink = ImportSink(
+            self.directory,
+            channels,
+            machine=self.machine,
+            nominal_period_s=nominal_period_s,
+            what="the trace",
+            start_utc=start_utc,
+            source=f"import:{self.format_name}",
+            notes=f"imported from {self.path.name}",
+            link=self.link,
+        )
+        return self.sink
+
+    def finish(self) -> RecordingMeta:
+        """Close the recording with the complete report (it is not read back)."""
+        if self.sink is None:
+            raise RecordingError(f"{self.path}: no samples to import")
+        for line in self.sink.validity_lines():
+            self.note(line)
+        self.link["report"] = list(self.report)
+        meta = self.sink.close("complete", link=dict(self.link))
+        self.tick(self.total_bytes)  # the whole file is done, even if an end marker stopped reading
+        return meta
+
+    def discard(self) -> None:
+        """Remove what this import wrote."""
+        if self.sink is not None:
+            self.sink.discard()
+
+
+def check_source(path: Path) -> None:
+    """Fail with a clear message when ``path`` is not a file that can be imported."""
+    if not path.is_file():
+        if path.is_dir():
+            raise RecordingError(f"{path}: is a directory, expected a trace file")
+        raise RecordingError(f"{path}: no such file")
+
+
+def run_import(job: ImportJob, read: Callable[[ImportJob], RecordingMeta]) -> TraceImport:
+    """Run an importer on ``job``; on any failure remove what it wrote.
+
+    Returns:
+        The recording ``read`` finished and the job's report.
+
+    Raises:
+        RecordingError: What ``read`` raised, or a read error of the file
+            (not text, cannot be read) turned into one.
+    """
+    try:
+        meta = read(job)
+    except BaseException as exc:
+        job.discard()
+        if isinstance(exc, UnicodeDecodeError):
+            raise RecordingError(f"{job.path}: not a text file") from exc
+        if isinstance(exc, csv.Error):
+            raise RecordingError(f"{job.path}: cannot be split into cells ({exc})") from exc
+        if isinstance(exc, OSError) and not isinstance(exc, RecordingError):
+            raise RecordingError(f"{job.path}: cannot be read ({exc.strerror or exc})") from exc
+        raise
+    log.info(
+        "imported %s (%s) into %s: %d samples",
+        job.path,
+        job.format_name,
+        job.directory,
+        meta.samples,
+    )
+    return TraceImport(job.directory, meta, job.report)
+
+
+def check_target(directory: Path) -> None:
+    """Fail before reading a large trace when the recording could not be written anyway."""
+    if directory.exists():
+        if not directory.is_dir():
+            raise RecordingError(f"{directory}: exists and is not a directory")
+        if any(directory.iterdir()):
+            raise RecordingError(
+                f"{directory}: directory is not empty; a recording needs a new or empty directory"
+            )

@@ -1,0 +1,183 @@
+"""Text and numbers of trace files: lines, decimal marks, units, invalid samples, Windows times.
+
+The controllers' exports are text written on Windows PCs in the locale of the
+shop: decimal commas or points, Windows-1252 or UTF-8, LF, CRLF or a bare CR.
+What every text importer needs to read such a file into numbers lives here.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+import re
+from collections.abc import Generator, Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import BinaryIO, Final
+
+from ncmeasure.errors import RecordingError
+from ncmeasure.traces.job import ImportJob
+
+__all__ = [
+    "INVALID_ABOVE",
+    "PROGRESS_STEP_BYTES",
+    "TextLines",
+    "decimal_mark",
+    "filetime_to_datetime",
+    "is_invalid",
+    "normalize_unit",
+    "parse_number",
+    "unit_factor",
+]
+
+#: Values at or above this magnitude mark an invalid sample. Sinumerik writes
+#: such samples as the bit pattern of +inf read as a 64-bit integer
+#: (0x7FF0000000000000 = 9218868437227405312); the public parser
+#: eliasrhoden/Trace-Tools rejects every value above 9218868437227405000.
+INVALID_ABOVE: Final = 9.218868437227405e18
+#: Bytes read before the progress callback is called again.
+PROGRESS_STEP_BYTES: Final = 1 << 20
+_SNIFF_BYTES: Final = 1 << 16
+_READ_BYTES: Final = 1 << 16
+
+
+def is_invalid(value: float) -> bool:
+    """True for a sample the controller marked invalid (or one that is not a number)."""
+    return not math.isfinite(value) or abs(value) >= INVALID_ABOVE
+
+
+def parse_number(text: str, decimal: str = ".") -> float:
+    """A float from trace text, with ``decimal`` as the decimal mark.
+
+    Raises:
+        ValueError: ``text`` is not a number in that notation (a decimal
+            comma in a file that uses points, or the other way round).
+    """
+    cell = text.strip()
+    if decimal == ",":
+        if "." in cell:
+            raise ValueError(f"{cell!r} has a decimal point; this file uses decimal commas")
+        cell = cell.replace(",", ".")
+    elif "," in cell:
+        raise ValueError(f"{cell!r} has a decimal comma; this file uses decimal points")
+    return float(cell)
+
+
+_COMMA_NUMBER = re.compile(r"[+-]?\d+,\d+(?:[eE][+-]?\d+)?")
+_POINT_NUMBER = re.compile(r"[+-]?\d*\.\d+(?:[eE][+-]?\d+)?")
+
+
+def decimal_mark(cells: Sequence[str]) -> str | None:
+    """The decimal mark that the first number with a fraction in ``cells`` shows, if any."""
+    for cell in cells:
+        text = cell.strip()
+        if _COMMA_NUMBER.fullmatch(text):
+            return ","
+        if _POINT_NUMBER.fullmatch(text):
+            return "."
+    return None
+
+
+# --- units -----------------------------------------------------------------------------
+
+_UNIT_FACTORS: Final[Mapping[str, Mapping[str, float]]] = {
+    "position_mm": {"mm": 1.0, "um": 1e-3, "m": 1e3},
+    "velocity_mm_min": {"mm/min": 1.0, "mm/s": 60.0, "m/min": 1e3, "m/s": 6e4},
+    "velocity_cmd_mm_min": {"mm/min": 1.0, "mm/s": 60.0, "m/min": 1e3, "m/s": 6e4},
+    "current_a": {"a": 1.0, "ma": 1e-3},
+    "marker": {"1": 1.0, "": 1.0},
+}
+
+
+def normalize_unit(unit: str) -> str:
+    """A unit as written in a trace, reduced to a lookup key (``"µm"`` -> ``"um"``)."""
+    text = unit.strip().strip("[]()").strip()
+    text = text.replace("µ", "u").replace("μ", "u").replace(" ", "")
+    return text.lower()
+
+
+def unit_factor(signal: str, unit: str) -> float | None:
+    """The factor that turns ``unit`` into the ncmeasure unit of ``signal``, if known."""
+    return _UNIT_FACTORS.get(signal, {}).get(normalize_unit(unit))
+
+
+# --- reading text ----------------------------------------------------------------------
+
+
+class TextLines:
+    """The lines of a text file, read once, with their numbers and a byte count for progress.
+
+    UTF-8 (with or without BOM) is tried first; a file that is not UTF-8 is
+    read as Windows-1252, the code page of the controllers' Windows PCs. A
+    line ends with LF, CRLF or a bare CR (old Mac-style exports still occur);
+    the file is read in blocks, so a file without LF is not read whole. Use
+    it as a context manager, so the file is closed when an import stops early.
+    """
+
+    def __init__(self, path: Path, job: ImportJob) -> None:
+        self.path = path
+        self.job = job
+        with path.open("rb") as file:
+            head = file.read(_SNIFF_BYTES)
+        self.encoding = "utf-8"
+        try:
+            head.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            if exc.start < len(head) - 4:  # not merely a character cut at the sniff limit
+                self.encoding = "cp1252"
+                job.note(f"{path.name} is not UTF-8 text; read as Windows-1252")
+        self.line_number = 0
+        self._lines: Generator[str, None, None] = self._read()
+
+    def __iter__(self) -> Iterator[str]:
+        return self._lines
+
+    def __next__(self) -> str:
+        return next(self._lines)
+
+    def __enter__(self) -> TextLines:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self._lines.close()
+
+    def _raw_lines(self, file: BinaryIO) -> Iterator[bytes]:
+        """The lines of ``file`` with their endings; bytes.splitlines knows LF, CRLF and CR."""
+        rest = b""
+        while block := file.read(_READ_BYTES):
+            lines = (rest + block).splitlines(keepends=True)
+            # the last line may continue in the next block (a CR may be half of a CRLF)
+            rest = b"" if lines[-1].endswith(b"\n") else lines.pop()
+            yield from lines
+        if rest:
+            yield rest
+
+    def _read(self) -> Generator[str, None, None]:
+        bytes_read = 0
+        reported = 0
+        with self.path.open("rb") as file:
+            for raw in self._raw_lines(file):
+                self.line_number += 1
+                bytes_read += len(raw)
+                if bytes_read - reported >= PROGRESS_STEP_BYTES:
+                    self.job.tick(bytes_read)
+                    reported = bytes_read
+                try:
+                    text = raw.decode(self.encoding)
+                except UnicodeDecodeError as exc:
+                    raise RecordingError(
+                        f"{self.path}:{self.line_number}: not valid {self.encoding} text "
+                        f"(byte {exc.start + 1} of the line)"
+                    ) from exc
+                if self.line_number == 1:
+                    text = text.lstrip("\ufeff")
+                yield text.rstrip("\r\n")
+        self.job.tick(bytes_read)
+
+    def where(self) -> str:
+        """``file:line`` of the line last read."""
+        return f"{self.path}:{self.line_number}"
+
+
+def filetime_to_datetime(ticks: int) -> dt.datetime:
+    """A Windows FILETIME (100 ns ticks since 1601-01-01 UTC) as an aware datetime."""
+    return dt.datetime(1601, 1, 1, tzinfo=dt.UTC) + dt.timedelta(microseconds=ticks // 10)
