@@ -3,7 +3,7 @@
 - :mod:`.objects`  data types, units, object maps (``objectmaps/``), object
   dictionaries, EDS/DCF files, EMCY (``emcy.toml``) and SDO texts
 - :mod:`.busload`  the bus load of a TPDO layout
-- :mod:`.cycles`   rows from PDO frames, SYNC cycle by SYNC cycle
+- :mod:`.sync`     rows from PDO frames, SYNC cycle by SYNC cycle
 - :mod:`.link`     :class:`CanOpenLink`, the drive link
 
 The simulated drives (:mod:`ncmeasure.sim.cia402`) import the protocol

@@ -18,7 +18,7 @@ How it works, in the order :meth:`CanOpenLink.open` does it:
    master). A row of samples is complete when every PDO of every node for one
    SYNC cycle has arrived; ``time_s`` is the cycle number × period.
 
-Cycles are told apart in bus order (:mod:`.cycles`): the link receives its own
+Cycles are told apart in bus order (:mod:`.sync`): the link receives its own
 SYNC back through the receive stream (python-can's ``receive_own_messages``)
 and gives every PDO frame to the SYNC received before it, so a frame the host
 receives late still counts in its own cycle. A row holds the values of one SYNC
@@ -30,7 +30,7 @@ rounded to whole microseconds, the unit of the communication cycle period
 0x1006 it writes to the drives); when the host wakes so late that the next
 cycle is due already, it skips the missed cycles instead of sending them in a
 burst, counts them (``statistics()["sync_skipped"]``) and reports them as a
-gap (:func:`~.cycles.run_sync_schedule`). With
+gap (:func:`~.sync.run_sync_schedule`). With
 ncmeasure's own simulated drives (:mod:`ncmeasure.sim.cia402`) it runs on a
 :class:`~ncmeasure.samples.SimulatedClock`, in lockstep: SYNC ``k`` goes out
 at simulated time ``k × period``, the drives answer with the machine state of
@@ -80,7 +80,6 @@ from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError, OutputErr
 from ncmeasure.links.base import AxisBinding, AxisLinkSettings, DriveLink, LinkSettings, PathSetting
 from ncmeasure.links.canopen.bus import open_bus
 from ncmeasure.links.canopen.busload import BusLoad, bus_load
-from ncmeasure.links.canopen.cycles import CycleAssembler, LostCycle, run_sync_schedule
 from ncmeasure.links.canopen.objects import (
     DATA_TYPES,
     SIGNAL_BY_ROLE,
@@ -98,6 +97,7 @@ from ncmeasure.links.canopen.objects import (
     sdo_error_text,
     velocity_scale_mm_min,
 )
+from ncmeasure.links.canopen.sync import CycleAssembler, LostCycle, run_sync_schedule
 from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent, SampleBlock, SimulatedClock
 
 __all__ = [
