@@ -1,13 +1,24 @@
-"""Rows from PDO frames: which SYNC cycle a frame belongs to, and which cycles are lost.
+"""SYNC: the link's own SYNC production, and rows from PDO frames cycle by SYNC cycle.
 
-A drive samples its values when it sees SYNC and sends its synchronous TPDOs
-before the next SYNC. So, in the order frames travel on the bus, a PDO frame
-belongs to the SYNC that came before it. The link therefore feeds the
-assembler in bus order: every frame as it is received, and every SYNC as it
-is *seen on the bus* (its own SYNC comes back through the receive stream,
-python-can's ``receive_own_messages``), never as it is sent. A frame that the
-host receives late still counts in its own cycle, because the next SYNC is
-behind it in the same stream.
+The producer (:class:`SyncProducer`) keeps time by the link's
+:class:`~ncmeasure.samples.LinkClock`. Real time for real drives: SYNC ``k``
+goes out at ``k × period`` (:func:`run_sync_schedule`); when the host wakes so
+late that the next cycle is due already, it skips the missed cycles instead of
+sending them in a burst, and counts them. With ncmeasure's own simulated drives
+on a :class:`~ncmeasure.samples.SimulatedClock` it runs in lockstep: SYNC ``k``
+goes out at simulated time ``k × period``, the drives answer with the machine
+state of that time, and SYNC ``k + 1`` waits until the link has received all
+they sent, however slow the computer is.
+
+The assembler (:class:`CycleAssembler`) makes rows from PDO frames: which SYNC
+cycle a frame belongs to, and which cycles are lost. A drive samples its values
+when it sees SYNC and sends its synchronous TPDOs before the next SYNC. So, in
+the order frames travel on the bus, a PDO frame belongs to the SYNC that came
+before it. The link therefore feeds the assembler in bus order: every frame as
+it is received, and every SYNC as it is *seen on the bus* (its own SYNC comes
+back through the receive stream, python-can's ``receive_own_messages``), never
+as it is sent. A frame that the host receives late still counts in its own
+cycle, because the next SYNC is behind it in the same stream.
 
 A row holds the values of one SYNC cycle only. A cycle is final when the next
 SYNC is seen: complete, it becomes a row; otherwise it is lost. Where the cycle
@@ -26,11 +37,29 @@ shifted or filled:
 
 from __future__ import annotations
 
+import collections
+import functools
+import threading
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, cast
 
-__all__ = ["CycleAssembler", "LossReason", "LostCycle", "run_sync_schedule"]
+import can
+import canopen
+
+from ncmeasure.errors import LinkError
+from ncmeasure.samples import LinkClock, SimulatedClock
+
+__all__ = [
+    "CycleAssembler",
+    "ForeignSync",
+    "LossReason",
+    "LostCycle",
+    "SyncProducer",
+    "no_echo_error",
+    "run_sync_schedule",
+]
 
 LossReason = Literal["missing", "no_sync", "doubled"]
 
@@ -205,3 +234,174 @@ def run_sync_schedule(
         cycle += 1
         if delay <= 0 and wait(0.0):
             return
+
+
+class SyncProducer:
+    """The link's own SYNC: cycle ``k`` at ``k × period`` of the link clock, until stopped.
+
+    Args:
+        network: The link's network (its bus and send lock).
+        clock: The link clock: real time, or a :class:`~ncmeasure.samples.SimulatedClock`
+            for lockstep with simulated drives.
+        period_s: The SYNC period on that clock.
+        stop: Set when the link closes.
+        cond: The link's condition; lockstep waits on it for ``cycle_received``.
+        cycle_received: Lockstep: called with a cycle and the drives' frame count
+            (``cond`` held), true once the next SYNC may go out.
+        skipped: Called with the first skipped cycle and how many were skipped.
+        started: Called with the clock time of cycle 0 (real time).
+        failed: Called with the error that ends the production.
+        step_timeout_s: Lockstep: the longest wall-clock wait for the drives' answer.
+    """
+
+    def __init__(
+        self,
+        network: canopen.Network,
+        clock: LinkClock,
+        period_s: float,
+        stop: threading.Event,
+        *,
+        cond: threading.Condition,
+        cycle_received: Callable[[int, int], bool],
+        skipped: Callable[[int, int], None],
+        started: Callable[[float], None],
+        failed: Callable[[LinkError], None],
+        step_timeout_s: float,
+    ) -> None:
+        self._network = network
+        self._clock = clock
+        self._period = period_s
+        self._stop = stop
+        self._cond = cond
+        self._cycle_received = cycle_received
+        self._skipped = skipped
+        self._started = started
+        self._failed = failed
+        self._step_timeout_s = step_timeout_s
+        self._message = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
+        self.sent: collections.deque[int] = collections.deque()
+        """Cycles of own SYNCs sent and not yet seen back, in order."""
+        self.sent_cycle = -1
+        """The newest cycle sent."""
+
+    def run(self) -> None:
+        """Send SYNC cycle k at ``k × period`` on the link clock (real time or lockstep).
+
+        A SYNC that cannot be sent, or (lockstep) drives that do not answer, end it
+        with a LinkError for ``failed``.
+        """
+        try:
+            if self._clock.lockstep:
+                self._produce_in_lockstep()
+            else:
+                self._produce_in_real_time()
+        except LinkError as exc:
+            self._failed(exc)
+
+    def seen(self) -> int | None:
+        """An own SYNC came back through the receive stream: its cycle (None: not ours)."""
+        return self.sent.popleft() if self.sent else None
+
+    def _send(self, cycle: int) -> None:
+        network = self._network
+        assert network.bus is not None
+        # Not under the link's lock: the receive thread holds it while it assembles
+        # frames, and on a busy host a SYNC waiting for it came late and was skipped.
+        # A deque's append is atomic, and it comes before the send, so the receive
+        # thread finds the cycle when it sees the SYNC.
+        self.sent.append(cycle)
+        self.sent_cycle = cycle
+        try:
+            with network.send_lock:  # SDO transfers of the worker share the bus
+                network.bus.send(self._message)
+        except Exception as exc:
+            raise LinkError(f"cannot send SYNC: {exc}") from exc
+
+    def _produce_in_real_time(self) -> None:
+        """SYNC k at ``k × period`` of the clock; a stall skips cycles (counted), never a burst.
+
+        The skipped cycles have no SYNC on the bus, so they come out as a ``gap`` event
+        ("SYNC cycles not sent (the host fell behind)") with their number.
+        """
+        clock = self._clock
+        self._started(clock.now())
+        run_sync_schedule(
+            self._period,
+            clock.now,
+            lambda delay: self._stop.wait(clock.wall(delay)),
+            self._send,
+            self._skipped,
+        )
+
+    def _produce_in_lockstep(self) -> None:
+        """SYNC k at simulated time k × period; SYNC k + 1 once all of cycle k is received.
+
+        The simulated drives report each SYNC answered and how many frames they sent
+        (:meth:`~ncmeasure.samples.SimulatedClock.step_done`); the next SYNC waits until
+        the link has received them all, until no drive is being configured again, and
+        until the reader has taken the rows, so the recording does not depend on how fast
+        the threads run.
+        """
+        clock = cast(SimulatedClock, self._clock)
+        cycle = 0
+        while not self._stop.is_set():
+            clock.advance_to(cycle * self._period)
+            self._send(cycle)
+            sent = self._wait_for_drives(clock, cycle)
+            if sent is None:
+                return
+            with self._cond:
+                ready = self._cond.wait_for(
+                    functools.partial(self._cycle_received, cycle, sent), self._step_timeout_s
+                )
+            if not ready:
+                raise LinkError(
+                    f"SYNC cycle {cycle}: the simulated drives' frames did not arrive within "
+                    f"{self._step_timeout_s:g} s"
+                )
+            cycle += 1
+
+    def _wait_for_drives(self, clock: SimulatedClock, cycle: int) -> int | None:
+        """The simulated drives' frame count after answering ``cycle``; None when stopping."""
+        deadline = time.monotonic() + self._step_timeout_s
+        while not self._stop.is_set():
+            sent = clock.wait_step(cycle, 0.1)
+            if sent is not None:
+                return sent
+            if time.monotonic() > deadline:
+                raise LinkError(
+                    f"the simulated drives did not answer SYNC cycle {cycle} within "
+                    f"{self._step_timeout_s:g} s; a link on a SimulatedClock needs simulated "
+                    "drives on the same clock (SimulatedDrives.start(..., clock=clock))"
+                )
+        return None
+
+
+def no_echo_error(interface: str | None) -> LinkError:
+    """The link's own SYNC did not come back through the receive stream."""
+    return LinkError(
+        f"the CAN interface {interface or '(python-can config)'} does not "
+        "return the link's own SYNC frames (python-can receive_own_messages); the link "
+        "needs them to give every PDO to its SYNC cycle. Use an interface that does "
+        "(socketcan, pcan, kvaser, vector, ixxat, virtual, ...), or let the controller "
+        "produce SYNC (link.sync_producer = false)"
+    )
+
+
+class ForeignSync:
+    """SYNC of another master: cycles counted, missing ones noticed by the frames' time stamps."""
+
+    def __init__(self) -> None:
+        self._last: float | None = None
+
+    def step(self, timestamp: float, wall_period_s: float) -> int:
+        """How many cycles on from the previous SYNC this one is (1: none missing).
+
+        Args:
+            timestamp: The frame's time stamp (wall clock).
+            wall_period_s: The SYNC period on the wall clock.
+        """
+        previous, self._last = self._last, timestamp
+        if previous is None:
+            return 1
+        return max(1, round((timestamp - previous) / wall_period_s))
