@@ -2589,12 +2589,9 @@ def apply_compensation_command(
 
     Example: ncmeasure apply-compensation z-offset.toml --machine machine.toml --yes
     """
-    from ncmeasure.compensation.apply import (
-        apply_offsets,
-        link_for_offsets,
-        read_offset_file,
-    )
+    from ncmeasure.compensation.offset_file import read_offset_file
     from ncmeasure.config import load_machine
+    from ncmeasure.links.canopen.offsets import apply_offsets, link_for_offsets
 
     writes = read_offset_file(file)
     overrides: dict[str, Any] = {

@@ -10,6 +10,7 @@
 - :mod:`.sync`      SYNC production, and rows from PDO frames, SYNC cycle by SYNC cycle
 - :mod:`.receive`   the receiver, the raw log, rows decoded, SDO polling
 - :mod:`.link`      :class:`CanOpenLink`, the drive link: open, read, close, gaps
+- :mod:`.offsets`   the torque offset 0x60B2 written over SDO (``apply-compensation``)
 
 The simulated drives (:mod:`ncmeasure.sim.cia402`) import the protocol
 knowledge and the settings, not the link; so this package imports its modules
