@@ -1,0 +1,53 @@
+"""Simulated CiA 402 servo drives on a python-can bus (:mod:`.drive`): SDO server, NMT, TPDOs."""
+
+from __future__ import annotations
+
+from ncmeasure.sim.cia402.drive import (
+    ABORT_COMMAND,
+    ABORT_GENERAL,
+    ABORT_INCOMPATIBLE,
+    ABORT_LENGTH_HIGH,
+    ABORT_LENGTH_LOW,
+    ABORT_NO_DATA,
+    ABORT_NO_OBJECT,
+    ABORT_NO_SUBINDEX,
+    ABORT_NOT_MAPPABLE,
+    ABORT_PDO_LENGTH,
+    ABORT_READ_ONLY,
+    ABORT_TOGGLE,
+    ABORT_UNSUPPORTED,
+    ABORT_VALUE_RANGE,
+    ABORT_WRITE_ONLY,
+    OPERATION_ENABLED,
+    VIRTUAL_BUS_REACH,
+    DriveScaling,
+    SimulatedDrive,
+    SimulatedDrives,
+    TpdoConfig,
+    serve,
+)
+
+__all__ = [
+    "ABORT_COMMAND",
+    "ABORT_GENERAL",
+    "ABORT_INCOMPATIBLE",
+    "ABORT_LENGTH_HIGH",
+    "ABORT_LENGTH_LOW",
+    "ABORT_NOT_MAPPABLE",
+    "ABORT_NO_DATA",
+    "ABORT_NO_OBJECT",
+    "ABORT_NO_SUBINDEX",
+    "ABORT_PDO_LENGTH",
+    "ABORT_READ_ONLY",
+    "ABORT_TOGGLE",
+    "ABORT_UNSUPPORTED",
+    "ABORT_VALUE_RANGE",
+    "ABORT_WRITE_ONLY",
+    "OPERATION_ENABLED",
+    "VIRTUAL_BUS_REACH",
+    "DriveScaling",
+    "SimulatedDrive",
+    "SimulatedDrives",
+    "TpdoConfig",
+    "serve",
+]
