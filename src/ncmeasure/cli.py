@@ -1129,6 +1129,7 @@ def simulate_drive_command(
                 stop=stop,
             )
         elif link == "canopen":
+            from ncmeasure.links.canopen.settings import CanOpenSettings
             from ncmeasure.sim.cia402 import VIRTUAL_BUS_REACH
             from ncmeasure.sim.cia402 import serve as serve_canopen
 
@@ -1145,10 +1146,8 @@ def simulate_drive_command(
                     _note(VIRTUAL_BUS_REACH)
 
             serve_canopen(
-                channel=channel,
-                interface=interface,
-                nodes=ids,
-                eds=eds,
+                CanOpenSettings(type="canopen", channel=channel, interface=interface, eds=eds),
+                ids,
                 stop=stop,
                 on_ready=canopen_ready,
             )
