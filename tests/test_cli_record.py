@@ -284,6 +284,7 @@ def test_the_record_help_example_records_simulated_drives(tmp_path: Path) -> Non
     import threading
     import uuid
 
+    from ncmeasure.links.canopen.settings import CanOpenSettings
     from ncmeasure.sim.cia402 import serve
 
     channel = f"help-{uuid.uuid4().hex[:8]}"
@@ -294,10 +295,10 @@ def test_the_record_help_example_records_simulated_drives(tmp_path: Path) -> Non
     stop, ready = threading.Event(), threading.Event()
     drives = threading.Thread(
         target=serve,
-        kwargs={"channel": channel, "nodes": [1, 2, 3], "stop": stop,
-                "on_ready": lambda _: ready.set()},
+        args=(CanOpenSettings(type="canopen", channel=channel), [1, 2, 3]),
+        kwargs={"stop": stop, "on_ready": lambda _: ready.set()},
         daemon=True,
-    )  # fmt: skip
+    )
     drives.start()
     try:
         assert ready.wait(60)

@@ -46,10 +46,12 @@ LAYERS: dict[str, float] = {
     "cli": 11,
     "__main__": 12,
 }
-#: What the simulated drives may take from the links: the protocol knowledge only.
+#: What the simulated drives may take from the links: the protocol knowledge, and the
+#: CANopen link's settings (``serve()`` of the simulated CiA 402 drives takes them).
 SIM_MAY_IMPORT = {
     "ncmeasure.links.canopen.bus",
     "ncmeasure.links.canopen.objects",
+    "ncmeasure.links.canopen.settings",
     "ncmeasure.links.modbus.registers",
 }
 

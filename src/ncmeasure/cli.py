@@ -1129,6 +1129,7 @@ def simulate_drive_command(
                 stop=stop,
             )
         elif link == "canopen":
+            from ncmeasure.links.canopen.settings import CanOpenSettings
             from ncmeasure.sim.cia402 import VIRTUAL_BUS_REACH
             from ncmeasure.sim.cia402 import serve as serve_canopen
 
@@ -1145,10 +1146,8 @@ def simulate_drive_command(
                     _note(VIRTUAL_BUS_REACH)
 
             serve_canopen(
-                channel=channel,
-                interface=interface,
-                nodes=ids,
-                eds=eds,
+                CanOpenSettings(type="canopen", channel=channel, interface=interface, eds=eds),
+                ids,
                 stop=stop,
                 on_ready=canopen_ready,
             )
@@ -2591,12 +2590,9 @@ def apply_compensation_command(
 
     Example: ncmeasure apply-compensation z-offset.toml --machine machine.toml --yes
     """
-    from ncmeasure.compensation.apply import (
-        apply_offsets,
-        link_for_offsets,
-        read_offset_file,
-    )
+    from ncmeasure.compensation.offset_file import read_offset_file
     from ncmeasure.config import load_machine
+    from ncmeasure.links.canopen.offsets import apply_offsets, link_for_offsets
 
     writes = read_offset_file(file)
     overrides: dict[str, Any] = {

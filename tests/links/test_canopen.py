@@ -28,7 +28,6 @@ from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
 from ncmeasure.links import REAL_TIME, make_link
 from ncmeasure.links.canopen.busload import bus_load, frame_bits
-from ncmeasure.links.canopen.cycles import CycleAssembler, run_sync_schedule
 from ncmeasure.links.canopen.link import CanOpenLink
 from ncmeasure.links.canopen.objects import (
     build_dictionary,
@@ -36,6 +35,7 @@ from ncmeasure.links.canopen.objects import (
     load_object_map,
     sdo_error_text,
 )
+from ncmeasure.links.canopen.sync import CycleAssembler, run_sync_schedule
 from ncmeasure.samples import LinkClock, LinkEvent, SimulatedClock
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrive, SimulatedDrives
 from ncmeasure.sim.signals import AxisState, PatternSource

@@ -20,6 +20,7 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from ncmeasure.errors import ConfigError
 from ncmeasure.links.canopen.objects import load_object_map
+from ncmeasure.links.canopen.settings import CanOpenSettings
 from ncmeasure.sim.cia402 import (
     OPERATION_ENABLED,
     DriveScaling,
@@ -459,7 +460,8 @@ def test_serve_runs_until_stopped(channel: str) -> None:
     result: list[int] = []
 
     def run() -> None:
-        result.append(serve(channel=channel, nodes=[7, 8], stop=stop, on_ready=running.append))
+        settings = CanOpenSettings(type="canopen", channel=channel)
+        result.append(serve(settings, [7, 8], stop=stop, on_ready=running.append))
 
     thread = threading.Thread(target=run, daemon=True)
     thread.start()
@@ -484,4 +486,31 @@ def test_serve_runs_until_stopped(channel: str) -> None:
 
 
 def test_serve_stops_after_its_duration(channel: str) -> None:
-    assert serve(channel=channel, nodes={0: 1}, duration_s=0.05) == 0
+    assert serve(CanOpenSettings(type="canopen", channel=channel), {0: 1}, duration_s=0.05) == 0
+
+
+def test_serve_takes_the_link_settings(channel: str) -> None:
+    """The object map, the SYNC period until 0x1006 is written, the bus: the link's settings."""
+    stop = threading.Event()
+    running: list[SimulatedDrives] = []
+    settings = CanOpenSettings(
+        type="canopen", channel=channel, sync_hz=500, object_map="maxon_epos4"
+    )
+    thread = threading.Thread(
+        target=serve,
+        args=(settings, {1: 5}),
+        kwargs={"stop": stop, "on_ready": running.append},
+        daemon=True,
+    )
+    thread.start()
+    try:
+        assert eventually(lambda: bool(running))
+        drives = running[0]
+        assert drives.period_s == pytest.approx(0.002)
+        assert [(d.node_id, d.axis, d.object_map.name) for d in drives.drives] == [
+            (5, 1, "maxon_epos4")
+        ]
+    finally:
+        stop.set()
+        thread.join(TIMEOUT_S)
+    assert not thread.is_alive()

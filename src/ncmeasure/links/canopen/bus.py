@@ -1,6 +1,7 @@
 """Opening a python-can bus, its failures told apart: a wrong name, or an interface that fails.
 
-The link and the simulated drives (:mod:`ncmeasure.sim.cia402`) open their buses here.
+The link and the simulated drives (:mod:`ncmeasure.sim.cia402`) open their buses here,
+and the link shuts its network down here (:func:`shut_down`).
 
 On python-can's ``virtual`` interface a bus that receives its own messages gets them
 back before any other bus on the channel sees them, as on a real bus, where the
@@ -13,6 +14,7 @@ put the answer into the previous cycle.
 
 from __future__ import annotations
 
+import logging
 import queue
 import time
 from collections.abc import Mapping
@@ -20,11 +22,14 @@ from copy import deepcopy
 from typing import Any
 
 import can
+import canopen
 from can.interfaces.virtual import VirtualBus
 
 from ncmeasure.errors import ConfigError, LinkError
 
-__all__ = ["open_bus"]
+__all__ = ["open_bus", "shut_down"]
+
+log = logging.getLogger(__name__)
 
 
 class _EchoFirstVirtualBus(VirtualBus):
@@ -81,3 +86,17 @@ def open_bus(channel: str | None, options: Mapping[str, Any], where: str) -> can
             f"cannot open the CAN interface {interface or '(python-can config)'} "
             f"channel {channel or '(default)'}: {exc}"
         ) from exc
+
+
+def shut_down(network: canopen.Network | None, bus: can.BusABC | None) -> None:
+    """Disconnect the network (and so its bus), else shut the bus down; never raises."""
+    if network is not None:
+        try:
+            network.disconnect()
+        except Exception as exc:
+            log.info("canopen link: network shutdown: %s", exc)
+    elif bus is not None:
+        try:
+            bus.shutdown()
+        except Exception as exc:
+            log.info("canopen link: bus shutdown: %s", exc)

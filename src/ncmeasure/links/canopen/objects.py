@@ -337,9 +337,16 @@ def build_dictionary(
     onwards, predefined COB-IDs, event-driven, nothing mapped) and every object
     of the map including fallbacks and the rated current.
     """
-    u8, u16, u32 = DATA_TYPES["uint8"][0], DATA_TYPES["uint16"][0], DATA_TYPES["uint32"][0]
     od = ObjectDictionary()  # type: ignore[no-untyped-call]
     od.node_id = node_id
+    _add_communication(od, node_id, tpdos)
+    _add_map_objects(od, object_map, rated_current_ma)
+    return od
+
+
+def _add_communication(od: ObjectDictionary, node_id: int, tpdos: int) -> None:
+    """0x1000, 0x1001, 0x1006, 0x1008, 0x1017, 0x1018 and ``tpdos`` TPDOs, nothing mapped."""
+    u8, u16, u32 = DATA_TYPES["uint8"][0], DATA_TYPES["uint16"][0], DATA_TYPES["uint32"][0]
     od.add_object(_variable("device type", 0x1000, 0, u32, "ro", 0x00020192))
     od.add_object(_variable("error register", 0x1001, 0, u8, "ro", 0))
     od.add_object(_variable("communication cycle period", 0x1006, 0, u32, "rw", 0))
@@ -383,6 +390,11 @@ def build_dictionary(
                 *(_variable(f"mapped object {k}", mapping, k, u32, "rw", 0) for k in range(1, 9)),
             ],
         )
+
+
+def _add_map_objects(od: ObjectDictionary, object_map: ObjectMap, rated_current_ma: int) -> None:
+    """Every object of the map, fallbacks and the rated current included."""
+    u8 = DATA_TYPES["uint8"][0]
     objects: list[MapObject] = []
     for role in (
         "statusword",
@@ -428,7 +440,6 @@ def build_dictionary(
                     *(make(o) for o in sorted(group, key=lambda o: o.subindex)),
                 ],
             )
-    return od
 
 
 def od_variable(od: ObjectDictionary, index: int, subindex: int) -> ODVariable | None:

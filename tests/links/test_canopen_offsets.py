@@ -1,5 +1,8 @@
 """`ncmeasure apply-compensation`: the reviewed torque offsets written to simulated CiA 402 drives.
 
+The writes are the links' (:mod:`ncmeasure.links.canopen.offsets`); the file is read by
+:mod:`ncmeasure.compensation.offset_file`.
+
 The drives are ncmeasure's simulated CiA 402 drives (:mod:`ncmeasure.sim.cia402`) on
 python-can's virtual bus, a channel of their own per test, in this process. The file
 is the one `ncmeasure compensation --controller cia402` writes; the machine file's
@@ -9,7 +12,6 @@ SDO time-out.
 
 from __future__ import annotations
 
-import tomllib
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -249,13 +251,6 @@ def test_the_link_settings_of_the_command_line(
     assert offset_of(drives.node(3)) == VALUE
     code, _, err = run("apply-compensation", offsets, "--machine", machine, "--set", "bitrate=0")
     assert code == 2 and "link.bitrate" in err
-
-
-def test_the_file_compensation_writes_is_what_apply_reads(offsets: Path) -> None:
-    from ncmeasure.compensation.apply import OffsetWrite, read_offset_file
-
-    assert read_offset_file(offsets) == [OffsetWrite("Z", 3, VALUE)]
-    assert tomllib.loads(offsets.read_text(encoding="utf-8"))["sdo_write"][0]["value"] == VALUE
 
 
 def test_help_teaches() -> None:

@@ -1,14 +1,13 @@
-"""Apply a reviewed CiA 402 compensation file: the torque offset 0x60B2:00 over SDO.
+"""The torque offset 0x60B2:00 of CiA 402 drives, written over SDO: ``apply-compensation``.
 
 ``ncmeasure compensation --controller cia402`` writes a list of SDO writes
-(``[[sdo_write]]``, TOML) for the user to review. This module reads that file
-back and writes it with the machine file's CANopen link settings, those
-``ncmeasure record`` uses (``[link]`` interface, channel, bitrate,
-bus_options, sdo_timeout_s; the axes' node ids):
+(``[[sdo_write]]``, TOML) for the user to review;
+:func:`~ncmeasure.compensation.offset_file.read_offset_file` reads it back as
+:class:`OffsetWrite` entries. This module writes them with the machine file's
+CANopen link settings, those ``ncmeasure record`` uses (``[link]`` interface,
+channel, bitrate, bus_options, sdo_timeout_s; the axes' node ids):
 
-* :func:`read_offset_file` takes the file apart and refuses anything but the
-  torque offset 0x60B2:00 as INTEGER16: the only object ncmeasure writes;
-* :func:`link_for_offsets` checks it against the machine file: a CANopen link
+* :func:`link_for_offsets` checks them against the machine file: a CANopen link
   that may send (not ``listen_only``), every axis in the file with the node id
   the machine file gives it;
 * :func:`apply_offsets` writes, per axis: the value before (an SDO upload), the
@@ -25,11 +24,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ncmeasure.config import MachineConfig, read_toml
+from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError, NcMeasureError
+
+if TYPE_CHECKING:
+    from ncmeasure.links.canopen.settings import CanOpenSettings
 
 __all__ = [
     "TORQUE_OFFSET",
@@ -37,15 +38,10 @@ __all__ = [
     "OffsetWritten",
     "apply_offsets",
     "link_for_offsets",
-    "read_offset_file",
 ]
 
 TORQUE_OFFSET = (0x60B2, 0)
 """CiA 402 torque offset, sub-index 0: INTEGER16, per mille of the rated torque."""
-INT16 = (-32768, 32767)
-MAX_OFFSET_PER_MILLE = 1000
-"""The largest torque offset written: the rated torque. More holds no axis up; it is a typo."""
-_KEYS = {"axis", "node_id", "index", "subindex", "data_type", "value"}
 _ABORT_READ_ONLY = 0x06010002
 
 
@@ -68,71 +64,13 @@ class OffsetWritten:
     after: int
 
 
-def read_offset_file(path: Path) -> list[OffsetWrite]:
-    """The torque offsets of a ``compensation --controller cia402`` file.
-
-    Raises:
-        ConfigError: Not such a file; an entry that writes another object, another
-            data type or a value outside INTEGER16; an axis or node id twice.
-    """
-    tables = read_toml(path, "a cia402 compensation file")
-    entries = tables.get("sdo_write")
-    if set(tables) != {"sdo_write"} or not isinstance(entries, list) or not entries:
-        raise ConfigError(
-            f"{path}: not a cia402 compensation file (one [[sdo_write]] table per axis, "
-            "from ncmeasure compensation --controller cia402)"
-        )
-    writes: list[OffsetWrite] = []
-    for number, entry in enumerate(entries, start=1):
-        where = f"{path}: [[sdo_write]] {number}"
-        if not isinstance(entry, dict) or set(entry) != _KEYS:
-            raise ConfigError(f"{where}: expected the keys {', '.join(sorted(_KEYS))}")
-        if (entry["index"], entry["subindex"]) != TORQUE_OFFSET:
-            raise ConfigError(
-                f"{where}: writes {_object(entry['index'], entry['subindex'])}; ncmeasure writes "
-                "only the torque offset 0x60B2:00"
-            )
-        if entry["data_type"] != "INTEGER16":
-            raise ConfigError(f"{where}: 0x60B2 is INTEGER16, not {entry['data_type']!r}")
-        axis, node_id, value = entry["axis"], entry["node_id"], entry["value"]
-        if not isinstance(axis, str) or not axis:
-            raise ConfigError(f"{where}: axis must be the axis name")
-        if not _is_int(node_id) or not 1 <= node_id <= 127:
-            raise ConfigError(f"{where}: node_id must be 1…127, not {node_id!r}")
-        if not _is_int(value) or not INT16[0] <= value <= INT16[1]:
-            raise ConfigError(f"{where}: value must be an INTEGER16, not {value!r}")
-        if abs(value) > MAX_OFFSET_PER_MILLE:
-            raise ConfigError(
-                f"{where}: value {value} is {value / 10:g} % of the rated torque; a gravity "
-                f"compensation stays within ±{MAX_OFFSET_PER_MILLE} (the rated torque): "
-                "check the file"
-            )
-        writes.append(OffsetWrite(axis, node_id, value))
-    for field in ("axis", "node_id"):
-        seen = [getattr(w, field) for w in writes]
-        twice = sorted({str(v) for v in seen if seen.count(v) > 1})
-        if twice:
-            raise ConfigError(f"{path}: {field} {', '.join(twice)} more than once")
-    return writes
-
-
-def _is_int(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
-def _object(index: Any, subindex: Any) -> str:
-    if _is_int(index) and _is_int(subindex):
-        return f"0x{index:04X}:{subindex:02X}"
-    return f"{index!r}:{subindex!r}"
-
-
 def link_for_offsets(
     writes: Sequence[OffsetWrite], machine: MachineConfig, overrides: Mapping[str, Any]
-) -> Any:
+) -> CanOpenSettings:
     """The machine file's CANopen link settings (with ``overrides``), checked for the writes.
 
     Returns:
-        The :class:`~ncmeasure.links.canopen.link.CanOpenSettings`.
+        The :class:`~ncmeasure.links.canopen.settings.CanOpenSettings`.
 
     Raises:
         ConfigError: The machine file's link is not CANopen or only listens; its link
@@ -142,7 +80,7 @@ def link_for_offsets(
     from pydantic import ValidationError
 
     from ncmeasure.config import format_validation_error
-    from ncmeasure.links.canopen.link import CanOpenSettings
+    from ncmeasure.links.canopen.settings import CanOpenSettings
 
     table = dict(machine.link or {})
     link_type = table.pop("type", None)
@@ -184,14 +122,14 @@ def link_for_offsets(
 
 def apply_offsets(
     writes: Sequence[OffsetWrite],
-    settings: Any,
+    settings: CanOpenSettings,
     *,
     on_written: Callable[[OffsetWritten], None] | None = None,
 ) -> list[OffsetWritten]:
     """Write each torque offset over SDO: read it, write it, read it back.
 
     Args:
-        writes: From :func:`read_offset_file`.
+        writes: From :func:`~ncmeasure.compensation.offset_file.read_offset_file`.
         settings: From :func:`link_for_offsets`.
         on_written: Called after each verified write.
 
@@ -208,11 +146,7 @@ def apply_offsets(
     from ncmeasure.links.canopen.bus import open_bus
     from ncmeasure.links.canopen.objects import sdo_error_text
 
-    options: dict[str, Any] = dict(settings.bus_options)
-    if settings.interface is not None:
-        options["interface"] = settings.interface
-    options["bitrate"] = settings.bitrate
-    bus = open_bus(settings.channel, options, "link.interface")
+    bus = open_bus(settings.channel, settings.bus_kwargs(), "link.interface")
     network = canopen.Network(bus)
     network.NOTIFIER_CYCLE = 0.1  # bounds how long disconnect waits for the receive thread
     done: list[OffsetWritten] = []

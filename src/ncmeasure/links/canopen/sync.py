@@ -1,0 +1,407 @@
+"""SYNC: the link's own SYNC production, and rows from PDO frames cycle by SYNC cycle.
+
+The producer (:class:`SyncProducer`) keeps time by the link's
+:class:`~ncmeasure.samples.LinkClock`. Real time for real drives: SYNC ``k``
+goes out at ``k × period`` (:func:`run_sync_schedule`); when the host wakes so
+late that the next cycle is due already, it skips the missed cycles instead of
+sending them in a burst, and counts them. With ncmeasure's own simulated drives
+on a :class:`~ncmeasure.samples.SimulatedClock` it runs in lockstep: SYNC ``k``
+goes out at simulated time ``k × period``, the drives answer with the machine
+state of that time, and SYNC ``k + 1`` waits until the link has received all
+they sent, however slow the computer is.
+
+The assembler (:class:`CycleAssembler`) makes rows from PDO frames: which SYNC
+cycle a frame belongs to, and which cycles are lost. A drive samples its values
+when it sees SYNC and sends its synchronous TPDOs before the next SYNC. So, in
+the order frames travel on the bus, a PDO frame belongs to the SYNC that came
+before it. The link therefore feeds the assembler in bus order: every frame as
+it is received, and every SYNC as it is *seen on the bus* (its own SYNC comes
+back through the receive stream, python-can's ``receive_own_messages``), never
+as it is sent. A frame that the host receives late still counts in its own
+cycle, because the next SYNC is behind it in the same stream.
+
+A row holds the values of one SYNC cycle only. A cycle is final when the next
+SYNC is seen: complete, it becomes a row; otherwise it is lost. Where the cycle
+of a frame cannot be told, the cycle is dropped and counted as lost, never
+shifted or filled:
+
+* a second frame of the same PDO before the next SYNC (the first one was a
+  cycle late);
+* a drive's frames out of their usual order: a drive sends its TPDOs in the
+  same order every cycle (the lower COB-ID wins the bus), so a frame that comes
+  before one it usually follows was sent for the cycle before, after its SYNC.
+  That is how a drive that answers one TPDO late, cycle after cycle, shows:
+  each cycle would otherwise look complete with one value a cycle old. The
+  usual order is learned from the first complete cycle.
+"""
+
+from __future__ import annotations
+
+import collections
+import functools
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Literal, cast
+
+import can
+import canopen
+
+from ncmeasure.errors import LinkError
+from ncmeasure.samples import LinkClock, SimulatedClock
+
+__all__ = [
+    "CycleAssembler",
+    "ForeignSync",
+    "LossReason",
+    "LostCycle",
+    "SyncProducer",
+    "no_echo_error",
+    "run_sync_schedule",
+]
+
+LossReason = Literal["missing", "no_sync", "doubled"]
+
+
+@dataclass(frozen=True)
+class LostCycle:
+    """A SYNC cycle that will not become a row."""
+
+    cycle: int
+    missing: frozenset[int]
+    """PDO slots without data (all when no SYNC was seen), or the slots whose cycle
+    could not be told."""
+    reason: LossReason = "missing"
+    """``missing``: slots without a frame; ``no_sync``: no SYNC for this cycle on the bus;
+    ``doubled``: frames whose cycle cannot be told (twice, or out of their order)."""
+
+    @property
+    def no_sync(self) -> bool:
+        """True when the cycle had no SYNC on the bus."""
+        return self.reason == "no_sync"
+
+
+class CycleAssembler:
+    """Collect PDO frames, in bus order, into rows keyed by SYNC cycle.
+
+    Args:
+        slots: Number of PDO slots (every TPDO of every node).
+        groups: The node (any label) of every slot; slots of one node keep an order.
+
+    Not thread-safe: the link calls it under its lock, from the thread that
+    receives the bus (frames and SYNCs in the order they were received).
+    """
+
+    def __init__(self, slots: int, groups: Sequence[int] | None = None) -> None:
+        if slots < 1:
+            raise ValueError("slots must be positive")
+        groups = list(groups) if groups is not None else list(range(slots))
+        if len(groups) != slots:
+            raise ValueError("one group per slot")
+        self.slots = slots
+        self._groups = groups
+        self.newest = -1
+        """The cycle of the newest SYNC seen (-1 before the first)."""
+        self.early_frames = 0
+        """Frames that came before the first SYNC (they belong to no cycle of this link)."""
+        self._group_index = [sorted(set(groups)).index(g) for g in groups]
+        self._order: list[tuple[int, int]] | None = None
+        """Per slot, its node's index and its usual position among the node's frames
+        (learned from the first complete cycle); None before."""
+        self._arrival: list[int] = []
+        self._row: list[bytes | None] = [None] * slots
+        self._filled = 0
+        self._doubted: set[int] = set()
+        self._last = [-1] * (max(self._group_index) + 1)
+        self._rows: list[tuple[int, list[bytes]]] = []
+        self._lost: list[LostCycle] = []
+
+    def sync(self, cycle: int) -> None:
+        """The SYNC of ``cycle`` was seen on the bus: the cycle before it is final.
+
+        Cycles between the previous SYNC and this one had no SYNC on the bus.
+
+        Raises:
+            ValueError: ``cycle`` is not later than the newest SYNC.
+        """
+        if cycle <= self.newest:
+            raise ValueError(f"SYNC cycle {cycle} after {self.newest}")
+        if self.newest >= 0:
+            self._finish_newest()
+            if cycle > self.newest + 1:
+                everything = frozenset(range(self.slots))
+                self._lost.extend(
+                    LostCycle(skipped, everything, "no_sync")
+                    for skipped in range(self.newest + 1, cycle)
+                )
+        self.newest = cycle
+
+    def frame(self, slot: int, data: bytes) -> None:
+        """A frame of PDO ``slot`` was received: it belongs to the newest SYNC's cycle."""
+        if self.newest < 0:
+            self.early_frames += 1
+            return
+        row = self._row
+        order = self._order
+        if order is None:  # the order is not learned yet
+            self._arrival.append(slot)
+            if row[slot] is not None:
+                self._doubted.add(slot)  # twice in one cycle
+                return
+        else:
+            group, rank = order[slot]
+            last = self._last
+            if row[slot] is not None or rank < last[group]:
+                # twice in one cycle, or before a frame it usually follows: a cycle late
+                self._doubted.add(slot)
+                if row[slot] is not None:
+                    return
+            else:
+                last[group] = rank
+        row[slot] = data
+        self._filled += 1
+
+    def take(self) -> tuple[list[tuple[int, list[bytes]]], list[LostCycle]]:
+        """The rows and lost cycles that became final since the last call, each in cycle order."""
+        rows, self._rows = self._rows, []
+        lost, self._lost = self._lost, []
+        return rows, lost
+
+    def _finish_newest(self) -> None:
+        cycle = self.newest
+        if self._doubted:
+            self._lost.append(LostCycle(cycle, frozenset(self._doubted), "doubled"))
+        elif self._filled == self.slots:
+            self._rows.append((cycle, self._row))  # type: ignore[arg-type]  # all filled
+            self._learn_order()
+        else:
+            missing = frozenset(i for i, data in enumerate(self._row) if data is None)
+            self._lost.append(LostCycle(cycle, missing))
+        self._row = [None] * self.slots
+        self._filled = 0
+        if self._doubted:
+            self._doubted = set()
+        self._last = [-1] * len(self._last)
+        self._arrival = []
+
+    def _learn_order(self) -> None:
+        """The first complete cycle shows each node's order of frames."""
+        if self._order is not None:
+            return
+        order: dict[int, dict[int, int]] = {}
+        for slot in self._arrival:
+            positions = order.setdefault(self._groups[slot], {})
+            positions.setdefault(slot, len(positions))
+        self._order = [
+            (self._group_index[slot], order[self._groups[slot]][slot]) for slot in range(self.slots)
+        ]
+
+
+def run_sync_schedule(
+    period_s: float,
+    now: Callable[[], float],
+    wait: Callable[[float], bool],
+    send: Callable[[int], None],
+    skip: Callable[[int, int], None],
+) -> None:
+    """Produce SYNC cycle ``k`` at ``start + k × period_s``, never in a burst, until stopped.
+
+    The schedule is absolute, so the period holds on average however late a
+    wake-up is. When the producer wakes so late that the next cycle is due
+    already (a host stall), it does not send the missed cycles one after the
+    other to catch up: the drives sample on SYNC, and a burst would stamp
+    their samples wrongly. It skips them and sends the newest due cycle.
+
+    Args:
+        period_s: The SYNC period on the clock of ``now``.
+        now: The clock.
+        wait: Waits that long; True when the producer must stop.
+        send: Sends the SYNC of a cycle (the first is cycle 0, at ``now()`` on entry).
+        skip: Called with the first skipped cycle and how many were skipped.
+    """
+    start = now()
+    cycle = 0
+    while True:
+        delay = start + cycle * period_s - now()
+        if delay > 0 and wait(delay):
+            return
+        newest = int((now() - start) / period_s)
+        if newest > cycle:  # the next cycle is due already: skip, never a burst
+            skip(cycle, newest - cycle)
+            cycle = newest
+        send(cycle)
+        cycle += 1
+        if delay <= 0 and wait(0.0):
+            return
+
+
+class SyncProducer:
+    """The link's own SYNC: cycle ``k`` at ``k × period`` of the link clock, until stopped.
+
+    Args:
+        network: The link's network (its bus and send lock).
+        clock: The link clock: real time, or a :class:`~ncmeasure.samples.SimulatedClock`
+            for lockstep with simulated drives.
+        period_s: The SYNC period on that clock.
+        stop: Set when the link closes.
+        cond: The link's condition; lockstep waits on it for ``cycle_received``.
+        cycle_received: Lockstep: called with a cycle and the drives' frame count
+            (``cond`` held), true once the next SYNC may go out.
+        skipped: Called with the first skipped cycle and how many were skipped.
+        started: Called with the clock time of cycle 0 (real time).
+        failed: Called with the error that ends the production.
+        step_timeout_s: Lockstep: the longest wall-clock wait for the drives' answer.
+    """
+
+    def __init__(
+        self,
+        network: canopen.Network,
+        clock: LinkClock,
+        period_s: float,
+        stop: threading.Event,
+        *,
+        cond: threading.Condition,
+        cycle_received: Callable[[int, int], bool],
+        skipped: Callable[[int, int], None],
+        started: Callable[[float], None],
+        failed: Callable[[LinkError], None],
+        step_timeout_s: float,
+    ) -> None:
+        self._network = network
+        self._clock = clock
+        self._period = period_s
+        self._stop = stop
+        self._cond = cond
+        self._cycle_received = cycle_received
+        self._skipped = skipped
+        self._started = started
+        self._failed = failed
+        self._step_timeout_s = step_timeout_s
+        self._message = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
+        self.sent: collections.deque[int] = collections.deque()
+        """Cycles of own SYNCs sent and not yet seen back, in order."""
+        self.sent_cycle = -1
+        """The newest cycle sent."""
+
+    def run(self) -> None:
+        """Send SYNC cycle k at ``k × period`` on the link clock (real time or lockstep).
+
+        A SYNC that cannot be sent, or (lockstep) drives that do not answer, end it
+        with a LinkError for ``failed``.
+        """
+        try:
+            if self._clock.lockstep:
+                self._produce_in_lockstep()
+            else:
+                self._produce_in_real_time()
+        except LinkError as exc:
+            self._failed(exc)
+
+    def seen(self) -> int | None:
+        """An own SYNC came back through the receive stream: its cycle (None: not ours)."""
+        return self.sent.popleft() if self.sent else None
+
+    def _send(self, cycle: int) -> None:
+        network = self._network
+        assert network.bus is not None
+        # Not under the link's lock: the receive thread holds it while it assembles
+        # frames, and on a busy host a SYNC waiting for it came late and was skipped.
+        # A deque's append is atomic, and it comes before the send, so the receive
+        # thread finds the cycle when it sees the SYNC.
+        self.sent.append(cycle)
+        self.sent_cycle = cycle
+        try:
+            with network.send_lock:  # SDO transfers of the worker share the bus
+                network.bus.send(self._message)
+        except Exception as exc:
+            raise LinkError(f"cannot send SYNC: {exc}") from exc
+
+    def _produce_in_real_time(self) -> None:
+        """SYNC k at ``k × period`` of the clock; a stall skips cycles (counted), never a burst.
+
+        The skipped cycles have no SYNC on the bus, so they come out as a ``gap`` event
+        ("SYNC cycles not sent (the host fell behind)") with their number.
+        """
+        clock = self._clock
+        self._started(clock.now())
+        run_sync_schedule(
+            self._period,
+            clock.now,
+            lambda delay: self._stop.wait(clock.wall(delay)),
+            self._send,
+            self._skipped,
+        )
+
+    def _produce_in_lockstep(self) -> None:
+        """SYNC k at simulated time k × period; SYNC k + 1 once all of cycle k is received.
+
+        The simulated drives report each SYNC answered and how many frames they sent
+        (:meth:`~ncmeasure.samples.SimulatedClock.step_done`); the next SYNC waits until
+        the link has received them all, until no drive is being configured again, and
+        until the reader has taken the rows, so the recording does not depend on how fast
+        the threads run.
+        """
+        clock = cast(SimulatedClock, self._clock)
+        cycle = 0
+        while not self._stop.is_set():
+            clock.advance_to(cycle * self._period)
+            self._send(cycle)
+            sent = self._wait_for_drives(clock, cycle)
+            if sent is None:
+                return
+            with self._cond:
+                ready = self._cond.wait_for(
+                    functools.partial(self._cycle_received, cycle, sent), self._step_timeout_s
+                )
+            if not ready:
+                raise LinkError(
+                    f"SYNC cycle {cycle}: the simulated drives' frames did not arrive within "
+                    f"{self._step_timeout_s:g} s"
+                )
+            cycle += 1
+
+    def _wait_for_drives(self, clock: SimulatedClock, cycle: int) -> int | None:
+        """The simulated drives' frame count after answering ``cycle``; None when stopping."""
+        deadline = time.monotonic() + self._step_timeout_s
+        while not self._stop.is_set():
+            sent = clock.wait_step(cycle, 0.1)
+            if sent is not None:
+                return sent
+            if time.monotonic() > deadline:
+                raise LinkError(
+                    f"the simulated drives did not answer SYNC cycle {cycle} within "
+                    f"{self._step_timeout_s:g} s; a link on a SimulatedClock needs simulated "
+                    "drives on the same clock (SimulatedDrives.start(..., clock=clock))"
+                )
+        return None
+
+
+def no_echo_error(interface: str | None) -> LinkError:
+    """The link's own SYNC did not come back through the receive stream."""
+    return LinkError(
+        f"the CAN interface {interface or '(python-can config)'} does not "
+        "return the link's own SYNC frames (python-can receive_own_messages); the link "
+        "needs them to give every PDO to its SYNC cycle. Use an interface that does "
+        "(socketcan, pcan, kvaser, vector, ixxat, virtual, ...), or let the controller "
+        "produce SYNC (link.sync_producer = false)"
+    )
+
+
+class ForeignSync:
+    """SYNC of another master: cycles counted, missing ones noticed by the frames' time stamps."""
+
+    def __init__(self) -> None:
+        self._last: float | None = None
+
+    def step(self, timestamp: float, wall_period_s: float) -> int:
+        """How many cycles on from the previous SYNC this one is (1: none missing).
+
+        Args:
+            timestamp: The frame's time stamp (wall clock).
+            wall_period_s: The SYNC period on the wall clock.
+        """
+        previous, self._last = self._last, timestamp
+        if previous is None:
+            return 1
+        return max(1, round((timestamp - previous) / wall_period_s))
