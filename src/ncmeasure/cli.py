@@ -2590,8 +2590,8 @@ def apply_compensation_command(
 
     Example: ncmeasure apply-compensation z-offset.toml --machine machine.toml --yes
     """
-    from ncmeasure.compensation.offset_file import read_offset_file
     from ncmeasure.config import load_machine
+    from ncmeasure.formats.offsets import read_offset_file
     from ncmeasure.links.canopen.offsets import apply_offsets, link_for_offsets
 
     writes = read_offset_file(file)

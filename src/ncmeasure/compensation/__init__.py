@@ -6,7 +6,7 @@ each axis and direction out of ``results.json`` (pure numpy);
 controller through the templates under ``templates/compensation/``: the
 TwinCAT CNC friction table, a LinuxCNC HAL snippet, the CiA 402 torque
 offset 0x60B2 of vertical axes. ``docs/shop-floor.md`` shows each.
-:func:`~ncmeasure.compensation.offset_file.read_offset_file` reads a reviewed
+:func:`~ncmeasure.formats.offsets.read_offset_file` reads a reviewed
 cia402 file back; ``apply-compensation`` writes it over CANopen
 (:mod:`ncmeasure.links.canopen.offsets`): this package reads and writes files only.
 """

@@ -2,7 +2,7 @@
 
 ``ncmeasure compensation --controller cia402`` writes a list of SDO writes
 (``[[sdo_write]]``, TOML) for the user to review;
-:func:`~ncmeasure.compensation.offset_file.read_offset_file` reads it back as
+:func:`~ncmeasure.formats.offsets.read_offset_file` reads it back as
 :class:`OffsetWrite` entries. This module writes them with the machine file's
 CANopen link settings, those ``ncmeasure record`` uses (``[link]`` interface,
 channel, bitrate, bus_options, sdo_timeout_s; the axes' node ids):
@@ -28,31 +28,18 @@ from typing import TYPE_CHECKING, Any
 
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError, NcMeasureError
+from ncmeasure.formats.offsets import TORQUE_OFFSET, OffsetWrite
 
 if TYPE_CHECKING:
     from ncmeasure.links.canopen.settings import CanOpenSettings
 
 __all__ = [
-    "TORQUE_OFFSET",
-    "OffsetWrite",
     "OffsetWritten",
     "apply_offsets",
     "link_for_offsets",
 ]
 
-TORQUE_OFFSET = (0x60B2, 0)
-"""CiA 402 torque offset, sub-index 0: INTEGER16, per mille of the rated torque."""
 _ABORT_READ_ONLY = 0x06010002
-
-
-@dataclass(frozen=True)
-class OffsetWrite:
-    """One ``[[sdo_write]]`` of the file: the torque offset of one axis' drive."""
-
-    axis: str
-    node_id: int
-    value: int
-    """Per mille of the rated torque (0x6076)."""
 
 
 @dataclass(frozen=True)
@@ -129,7 +116,7 @@ def apply_offsets(
     """Write each torque offset over SDO: read it, write it, read it back.
 
     Args:
-        writes: From :func:`~ncmeasure.compensation.offset_file.read_offset_file`.
+        writes: From :func:`~ncmeasure.formats.offsets.read_offset_file`.
         settings: From :func:`link_for_offsets`.
         on_written: Called after each verified write.
 

@@ -5,9 +5,8 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-from ncmeasure.analysis.analyze import write_results
-from ncmeasure.compensation.offset_file import read_offset_file
-from ncmeasure.links.canopen.offsets import OffsetWrite
+from ncmeasure.formats.offsets import OffsetWrite, read_offset_file
+from ncmeasure.formats.results import write_results
 from tests.compensation.example import example_results
 from tests.links.test_canopen_offsets import VALUE, machine_text, run
 

@@ -1,4 +1,4 @@
-"""The reviewed torque offsets of ``compensation --controller cia402``, read back.
+"""The torque offsets of ``compensation --controller cia402``: the file, and reading it back.
 
 ``ncmeasure compensation --controller cia402`` writes a list of SDO writes
 (``[[sdo_write]]``, TOML) for the user to review. :func:`read_offset_file`
@@ -10,14 +10,28 @@ then writes the entries over CANopen
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ncmeasure.config import read_toml
 from ncmeasure.errors import ConfigError
-from ncmeasure.links.canopen.offsets import TORQUE_OFFSET, OffsetWrite
+from ncmeasure.inputs import MAX_TOML_BYTES, parse_toml, read_text
 
-__all__ = ["read_offset_file"]
+__all__ = ["TORQUE_OFFSET", "OffsetWrite", "read_offset_file"]
+
+TORQUE_OFFSET = (0x60B2, 0)
+"""CiA 402 torque offset, sub-index 0: INTEGER16, per mille of the rated torque."""
+
+
+@dataclass(frozen=True)
+class OffsetWrite:
+    """One ``[[sdo_write]]`` of the file: the torque offset of one axis' drive."""
+
+    axis: str
+    node_id: int
+    value: int
+    """Per mille of the rated torque (0x6076)."""
+
 
 INT16 = (-32768, 32767)
 MAX_OFFSET_PER_MILLE = 1000
@@ -32,7 +46,9 @@ def read_offset_file(path: Path) -> list[OffsetWrite]:
         ConfigError: Not such a file; an entry that writes another object, another
             data type or a value outside INTEGER16; an axis or node id twice.
     """
-    tables = read_toml(path, "a cia402 compensation file")
+    tables = parse_toml(
+        read_text(path, "a cia402 compensation file (.toml)", MAX_TOML_BYTES), str(path)
+    )
     entries = tables.get("sdo_write")
     if set(tables) != {"sdo_write"} or not isinstance(entries, list) or not entries:
         raise ConfigError(
