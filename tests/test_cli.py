@@ -298,10 +298,10 @@ def test_example_machines_are_data_files_that_validate() -> None:
 
 
 def test_set_values_python_cannot_read_as_toml_stay_text() -> None:
-    from ncmeasure.cli import _settings
+    from ncmeasure.cli._options import settings
 
     huge, deep = "1" * 5000, "[" * 1000 + "]" * 1000
-    assert _settings([f"a={huge}", f"b={deep}", "c=5"]) == {"a": huge, "b": deep, "c": 5}
+    assert settings([f"a={huge}", f"b={deep}", "c=5"]) == {"a": huge, "b": deep, "c": 5}
 
 
 def _edit_schedule(folder: Path, **changes: object) -> None:
