@@ -282,6 +282,28 @@ def test_debug_anywhere_shows_the_traceback_and_keeps_the_exit_code(
     )
 
 
+def test_a_table_is_whole_when_the_output_is_not_a_terminal(tmp_path: Path) -> None:
+    """`ncmeasure plan m.toml > plan.txt` cut the table to 80 columns (cells like `ti…`);
+    CliRunner's output is not a terminal either. 40 positions: a cell of 300 characters."""
+    machine = tmp_path / "m.toml"
+    text = example_machine("sinumerik-840d")
+    machine.write_text(text.replace("positions = 3 ", "positions = 40 ", 1))
+    code, out, _ = run("plan", machine, "--json")
+    assert code == 0
+    axes = json.loads(out)["axes"]
+    code, out, _ = run("plan", machine)
+    assert code == 0, out
+    lines = out.splitlines()
+    assert lines[1].split() == [
+        "axis", "positions", "mm", "steps", "mm/min", "run-up", "windows", "time", "full",
+        "travel",
+    ]  # fmt: skip
+    for axis, line in zip(axes, lines[2:5], strict=True):
+        positions = ", ".join(f"{p:g}" for p in axis["nominal_positions_mm"])
+        assert len(positions) > 250 and positions in line, line
+        assert line.count("…") == 1, line  # the velocity range's own: 10 … 15000
+
+
 def test_example_machines_are_data_files_that_validate() -> None:
     """init's and the demo's machines come from data files of the package and are valid."""
     import tomllib

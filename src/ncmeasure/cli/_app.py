@@ -89,17 +89,26 @@ publish_app = typer.Typer(
 )
 app.add_typer(publish_app, name="publish")
 
+NOT_A_TERMINAL_WIDTH = 1_000_000
+"""The console's width when its output is not a terminal (a file, a pipe): so wide that
+a table is never cut. A terminal keeps its own width."""
+
 
 @functools.cache
 def console(stderr: bool = False) -> "Console":
     """The console on stdout (or stderr), made at its first use: ``--help`` needs no rich.
 
     No markup: messages carry user text (machine names, paths, controller names) that
-    may hold square brackets; styled parts are rich Text objects.
+    may hold square brackets; styled parts are rich Text objects. Output that is not
+    a terminal (``ncmeasure plan m.toml > plan.txt``) is never cut to a width: rich
+    would fit tables to 80 columns and shorten their cells to ``ti…``.
     """
     from rich.console import Console
 
-    return Console(stderr=stderr, highlight=False, soft_wrap=True, markup=False)
+    made = Console(stderr=stderr, highlight=False, soft_wrap=True, markup=False)
+    if not made.is_terminal:
+        made.width = NOT_A_TERMINAL_WIDTH
+    return made
 
 
 _state = {"debug": False}
