@@ -282,6 +282,39 @@ def test_debug_anywhere_shows_the_traceback_and_keeps_the_exit_code(
     )
 
 
+BUG_LINE = (
+    "error: unexpected KeyError: 'axes'; this is a bug: please report it to the ncmeasure "
+    "maintainers with the output of the same command with --debug"
+)
+
+
+@pytest.mark.parametrize(
+    ("target", "args"),
+    [
+        ("ncmeasure.program.check_programs", ["check", "out"]),
+        ("ncmeasure.analysis.analyze.load_results", ["compare", "a.json", "b.json"]),
+    ],
+    ids=["check", "compare"],
+)
+def test_a_bug_has_its_own_exit_code_and_asks_for_a_report(
+    target: str, args: list[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An error nobody wrapped (a bug) is not 1, what check and compare say about the
+    machine: a script gating on `compare` must not read a crash as a warning."""
+
+    def broken(*_: object, **__: object) -> None:
+        {}["axes"]
+
+    monkeypatch.setattr(target, broken)
+    result = runner.invoke(app, args)
+    assert result.exit_code == 70, result.output
+    assert result.stderr.splitlines() == [BUG_LINE]
+    result = runner.invoke(app, [*args, "--debug"])
+    assert result.exit_code == 70, result.output
+    assert "Traceback" in result.stderr and result.stderr.splitlines()[-1] == BUG_LINE
+    assert "in broken" in result.stderr
+
+
 def test_a_table_is_whole_when_the_output_is_not_a_terminal(tmp_path: Path) -> None:
     """`ncmeasure plan m.toml > plan.txt` cut the table to 80 columns (cells like `ti…`);
     CliRunner's output is not a terminal either. 40 positions: a cell of 300 characters."""
@@ -405,7 +438,7 @@ def test_a_flood_of_problems_is_printed_capped(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_a_stopped_generate_leaves_the_folder_as_it_was(sig: int, tmp_path: Path) -> None:
-    """Stopped while it renders (timeout, CI, systemd, Ctrl-C): exit 3, no staging folder."""
+    """Stopped while it renders (timeout, CI, systemd, Ctrl-C): exit 130, no staging folder."""
     data = tomllib.loads(example_machine("linuxcnc"))
     data["axes"] = data["axes"][:1]
     data["measurement"].update(velocity_steps=500, positions=20)  # 20 000 windows
@@ -431,7 +464,7 @@ def test_a_stopped_generate_leaves_the_folder_as_it_was(sig: int, tmp_path: Path
         _, stderr = process.communicate(timeout=120)
     finally:
         process.kill()
-    assert process.returncode == 3, stderr
+    assert process.returncode == 130, stderr
     assert "interrupted" in stderr and "Traceback" not in stderr
     assert [p.name for p in out.iterdir()] == ["notes.txt"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.toml", "out"]

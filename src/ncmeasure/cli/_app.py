@@ -1,8 +1,10 @@
 """The typer apps, the exit codes, the console and the one error wrapper of every command.
 
 The CLI owns the console (rich) and is the only place that turns errors into
-exit codes: 0 success, 1 a check found problems, 2 bad input (machine file,
-options, paths). ``--debug`` shows tracebacks; nobody else ever sees one.
+exit codes: 0 success, 1 a check found problems (or a warning limit crossed),
+2 bad input (machine file, options, paths), 3 a critical limit crossed, 4 a
+drive link failed, 70 a bug (an error nobody foresaw), 130 stopped by
+Ctrl-C/SIGTERM. ``--debug`` shows tracebacks; nobody else ever sees one.
 """
 
 import functools
@@ -15,6 +17,7 @@ import traceback
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
+import click
 import typer
 
 from ncmeasure._version import __version__
@@ -28,10 +31,22 @@ EXIT_CHECK_FAILED = 1
 """A check found problems (check), a warning limit was crossed (compare)."""
 EXIT_BAD_INPUT = 2
 """Bad input: a machine file, an option, a path, a file that cannot be read or written."""
-EXIT_INTERRUPTED = 3
-"""Stopped by Ctrl-C/SIGTERM (what was recorded is kept); compare: a critical limit crossed."""
+EXIT_CRITICAL = 3
+"""A critical limit was crossed (compare, store check, store report)."""
 EXIT_LINK = 4
 """A drive link failed (bus, network, drive, simulated drive)."""
+EXIT_SOFTWARE = 70
+"""An error nobody foresaw: a bug of ncmeasure or an error of a library it did not wrap
+(EX_SOFTWARE of sysexits.h). Never 1: a script gating on ``compare`` must not read a
+crash as a warning."""
+EXIT_INTERRUPTED = 130
+"""Stopped by Ctrl-C/SIGTERM (what was recorded is kept): 128 + SIGINT, as shells say it."""
+
+BUG_REPORT = (
+    "this is a bug: please report it to the ncmeasure maintainers with the output of "
+    "the same command with --debug"
+)
+"""What the one line of an unexpected error asks for (the project names no issue tracker)."""
 
 Outcome = Literal["ok", "problems", "warning", "critical", "interrupted", "link_lost"]
 """What a command reports besides an error; :func:`handle_errors` turns it into the exit code."""
@@ -39,7 +54,7 @@ _OUTCOME_EXIT: dict[str, int] = {
     "ok": EXIT_OK,
     "problems": EXIT_CHECK_FAILED,
     "warning": EXIT_CHECK_FAILED,
-    "critical": EXIT_INTERRUPTED,
+    "critical": EXIT_CRITICAL,
     "interrupted": EXIT_INTERRUPTED,
     "link_lost": EXIT_LINK,
 }
@@ -53,8 +68,9 @@ app = typer.Typer(
         "`ncmeasure generate machine.toml -o programs/` and `ncmeasure check programs/`.\n\n"
         "New here? `ncmeasure demo` runs the whole pipeline on a virtual machine in about 20 s.\n\n"
         "Exit codes: 0 done; 1 a check found problems or a warning limit was crossed; "
-        "2 bad input; 3 stopped by Ctrl-C/SIGTERM or a critical limit crossed; 4 a drive link "
-        "failed. --debug (anywhere on the line) shows tracebacks."
+        "2 bad input; 3 a critical limit crossed; 4 a drive link failed; 70 a bug in "
+        "ncmeasure (please report it); 130 stopped by Ctrl-C/SIGTERM. --debug (anywhere on "
+        "the line) shows tracebacks."
     ),
     no_args_is_help=True,
     add_completion=False,
@@ -160,6 +176,24 @@ def report_error(error: NcMeasureError) -> None:
         console(stderr=True).print(Text("\n".join(lines)), soft_wrap=True)
 
 
+def _report_bug(error: Exception) -> None:
+    """One line for an error nobody foresaw: what happened, and the bug report to file."""
+    from rich.text import Text
+
+    what = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
+    console(stderr=True).print(
+        Text.assemble(("error:", "bold red"), f" unexpected {what}; {BUG_REPORT}"),
+        soft_wrap=True,
+    )
+
+
+def _print_traceback(error: BaseException) -> None:
+    from rich.text import Text
+
+    trace = Text("".join(traceback.format_exception(error)))
+    console(stderr=True).print(trace, soft_wrap=True)
+
+
 _DEBUG_OPTION = Annotated[
     bool,
     typer.Option(
@@ -167,14 +201,24 @@ _DEBUG_OPTION = Annotated[
     ),
 ]
 
+_CLICK_EXITS = (
+    click.exceptions.ClickException,
+    click.exceptions.Exit,
+    click.exceptions.Abort,
+    typer.Exit,
+    typer.Abort,
+)
+"""How click and typer end a command themselves: they pass the wrapper untouched."""
+
 
 def handle_errors(func: Callable[..., Outcome | None]) -> Callable[..., None]:
     """Run a command's body: the one place where errors and outcomes become exit codes.
 
     A command body raises :class:`~ncmeasure.errors.NcMeasureError` for anything
     that goes wrong and may return an :data:`Outcome`; no command decides an exit
-    code itself. ``--debug`` is accepted after the command name too, and shows
-    the traceback of an error without changing its exit code.
+    code itself. Any other exception is a bug: one line asks for a report, exit
+    code :data:`EXIT_SOFTWARE`. ``--debug`` is accepted after the command name too,
+    and shows the traceback of an error without changing its exit code.
     """
 
     @functools.wraps(func)
@@ -187,14 +231,18 @@ def handle_errors(func: Callable[..., Outcome | None]) -> Callable[..., None]:
         except NcMeasureError as exc:
             report_error(exc)
             if _state["debug"]:
-                from rich.text import Text
-
-                trace = Text("".join(traceback.format_exception(exc)))
-                console(stderr=True).print(trace, soft_wrap=True)
+                _print_traceback(exc)
             raise typer.Exit(_exit_code(exc)) from None
         except KeyboardInterrupt:
             console(stderr=True).print("interrupted")
             raise typer.Exit(EXIT_INTERRUPTED) from None
+        except _CLICK_EXITS:
+            raise
+        except Exception as exc:  # a bug, or a library's error that nobody wrapped
+            if _state["debug"]:
+                _print_traceback(exc)
+            _report_bug(exc)
+            raise typer.Exit(EXIT_SOFTWARE) from None
         finally:
             restore_signals(previous)
         code = _OUTCOME_EXIT[outcome or "ok"]
@@ -251,7 +299,7 @@ def _interrupt(signum: int, frame: object) -> None:
 
 def _interrupt_on_sigterm() -> dict[int, Any]:
     """SIGTERM (a timeout, CI, systemd) stops a command like Ctrl-C: its cleanup runs
-    (no staging folder is left) and it exits with code 3. Returns the handler to restore."""
+    (no staging folder is left) and it exits with code 130. Returns the handler to restore."""
     if threading.current_thread() is not threading.main_thread():
         return {}
     return {signal.SIGTERM: signal.signal(signal.SIGTERM, _interrupt)}

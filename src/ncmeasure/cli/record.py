@@ -153,7 +153,7 @@ def record_command(
 
     Stops after --duration, at the end of --schedule, at the end of a replay, or on
     Ctrl-C/SIGTERM; every way of stopping closes the recording with what was received.
-    Exit code 0: complete; 2: bad input; 3: stopped by Ctrl-C/SIGTERM; 4: the link failed.
+    Exit code 0: complete; 2: bad input; 4: the link failed; 130: stopped by Ctrl-C/SIGTERM.
 
     A file from `ncmeasure init` names no drives: --node (CANopen) or --unit (Modbus)
     gives each axis its drive, --axis-set the rest of its link table.
