@@ -14,7 +14,10 @@ One module per group of commands, each declaring its options and calling the lib
 
 :mod:`~ncmeasure.cli._app` holds the typer apps, the exit codes, the console and the
 one error wrapper every command runs in; :mod:`~ncmeasure.cli._options` the options
-several commands share; :mod:`~ncmeasure.cli._startup` the start-up tricks.
+several commands share and the reading of their values; :mod:`~ncmeasure.cli._fleet`
+the store and the broker as analyze, store and publish open them;
+:mod:`~ncmeasure.cli._verdicts` the verdict lines analyze, compare and demo print;
+:mod:`~ncmeasure.cli._startup` the start-up tricks.
 Registering the commands imports typer only: every command imports what it works with
 when it runs, so that ``ncmeasure --help`` starts fast.
 """

@@ -17,7 +17,6 @@ import traceback
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-import click
 import typer
 
 from ncmeasure._version import __version__
@@ -201,14 +200,8 @@ _DEBUG_OPTION = Annotated[
     ),
 ]
 
-_CLICK_EXITS = (
-    click.exceptions.ClickException,
-    click.exceptions.Exit,
-    click.exceptions.Abort,
-    typer.Exit,
-    typer.Abort,
-)
-"""How click and typer end a command themselves: they pass the wrapper untouched."""
+_TYPER_EXITS = (typer.Exit, typer.Abort, typer.BadParameter)
+"""How typer ends a command itself: these pass the wrapper untouched."""
 
 
 def handle_errors(func: Callable[..., Outcome | None]) -> Callable[..., None]:
@@ -236,7 +229,7 @@ def handle_errors(func: Callable[..., Outcome | None]) -> Callable[..., None]:
         except KeyboardInterrupt:
             console(stderr=True).print("interrupted")
             raise typer.Exit(EXIT_INTERRUPTED) from None
-        except _CLICK_EXITS:
+        except _TYPER_EXITS:
             raise
         except Exception as exc:  # a bug, or a library's error that nobody wrapped
             if _state["debug"]:
