@@ -60,7 +60,8 @@ def demo_command(
     records the simulated drives through the real link, analyses the recording and writes
     an HTML report. Link and simulated drives run in lockstep on simulated time, as fast
     as the computer allows: the same seed gives the same recording on an idle and on a
-    busy computer. Takes well under a minute.
+    busy computer. Takes about 15 s on two cores; longer with --variation, which measures
+    the machine twice.
 
     Examples: ncmeasure demo  ·  ncmeasure demo --variation loose_bearing_shift_um=500
     ·  ncmeasure demo demo-modbus --link modbus
