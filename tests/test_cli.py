@@ -303,7 +303,7 @@ def test_a_bug_has_its_own_exit_code_and_asks_for_a_report(
     machine: a script gating on `compare` must not read a crash as a warning."""
 
     def broken(*_: object, **__: object) -> None:
-        {}["axes"]
+        {}["axes"]  # the bug
 
     monkeypatch.setattr(target, broken)
     result = runner.invoke(app, args)
@@ -313,6 +313,26 @@ def test_a_bug_has_its_own_exit_code_and_asks_for_a_report(
     assert result.exit_code == 70, result.output
     assert "Traceback" in result.stderr and result.stderr.splitlines()[-1] == BUG_LINE
     assert "in broken" in result.stderr
+
+
+@pytest.mark.parametrize(
+    ("error", "what"),
+    [
+        (ValueError("first line\n  second line"), "ValueError: first line second line"),
+        (AssertionError(), "AssertionError"),
+    ],
+    ids=["two lines", "no text"],
+)
+def test_a_bug_is_one_line_whatever_its_text(
+    error: Exception, what: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def broken(*_: object, **__: object) -> None:
+        raise error
+
+    monkeypatch.setattr("ncmeasure.program.check_programs", broken)
+    result = runner.invoke(app, ["check", "out"])
+    assert result.exit_code == 70, result.output
+    assert result.stderr.splitlines() == [BUG_LINE.replace("KeyError: 'axes'", what)]
 
 
 def test_a_table_is_whole_when_the_output_is_not_a_terminal(tmp_path: Path) -> None:

@@ -177,10 +177,14 @@ def report_error(error: NcMeasureError) -> None:
 
 
 def _report_bug(error: Exception) -> None:
-    """One line for an error nobody foresaw: what happened, and the bug report to file."""
+    """One line for an error nobody foresaw: what happened, and the bug report to file.
+
+    The error's own text may run over several lines: it is joined into one.
+    """
     from rich.text import Text
 
-    what = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
+    text = " ".join(str(error).split())
+    what = f"{type(error).__name__}: {text}" if text else type(error).__name__
     console(stderr=True).print(
         Text.assemble(("error:", "bold red"), f" unexpected {what}; {BUG_REPORT}"),
         soft_wrap=True,
