@@ -282,6 +282,81 @@ def test_debug_anywhere_shows_the_traceback_and_keeps_the_exit_code(
     )
 
 
+BUG_LINE = (
+    "error: unexpected KeyError: 'axes'; this is a bug: please report it to the ncmeasure "
+    "maintainers with the output of the same command with --debug"
+)
+
+
+@pytest.mark.parametrize(
+    ("target", "args"),
+    [
+        ("ncmeasure.program.check_programs", ["check", "out"]),
+        ("ncmeasure.formats.results.load_results", ["compare", "a.json", "b.json"]),
+    ],
+    ids=["check", "compare"],
+)
+def test_a_bug_has_its_own_exit_code_and_asks_for_a_report(
+    target: str, args: list[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An error nobody wrapped (a bug) is not 1, what check and compare say about the
+    machine: a script gating on `compare` must not read a crash as a warning."""
+
+    def broken(*_: object, **__: object) -> None:
+        {}["axes"]  # the bug
+
+    monkeypatch.setattr(target, broken)
+    result = runner.invoke(app, args)
+    assert result.exit_code == 70, result.output
+    assert result.stderr.splitlines() == [BUG_LINE]
+    result = runner.invoke(app, [*args, "--debug"])
+    assert result.exit_code == 70, result.output
+    assert "Traceback" in result.stderr and result.stderr.splitlines()[-1] == BUG_LINE
+    assert "in broken" in result.stderr
+
+
+@pytest.mark.parametrize(
+    ("error", "what"),
+    [
+        (ValueError("first line\n  second line"), "ValueError: first line second line"),
+        (AssertionError(), "AssertionError"),
+    ],
+    ids=["two lines", "no text"],
+)
+def test_a_bug_is_one_line_whatever_its_text(
+    error: Exception, what: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def broken(*_: object, **__: object) -> None:
+        raise error
+
+    monkeypatch.setattr("ncmeasure.program.check_programs", broken)
+    result = runner.invoke(app, ["check", "out"])
+    assert result.exit_code == 70, result.output
+    assert result.stderr.splitlines() == [BUG_LINE.replace("KeyError: 'axes'", what)]
+
+
+def test_a_table_is_whole_when_the_output_is_not_a_terminal(tmp_path: Path) -> None:
+    """`ncmeasure plan m.toml > plan.txt` cut the table to 80 columns (cells like `ti…`);
+    CliRunner's output is not a terminal either. 40 positions: a cell of 300 characters."""
+    machine = tmp_path / "m.toml"
+    text = example_machine("sinumerik-840d")
+    machine.write_text(text.replace("positions = 3 ", "positions = 40 ", 1))
+    code, out, _ = run("plan", machine, "--json")
+    assert code == 0
+    axes = json.loads(out)["axes"]
+    code, out, _ = run("plan", machine)
+    assert code == 0, out
+    lines = out.splitlines()
+    assert lines[1].split() == [
+        "axis", "positions", "mm", "steps", "mm/min", "run-up", "windows", "time", "full",
+        "travel",
+    ]  # fmt: skip
+    for axis, line in zip(axes, lines[2:5], strict=True):
+        positions = ", ".join(f"{p:g}" for p in axis["nominal_positions_mm"])
+        assert len(positions) > 250 and positions in line, line
+        assert line.count("…") == 1, line  # the velocity range's own: 10 … 15000
+
+
 def test_example_machines_are_data_files_that_validate() -> None:
     """init's and the demo's machines come from data files of the package and are valid."""
     import tomllib
@@ -298,10 +373,10 @@ def test_example_machines_are_data_files_that_validate() -> None:
 
 
 def test_set_values_python_cannot_read_as_toml_stay_text() -> None:
-    from ncmeasure.cli import _settings
+    from ncmeasure.cli._options import settings
 
     huge, deep = "1" * 5000, "[" * 1000 + "]" * 1000
-    assert _settings([f"a={huge}", f"b={deep}", "c=5"]) == {"a": huge, "b": deep, "c": 5}
+    assert settings([f"a={huge}", f"b={deep}", "c=5"]) == {"a": huge, "b": deep, "c": 5}
 
 
 def _edit_schedule(folder: Path, **changes: object) -> None:
@@ -383,7 +458,7 @@ def test_a_flood_of_problems_is_printed_capped(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_a_stopped_generate_leaves_the_folder_as_it_was(sig: int, tmp_path: Path) -> None:
-    """Stopped while it renders (timeout, CI, systemd, Ctrl-C): exit 3, no staging folder."""
+    """Stopped while it renders (timeout, CI, systemd, Ctrl-C): exit 130, no staging folder."""
     data = tomllib.loads(example_machine("linuxcnc"))
     data["axes"] = data["axes"][:1]
     data["measurement"].update(velocity_steps=500, positions=20)  # 20 000 windows
@@ -409,7 +484,7 @@ def test_a_stopped_generate_leaves_the_folder_as_it_was(sig: int, tmp_path: Path
         _, stderr = process.communicate(timeout=120)
     finally:
         process.kill()
-    assert process.returncode == 3, stderr
+    assert process.returncode == 130, stderr
     assert "interrupted" in stderr and "Traceback" not in stderr
     assert [p.name for p in out.iterdir()] == ["notes.txt"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.toml", "out"]

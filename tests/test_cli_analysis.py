@@ -309,7 +309,7 @@ def test_a_data_collector_csv_is_imported_and_analysed(tmp_path: Path) -> None:
 
 def test_analyze_help_lists_every_setting() -> None:
     from ncmeasure.analysis.analyze import AnalysisSettings
-    from ncmeasure.cli import ANALYSIS_SETTINGS
+    from ncmeasure.cli.analysis import ANALYSIS_SETTINGS
 
     assert tuple(AnalysisSettings.model_fields) == ANALYSIS_SETTINGS
     code, out, _ = run("analyze", "--help")

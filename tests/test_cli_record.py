@@ -390,7 +390,7 @@ def test_simulate_drive_on_the_virtual_bus_says_it_serves_this_process_only() ->
     assert "--interface socketcan --channel vcan0" in text and "udp_multicast" in text
 
 
-def test_sigterm_closes_the_recording_and_exits_3(tmp_path: Path) -> None:
+def test_sigterm_closes_the_recording_and_exits_130(tmp_path: Path) -> None:
     import os
     import signal
     import subprocess
@@ -426,7 +426,7 @@ def test_sigterm_closes_the_recording_and_exits_3(tmp_path: Path) -> None:
         time.sleep(0.05)
     process.send_signal(signal.SIGTERM)
     _, err = process.communicate(timeout=30)
-    assert process.returncode == 3, err
+    assert process.returncode == 130, err
     assert "interrupted" in err and "Traceback" not in err
     recording = read_recording(tmp_path / "run2")
     assert recording.meta.status == "interrupted"

@@ -84,11 +84,11 @@ def test_the_public_api_is_still_there() -> None:
 def test_python_can_without_mdf_support_leaves_asammdf_importable() -> None:
     code = (
         "import sys\n"
-        "from ncmeasure.cli import _CanWithoutMdf\n"
-        "sys.meta_path.insert(0, _CanWithoutMdf())\n"
+        "from ncmeasure.cli._startup import CanWithoutMdf\n"
+        "sys.meta_path.insert(0, CanWithoutMdf())\n"
         "import can\n"
         "assert 'asammdf' not in sys.modules, 'python-can loaded asammdf'\n"
-        "assert not any(isinstance(f, _CanWithoutMdf) for f in sys.meta_path)\n"
+        "assert not any(isinstance(f, CanWithoutMdf) for f in sys.meta_path)\n"
         "import importlib.util\n"
         "if importlib.util.find_spec('asammdf') is not None:\n"
         "    import asammdf\n"

@@ -79,6 +79,28 @@ def test_exit_codes_follow_compare(tmp_path: Path, files: dict[str, Path]) -> No
     assert code == 0 and png.read_bytes().startswith(b"\x89PNG")
 
 
+def test_tables_are_whole_when_the_output_is_not_a_terminal(
+    tmp_path: Path, files: dict[str, Path]
+) -> None:
+    """`store list` and `store trend` into a file cut their tables to 80 columns."""
+    store = f"sqlite:///{tmp_path / 'fleet.db'}"
+    site = ("hall 2, line 3, the machine by the north door " * 5)[:200]
+    label = "after-repair-of-the-loose-bearing-and-the-nut-of-the-x-axis"
+    for name in ("delivery", "service"):
+        assert run("store", "add", files[name], "--serial", "M17", "--label",
+                   label if name == "service" else name, "--site", site, "--operating-hours",
+                   "123456.5", "--store", store)[0] == 0  # fmt: skip
+    code, out, _ = run("store", "list", "--store", store)
+    assert code == 0, out
+    row = next(line for line in out.splitlines() if "M17" in line)
+    assert site in row and label in row and "…" not in row, row
+    code, out, _ = run("store", "trend", "M17", "--axis", "X", "--store", store)
+    assert code == 0, out
+    assert "viscous [Nm per m/min]" in out and "…" not in out
+    row = next(line for line in out.splitlines() if label in line)
+    assert "123456" in row and row.rstrip(" │").endswith(("ok", "check", "fault")), row
+
+
 def test_export_to_jsonl_and_import_into_postgresql(
     tmp_path: Path, files: dict[str, Path], pg_url: str
 ) -> None:

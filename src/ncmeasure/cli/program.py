@@ -1,0 +1,255 @@
+"""The program commands: init, schema, controllers, plan, generate, check."""
+
+import json
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+from ncmeasure.cli._app import app, console, handle_errors, schema_app, warn
+from ncmeasure.cli._options import ControllersDir, TemplatesDir
+from ncmeasure.errors import OutputError
+
+if TYPE_CHECKING:
+    from ncmeasure.formats.schedule import Schedule
+
+MachineArgument = Annotated[Path, typer.Argument(help="Machine file (TOML).")]
+
+
+@app.command()
+@handle_errors
+def init(
+    controller: Annotated[
+        str, typer.Option(help="Controller dialect of the example (see `ncmeasure controllers`).")
+    ] = "sinumerik-840d",
+    controllers_dir: ControllersDir = None,
+) -> None:
+    """Print a commented example machine file; redirect it into a file and edit it.
+
+    Example: ncmeasure init --controller linuxcnc > machine.toml
+    """
+    from ncmeasure.examples import example_machine
+    from ncmeasure.program import load_dialect
+
+    dialect = load_dialect(controller, controllers_dir or ())
+    sys.stdout.write(example_machine(dialect.name))
+
+
+@schema_app.command("machine")
+@handle_errors
+def schema_machine() -> None:
+    """JSON Schema of the machine file (point your editor's TOML support at it)."""
+    from ncmeasure.config import MachineConfig
+
+    sys.stdout.write(json.dumps(MachineConfig.model_json_schema(), indent=2) + "\n")
+
+
+@schema_app.command("schedule")
+@handle_errors
+def schema_schedule() -> None:
+    """JSON Schema of schedule.json, the velocity file generate writes."""
+    from ncmeasure.formats.schedule import Schedule
+
+    sys.stdout.write(json.dumps(Schedule.model_json_schema(), indent=2) + "\n")
+
+
+@schema_app.command("results")
+@handle_errors
+def schema_results() -> None:
+    """JSON Schema of results.json, what `ncmeasure analyze` writes."""
+    from ncmeasure.formats.results import Results
+
+    sys.stdout.write(json.dumps(Results.model_json_schema(), indent=2) + "\n")
+
+
+@app.command()
+@handle_errors
+def controllers(
+    details: Annotated[
+        bool,
+        typer.Option("--details", help="Show marker mechanism, options and what was left out."),
+    ] = False,
+    controllers_dir: ControllersDir = None,
+) -> None:
+    """List the controller dialects ncmeasure can write programs for."""
+    from rich.table import Table
+
+    from ncmeasure.program import available_dialects, load_dialect
+
+    table = Table("name", "controller", "files", "marker", show_lines=details)
+    for name in available_dialects(controllers_dir or ()):
+        dialect = load_dialect(name, controllers_dir or ())
+        files = f"{Path(dialect.names.main_file).suffix} / {Path(dialect.names.sub_file).suffix}"
+        if not dialect.subprograms:
+            files = f"{Path(dialect.names.main_file).suffix} (one program)"
+        marker: str = dialect.marker.scope
+        if details:
+            marker = f"{dialect.marker.scope}: {dialect.marker.mechanism}"
+            if dialect.options:
+                marker += "\noptions: " + ", ".join(f"{k}={v}" for k, v in dialect.options.items())
+            marker += f"\nprogram memory: {dialect.memory.program_kb} kB"
+            if dialect.memory.note:
+                marker += f" ({dialect.memory.note})"
+            if dialect.left_out:
+                marker += "\nleft out: " + "; ".join(dialect.left_out)
+        table.add_row(name, dialect.title, files, marker)
+    console().print(table)
+
+
+def _print_plan(schedule: "Schedule") -> None:
+    from rich.table import Table
+    from rich.text import Text
+
+    table = Table(box=None, header_style="bold")
+    for column in (
+        "axis",
+        "positions mm",
+        "steps",
+        "mm/min",
+        "run-up",
+        "windows",
+        "time",
+        "full travel",
+    ):
+        table.add_column(column, no_wrap=True)
+    for axis in schedule.axes:
+        velocities = axis.velocities_mm_min
+        table.add_row(
+            axis.name,
+            ", ".join(f"{p:g}" for p in axis.nominal_positions_mm),
+            str(len(velocities)),
+            f"{velocities[0]:g} … {velocities[-1]:g}",
+            f"{axis.runup_at_max_velocity_mm:g}mm",
+            str(len(axis.windows)),
+            _duration(axis.duration_s),
+            _duration(axis.full_travel_duration_s),
+        )
+    console().print(
+        Text.assemble(
+            (schedule.machine, "bold"), f" · {schedule.controller} · config {schedule.config_hash}"
+        )
+    )
+    console().print(table)
+    saving = 1 - schedule.duration_s / schedule.full_travel_duration_s
+    console().print(
+        f"total {_duration(schedule.duration_s)}, {schedule.blocks} blocks (full travel at "
+        f"every step: {_duration(schedule.full_travel_duration_s)}, saving {saving:.0%})"
+    )
+    for axis in schedule.axes:
+        if axis.shifted_positions_mm:
+            shifted = ", ".join(f"{p:g}" for p in axis.shifted_positions_mm)
+            console().print(
+                f"note: axis {axis.name}: windows at {shifted} mm move inward at high velocities, "
+                "where the run-up would not fit (schedule.json has each window's position)"
+            )
+    for warning in schedule.warnings:
+        warn(warning)
+
+
+def _duration(seconds: float) -> str:
+    minutes, rest = divmod(round(seconds), 60)
+    hours, minutes = divmod(minutes, 60)
+    if hours:
+        return f"{hours}h{minutes:02d}m"
+    return f"{minutes}m{rest:02d}s" if minutes else f"{seconds:.1f}s"
+
+
+@app.command()
+@handle_errors
+def plan(
+    machine: MachineArgument,
+    as_json: Annotated[
+        bool,
+        typer.Option(
+            "--json",
+            help="Print the plan as JSON (duration_s and full_travel_duration_s at the top).",
+        ),
+    ] = False,
+    controllers_dir: ControllersDir = None,
+) -> None:
+    """Show what the measurement will do and how long it takes, without writing anything."""
+    from ncmeasure.config import load_machine
+    from ncmeasure.program import generate_programs
+
+    config = load_machine(machine)
+    result = generate_programs(config, controllers_dirs=controllers_dir or ())
+    schedule = result.schedule
+    if as_json:
+        summary = schedule.model_dump(mode="json")
+        for axis in summary["axes"]:
+            axis["windows"] = len(axis["windows"])
+        sys.stdout.write(json.dumps(summary, indent=2) + "\n")
+    else:
+        _print_plan(schedule)
+
+
+@app.command()
+@handle_errors
+def generate(
+    machine: MachineArgument,
+    output: Annotated[
+        Path,
+        typer.Option(
+            "--output", "-o", help="Folder for the programs and schedule.json (created if missing)."
+        ),
+    ],
+    controllers_dir: ControllersDir = None,
+    templates_dir: TemplatesDir = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing on success.")] = False,
+) -> None:
+    """Write the main program, one subprogram per axis, and schedule.json.
+
+    Example: ncmeasure generate machine.toml -o programs/
+    """
+    from rich.text import Text
+
+    from ncmeasure.config import load_machine
+    from ncmeasure.program import generate_programs
+
+    config = load_machine(machine)
+    if output.exists() and not output.is_dir():
+        raise OutputError(f"{output}: exists and is not a directory")
+    result = generate_programs(
+        config, controllers_dirs=controllers_dir or (), templates_dirs=templates_dir or ()
+    )
+    written = result.write(output)
+    if quiet:
+        return None
+    for path in written:
+        console().print(f"wrote {path}")
+    _print_plan(result.schedule)
+    console().print(
+        "checked before writing: every position inside the soft limits, every feed within "
+        "the maximum, every window as planned"
+    )
+    console().print(
+        Text.assemble(
+            "next: ", (f"ncmeasure check {output}", "bold"), " (again after copying or editing)"
+        )
+    )
+
+
+@app.command()
+@handle_errors
+def check(
+    directory: Annotated[Path, typer.Argument(help="Folder written by `ncmeasure generate`.")],
+    controllers_dir: ControllersDir = None,
+) -> None:
+    """Re-read generated programs and verify limits, feeds and windows against schedule.json.
+
+    Exit code 0: all holds; 1: a program breaks a limit or its schedule; 2: unreadable input.
+    """
+    from rich.text import Text
+
+    from ncmeasure.program import check_programs
+
+    report = check_programs(directory, tuple(controllers_dir or ()))
+    console().print(
+        Text.assemble(
+            ("ok", "green"),
+            f": {directory} ({report.controller}): {report.motions} moves, "
+            f"{report.feeds} feeds, {report.windows_found}/{report.windows_expected} windows; "
+            "every position inside the soft limits, every feed within the maximum",
+        )
+    )

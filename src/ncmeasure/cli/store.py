@@ -1,0 +1,350 @@
+"""The ``store`` commands: the fleet store's measurements, trends, checks, report and transfer."""
+
+import contextlib
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ncmeasure.cli._app import Outcome, console, handle_errors, progress_bar, store_app, warn
+from ncmeasure.cli._fleet import measurement_info, mqtt_target, open_store, publish_added
+from ncmeasure.cli._options import (
+    CriticalOption,
+    PublishOption,
+    StoreOption,
+    WarningOption,
+    limits,
+)
+from ncmeasure.cli._verdicts import LEVEL_STYLE, verdict_text
+from ncmeasure.errors import ConfigError
+
+SerialArgument = Annotated[str, typer.Argument(help="The machine's serial number.")]
+
+_STATUS_STYLE = {"ok": "bold green", "warning": "bold yellow", "critical": "bold red"}
+
+
+@store_app.command("add")
+@handle_errors
+def store_add_command(
+    results_file: Annotated[Path, typer.Argument(help="results.json of `ncmeasure analyze`.")],
+    serial: Annotated[str, typer.Option(help="The machine's serial number.")],
+    label: Annotated[
+        str | None,
+        typer.Option(help="What the measurement is: delivery, service, after-repair, ..."),
+    ] = None,
+    site: Annotated[str | None, typer.Option(help="Where the machine stands.")] = None,
+    machine_type: Annotated[
+        str | None,
+        typer.Option("--type", help="The machine type (default: the machine name in the results)."),
+    ] = None,
+    operator: Annotated[str | None, typer.Option(help="Who measured.")] = None,
+    temperature_c: Annotated[
+        float | None, typer.Option("--temperature-c", help="Machine temperature in °C.")
+    ] = None,
+    operating_hours: Annotated[
+        float | None, typer.Option(help="The machine's operating hours.")
+    ] = None,
+    recording: Annotated[
+        str | None,
+        typer.Option(help="Where the raw recording is kept (default: its folder in the results)."),
+    ] = None,
+    store: StoreOption = None,
+    publish: PublishOption = None,
+) -> None:
+    """Add a measurement's results to the store (the same results twice are stored once).
+
+    Example: ncmeasure store add m17.results.json --serial M17 --label delivery --temperature-c 21.5
+    """
+    from ncmeasure.formats.results import load_results
+
+    info = measurement_info(
+        serial=serial,
+        label=label,
+        site=site,
+        machine_type=machine_type,
+        operator=operator,
+        temperature_c=temperature_c,
+        operating_hours=operating_hours,
+        recording_location=recording,
+    )
+    target = mqtt_target(publish)
+    results = load_results(results_file)
+    with open_store(store, write=True) as fleet:
+        added = fleet.add(results, info)
+        where = fleet.where
+    if added.new:
+        console().print(f"stored as measurement {added.measurement_id} of {serial} in {where}")
+    else:
+        console().print(
+            f"already stored as measurement {added.measurement_id} of {serial}; nothing added"
+        )
+    publish_added(target, store, added, quiet=False)
+
+
+@store_app.command("list")
+@handle_errors
+def store_list_command(store: StoreOption = None) -> None:
+    """The machines in the store: type, site, measurements, the latest verdicts."""
+    from rich.table import Table
+
+    with open_store(store, write=False) as fleet:
+        machines = fleet.machines()
+        where = fleet.where
+    if not machines:
+        console().print(f"no machines in {where}")
+        return
+    table = Table(title=f"{len(machines)} machine(s) in {where}", title_justify="left")
+    for column in ("serial", "type", "site", "measurements", "latest", "label", "verdicts"):
+        table.add_column(column)
+    for m in machines:
+        table.add_row(
+            m.serial,
+            m.machine_type,
+            m.site or "",
+            str(m.measurements),
+            (m.latest_utc or "")[:16].replace("T", " "),
+            m.latest_label or "",
+            verdict_text(m.latest_verdicts),
+        )
+    console().print(table)
+
+
+@store_app.command("show")
+@handle_errors
+def store_show_command(serial: SerialArgument, store: StoreOption = None) -> None:
+    """A machine and its measurements, oldest first."""
+    from rich.table import Table
+    from rich.text import Text
+
+    with open_store(store, write=False) as fleet:
+        machine, measurements = fleet.machine(serial)
+    console().print(
+        Text.assemble(
+            (machine.serial, "bold"),
+            f" · type {machine.machine_type} (config {machine.config_hash or 'unknown'})"
+            + (f" · {machine.site}" if machine.site else ""),
+        )
+    )
+    table = Table()
+    for column in ("id", "measured (UTC)", "label", "°C", "hours", "link", "verdicts"):
+        table.add_column(column)
+    for m in measurements:
+        table.add_row(
+            str(m.id),
+            m.measured_utc[:19].replace("T", " "),
+            m.label or "",
+            "" if m.temperature_c is None else f"{m.temperature_c:g}",
+            "" if m.operating_hours is None else f"{m.operating_hours:g}",
+            m.link or "",
+            verdict_text(m.verdicts),
+        )
+    console().print(table)
+
+
+@store_app.command("trend")
+@handle_errors
+def store_trend_command(
+    serial: SerialArgument,
+    axis: Annotated[str, typer.Option(help="The axis, e.g. X.")],
+    plot: Annotated[
+        Path | None, typer.Option(help="Also draw the trend with its limits as a PNG.")
+    ] = None,
+    warning: WarningOption = None,
+    critical: CriticalOption = None,
+    store: StoreOption = None,
+) -> None:
+    """Coulomb, viscous friction and the spread along the travel over the machine's life.
+
+    Example: ncmeasure store trend M17 --axis X --plot m17-x.png
+    """
+    from rich.table import Table
+    from rich.text import Text
+
+    from ncmeasure.analysis.summary import format_number
+
+    chosen = limits(warning, critical)
+    with open_store(store, write=False) as fleet:
+        points = fleet.trend(serial, axis)
+    unit = points[0].unit
+    table = Table(title=f"{serial} axis {axis}", title_justify="left")
+    for column in (
+        "id", "measured (UTC)", "label", "hours", f"Coulomb [{unit}]",
+        f"viscous [{unit} per m/min]", "spread [%]", "verdict",
+    ):  # fmt: skip
+        table.add_column(column)
+    for p in points:
+        table.add_row(
+            str(p.measurement_id),
+            p.measured_utc[:16].replace("T", " "),
+            p.label or "",
+            "" if p.operating_hours is None else f"{p.operating_hours:g}",
+            format_number(p.coulomb),
+            format_number(p.viscous_per_m_min),
+            format_number(p.spread_percent),
+            Text(p.verdict, style=LEVEL_STYLE.get(p.verdict, "bold")),
+        )
+    console().print(table)
+    if plot is not None:
+        from ncmeasure.report.plots import save_png
+        from ncmeasure.store.report import trend_figure
+
+        figure = trend_figure(axis, points, chosen)
+        save_png(figure, plot)
+        console().print(f"wrote {plot}")
+
+
+@store_app.command("check")
+@handle_errors
+def store_check_command(
+    serial: SerialArgument,
+    warning: WarningOption = None,
+    critical: CriticalOption = None,
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="Also write the check as JSON.")
+    ] = None,
+    store: StoreOption = None,
+) -> Outcome:
+    """The latest measurement against the machine's delivery baseline and its fleet.
+
+    The baseline is the first measurement labelled delivery (else the first). The fleet
+    is the latest measurement of every other machine of the type: per axis and
+    characteristic its median and range, and the machine's robust z-score (an outlier
+    beyond 3.5, with at least 3 other machines). What differs between baseline and
+    latest (program, positions, velocities, temperature, link) is said first.
+
+    Exit code 0: within the limits; 1: a warning limit crossed or an outlier of its type;
+    3: a critical limit crossed; 2: bad input.
+    """
+    from rich.text import Text
+
+    from ncmeasure.store.check import check_machine, write_check
+
+    chosen = limits(warning, critical)
+    with open_store(store, write=False) as fleet:
+        found = check_machine(fleet, serial, chosen)
+    if output is not None:
+        write_check(found, output)
+    latest = found.latest
+    console().print(
+        Text.assemble(
+            (serial, "bold"),
+            f" · latest measurement {latest.id} ({latest.label or 'no label'}, "
+            f"{latest.measured_utc[:16].replace('T', ' ')} UTC)",
+        )
+    )
+    if found.baseline is not None:
+        base = found.baseline
+        console().print(
+            f"baseline: measurement {base.id} ({base.label or 'no label'}, "
+            f"{base.measured_utc[:16].replace('T', ' ')} UTC)"
+        )
+    if found.comparability is not None:
+        for difference in found.comparability.differences:
+            warn(difference)
+    for finding in found.findings:
+        console().print(Text(finding))
+    line = Text("status: ")
+    line.append(found.status, style=_STATUS_STYLE[found.status])
+    console().print(line)
+    return found.status
+
+
+@store_app.command("report")
+@handle_errors
+def store_report_command(
+    output: Annotated[Path, typer.Option("--output", "-o", help="The HTML file to write.")],
+    trends: Annotated[
+        int,
+        typer.Option(min=0, max=200, help="Trend plots of the axes that moved most."),
+    ] = 12,
+    warning: WarningOption = None,
+    critical: CriticalOption = None,
+    store: StoreOption = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> Outcome:
+    """The fleet at a glance as one HTML file: machines × axes, outliers, trends.
+
+    Each cell is an axis of a machine's latest measurement: its verdict and the change
+    since the machine's baseline, coloured by the worst of the verdict (check, fault),
+    the change against the limits, and an outlier of the machine's type. Then the
+    outliers, then the trends of the axes that moved most. The file opens offline (no
+    script, images inside).
+
+    Exit code 0: every axis ok; 1: a warning (verdict check, a change beyond the warning
+    limit, an outlier); 3: critical (verdict fault, a change beyond the critical limit);
+    2: bad input.
+
+    Example: ncmeasure store report -o fleet.html
+    """
+    from ncmeasure.formats.comparison import worst_status
+    from ncmeasure.store.overview import fleet_overview
+    from ncmeasure.store.report import write_fleet_report
+
+    chosen = limits(warning, critical)
+    bar, update = progress_bar(quiet)
+    with bar or contextlib.nullcontext(), open_store(store, write=False) as fleet:
+        if update is not None:
+            update("reading the fleet", None)
+        overview = fleet_overview(fleet, chosen)
+        written = write_fleet_report(
+            fleet,
+            overview,
+            output,
+            trends=trends,
+            progress=None if update is None else lambda d, n: update("trend plots", d / n),
+        )
+    counts = ", ".join(f"{overview.count(s)} {s}" for s in ("ok", "warning", "critical"))
+    console().print(
+        f"{len(overview.machines)} machine(s): {counts}; {len(overview.outliers)} outlier(s)"
+    )
+    console().print(f"wrote {written}")
+    return worst_status(m.status for m in overview.machines)
+
+
+@store_app.command("export")
+@handle_errors
+def store_export_command(
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="JSON-lines file (default: stdout).")
+    ] = None,
+    store: StoreOption = None,
+) -> None:
+    """Write the whole store as JSON lines: a backup, or to move it (SQLite → PostgreSQL).
+
+    Example: ncmeasure store export -o fleet.jsonl; ncmeasure store import fleet.jsonl
+    --store postgresql://ncm@db/fleet
+    """
+    from ncmeasure.files import replace_text
+    from ncmeasure.store.transfer import export_lines
+
+    with open_store(store, write=False) as fleet:
+        if output is None:
+            for line in export_lines(fleet):
+                sys.stdout.write(line + "\n")
+            return
+        with replace_text(output) as file:
+            count = 0
+            for line in export_lines(fleet):
+                file.write(line + "\n")
+                count += 1
+    console(stderr=True).print(f"wrote {count - 1} measurement(s) to {output}")
+
+
+@store_app.command("import")
+@handle_errors
+def store_import_command(
+    source: Annotated[Path, typer.Argument(help="JSON-lines file of `store export`.")],
+    store: StoreOption = None,
+) -> None:
+    """Add every measurement of an export (those already stored are skipped)."""
+    from ncmeasure.store.transfer import import_lines
+
+    try:
+        stream = source.open("rb")
+    except OSError as exc:
+        raise ConfigError(f"{source}: cannot be read ({exc.strerror or exc})") from exc
+    with stream, open_store(store, write=True) as fleet:
+        added, existing = import_lines(fleet, stream, str(source))
+        where = fleet.where
+    console().print(f"added {added} measurement(s) to {where}; {existing} were already stored")

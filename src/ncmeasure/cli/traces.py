@@ -1,0 +1,155 @@
+"""The exchange commands: import a trace or an exported file, export a recording."""
+
+import contextlib
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ncmeasure.cli._app import app, console, handle_errors
+from ncmeasure.errors import ConfigError
+
+_FORMATS = {"csv": ".csv", "mdf4": ".mf4"}
+
+
+@app.command("export")
+@handle_errors
+def export_command(
+    run: Annotated[Path, typer.Argument(help="Recording directory.")],
+    fmt: Annotated[str, typer.Option("--format", "-f", help="csv or mdf4.")] = "csv",
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="Output file (default: next to RUN).")
+    ] = None,
+) -> None:
+    """Write a recording as one CSV (time_s, then <AXIS>_<signal> columns) or MDF4 file."""
+    from ncmeasure.recording import RecordingHead
+    from ncmeasure.traces.csv import export_csv
+    from ncmeasure.traces.mdf4 import export_mdf4
+
+    if fmt not in _FORMATS:
+        raise ConfigError(f"--format {fmt!r}: expected one of {', '.join(_FORMATS)}")
+    target = output or run.with_suffix(_FORMATS[fmt])
+    head = RecordingHead.open(run)  # the samples are read chunk by chunk while written
+    if fmt == "csv":
+        export_csv(head, target)
+    else:
+        export_mdf4(head, target)
+    # what was wrong with the recording is logged as a warning when read, as for analyze
+    console().print(f"wrote {target} ({head.rows} samples)")
+
+
+@app.command("import")
+@handle_errors
+def import_command(
+    file: Annotated[Path, typer.Argument(help="Trace or exported file to import.")],
+    output: Annotated[Path, typer.Option("--output", "-o", help="New recording directory.")],
+    fmt: Annotated[
+        str | None,
+        typer.Option(
+            "--format",
+            "-f",
+            help="sinumerik-xml, sinumerik-csv, twincat-csv, tncscope, csv, mdf4, can-log "
+            "(default: detected from the content; CAN logs by their ending .blf, .asc, "
+            ".log, .trc).",
+        ),
+    ] = None,
+    machine: Annotated[
+        Path | None,
+        typer.Option(
+            help="Machine file: axis names, screw lead and torque constant for unit conversion."
+        ),
+    ] = None,
+    axis: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="Map a trace's axis to a machine axis, e.g. --axis 1=X --axis 2=Y.",
+            metavar="TRACE_AXIS=AXIS",
+        ),
+    ] = None,
+    columns: Annotated[
+        Path | None,
+        typer.Option(
+            "--columns",
+            help="Column map (TOML): read FILE as any CSV whose columns it names "
+            "(channel = column, scale, offset; period_s or a time column). "
+            "Not with --format or --axis.",
+        ),
+    ] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress, no report.")] = False,
+) -> None:
+    """Turn a controller trace or an exported CSV/MDF4 file into a recording.
+
+    Reads SINUMERIK trace XML and CSV, TwinCAT Scope CSV, TNCscope text and the
+    CSV of `ncmeasure export`, any CSV through a column map (--columns), and CAN logs
+    of a CANopen bus (.blf, .asc, .log, .trc: decoded with the machine file's [link]
+    settings, as the CANopen link reads the live bus); reports what was mapped,
+    converted and left out.
+    Examples: ncmeasure import trace.xml --machine machine.toml --axis 1=X -o run1
+    ·  ncmeasure import capture.blf --machine machine.toml -o run2
+    """
+    from ncmeasure.config import load_machine, parse_assignments
+    from ncmeasure.traces import import_trace
+    from ncmeasure.traces.mdf4 import import_mdf4
+
+    axis_names = dict(
+        parse_assignments(axis or [], "--axis", form="TRACE_AXIS=MACHINE_AXIS", example="1=X")
+    )
+    report: list[str] = []
+    config = load_machine(machine) if machine else None
+    if columns is None and (
+        fmt == "mdf4" or (fmt is None and file.suffix.lower() in (".mf4", ".mdf"))
+    ):
+        recording = import_mdf4(file, output, machine=config)
+        report = list(recording.meta.link.get("report", []))
+        samples, channels = len(recording.time_s), len(recording.channels)
+    else:
+        with _import_progress(file.name, quiet) as progress:
+            result = import_trace(
+                file,
+                output,
+                format=fmt,
+                machine=config,
+                axis_names=axis_names or None,
+                progress=progress,
+                columns=columns,
+            )
+        # the counts from meta.json: reading a large recording back would cost its size in memory
+        report, samples = result.report, result.meta.samples or 0
+        channels = len(result.meta.channels)
+    if not quiet:
+        for line in report:
+            console(stderr=True).print(f"  {line}")
+    console().print(f"wrote {output} ({samples} samples, {channels} channels)")
+
+
+@contextlib.contextmanager
+def _import_progress(name: str, quiet: bool) -> Iterator[Callable[[int, int], None]]:
+    """A transient progress bar of the bytes read, on stderr, unless quiet; yields the
+    ``progress(done, total)`` callback an importer takes."""
+    from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
+
+    bar = (
+        None
+        if quiet
+        else Progress(
+            TextColumn("importing {task.description}", markup=False),
+            BarColumn(),
+            DownloadColumn(),
+            console=console(stderr=True),
+            transient=True,
+        )
+    )
+    task = bar.add_task(name, total=None) if bar else None
+
+    def progress(done: int, total: int) -> None:
+        if bar is not None and task is not None:
+            bar.update(task, completed=done, total=total)
+
+    if bar is not None:
+        bar.start()
+    try:
+        yield progress
+    finally:
+        if bar is not None:
+            bar.stop()
