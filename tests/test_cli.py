@@ -335,6 +335,29 @@ def test_a_bug_is_one_line_whatever_its_text(
     assert result.stderr.splitlines() == [BUG_LINE.replace("KeyError: 'axes'", what)]
 
 
+def test_a_reader_that_went_away_is_no_bug(tmp_path: Path) -> None:
+    """`ncmeasure schema machine | head -1`: the pipe closes before the output is written.
+
+    The read end is closed before the command starts, so every write fails (EPIPE),
+    however fast or slow the host: the command ends quietly with 141, as shell tools do.
+    """
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "ncmeasure", "schema", "machine"],
+            stdout=write_end,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=120,
+            check=False,
+        )
+    finally:
+        os.close(write_end)
+    assert done.returncode == 141, done.stderr
+    assert done.stderr == ""
+
+
 def test_a_table_is_whole_when_the_output_is_not_a_terminal(tmp_path: Path) -> None:
     """`ncmeasure plan m.toml > plan.txt` cut the table to 80 columns (cells like `ti…`);
     CliRunner's output is not a terminal either. 40 positions: a cell of 300 characters."""

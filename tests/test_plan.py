@@ -6,7 +6,7 @@ import itertools
 from collections.abc import Callable
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from ncmeasure.config import MachineConfig, parse_machine
@@ -198,6 +198,17 @@ def test_the_example_plan_is_within_10_percent_of_its_bound(make_config: Make, o
 
 
 @settings(max_examples=40, deadline=None)
+@example(  # three axes whose durations, each rounded down, add up 1.4 ms short of the bound
+    order="velocity",
+    positions=2,
+    steps=1,
+    both=True,
+    repetitions=2,
+    warmup=0,
+    dwell_s=0.0,
+    settle_s=0.0,
+    spacing="geometric",
+)
 @given(
     order=st.sampled_from(["velocity", "position"]),
     positions=st.integers(1, 5),
@@ -237,7 +248,9 @@ def test_no_plan_is_shorter_than_its_bound(
     bound = duration_bound(config)
     for plan, axis_bound in zip(plans, bound.axes, strict=True):
         assert axis_bound.total_s <= plan.summary.duration_s + 1e-3
-    assert bound.total_s <= schedule.duration_s + 1e-3
+    # The schedule adds up the axes' durations as written, each rounded to the millisecond.
+    rounding_s = 0.0005 * len(plans)
+    assert bound.total_s <= schedule.duration_s + 1e-3 + rounding_s
 
 
 def test_order_is_checked_with_its_location() -> None:

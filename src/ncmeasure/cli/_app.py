@@ -4,13 +4,16 @@ The CLI owns the console (rich) and is the only place that turns errors into
 exit codes: 0 success, 1 a check found problems (or a warning limit crossed),
 2 bad input (machine file, options, paths), 3 a critical limit crossed, 4 a
 drive link failed, 70 a bug (an error nobody foresaw), 130 stopped by
-Ctrl-C/SIGTERM. ``--debug`` shows tracebacks; nobody else ever sees one.
+Ctrl-C/SIGTERM, 141 the reader of the output went away (``| head``). ``--debug``
+shows tracebacks; nobody else ever sees one.
 """
 
 import functools
 import inspect
 import logging
+import os
 import signal
+import sys
 import threading
 import time
 import traceback
@@ -40,6 +43,9 @@ EXIT_SOFTWARE = 70
 crash as a warning."""
 EXIT_INTERRUPTED = 130
 """Stopped by Ctrl-C/SIGTERM (what was recorded is kept): 128 + SIGINT, as shells say it."""
+EXIT_CLOSED_OUTPUT = 141
+"""The reader of the output went away (``ncmeasure store list | head``): 128 + SIGPIPE,
+what a shell tool ends with there; nothing is printed."""
 
 BUG_REPORT = (
     "this is a bug: please report it to the ncmeasure maintainers with the output of "
@@ -69,8 +75,8 @@ app = typer.Typer(
         "15 s on two cores.\n\n"
         "Exit codes: 0 done; 1 a check found problems or a warning limit was crossed; "
         "2 bad input; 3 a critical limit crossed; 4 a drive link failed; 70 a bug in "
-        "ncmeasure (please report it); 130 stopped by Ctrl-C/SIGTERM. --debug (anywhere on "
-        "the line) shows tracebacks."
+        "ncmeasure (please report it); 130 stopped by Ctrl-C/SIGTERM; 141 the output's "
+        "reader went away (| head). --debug (anywhere on the line) shows tracebacks."
     ),
     no_args_is_help=True,
     add_completion=False,
@@ -226,6 +232,10 @@ def handle_errors(func: Callable[..., Outcome | None]) -> Callable[..., None]:
         previous = _interrupt_on_sigterm()
         try:
             outcome = func(*args, **kwargs)
+            sys.stdout.flush()  # a reader that went away is found here, not at exit
+        except BrokenPipeError:
+            _drop_output()
+            raise typer.Exit(EXIT_CLOSED_OUTPUT) from None
         except NcMeasureError as exc:
             report_error(exc)
             if _state["debug"]:
@@ -256,6 +266,13 @@ def handle_errors(func: Callable[..., Outcome | None]) -> Callable[..., None]:
     )
     run.__annotations__ = {**func.__annotations__, "debug": _DEBUG_OPTION, "return": None}
     return run
+
+
+def _drop_output() -> None:
+    """Point stdout at nothing: the reader is gone, and Python's flush at exit must not fail."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
 
 
 def _version(value: bool) -> None:
