@@ -36,7 +36,7 @@ if TYPE_CHECKING:
     from rich.text import Text
 
     from ncmeasure.acquire import Progress
-    from ncmeasure.analysis.summary import AxisComparison, Headline
+    from ncmeasure.analysis.judgement.summary import AxisComparison, Headline
     from ncmeasure.formats.comparison import Comparison
     from ncmeasure.formats.results import Results
     from ncmeasure.formats.schedule import Schedule
@@ -1383,7 +1383,7 @@ def _print_verdict(
 ) -> None:
     from rich.text import Text
 
-    from ncmeasure.analysis.summary import axis_comparison, axis_headline
+    from ncmeasure.analysis.judgement.summary import axis_comparison, axis_headline
 
     against = axis_comparison(comparison, name) if comparison is not None else None
     headline = axis_headline(results.axes[name], against)
@@ -1482,7 +1482,7 @@ def compare_command(
 
     Example: ncmeasure compare m17/results.json m18/results.json m19/results.json
     """
-    from ncmeasure.analysis.compare import compare_results
+    from ncmeasure.analysis.judgement.compare import compare_results
     from ncmeasure.formats.comparison import write_comparison
     from ncmeasure.formats.results import load_results
 
@@ -1561,7 +1561,7 @@ def _print_comparison(comparison: "Comparison", runs: "list[Results]") -> None:
     """Per compared run and axis: its verdict with the change, the report's headline figure."""
     from rich.text import Text
 
-    from ncmeasure.analysis.summary import axis_comparison, axis_headline, format_number
+    from ncmeasure.analysis.judgement.summary import axis_comparison, axis_headline, format_number
 
     for label, results in zip(comparison.others, runs, strict=True):
         for name, axis in results.axes.items():
@@ -1812,7 +1812,7 @@ def store_trend_command(
     from rich.table import Table
     from rich.text import Text
 
-    from ncmeasure.analysis.summary import format_number
+    from ncmeasure.analysis.judgement.summary import format_number
 
     limits = _limits(warning, critical)
     with _open_store(store, write=False) as fleet:

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from ncmeasure.analysis.compare import (
+from ncmeasure.analysis.judgement.compare import (
     ComparisonError,
     compare_results,
     modified_z_against,

@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import optimize
 
-import ncmeasure.analysis.fit as fit_module
-from ncmeasure.analysis.fit import (
+import ncmeasure.analysis.friction.fit as fit_module
+from ncmeasure.analysis.friction.fit import (
     MEDIAN_SE_FACTOR,
     fit_direction,
     fit_linear,

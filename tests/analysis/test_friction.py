@@ -10,13 +10,13 @@ import pytest
 from numpy.typing import NDArray
 
 from ncmeasure.analysis import friction
-from ncmeasure.analysis.friction import (
+from ncmeasure.analysis.friction.table import (
     friction_table,
     grouped_median,
     window_samples,
     window_table,
 )
-from ncmeasure.analysis.segment import VelocityWindow
+from ncmeasure.analysis.windows.finder import VelocityWindow
 
 
 def _window(

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ncmeasure.analysis.scan import axes_statistics, axis_statistics
-from ncmeasure.analysis.segment import _bridge, find_windows, noise_sigma, quantum
+from ncmeasure.analysis.windows.finder import _bridge, find_windows, noise_sigma, quantum
+from ncmeasure.analysis.windows.scan import axes_statistics, axis_statistics
 from ncmeasure.recording import Recording, RecordingWriter
 from ncmeasure.samples import SampleBlock
 from ncmeasure.sim.synthetic import SyntheticAxis, synthetic_recording

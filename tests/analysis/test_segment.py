@@ -16,7 +16,7 @@ import pytest
 from numpy.typing import NDArray
 from scipy.ndimage import median_filter
 
-from ncmeasure.analysis.segment import (
+from ncmeasure.analysis.windows.finder import (
     Segmentation,
     SegmentSettings,
     VelocityWindow,

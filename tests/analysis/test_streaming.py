@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.segment import noise_sigma, quantum
-from ncmeasure.analysis.streaming import (
+from ncmeasure.analysis.windows.finder import noise_sigma, quantum
+from ncmeasure.analysis.windows.streaming import (
     ExactSum,
     chunks_of,
     differences,

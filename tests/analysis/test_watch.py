@@ -9,8 +9,8 @@ import pytest
 
 import ncmeasure.analysis.analyze as analyze_module
 from ncmeasure.analysis.analyze import analyze
-from ncmeasure.analysis.streaming import Task
-from ncmeasure.analysis.watch import AxisWindows, NamedChunk, Watch, Watchers
+from ncmeasure.analysis.windows.streaming import Task
+from ncmeasure.analysis.windows.watch import AxisWindows, NamedChunk, Watch, Watchers
 from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import Recording, RecordingHead, RecordingWriter, RowChunk
 from ncmeasure.samples import SampleBlock

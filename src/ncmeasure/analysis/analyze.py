@@ -8,13 +8,13 @@ recorded axis::
                       machine=load_machine("machine.toml"))
     write_results(results, "run1.results.json")
 
-Per axis: the constant-velocity windows (:mod:`~ncmeasure.analysis.segment`),
-the friction table (:mod:`~ncmeasure.analysis.friction`), per position and
+Per axis: the constant-velocity windows (:mod:`~ncmeasure.analysis.windows.finder`),
+the friction table (:mod:`~ncmeasure.analysis.friction.table`), per position and
 direction the Coulomb + viscous and Stribeck fits
-(:func:`~ncmeasure.analysis.fit.fit_direction`), with both directions the
-direction-independent offset (:func:`~ncmeasure.analysis.fit.separate_offset`),
+(:func:`~ncmeasure.analysis.friction.fit.fit_direction`), with both directions the
+direction-independent offset (:func:`~ncmeasure.analysis.friction.fit.separate_offset`),
 and over positions × velocities the position dependency with its likely
-assembly causes (:func:`~ncmeasure.analysis.diagnosis.position_dependency`).
+assembly causes (:func:`~ncmeasure.analysis.judgement.diagnosis.position_dependency`).
 
 What the recording's ``meta.json`` says about an axis (torque constant,
 travel, fixed-bearing end, vertical, screw lead) wins; the machine file,
@@ -37,15 +37,15 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.diagnosis import position_dependency
-from ncmeasure.analysis.fit import fit_direction, separate_offset
-from ncmeasure.analysis.friction import FrictionTable, window_table
-from ncmeasure.analysis.scan import axes_statistics
-from ncmeasure.analysis.segment import Segmentation, SegmentSettings, find_windows, quantum
-from ncmeasure.analysis.streaming import run_tasks
-from ncmeasure.analysis.sweep import SlicedFinder
-from ncmeasure.analysis.verdict import axis_verdict
-from ncmeasure.analysis.watch import AxisWindows, OnWindows, Reader, Watchers
+from ncmeasure.analysis.friction.fit import fit_direction, separate_offset
+from ncmeasure.analysis.friction.table import FrictionTable, window_table
+from ncmeasure.analysis.judgement.diagnosis import position_dependency
+from ncmeasure.analysis.judgement.verdict import axis_verdict
+from ncmeasure.analysis.windows.chunked import SlicedFinder
+from ncmeasure.analysis.windows.finder import Segmentation, SegmentSettings, find_windows, quantum
+from ncmeasure.analysis.windows.scan import axes_statistics
+from ncmeasure.analysis.windows.streaming import run_tasks
+from ncmeasure.analysis.windows.watch import AxisWindows, OnWindows, Reader, Watchers
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.recording import RecordingMeta
@@ -659,7 +659,7 @@ class _Streamed:
     """The axes of a recording analysed chunk by chunk, memory bounded by their windows.
 
     The constructor reads the recording in a few passes shared by all axes
-    (:mod:`~ncmeasure.analysis.scan`, then :mod:`~ncmeasure.analysis.sweep`);
+    (:mod:`~ncmeasure.analysis.windows.scan`, then :mod:`~ncmeasure.analysis.windows.chunked`);
     :meth:`axis` then reads the slices of each axis' windows and gives the same
     result as :func:`analyze_axis` on the whole recording. What stops an axis
     early is kept and raised by :meth:`axis`, in the order analyze_axis meets it.
@@ -917,7 +917,7 @@ def analyze(
             raw data, :func:`~ncmeasure.report.write_report`'s ``windows``).
         on_windows: Called with every analysed axis' windows; the task it
             returns is fed the recording's rows on the readings that follow
-            (:mod:`~ncmeasure.analysis.watch`; the report's
+            (:mod:`~ncmeasure.analysis.windows.watch`; the report's
             :class:`~ncmeasure.report.traces.RawTraces`). Where no reading
             follows, the recording is read once more, only the channels the
             tasks need; a recording in memory is handed over whole.

@@ -32,13 +32,13 @@ from pydantic import BaseModel
 
 from ncmeasure._version import __version__
 from ncmeasure.analysis.analyze import recording_gaps
-from ncmeasure.analysis.summary import (
+from ncmeasure.analysis.judgement.summary import (
     AxisComparison,
     Headline,
     axis_comparison,
     axis_headline,
 )
-from ncmeasure.analysis.verdict import percent_text
+from ncmeasure.analysis.judgement.verdict import percent_text
 from ncmeasure.formats.comparison import Comparison, GroupDeviation
 from ncmeasure.formats.results import (
     AxisResult,
@@ -1060,7 +1060,7 @@ def page_view(
 ) -> PageView:
     """What the page shows, as text: the view model :func:`render_page` renders.
 
-    With a :class:`~ncmeasure.analysis.compare.Comparison`, each axis' verdict
+    With a :class:`~ncmeasure.analysis.judgement.compare.Comparison`, each axis' verdict
     is combined with its change against the base (the last compared run's:
     the run the report shows).
     """

@@ -1,7 +1,7 @@
 """``store check``: a machine's latest measurement against its delivery baseline and its fleet.
 
 Against the baseline (the first measurement labelled ``delivery``, else the
-first), the comparison is :func:`~ncmeasure.analysis.compare.compare_results`,
+first), the comparison is :func:`~ncmeasure.analysis.judgement.compare.compare_results`,
 with its limits and exit status, after the comparability rules
 (:func:`comparability`) have said what differs between the two measurements.
 
@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from sqlalchemy import func, select
 
-from ncmeasure.analysis.compare import (
+from ncmeasure.analysis.judgement.compare import (
     POSITION_MATCH_TOLERANCE_MM,
     compare_results,
     modified_z_against,

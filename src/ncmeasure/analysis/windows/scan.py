@@ -1,18 +1,18 @@
 """The whole-signal statistics of an axis, read from a recording chunk by chunk.
 
 The first pass of an analysis whose memory does not grow with the recording:
-everything :mod:`~ncmeasure.analysis.segment` and
+everything :mod:`~ncmeasure.analysis.windows.finder` and
 :mod:`~ncmeasure.analysis.analyze` derive from a whole signal before they
 look for windows (the median sample period, the count of the velocity,
 position and current signals, the noise of velocity and position, how many
 values are missing or implausible), computed from
 :func:`~ncmeasure.recording.iter_chunks` with
-:mod:`~ncmeasure.analysis.streaming`, and equal, bit for bit, to what the
+:mod:`~ncmeasure.analysis.windows.streaming`, and equal, bit for bit, to what the
 analysis computes on the whole arrays:
 
 * implausible values (:mod:`ncmeasure.validity`) become NaN first;
 * a channel's missing values are bridged as :func:`segment._bridge
-  <ncmeasure.analysis.segment>` bridges them (linear in time between the
+  <ncmeasure.analysis.windows.finder>` bridges them (linear in time between the
   neighbouring values, the nearest value at the ends); a first pass notes the
   first and last finite value of every chunk, so a later pass bridges a gap
   across chunk boundaries without reading ahead;
@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.streaming import (
+from ncmeasure.analysis.windows.streaming import (
     differences,
     median_task,
     noise_sigma_task,

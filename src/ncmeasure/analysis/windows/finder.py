@@ -75,7 +75,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.ndimage import maximum_filter1d, median_filter, minimum_filter1d
 from scipy.stats import theilslopes
 
-from ncmeasure.analysis.streaming import chunks_of, quantum_task, run_task, whole
+from ncmeasure.analysis.windows.streaming import chunks_of, quantum_task, run_task, whole
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.schedule import AxisSummary, Schedule
 from ncmeasure.formats.schedule import Window as ScheduledWindow

@@ -7,7 +7,7 @@ sample standard deviation (ddof = 1, NaN for a single sample), the sample
 count, and the **standard error** of the median.
 
 Every sample of a window counts. The window itself was checked against the
-axis' velocity (:mod:`~ncmeasure.analysis.segment`: after settling, its
+axis' velocity (:mod:`~ncmeasure.analysis.windows.finder`: after settling, its
 velocity agrees with the commanded one within the signal's noise and
 resolution); selecting samples one by one by their velocity reading would
 select by the noise, and at low speed, where one velocity count exceeds any
@@ -70,7 +70,7 @@ from typing import Final, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.segment import VelocityWindow
+from ncmeasure.analysis.windows.finder import VelocityWindow
 from ncmeasure.formats.results import Point
 
 __all__ = [
@@ -473,7 +473,7 @@ def friction_table(
     Args:
         axis: The axis name.
         current_a: The motor current of the axis, all samples (n,).
-        windows: Its labelled windows (:func:`~ncmeasure.analysis.segment.find_windows`).
+        windows: Its labelled windows (:func:`~ncmeasure.analysis.windows.finder.find_windows`).
         torque_constant_nm_per_a: k_T; the table is in Nm when given, else in A.
         current_quantum_a: One count of a quantised current (0: continuous);
             medians are then medians of grouped data (:func:`grouped_median`).

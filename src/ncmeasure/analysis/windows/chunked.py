@@ -1,8 +1,8 @@
 """Windows of a recording too long to hold: found chunk by chunk, kept as slices.
 
-The second pass of a bounded-memory analysis. :mod:`~ncmeasure.analysis.scan`
+The second pass of a bounded-memory analysis. :mod:`~ncmeasure.analysis.windows.scan`
 gave every whole-signal statistic; :class:`SlicedFinder` finds the same
-windows as :func:`~ncmeasure.analysis.segment.find_windows` on the whole
+windows as :func:`~ncmeasure.analysis.windows.finder.find_windows` on the whole
 arrays, with memory bounded by the windows, not by the recording:
 
 * a pass over the rows finds the runs of the marker and the stretches of
@@ -12,7 +12,7 @@ arrays, with memory bounded by the windows, not by the recording:
   ``plateau_min_s`` plus the filter width beyond each chunk); the velocity
   derived from the position looks ±h rows beyond each chunk;
 * where the velocity signal is coarse, a pass before it takes the median
-  ratio of derived to read velocity (:mod:`~ncmeasure.analysis.streaming`);
+  ratio of derived to read velocity (:mod:`~ncmeasure.analysis.windows.streaming`);
 * a way that found stretches reads, in one more pass, the samples of its
   stretches only (time, velocity, position, derived velocity, command,
   marker, current), with margins of ``settle_s`` plus the filter width;
@@ -20,7 +20,7 @@ arrays, with memory bounded by the windows, not by the recording:
   labelling read only these slices (:class:`Sparse`).
 
 Every row is cleaned and bridged as on the whole arrays (implausible values
-left out, gaps bridged from the neighbours :mod:`~ncmeasure.analysis.scan`
+left out, gaps bridged from the neighbours :mod:`~ncmeasure.analysis.windows.scan`
 noted), so the windows are the same, bit for bit.
 """
 
@@ -36,8 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import median_filter
 
-from ncmeasure.analysis.scan import AxisStatistics, bridge_chunk
-from ncmeasure.analysis.segment import (
+from ncmeasure.analysis.windows.finder import (
     MIN_WINDOW_SAMPLES,
     SegmentSettings,
     _Candidate,
@@ -47,7 +46,8 @@ from ncmeasure.analysis.segment import (
     plateau_mask,
     position_velocity,
 )
-from ncmeasure.analysis.streaming import median_task, run_task
+from ncmeasure.analysis.windows.scan import AxisStatistics, bridge_chunk
+from ncmeasure.analysis.windows.streaming import median_task, run_task
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import RowChunk
@@ -235,11 +235,11 @@ class _Sweep:
 
 
 class SlicedFinder(_Finder):
-    """:func:`~ncmeasure.analysis.segment.find_windows` on a recording read chunk by chunk.
+    """:func:`~ncmeasure.analysis.windows.finder.find_windows` on a recording read chunk by chunk.
 
     Made from the axis' first-pass statistics; :meth:`agreement_task` (only
     where :attr:`needs_agreement`) and :meth:`sweep_task` are tasks of
-    :func:`~ncmeasure.analysis.streaming.run_tasks` over the chunks of
+    :func:`~ncmeasure.analysis.windows.streaming.run_tasks` over the chunks of
     ``read`` (several axes share each reading); :meth:`run` then reads the
     slices of the stretches it tries and labels the windows.
     """

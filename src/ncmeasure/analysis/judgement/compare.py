@@ -15,7 +15,7 @@ nothing comparable at all raises :class:`ComparisonError`.
 
 Per compared run and axis, :class:`AxisChange` diagnoses the *change*: the
 ratio other/base per velocity and position goes through
-:func:`~ncmeasure.analysis.diagnosis.position_dependency`, so the machine's
+:func:`~ncmeasure.analysis.judgement.diagnosis.position_dependency`, so the machine's
 own position dependency cancels; a flat change beyond the warning limit is a
 global offset (preload, guide carriage, lubricant).
 The limits and why they are what they are: :class:`Limits`,
@@ -33,7 +33,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.diagnosis import (
+from ncmeasure.analysis.judgement.diagnosis import (
     ALTERNATIVE_FACTOR,
     FLAT_THRESHOLD_PERCENT,
     position_dependency,
