@@ -58,7 +58,9 @@ import pandas as pd  # type: ignore[import-untyped]
 from measurement import measurement_axes
 
 from ncmeasure.analysis.friction.table import FrictionTable, friction_table
-from ncmeasure.analysis.windows.finder import Segmentation, SegmentSettings, windows_of
+from ncmeasure.analysis.windows.find import windows_of
+from ncmeasure.analysis.windows.model import Segmentation
+from ncmeasure.analysis.windows.settings import SegmentSettings
 from ncmeasure.recording import Recording
 from ncmeasure.sim.synthetic import synthetic_recording
 

@@ -31,9 +31,10 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.analyze import AnalysisSettings, recording_gaps
+from ncmeasure.analysis.analyze import AnalysisSettings
 from ncmeasure.analysis.friction.fit import fit_direction, separate_offset
 from ncmeasure.analysis.judgement.verdict import axis_verdict
+from ncmeasure.analysis.reading import recording_gaps
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.examples import example_machine
 from ncmeasure.formats.results import (

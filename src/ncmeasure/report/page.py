@@ -31,7 +31,6 @@ from jinja2.sandbox import SandboxedEnvironment
 from pydantic import BaseModel
 
 from ncmeasure._version import __version__
-from ncmeasure.analysis.analyze import recording_gaps
 from ncmeasure.analysis.judgement.summary import (
     AxisComparison,
     Headline,
@@ -39,6 +38,7 @@ from ncmeasure.analysis.judgement.summary import (
     axis_headline,
 )
 from ncmeasure.analysis.judgement.verdict import percent_text
+from ncmeasure.analysis.reading import recording_gaps
 from ncmeasure.formats.comparison import Comparison, GroupDeviation
 from ncmeasure.formats.results import (
     AxisResult,

@@ -70,7 +70,7 @@ from typing import Final, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.windows.finder import VelocityWindow
+from ncmeasure.analysis.windows.model import VelocityWindow
 from ncmeasure.formats.results import Point
 
 __all__ = [

@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from ncmeasure.analysis import friction
+from ncmeasure.analysis.friction import table as friction
 from ncmeasure.analysis.friction.table import (
     friction_table,
     grouped_median,
     window_samples,
     window_table,
 )
-from ncmeasure.analysis.windows.finder import VelocityWindow
+from ncmeasure.analysis.windows.model import VelocityWindow
 
 
 def _window(
