@@ -43,7 +43,8 @@ import numpy as np
 from measurement import measurement_axes
 
 from ncmeasure.analysis.analyze import analyze
-from ncmeasure.analysis.friction.fit import fit_nonlinear, point_sigma
+from ncmeasure.analysis.friction.fit import point_sigma
+from ncmeasure.analysis.friction.stribeck import fit_nonlinear
 from ncmeasure.formats.results import Results, write_results
 from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import RecordingHead

@@ -16,7 +16,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.friction.fit import (
+from ncmeasure.analysis.friction.stribeck import (
     EXTENDED_PARAMETERS,
     ROLLING_REFERENCE_MM_MIN,
     STRIBECK_PARAMETERS,

@@ -27,11 +27,8 @@ from typing import Any
 import numpy as np
 from sqlalchemy import func, select
 
-from ncmeasure.analysis.judgement.compare import (
-    POSITION_MATCH_TOLERANCE_MM,
-    compare_results,
-    modified_z_against,
-)
+from ncmeasure.analysis.judgement.compare import POSITION_MATCH_TOLERANCE_MM, compare_results
+from ncmeasure.analysis.judgement.fleet import modified_z_against
 from ncmeasure.errors import ComparisonError
 from ncmeasure.files import write_whole
 from ncmeasure.formats.comparison import Comparison, Limits, Status, worst_status

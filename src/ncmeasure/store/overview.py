@@ -27,8 +27,8 @@ from typing import Any
 import numpy as np
 from sqlalchemy import select
 
-from ncmeasure.analysis.judgement.compare import modified_z_leave_one_out
 from ncmeasure.analysis.judgement.diagnosis import FLAT_THRESHOLD_PERCENT
+from ncmeasure.analysis.judgement.fleet import modified_z_leave_one_out
 from ncmeasure.formats.comparison import Limits, Status, worst_status
 from ncmeasure.store import schema as t
 from ncmeasure.store.rows import CHARACTERISTICS, Characteristic

@@ -61,6 +61,7 @@ from ncmeasure.recording import RowChunk
 __all__ = ["ChunkedFinder"]
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.intp]
 Feed = Callable[[RowChunk], None]
 
 
@@ -247,18 +248,31 @@ class ChunkedFinder(WindowFinder):
             repeats = np.concatenate(([False], command_repeats(command)))
         else:
             repeats = command_repeats(np.concatenate(([state.command_last], command)))
-        for begin in (np.flatnonzero(~repeats) + lo).tolist():
+        begins = np.flatnonzero(~repeats)
+        if len(begins):
+            # The stretch left open by the block before ends where this block's first begins.
             if state.command_begin is not None:
-                self._close_command(state.command_begin, begin, state.command_level)
-            state.command_begin = begin
-            state.command_level = float(command[begin - lo])
+                self._close_commands(
+                    np.array([state.command_begin]),
+                    begins[:1] + lo,
+                    np.array([state.command_level]),
+                )
+            # Every stretch that begins here and ends at the next begin here.
+            self._close_commands(begins[:-1] + lo, begins[1:] + lo, command[begins[:-1]])
+            state.command_begin = int(begins[-1]) + lo
+            state.command_level = float(command[begins[-1]])
         state.command_last = float(command[-1])
         if hi == self.n and state.command_begin is not None and self.n >= 2:
-            self._close_command(state.command_begin, self.n, state.command_level)
+            self._close_commands(
+                np.array([state.command_begin]), np.array([self.n]), np.array([state.command_level])
+            )
 
-    def _close_command(self, begin: int, end: int, level: float) -> None:
-        if abs(level) >= self.settings.standstill_mm_min and end - begin >= self.min_n:
-            self.found.command.append((begin, end, level))
+    def _close_commands(self, begin: IntArray, end: IntArray, level: FloatArray) -> None:
+        """Keep the stretches above standstill that last ``min_window_s``, in order."""
+        keep = (np.abs(level) >= self.settings.standstill_mm_min) & (end - begin >= self.min_n)
+        self.found.command.extend(
+            zip(begin[keep].tolist(), end[keep].tolist(), level[keep].tolist(), strict=True)
+        )
 
     def _plateaus(self, state: SweepState, detect_part: FloatArray) -> None:
         """Plateau runs and the longest stretch above standstill, with the filters' reach."""
