@@ -186,10 +186,8 @@ class _MemoryReader:
         self.recording = recording
         self.column = {name: k for k, name in enumerate(recording.channel_names)}
         self.chunk_rows = max(len(recording), 1)
-
-    def chunks(self) -> Iterator[RowChunk]:
-        """The one chunk (none for an empty recording)."""
-        return recording_chunks(self.recording)
+        # One reading: the one chunk, the same every time (none for an empty recording).
+        self.chunks = recording_chunks(recording)
 
     def seen(self, chunk: RowChunk) -> None:
         """Nothing to report: the rows are in memory."""

@@ -10,7 +10,7 @@ left out as implausible (the analysis does that, :mod:`ncmeasure.validity`).
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import Final
 
 import numpy as np
@@ -44,10 +44,14 @@ WINDOW_SIGNALS: Final = ("velocity_mm_min", "position_mm", "velocity_cmd_mm_min"
 """The signals of an axis the windows are found by."""
 
 
-def recording_chunks(recording: Recording) -> Iterator[RowChunk]:
-    """A recording in memory as one chunk of all its rows and channels (views, no copy)."""
-    if len(recording):
-        yield RowChunk(0, recording.time_s, recording.values)
+def recording_chunks(recording: Recording) -> Callable[[], Iterator[RowChunk]]:
+    """A reader of a recording in memory: one chunk of all its rows and channels.
+
+    The same chunk on every reading (views of the recording's arrays, no copy;
+    none for an empty recording).
+    """
+    chunks = [RowChunk(0, recording.time_s, recording.values)] if len(recording) else []
+    return lambda: iter(chunks)
 
 
 def array_rows(
@@ -155,7 +159,5 @@ def windows_of(
         for signal in WINDOW_SIGNALS
         if f"{axis}_{signal}" in names
     }
-    source = Rows(
-        lambda: recording_chunks(recording), column, max(len(recording), 1), checked=False
-    )
+    source = Rows(recording_chunks(recording), column, max(len(recording), 1), checked=False)
     return axis_windows(axis, source, schedule, settings or SegmentSettings())

@@ -70,16 +70,29 @@ class Rows:
     chunk_rows: int
     limits: Mapping[str, float | None] = field(default_factory=dict)
     checked: bool = True
+    _cleaned: dict[str, tuple[RowChunk, FloatArray]] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
 
     def clean(self, chunk: RowChunk, name: str) -> FloatArray:
-        """A channel's values in a chunk, the implausible ones NaN (where checked)."""
+        """A channel's values in a chunk, the implausible ones NaN (where checked).
+
+        Every task of a pass looks at the same chunk, and a recording in memory
+        is the same chunk on every pass: a channel's last chunk is cleaned
+        once (the arrays returned are never written to).
+        """
+        held = self._cleaned.get(name)
+        if held is not None and held[0] is chunk:
+            return held[1]
         values = chunk.values[:, self.column[name]]
         if self.checked:
             bad = implausible(values, self.limits.get(name))
             if bad.any():
                 values = values.copy()
                 values[bad] = np.nan
-        return np.ascontiguousarray(values, dtype=np.float64)
+        cleaned = np.ascontiguousarray(values, dtype=np.float64)
+        self._cleaned[name] = (chunk, cleaned)
+        return cleaned
 
 
 @dataclass

@@ -24,7 +24,6 @@ from numpy.typing import NDArray
 from ncmeasure.analysis.windows.scan import AxisStatistics, Rows, bridge_chunk
 from ncmeasure.analysis.windows.signals import position_velocity, runs
 from ncmeasure.recording import RowChunk
-from ncmeasure.validity import implausible
 
 __all__ = [
     "Ahead",
@@ -235,7 +234,6 @@ def cleaned_rows(
     central differences need ``h`` rows ahead, so blocks lag by ``h`` rows.
     Without a usable position, x is the integrated velocity (relative).
     """
-    column = source.column
     stats = statistics
     n = stats.rows
     scale = dt / 60.0
@@ -243,14 +241,7 @@ def cleaned_rows(
     ahead = Ahead(h, h, n)
 
     def cleaned(chunk: RowChunk, signal: str) -> FloatArray:
-        name = f"{axis}_{signal}"
-        values = chunk.values[:, column[name]]
-        if source.checked:
-            bad = implausible(values, source.limits.get(name))
-            if bad.any():
-                values = values.copy()
-                values[bad] = np.nan
-        return np.ascontiguousarray(values, dtype=np.float64)
+        return source.clean(chunk, f"{axis}_{signal}")
 
     def bridged(chunk: RowChunk, signal: str, index: int) -> FloatArray:
         before, after = stats.neighbours[signal]
