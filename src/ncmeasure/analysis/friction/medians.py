@@ -229,10 +229,10 @@ def middle(lengths: IntArray, low: FloatArray, high: FloatArray) -> FloatArray:
 def grouped_medians(
     values: FloatArray, bounds: IntArray, low: FloatArray, quantum: float
 ) -> FloatArray:
-    """:func:`grouped_median` of every segment of ``values``, from its lower median ``low``.
+    """:func:`~ncmeasure.analysis.friction.table.grouped_median` of every segment, from ``low``.
 
     ``bounds`` cut ``values`` into consecutive segments; NaN for an empty one.
-    The arithmetic is :func:`grouped_median`'s, so the numbers are the same.
+    The arithmetic is the same, so are the numbers.
     """
     lengths = np.diff(bounds)
     result = np.full(len(lengths), np.nan)
