@@ -6,7 +6,7 @@ one after the other, 5 positions, 50 geometric velocity steps
 a real recording and read back. Two rows, each timed in interleaved rounds
 (A B A B ...), reported as median and range:
 
-* **nonlinear fits**: :func:`~ncmeasure.analysis.friction.fit.fit_nonlinear`, the
+* **nonlinear fits**: :func:`~ncmeasure.analysis.friction.stribeck.fit_nonlinear`, the
   Stribeck and the extended model, for every axis, position and direction
   (3 × 5 × 2 × 2 = 60 fits), on exactly the points the analysis fits (the
   friction magnitudes with the offset taken out and their σ, as

@@ -262,7 +262,7 @@ def friction_table(
     Args:
         axis: The axis name.
         current_a: The motor current of the axis, all samples (n,).
-        windows: Its labelled windows (:func:`~ncmeasure.analysis.windows.finder.find_windows`).
+        windows: Its labelled windows (:func:`~ncmeasure.analysis.windows.find.find_windows`).
         torque_constant_nm_per_a: k_T; the table is in Nm when given, else in A.
         current_quantum_a: One count of a quantised current (0: continuous);
             medians are then medians of grouped data (:func:`grouped_median`).
