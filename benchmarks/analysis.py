@@ -13,7 +13,7 @@ and schedule; the time is printed). Then, in the same run, the table
 position, direction and step, over every sample of the windows) is built
 from the same windows:
 
-* ncmeasure: :func:`~ncmeasure.analysis.friction.friction_table`, one call per
+* ncmeasure: :func:`~ncmeasure.analysis.friction.table.friction_table`, one call per
   axis (which also computes the batch standard errors: more work than the
   baselines do);
 * pandas: one DataFrame per window (current and its labels), ``pd.concat``,
@@ -57,8 +57,10 @@ import numpy as np
 import pandas as pd  # type: ignore[import-untyped]
 from measurement import measurement_axes
 
-from ncmeasure.analysis.friction import FrictionTable, friction_table
-from ncmeasure.analysis.segment import Segmentation, SegmentSettings, windows_of
+from ncmeasure.analysis.friction.table import FrictionTable, friction_table
+from ncmeasure.analysis.windows.find import windows_of
+from ncmeasure.analysis.windows.model import Segmentation
+from ncmeasure.analysis.windows.settings import SegmentSettings
 from ncmeasure.recording import Recording
 from ncmeasure.sim.synthetic import synthetic_recording
 

@@ -6,11 +6,11 @@ one after the other, 5 positions, 50 geometric velocity steps
 a real recording and read back. Two rows, each timed in interleaved rounds
 (A B A B ...), reported as median and range:
 
-* **nonlinear fits**: :func:`~ncmeasure.analysis.fit.fit_nonlinear`, the
+* **nonlinear fits**: :func:`~ncmeasure.analysis.friction.stribeck.fit_nonlinear`, the
   Stribeck and the extended model, for every axis, position and direction
   (3 × 5 × 2 × 2 = 60 fits), on exactly the points the analysis fits (the
   friction magnitudes with the offset taken out and their σ, as
-  :func:`~ncmeasure.analysis.fit.fit_direction` prepares them). Baseline: the
+  :func:`~ncmeasure.analysis.friction.fit.fit_direction` prepares them). Baseline: the
   whole analysis of the same recording (``analyze``, which includes these
   fits), so the share of the fits is printed next to the goal (≤ 1 s).
 * **report**: what ``ncmeasure analyze RUN --schedule S --report R`` does,
@@ -43,7 +43,8 @@ import numpy as np
 from measurement import measurement_axes
 
 from ncmeasure.analysis.analyze import analyze
-from ncmeasure.analysis.fit import fit_nonlinear, point_sigma
+from ncmeasure.analysis.friction.fit import point_sigma
+from ncmeasure.analysis.friction.stribeck import fit_nonlinear
 from ncmeasure.formats.results import Results, write_results
 from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import RecordingHead

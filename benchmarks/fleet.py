@@ -54,7 +54,8 @@ import numpy as np
 from sqlalchemy import func, select
 
 from ncmeasure.analysis.analyze import analyze
-from ncmeasure.analysis.compare import compare_results, modified_z_against
+from ncmeasure.analysis.judgement.compare import compare_results
+from ncmeasure.analysis.judgement.fleet import modified_z_against
 from ncmeasure.formats.comparison import Limits
 from ncmeasure.formats.results import Results, write_results
 from ncmeasure.inputs import read_text

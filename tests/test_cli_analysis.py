@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from ncmeasure.analysis.summary import axis_headline
+from ncmeasure.analysis.judgement.summary import axis_headline
 from ncmeasure.cli import app
 from ncmeasure.formats.results import load_results
 from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording

@@ -27,10 +27,15 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from ncmeasure.analysis.analyze import analyze
 from ncmeasure.cli import app
+from ncmeasure.config import load_machine
 from ncmeasure.demo import DemoResult, run_demo
+from ncmeasure.formats.results import Results
+from ncmeasure.formats.schedule import load_schedule
 from ncmeasure.recording import read_recording
 from ncmeasure.sim.axis import EXAMPLE_VARIATIONS
+from tests.analysis import oracle
 
 BIAS_PERCENT = 1.5
 POINT_PERCENT = 10.0
@@ -110,6 +115,29 @@ def test_demo_without_variation(nominals: Callable[[str], DemoResult], link: str
     assert "virtual machine" in html and "Stribeck" in html
     truth = json.loads((folder / "truth.json").read_text(encoding="utf-8"))
     assert truth["axes"]["X"]["variation"] == {}
+
+
+@pytest.mark.parametrize("link", LINKS)
+def test_the_demo_analysis_is_the_oracle_s(
+    nominals: Callable[[str], DemoResult], link: str
+) -> None:
+    """The analysis of a recording made through a link gives the results of the method on
+    whole arrays (tests/analysis/oracle.py): in memory, as the demo reads it, and from its
+    file; with the program's schedule and machine file, and without (clusters)."""
+    nominal = nominals(link)
+    recording = read_recording(nominal.measured.recording)
+    folder = nominal.directory
+    schedule = load_schedule(folder / "programs" / "schedule.json")
+    machine = load_machine(folder / "machine.toml")
+
+    def dump(results: Results) -> dict[str, object]:
+        return results.model_dump(exclude={"created_utc"})
+
+    expected = dump(oracle.analyze(recording, schedule=schedule, machine=machine))
+    assert dump(nominal.measured.results) == expected
+    found = analyze(recording.directory, schedule=schedule, machine=machine, rows=1000)
+    assert dump(found) == expected
+    assert dump(analyze(recording)) == dump(oracle.analyze(recording))
 
 
 @pytest.mark.parametrize(("link", "cause"), VARIATIONS)

@@ -42,7 +42,7 @@ import numpy as np
 
 from ncmeasure.acquire import AcquisitionResult, record
 from ncmeasure.analysis.analyze import analyze
-from ncmeasure.analysis.compare import compare_results
+from ncmeasure.analysis.judgement.compare import compare_results
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.errors import ConfigError, LinkError, OutputError
 from ncmeasure.examples import DEMO_LINKS, demo_machine

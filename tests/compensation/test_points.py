@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from ncmeasure.analysis.fit import fit_direction, separate_offset
+from ncmeasure.analysis.friction.fit import fit_direction, separate_offset
 from ncmeasure.compensation.points import axis_friction, speed_grid
 from ncmeasure.errors import ConfigError
 from ncmeasure.formats.results import AxisResult, Point, PositionResult

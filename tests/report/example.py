@@ -8,7 +8,7 @@ its points include a gravity offset, friction is flat along the travel.
 Both axes follow a Stribeck curve (T_C ≈ 1.5 Nm, T_S ≈ 2.3 Nm, v_S ≈ 120 mm/min,
 viscous ≈ 0.09 Nm per m/min) measured at 3 positions and 10 velocities in both
 directions, sampled every 4 ms like a Sinumerik trace. The results are built
-from the pydantic models; the fits come from :mod:`ncmeasure.analysis.fit`.
+from the pydantic models; the fits come from :mod:`ncmeasure.analysis.friction.fit`.
 
 :func:`healthy_recording` is the other side: a correctly assembled axis X
 whose friction is the same along the travel (with a Stribeck hump at low
@@ -31,9 +31,10 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.analyze import AnalysisSettings, recording_gaps
-from ncmeasure.analysis.fit import fit_direction, separate_offset
-from ncmeasure.analysis.verdict import axis_verdict
+from ncmeasure.analysis.analyze import AnalysisSettings
+from ncmeasure.analysis.friction.fit import fit_direction, separate_offset
+from ncmeasure.analysis.judgement.verdict import axis_verdict
+from ncmeasure.analysis.reading import recording_gaps
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.examples import example_machine
 from ncmeasure.formats.results import (

@@ -23,8 +23,8 @@ from matplotlib.figure import Figure
 from pydantic import BaseModel
 
 from ncmeasure.analysis.analyze import analyze
-from ncmeasure.analysis.compare import compare_results
-from ncmeasure.analysis.summary import axis_headline
+from ncmeasure.analysis.judgement.compare import compare_results
+from ncmeasure.analysis.judgement.summary import axis_headline
 from ncmeasure.formats.comparison import Comparison
 from ncmeasure.formats.results import (
     AxisResult,

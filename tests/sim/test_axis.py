@@ -13,7 +13,7 @@ from typing import Any, Literal, get_args
 import numpy as np
 import pytest
 
-from ncmeasure.analysis.diagnosis import position_dependency
+from ncmeasure.analysis.judgement.diagnosis import position_dependency
 from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError
 from ncmeasure.formats.results import CauseName

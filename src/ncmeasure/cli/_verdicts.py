@@ -7,7 +7,7 @@ from ncmeasure.cli._app import console
 if TYPE_CHECKING:
     from rich.text import Text
 
-    from ncmeasure.analysis.summary import AxisComparison, Headline
+    from ncmeasure.analysis.judgement.summary import AxisComparison, Headline
     from ncmeasure.formats.comparison import Comparison
     from ncmeasure.formats.results import Results
 
@@ -65,7 +65,7 @@ def print_verdict(
     """The verdict line of one axis, with its change against the comparison's base."""
     from rich.text import Text
 
-    from ncmeasure.analysis.summary import axis_comparison, axis_headline
+    from ncmeasure.analysis.judgement.summary import axis_comparison, axis_headline
 
     against = axis_comparison(comparison, name) if comparison is not None else None
     headline = axis_headline(results.axes[name], against)
@@ -122,7 +122,7 @@ def print_comparison(comparison: "Comparison", runs: "list[Results]") -> None:
     """Per compared run and axis: its verdict with the change, the report's headline figure."""
     from rich.text import Text
 
-    from ncmeasure.analysis.summary import axis_comparison, axis_headline, format_number
+    from ncmeasure.analysis.judgement.summary import axis_comparison, axis_headline, format_number
 
     for label, results in zip(comparison.others, runs, strict=True):
         for name, axis in results.axes.items():

@@ -240,7 +240,7 @@ def compare_command(
 
     Example: ncmeasure compare m17/results.json m18/results.json m19/results.json
     """
-    from ncmeasure.analysis.compare import compare_results
+    from ncmeasure.analysis.judgement.compare import compare_results
     from ncmeasure.formats.comparison import write_comparison
     from ncmeasure.formats.results import load_results
 

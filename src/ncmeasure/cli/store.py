@@ -161,7 +161,7 @@ def store_trend_command(
     from rich.table import Table
     from rich.text import Text
 
-    from ncmeasure.analysis.summary import format_number
+    from ncmeasure.analysis.judgement.summary import format_number
 
     chosen = limits(warning, critical)
     with open_store(store, write=False) as fleet:

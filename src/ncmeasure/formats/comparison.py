@@ -1,6 +1,6 @@
 """A comparison of friction results (``comparison.json``): what changed, how much, and why.
 
-Written by ``ncmeasure compare`` (:func:`~ncmeasure.analysis.compare.compare_results`
+Written by ``ncmeasure compare`` (:func:`~ncmeasure.analysis.judgement.compare.compare_results`
 computes it); read by the report, the store and the dashboard. The
 :class:`Limits` say when a change is worth a warning and when it is critical;
 :data:`Status` is the verdict of a run against its base.
@@ -158,7 +158,7 @@ class AxisChange(_Model):
 
     The change profile comes from the ratio other/base per (direction,
     velocity) and position, reduced to one relative profile by
-    :func:`~ncmeasure.analysis.diagnosis.position_dependency`; the rules that
+    :func:`~ncmeasure.analysis.judgement.diagnosis.position_dependency`; the rules that
     turn it into causes are in ``docs/analysis-models.md``.
     """
 

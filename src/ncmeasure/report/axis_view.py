@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from typing import Final
 
-from ncmeasure.analysis.summary import Headline
-from ncmeasure.analysis.verdict import percent_text
+from ncmeasure.analysis.judgement.summary import Headline
+from ncmeasure.analysis.judgement.verdict import percent_text
 from ncmeasure.formats.results import AxisResult, DirectionResult, LinearFit, NonlinearFit
 from ncmeasure.report.curves import offset_is_significant
 from ncmeasure.report.view import (

@@ -2,7 +2,7 @@
 
 The part of :func:`~ncmeasure.report.page.page_view` that turns a
 comparison into its :class:`~ncmeasure.report.view.ComparisonView`: an
-ncmeasure :class:`~ncmeasure.analysis.compare.Comparison` in full, any other
+ncmeasure :class:`~ncmeasure.analysis.judgement.compare.Comparison` in full, any other
 comparison model as its summary, findings and a table of the rest.
 """
 
@@ -14,7 +14,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from ncmeasure.analysis.summary import axis_comparison
+from ncmeasure.analysis.judgement.summary import axis_comparison
 from ncmeasure.formats.comparison import Comparison, GroupDeviation
 from ncmeasure.report.view import (
     ComparisonPart,

@@ -1,6 +1,6 @@
 """The fitted friction models as curves over signed velocity, to draw through the points.
 
-The fits (:mod:`ncmeasure.analysis.fit`) describe friction as a positive
+The fits (:mod:`ncmeasure.analysis.friction.fit`) describe friction as a positive
 magnitude over speed |v|; the points of the negative direction are negative.
 A curve is therefore the direction's sign times the magnitude model. Where
 the analysis took the offset (gravity) out before fitting while the points
@@ -16,7 +16,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.fit import (
+from ncmeasure.analysis.friction.stribeck import (
     EXTENDED_PARAMETERS,
     ROLLING_REFERENCE_MM_MIN,
     STRIBECK_PARAMETERS,

@@ -30,8 +30,13 @@ from jinja2.sandbox import SandboxedEnvironment
 from pydantic import BaseModel
 
 from ncmeasure._version import __version__
-from ncmeasure.analysis.analyze import recording_gaps
-from ncmeasure.analysis.summary import AxisComparison, Headline, axis_comparison, axis_headline
+from ncmeasure.analysis.judgement.summary import (
+    AxisComparison,
+    Headline,
+    axis_comparison,
+    axis_headline,
+)
+from ncmeasure.analysis.reading import recording_gaps
 from ncmeasure.formats.comparison import Comparison
 from ncmeasure.formats.results import AxisResult, ModelName, Results
 from ncmeasure.recording import Recording, RecordingHead
@@ -300,7 +305,7 @@ def page_view(
 ) -> PageView:
     """What the page shows, as text: the view model :func:`render_page` renders.
 
-    With a :class:`~ncmeasure.analysis.compare.Comparison`, each axis' verdict
+    With a :class:`~ncmeasure.analysis.judgement.compare.Comparison`, each axis' verdict
     is combined with its change against the base (the last compared run's:
     the run the report shows).
     """

@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.streaming import Task, run_tasks
-from ncmeasure.analysis.watch import AxisWindows, NamedChunk, Watch
+from ncmeasure.analysis.windows.streaming import Task, run_tasks
+from ncmeasure.analysis.windows.watch import AxisWindows, NamedChunk, Watch
 from ncmeasure.errors import RecordingError
 from ncmeasure.recording import Recording, RecordingHead, iter_chunks
 from ncmeasure.report.raw_plots import OVERVIEW_BINS, RawTrace, _stretch

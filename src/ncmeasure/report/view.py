@@ -13,7 +13,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from ncmeasure.analysis.summary import Headline
+from ncmeasure.analysis.judgement.summary import Headline
 from ncmeasure.formats.results import AxisResult, ModelName, PositionResult
 from ncmeasure.report.bearings import BearingLayout
 from ncmeasure.report.words import format_mm

@@ -14,7 +14,8 @@ from collections.abc import Iterable, Mapping
 from pydantic import ValidationError
 
 from ncmeasure.analysis.analyze import AnalysisSettings
-from ncmeasure.analysis.segment import VelocityWindow, windows_of
+from ncmeasure.analysis.windows.find import windows_of
+from ncmeasure.analysis.windows.model import VelocityWindow
 from ncmeasure.recording import Recording
 
 __all__ = ["find_window_times", "window_times"]

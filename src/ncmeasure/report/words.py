@@ -11,7 +11,7 @@ import datetime as dt
 import math
 from typing import Final
 
-from ncmeasure.analysis.summary import format_number
+from ncmeasure.analysis.judgement.summary import format_number
 from ncmeasure.formats.results import CauseName, Signature
 
 __all__ = [

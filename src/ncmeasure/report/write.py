@@ -100,7 +100,7 @@ def write_report(
             shaded in the raw data. An axis missing here has its windows found
             again in the recording with the settings in ``results.settings``.
         comparison: A comparison with earlier results:
-            :func:`~ncmeasure.analysis.compare.compare_results`' result, of
+            :func:`~ncmeasure.analysis.judgement.compare.compare_results`' result, of
             which ``results`` is the last compared run; or any pydantic model
             (its ``summary`` and ``findings`` are shown first, the other
             fields in a table).

@@ -1,7 +1,7 @@
 """``store check``: a machine's latest measurement against its delivery baseline and its fleet.
 
 Against the baseline (the first measurement labelled ``delivery``, else the
-first), the comparison is :func:`~ncmeasure.analysis.compare.compare_results`,
+first), the comparison is :func:`~ncmeasure.analysis.judgement.compare.compare_results`,
 with its limits and exit status, after the comparability rules
 (:func:`comparability`) have said what differs between the two measurements.
 
@@ -26,11 +26,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import func, select
 
-from ncmeasure.analysis.compare import (
-    POSITION_MATCH_TOLERANCE_MM,
-    compare_results,
-    modified_z_against,
-)
+from ncmeasure.analysis.judgement.compare import POSITION_MATCH_TOLERANCE_MM, compare_results
+from ncmeasure.analysis.judgement.fleet import modified_z_against
 from ncmeasure.errors import ComparisonError
 from ncmeasure.files import write_whole
 from ncmeasure.formats.comparison import Comparison, Limits, Status, worst_status

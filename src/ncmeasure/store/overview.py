@@ -7,7 +7,7 @@ machine's baseline (the first measurement labelled ``delivery``, else the
 first), and whether the latest value is an outlier of the machine's type. The
 outliers are those of ``store check`` (the same modified z against the other
 machines' latest measurements, the same floor): computed for the whole fleet
-at once (:func:`~ncmeasure.analysis.compare.modified_z_leave_one_out`), so a
+at once (:func:`~ncmeasure.analysis.judgement.fleet.modified_z_leave_one_out`), so a
 fleet of ten thousand machines takes seconds, not ten thousand checks.
 
 The change since the baseline here is that of the characteristics (a relative
@@ -27,8 +27,8 @@ from typing import Any
 import numpy as np
 from sqlalchemy import select
 
-from ncmeasure.analysis.compare import modified_z_leave_one_out
-from ncmeasure.analysis.diagnosis import FLAT_THRESHOLD_PERCENT
+from ncmeasure.analysis.judgement.diagnosis import FLAT_THRESHOLD_PERCENT
+from ncmeasure.analysis.judgement.fleet import modified_z_leave_one_out
 from ncmeasure.formats.comparison import Limits, Status, worst_status
 from ncmeasure.store import schema as t
 from ncmeasure.store.rows import CHARACTERISTICS, Characteristic

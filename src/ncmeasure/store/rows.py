@@ -1,7 +1,7 @@
 """One results.json as the store's rows (pure: no database here).
 
 The characteristics kept per axis are those the report's headline shows
-(:func:`ncmeasure.analysis.summary.axis_headline`): the mean Coulomb friction over
+(:func:`ncmeasure.analysis.judgement.summary.axis_headline`): the mean Coulomb friction over
 the positions (and per direction), the mean viscous friction per m/min, the
 spread along the travel with its signature, and the offset.
 """
@@ -15,7 +15,7 @@ import zlib
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from ncmeasure.analysis.summary import axis_headline
+from ncmeasure.analysis.judgement.summary import axis_headline
 from ncmeasure.formats.results import AxisResult, LinearFit, NonlinearFit, Results
 
 __all__ = [

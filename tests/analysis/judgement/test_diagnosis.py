@@ -8,7 +8,7 @@ from typing import Literal
 import numpy as np
 import pytest
 
-from ncmeasure.analysis.diagnosis import FLAT_THRESHOLD_PERCENT, position_dependency
+from ncmeasure.analysis.judgement.diagnosis import FLAT_THRESHOLD_PERCENT, position_dependency
 from ncmeasure.formats.results import PositionDependency
 
 TRAVEL = (0.0, 750.0)  # the test rig's travel

@@ -11,11 +11,11 @@ summary all show the same quantity, computed here once:
   is left out, never counted as zero;
 - the **spread along the travel** and its pattern, from the position
   dependency;
-- the **verdict** (:mod:`~ncmeasure.analysis.verdict`), combined with a
+- the **verdict** (:mod:`~ncmeasure.analysis.judgement.verdict`), combined with a
   comparison against a reference when there is one
-  (:func:`~ncmeasure.analysis.verdict.comparison_verdict`).
+  (:func:`~ncmeasure.analysis.judgement.verdict.comparison_verdict`).
 
-:func:`axis_comparison` reads a :class:`~ncmeasure.analysis.compare.Comparison`
+:func:`axis_comparison` reads a :class:`~ncmeasure.analysis.judgement.compare.Comparison`
 for one axis: its status (the worst of its positions and directions) and
 the change in words, positions numbered as everywhere else (``position 2
 (375 mm)``, the position index + 1).
@@ -28,8 +28,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final, Literal
 
-from ncmeasure.analysis.compare import CHANGE_SHAPE
-from ncmeasure.analysis.verdict import comparison_verdict, percent_text
+from ncmeasure.analysis.judgement.compare import CHANGE_SHAPE
+from ncmeasure.analysis.judgement.verdict import comparison_verdict, percent_text
 from ncmeasure.formats.comparison import AxisChange, Comparison, GroupDeviation, worst_status
 from ncmeasure.formats.results import AxisResult, Cause, Signature, Verdict
 

@@ -9,14 +9,15 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from ncmeasure.analysis import friction
-from ncmeasure.analysis.friction import (
+from ncmeasure.analysis.friction import table as friction
+from ncmeasure.analysis.friction.medians import sample_index
+from ncmeasure.analysis.friction.table import (
     friction_table,
     grouped_median,
     window_samples,
     window_table,
 )
-from ncmeasure.analysis.segment import VelocityWindow
+from ncmeasure.analysis.windows.model import VelocityWindow
 
 
 def _window(
@@ -225,7 +226,7 @@ def test_sample_index_is_the_concatenated_ranges_whatever_their_lengths(seed: in
         starts = rng.integers(0, 40, count).astype(np.intp)
         lengths = (rng.integers(0, 5, count) * rng.integers(0, 2, count)).astype(np.intp)
         expected = [i for s, n in zip(starts, lengths, strict=True) for i in range(s, s + n)]
-        index = friction._sample_index(starts, lengths)
+        index = sample_index(starts, lengths)
         assert index.dtype == np.intp
         assert index.tolist() == expected
 

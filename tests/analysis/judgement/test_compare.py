@@ -12,12 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from ncmeasure.analysis.compare import (
-    ComparisonError,
-    compare_results,
-    modified_z_against,
-    modified_z_leave_one_out,
-)
+from ncmeasure.analysis.judgement.compare import ComparisonError, compare_results
+from ncmeasure.analysis.judgement.fleet import modified_z_against, modified_z_leave_one_out
 from ncmeasure.formats.comparison import AxisChange, Comparison, Limits
 from ncmeasure.formats.results import (
     AxisResult,

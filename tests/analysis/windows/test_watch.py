@@ -7,10 +7,10 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
-import ncmeasure.analysis.analyze as analyze_module
+import ncmeasure.analysis.reading as reading_module
 from ncmeasure.analysis.analyze import analyze
-from ncmeasure.analysis.streaming import Task
-from ncmeasure.analysis.watch import AxisWindows, NamedChunk, Watch, Watchers
+from ncmeasure.analysis.windows.streaming import Task
+from ncmeasure.analysis.windows.watch import AxisWindows, NamedChunk, Watch, Watchers
 from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import Recording, RecordingHead, RecordingWriter, RowChunk
 from ncmeasure.samples import SampleBlock
@@ -77,7 +77,7 @@ def _counting(
 ) -> list[tuple[tuple[str, ...] | None, list[int]]]:
     """Every reading of the analysis: its channels and the first row of each chunk."""
     readings: list[tuple[tuple[str, ...] | None, list[int]]] = []
-    original = analyze_module.iter_chunks
+    original = reading_module.iter_chunks
 
     def counted(*args: object, **kwargs: object) -> Iterator[RowChunk]:
         firsts: list[int] = []
@@ -87,7 +87,7 @@ def _counting(
             firsts.append(chunk.first)
             yield chunk
 
-    monkeypatch.setattr(analyze_module, "iter_chunks", counted)
+    monkeypatch.setattr(reading_module, "iter_chunks", counted)
     return readings
 
 

@@ -8,7 +8,7 @@ shows and the span of its overview follow the windows) gives
 :func:`~ncmeasure.analysis.analyze.analyze` an ``on_windows`` function
 (:data:`OnWindows`). Called with the :class:`AxisWindows` of every analysed
 axis, it returns a :class:`Watch`: the channels it needs and a task of
-:mod:`~ncmeasure.analysis.streaming` (a generator yielding a feed for each
+:mod:`~ncmeasure.analysis.windows.streaming` (a generator yielding a feed for each
 whole pass over the rows, returning when done; its value is not used). The
 analysis feeds every task the chunks of its next readings of the file, and
 only where none is left (the last axis') reads once more: only the channels
@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.streaming import Task
+from ncmeasure.analysis.windows.streaming import Task
 from ncmeasure.errors import RecordingError
 from ncmeasure.recording import RowChunk
 

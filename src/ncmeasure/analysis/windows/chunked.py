@@ -1,9 +1,9 @@
-"""Windows of a recording too long to hold: found chunk by chunk, kept as slices.
+"""The window finder on a recording read chunk by chunk: stretches found in passes, kept as slices.
 
-The second pass of a bounded-memory analysis. :mod:`~ncmeasure.analysis.scan`
-gave every whole-signal statistic; :class:`SlicedFinder` finds the same
-windows as :func:`~ncmeasure.analysis.segment.find_windows` on the whole
-arrays, with memory bounded by the windows, not by the recording:
+The second pass of the analysis, whose memory is bounded by the windows, not by
+the recording. :mod:`~ncmeasure.analysis.windows.scan` gave every whole-signal
+statistic; :class:`ChunkedFinder` then finds the stretches that
+:class:`~ncmeasure.analysis.windows.finder.WindowFinder` trims, checks and labels:
 
 * a pass over the rows finds the runs of the marker and the stretches of
   constant commanded velocity, carrying state across chunk edges; only where
@@ -12,235 +12,66 @@ arrays, with memory bounded by the windows, not by the recording:
   ``plateau_min_s`` plus the filter width beyond each chunk); the velocity
   derived from the position looks ±h rows beyond each chunk;
 * where the velocity signal is coarse, a pass before it takes the median
-  ratio of derived to read velocity (:mod:`~ncmeasure.analysis.streaming`);
+  ratio of derived to read velocity (:mod:`~ncmeasure.analysis.windows.streaming`);
 * a way that found stretches reads, in one more pass, the samples of its
   stretches only (time, velocity, position, derived velocity, command,
   marker, current), with margins of ``settle_s`` plus the filter width;
   trimming, the position check, the schedule, cutting whole runs and
-  labelling read only these slices (:class:`Sparse`).
+  labelling read only these slices (:class:`~ncmeasure.analysis.windows.sweep.Sparse`).
 
-Every row is cleaned and bridged as on the whole arrays (implausible values
-left out, gaps bridged from the neighbours :mod:`~ncmeasure.analysis.scan`
-noted), so the windows are the same, bit for bit.
+Every row is cleaned and bridged as the whole signal would be (implausible
+values left out, gaps bridged from the neighbours
+:mod:`~ncmeasure.analysis.windows.scan` noted,
+:func:`~ncmeasure.analysis.windows.sweep.cleaned_rows`), so the windows do not
+depend on the chunks, bit for bit: a recording in memory, read as one chunk,
+gives the windows of its file read in chunks of any size. The tests check both
+against a finder on the whole arrays (``tests/analysis/oracle.py``).
 """
 
 from __future__ import annotations
 
-import bisect
 import math
-from collections.abc import Callable, Generator, Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import cast
+from collections.abc import Callable, Generator, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import median_filter
 
-from ncmeasure.analysis.scan import AxisStatistics, bridge_chunk
-from ncmeasure.analysis.segment import (
-    MIN_WINDOW_SAMPLES,
-    SegmentSettings,
-    _Candidate,
-    _Finder,
-    _runs,
-    command_repeats,
-    plateau_mask,
-    position_velocity,
+from ncmeasure.analysis.windows.finder import WindowFinder
+from ncmeasure.analysis.windows.model import Candidate
+from ncmeasure.analysis.windows.scan import AxisStatistics, Rows
+from ncmeasure.analysis.windows.settings import MIN_WINDOW_SAMPLES, SegmentSettings
+from ncmeasure.analysis.windows.signals import command_repeats, plateau_mask, runs
+from ncmeasure.analysis.windows.streaming import median_task, run_task
+from ncmeasure.analysis.windows.sweep import (
+    Ahead,
+    Block,
+    Found,
+    Keeper,
+    Sparse,
+    SweepState,
+    as_array,
+    cleaned_rows,
+    merged,
 )
-from ncmeasure.analysis.streaming import median_task, run_task
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import RowChunk
-from ncmeasure.validity import implausible
 
-__all__ = ["SlicedFinder", "Sparse"]
+__all__ = ["ChunkedFinder"]
 
 FloatArray = NDArray[np.float64]
-Columns = dict[str, FloatArray]
-Block = tuple[int, int, Columns]
-"""Rows ``lo`` .. ``hi`` of a recording: their columns, in rows lo..hi."""
+IntArray = NDArray[np.intp]
 Feed = Callable[[RowChunk], None]
 
 
-class Sparse:
-    """Stretches of one signal of a recording, read like the whole array by slices.
-
-    ``values[a:b]`` gives the samples a..b when one stretch holds them all; a
-    slice reaching outside the stretches is an error of the analysis, never
-    a silent gap.
-    """
-
-    def __init__(self, rows: int, starts: Sequence[int], parts: Sequence[FloatArray]) -> None:
-        self.rows = rows
-        self.starts = list(starts)
-        self.parts = list(parts)
-
-    def __len__(self) -> int:
-        return self.rows
-
-    def __getitem__(self, index: slice) -> FloatArray:
-        start = 0 if index.start is None else int(index.start)
-        stop = self.rows if index.stop is None else int(index.stop)
-        k = bisect.bisect_right(self.starts, start) - 1
-        if k < 0 or stop - self.starts[k] > len(self.parts[k]) or index.step is not None:
-            raise IndexError(f"rows {start}..{stop} are outside the slices kept")
-        offset = self.starts[k]
-        return self.parts[k][start - offset : stop - offset]
-
-    @property
-    def samples(self) -> int:
-        """Samples held."""
-        return sum(len(p) for p in self.parts)
-
-
-def _as_array(values: Sparse) -> FloatArray:
-    """A :class:`Sparse` where the finder keeps its arrays.
-
-    The finder reads them by slices of its candidates (with their margins)
-    only, which a Sparse answers; what reads a whole signal is overridden in
-    :class:`SlicedFinder`.
-    """
-    return cast("FloatArray", values)
-
-
-class _Ahead:
-    """Columns of consecutive rows, kept ``left`` rows behind and ``right`` ahead.
-
-    :meth:`push` appends a chunk's rows and says which rows are now complete:
-    those with ``right`` rows after them, or every row once the last one
-    (row ``n − 1``) is in. The buffer keeps ``left`` rows before them.
-    """
-
-    def __init__(self, left: int, right: int, n: int) -> None:
-        self.left = left
-        self.right = right
-        self.n = n
-        self.offset = 0
-        self.done = 0
-        self.columns: Columns = {}
-
-    def push(self, columns: Columns) -> tuple[int, int] | None:
-        if not self.columns:
-            self.columns = dict(columns)
-        else:
-            self.columns = {k: np.concatenate((self.columns[k], columns[k])) for k in self.columns}
-        held = len(next(iter(self.columns.values())))
-        available = self.offset + held
-        end = available if available >= self.n else available - self.right
-        if end <= self.done:
-            return None
-        begin, self.done = self.done, end
-        return begin, end
-
-    def forget(self) -> None:
-        """Drop the rows no later row needs."""
-        keep = max(self.offset, self.done - self.left)
-        cut = keep - self.offset
-        if cut > 0:
-            self.columns = {k: v[cut:] for k, v in self.columns.items()}
-            self.offset = keep
-
-
-@dataclass
-class _Runs:
-    """Runs of a mask given block by block, in order."""
-
-    open_start: int | None = None
-    starts: list[int] = field(default_factory=list)
-    stops: list[int] = field(default_factory=list)
-
-    def add(self, mask: NDArray[np.bool_], lo: int, last: bool) -> None:
-        starts, stops = _runs(mask)
-        starts = (starts + lo).tolist()
-        stops = (stops + lo).tolist()
-        hi = lo + len(mask)
-        if self.open_start is not None:
-            if starts and starts[0] == lo:
-                starts[0] = self.open_start
-            else:
-                starts.insert(0, self.open_start)
-                stops.insert(0, lo)
-            self.open_start = None
-        if stops and stops[-1] == hi and not last:
-            self.open_start = starts.pop()
-            stops.pop()
-        self.starts.extend(starts)
-        self.stops.extend(stops)
-
-
-def _merged(stretches: Iterable[tuple[int, int]]) -> list[tuple[int, int]]:
-    """Stretches sorted, overlapping or touching ones joined."""
-    merged: list[list[int]] = []
-    for a, b in sorted(stretches):
-        if merged and a <= merged[-1][1]:
-            merged[-1][1] = max(merged[-1][1], b)
-        else:
-            merged.append([a, b])
-    return [(a, b) for a, b in merged]
-
-
-class _Keeper:
-    """The samples of one signal inside given stretches, from blocks of rows in order."""
-
-    def __init__(self, stretches: Sequence[tuple[int, int]]) -> None:
-        self.stretches = stretches
-        self.starts = [a for a, _ in stretches]
-        self.pieces: list[list[FloatArray]] = [[] for _ in stretches]
-
-    def add(self, lo: int, hi: int, values: FloatArray) -> None:
-        k = max(0, bisect.bisect_right(self.starts, lo) - 1)
-        while k < len(self.stretches) and self.stretches[k][0] < hi:
-            a, b = self.stretches[k]
-            if b > lo:
-                self.pieces[k].append(values[max(a, lo) - lo : min(b, hi) - lo].copy())
-            k += 1
-
-    def sparse(self, rows: int) -> Sparse:
-        parts = [
-            np.concatenate(p) if len(p) > 1 else (p[0] if p else np.empty(0, dtype=np.float64))
-            for p in self.pieces
-        ]
-        self.pieces = []
-        return Sparse(rows, self.starts, parts)
-
-
-@dataclass
-class _Found:
-    """What the pass over the rows found for one axis."""
-
-    marker_starts: list[int] = field(default_factory=list)
-    marker_stops: list[int] = field(default_factory=list)
-    marker_values: list[float] = field(default_factory=list)
-    command: list[tuple[int, int, float]] = field(default_factory=list)
-    plateaus: list[tuple[int, int]] = field(default_factory=list)
-    longest_moving: int = 0
-    plateaus_swept: bool = False
-
-
-@dataclass
-class _Sweep:
-    """What the pass over the rows carries from one block of rows to the next."""
-
-    plateaus: _Ahead
-    want_plateaus: bool
-    want_still: bool
-    plateau_runs: _Runs = field(default_factory=_Runs)
-    marker_on: bool = False
-    marker_value: float = math.nan
-    command_last: float | None = None
-    command_begin: int | None = None
-    command_level: float = math.nan
-    moving_open: int = 0
-    moving_best: int = 0
-
-
-class SlicedFinder(_Finder):
-    """:func:`~ncmeasure.analysis.segment.find_windows` on a recording read chunk by chunk.
+class ChunkedFinder(WindowFinder):
+    """Finds the windows of one axis of a recording read chunk by chunk.
 
     Made from the axis' first-pass statistics; :meth:`agreement_task` (only
     where :attr:`needs_agreement`) and :meth:`sweep_task` are tasks of
-    :func:`~ncmeasure.analysis.streaming.run_tasks` over the chunks of
-    ``read`` (several axes share each reading); :meth:`run` then reads the
+    :func:`~ncmeasure.analysis.windows.streaming.run_tasks` over the chunks of
+    ``source`` (several axes share each reading); :meth:`run` then reads the
     slices of the stretches it tries and labels the windows.
     """
 
@@ -248,10 +79,7 @@ class SlicedFinder(_Finder):
         self,
         axis: str,
         statistics: AxisStatistics,
-        channels: Iterable[str],
-        bounds: Mapping[str, float | None],
-        read: Callable[[], Iterator[RowChunk]],
-        column: Mapping[str, int],
+        source: Rows,
         schedule: Schedule | None,
         settings: SegmentSettings,
         rapid_mm_min: float | None = None,
@@ -260,10 +88,9 @@ class SlicedFinder(_Finder):
         self.rapid_mm_min = rapid_mm_min
         self.settings = settings
         self.statistics = statistics
-        self.read = read
-        self.column = dict(column)
-        self.bounds = dict(bounds)
-        present = set(channels)
+        self.source = source
+        self.read = source.read
+        present = set(source.column)
         self.has = {
             s: f"{axis}_{s}" in present
             for s in ("position_mm", "velocity_cmd_mm_min", "marker", "current_a")
@@ -272,7 +99,7 @@ class SlicedFinder(_Finder):
         self.dt = statistics.sample_period_s if self.n > 1 else 1.0
         if not self.dt > 0:
             raise RecordingError(f"axis {axis}: the sample times do not increase")
-        empty = _as_array(Sparse(self.n, [], []))
+        empty = as_array(Sparse(self.n, [], []))
         self.marker = empty if self.has["marker"] else None
         self.warnings: list[str] = []
         self.tried: list[str] = []
@@ -303,92 +130,22 @@ class SlicedFinder(_Finder):
         self.needs_agreement = self.from_position
         if not self.needs_agreement:
             self.setup_detection(None)
-        self.found = _Found()
+        self.found = Found()
 
     # -- the rows, cleaned and bridged -------------------------------------------------
 
     def _rows(self, derived: bool) -> Callable[[RowChunk], list[Block]]:
-        """For one pass: a chunk's rows -> the blocks of rows now complete.
-
-        The columns t, v, x, and where recorded cmd, marker, i, and with
-        ``derived`` vd (the velocity the windows are found by): the position's
-        central differences need ``h`` rows ahead, so blocks lag by ``h`` rows.
-        """
-        axis = self.axis
-        column = self.column
-        stats = self.statistics
-        scale = self.dt / 60.0
-        carry = {"x": 0.0}
-        h = self.h if derived and self.from_position else 0
-        ahead = _Ahead(h, h, self.n)
-
-        def cleaned(chunk: RowChunk, signal: str) -> FloatArray:
-            name = f"{axis}_{signal}"
-            values = chunk.values[:, column[name]]
-            bad = implausible(values, self.bounds.get(name))
-            if bad.any():
-                values = values.copy()
-                values[bad] = np.nan
-            return np.ascontiguousarray(values, dtype=np.float64)
-
-        def bridged(chunk: RowChunk, signal: str, index: int) -> FloatArray:
-            before, after = stats.neighbours[signal]
-            return bridge_chunk(cleaned(chunk, signal), chunk.time_s, before[index], after[index])
-
-        def held(chunk: RowChunk, index: int) -> FloatArray:
-            values = cleaned(chunk, "velocity_cmd_mm_min")
-            bad = ~np.isfinite(values)
-            if not bad.any() or stats.finite.get("velocity_cmd_mm_min", 0) == 0:
-                return values
-            before, after = stats.neighbours["velocity_cmd_mm_min"]
-            good = np.flatnonzero(~bad)
-            previous = before[index]
-            if previous is not None:
-                fallback = previous[1]
-            elif len(good):
-                fallback = float(values[good[0]])
-            else:
-                following = after[index]
-                assert following is not None
-                fallback = following[1]
-            last = np.maximum.accumulate(np.where(bad, -1, np.arange(len(values))))
-            return np.where(last >= 0, values[np.maximum(last, 0)], fallback)
-
-        def rows(chunk: RowChunk) -> list[Block]:
-            index = chunk.first // stats.chunk_rows
-            columns: Columns = {"t": chunk.time_s}
-            columns["v"] = bridged(chunk, "velocity_mm_min", index)
-            if self.positions_known:
-                columns["x"] = bridged(chunk, "position_mm", index)
-            else:
-                filled = np.where(np.isfinite(columns["v"]), columns["v"], 0.0)
-                summed = np.cumsum(np.concatenate(([carry["x"]], filled)))[1:]
-                if len(summed):
-                    carry["x"] = float(summed[-1])
-                columns["x"] = summed * scale
-            if self.has["velocity_cmd_mm_min"]:
-                columns["cmd"] = held(chunk, index)
-            if self.has["marker"]:
-                columns["marker"] = cleaned(chunk, "marker")
-            if self.has["current_a"]:
-                columns["i"] = cleaned(chunk, "current_a")
-            span = ahead.push(columns)
-            if span is None:
-                return []
-            lo, hi = span
-            offset = ahead.offset
-            part = {k: v[lo - offset : hi - offset] for k, v in ahead.columns.items()}
-            if derived:
-                if h:
-                    part["vd"] = position_velocity(
-                        ahead.columns["t"], ahead.columns["x"], h, lo, hi, offset, self.n
-                    )
-                else:
-                    part["vd"] = part["v"]
-            ahead.forget()
-            return [(lo, hi, part)]
-
-        return rows
+        """For one pass: a chunk's rows -> the blocks of rows complete (:func:`cleaned_rows`)."""
+        return cleaned_rows(
+            self.axis,
+            self.statistics,
+            self.source,
+            self.has,
+            positions_known=self.positions_known,
+            dt=self.dt,
+            h=self.h if derived and self.from_position else 0,
+            derived=derived,
+        )
 
     def agreement_task(self) -> Generator[Feed, None, None]:
         """Pass: the median ratio of the position's velocity to the readings; then detection.
@@ -424,9 +181,9 @@ class SlicedFinder(_Finder):
     def sweep_task(self) -> Generator[Feed, None, None]:
         """Pass: marker runs and command stretches (see the module docstring)."""
         assert not self.needs_agreement
-        self.found = _Found()
+        self.found = Found()
         rows = self._rows(derived=True)
-        state = _Sweep(plateaus=_Ahead(0, 0, self.n), want_plateaus=False, want_still=False)
+        state = SweepState(plateaus=Ahead(0, 0, self.n), want_plateaus=False, want_still=False)
 
         def feed(chunk: RowChunk) -> None:
             for lo, hi, part in rows(chunk):
@@ -445,8 +202,8 @@ class SlicedFinder(_Finder):
         """
         rows = self._rows(derived=True)
         reach = self.plateau_n + self.filter_n + 2
-        state = _Sweep(
-            plateaus=_Ahead(reach, reach, self.n),
+        state = SweepState(
+            plateaus=Ahead(reach, reach, self.n),
             want_plateaus=self.n >= self.plateau_n,
             want_still=not self.positions_known,
         )
@@ -468,8 +225,8 @@ class SlicedFinder(_Finder):
         if not self.found.plateaus_swept:
             run_task(self.read, self._plateau_task())
 
-    def _marker_runs(self, state: _Sweep, marker: FloatArray, lo: int, hi: int) -> None:
-        """Runs of a set marker that break where its value changes (as _value_runs)."""
+    def _marker_runs(self, state: SweepState, marker: FloatArray, lo: int, hi: int) -> None:
+        """Runs of a set marker that break where its value changes as well."""
         found = self.found
         on = np.isfinite(marker) & (marker > 0)
         ext_on = np.concatenate(([state.marker_on], on))
@@ -485,26 +242,39 @@ class SlicedFinder(_Finder):
         state.marker_on = bool(on[-1])
         state.marker_value = float(marker[-1])
 
-    def _command_stretches(self, state: _Sweep, command: FloatArray, lo: int, hi: int) -> None:
-        """Stretches of constant commanded velocity (as command_stretches), kept as there."""
+    def _command_stretches(self, state: SweepState, command: FloatArray, lo: int, hi: int) -> None:
+        """Stretches of constant commanded velocity (a change of the command begins one)."""
         if state.command_last is None:
             repeats = np.concatenate(([False], command_repeats(command)))
         else:
             repeats = command_repeats(np.concatenate(([state.command_last], command)))
-        for begin in (np.flatnonzero(~repeats) + lo).tolist():
+        begins = np.flatnonzero(~repeats)
+        if len(begins):
+            # The stretch left open by the block before ends where this block's first begins.
             if state.command_begin is not None:
-                self._close_command(state.command_begin, begin, state.command_level)
-            state.command_begin = begin
-            state.command_level = float(command[begin - lo])
+                self._close_commands(
+                    np.array([state.command_begin]),
+                    begins[:1] + lo,
+                    np.array([state.command_level]),
+                )
+            # Every stretch that begins here and ends at the next begin here.
+            self._close_commands(begins[:-1] + lo, begins[1:] + lo, command[begins[:-1]])
+            state.command_begin = int(begins[-1]) + lo
+            state.command_level = float(command[begins[-1]])
         state.command_last = float(command[-1])
         if hi == self.n and state.command_begin is not None and self.n >= 2:
-            self._close_command(state.command_begin, self.n, state.command_level)
+            self._close_commands(
+                np.array([state.command_begin]), np.array([self.n]), np.array([state.command_level])
+            )
 
-    def _close_command(self, begin: int, end: int, level: float) -> None:
-        if abs(level) >= self.settings.standstill_mm_min and end - begin >= self.min_n:
-            self.found.command.append((begin, end, level))
+    def _close_commands(self, begin: IntArray, end: IntArray, level: FloatArray) -> None:
+        """Keep the stretches above standstill that last ``min_window_s``, in order."""
+        keep = (np.abs(level) >= self.settings.standstill_mm_min) & (end - begin >= self.min_n)
+        self.found.command.extend(
+            zip(begin[keep].tolist(), end[keep].tolist(), level[keep].tolist(), strict=True)
+        )
 
-    def _plateaus(self, state: _Sweep, detect_part: FloatArray) -> None:
+    def _plateaus(self, state: SweepState, detect_part: FloatArray) -> None:
         """Plateau runs and the longest stretch above standstill, with the filters' reach."""
         ahead = state.plateaus
         span = ahead.push({"vd": detect_part})
@@ -523,7 +293,7 @@ class SlicedFinder(_Finder):
             if self.filter_n > 1:
                 moving = median_filter(moving, size=self.filter_n, mode="nearest")
             above = moving[lo - offset : hi - offset] >= self.standstill
-            starts, stops = _runs(above)
+            starts, stops = runs(above)
             if len(starts):
                 lengths = (stops - starts).tolist()
                 if starts[0] == 0:
@@ -547,15 +317,15 @@ class SlicedFinder(_Finder):
         """
         margin_before = self.settle_n + self.filter_n
         margin_after = self.filter_n
-        outer = _merged(
+        outer = merged(
             (max(0, a - margin_before), min(self.n, b + margin_after)) for a, b in stretches
         )
-        inner = _merged(stretches)
+        inner = merged(stretches)
         # The marker's values were noted by the sweep; the slices need not hold it.
         same_detect = not self.from_position  # vd is v: one copy serves both
         wide = ("vd",) if not same_detect else ("v",)
         narrow = tuple(k for k in ("t", "v", "x", "cmd", "i") if k not in wide)
-        kept = {k: _Keeper(outer) for k in wide} | {k: _Keeper(inner) for k in narrow}
+        kept = {k: Keeper(outer) for k in wide} | {k: Keeper(inner) for k in narrow}
         rows = self._rows(derived=True)
         for chunk in self.read():
             for lo, hi, part in rows(chunk):
@@ -564,17 +334,17 @@ class SlicedFinder(_Finder):
                         keeper.add(lo, hi, part[key])
 
         def sparse(key: str) -> FloatArray:
-            return _as_array(kept[key].sparse(self.n))
+            return as_array(kept[key].sparse(self.n))
 
         self.t, self.v, self.x = sparse("t"), sparse("v"), sparse("x")
         self.v_detect = self.v if same_detect else sparse("vd")
         if self.command is not None:
             self.command = sparse("cmd")
-        self.current = sparse("i") if self.has["current_a"] else _as_array(Sparse(self.n, [], []))
+        self.current = sparse("i") if self.has["current_a"] else as_array(Sparse(self.n, [], []))
 
     # -- the ways of finding windows, on slices ----------------------------------------
 
-    def marker_candidates(self) -> list[_Candidate]:
+    def marker_candidates(self) -> list[Candidate]:
         if not self.marker_wanted():
             return []
         found = self.found
@@ -582,7 +352,7 @@ class SlicedFinder(_Finder):
             self._gather(list(zip(found.marker_starts, found.marker_stops, strict=True)))
         return self.marker_levels(found.marker_starts, found.marker_stops, found.marker_values)
 
-    def command_candidates(self) -> list[_Candidate]:
+    def command_candidates(self) -> list[Candidate]:
         if self.command is None:
             self.tried.append("commanded velocity: not recorded")
             return []
@@ -595,7 +365,7 @@ class SlicedFinder(_Finder):
             [a for a, _, _ in stretches], [b for _, b, _ in stretches], [c for *_, c in stretches]
         )
 
-    def plateau_candidates(self) -> list[_Candidate]:
+    def plateau_candidates(self) -> list[Candidate]:
         if self.plateau_too_short():
             return []
         self._sweep_plateaus()
@@ -613,7 +383,7 @@ class SlicedFinder(_Finder):
         return self.plateau_found(levels)
 
     def still(self) -> str | None:
-        """:meth:`_Finder.still` from the first pass's ranges and the sweep's longest run."""
+        """:meth:`WindowFinder.still` from the first pass's ranges and the sweep's longest run."""
         if self.n < 2:
             return "the recording holds fewer than 2 samples"
         stats = self.statistics
@@ -648,7 +418,7 @@ class SlicedFinder(_Finder):
 
     def release(self) -> None:
         """Forget the slices (the windows' current and times were taken)."""
-        empty = _as_array(Sparse(self.n, [], []))
+        empty = as_array(Sparse(self.n, [], []))
         self.t = self.v = self.x = self.v_detect = self.current = empty
         if self.command is not None:
             self.command = empty

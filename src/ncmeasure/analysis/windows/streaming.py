@@ -135,8 +135,10 @@ def differences(view: View[C], order: int = 1) -> View[C]:
 
         def apply(chunk: C) -> FloatArray:
             nonlocal tail
-            joined = np.concatenate((tail, inner(chunk)))
-            tail = joined[-order:] if len(joined) >= order else joined
+            values = inner(chunk)
+            # Nothing carried (the first chunk, or a recording read as one): no copy.
+            joined = np.concatenate((tail, values)) if len(tail) else np.asarray(values, np.float64)
+            tail = (joined[-order:] if len(joined) >= order else joined).copy()
             if len(joined) <= order:
                 return np.empty(0, dtype=np.float64)
             return np.diff(joined, n=order)

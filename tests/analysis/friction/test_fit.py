@@ -10,15 +10,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import optimize
 
-import ncmeasure.analysis.fit as fit_module
-from ncmeasure.analysis.fit import (
+import ncmeasure.analysis.friction.stribeck as fit_module
+from ncmeasure.analysis.friction.fit import (
     MEDIAN_SE_FACTOR,
     fit_direction,
-    fit_linear,
-    fit_nonlinear,
     point_sigma,
     separate_offset,
 )
+from ncmeasure.analysis.friction.linear import fit_linear
+from ncmeasure.analysis.friction.stribeck import fit_nonlinear
 from ncmeasure.formats.results import Point
 
 # The schedule of the example machine: 50 geometric steps, 10..15000 mm/min.

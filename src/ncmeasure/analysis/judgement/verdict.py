@@ -11,7 +11,7 @@ where there is one) and says:
     critical limit.
 ``check``
     Worth a look: a significant pattern along the travel between
-    :data:`~ncmeasure.analysis.diagnosis.FLAT_THRESHOLD_PERCENT` and the
+    :data:`~ncmeasure.analysis.judgement.diagnosis.FLAT_THRESHOLD_PERCENT` and the
     fault threshold; a comparison beyond its warning limit; or a measurement
     that cannot show the assembly (fewer than 3 positions with data, gravity
     not separated on a vertical axis, a measuring position without a single
@@ -32,7 +32,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Final, Literal
 
-from ncmeasure.analysis.diagnosis import FLAT_THRESHOLD_PERCENT
+from ncmeasure.analysis.judgement.diagnosis import FLAT_THRESHOLD_PERCENT
 from ncmeasure.formats.results import AxisResult, PositionDependency, Verdict
 
 __all__ = [

@@ -7,7 +7,7 @@ sample standard deviation (ddof = 1, NaN for a single sample), the sample
 count, and the **standard error** of the median.
 
 Every sample of a window counts. The window itself was checked against the
-axis' velocity (:mod:`~ncmeasure.analysis.segment`: after settling, its
+axis' velocity (:mod:`~ncmeasure.analysis.windows.finder`: after settling, its
 velocity agrees with the commanded one within the signal's noise and
 resolution); selecting samples one by one by their velocity reading would
 select by the noise, and at low speed, where one velocity count exceeds any
@@ -48,7 +48,7 @@ by an index built as a running sum of steps) and its sums come from
 are sorted as the rows of one padded block (numpy sorts short rows with
 vectorised sorting networks), which gives the batch medians. The window and
 group medians are *selected*, not sorted for: the median of a union lies
-between the least and the largest median of its parts (:func:`_within`), so
+between the least and the largest median of its parts (:func:`medians_within`), so
 each window needs only its values between its batches' medians, each group
 those between its windows' medians, counted and picked in the sorted batch
 rows by a bisection in all rows at once, and those few are sorted. Every
@@ -70,7 +70,15 @@ from typing import Final, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.segment import VelocityWindow
+from ncmeasure.analysis.friction.medians import (
+    grouped_medians,
+    medians_within,
+    middle,
+    order_statistics,
+    sample_index,
+    sorted_rows,
+)
+from ncmeasure.analysis.windows.model import VelocityWindow
 from ncmeasure.formats.results import Point
 
 __all__ = [
@@ -85,6 +93,7 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
+BoolArray = NDArray[np.bool_]
 
 BATCHES_PER_WINDOW: Final = 5
 """A window is cut into at most this many batches for the standard error."""
@@ -102,9 +111,6 @@ pandas' work) and slower in fresh processes, where their larger arrays were faul
 in page by page on every call: the table ``ncmeasure analyze`` builds
 (:func:`window_table`) took 30.7 ms (29.1–33.2) for the benchmark's hour, against
 24.5 ms (18.2–31.7) with these chunks (six processes each)."""
-_PAD_WASTE: Final = 2
-"""A padded block holds at most this many slots per value (plus :data:`_PAD_SLACK`)."""
-_PAD_SLACK: Final = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -200,24 +206,7 @@ def window_samples(windows: Sequence[VelocityWindow]) -> tuple[IntArray, IntArra
     stops = np.fromiter((w.stop for w in windows), dtype=np.intp, count=len(windows))
     lengths = np.maximum(stops - starts, 0)
     owner = np.repeat(np.arange(len(windows), dtype=np.intp), lengths)
-    return _sample_index(starts, lengths), owner
-
-
-def _sample_index(starts: IntArray, lengths: IntArray) -> IntArray:
-    """The indices ``starts[i] ..< starts[i] + lengths[i]`` of all ``i``, concatenated.
-
-    A running sum of steps: 1 within a run, the jump to the next start where one
-    begins (one pass to write, one to sum; faster than repeating the offsets).
-    """
-    filled = lengths > 0
-    if not filled.all():
-        starts, lengths = starts[filled], lengths[filled]
-    if not len(lengths):
-        return np.zeros(0, dtype=np.intp)
-    step = np.ones(int(lengths.sum()), dtype=np.intp)
-    step[0] = starts[0]
-    step[np.cumsum(lengths[:-1])] = starts[1:] - (starts[:-1] + lengths[:-1]) + 1
-    return np.cumsum(step, out=step)
+    return sample_index(starts, lengths), owner
 
 
 def _batch_count(lengths: IntArray) -> IntArray:
@@ -243,206 +232,6 @@ def _batch_bounds(window_bounds: IntArray) -> IntArray:
     last = k == count[owner]
     edges[last] = stop[owner][last]
     return np.concatenate((window_bounds[:1], edges)).astype(np.intp)
-
-
-def _sorted_rows(values: FloatArray, lengths: IntArray) -> FloatArray | None:
-    """Consecutive segments of ``values`` as the rows of one block, each row sorted.
-
-    Row s holds the ``lengths[s]`` values of segment s, then +inf (which sorts
-    behind every finite value) up to the longest segment; numpy sorts a short
-    row with a vectorised network, all rows in one call. None when the block
-    would hold more than :data:`_PAD_WASTE` slots per value (plus
-    :data:`_PAD_SLACK`): segments of very different lengths.
-    """
-    width = int(lengths.max()) if len(lengths) else 0
-    if width == 0 or len(lengths) * width > _PAD_WASTE * len(values) + _PAD_SLACK:
-        return None
-    block = np.full((len(lengths), width), np.inf)
-    if width < 1 << 15:  # the mask of the slots is faster to build in int16
-        slots = np.arange(width, dtype=np.int16) < lengths.astype(np.int16)[:, None]
-    else:
-        slots = np.arange(width) < lengths[:, None]
-    block[slots] = values
-    block.sort(axis=1)
-    return block
-
-
-def _count_below(block: FloatArray, threshold: FloatArray) -> IntArray:
-    """Per sorted row r of ``block``: how many of its values are below ``threshold[r]``.
-
-    ``threshold`` may hold several thresholds per row, one after the other
-    (``threshold[i]`` is for row ``i % rows``). A bisection in all rows at
-    once: a step per power of two, each step taken where the value before the
-    new count is still below (a step beyond the row's end goes to its end).
-    """
-    rows, width = block.shape
-    flat = block.ravel()
-    before = np.tile(np.arange(-1, block.size - 1, width), len(threshold) // max(rows, 1))
-    count = np.zeros(len(threshold), dtype=np.intp)
-    step = 1 << width.bit_length()
-    while step > 1:
-        step >>= 1
-        reach = np.minimum(count + step, width)
-        count = np.where(flat[before + reach] < threshold, reach, count)
-    return count
-
-
-def _order_statistics(
-    values: FloatArray, bounds: IntArray, low_rank: IntArray, high_rank: IntArray
-) -> tuple[FloatArray, FloatArray]:
-    """Two order statistics of every segment ``values[bounds[s]:bounds[s + 1]]``.
-
-    ``low_rank[s]`` and ``high_rank[s]`` are 0-based ranks within segment s
-    (the ``low_rank[s]``-th smallest value), each below its length; NaN for an
-    empty segment. The segments are sorted as the rows of padded blocks
-    (:func:`_sorted_rows`): all at once, or, where their lengths differ
-    widely, in blocks of segments up to :data:`_PAD_WASTE` times as long as
-    the shortest of each.
-    """
-    values = values[bounds[0] : bounds[-1]]
-    lengths = np.diff(bounds)
-    count = len(lengths)
-    low = np.full(count, np.nan)
-    high = np.full(count, np.nan)
-    block = _sorted_rows(values, lengths)
-    if block is not None:
-        filled = np.flatnonzero(lengths > 0)
-        low[filled] = block[filled, low_rank[filled]]
-        high[filled] = block[filled, high_rank[filled]]
-        return low, high
-    by_length = np.argsort(lengths, kind="stable")
-    by_length = by_length[lengths[by_length] > 0]
-    ordered = lengths[by_length]
-    first = 0
-    while first < len(by_length):
-        end = int(np.searchsorted(ordered, _PAD_WASTE * ordered[first], "right"))
-        rows = by_length[first:end]
-        row_lengths = lengths[rows]
-        block = _sorted_rows(
-            values[_sample_index(bounds[rows] - bounds[0], row_lengths)], row_lengths
-        )
-        assert block is not None  # lengths within a factor _PAD_WASTE
-        at = np.arange(len(rows))
-        low[rows] = block[at, low_rank[rows]]
-        high[rows] = block[at, high_rank[rows]]
-        first = end
-    return low, high
-
-
-def _within(
-    values: FloatArray,
-    bounds: IntArray,
-    part_low: FloatArray,
-    part_high: FloatArray,
-    parts: IntArray,
-    rows: tuple[FloatArray, IntArray] | None = None,
-) -> tuple[FloatArray, FloatArray]:
-    """The lower and upper median of every segment, from the medians of its parts.
-
-    A segment ``values[bounds[s]:bounds[s + 1]]`` (a window, a group) is the
-    union of ``parts[s]`` parts (its batches, its windows; those of segment
-    s + 1 follow those of s) whose lower medians ``part_low`` and upper medians
-    ``part_high`` are known. The lower median of a union lies between the
-    least and the largest lower median of its parts, the upper median between
-    those of the upper medians: at most Σ⌊(n_j − 1)/2⌋ ≤ ⌊(n − 1)/2⌋ values lie
-    below the least, at least Σ⌈n_j/2⌉ ≥ ⌈n/2⌉ at or below the largest. So
-    both are found among the segment's values within [least lower, largest
-    upper] (the candidates: few where the parts agree) at their ranks less the
-    values below; where the parts agree exactly, or a segment is one part,
-    that value is the answer. Exact whatever the values; NaN for an empty segment.
-
-    ``rows``: the values again as the sorted rows of a block
-    (:func:`_sorted_rows`), and the first row of every segment (and the end):
-    the candidates are then found in each row's run of them, else in ``values``.
-    """
-    lengths = np.diff(bounds)
-    count = len(lengths)
-    least = np.full(count, np.nan)
-    largest = np.full(count, np.nan)
-    with_parts = np.flatnonzero(parts > 0)
-    if not len(with_parts):
-        return least, largest
-    first = (np.cumsum(parts) - parts)[with_parts]
-    least[with_parts] = np.minimum.reduceat(part_low, first)
-    largest[with_parts] = np.maximum.reduceat(part_high, first)
-    least[lengths == 0] = np.nan
-    largest[lengths == 0] = np.nan
-    need = (parts > 1) & (least < largest)
-    chosen = np.flatnonzero(need)
-    if not len(chosen):
-        return least, largest
-    floor = np.where(need, least, np.inf)
-    ceiling = np.where(need, largest, -np.inf)
-    if rows is not None:  # sorted rows: the candidates are a run in each
-        block, row_bounds = rows
-        per_row = np.diff(row_bounds)
-        # Per row, the values below the floor and those up to the ceiling (below the
-        # next float), by a bisection in all rows at once.
-        floor = np.repeat(floor, per_row)
-        ceiling = np.nextafter(np.repeat(ceiling, per_row), np.inf)
-        under, up_to = np.split(_count_below(block, np.concatenate((floor, ceiling))), 2)
-        run = np.maximum(up_to - under, 0)
-        below = np.add.reduceat(under, row_bounds[:-1])
-        counts = np.add.reduceat(run, row_bounds[:-1])
-        starts = np.arange(0, block.size, block.shape[1]) + under
-        picked = block.ravel()[_sample_index(starts, run)]
-    else:
-        has = np.flatnonzero(lengths > 0)
-        values = values[bounds[0] : bounds[-1]]
-        floor = np.repeat(floor, lengths)
-        ceiling = np.repeat(ceiling, lengths)
-        starts = bounds[:-1][has] - bounds[0]
-        below = np.zeros(count, dtype=np.intp)
-        below[has] = np.add.reduceat(values < floor, starts, dtype=np.intp)
-        candidate = values >= floor
-        candidate &= values <= ceiling
-        picked = values[candidate]
-        counts = np.zeros(count, dtype=np.intp)
-        counts[has] = np.add.reduceat(candidate, starts, dtype=np.intp)
-        del candidate
-    del floor, ceiling
-    shift = below[chosen]
-    least[chosen], largest[chosen] = _order_statistics(
-        picked,
-        np.concatenate(([0], np.cumsum(counts[chosen]))),
-        (lengths[chosen] - 1) // 2 - shift,
-        lengths[chosen] // 2 - shift,
-    )
-    return least, largest
-
-
-def _medians(lengths: IntArray, low: FloatArray, high: FloatArray) -> FloatArray:
-    """The median of every segment from its lower and upper median; NaN for an empty one."""
-    with np.errstate(invalid="ignore"):
-        middle = np.where(lengths % 2 == 1, low, (low + high) / 2)
-    return np.where(lengths > 0, middle, np.nan)
-
-
-def _grouped_medians(
-    values: FloatArray, bounds: IntArray, low: FloatArray, quantum: float
-) -> FloatArray:
-    """:func:`grouped_median` of every segment of ``values``, from its lower median ``low``.
-
-    ``bounds`` cut ``values`` into consecutive segments; NaN for an empty one.
-    The arithmetic is :func:`grouped_median`'s, so the numbers are the same.
-    """
-    lengths = np.diff(bounds)
-    result = np.full(len(lengths), np.nan)
-    filled = np.flatnonzero(lengths > 0)
-    if not len(filled):
-        return result
-    count = lengths[filled]
-    low = low[filled]
-    half = 0.5 * quantum
-    start = bounds[:-1][filled] - bounds[0]
-    level = np.repeat(low, count)
-    values = values[bounds[0] : bounds[-1]]
-    below = np.add.reduceat(values < level - half, start, dtype=np.intp)
-    at = np.add.reduceat(np.abs(values - level) <= half, start, dtype=np.intp)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        interpolated = low - half + quantum * (0.5 * count - below) / at
-    result[filled] = np.where(at == 0, low, interpolated)
-    return result
 
 
 def _scatter_over_root_n(
@@ -473,7 +262,7 @@ def friction_table(
     Args:
         axis: The axis name.
         current_a: The motor current of the axis, all samples (n,).
-        windows: Its labelled windows (:func:`~ncmeasure.analysis.segment.find_windows`).
+        windows: Its labelled windows (:func:`~ncmeasure.analysis.windows.find.find_windows`).
         torque_constant_nm_per_a: k_T; the table is in Nm when given, else in A.
         current_quantum_a: One count of a quantised current (0: continuous);
             medians are then medians of grouped data (:func:`grouped_median`).
@@ -516,23 +305,42 @@ def window_table(
     )
 
 
-def _table(
-    axis: str,
+@dataclass
+class _Groups:
+    """The windows sorted into groups (position, direction, step) of contiguous samples.
+
+    The groups are worked through in chunks of whole groups, about
+    :data:`_CHUNK_SAMPLES` samples each (``chunk_groups``: the first group of
+    every chunk, and the number of groups last). The window arrays are in the
+    sorted order.
+    """
+
+    count: int  # windows
+    order: IntArray  # sorted position of every window
+    keys: IntArray  # (position, direction, step) of every sorted window
+    first: BoolArray  # a sorted window begins its group
+    group_of_window: IntArray
+    groups: int
+    velocity: FloatArray  # of every window, unsorted
+    lengths: IntArray  # samples of every sorted window
+    parts: list[FloatArray] | None  # the current of every sorted window
+    current: FloatArray | None  # or the whole current, gathered by index from ``start``
+    start: IntArray | None  # sorted starts, with ``current``
+    window_of_group: IntArray  # first sorted window of every group, then ``count``
+    sample_bounds: IntArray  # first sample of every sorted window, then the total
+    chunk_groups: list[int]
+    # The batches of every window, were every sample finite (the usual case).
+    batches_all: IntArray
+    first_batch_all: IntArray
+    batch_bounds_all: IntArray
+
+
+def _groups(
     windows: Sequence[VelocityWindow],
     window_current: Sequence[FloatArray] | None,
     samples: tuple[FloatArray, IntArray, IntArray] | None,
-    torque_constant_nm_per_a: float | None,
-    current_quantum_a: float,
-) -> FrictionTable:
-    """The table from the current of every window, or from ``samples``: the whole
-    current and the windows' starts and stops."""
-    quantity: Literal["torque_nm", "current_a"] = (
-        "torque_nm" if torque_constant_nm_per_a is not None else "current_a"
-    )
-    unit: Literal["Nm", "A"] = "Nm" if torque_constant_nm_per_a is not None else "A"
-    scale = torque_constant_nm_per_a if torque_constant_nm_per_a is not None else 1.0
+) -> _Groups:
     count = len(windows)
-
     # Group key per window; windows sorted by key make every group's samples contiguous.
     position = np.fromiter(map(attrgetter("position_index"), windows), dtype=np.intp, count=count)
     direction = np.fromiter(map(attrgetter("direction"), windows), dtype=np.intp, count=count)
@@ -540,6 +348,7 @@ def _table(
     velocity = np.fromiter(
         map(attrgetter("velocity_mm_min"), windows), dtype=np.float64, count=count
     )
+    current: FloatArray | None = None
     if samples is None:
         start = np.fromiter(map(attrgetter("start"), windows), dtype=np.intp, count=count)
     else:
@@ -551,128 +360,208 @@ def _table(
     group_of_window = np.cumsum(first) - 1
     groups = int(first.sum())
 
+    parts: list[FloatArray] | None = None
+    sorted_start: IntArray | None = None
     if window_current is not None:
         parts = [window_current[i] for i in order.tolist()]
         lengths = np.fromiter(map(len, parts), dtype=np.intp, count=count)
     else:  # the samples by index, a chunk at a time
         lengths = np.maximum(stop - start, 0)[order]
-        start = start[order]
-    quantised = current_quantum_a > 0
-    # Chunks of whole groups, about _CHUNK_SAMPLES each: every statistic below works
+        sorted_start = start[order]
+    # Chunks of whole groups, about _CHUNK_SAMPLES each: every statistic works
     # on one chunk's samples at a time (little memory, in the processor's cache).
     window_of_group = np.concatenate(([0], np.flatnonzero(first[1:]) + 1, [count]))
     sample_bounds = np.concatenate(([0], np.cumsum(lengths)))
     cut = np.flatnonzero(np.diff(sample_bounds[window_of_group[:-1]] // _CHUNK_SAMPLES)) + 1
     chunk_groups = np.concatenate(([0], cut, [groups])).tolist() if groups else [0]
-    # The batches of every window, were every sample finite (the usual case).
     batches_all = _batch_count(lengths)
-    first_batch_all = np.concatenate(([0], np.cumsum(batches_all)))
-    batch_bounds_all = _batch_bounds(sample_bounds)
+    return _Groups(
+        count=count,
+        order=order,
+        keys=keys,
+        first=first,
+        group_of_window=group_of_window,
+        groups=groups,
+        velocity=velocity,
+        lengths=lengths,
+        parts=parts,
+        current=current,
+        start=sorted_start,
+        window_of_group=window_of_group,
+        sample_bounds=sample_bounds,
+        chunk_groups=chunk_groups,
+        batches_all=batches_all,
+        first_batch_all=np.concatenate(([0], np.cumsum(batches_all))),
+        batch_bounds_all=_batch_bounds(sample_bounds),
+    )
 
-    total = np.zeros(groups)
-    squares = np.zeros(groups)
-    per_window = np.zeros(count, dtype=np.intp)
-    window_low = np.full(count, np.nan)
-    window_high = np.full(count, np.nan)
-    window_median = np.full(count, np.nan)
-    group_low = np.full(groups, np.nan)
-    group_high = np.full(groups, np.nan)
-    median = np.full(groups, np.nan)
-    batch_low: list[FloatArray] = [np.zeros(0)]
-    batch_high: list[FloatArray] = [np.zeros(0)]
-    batch_lengths: list[IntArray] = [np.zeros(0, dtype=np.intp)]
-    batch_median: list[FloatArray] = [np.zeros(0)]
-    offset = 0  # finite samples before the chunk
-    for g0, g1 in itertools.pairwise(chunk_groups):
-        w0, w1 = int(window_of_group[g0]), int(window_of_group[g1])
-        if window_current is not None:
-            values = np.concatenate(parts[w0:w1], dtype=np.float64)
-        else:
-            values = current[_sample_index(start[w0:w1], lengths[w0:w1])]
-        # Every sample finite (the usual case) when every group's sum is: then the
-        # windows and batches are those of all samples, else they are recounted.
-        kept = lengths[w0:w1]
-        window_bounds = sample_bounds[w0 : w1 + 1] - sample_bounds[w0]
+
+@dataclass
+class _Sums:
+    """What the chunks give, per group, per sorted window and per batch."""
+
+    total: FloatArray
+    squares: FloatArray
+    per_window: IntArray  # finite samples
+    window_low: FloatArray
+    window_high: FloatArray
+    window_median: FloatArray
+    group_low: FloatArray
+    group_high: FloatArray
+    median: FloatArray
+    batch_low: list[FloatArray]
+    batch_high: list[FloatArray]
+    batch_lengths: list[IntArray]
+    batch_median: list[FloatArray]
+
+    @classmethod
+    def empty(cls, count: int, groups: int) -> _Sums:
+        return cls(
+            total=np.zeros(groups),
+            squares=np.zeros(groups),
+            per_window=np.zeros(count, dtype=np.intp),
+            window_low=np.full(count, np.nan),
+            window_high=np.full(count, np.nan),
+            window_median=np.full(count, np.nan),
+            group_low=np.full(groups, np.nan),
+            group_high=np.full(groups, np.nan),
+            median=np.full(groups, np.nan),
+            batch_low=[np.zeros(0)],
+            batch_high=[np.zeros(0)],
+            batch_lengths=[np.zeros(0, dtype=np.intp)],
+            batch_median=[np.zeros(0)],
+        )
+
+
+def _add_chunk(
+    g: _Groups, acc: _Sums, g0: int, g1: int, offset: int, current_quantum_a: float
+) -> int:
+    """Add the groups ``g0`` ..< ``g1`` (one chunk) to ``acc``; the finite samples so far."""
+    w0, w1 = int(g.window_of_group[g0]), int(g.window_of_group[g1])
+    sample_bounds, window_of_group = g.sample_bounds, g.window_of_group
+    if g.parts is not None:
+        values = np.concatenate(g.parts[w0:w1], dtype=np.float64)
+    else:
+        assert g.current is not None and g.start is not None
+        values = g.current[sample_index(g.start[w0:w1], g.lengths[w0:w1])]
+    # Every sample finite (the usual case) when every group's sum is: then the
+    # windows and batches are those of all samples, else they are recounted.
+    kept = g.lengths[w0:w1]
+    window_bounds = sample_bounds[w0 : w1 + 1] - sample_bounds[w0]
+    group_bounds = window_bounds[window_of_group[g0 : g1 + 1] - w0]
+    n = np.diff(group_bounds)
+    filled = np.flatnonzero(n > 0)
+    sums = np.add.reduceat(values, group_bounds[filled]) if len(filled) else np.zeros(0)
+    if np.isfinite(sums).all() and offset == sample_bounds[w0]:
+        batches = g.batches_all[w0:w1]
+        cuts = g.batch_bounds_all[g.first_batch_all[w0] : g.first_batch_all[w1] + 1] - offset
+    else:
+        finite = np.isfinite(values)
+        cumulative = np.concatenate(([0], np.cumsum(finite)))
+        ends = sample_bounds[w0 + 1 : w1 + 1] - sample_bounds[w0]
+        kept = cumulative[ends] - cumulative[ends - kept]
+        values = values[finite]
+        del finite
+        batches = _batch_count(kept)
+        # Batch edges are rounded from offsets among all finite samples: the same here.
+        window_bounds = np.concatenate(([0], np.cumsum(kept)))
+        cuts = _batch_bounds(window_bounds + offset) - offset
         group_bounds = window_bounds[window_of_group[g0 : g1 + 1] - w0]
         n = np.diff(group_bounds)
         filled = np.flatnonzero(n > 0)
-        sums = np.add.reduceat(values, group_bounds[filled]) if len(filled) else np.zeros(0)
-        if np.isfinite(sums).all() and offset == sample_bounds[w0]:
-            batches = batches_all[w0:w1]
-            cuts = batch_bounds_all[first_batch_all[w0] : first_batch_all[w1] + 1] - offset
-        else:
-            finite = np.isfinite(values)
-            cumulative = np.concatenate(([0], np.cumsum(finite)))
-            ends = sample_bounds[w0 + 1 : w1 + 1] - sample_bounds[w0]
-            kept = cumulative[ends] - cumulative[ends - kept]
-            values = values[finite]
-            del finite
-            batches = _batch_count(kept)
-            # Batch edges are rounded from offsets among all finite samples: the same here.
-            window_bounds = np.concatenate(([0], np.cumsum(kept)))
-            cuts = _batch_bounds(window_bounds + offset) - offset
-            group_bounds = window_bounds[window_of_group[g0 : g1 + 1] - w0]
-            n = np.diff(group_bounds)
-            filled = np.flatnonzero(n > 0)
-            sums = np.add.reduceat(values, group_bounds[filled]) if len(filled) else sums[:0]
-        per_window[w0:w1] = kept
-        if len(filled):
-            total[g0 + filled] = sums
-            with np.errstate(invalid="ignore", divide="ignore"):
-                deviation = np.repeat(sums / n[filled], n[filled])
-            np.subtract(values, deviation, out=deviation)
-            deviation *= deviation
-            squares[g0 + filled] = np.add.reduceat(deviation, group_bounds[filled])
-            del deviation
+        sums = np.add.reduceat(values, group_bounds[filled]) if len(filled) else sums[:0]
+    acc.per_window[w0:w1] = kept
+    if len(filled):
+        acc.total[g0 + filled] = sums
+        with np.errstate(invalid="ignore", divide="ignore"):
+            deviation = np.repeat(sums / n[filled], n[filled])
+        np.subtract(values, deviation, out=deviation)
+        deviation *= deviation
+        acc.squares[g0 + filled] = np.add.reduceat(deviation, group_bounds[filled])
+        del deviation
 
-        # Batch medians from a sort of every batch (short rows); window and group
-        # medians from their parts' medians and the few values between them.
-        sizes = np.diff(cuts)
-        block = _sorted_rows(values, sizes)
-        window_rows: tuple[FloatArray, IntArray] | None = None
-        group_rows: tuple[FloatArray, IntArray] | None = None
-        if block is not None:  # the usual case: batches of similar length
-            every = np.arange(len(block))
-            low = block[every, np.maximum(sizes - 1, 0) // 2]
-            high = block[every, sizes // 2]
-            first_batch = np.concatenate(([0], np.cumsum(batches)))
-            window_rows = (block, first_batch)
-            group_rows = (block, first_batch[window_of_group[g0 : g1 + 1] - w0])
-        else:
-            low, high = _order_statistics(values, cuts, (sizes - 1) // 2, sizes // 2)
-        batch_low.append(low)
-        batch_high.append(high)
-        batch_lengths.append(sizes)
-        w_low, w_high = _within(values, window_bounds, low, high, batches, window_rows)
-        window_low[w0:w1] = w_low
-        window_high[w0:w1] = w_high
-        used = kept > 0
-        w_parts = np.add.reduceat(used, window_of_group[g0:g1] - w0, dtype=np.intp)
-        group_low[g0:g1], group_high[g0:g1] = _within(
-            values, group_bounds, w_low[used], w_high[used], w_parts, group_rows
-        )
-        if quantised:
-            batch_median.append(_grouped_medians(values, cuts, low, current_quantum_a))
-            window_median[w0:w1] = _grouped_medians(values, window_bounds, w_low, current_quantum_a)
-            median[g0:g1] = _grouped_medians(
-                values, group_bounds, group_low[g0:g1], current_quantum_a
-            )
-        offset += len(values)
-        del values, block, window_rows, group_rows
+    # Batch medians from a sort of every batch (short rows); window and group
+    # medians from their parts' medians and the few values between them.
+    sizes = np.diff(cuts)
+    block = sorted_rows(values, sizes)
+    window_rows: tuple[FloatArray, IntArray] | None = None
+    group_rows: tuple[FloatArray, IntArray] | None = None
+    if block is not None:  # the usual case: batches of similar length
+        every = np.arange(len(block))
+        low = block[every, np.maximum(sizes - 1, 0) // 2]
+        high = block[every, sizes // 2]
+        first_batch = np.concatenate(([0], np.cumsum(batches)))
+        window_rows = (block, first_batch)
+        group_rows = (block, first_batch[window_of_group[g0 : g1 + 1] - w0])
+    else:
+        low, high = order_statistics(values, cuts, (sizes - 1) // 2, sizes // 2)
+    acc.batch_low.append(low)
+    acc.batch_high.append(high)
+    acc.batch_lengths.append(sizes)
+    w_low, w_high = medians_within(values, window_bounds, low, high, batches, window_rows)
+    acc.window_low[w0:w1] = w_low
+    acc.window_high[w0:w1] = w_high
+    used = kept > 0
+    w_parts = np.add.reduceat(used, window_of_group[g0:g1] - w0, dtype=np.intp)
+    acc.group_low[g0:g1], acc.group_high[g0:g1] = medians_within(
+        values, group_bounds, w_low[used], w_high[used], w_parts, group_rows
+    )
+    if current_quantum_a > 0:
+        quantum = current_quantum_a
+        acc.batch_median.append(grouped_medians(values, cuts, low, quantum))
+        acc.window_median[w0:w1] = grouped_medians(values, window_bounds, w_low, quantum)
+        acc.median[g0:g1] = grouped_medians(values, group_bounds, acc.group_low[g0:g1], quantum)
+    return offset + len(values)
 
-    sizes = np.concatenate(batch_lengths)
+
+def _table(
+    axis: str,
+    windows: Sequence[VelocityWindow],
+    window_current: Sequence[FloatArray] | None,
+    samples: tuple[FloatArray, IntArray, IntArray] | None,
+    torque_constant_nm_per_a: float | None,
+    current_quantum_a: float,
+) -> FrictionTable:
+    """The table from the current of every window, or from ``samples``: the whole
+    current and the windows' starts and stops."""
+    g = _groups(windows, window_current, samples)
+    acc = _Sums.empty(g.count, g.groups)
+    offset = 0  # finite samples before the chunk
+    for g0, g1 in itertools.pairwise(g.chunk_groups):
+        offset = _add_chunk(g, acc, g0, g1, offset, current_quantum_a)
+    return _finished(axis, g, acc, torque_constant_nm_per_a, current_quantum_a > 0)
+
+
+def _finished(
+    axis: str,
+    g: _Groups,
+    acc: _Sums,
+    torque_constant_nm_per_a: float | None,
+    quantised: bool,
+) -> FrictionTable:
+    """The table from the sums of every chunk: medians, mean, std, standard errors."""
+    quantity: Literal["torque_nm", "current_a"] = (
+        "torque_nm" if torque_constant_nm_per_a is not None else "current_a"
+    )
+    unit: Literal["Nm", "A"] = "Nm" if torque_constant_nm_per_a is not None else "A"
+    scale = torque_constant_nm_per_a if torque_constant_nm_per_a is not None else 1.0
+    groups, per_window, group_of_window = g.groups, acc.per_window, g.group_of_window
+    sizes = np.concatenate(acc.batch_lengths)
+    batch_median, window_median, median = acc.batch_median, acc.window_median, acc.median
     if not quantised:
-        batch_median = [_medians(sizes, np.concatenate(batch_low), np.concatenate(batch_high))]
-        window_median = _medians(per_window, window_low, window_high)
+        batch_median = [
+            middle(sizes, np.concatenate(acc.batch_low), np.concatenate(acc.batch_high))
+        ]
+        window_median = middle(per_window, acc.window_low, acc.window_high)
     n = np.zeros(groups, dtype=np.intp)
     if groups:
-        n[:] = np.add.reduceat(per_window, window_of_group[:-1])
+        n[:] = np.add.reduceat(per_window, g.window_of_group[:-1])
         if not quantised:
-            median = _medians(n, group_low, group_high)
+            median = middle(n, acc.group_low, acc.group_high)
     used_windows = np.bincount(group_of_window[per_window > 0], minlength=groups)
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = total / n
-        variance = squares / (n - 1)
+        mean = acc.total / n
+        variance = acc.squares / (n - 1)
     std = np.where(n > 1, np.sqrt(np.maximum(variance, 0.0)), np.nan)
 
     # Batches: consecutive stretches of every window; their medians scatter by what
@@ -694,9 +583,9 @@ def _table(
     stderr = np.where(used_windows > 1, np.fmax(stderr, by_windows), stderr)
 
     # All windows of a group share the step velocity; take its first window's.
-    group_velocity = velocity[order][first]
+    group_velocity = g.velocity[g.order][g.first]
     filled_rows = n > 0
-    head = keys[first][filled_rows]
+    head = g.keys[g.first][filled_rows]
     return FrictionTable(
         axis=axis,
         quantity=quantity,

@@ -15,7 +15,7 @@ nothing comparable at all raises :class:`ComparisonError`.
 
 Per compared run and axis, :class:`AxisChange` diagnoses the *change*: the
 ratio other/base per velocity and position goes through
-:func:`~ncmeasure.analysis.diagnosis.position_dependency`, so the machine's
+:func:`~ncmeasure.analysis.judgement.diagnosis.position_dependency`, so the machine's
 own position dependency cancels; a flat change beyond the warning limit is a
 global offset (preload, guide carriage, lubricant).
 The limits and why they are what they are: :class:`Limits`,
@@ -31,13 +31,13 @@ from pathlib import PurePath
 from typing import Literal
 
 import numpy as np
-from numpy.typing import NDArray
 
-from ncmeasure.analysis.diagnosis import (
+from ncmeasure.analysis.judgement.diagnosis import (
     ALTERNATIVE_FACTOR,
     FLAT_THRESHOLD_PERCENT,
     position_dependency,
 )
+from ncmeasure.analysis.judgement.fleet import Cell, fleet_axes
 from ncmeasure.errors import ComparisonError
 from ncmeasure.formats.comparison import (
     AxisChange,
@@ -55,6 +55,7 @@ from ncmeasure.formats.results import (
     Cause,
     CauseName,
     DirectionResult,
+    PositionDependency,
     PositionResult,
     Results,
     Signature,
@@ -67,7 +68,6 @@ __all__ = [
     "GLOBAL_SCORE_AT_WARNING",
     "ComparisonError",
     "compare_results",
-    "modified_z_against",
 ]
 
 log = logging.getLogger(__name__)
@@ -92,18 +92,10 @@ GLOBAL_SCORE_AT_WARNING = 0.5
 GLOBAL_SCORE_AT_CRITICAL = 0.9
 """Score of ``preload_or_carriage`` for a flat change at or beyond the critical limit."""
 
-_MAD_TO_SIGMA = 0.6745
-"""Iglewicz & Hoaglin: modified z = 0.6745·(x − median)/MAD."""
-
-_MEAN_AD_TO_SIGMA = 0.7979
-"""Fallback when MAD = 0: modified z = 0.7979·(x − median)/mean |x − median|."""
-
 _SIGN: dict[Direction, int] = {"positive": 1, "negative": -1}
 
 
 # --------------------------------------------------------------------------- matching
-
-_Cell = tuple[str, int, Direction, int]  # axis, base position index, direction, base point index
 
 
 def _labels(base: Results, others: Sequence[Results], labels: Sequence[str] | None) -> list[str]:
@@ -212,11 +204,11 @@ def _offset(axis: AxisResult) -> float:
 
 def _deviations(
     label: str, base: Results, other: Results, problems: list[str]
-) -> tuple[list[PointDeviation], dict[_Cell, float], dict[_Cell, float]]:
+) -> tuple[list[PointDeviation], dict[Cell, float], dict[Cell, float]]:
     """Point deviations of one run and the magnitudes of base and run per matched cell."""
     points: list[PointDeviation] = []
-    base_mag: dict[_Cell, float] = {}
-    other_mag: dict[_Cell, float] = {}
+    base_mag: dict[Cell, float] = {}
+    other_mag: dict[Cell, float] = {}
     for axis in base.axes.keys() - other.axes.keys():
         problems.append(f"{label}: axis {axis} of the base is missing")
     for axis in other.axes.keys() - base.axes.keys():
@@ -248,7 +240,7 @@ def _deviations(
                     if not (b_val > 0 and math.isfinite(o_val)):
                         skipped += 1
                         continue
-                    cell: _Cell = (axis, bp.position_index, direction, i)
+                    cell: Cell = (axis, bp.position_index, direction, i)
                     base_mag[cell], other_mag[cell] = b_val, o_val
                     points.append(
                         PointDeviation(
@@ -293,91 +285,6 @@ def _groups(points: Sequence[PointDeviation], limits: Limits) -> list[GroupDevia
             )
         )
     return out
-
-
-def _modified_z(values: Sequence[float]) -> list[float]:
-    x = np.asarray(values, dtype=np.float64)
-    centre = float(np.median(x))
-    mad = float(np.median(np.abs(x - centre)))
-    if mad > 0:
-        return [float(z) for z in _MAD_TO_SIGMA * (x - centre) / mad]
-    mean_ad = float(np.mean(np.abs(x - centre)))
-    if mean_ad > 0:
-        return [float(z) for z in _MEAN_AD_TO_SIGMA * (x - centre) / mean_ad]
-    return [0.0] * x.size
-
-
-def modified_z_against(value: float, reference: Sequence[float]) -> float:
-    """The modified z-score of ``value`` against other values (not including it).
-
-    0.6745·(value − median)/MAD of ``reference``, with the mean absolute deviation
-    (× 0.7979) where the MAD is 0, and 0 where the reference does not scatter at all.
-    """
-    x = np.asarray(reference, dtype=np.float64)
-    centre = float(np.median(x))
-    mad = float(np.median(np.abs(x - centre)))
-    if mad > 0:
-        return _MAD_TO_SIGMA * (value - centre) / mad
-    mean_ad = float(np.mean(np.abs(x - centre)))
-    if mean_ad > 0:
-        return _MEAN_AD_TO_SIGMA * (value - centre) / mean_ad
-    return 0.0
-
-
-def _median_without(ordered: NDArray[np.float64], rank: NDArray[np.intp]) -> NDArray[np.float64]:
-    """For each rank r: the median of ``ordered`` (sorted) without its element at r."""
-    m = ordered.size - 1  # elements left
-
-    def at(position: int) -> NDArray[np.float64]:  # the rest's element ``position``
-        chosen: NDArray[np.float64] = np.where(
-            position < rank, ordered[position], ordered[position + 1]
-        )
-        return chosen
-
-    if m % 2:
-        return at((m - 1) // 2)
-    return (at(m // 2 - 1) + at(m // 2)) / 2.0
-
-
-def modified_z_leave_one_out(
-    values: Sequence[float] | NDArray[np.float64],
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Each value's modified z-score against all the others, and the others' median.
-
-    The same figures as :func:`modified_z_against` of each value against the rest,
-    for a whole fleet at once in O(n log n): leaving one value out moves the median
-    to one of at most three values, and the MAD about each of them is again a median
-    with one element left out.
-    """
-    x = np.asarray(values, dtype=np.float64)
-    n = x.size
-    if n < 2:
-        raise ValueError("leave-one-out needs at least two values")
-    order = np.argsort(x, kind="stable")
-    rank = np.empty(n, dtype=np.intp)
-    rank[order] = np.arange(n)
-    centre = _median_without(x[order], rank)
-    z = np.zeros(n)
-    for c in np.unique(centre):
-        members = np.flatnonzero(centre == c)
-        d = np.abs(x - c)
-        d_order = np.argsort(d, kind="stable")
-        d_rank = np.empty(n, dtype=np.intp)
-        d_rank[d_order] = np.arange(n)
-        ordered = d[d_order]
-        mad = _median_without(ordered, d_rank)[members]
-        # the others' sum without a subtraction (which would lose a tiny rest to rounding):
-        # the sum of the smaller deviations plus that of the larger ones
-        before = np.concatenate(([0.0], np.cumsum(ordered)[:-1]))
-        after = np.concatenate((np.cumsum(ordered[::-1])[::-1][1:], [0.0]))
-        ranks = d_rank[members]
-        mean_ad = (before[ranks] + after[ranks]) / (n - 1)
-        diff = x[members] - c
-        with np.errstate(over="ignore"):  # a spread of 1e-300: z is inf, as one at a time
-            by_mad = _MAD_TO_SIGMA * diff / np.where(mad > 0, mad, 1.0)
-            by_mean = _MEAN_AD_TO_SIGMA * diff / np.where(mean_ad > 0, mean_ad, 1.0)
-        z[members] = np.where(mad > 0, by_mad, np.where(mean_ad > 0, by_mean, 0.0))
-    return z, centre
 
 
 # --------------------------------------------------------------------------- change diagnosis
@@ -504,6 +411,29 @@ def _axis_change(
     average = next((p for p in dependency.profiles if p.velocity_mm_min is None), None)
     profile_mm = average.positions_mm if average else []
     change = [(value - 1.0) * 100.0 for value in average.values] if average else []
+    return AxisChange(
+        label=label,
+        axis=axis,
+        points=len(points),
+        mean_change_percent=mean,
+        positions_mm=profile_mm,
+        change_percent=change,
+        spread_percent=dependency.spread_percent,
+        signature=dependency.signature,
+        causes=_change_causes(label, base_label, dependency, mean, change, limits),
+        notes=notes,
+    )
+
+
+def _change_causes(
+    label: str,
+    base_label: str,
+    dependency: PositionDependency,
+    mean: float,
+    change: Sequence[float],
+    limits: Limits,
+) -> list[Cause]:
+    """The causes of a change: a global offset, none, or the diagnosis of its profile."""
     spread = dependency.spread_percent
     within = abs(mean) <= GLOBAL_CHANGE_PERCENT
     prefix = (
@@ -561,18 +491,7 @@ def _axis_change(
                     "(preload, guide carriage, lubricant).",
                 ),
             )
-    return AxisChange(
-        label=label,
-        axis=axis,
-        points=len(points),
-        mean_change_percent=mean,
-        positions_mm=profile_mm,
-        change_percent=change,
-        spread_percent=spread,
-        signature=dependency.signature,
-        causes=causes,
-        notes=notes,
-    )
+    return causes
 
 
 def _axis_changes(
@@ -680,8 +599,8 @@ def compare_results(
     groups: list[GroupDeviation] = []
     runs: list[RunSummary] = []
     changes: list[AxisChange] = []
-    base_cells: dict[_Cell, float] = {}
-    run_cells: list[dict[_Cell, float]] = []
+    base_cells: dict[Cell, float] = {}
+    run_cells: list[dict[Cell, float]] = []
     empty = []
     for label, other in zip(other_labels, others, strict=True):
         points, b_mag, o_mag = _deviations(label, base, other, problems)
@@ -691,25 +610,10 @@ def compare_results(
         base_cells.update(b_mag)
         run_cells.append(o_mag)
         run_groups = _groups(points, limits)
-        worst = max(run_groups, key=lambda g: abs(g.median_deviation_percent))
         deviations.extend(points)
         groups.extend(run_groups)
         changes.extend(_axis_changes(label, base_label, base, points, limits))
-        runs.append(
-            RunSummary(
-                label=label,
-                machine=other.recording.machine,
-                points=len(points),
-                max_abs_deviation_percent=abs(worst.median_deviation_percent),
-                worst=(
-                    f"axis {worst.axis} position {worst.position_index + 1} "
-                    f"({worst.position_mm:g} mm) {worst.direction}: "
-                    f"{worst.median_deviation_percent:+.1f} % (median of {worst.points} "
-                    "velocities)"
-                ),
-                status=_status(worst.median_deviation_percent, limits),
-            )
-        )
+        runs.append(_run_summary(label, other, points, run_groups, limits))
     if empty:
         raise ComparisonError(
             "no point of "
@@ -721,7 +625,7 @@ def compare_results(
 
     fleet: list[FleetAxis] = []
     if mode == "fleet":
-        fleet = _fleet(base, base_label, other_labels, base_cells, run_cells, limits, problems)
+        fleet = fleet_axes(base, base_label, other_labels, base_cells, run_cells, limits, problems)
 
     findings = _findings(mode, base_label, runs, groups, changes, fleet, limits, problems)
     return Comparison(
@@ -739,51 +643,28 @@ def compare_results(
     )
 
 
-def _fleet(
-    base: Results,
-    base_label: str,
-    other_labels: Sequence[str],
-    base_cells: dict[_Cell, float],
-    run_cells: Sequence[dict[_Cell, float]],
+def _run_summary(
+    label: str,
+    other: Results,
+    points: Sequence[PointDeviation],
+    groups: Sequence[GroupDeviation],
     limits: Limits,
-    problems: list[str],
-) -> list[FleetAxis]:
-    out = []
-    labels = [base_label, *other_labels]
-    for axis in sorted({cell[0] for cell in base_cells}):
-        common = [
-            cell
-            for cell in base_cells
-            if cell[0] == axis and all(cell in cells for cells in run_cells)
-        ]
-        if not common:
-            problems.append(f"fleet: axis {axis} has no point measured in every run")
-            continue
-        means = [float(np.mean([base_cells[c] for c in common]))]
-        means += [float(np.mean([cells[c] for c in common])) for cells in run_cells]
-        values = np.array(means)
-        mean = float(values.mean())
-        z = _modified_z(means)
-        enough = len(means) >= limits.outlier_min_runs
-        out.append(
-            FleetAxis(
-                axis=axis,
-                unit=base.axes[axis].unit,
-                runs=labels,
-                mean_friction=means,
-                common_points=len(common),
-                mean=mean,
-                spread_percent=float(np.ptp(values) / mean * 100.0) if mean > 0 else 0.0,
-                std=float(values.std(ddof=1)) if values.size > 1 else 0.0,
-                modified_z=z,
-                outliers=[
-                    label
-                    for label, score in zip(labels, z, strict=True)
-                    if enough and abs(score) > limits.outlier_z
-                ],
-            )
-        )
-    return out
+) -> RunSummary:
+    """A run's largest median deviation and its status."""
+    worst = max(groups, key=lambda g: abs(g.median_deviation_percent))
+    return RunSummary(
+        label=label,
+        machine=other.recording.machine,
+        points=len(points),
+        max_abs_deviation_percent=abs(worst.median_deviation_percent),
+        worst=(
+            f"axis {worst.axis} position {worst.position_index + 1} "
+            f"({worst.position_mm:g} mm) {worst.direction}: "
+            f"{worst.median_deviation_percent:+.1f} % (median of {worst.points} "
+            "velocities)"
+        ),
+        status=_status(worst.median_deviation_percent, limits),
+    )
 
 
 def _global_or_local(label: str, groups: Sequence[GroupDeviation], limits: Limits) -> list[str]:

@@ -1,18 +1,17 @@
 """The whole-signal statistics of an axis, read from a recording chunk by chunk.
 
 The first pass of an analysis whose memory does not grow with the recording:
-everything :mod:`~ncmeasure.analysis.segment` and
+everything :mod:`~ncmeasure.analysis.windows.finder` and
 :mod:`~ncmeasure.analysis.analyze` derive from a whole signal before they
 look for windows (the median sample period, the count of the velocity,
 position and current signals, the noise of velocity and position, how many
-values are missing or implausible), computed from
-:func:`~ncmeasure.recording.iter_chunks` with
-:mod:`~ncmeasure.analysis.streaming`, and equal, bit for bit, to what the
-analysis computes on the whole arrays:
+values are missing or implausible), computed from the chunks of a reading
+(:class:`Rows`: a file read by :func:`~ncmeasure.recording.iter_chunks`, or a
+recording in memory as one chunk) with :mod:`~ncmeasure.analysis.windows.streaming`,
+and equal, bit for bit, to what numpy gives on the whole arrays:
 
 * implausible values (:mod:`ncmeasure.validity`) become NaN first;
-* a channel's missing values are bridged as :func:`segment._bridge
-  <ncmeasure.analysis.segment>` bridges them (linear in time between the
+* a channel's missing values are bridged (linear in time between the
   neighbouring values, the nearest value at the ends); a first pass notes the
   first and last finite value of every chunk, so a later pass bridges a gap
   across chunk boundaries without reading ahead;
@@ -26,27 +25,74 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.analysis.streaming import (
+from ncmeasure.analysis.windows.streaming import (
     differences,
     median_task,
     noise_sigma_task,
     quantum_task,
     run_tasks,
 )
-from ncmeasure.recording import RowChunk, iter_chunks
+from ncmeasure.recording import RowChunk
 from ncmeasure.validity import Implausible, implausible
 
-__all__ = ["AxisStatistics", "axes_statistics", "axis_statistics", "bridge_chunk"]
+__all__ = ["AxisStatistics", "Rows", "axes_statistics", "bridge_chunk"]
 
 FloatArray = NDArray[np.float64]
 Good = tuple[float, float]  # (time, value) of a finite sample
 _SCANNED = ("velocity_cmd_mm_min", "marker")
 """Signals only cleaned and counted in the first pass (no statistics of their own)."""
+View = Callable[[], Callable[[RowChunk], FloatArray]]
+Task = Generator[Callable[[RowChunk], None], None, float]
+
+
+@dataclass(frozen=True)
+class Rows:
+    """A recording's rows as the passes of the analysis read them.
+
+    Attributes:
+        read: Returns a fresh reading of the rows: chunks in order, each of
+            ``chunk_rows`` rows but the last, every time the same.
+        column: The column of every channel in the chunks' values, by name.
+        chunk_rows: Rows per chunk (the neighbours of a gap are noted per chunk).
+        limits: The implausibility bound per channel name
+            (:meth:`~ncmeasure.validity.Implausible.for_channels`); codes only
+            for a channel without one.
+        checked: False: every value is taken as it is, none left out as
+            implausible (the windows of given arrays).
+    """
+
+    read: Callable[[], Iterator[RowChunk]]
+    column: Mapping[str, int]
+    chunk_rows: int
+    limits: Mapping[str, float | None] = field(default_factory=dict)
+    checked: bool = True
+    _cleaned: dict[str, tuple[RowChunk, FloatArray]] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
+
+    def clean(self, chunk: RowChunk, name: str) -> FloatArray:
+        """A channel's values in a chunk, the implausible ones NaN (where checked).
+
+        Every task of a pass looks at the same chunk, and a recording in memory
+        is the same chunk on every pass: a channel's last chunk is cleaned
+        once (the arrays returned are never written to).
+        """
+        held = self._cleaned.get(name)
+        if held is not None and held[0] is chunk:
+            return held[1]
+        values = chunk.values[:, self.column[name]]
+        if self.checked:
+            bad = implausible(values, self.limits.get(name))
+            if bad.any():
+                values = values.copy()
+                values[bad] = np.nan
+        cleaned = np.ascontiguousarray(values, dtype=np.float64)
+        self._cleaned[name] = (chunk, cleaned)
+        return cleaned
 
 
 @dataclass
@@ -153,48 +199,9 @@ class _Scan:
         return before, after
 
 
-def axis_statistics(
-    directory: str | Path,
-    axis: str,
-    channel_names: Sequence[str],
-    *,
-    limits: Mapping[str, float | None] | None = None,
-    rows: int = 1 << 16,
-) -> AxisStatistics:
-    """The whole-signal statistics of one axis; see :func:`axes_statistics`."""
-    return axes_statistics(directory, (axis,), channel_names, limits=limits, rows=rows)[axis]
-
-
-def axes_statistics(
-    directory: str | Path,
-    axes: Sequence[str],
-    channel_names: Sequence[str],
-    *,
-    limits: Mapping[str, float | None] | None = None,
-    rows: int = 1 << 16,
-    verified: set[int] | None = None,
-    on_chunk: Callable[[RowChunk], None] | None = None,
-) -> dict[str, AxisStatistics]:
-    """The whole-signal statistics of every axis of ``axes``, read chunk by chunk.
-
-    All axes share every reading of the file: a few passes in all, whatever
-    the number of axes.
-
-    Args:
-        directory: The recording.
-        axes: The axes; the ``velocity_mm_min`` channel of each must be recorded.
-        channel_names: The recording's channels (its meta.json).
-        limits: The implausibility bound per channel name
-            (:meth:`~ncmeasure.validity.Implausible.for_channels`); codes only without.
-        rows: Rows per chunk.
-        verified: Large frames already checked (:func:`~ncmeasure.recording.iter_chunks`).
-        on_chunk: Called with every chunk read (progress).
-
-    Raises:
-        RecordingError: Not a recording, or an axis has no velocity channel.
-    """
-    present = set(channel_names)
-    signals = {
+def _signals(axes: Sequence[str], present: set[str]) -> dict[str, tuple[str, ...]]:
+    """The signals of every axis that the statistics look at (velocity always)."""
+    return {
         axis: tuple(
             s
             for s in ("velocity_mm_min", "position_mm", "current_a", *_SCANNED)
@@ -202,97 +209,79 @@ def axes_statistics(
         )
         for axis in axes
     }
-    channels = tuple(f"{axis}_{s}" for axis in axes for s in signals[axis])
-    bounds = dict(limits or {})
-    checkers = {
-        axis: Implausible({f"{axis}_{s}": bounds.get(f"{axis}_{s}") for s in signals[axis]})
-        for axis in axes
-    }
-    column = {name: k for k, name in enumerate(channels)}
 
-    def read() -> Iterator[RowChunk]:
-        for chunk in iter_chunks(directory, rows, channels, verified=verified):
-            if on_chunk is not None:
-                on_chunk(chunk)
-            yield chunk
 
-    def clean(chunk: RowChunk, name: str) -> FloatArray:
-        values = chunk.values[:, column[name]]
-        bad = implausible(values, bounds.get(name))
-        if bad.any():
-            values = values.copy()
-            values[bad] = np.nan
-        return np.ascontiguousarray(values, dtype=np.float64)
+def _scan_task(
+    scan: _Scan, checkers: Mapping[str, Implausible], source: Rows
+) -> Generator[Callable[[RowChunk], None], None, None]:
+    """The first pass: rows, times, finite counts, ranges, each chunk's first and last good."""
+    owner = {name: axis for axis, checker in checkers.items() for name in checker.limits}
 
-    scan = _Scan(channels)
-    for name in channels:
-        scan.finite[name] = 0
-        scan.low[name] = math.inf
-        scan.high[name] = -math.inf
-        scan.first_good[name] = []
-        scan.last_good[name] = []
-    owner = {f"{axis}_{s}": axis for axis in axes for s in signals[axis]}
+    def add(chunk: RowChunk) -> None:
+        if len(chunk.time_s):
+            if scan.rows == 0:
+                scan.start_s = float(chunk.time_s[0])
+            scan.end_s = float(chunk.time_s[-1])
+        scan.rows += len(chunk.time_s)
+        scan.chunks += 1
+        for name in scan.channels:
+            values = chunk.values[:, source.column[name]]
+            if source.checked:
+                values = checkers[owner[name]].clean(name, chunk.time_s, values)
+            good = np.flatnonzero(np.isfinite(values))
+            scan.finite[name] += len(good)
+            if len(good):
+                kept = values[good]
+                scan.low[name] = min(scan.low[name], float(kept.min()))
+                scan.high[name] = max(scan.high[name], float(kept.max()))
+                first, last = int(good[0]), int(good[-1])
+                scan.first_good[name].append((float(chunk.time_s[first]), float(values[first])))
+                scan.last_good[name].append((float(chunk.time_s[last]), float(values[last])))
+            else:
+                scan.first_good[name].append(None)
+                scan.last_good[name].append(None)
 
-    def scan_task() -> Generator[Callable[[RowChunk], None], None, None]:
-        def add(chunk: RowChunk) -> None:
-            if len(chunk.time_s):
-                if scan.rows == 0:
-                    scan.start_s = float(chunk.time_s[0])
-                scan.end_s = float(chunk.time_s[-1])
-            scan.rows += len(chunk.time_s)
-            scan.chunks += 1
-            for name in channels:
-                checker = checkers[owner[name]]
-                values = checker.clean(name, chunk.time_s, chunk.values[:, column[name]])
-                good = np.flatnonzero(np.isfinite(values))
-                scan.finite[name] += len(good)
-                if len(good):
-                    kept = values[good]
-                    scan.low[name] = min(scan.low[name], float(kept.min()))
-                    scan.high[name] = max(scan.high[name], float(kept.max()))
-                    first, last = int(good[0]), int(good[-1])
-                    scan.first_good[name].append((float(chunk.time_s[first]), float(values[first])))
-                    scan.last_good[name].append((float(chunk.time_s[last]), float(values[last])))
-                else:
-                    scan.first_good[name].append(None)
-                    scan.last_good[name].append(None)
+    yield add
 
-        yield add
 
-    run_tasks(read, {"scan": scan_task()})
+def _bridged(scan: _Scan, source: Rows, name: str) -> View:
+    """The channel's finite values after bridging its gaps (then the finite ones)."""
+    before, after = scan.neighbours(name)
 
-    neighbours = {name: scan.neighbours(name) for name in channels}
+    def make() -> Callable[[RowChunk], FloatArray]:
+        def apply(chunk: RowChunk) -> FloatArray:
+            index = chunk.first // source.chunk_rows
+            values = source.clean(chunk, name)
+            values = bridge_chunk(values, chunk.time_s, before[index], after[index])
+            return values[np.isfinite(values)]
 
-    def bridged(name: str) -> Callable[[], Callable[[RowChunk], FloatArray]]:
-        """The channel's finite values after bridging (as segment._bridge, then finite)."""
-        before, after = neighbours[name]
+        return apply
 
-        def make() -> Callable[[RowChunk], FloatArray]:
-            def apply(chunk: RowChunk) -> FloatArray:
-                index = chunk.first // rows
-                values = bridge_chunk(clean(chunk, name), chunk.time_s, before[index], after[index])
-                return values[np.isfinite(values)]
+    return make
 
-            return apply
 
-        return make
+def _cleaned(source: Rows, name: str) -> View:
+    """The channel's finite values, the implausible ones left out."""
 
-    def cleaned(name: str) -> Callable[[], Callable[[RowChunk], FloatArray]]:
-        def make() -> Callable[[RowChunk], FloatArray]:
-            def apply(chunk: RowChunk) -> FloatArray:
-                values = clean(chunk, name)
-                return values[np.isfinite(values)]
+    def make() -> Callable[[RowChunk], FloatArray]:
+        def apply(chunk: RowChunk) -> FloatArray:
+            values = source.clean(chunk, name)
+            return values[np.isfinite(values)]
 
-            return apply
+        return apply
 
-        return make
+    return make
 
-    def times() -> Callable[[RowChunk], FloatArray]:
-        return lambda chunk: chunk.time_s
 
-    tasks: dict[tuple[str, str], Generator[Callable[[RowChunk], None], None, float]] = {
-        ("", "dt"): median_task(differences(times))
-    }
+def _times() -> Callable[[RowChunk], FloatArray]:
+    return lambda chunk: chunk.time_s
+
+
+def _statistic_tasks(
+    scan: _Scan, source: Rows, axes: Sequence[str]
+) -> tuple[dict[tuple[str, str], Task], dict[str, bool]]:
+    """The tasks of the later passes (sample period, counts, noise); which position is usable."""
+    tasks: dict[tuple[str, str], Task] = {("", "dt"): median_task(differences(_times))}
     usable: dict[str, bool] = {}
     for axis in axes:
         velocity, position, current = (
@@ -300,15 +289,44 @@ def axes_statistics(
             f"{axis}_position_mm",
             f"{axis}_current_a",
         )
-        tasks[axis, "v_quantum"] = quantum_task(bridged(velocity))
-        tasks[axis, "v_sigma"] = noise_sigma_task(bridged(velocity))
-        usable[axis] = position in column and scan.finite[position] >= 0.5 * scan.rows
+        tasks[axis, "v_quantum"] = quantum_task(_bridged(scan, source, velocity))
+        tasks[axis, "v_sigma"] = noise_sigma_task(_bridged(scan, source, velocity))
+        usable[axis] = position in scan.channels and scan.finite[position] >= 0.5 * scan.rows
         if usable[axis]:
-            tasks[axis, "x_quantum"] = quantum_task(bridged(position))
-            tasks[axis, "x_sigma"] = noise_sigma_task(bridged(position))
-        if current in column:
-            tasks[axis, "i_quantum"] = quantum_task(cleaned(current))
-    found = run_tasks(read, tasks)
+            tasks[axis, "x_quantum"] = quantum_task(_bridged(scan, source, position))
+            tasks[axis, "x_sigma"] = noise_sigma_task(_bridged(scan, source, position))
+        if current in scan.channels:
+            tasks[axis, "i_quantum"] = quantum_task(_cleaned(source, current))
+    return tasks, usable
+
+
+def axes_statistics(source: Rows, axes: Sequence[str]) -> dict[str, AxisStatistics]:
+    """The whole-signal statistics of every axis of ``axes``, read chunk by chunk.
+
+    All axes share every reading of the rows: a few passes in all, whatever
+    the number of axes.
+
+    Args:
+        source: The rows; the ``velocity_mm_min`` channel of each axis must be
+            among its columns.
+        axes: The axes.
+    """
+    signals = _signals(axes, set(source.column))
+    channels = tuple(f"{axis}_{s}" for axis in axes for s in signals[axis])
+    checkers = {
+        axis: Implausible({f"{axis}_{s}": source.limits.get(f"{axis}_{s}") for s in signals[axis]})
+        for axis in axes
+    }
+    scan = _Scan(channels)
+    for name in channels:
+        scan.finite[name] = 0
+        scan.low[name] = math.inf
+        scan.high[name] = -math.inf
+        scan.first_good[name] = []
+        scan.last_good[name] = []
+    run_tasks(source.read, {"scan": _scan_task(scan, checkers, source)})
+    tasks, usable = _statistic_tasks(scan, source, axes)
+    found = run_tasks(source.read, tasks)
     result = {}
     for axis in axes:
         missing = scan.rows - scan.finite[f"{axis}_velocity_mm_min"]
@@ -327,8 +345,8 @@ def axes_statistics(
             low={n.removeprefix(f"{axis}_"): scan.low[n] for n in mine},
             high={n.removeprefix(f"{axis}_"): scan.high[n] for n in mine},
             implausible=checkers[axis],
-            chunk_rows=rows,
-            neighbours={n.removeprefix(f"{axis}_"): neighbours[n] for n in mine},
+            chunk_rows=source.chunk_rows,
+            neighbours={n.removeprefix(f"{axis}_"): scan.neighbours(n) for n in mine},
             start_s=scan.start_s,
             end_s=scan.end_s,
         )

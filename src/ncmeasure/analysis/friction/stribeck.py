@@ -1,24 +1,15 @@
-"""Friction models fitted to the points of one position and direction. Pure numpy/scipy.
+"""The Stribeck and extended Stribeck models, fitted by bounded nonlinear least squares.
 
-Three static models of friction T over speed v = |velocity| (mm/min), all in
-the sense of one direction so that friction is a positive magnitude:
+In the sense of one direction, friction a positive magnitude over speed
+v = |velocity| (mm/min)::
 
-- linear (Coulomb + viscous), linear least squares::
+      T(v) = T_C + (T_S − T_C)·exp(−(v/v_S)^δ) + b·v                      (Stribeck)
+      T(v) = T_C + (T_S − T_C)·exp(−(v/v_S)^δ) + b·v + f_w·(v / 1000 mm/min)^k   (extended)
 
-      T(v) = T_C + t_v·v
-
-- Stribeck, nonlinear least squares (:func:`scipy.optimize.least_squares`)::
-
-      T(v) = T_C + (T_S − T_C)·exp(−(v/v_S)^δ) + b·v
-
-- extended Stribeck, with the rolling term of ball screws with many loaded
-  balls (``f_w < 0`` bends the curve down at high speed)::
-
-      T(v) = T_C + (T_S − T_C)·exp(−(v/v_S)^δ) + b·v + f_w·(v / 1000 mm/min)^k
-
-How σ, the χ² test and the identifiability rule are defined is written out
-in ``docs/analysis-models.md`` and in the docstrings below. Nothing here
-raises on bad data: a fit that cannot be made returns ``None``.
+The rolling term of the extended model is that of ball screws with many
+loaded balls (``f_w < 0`` bends the curve down at high speed). Start values,
+the search and the identifiability rule: :func:`fit_nonlinear` and
+``docs/analysis-models.md``.
 """
 
 from __future__ import annotations
@@ -33,28 +24,18 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import optimize, stats
 
-from ncmeasure.formats.results import (
-    DirectionResult,
-    LinearFit,
-    ModelName,
-    NonlinearFit,
-    OffsetResult,
-    Point,
-)
+from ncmeasure.analysis.friction.linear import clean_points, covariance
+from ncmeasure.formats.results import NonlinearFit
 
 __all__ = [
+    "DELTA_BOUNDS",
     "EXTENDED_PARAMETERS",
-    "LINEAR_REGION_DECAY",
-    "MEDIAN_SE_FACTOR",
-    "MIN_LINEAR_POINTS",
-    "MIN_LINEAR_POINTS_ABOVE_STRIBECK",
-    "SPEED_MATCH_TOLERANCE",
+    "QUICK_EVALUATIONS",
+    "ROLLING_EXPONENT_BOUNDS",
+    "ROLLING_REFERENCE_MM_MIN",
     "STRIBECK_PARAMETERS",
-    "fit_direction",
-    "fit_linear",
+    "STRIBECK_VELOCITY_MIN_FRACTION",
     "fit_nonlinear",
-    "point_sigma",
-    "separate_offset",
 ]
 
 log = logging.getLogger(__name__)
@@ -83,164 +64,8 @@ ROLLING_EXPONENT_BOUNDS = (0.3, 2.0)
 STRIBECK_VELOCITY_MIN_FRACTION = 0.1
 """v_S may go down to this fraction of the lowest measured speed (and up to the highest)."""
 
-LINEAR_REGION_DECAY = 0.01
-"""The linear fit starts where the Stribeck hump has decayed to this fraction of its height."""
 
-MIN_LINEAR_POINTS_ABOVE_STRIBECK = 5
-"""Fewest points above the Stribeck region for a linear fit restricted to them."""
-
-MIN_LINEAR_POINTS = 4
-"""Fewest points a linear fit keeps when the slowest are left out to find its range."""
-
-SPEED_MATCH_TOLERANCE = 0.005
-"""Relative tolerance when speeds of the two directions are paired (0.5 %)."""
-
-MEDIAN_SE_FACTOR = math.sqrt(math.pi / 2)
-"""Standard error of a median of n normal samples: √(π/2)·std/√n (≈ 1.25 × the mean's)."""
-
-SIGMA_FLOOR_FRACTION = 0.1
-"""Per-point σ below this fraction of the median σ is raised to it (guards std = 0)."""
-
-_INFO_EIGEN_FLOOR = 1e-12
 _T95 = 0.975
-
-
-# --------------------------------------------------------------------------- helpers
-
-
-def _as_float(values: ArrayLike) -> FloatArray:
-    return np.atleast_1d(np.asarray(values, dtype=np.float64)).ravel()
-
-
-def _clean(
-    speed_mm_min: ArrayLike, value: ArrayLike, sigma: ArrayLike | None
-) -> tuple[FloatArray, FloatArray, FloatArray | None]:
-    """Speeds as |v|, values and σ with every non-finite or non-positive-σ point dropped."""
-    v = np.abs(_as_float(speed_mm_min))
-    y = _as_float(value)
-    if v.shape != y.shape:
-        raise ValueError(f"speed ({v.size}) and value ({y.size}) differ in length")
-    keep = np.isfinite(v) & np.isfinite(y)
-    s: FloatArray | None = None
-    if sigma is not None:
-        s = _as_float(sigma)
-        if s.shape != y.shape:
-            raise ValueError(f"sigma ({s.size}) and value ({y.size}) differ in length")
-        keep &= np.isfinite(s) & (s > 0)
-        s = s[keep]
-    return v[keep], y[keep], s
-
-
-def _covariance(info: FloatArray) -> FloatArray:
-    """(JᵀWJ)⁻¹, finite even when the data cannot determine a parameter.
-
-    The columns are scaled to unit norm first (parameters differ by orders of
-    magnitude); eigenvalues of the scaled matrix are floored at 1e-12 of the
-    largest, so a parameter the data do not determine gets a huge but finite
-    variance (results.json is plain JSON: no inf, no NaN).
-    """
-    scale = np.sqrt(np.clip(np.diag(info), 0.0, None))
-    scale[scale == 0] = 1.0
-    scaled = info / np.outer(scale, scale)
-    eigval, eigvec = np.linalg.eigh(scaled)
-    top = float(eigval.max()) if eigval.size and eigval.max() > 0 else 1.0
-    eigval = np.maximum(eigval, top * _INFO_EIGEN_FLOOR)
-    inverse = (eigvec / eigval) @ eigvec.T
-    return np.asarray(inverse / np.outer(scale, scale), dtype=np.float64)
-
-
-# --------------------------------------------------------------------------- linear
-
-
-def fit_linear(
-    speed_mm_min: ArrayLike,
-    value: ArrayLike,
-    sigma: ArrayLike | None = None,
-    *,
-    k_accept: float = 10.0,
-) -> LinearFit | None:
-    """Coulomb + viscous friction T(v) = T_C + t_v·v by linear least squares.
-
-    Regressor rows are [v_k, 1] with v = |speed|; the estimate is
-    ŷ = (HᵀWH)⁻¹HᵀWx, solved with :func:`numpy.linalg.lstsq` on the
-    √W-scaled system.
-
-    σ, the scatter of the points, is defined in one of two ways:
-
-    - ``sigma`` given (per point, e.g. the standard error std/√n of each
-      point's window samples): weighted least squares with W = diag(1/σ²);
-      χ²_red = Σ(ê/σ)²/(n − m). This is the informative case: χ²_red ≫ 1
-      means the points scatter around the line more than they scatter in
-      themselves, i.e. the model is wrong. Standard errors are
-      √diag((HᵀWH)⁻¹), multiplied by √χ²_red when χ²_red > 1 (the points'
-      own σ then understates the scatter, e.g. correlated samples).
-    - ``sigma`` omitted: σ² = Σê²/(n − m), the residual variance, and standard
-      errors from σ²(HᵀH)⁻¹. χ²_red is then 1 by construction and the test
-      always accepts: without an independent σ it says nothing.
-
-    The fit is accepted when Σ(ê/σ)² ≤ k·(n − m), i.e. χ²_red ≤ ``k_accept``
-    (method: accepted for k < 10). m = 2.
-
-    Args:
-        speed_mm_min: Speeds |v| in mm/min (signs are dropped).
-        value: Friction magnitudes at those speeds (positive).
-        sigma: Standard error of each value, or None. Points with a
-            non-finite or non-positive σ are dropped, as are non-finite points.
-        k_accept: The χ² acceptance factor k.
-
-    Returns:
-        The fit, or None with fewer than 3 usable points or fewer than 2
-        distinct speeds.
-    """
-    v, y, s = _clean(speed_mm_min, value, sigma)
-    n, m = v.size, 2
-    if n < 3 or np.unique(v).size < 2:
-        return None
-    design = np.column_stack([v, np.ones_like(v)])
-    weight = np.ones_like(v) if s is None else 1.0 / s
-    coef, *_ = np.linalg.lstsq(design * weight[:, None], y * weight, rcond=None)
-    residual = y - design @ coef
-    dof = n - m
-    inverse = _covariance((design * weight[:, None]).T @ (design * weight[:, None]))
-    if s is None:
-        sigma2 = float(residual @ residual) / dof
-        cov = sigma2 * inverse
-        chi2 = 1.0 if sigma2 > 0 else 0.0
-    else:
-        chi2 = float(np.sum((residual / s) ** 2)) / dof
-        cov = inverse * max(1.0, chi2)
-    stderr = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    if not (np.all(np.isfinite(coef)) and np.all(np.isfinite(stderr)) and math.isfinite(chi2)):
-        return None
-    span = (float(v.min()), float(v.max()))
-    if coef[1] < 0:
-        # Friction is a positive magnitude: a negative intercept says the points are not
-        # friction (an offset such as gravity not taken out) or not a line at all.
-        return LinearFit(
-            coulomb=None,
-            viscous_per_mm_min=None,
-            coulomb_stderr=None,
-            viscous_stderr=None,
-            chi2_reduced=chi2,
-            accepted=False,
-            n_points=int(n),
-            velocity_range_mm_min=span,
-            reason=f"the line through the points crosses zero ({coef[1]:.4g} at standstill): "
-            "they do not describe friction (an offset such as gravity not separated?)",
-        )
-    return LinearFit(
-        coulomb=float(coef[1]),
-        viscous_per_mm_min=float(coef[0]),
-        coulomb_stderr=float(stderr[1]),
-        viscous_stderr=float(stderr[0]),
-        chi2_reduced=chi2,
-        accepted=bool(chi2 <= k_accept),
-        n_points=int(n),
-        velocity_range_mm_min=span,
-    )
-
-
-# --------------------------------------------------------------------------- nonlinear
 
 
 @dataclass(frozen=True)
@@ -655,7 +480,7 @@ def fit_nonlinear(
         than 3 distinct speeds, or when no start converges.
     """
     try:
-        v, y, s = _clean(speed_mm_min, value, sigma)
+        v, y, s = clean_points(speed_mm_min, value, sigma)
     except ValueError as exc:
         log.debug("nonlinear fit skipped: %s", exc)
         return None
@@ -681,10 +506,24 @@ def fit_nonlinear(
     if not solutions:
         log.debug("%s fit did not converge from any start", model)
         return None
-    best = solutions[0]
+    return _judged(model, problem, solutions[0], v, y, s)
+
+
+def _judged(
+    model: Literal["stribeck", "extended"],
+    problem: _Problem,
+    best: optimize.OptimizeResult,
+    v: FloatArray,
+    y: FloatArray,
+    s: FloatArray | None,
+) -> NonlinearFit | None:
+    """The fit at the solution ``best``: χ², covariance, 95 % intervals, identifiability."""
+    names = EXTENDED_PARAMETERS if problem.extended else STRIBECK_PARAMETERS
+    m = len(names)
+    n = v.size
     params = _physical(best.x, problem)
 
-    fitted = _model_internal(best.x, problem)[0] * t_ref
+    fitted = _model_internal(best.x, problem)[0] * problem.t_ref
     residual = y - fitted
     dof = n - m
     jac = _jacobian_physical(params, v)
@@ -697,7 +536,7 @@ def fit_nonlinear(
         scale2 = float(residual @ residual) / dof
     if not (math.isfinite(chi2) and np.all(np.isfinite(jac))):
         return None
-    cov = scale2 * _covariance(jac.T @ jac)
+    cov = scale2 * covariance(jac.T @ jac)
     stderr = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     t = float(stats.t.ppf(_T95, dof))
     ci = {
@@ -736,285 +575,3 @@ def fit_nonlinear(
         chi2_reduced=chi2,
         stribeck_velocity_mm_min=params["v_S"],
     )
-
-
-# --------------------------------------------------------------------------- per direction
-
-
-def point_sigma(points: Sequence[Point]) -> FloatArray | None:
-    """σ per point: the standard error of its median.
-
-    The point's own ``stderr`` where the friction table gave one (the scatter
-    of batch medians: samples of a window are correlated, batches nearly
-    not), else √(π/2)·std/√n, the standard error of the median of n
-    independent normal samples.
-
-    Guards: a point without a usable figure gets the median σ of the others;
-    any σ below 0.1 × that median is raised to it (a current quantised to a
-    constant reading has std 0, not infinite precision). None when no point
-    has a usable σ.
-    """
-    raw = np.array(
-        [
-            p.stderr
-            if p.stderr is not None and p.stderr > 0
-            else (MEDIAN_SE_FACTOR * p.std / math.sqrt(p.n) if p.n >= 1 and p.std > 0 else math.nan)
-            for p in points
-        ],
-        dtype=np.float64,
-    )
-    valid = np.isfinite(raw) & (raw > 0)
-    if not np.any(valid):
-        return None
-    typical = float(np.median(raw[valid]))
-    sigma = np.where(valid, raw, typical)
-    return np.asarray(np.maximum(sigma, SIGMA_FLOOR_FRACTION * typical), dtype=np.float64)
-
-
-def _linear_region(
-    speed: FloatArray,
-    magnitude: FloatArray,
-    sigma: FloatArray | None,
-    first: int,
-    k_accept: float,
-) -> tuple[LinearFit | None, int]:
-    """The linear fit over the widest range of speeds, from the top down, where it holds.
-
-    Points are sorted by speed. Starting with the points from ``first`` on,
-    the slowest point is left out as long as the fit is rejected and at least
-    :data:`MIN_LINEAR_POINTS` remain: the hump of a Stribeck curve lifts the
-    slow points, and a line through them describes neither region. Returns the
-    first accepted fit, else the fit over all points from ``first``, and the
-    number of points below its range.
-    """
-    n = speed.size
-    widest = fit_linear(
-        speed[first:],
-        magnitude[first:],
-        None if sigma is None else sigma[first:],
-        k_accept=k_accept,
-    )
-    if widest is None or widest.accepted or sigma is None:
-        return widest, first
-    for start in range(first + 1, n - MIN_LINEAR_POINTS + 1):
-        candidate = fit_linear(speed[start:], magnitude[start:], sigma[start:], k_accept=k_accept)
-        if candidate is not None and candidate.accepted:
-            return candidate, start
-    return widest, first
-
-
-def _better_extended(stribeck: NonlinearFit, extended: NonlinearFit, points: int) -> bool:
-    """True when the rolling term lowers χ² significantly (F-test at 1 %)."""
-    extra = len(EXTENDED_PARAMETERS) - len(STRIBECK_PARAMETERS)
-    dof = points - len(EXTENDED_PARAMETERS)
-    if dof <= 0:
-        return False
-    rss_s = stribeck.chi2_reduced * (points - len(STRIBECK_PARAMETERS))
-    rss_e = extended.chi2_reduced * dof
-    if rss_e <= 0:
-        return rss_s > 0
-    statistic = (rss_s - rss_e) / extra / (rss_e / dof)
-    return bool(stats.f.sf(statistic, extra, dof) < 0.01)
-
-
-def fit_direction(
-    points: Sequence[Point],
-    direction: Literal[1, -1],
-    *,
-    offset: OffsetResult | None = None,
-    coarse: bool = False,
-    k_accept: float = 10.0,
-) -> DirectionResult:
-    """All fits of one position and direction, and the model that describes the curve.
-
-    Points carry signed velocities and signed medians (the negative direction
-    has negative friction). The fits see speed |v| and the friction magnitude
-    ``direction × (median − offset)``: the axis' offset (gravity on a vertical
-    axis, a bias of the current) is taken out first, so that both directions
-    describe friction. σ per point from :func:`point_sigma`.
-
-    The Stribeck and extended models are fitted to all points. The linear
-    Coulomb + viscous fit is fitted where the line holds: above the Stribeck
-    region where the Stribeck fit is identifiable (speeds where the hump has
-    decayed to 1 % of its height, v ≥ v_S·(ln 100)^(1/δ), and at least 3·v_S,
-    when at least 5 points remain), and from there leaving out the slowest
-    points as long as the line is rejected (:func:`_linear_region`). Its
-    ``velocity_range_mm_min`` and ``points_below_range`` say where it holds.
-
-    The model that describes the curve is the simplest that fits every point
-    (linear, else Stribeck, else extended where its rolling term is
-    significant), else the linear model over its range; on coarse data the
-    Stribeck models are not trusted. ``model`` is None when none fits.
-
-    Returns:
-        The direction's result with its points as given.
-    """
-    if not points:
-        return DirectionResult(points=[], fit=None, model=None, model_reason="no points")
-    order = np.argsort(np.abs([p.velocity_mm_min for p in points]), kind="stable")
-    ordered = [points[i] for i in order]
-    speed = np.abs(np.array([p.velocity_mm_min for p in ordered], dtype=np.float64))
-    shift = offset.value if offset is not None else 0.0
-    magnitude = direction * (np.array([p.median for p in ordered], dtype=np.float64) - shift)
-    sigma = point_sigma(ordered)
-    stribeck = fit_nonlinear(speed, magnitude, sigma, model="stribeck")
-    extended = fit_nonlinear(speed, magnitude, sigma, model="extended")
-    if coarse:
-        stribeck, extended = (
-            None
-            if fit is None
-            else fit.model_copy(
-                update={
-                    "parameters": None,
-                    "ci95": None,
-                    "identifiable": False,
-                    "stribeck_velocity_mm_min": None,
-                    "reason": "the data is too coarse for a Stribeck curve (few samples per "
-                    "window)",
-                }
-            )
-            for fit in (stribeck, extended)
-        )
-    first = 0
-    if stribeck is not None and stribeck.parameters is not None:
-        vs, delta = stribeck.parameters["v_S"], stribeck.parameters["delta"]
-        cut = max(3.0 * vs, vs * math.log(1.0 / LINEAR_REGION_DECAY) ** (1.0 / delta))
-        above = int(np.searchsorted(speed, cut))
-        if speed.size - above >= MIN_LINEAR_POINTS_ABOVE_STRIBECK:
-            first = above
-        else:
-            log.debug(
-                "only %d points above the Stribeck region (%.4g mm/min)", speed.size - above, cut
-            )
-    linear, below = _linear_region(speed, magnitude, sigma, first, k_accept)
-    if linear is not None:
-        updates: dict[str, object] = {"points_below_range": below}
-        if offset is not None and offset.stderr and linear.coulomb_stderr is not None:
-            # The offset shifts every point alike: it moves the Coulomb friction only.
-            updates["coulomb_stderr"] = math.hypot(linear.coulomb_stderr, offset.stderr)
-        linear = linear.model_copy(update=updates)
-    model, reason = _choose_model(linear, stribeck, extended, speed.size, k_accept)
-    return DirectionResult(
-        points=list(points),
-        fit=linear,
-        stribeck=stribeck,
-        extended=extended,
-        offset_removed=offset.value if offset is not None else None,
-        model=model,
-        model_reason=reason,
-    )
-
-
-def _choose_model(
-    linear: LinearFit | None,
-    stribeck: NonlinearFit | None,
-    extended: NonlinearFit | None,
-    points: int,
-    k_accept: float,
-) -> tuple[ModelName | None, str]:
-    """The simplest model that describes the curve, and why, in one sentence."""
-    linear_ok = linear is not None and linear.accepted and linear.coulomb is not None
-    if linear_ok and linear is not None and linear.points_below_range == 0:
-        return "linear", (
-            f"Coulomb + viscous friction describes every point (χ²ᵣ {linear.chi2_reduced:.2g})."
-        )
-    s_ok = stribeck is not None and stribeck.identifiable and stribeck.chi2_reduced <= k_accept
-    e_ok = extended is not None and extended.identifiable and extended.chi2_reduced <= k_accept
-    if s_ok and stribeck is not None:
-        if e_ok and extended is not None and _better_extended(stribeck, extended, points):
-            return "extended", (
-                f"The extended Stribeck model describes every point (χ²ᵣ "
-                f"{extended.chi2_reduced:.2g}); its rolling term is significant."
-            )
-        return "stribeck", (
-            f"The Stribeck model describes every point (χ²ᵣ {stribeck.chi2_reduced:.2g}): "
-            "friction rises towards standstill."
-        )
-    if e_ok and extended is not None:
-        return "extended", (
-            f"The extended Stribeck model describes every point (χ²ᵣ {extended.chi2_reduced:.2g})."
-        )
-    if linear_ok and linear is not None:
-        low, high = linear.velocity_range_mm_min
-        return "linear", (
-            f"Coulomb + viscous friction holds from {low:.4g} to {high:.4g} mm/min (χ²ᵣ "
-            f"{linear.chi2_reduced:.2g}); the {linear.points_below_range} slower point(s) rise "
-            "above the line (Stribeck region) and no Stribeck model is determined by them."
-        )
-    why = []
-    if linear is None:
-        why.append("too few points for a line")
-    elif linear.reason:
-        why.append(f"linear: {linear.reason}")
-    else:
-        why.append(f"linear: χ²ᵣ {linear.chi2_reduced:.3g} over its best range")
-    for fit in (stribeck, extended):
-        if fit is not None:
-            why.append(f"{fit.model}: {fit.reason or f'χ²ᵣ {fit.chi2_reduced:.3g}'}")
-    return None, "No model describes the points (" + "; ".join(why) + ")."
-
-
-# --------------------------------------------------------------------------- offset
-
-
-def separate_offset(positive: Sequence[Point], negative: Sequence[Point]) -> OffsetResult | None:
-    """The direction-independent part of the signal, from both directions at equal speed.
-
-    With T₊ = F + o and T₋ = −F + o at the same |v|, o = (T₊ + T₋)/2 for
-    every speed measured in both directions (|v| equal within 0.5 %; each
-    positive point is paired with the nearest unused negative one). The
-    result is the mean of those offsets; its standard error is the scatter of
-    the per-speed offsets / √m (m ≥ 2), or from the two points' σ when only
-    one speed matches.
-
-    Returns:
-        The offset, or None when no speed is measured in both directions.
-    """
-    neg = [p for p in negative if p.velocity_mm_min != 0 and math.isfinite(p.median)]
-    neg_speed = np.array([abs(p.velocity_mm_min) for p in neg], dtype=np.float64)
-    used = np.zeros(len(neg), dtype=bool)
-    offsets: list[float] = []
-    pair_se: list[float] = []
-    speeds: list[float] = []
-    for p in sorted(positive, key=lambda q: abs(q.velocity_mm_min)):
-        speed = abs(p.velocity_mm_min)
-        if speed == 0 or not math.isfinite(p.median) or not neg:
-            continue
-        gap = np.where(used, np.inf, np.abs(neg_speed - speed) / np.maximum(neg_speed, speed))
-        j = int(np.argmin(gap))
-        if gap[j] > SPEED_MATCH_TOLERANCE:
-            continue
-        used[j] = True
-        q = neg[j]
-        offsets.append(0.5 * (p.median + q.median))
-        speeds.append(speed)
-        se = [
-            x.stderr if x.stderr else MEDIAN_SE_FACTOR * x.std / math.sqrt(x.n)
-            for x in (p, q)
-            if x.n >= 1 and (x.std > 0 or x.stderr)
-        ]
-        pair_se.append(0.5 * math.sqrt(sum(e * e for e in se)) if len(se) == 2 else math.nan)
-    if not offsets:
-        return None
-    values = np.array(offsets)
-    mean = float(values.mean())
-    if values.size >= 2:
-        stderr: float | None = float(values.std(ddof=1) / math.sqrt(values.size))
-    else:
-        stderr = pair_se[0] if math.isfinite(pair_se[0]) else None
-    if stderr is not None and stderr > 0:
-        verdict = (
-            "significant" if abs(mean) > 2 * stderr else "not distinguishable from zero"
-        ) + f" (±{stderr:.3g} standard error)"
-    else:
-        verdict = "no standard error available"
-    explanation = (
-        f"Direction-independent part o = (T₊ + T₋)/2 = {mean:.4g}, {verdict}, over "
-        f"{values.size} speed(s) measured in both directions "
-        f"({min(speeds):.4g}–{max(speeds):.4g} mm/min; per-speed offsets "
-        f"{values.min():.4g} to {values.max():.4g}). On a vertical axis this is gravity "
-        "(the weight's torque on the screw, M = F·h/2π); on a horizontal axis a bias of the "
-        "torque or current signal, or friction that differs between the directions. "
-        "Friction per direction is the half difference (T₊ − T₋)/2."
-    )
-    return OffsetResult(value=mean, stderr=stderr, explanation=explanation)

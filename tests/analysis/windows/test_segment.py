@@ -16,13 +16,10 @@ import pytest
 from numpy.typing import NDArray
 from scipy.ndimage import median_filter
 
-from ncmeasure.analysis.segment import (
-    Segmentation,
-    SegmentSettings,
-    VelocityWindow,
-    cluster_gaps,
-    find_windows,
-)
+from ncmeasure.analysis.windows.find import find_windows
+from ncmeasure.analysis.windows.model import Segmentation, VelocityWindow
+from ncmeasure.analysis.windows.settings import SegmentSettings
+from ncmeasure.analysis.windows.signals import cluster_gaps
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.schedule import Schedule
 from ncmeasure.sim.synthetic import SyntheticAxis, SyntheticData, simulate

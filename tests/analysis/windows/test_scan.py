@@ -1,4 +1,4 @@
-"""An axis' whole-signal statistics read chunk by chunk equal those of the whole arrays."""
+"""An axis' whole-signal statistics read chunk by chunk equal those of the whole arrays (oracle)."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ncmeasure.analysis.scan import axes_statistics, axis_statistics
-from ncmeasure.analysis.segment import _bridge, find_windows, noise_sigma, quantum
-from ncmeasure.recording import Recording, RecordingWriter
+from ncmeasure.analysis.windows.scan import AxisStatistics, Rows, axes_statistics
+from ncmeasure.recording import Recording, RecordingWriter, iter_chunks
 from ncmeasure.samples import SampleBlock
 from ncmeasure.sim.synthetic import SyntheticAxis, synthetic_recording
 from ncmeasure.validity import Implausible
+from tests.analysis.oracle import bridge, find_windows, noise_sigma, quantum
 
 AXES = [
     SyntheticAxis(name="X", velocities_mm_min=(10.0, 100.0, 1000.0), positions_mm=(50.0, 600.0)),
@@ -24,6 +24,17 @@ AXES = [
     ),
 ]
 LIMITS = {"X_current_a": 40.0, "Y_velocity_mm_min": 30_000.0}
+
+
+def statistics(recording: Recording, axes: tuple[str, ...], rows: int) -> dict[str, AxisStatistics]:
+    """The statistics of ``axes`` from the recording's file read ``rows`` rows at a time."""
+    names = recording.channel_names
+    limits = {name: LIMITS.get(name) for name in names}
+    column = {name: k for k, name in enumerate(names)}
+    source = Rows(
+        lambda: iter_chunks(recording.directory, rows, names), column, rows, limits=limits
+    )
+    return axes_statistics(source, axes)
 
 
 def _damaged(source: Recording, directory: Path) -> Recording:
@@ -52,24 +63,24 @@ def recordings(tmp_path_factory: pytest.TempPathFactory) -> list[Recording]:
     return [clean, _damaged(clean, base / "damaged")]
 
 
-@pytest.mark.parametrize("rows", [37, 1000, 1 << 16])
-@pytest.mark.parametrize("kind", [0, 1], ids=["clean", "damaged"])
-@pytest.mark.parametrize("axis", ["X", "Y"])
+@pytest.mark.parametrize(
+    ("axis", "kind", "rows"),
+    [("X", 1, 37), ("Y", 1, 1000), ("Y", 0, 1000), ("X", 0, 1 << 16)],
+    ids=["X-damaged-37", "Y-damaged-1000", "Y-clean-1000", "X-clean-65536"],
+)
 def test_statistics_equal_those_of_the_whole_arrays(
     recordings: list[Recording], kind: int, axis: str, rows: int
 ) -> None:
     recording = recordings[kind]
-    found = axis_statistics(
-        recording.directory, axis, recording.channel_names, limits=LIMITS, rows=rows
-    )
+    found = statistics(recording, (axis,), rows)[axis]
     checker = Implausible({n: LIMITS.get(n) for n in recording.channel_names})
     t = recording.time_s
 
     def signal(name: str) -> np.ndarray:
         return checker.clean(f"{axis}_{name}", t, recording.column(f"{axis}_{name}"))
 
-    velocity, bridged = _bridge(signal("velocity_mm_min"), t)
-    position, _ = _bridge(signal("position_mm"), t)
+    velocity, bridged = bridge(signal("velocity_mm_min"), t)
+    position, _ = bridge(signal("position_mm"), t)
     current = signal("current_a")
     assert found.rows == len(t)
     assert found.sample_period_s == float(np.median(np.diff(t)))
@@ -86,7 +97,7 @@ def test_statistics_equal_those_of_the_whole_arrays(
     if axis == "Y" and kind == 0:  # bridged gaps take a quantised signal off its lattice
         assert found.velocity_quantum_mm_min > 0
         assert found.current_quantum_a > 0
-    # The segmentation of the whole arrays finds the same period and counts.
+    # The windows of the whole arrays are found with the same period and counts.
     segmentation = find_windows(
         axis, t, signal("velocity_mm_min"), position_mm=signal("position_mm")
     )
@@ -97,10 +108,9 @@ def test_statistics_equal_those_of_the_whole_arrays(
 
 def test_axes_read_together_equal_each_read_alone(recordings: list[Recording]) -> None:
     recording = recordings[1]
-    names = recording.channel_names
-    together = axes_statistics(recording.directory, ("X", "Y"), names, limits=LIMITS, rows=500)
+    together = statistics(recording, ("X", "Y"), 500)
     for axis in ("X", "Y"):
-        alone = axis_statistics(recording.directory, axis, names, limits=LIMITS, rows=500)
+        alone = statistics(recording, (axis,), 500)[axis]
         assert together[axis].implausible is not None and alone.implausible is not None
         assert together[axis].implausible.counts == alone.implausible.counts
         together[axis].implausible = alone.implausible = None

@@ -1,13 +1,18 @@
-"""A recording read chunk by chunk gives the same results as the recording in memory.
+"""The analysis against its oracle: the same results as the method on whole arrays.
 
-``analyze(directory)`` (what ``ncmeasure analyze`` runs) reads the samples in
-chunks and keeps only the slices around the windows; ``analyze(Recording)``
-works on the whole arrays. On every kind of recording the tests hold (the
-three ways of finding windows with and without a schedule, whole-run markers,
-coarse counts, 100 ms sampling, several axes, dead and still axes, damaged
-files, lost rows, "no value" codes, the demo's recordings) the two give the
-same results.json, bit for bit, with chunks so small (37 and 1000 rows) that
-windows, plateaus and filter spans straddle chunk edges.
+ncmeasure reads a recording one way: in passes of chunks, keeping only the
+samples around the windows; a recording in memory is one chunk of its own
+arrays, a recording given by its directory is read from its file ``rows`` rows
+at a time. ``tests/analysis/oracle.py`` is the same method on the whole arrays.
+On the kinds of recording where reading in chunks could go wrong, both give
+the same results.json and the same window times, bit for bit: every way of
+finding windows (marker, whole-run and flag markers, command, plateaus), with
+and without a schedule; gaps of NaN across chunk edges, "no value" codes, lost
+rows, a damaged frame; coarse counts found by the position; 100 ms sampling;
+several axes read together; dead, flat and still axes; frozen readings, counted
+velocities, an axis that does not follow its command; chunks so small (37 rows)
+that plateaus, filters and trimming margins reach across several of them. The
+demo's recordings, made through the links, are checked in ``tests/test_demo.py``.
 """
 
 from __future__ import annotations
@@ -21,16 +26,25 @@ import numpy as np
 import pytest
 
 from ncmeasure.analysis.analyze import analyze
+from ncmeasure.analysis.windows.find import array_rows, axis_windows, find_windows
+from ncmeasure.analysis.windows.settings import SegmentSettings
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import Recording, RecordingHead, RecordingWriter
 from ncmeasure.samples import SampleBlock
-from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
+from ncmeasure.sim.synthetic import (
+    SyntheticAxis,
+    geometric_velocities,
+    simulate,
+    synthetic_recording,
+)
+from tests.analysis import oracle
 from tests.analysis.real_data import decimate, measure, write
 from tests.analysis.test_real_data import COARSE, COUNTS, FOLLOWING, QUANTISED, TWO, VERTICAL
 
 SMALL = SyntheticAxis(velocities_mm_min=geometric_velocities(10.0, 15000.0, 6))
-CHUNKS = (37, 1000)
+IN_MEMORY = None
+"""``rows`` of :func:`assert_same` for the recording in memory (one chunk)."""
 
 
 def _outcome(run: Callable[[], Any]) -> Any:
@@ -44,20 +58,30 @@ def _outcome(run: Callable[[], Any]) -> Any:
     return data
 
 
-def assert_same(recording: Recording, schedule: Schedule | None = None, **options: Any) -> Any:
-    """The same results (and window times) in memory and at every chunk size."""
+def assert_same(
+    recording: Recording,
+    schedule: Schedule | None = None,
+    *,
+    rows: int | None = IN_MEMORY,
+    **options: Any,
+) -> Any:
+    """The analysis gives the oracle's results and window times.
+
+    The recording in memory (``rows`` None), or its file read ``rows`` rows at a time.
+    """
+    expected_times: dict[str, list[tuple[float, float]]] = {}
+    expected = _outcome(
+        lambda: oracle.analyze(recording, schedule=schedule, window_times=expected_times, **options)
+    )
     times: dict[str, list[tuple[float, float]]] = {}
-    whole = _outcome(lambda: analyze(recording, schedule=schedule, window_times=times, **options))
-    for rows in CHUNKS:
-        found: dict[str, list[tuple[float, float]]] = {}
-        chunked = _outcome(
-            lambda rows=rows, found=found: analyze(
-                recording.directory, schedule=schedule, rows=rows, window_times=found, **options
-            )
-        )
-        assert chunked == whole, rows
-        assert found == times, rows
-    return whole
+    source: Recording | Path = recording if rows is None else recording.directory
+    chunks = {} if rows is None else {"rows": rows}
+    found = _outcome(
+        lambda: analyze(source, schedule=schedule, window_times=times, **chunks, **options)
+    )
+    assert found == expected, rows
+    assert times == expected_times, rows
+    return expected
 
 
 def _damaged(source: Recording, directory: Path) -> Recording:
@@ -98,18 +122,19 @@ WAYS: dict[str, dict[str, Any]] = {
     "run-marker": {"marker_scope": "run"},
     "flag-marker": {"marker_values": "flag"},
 }
+DAMAGED_ROWS = {"marker": 37, "plateau": 37}
+"""Chunks of the damaged recordings: 37 rows, fewer than a plateau, for these ways."""
 
 
 @pytest.mark.parametrize("way", list(WAYS))
 def test_each_way_of_finding_windows(tmp_path: Path, way: str) -> None:
     recording, schedule = synthetic_recording(tmp_path / "rec", [SMALL], **WAYS[way])
-    for plan in (schedule, None):
-        found = assert_same(recording, plan)
-        assert found["axes"]["X"]["windows"] > 0
+    assert assert_same(recording, schedule)["axes"]["X"]["windows"] > 0
+    assert assert_same(recording, None, rows=1000)["axes"]["X"]["windows"] > 0
     damaged = _damaged(recording, tmp_path / "damaged")
     assert damaged.problems
-    for plan in (schedule, None):
-        assert_same(damaged, plan)
+    plan = schedule if "marker" in way else None
+    assert_same(damaged, plan, rows=DAMAGED_ROWS.get(way, 1000))
 
 
 @pytest.mark.parametrize("with_command", [True, False], ids=["command", "plateaus"])
@@ -124,7 +149,7 @@ def test_coarse_counts_found_by_the_position(tmp_path: Path, with_command: bool)
     )
     found = assert_same(recording, schedule)
     assert any("displacement" in w for w in found["axes"]["X"]["warnings"])
-    assert_same(_damaged(recording, tmp_path / "damaged"), schedule)
+    assert_same(_damaged(recording, tmp_path / "damaged"), schedule, rows=1000)
 
 
 def test_three_axes_read_together(tmp_path: Path) -> None:
@@ -139,15 +164,15 @@ def test_three_axes_read_together(tmp_path: Path) -> None:
     ]
     recording, schedule = synthetic_recording(tmp_path / "rec", axes)
     assert set(assert_same(recording, schedule)["axes"]) == {"X", "Y", "Z"}
-    assert_same(recording, schedule, axes=["Z", "X"])
-    assert_same(_damaged(recording, tmp_path / "damaged"), None)
+    assert_same(recording, schedule, axes=["Z", "X"], rows=1000)
+    assert_same(_damaged(recording, tmp_path / "damaged"), None, rows=1000)
 
 
 def test_a_100_ms_data_collector(tmp_path: Path) -> None:
     for with_command in (True, False):
         data = decimate(measure([COARSE], with_marker=False, with_command=with_command), 25)
         recording = write(tmp_path / f"rec{with_command}", data, [COARSE])
-        assert_same(recording, data.schedule)
+        assert_same(recording, data.schedule, rows=37)
         assert_same(recording)
 
 
@@ -159,14 +184,14 @@ def test_dead_still_and_flat_axes(tmp_path: Path) -> None:
     current = data.column("Z_current_a").copy()
     current[np.abs(data.column("Z_velocity_cmd_mm_min")) > 0] = 0.25
     flat = data.set("Z_current_a", current)
-    assert_same(write(tmp_path / "flat", flat, TWO), data.schedule)
+    assert_same(write(tmp_path / "flat", flat, TWO), data.schedule, rows=1000)
     still = data.set("Z_position_mm", np.full(n, -250.0)).set("Z_velocity_mm_min", np.zeros(n))
     still = still.set("Z_velocity_cmd_mm_min", np.zeros(n)).set("Z_marker", np.zeros(n))
     assert_same(write(tmp_path / "still", still, TWO), data.schedule)
     both = data.set("X_current_a", np.zeros(n)).set("Z_current_a", np.zeros(n))
-    assert assert_same(write(tmp_path / "none", both, TWO))[0] == "error"
+    assert assert_same(write(tmp_path / "none", both, TWO), rows=1000)[0] == "error"
     no_position = data.without("X_position_mm", "Z_position_mm")
-    assert_same(write(tmp_path / "no-position", no_position, TWO))
+    assert_same(write(tmp_path / "no-position", no_position, TWO), rows=1000)
     stopped = no_position.set("Z_velocity_mm_min", np.zeros(n)).set("Z_marker", np.zeros(n))
     stopped = stopped.set("Z_velocity_cmd_mm_min", np.zeros(n))
     assert "did not move" in assert_same(write(tmp_path / "stopped", stopped, TWO))["skipped"]["Z"]
@@ -177,7 +202,7 @@ def test_real_data_properties(tmp_path: Path) -> None:
     velocity = quantised.column("X_velocity_mm_min").copy()
     velocity[np.abs(velocity) < 1.0] = -3.0  # a reading frozen at standstill
     frozen = quantised.set("X_velocity_mm_min", velocity)
-    assert_same(write(tmp_path / "frozen", frozen, [QUANTISED]))
+    assert_same(write(tmp_path / "frozen", frozen, [QUANTISED]), rows=1000)
     counts = measure([COUNTS], with_marker=False, with_command=False)
     assert_same(write(tmp_path / "counts", counts, [COUNTS]))
     following = measure([FOLLOWING], with_marker=False)
@@ -188,30 +213,7 @@ def test_real_data_properties(tmp_path: Path) -> None:
     for start in rng.choice(len(keep) - 20, 40, replace=False):
         keep[start : start + int(rng.integers(1, 12))] = False
     lost = write(tmp_path / "lost", vertical.rows(keep), [VERTICAL], period_s=0.004)
-    assert assert_same(lost, vertical.schedule)["recording"]["gaps"] > 0
-
-
-def test_a_recording_head_gets_the_problems_of_its_samples(tmp_path: Path) -> None:
-    recording, _ = synthetic_recording(tmp_path / "rec", [SMALL])
-    damaged = _damaged(recording, tmp_path / "damaged")
-    head = RecordingHead.open(damaged.directory)
-    analyze(head, rows=1000)
-    assert head.problems == damaged.problems
-    assert head.rows == len(damaged)
-
-
-def test_the_demo_recordings(tmp_path: Path) -> None:
-    from ncmeasure.demo import run_demo
-    from ncmeasure.formats.schedule import load_schedule
-
-    result = run_demo(tmp_path / "demo", report=False)
-    recordings = sorted(p.parent for p in (tmp_path / "demo").rglob("meta.json"))
-    assert recordings, result
-    schedules = sorted((tmp_path / "demo").rglob("schedule.json"))
-    for directory in recordings:
-        assert_same(Recording.open(directory))
-        for path in schedules:
-            assert_same(Recording.open(directory), load_schedule(path))
+    assert assert_same(lost, vertical.schedule, rows=1000)["recording"]["gaps"] > 0
 
 
 def test_a_missing_current_and_an_empty_recording(tmp_path: Path) -> None:
@@ -221,11 +223,63 @@ def test_a_missing_current_and_an_empty_recording(tmp_path: Path) -> None:
     with RecordingWriter.create(tmp_path / "no-current", channels, nominal_period_s=0.004) as w:
         w.append(SampleBlock(recording.time_s, recording.values[:, keep]))
     without = Recording.open(tmp_path / "no-current")
-    assert "Z_current_a" in assert_same(without, schedule)["skipped"]["Z"]
+    assert "Z_current_a" in assert_same(without, schedule, rows=1000)["skipped"]["Z"]
     assert assert_same(without, schedule, axes=["Z"])[0] == "error"
     with RecordingWriter.create(tmp_path / "empty", channels, nominal_period_s=0.004):
         pass
-    assert assert_same(Recording.open(tmp_path / "empty"))[0] == "error"
+    empty = Recording.open(tmp_path / "empty")
+    assert assert_same(empty)[0] == "error"
+    assert assert_same(empty, rows=1000)[0] == "error"
+
+
+# --- the windows of given arrays -------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def signals() -> tuple[np.ndarray, dict[str, np.ndarray], Schedule]:
+    """An axis' arrays with rapids and a warm-up stroke, a few "no value" codes in them."""
+    data = simulate([SyntheticAxis()], seed=1)
+    names = [c.name for c in data.channels]
+    columns = {name: data.values[:, k].copy() for k, name in enumerate(names)}
+    columns["X_velocity_mm_min"][[500, 9000]] = -999_999.0  # taken as they are
+    assert data.schedule is not None
+    return data.time_s, columns, data.schedule
+
+
+@pytest.mark.parametrize("method", ["marker", "command", "plateau"])
+@pytest.mark.parametrize("scheduled", [True, False], ids=["schedule", "clusters"])
+def test_the_windows_of_given_arrays(
+    signals: tuple[np.ndarray, dict[str, np.ndarray], Schedule], method: str, scheduled: bool
+) -> None:
+    time_s, columns, schedule = signals
+    plan = schedule if scheduled else None
+    settings = SegmentSettings(window_method=method)  # type: ignore[arg-type]
+    given = {
+        "position_mm": columns["X_position_mm"],
+        "command_mm_min": columns["X_velocity_cmd_mm_min"],
+        "marker": columns["X_marker"],
+    }
+    velocity = columns["X_velocity_mm_min"]
+    expected = oracle.find_windows("X", time_s, velocity, schedule=plan, settings=settings, **given)
+    assert (
+        find_windows("X", time_s, velocity, schedule=plan, settings=settings, **given) == expected
+    )
+    # Read in chunks of 1000 rows: the same windows.
+    wanted = ("velocity_mm_min", "position_mm", "velocity_cmd_mm_min", "marker")
+    source = array_rows(time_s, {f"X_{s}": columns[f"X_{s}"] for s in wanted}, rows=1000)
+    assert axis_windows("X", source, plan, settings) == expected
+
+
+# --- reading a recording's file ----------------------------------------------------------
+
+
+def test_a_recording_head_gets_the_problems_of_its_samples(tmp_path: Path) -> None:
+    recording, _ = synthetic_recording(tmp_path / "rec", [SMALL])
+    damaged = _damaged(recording, tmp_path / "damaged")
+    head = RecordingHead.open(damaged.directory)
+    analyze(head, rows=1000)
+    assert head.problems == damaged.problems
+    assert head.rows == len(damaged)
 
 
 def test_progress_while_reading(tmp_path: Path) -> None:

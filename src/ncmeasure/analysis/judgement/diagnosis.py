@@ -342,13 +342,74 @@ def position_dependency(
     )
 
 
+@dataclass(frozen=True)
+class _Oriented:
+    """The averaged profile from the fixed-bearing end (0) to the loose-bearing end (n − 1)."""
+
+    fit: _Profile
+    q: FloatArray  # relative friction
+    x: FloatArray  # positions, mm
+    numbers: list[int]
+    cov: FloatArray | None  # covariance of the log profile
+    t: FloatArray  # 0 at the fixed-bearing end of the travel, 1 at the loose one
+    flip: bool  # the fixed bearing is at the max end
+    spread: float
+    p_text: str  # ", p = ..." or ""
+
+    @property
+    def n(self) -> int:
+        return int(self.q.size)
+
+    @property
+    def spread_pct(self) -> float:
+        return self.spread * 100.0
+
+    @property
+    def strength(self) -> float:
+        return min(1.0, self.spread_pct / FULL_STRENGTH_PERCENT)
+
+    def at(self, i: int) -> str:
+        return f"position {self.numbers[i]} ({self.x[i]:.0f} mm)"
+
+
+def _oriented(
+    fit: _Profile,
+    spread: float,
+    travel_mm: tuple[float, float],
+    fixed_bearing_end: Literal["min", "max"],
+) -> _Oriented:
+    # Orient from the fixed-bearing end to the loose-bearing end.
+    flip = fixed_bearing_end == "max"
+    q = fit.relative[::-1] if flip else fit.relative
+    x = fit.positions_mm[::-1] if flip else fit.positions_mm
+    numbers = fit.numbers[::-1] if flip else fit.numbers
+    cov = None if fit.cov_log is None else (fit.cov_log[::-1, ::-1] if flip else fit.cov_log)
+    low_end, high_end = travel_mm
+    length = (high_end - low_end) or 1.0
+    t = np.abs(x - (high_end if flip else low_end)) / abs(length)  # 0 fixed end, 1 loose end
+    if fit.p_value is None:
+        p_text = ""
+    elif fit.p_value < 1e-6:
+        p_text = ", p < 1e-6"
+    else:
+        p_text = f", p = {fit.p_value:.2g}"
+    return _Oriented(fit, q, x, numbers, cov, t, flip, spread, p_text)
+
+
+Diagnosis = tuple[Signature, list[Cause]]
+
+
 def _diagnose(
     fit: _Profile,
     spread: float,
     travel_mm: tuple[float, float],
     fixed_bearing_end: Literal["min", "max"],
-) -> tuple[Signature, list[Cause]]:
-    """Signature and ranked causes of the averaged relative profile."""
+) -> Diagnosis:
+    """Signature and ranked causes of the averaged relative profile.
+
+    The patterns are tried in order: flat (or not significant), high at both
+    ends, a step, a rise towards one bearing; what fits none is irregular.
+    """
     n = fit.relative.size
     spread_pct = spread * 100.0
     if n < 3:
@@ -361,177 +422,187 @@ def _diagnose(
                 "loose-bearing end).",
             )
         ]
-
-    # Orient from the fixed-bearing end to the loose-bearing end.
-    flip = fixed_bearing_end == "max"
-    q = fit.relative[::-1] if flip else fit.relative
-    x = fit.positions_mm[::-1] if flip else fit.positions_mm
-    numbers = fit.numbers[::-1] if flip else fit.numbers
-    cov = None if fit.cov_log is None else (fit.cov_log[::-1, ::-1] if flip else fit.cov_log)
-    low_end, high_end = travel_mm
-    length = (high_end - low_end) or 1.0
-    t = np.abs(x - (high_end if flip else low_end)) / abs(length)  # 0 fixed end, 1 loose end
-
-    def at(i: int) -> str:
-        return f"position {numbers[i]} ({x[i]:.0f} mm)"
-
-    strength = min(1.0, spread_pct / FULL_STRENGTH_PERCENT)
-    if fit.p_value is None:
-        p_text = ""
-    elif fit.p_value < 1e-6:
-        p_text = ", p < 1e-6"
-    else:
-        p_text = f", p = {fit.p_value:.2g}"
+    o = _oriented(fit, spread, travel_mm, fixed_bearing_end)
     significant = fit.p_value is None or fit.p_value < SIGNIFICANCE_LEVEL
-
     if spread_pct < FLAT_THRESHOLD_PERCENT or not significant:
-        if spread_pct < FLAT_THRESHOLD_PERCENT:
-            why = f"below the {FLAT_THRESHOLD_PERCENT:g} % threshold"
-            score = 0.9 - 0.4 * spread_pct / FLAT_THRESHOLD_PERCENT
-        else:
-            why = "within the noise between velocities"
-            score = 0.5
-        return "flat", [
-            _cause(
-                "none",
-                score,
-                f"Friction varies by {spread_pct:.1f} % over {n} positions "
-                f"({at(0)} to {at(n - 1)}), {why}{p_text}: no local assembly fault shows.",
-            ),
-            _cause(
-                "preload_or_carriage",
-                0.1,
-                "Preload of bearings or nut and a shifted or tilted guide carriage raise "
-                "friction at every position alike; only a comparison against a reference "
-                "(the same machine earlier, or identical machines) can show them.",
-            ),
-        ]
+        return _flat(o)
+    return _both_ends(o) or _step(o) or _rising(o) or _irregular(o)
 
-    d = np.diff(q)
-    jump_se = np.array([_pair_se(cov, i, i + 1) for i in range(n - 1)])
+
+def _flat(o: _Oriented) -> Diagnosis:
+    """No position effect beyond the threshold or the noise."""
+    n, spread_pct = o.n, o.spread_pct
+    if spread_pct < FLAT_THRESHOLD_PERCENT:
+        why = f"below the {FLAT_THRESHOLD_PERCENT:g} % threshold"
+        score = 0.9 - 0.4 * spread_pct / FLAT_THRESHOLD_PERCENT
+    else:
+        why = "within the noise between velocities"
+        score = 0.5
+    return "flat", [
+        _cause(
+            "none",
+            score,
+            f"Friction varies by {spread_pct:.1f} % over {n} positions "
+            f"({o.at(0)} to {o.at(n - 1)}), {why}{o.p_text}: no local assembly fault shows.",
+        ),
+        _cause(
+            "preload_or_carriage",
+            0.1,
+            "Preload of bearings or nut and a shifted or tilted guide carriage raise "
+            "friction at every position alike; only a comparison against a reference "
+            "(the same machine earlier, or identical machines) can show them.",
+        ),
+    ]
+
+
+def _both_ends(o: _Oriented) -> Diagnosis | None:
+    """Lowest mid-travel and higher at both ends: the ball-screw nut."""
+    q, n, cov, spread = o.q, o.n, o.cov, o.spread
     k_min = int(np.argmin(q))
     rise_fixed, rise_loose = q[0] - q[k_min], q[-1] - q[k_min]
     end_se = (_pair_se(cov, 0, k_min), _pair_se(cov, n - 1, k_min))
-    big = int(np.argmax(np.abs(d)))
-    others = np.delete(np.abs(d), big)
-    causes: list[Cause]
-
-    if (
+    if not (
         0 < k_min < n - 1
         and min(rise_fixed, rise_loose) >= END_RISE_FRACTION * spread
         and rise_fixed > 2 * end_se[0]
         and rise_loose > 2 * end_se[1]
     ):
-        explained = _explained(q, np.column_stack([t, (2 * t - 1) ** 2]))
-        lead = 0.3 + 0.6 * explained * strength
-        return "high_at_both_ends", [
-            _cause(
-                "screw_nut",
-                lead,
-                f"Friction is lowest mid-travel at {at(k_min)} and higher by "
-                f"{_ratio_pct(q[k_min], q[0]):.1f} % next to the fixed bearing ({at(0)}) and "
-                f"by {_ratio_pct(q[k_min], q[-1]):.1f} % next to the loose bearing "
-                f"({at(n - 1)}) "
-                f"(spread {spread_pct:.1f} %{p_text}): a shifted or tilted ball-screw nut "
-                "bends the screw most where it runs close to a bearing.",
-            ),
-            _cause(
-                "guide_rail",
-                ALTERNATIVE_FACTOR * lead,
-                "A misaligned guide rail can give any shape along the travel, this one included.",
-            ),
-        ]
+        return None
+    explained = _explained(q, np.column_stack([o.t, (2 * o.t - 1) ** 2]))
+    lead = 0.3 + 0.6 * explained * o.strength
+    return "high_at_both_ends", [
+        _cause(
+            "screw_nut",
+            lead,
+            f"Friction is lowest mid-travel at {o.at(k_min)} and higher by "
+            f"{_ratio_pct(q[k_min], q[0]):.1f} % next to the fixed bearing ({o.at(0)}) and "
+            f"by {_ratio_pct(q[k_min], q[-1]):.1f} % next to the loose bearing "
+            f"({o.at(n - 1)}) "
+            f"(spread {o.spread_pct:.1f} %{o.p_text}): a shifted or tilted ball-screw nut "
+            "bends the screw most where it runs close to a bearing.",
+        ),
+        _cause(
+            "guide_rail",
+            ALTERNATIVE_FACTOR * lead,
+            "A misaligned guide rail can give any shape along the travel, this one included.",
+        ),
+    ]
 
-    if np.all(np.abs(d[big]) >= STEP_RATIO * others) and abs(d[big]) > 2 * jump_se[big]:
-        explained = _best_step(q)[1]
-        lead = 0.3 + 0.6 * explained * strength
-        ratio = abs(d[big]) / others.max() if others.size and others.max() > 0 else math.inf
-        # Name the two positions in ascending order along the travel.
-        lo_side, hi_side = (big + 1, big) if flip else (big, big + 1)
-        ratio_text = (
-            "all other jumps are negligible (below 0.1 % of it)"
-            if ratio >= 1000.0
-            else (f"{ratio:.1f} times the next largest jump")
+
+def _jumps(o: _Oriented) -> tuple[FloatArray, FloatArray]:
+    """The jumps between adjacent positions and their standard errors."""
+    d = np.diff(o.q)
+    jump_se = np.array([_pair_se(o.cov, i, i + 1) for i in range(o.n - 1)])
+    return d, jump_se
+
+
+def _step(o: _Oriented) -> Diagnosis | None:
+    """One jump between adjacent positions, every other one small: a cover or seal."""
+    q, n, flip = o.q, o.n, o.flip
+    d, jump_se = _jumps(o)
+    big = int(np.argmax(np.abs(d)))
+    others = np.delete(np.abs(d), big)
+    if not (np.all(np.abs(d[big]) >= STEP_RATIO * others) and abs(d[big]) > 2 * jump_se[big]):
+        return None
+    explained = _best_step(q)[1]
+    lead = 0.3 + 0.6 * explained * o.strength
+    ratio = abs(d[big]) / others.max() if others.size and others.max() > 0 else math.inf
+    # Name the two positions in ascending order along the travel.
+    lo_side, hi_side = (big + 1, big) if flip else (big, big + 1)
+    ratio_text = (
+        "all other jumps are negligible (below 0.1 % of it)"
+        if ratio >= 1000.0
+        else (f"{ratio:.1f} times the next largest jump")
+    )
+    causes = [
+        _cause(
+            "cover_or_seal",
+            lead,
+            f"Friction changes by {_ratio_pct(q[lo_side], q[hi_side]):+.1f} % from "
+            f"{o.at(lo_side)} to {o.at(hi_side)}, {ratio_text} (spread "
+            f"{o.spread_pct:.1f} %{o.p_text}): a sticking "
+            "or misaligned telescopic cover, wiper seal or cable chain acts from where "
+            "it engages (method: a ~20 % step).",
+        ),
+        _cause(
+            "guide_rail",
+            ALTERNATIVE_FACTOR * lead,
+            "A guide rail joint or a local rail deviation can also change friction "
+            f"between {o.at(big)} and {o.at(big + 1)}.",
+        ),
+    ]
+    if big == n - 2 and d[big] > 0:
+        causes.insert(
+            1,
+            _cause(
+                "loose_bearing",
+                BEARING_STEP_FACTOR * lead,
+                f"The jump lies next to the loose bearing ({o.at(n - 1)}) and rises towards "
+                "it: a shifted loose bearing acts most where the nut comes close.",
+            ),
         )
-        causes = [
+    elif big == 0 and d[big] < 0:
+        causes.insert(
+            1,
             _cause(
-                "cover_or_seal",
-                lead,
-                f"Friction changes by {_ratio_pct(q[lo_side], q[hi_side]):+.1f} % from "
-                f"{at(lo_side)} to {at(hi_side)}, {ratio_text} (spread "
-                f"{spread_pct:.1f} %{p_text}): a sticking "
-                "or misaligned telescopic cover, wiper seal or cable chain acts from where "
-                "it engages (method: a ~20 % step).",
+                "fixed_bearing",
+                BEARING_STEP_FACTOR * lead,
+                f"The jump lies next to the fixed bearing ({o.at(0)}) and rises towards it: "
+                "a shifted fixed bearing acts most where the nut comes close.",
             ),
-            _cause(
-                "guide_rail",
-                ALTERNATIVE_FACTOR * lead,
-                "A guide rail joint or a local rail deviation can also change friction "
-                f"between {at(big)} and {at(big + 1)}.",
-            ),
-        ]
-        if big == n - 2 and d[big] > 0:
-            causes.insert(
-                1,
-                _cause(
-                    "loose_bearing",
-                    BEARING_STEP_FACTOR * lead,
-                    f"The jump lies next to the loose bearing ({at(n - 1)}) and rises towards "
-                    "it: a shifted loose bearing acts most where the nut comes close.",
-                ),
-            )
-        elif big == 0 and d[big] < 0:
-            causes.insert(
-                1,
-                _cause(
-                    "fixed_bearing",
-                    BEARING_STEP_FACTOR * lead,
-                    f"The jump lies next to the fixed bearing ({at(0)}) and rises towards it: "
-                    "a shifted fixed bearing acts most where the nut comes close.",
-                ),
-            )
-        return "step", causes
+        )
+    return "step", causes
 
+
+def _rising(o: _Oriented) -> Diagnosis | None:
+    """A rise, monotone within the tolerance, towards one bearing: that bearing."""
+    q, n, spread = o.q, o.n, o.spread
+    d, jump_se = _jumps(o)
     rise = q[-1] - q[0]
     sense = 1.0 if rise > 0 else -1.0
     tolerance = np.maximum(MONOTONE_TOLERANCE_FRACTION * spread, 2 * jump_se)
-    if abs(rise) >= 0.5 * spread and np.all(sense * d >= -tolerance):
-        explained = _explained(q, t)
-        lead = 0.3 + 0.6 * explained * strength
-        shape = "nearly linearly" if explained >= 0.9 else "monotonically"
-        if sense > 0:
-            near, far, bearing = 0, n - 1, "loose"
-            name: CauseName = "loose_bearing"
-            signature: Signature = "rising_to_loose_bearing"
-        else:
-            near, far, bearing = n - 1, 0, "fixed"
-            name = "fixed_bearing"
-            signature = "rising_to_fixed_bearing"
-        other = "fixed" if bearing == "loose" else "loose"
-        return signature, [
-            _cause(
-                name,
-                lead,
-                f"Friction rises {shape} by {_ratio_pct(q[near], q[far]):.1f} % from {at(near)} "
-                f"({other}-bearing end) to {at(far)} ({bearing}-bearing end); a straight line "
-                f"explains {explained * 100:.0f} % of the variation{p_text}. A shifted or "
-                f"tilted {bearing} bearing bends the screw, more the closer the nut runs "
-                "to it (test rig: no change next to the other bearing, a nearly linear rise "
-                "towards the shifted one).",
-            ),
-            _cause(
-                "guide_rail",
-                ALTERNATIVE_FACTOR * lead,
-                "A guide rail misaligned along the travel gives a ramp as well.",
-            ),
-        ]
+    if not (abs(rise) >= 0.5 * spread and np.all(sense * d >= -tolerance)):
+        return None
+    explained = _explained(q, o.t)
+    lead = 0.3 + 0.6 * explained * o.strength
+    shape = "nearly linearly" if explained >= 0.9 else "monotonically"
+    if sense > 0:
+        near, far, bearing = 0, n - 1, "loose"
+        name: CauseName = "loose_bearing"
+        signature: Signature = "rising_to_loose_bearing"
+    else:
+        near, far, bearing = n - 1, 0, "fixed"
+        name = "fixed_bearing"
+        signature = "rising_to_fixed_bearing"
+    other = "fixed" if bearing == "loose" else "loose"
+    return signature, [
+        _cause(
+            name,
+            lead,
+            f"Friction rises {shape} by {_ratio_pct(q[near], q[far]):.1f} % from {o.at(near)} "
+            f"({other}-bearing end) to {o.at(far)} ({bearing}-bearing end); a straight line "
+            f"explains {explained * 100:.0f} % of the variation{o.p_text}. A shifted or "
+            f"tilted {bearing} bearing bends the screw, more the closer the nut runs "
+            "to it (test rig: no change next to the other bearing, a nearly linear rise "
+            "towards the shifted one).",
+        ),
+        _cause(
+            "guide_rail",
+            ALTERNATIVE_FACTOR * lead,
+            "A guide rail misaligned along the travel gives a ramp as well.",
+        ),
+    ]
 
-    lead = 0.2 + 0.3 * strength
+
+def _irregular(o: _Oriented) -> Diagnosis:
+    """No bearing, nut or step pattern: a guide rail follows its own deviation."""
+    fit = o.fit
+    lead = 0.2 + 0.3 * o.strength
     return "irregular", [
         _cause(
             "guide_rail",
             lead,
-            f"Friction varies by {spread_pct:.1f} % over {n} positions without a bearing, "
+            f"Friction varies by {o.spread_pct:.1f} % over {o.n} positions without a bearing, "
             "nut or step pattern (relative to the mean: "
             + ", ".join(
                 f"{number}: {pos:.0f} mm {val:.2f}"
@@ -539,7 +610,7 @@ def _diagnose(
                     fit.numbers, fit.positions_mm, fit.relative, strict=True
                 )
             )
-            + f"{p_text}): a misaligned guide rail follows its own deviation.",
+            + f"{o.p_text}): a misaligned guide rail follows its own deviation.",
         ),
         _cause(
             "cover_or_seal",

@@ -1,0 +1,1 @@
+"""What the friction says: diagnosis along the travel, verdicts, summaries, comparisons."""

@@ -1,0 +1,379 @@
+"""A recording read in passes shared by all its axes: statistics, sweep, then each axis' windows.
+
+:class:`RecordingPasses` reads a recording the one way the analysis reads
+one: chunk by chunk, keeping only the samples around the windows. A
+recording given by its directory (a :class:`~ncmeasure.recording.RecordingHead`)
+is read from ``samples.bin`` (:func:`~ncmeasure.recording.iter_chunks`, with
+the progress of every pass); a :class:`~ncmeasure.recording.Recording` already
+in memory is one chunk of its own arrays. The passes:
+
+1. the whole-signal statistics of every axis
+   (:mod:`~ncmeasure.analysis.windows.scan`);
+2. where the velocity is coarse, the agreement of the position's velocity
+   with the readings;
+3. the sweep for the marker runs and the stretches of constant command
+   (:mod:`~ncmeasure.analysis.windows.chunked`), with the holes of the time
+   axis (:func:`recording_gaps`);
+4. per axis, the samples of its stretches (:meth:`RecordingPasses.axis`).
+
+Work that needs an axis' windows (``on_windows``) rides along the passes that
+follow them (:mod:`~ncmeasure.analysis.windows.watch`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
+from typing import Any
+
+import numpy as np
+
+from ncmeasure.analysis.axis import (
+    AxisFacts,
+    AxisFound,
+    Progress,
+    axis_facts,
+    axis_summary,
+    check_channels,
+    check_velocity,
+    dead_range,
+    finish_axis,
+    implausible_checker,
+    implausible_lines,
+)
+from ncmeasure.analysis.windows.chunked import ChunkedFinder
+from ncmeasure.analysis.windows.find import recording_chunks
+from ncmeasure.analysis.windows.scan import Rows, axes_statistics
+from ncmeasure.analysis.windows.settings import SegmentSettings
+from ncmeasure.analysis.windows.streaming import run_tasks
+from ncmeasure.analysis.windows.watch import Watchers
+from ncmeasure.config import MachineConfig
+from ncmeasure.errors import RecordingError
+from ncmeasure.formats.results import AxisResult
+from ncmeasure.formats.schedule import AxisSummary, Schedule
+from ncmeasure.recording import SAMPLES_FILE, Recording, RecordingHead, RowChunk, iter_chunks
+from ncmeasure.samples import LinkEvent
+from ncmeasure.validity import Implausible
+
+__all__ = ["RecordingPasses", "recording_gaps"]
+
+
+def recording_gaps(recording: Recording) -> tuple[int, int, int]:
+    """Gaps of a recording: holes in its time axis, samples lost in them, gap events.
+
+    A hole is a time step longer than 1.5 nominal periods; it lost
+    round(step / period) − 1 samples. Where the link reported more lost samples
+    in its gap events than the time axis shows (a gap at the very end), the
+    larger count is taken.
+    """
+    period = recording.meta.nominal_period_s
+    steps = np.diff(recording.time_s)
+    holes = steps > 1.5 * period
+    lost = int(np.sum(np.round(steps[holes] / period) - 1)) if holes.any() else 0
+    return _with_events(int(np.count_nonzero(holes)), lost, recording.events)
+
+
+def _with_events(holes: int, lost: int, events: Sequence[LinkEvent]) -> tuple[int, int, int]:
+    gap_events = [e for e in events if e.kind == "gap"]
+    reported = sum(e.lost_samples for e in gap_events)
+    return max(holes, len(gap_events)), max(lost, reported), len(gap_events)
+
+
+def _holes_task(period: float) -> Generator[Callable[[RowChunk], None], None, tuple[int, int]]:
+    """Holes of the time axis and the samples lost in them, chunk by chunk (as recording_gaps)."""
+    found = {"holes": 0, "lost": 0}
+    last: list[float] = []
+
+    def feed(chunk: RowChunk) -> None:
+        times = chunk.time_s
+        if len(times) == 0:
+            return
+        steps = np.diff(np.concatenate((last[-1:], times)))
+        holes = steps > 1.5 * period
+        if holes.any():
+            found["holes"] += int(np.count_nonzero(holes))
+            found["lost"] += int(np.sum(np.round(steps[holes] / period) - 1))
+        last[:] = [float(times[-1])]
+
+    yield feed
+    return found["holes"], found["lost"]
+
+
+def _row_span(read: Callable[[], Iterator[RowChunk]]) -> tuple[int, float, float]:
+    """Rows, first and last time of a recording (one pass)."""
+    rows, start, end = 0, math.nan, math.nan
+    for chunk in read():
+        if len(chunk.time_s):
+            if rows == 0:
+                start = float(chunk.time_s[0])
+            end = float(chunk.time_s[-1])
+        rows += len(chunk.time_s)
+    return rows, start, end
+
+
+class _FileReader:
+    """The rows of a recording's file, chunk by chunk, with the progress of every pass."""
+
+    def __init__(
+        self, head: RecordingHead, channels: tuple[str, ...], rows: int, progress: Progress
+    ) -> None:
+        self.head = head
+        self.channels = channels
+        self.column = {name: k for k, name in enumerate(channels)}
+        self.chunk_rows = rows
+        self.progress = progress
+        self.problems: list[str] = []
+        self.verified: set[int] = set()  # large frames checked once for all passes
+        # Progress while reading: the pass and the share of its rows read so far.
+        samples_bytes = (head.directory / SAMPLES_FILE).stat().st_size
+        self.expected = max(1, samples_bytes // (8 * (1 + len(head.channels))))
+        self.passes = 0
+        self.chunk_times: dict[int, float] = {}  # first row -> its time, of every chunk read
+
+    def chunks(self) -> Iterator[RowChunk]:
+        """One reading of every row of the channels the passes need."""
+        self.problems = []
+        return iter_chunks(
+            self.head.directory,
+            self.chunk_rows,
+            self.channels,
+            problems=self.problems,
+            verified=self.verified,
+        )
+
+    def seen(self, chunk: RowChunk) -> None:
+        """Note a chunk read: the progress of the pass, the time of its first row."""
+        if chunk.first == 0:
+            self.passes += 1
+        if len(chunk.time_s):
+            self.chunk_times[chunk.first] = float(chunk.time_s[0])
+        done = (chunk.first + len(chunk.time_s)) / self.expected
+        self.progress(f"reading the recording, pass {self.passes}", min(1.0, done))
+
+    def read_channels(
+        self, wanted: tuple[str, ...], between_s: tuple[float, float] | None
+    ) -> Iterator[RowChunk]:
+        """The rows of some channels, all, or from the chunk before ``between_s`` to its end."""
+        # With a stretch of time: from the last chunk that began before it (its
+        # first row as the passes noted it; the frames before are not read) up
+        # to the one that holds its end. Times increase strictly.
+        first_row = 0
+        if between_s is not None:
+            begun = [row for row, t in self.chunk_times.items() if t < between_s[0]]
+            first_row = max(begun, default=0)
+        for chunk in iter_chunks(
+            self.head.directory,
+            self.chunk_rows,
+            wanted,
+            verified=self.verified,
+            first_row=first_row,
+        ):
+            if between_s is not None and len(chunk.time_s) and chunk.time_s[0] > between_s[1]:
+                return
+            done = (chunk.first + len(chunk.time_s)) / self.expected
+            self.progress("reading the recording once more", min(1.0, done))
+            yield chunk
+
+    def done(self, rows: int) -> None:
+        """Tell the recording's head the rows read and what was wrong with its samples."""
+        self.head.samples_read(rows, self.problems)
+
+
+class _MemoryReader:
+    """The rows of a recording in memory: one chunk of its own arrays, read at once."""
+
+    def __init__(self, recording: Recording) -> None:
+        self.recording = recording
+        self.column = {name: k for k, name in enumerate(recording.channel_names)}
+        self.chunk_rows = max(len(recording), 1)
+        # One reading: the one chunk, the same every time (none for an empty recording).
+        self.chunks = recording_chunks(recording)
+
+    def seen(self, chunk: RowChunk) -> None:
+        """Nothing to report: the rows are in memory."""
+
+    def read_channels(
+        self, wanted: tuple[str, ...], between_s: tuple[float, float] | None
+    ) -> Iterable[RowChunk]:
+        """The channels wanted, of every row, as one chunk."""
+        whole = self.recording
+        index = [whole.channel_names.index(name) for name in wanted]
+        return [RowChunk(0, whole.time_s, whole.values[:, index])]
+
+    def done(self, rows: int) -> None:
+        """The recording's problems were noted when it was read."""
+
+
+class RecordingPasses:
+    """The axes of a recording found in passes over its rows, memory bounded by their windows.
+
+    The constructor reads the recording in a few passes shared by all axes;
+    :meth:`axis` then reads the slices of each axis' windows and gives its
+    result. What stops an axis early is kept and raised by :meth:`axis`, in
+    the order the analysis of that axis meets it.
+
+    Attributes:
+        rows: Rows of the recording.
+        start_s: Time of its first row (NaN without rows).
+        end_s: Time of its last row.
+        gaps: Holes in the time axis, samples lost in them, gap events.
+        watchers: The tasks of ``on_windows``, fed on the passes that follow.
+    """
+
+    def __init__(
+        self,
+        head: Recording | RecordingHead,
+        axes: Sequence[str],
+        schedule: Schedule | None,
+        machine: MachineConfig | None,
+        settings: SegmentSettings,
+        rows: int,
+        progress: Progress,
+    ) -> None:
+        self.head = head
+        self.settings = settings
+        self.errors: dict[str, Exception] = {}
+        self.facts: dict[str, AxisFacts] = {}
+        self.summary: dict[str, AxisSummary | None] = {}
+        self.checker: dict[str, Implausible] = {}
+        self.finders: dict[str, ChunkedFinder] = {}
+        ready = self._ready(axes, schedule, machine)
+        bounds = {n: b for c in self.checker.values() for n, b in c.limits.items()}
+        reader: _FileReader | _MemoryReader = (
+            _MemoryReader(head)
+            if isinstance(head, Recording)
+            else _FileReader(head, tuple(bounds), rows, progress)
+        )
+        self.read_channels = reader.read_channels
+        # Tasks of on_windows ride along the readings after their axis' windows are found.
+        self.watchers = Watchers(reader.column)
+
+        def read() -> Iterator[RowChunk]:
+            for chunk in self.watchers.reading(reader.chunks()):
+                reader.seen(chunk)
+                yield chunk
+
+        source = Rows(read, reader.column, reader.chunk_rows, bounds)
+        self.statistics = axes_statistics(source, ready) if ready else {}
+        for axis in ready:
+            try:
+                self.finders[axis] = self._finder(axis, source, schedule)
+            except (RecordingError, ValueError, IndexError, ArithmeticError) as exc:
+                self.errors[axis] = exc
+        agreeing = {a: f.agreement_task() for a, f in self.finders.items() if f.needs_agreement}
+        if agreeing:
+            run_tasks(read, agreeing)
+        tasks: dict[str, Generator[Callable[[RowChunk], None], None, Any]] = {
+            a: f.sweep_task() for a, f in self.finders.items()
+        }
+        tasks[""] = _holes_task(head.meta.nominal_period_s)
+        holes, lost = run_tasks(read, tasks)[""]
+        first = next(iter(self.statistics.values()), None)
+        if first is not None:
+            self.rows, self.start_s, self.end_s = first.rows, first.start_s, first.end_s
+        else:
+            self.rows, self.start_s, self.end_s = _row_span(read)
+        self.gaps = _with_events(holes, lost, head.events)
+        reader.done(self.rows)
+
+    def _ready(
+        self, axes: Sequence[str], schedule: Schedule | None, machine: MachineConfig | None
+    ) -> list[str]:
+        """The axes that have the channels they need; their facts, schedule and checks."""
+        names = self.head.channel_names
+        ready: list[str] = []
+        for axis in axes:
+            try:
+                check_channels(axis, names)
+            except RecordingError as exc:
+                self.errors[axis] = exc
+                continue
+            self.summary[axis] = axis_summary(schedule, axis)
+            self.facts[axis] = axis_facts(axis, self.head, machine, self.summary[axis])
+            self.checker[axis] = implausible_checker(names, axis, self.facts[axis])
+            ready.append(axis)
+        return ready
+
+    def _finder(self, axis: str, source: Rows, schedule: Schedule | None) -> ChunkedFinder:
+        stats = self.statistics[axis]
+        finite = stats.finite.get("velocity_mm_min", 0)
+        low, high = stats.low["velocity_mm_min"], stats.high["velocity_mm_min"]
+        moving = False
+        if "position_mm" in stats.finite:
+            duration = stats.end_s - stats.start_s if stats.rows > 1 else 0.0
+            if duration > 0 and stats.finite["position_mm"]:
+                span = stats.high["position_mm"] - stats.low["position_mm"]
+                moving = span / duration * 60.0 > self.settings.standstill_mm_min
+        check_velocity(
+            axis,
+            dead_range(axis, "velocity_mm_min", stats.rows, finite, low, high, "mm/min"),
+            moving,
+            low if finite else None,
+        )
+        return ChunkedFinder(
+            axis,
+            stats,
+            source,
+            schedule,
+            self.settings,
+            self.facts[axis].rapid_velocity_mm_min,
+        )
+
+    def found(self, axis: str, progress: Progress) -> AxisFound:
+        """The axis' windows, the current of each, and what its whole signals said."""
+        if axis in self.errors:
+            raise self.errors[axis]
+        stats = self.statistics[axis]
+        finder = self.finders[axis]
+        progress(f"axis {axis}: windows", 0.0)
+        try:
+            segmentation = finder.run()
+        except RecordingError:
+            finder.release()
+            raise
+        checker = self.checker[axis]
+        scanned = stats.implausible
+        if scanned is not None:
+            # In the channel order of the check, whatever order the chunks met them.
+            checker.counts = {n: scanned.counts[n] for n in checker.limits if n in scanned.counts}
+            checker.first = {n: scanned.first[n] for n in checker.limits if n in scanned.first}
+        counts, lines = implausible_lines(checker, self.head.meta)
+        window_current = [finder.window_current(w.start, w.stop) for w in segmentation.windows]
+        times = [finder.window_times(w.start, w.stop) for w in segmentation.windows]
+        finder.release()
+        return AxisFound(
+            segmentation=segmentation,
+            window_current=window_current,
+            window_times=times,
+            current_dead=dead_range(
+                axis,
+                "current_a",
+                stats.rows,
+                stats.finite.get("current_a", 0),
+                stats.low.get("current_a", math.nan),
+                stats.high.get("current_a", math.nan),
+                "A",
+            ),
+            current_quantum_a=stats.current_quantum_a,
+            implausible_counts=counts,
+            implausible_lines=lines,
+        )
+
+    def axis(
+        self, axis: str, progress: Progress, gap_share: float
+    ) -> tuple[AxisResult, list[tuple[float, float]]]:
+        """The axis' result and the (first, last) sample time of every window used.
+
+        Raises:
+            RecordingError: The axis cannot be analysed (the message says why).
+        """
+        found = self.found(axis, progress)
+        result = finish_axis(
+            axis,
+            self.facts[axis],
+            self.summary[axis],
+            found,
+            report=progress,
+            gap_share=gap_share,
+        )
+        return result, found.window_times

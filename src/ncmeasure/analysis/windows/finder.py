@@ -1,0 +1,515 @@
+"""Windows of constant velocity: where in a recording an axis moved steadily.
+
+The friction of a feed axis is the motor current at *constant* velocity, so
+the first job of the analysis is to find those stretches of an axis' signals.
+Three ways are tried, in this order; the first that yields windows wins:
+
+``marker``
+    The NC program sets a marker while a window is driven (``<AXIS>_marker``
+    > 0). With a schedule whose ``marker_scope`` is ``"run"``, the marker
+    brackets the whole run (ramps included) and the window is cut out of it
+    at the schedule's ``window_start_mm`` .. ``window_end_mm``; the source is
+    then called ``"schedule"``.
+``command``
+    Where the commanded velocity is constant and the actual velocity is
+    within a tolerance of it (relative, with an absolute floor).
+``plateau``
+    From the actual velocity alone, for recordings of programs ncmeasure did
+    not generate: a rolling median smooths the velocity, and every stretch
+    where the smoothed velocity stays within the tolerance of its level for
+    at least ``plateau_min_s`` (and above the standstill floor) is a plateau.
+
+Real data sets the rules (``docs/analysis.md``, section 1):
+
+* every rule is a duration; sample counts follow from the sample period
+  (``min_window_s``, at least :data:`MIN_WINDOW_SAMPLES`), so 100 ms data of a
+  data collector is analysed like 4 ms data, and called *coarse* when its
+  windows hold fewer than :data:`COARSE_WINDOW_SAMPLES` samples;
+* the velocity signal's count and noise (:mod:`~ncmeasure.analysis.windows.detection`)
+  widen every tolerance band and raise the standstill threshold to at least
+  one count; where they exceed ``velocity_floor_mm_min`` and a position was
+  recorded, windows are found and measured by the position;
+* every window must agree with its displacement (v·Δt): a velocity reading
+  frozen at standstill, or an axis that did not follow its command, is no
+  window; where the velocity comes from the readings, the window's velocity
+  is its displacement over its duration.
+
+Every window loses its acceleration transient: the samples up to
+``settle_s`` after the (smoothed) actual velocity entered the tolerance band
+of the window's velocity. A window that the NC program already started
+``settle_s`` after the run-up loses nothing. Windows shorter than
+``min_window_s`` after that are dropped. When nothing is found, the error
+says what was tried and whether the axis moved at all.
+
+Labelling: with a schedule, each window gets the step, position index,
+direction and repetition of the scheduled window it belongs to: by marker
+value (``marker_values = "window_id"``), else by time order, velocity and
+position (a window matches the next scheduled window in program order whose
+velocity agrees within the tolerance and whose run contains the window's
+centre). Windows that match nothing (rapids, warm-up strokes) are dropped.
+Without a schedule, windows are clustered: velocities into steps (gaps in
+|v| larger than ``step_tolerance`` relative, ``step_floor_mm_min`` absolute)
+and window centres into positions (gaps larger than ``position_gap_mm`` or
+``position_gap_fraction`` of the span, found among the slower half of the
+steps, whose windows no planner shifts; every window then joins the nearest
+position). Rapid traverse is dropped first: windows faster than
+``max_velocity_mm_min`` (or the schedule's top step), the fastest level when
+it holds ``rapid_count_factor`` times more windows than a typical level, and
+windows lasting ``duration_outlier_factor`` times longer than their level's
+trend of duration over velocity (warm-up strokes over the whole travel).
+
+:class:`WindowFinder` does all of this on the stretches that each way found;
+where they come from is its subclasses' part:
+:class:`~ncmeasure.analysis.windows.chunked.ChunkedFinder` finds them in a
+recording read chunk by chunk (the only way ncmeasure reads one: a recording in
+memory is one chunk), keeping the samples of the stretches only. Labelling is
+:mod:`~ncmeasure.analysis.windows.schedule` and
+:mod:`~ncmeasure.analysis.windows.clusters`.
+
+Pure numpy/scipy; loops run over windows, never over samples.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.ndimage import median_filter
+
+from ncmeasure.analysis.windows.clusters import drop_rapids, drop_too_fast, label_by_clusters
+from ncmeasure.analysis.windows.detection import Detection
+from ncmeasure.analysis.windows.model import Candidate, Segmentation
+from ncmeasure.analysis.windows.schedule import ScheduleMatch
+from ncmeasure.analysis.windows.settings import (
+    COARSE_WINDOW_SAMPLES,
+    DISPLACEMENT_QUANTA,
+    Method,
+    WindowSource,
+)
+from ncmeasure.analysis.windows.signals import unit_factor
+from ncmeasure.errors import RecordingError
+from ncmeasure.formats.schedule import AxisSummary, Schedule
+
+__all__ = ["WindowFinder"]
+
+log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+
+
+class WindowFinder(Detection):
+    """Finds and labels the windows of one axis from the stretches each way found.
+
+    A subclass sets the signals (``t``, ``v``, ``x``, ``v_detect``, ``command``,
+    ``marker``: arrays, or what answers their slices) and the counts
+    (:class:`~ncmeasure.analysis.windows.detection.Detection`), and gives the
+    stretches of each way (:meth:`marker_candidates`, :meth:`command_candidates`,
+    :meth:`plateau_candidates`) and :meth:`still`; :meth:`run` does the rest.
+    """
+
+    n: int
+    rapid_mm_min: float | None
+    tried: list[str]
+    t: FloatArray
+    v: FloatArray
+    x: FloatArray
+    v_detect: FloatArray
+    command: FloatArray | None
+    marker: FloatArray | None
+
+    def setup_schedule(self, schedule: Schedule | None) -> None:
+        """The axis' part of the schedule, and how its program writes the marker."""
+        self.summary: AxisSummary | None = None
+        self.scope: Literal["window", "run", "none"] = "window"
+        self.marker_values: Literal["window_id", "flag"] = "window_id"
+        if schedule is not None:
+            self.scope = schedule.marker_scope
+            self.marker_values = schedule.marker_values
+            for summary in schedule.axes:
+                if summary.name == self.axis:
+                    self.summary = summary
+            if self.summary is None:
+                self.warnings.append(
+                    "the schedule has no windows for this axis: windows clustered instead"
+                )
+        self.schedule = ScheduleMatch(self.summary, self) if self.summary is not None else None
+
+    # -- the ways of finding windows: the subclass' part -----------------------------
+
+    def marker_candidates(self) -> list[Candidate]:
+        """The marker's runs that move (:meth:`marker_wanted`, :meth:`marker_levels`)."""
+        raise NotImplementedError
+
+    def command_candidates(self) -> list[Candidate]:
+        """The stretches of constant commanded velocity (:meth:`command_found`)."""
+        raise NotImplementedError
+
+    def plateau_candidates(self) -> list[Candidate]:
+        """The plateaus of the smoothed velocity (:meth:`plateau_found`)."""
+        raise NotImplementedError
+
+    def still(self) -> str | None:
+        """Why the axis did not move at all, or None when it moved.
+
+        Where a position was recorded it decides: the axis did not move when
+        its position creeps by less than the standstill speed over the whole
+        recording, whatever the velocity reads (a reading frozen at −3 mm/min
+        moves nothing). Without a position, when its velocity never stays above
+        the standstill threshold (at least one velocity count) for a window's
+        length.
+        """
+        raise NotImplementedError
+
+    # -- what each way found ---------------------------------------------------------
+
+    def marker_wanted(self) -> bool:
+        """Whether there is a marker to look at (else why not, in ``tried``)."""
+        if self.marker is None:
+            self.tried.append("marker: not recorded")
+            return False
+        if self.summary is not None and self.scope == "none":
+            self.tried.append("marker: the schedule says the program writes none")
+            return False
+        return True
+
+    def marker_levels(
+        self, starts: Sequence[int], stops: Sequence[int], values: Sequence[float]
+    ) -> list[Candidate]:
+        """Candidates of the marker runs that move (level: commanded, else actual velocity)."""
+        if len(starts) == 0:
+            self.tried.append("marker: recorded but never set")
+            return []
+        reference = self.command if self.command is not None else self.v_detect
+        standstill = (
+            self.settings.standstill_mm_min if self.command is not None else self.standstill
+        )
+        result = []
+        for start, stop, value in zip(starts, stops, values, strict=True):
+            level = float(np.nanmedian(reference[start:stop]))
+            if not abs(level) >= standstill:
+                continue
+            result.append(Candidate(start, stop, level, marker_value=float(value)))
+        if not result:
+            self.tried.append(f"marker: {len(starts)} marker windows, all at standstill")
+        return result
+
+    def command_found(
+        self, begins: Sequence[int], ends: Sequence[int], levels: Sequence[float]
+    ) -> list[Candidate]:
+        result = [
+            Candidate(int(b), int(e), float(c))
+            for b, e, c in zip(begins, ends, levels, strict=True)
+        ]
+        if not result:
+            self.tried.append(
+                f"commanded velocity: no constant stretch of {self.min_n} samples "
+                f"({self.settings.min_window_s:g} s) above "
+                f"{self.settings.standstill_mm_min:g} mm/min"
+            )
+        return result
+
+    def plateau_too_short(self) -> bool:
+        if self.n < self.plateau_n:
+            self.tried.append(
+                "plateaus: the recording is shorter than plateau_min_s "
+                f"({self.settings.plateau_min_s:g} s)"
+            )
+            return True
+        return False
+
+    def plateau_found(self, runs: Sequence[tuple[int, int, float]]) -> list[Candidate]:
+        settings = self.settings
+        result = [Candidate(start, stop, level) for start, stop, level in runs]
+        if not result:
+            self.tried.append(
+                f"plateaus: no stretch of {settings.plateau_min_s:g} s where the actual velocity "
+                f"stays within {100 * settings.velocity_tolerance:g} % "
+                f"(at least {float(self.band(0.0)):.3g} mm/min) above "
+                f"{self.standstill:.3g} mm/min"
+            )
+        return result
+
+    # -- trimming ----------------------------------------------------------------------
+
+    def trim(
+        self, start: int, stop: int, level: float, *, guard_end: bool = False
+    ) -> tuple[int, int] | None:
+        """Cut transients: begin ``settle_s`` after the velocity settled, end at its last good.
+
+        Where the velocity itself says where the window ends (``guard_end``, or
+        the velocity left the band before ``stop``), the end moves back by the
+        smoothing width: the rolling median sees a deceleration that much late,
+        and the current (the controller's torque) leads the velocity.
+        """
+        width = self.filter_n
+        low = max(0, start - self.settle_n - width)
+        high = min(self.n, stop + width)
+        chunk = self.v_detect[low:high]
+        chunk = np.where(np.isfinite(chunk), chunk, np.inf)
+        smooth = median_filter(chunk, size=width, mode="nearest") if width > 1 else chunk
+        inside = np.abs(smooth - level) <= self.band(level)
+        a, b = start - low, stop - low
+        good = inside[a:b]
+        if not good.any():
+            return None
+        first = a + int(np.argmax(good))
+        last = b - int(np.argmax(good[::-1]))
+        if guard_end or last < b:
+            last -= width
+        begin = first
+        c0, c1 = max(0, first - self.settle_n), min(last, first + self.settle_n)
+        outside = ~inside[c0:c1]
+        if outside.any():
+            j = c0 + len(outside) - 1 - int(np.argmax(outside[::-1]))
+            begin = max(first, j + 1 + self.settle_n)
+        if last - begin < self.min_n:
+            return None
+        return low + begin, low + last
+
+    # -- the whole job -----------------------------------------------------------------
+
+    def attempt(self, method: Method) -> tuple[WindowSource, list[Candidate], bool] | None:
+        """One way of finding windows, up to trimmed candidates; None when none is left.
+
+        Returns:
+            The source, the trimmed candidates, and whether they are already
+            matched to the schedule (marker windows are matched before the cut).
+        """
+        settings = self.settings
+        noted = len(self.warnings)
+        source: WindowSource
+        if method == "marker":
+            candidates, source, name = self.marker_candidates(), "marker", "marker"
+        elif method == "command":
+            candidates, source, name = self.command_candidates(), "command", "commanded velocity"
+        else:
+            candidates, source, name = self.plateau_candidates(), "plateau", "plateaus"
+        if not candidates:
+            return None
+        found = len(candidates)
+        labelled = False
+        if method == "marker" and self.schedule is not None:
+            whole_runs = self.scope == "run"
+            by_id = self.marker_values == "window_id"
+            candidates = self.schedule.match_schedule(
+                candidates, self.x, by_id=by_id, whole_runs=whole_runs
+            )
+            labelled = True
+            if whole_runs:
+                candidates = self.schedule.cut_runs(candidates, self.x)
+                source = "schedule"
+            if not candidates:
+                self.tried.append(f"marker: {found} marker windows, none fits the schedule")
+                del self.warnings[noted:]
+                return None
+        trimmed = []
+        for candidate in candidates:
+            cut = self.trim(
+                candidate.start,
+                candidate.stop,
+                candidate.level_mm_min,
+                guard_end=source == "plateau",
+            )
+            if cut is not None:
+                trimmed.append(replace(candidate, start=cut[0], stop=cut[1]))
+        if not trimmed:
+            self.tried.append(
+                f"{name}: {len(candidates)} stretches, in none does the actual velocity stay "
+                f"within the tolerance for {self.min_n} samples ({settings.min_window_s:g} s) "
+                f"after settle_s ({settings.settle_s:g} s)"
+            )
+            del self.warnings[noted:]
+            return None
+        if len(trimmed) < len(candidates):
+            self.warnings.append(
+                f"{len(candidates) - len(trimmed)} windows shorter than {self.min_n} samples "
+                f"({settings.min_window_s:g} s) after the settling time: dropped"
+            )
+        commanded = method == "command" or (method == "marker" and self.command is not None)
+        measured = self.measure(trimmed, commanded=commanded)
+        if not measured:
+            self.tried.append(
+                f"{name}: {len(trimmed)} stretches, in none does the position move as the "
+                "velocity says"
+            )
+            del self.warnings[noted:]
+            return None
+        return source, measured, labelled
+
+    def measure(self, candidates: Sequence[Candidate], *, commanded: bool) -> list[Candidate]:
+        """Check every window against the position; measure its velocity by displacement.
+
+        At constant velocity the position moves by v·Δt. A window whose
+        displacement disagrees with its velocity (beyond the tolerance band,
+        one velocity count and two position counts over its duration) is not
+        a window of steady motion: a frozen velocity reading at standstill, or
+        an axis that did not follow its command. It is dropped. Where the
+        velocity comes from the readings (plateaus, a marker without command),
+        the window's velocity becomes its displacement over its duration: the
+        readings' median sits on one of their counts, the displacement does not.
+
+        When most windows disagree by one common factor, the position is in
+        another unit (:func:`~ncmeasure.analysis.windows.signals.unit_factor`):
+        nothing is dropped, the readings keep the say, and a warning names the
+        factor. Displacements near zero
+        or scattered share no factor: those windows are dropped, however many.
+        """
+        if not self.positions_known or not candidates:
+            return list(candidates)
+        failed: list[float] = []  # slope / reference of each window that disagrees
+        still = 0
+        kept: list[Candidate] = []
+        for candidate in candidates:
+            t = self.t[candidate.start : candidate.stop]
+            x = self.x[candidate.start : candidate.stop]
+            ok = np.isfinite(t) & np.isfinite(x)
+            if np.count_nonzero(ok) < 2:
+                kept.append(candidate)
+                continue
+            t, x = t[ok], x[ok]
+            duration = float(t[-1] - t[0])
+            centred = t - t.mean()
+            slope = float(centred @ (x - x.mean()) / (centred @ centred)) * 60.0
+            resolution = 60.0 * DISPLACEMENT_QUANTA * self.x_quantum / duration
+            if commanded or self.from_position:
+                reference = candidate.level_mm_min
+            else:
+                readings = self.v[candidate.start : candidate.stop]
+                reference = float(np.nanmedian(readings))
+            allowed = max(float(self.band(reference)), self.v_quantum, resolution)
+            if abs(slope - reference) > allowed:
+                failed.append(slope / reference if reference else math.nan)
+                continue
+            if not commanded:
+                if abs(slope) < max(self.settings.standstill_mm_min, resolution):
+                    still += 1
+                    continue
+                # The transient is cut again against the measured velocity.
+                cut = self.trim(candidate.start, candidate.stop, slope)
+                if cut is None:
+                    continue
+                candidate = replace(candidate, start=cut[0], stop=cut[1], level_mm_min=slope)
+            kept.append(candidate)
+        factor = unit_factor(failed)
+        if len(failed) > 0.5 * len(candidates) and len(candidates) >= 4 and factor is not None:
+            self.warnings.append(
+                f"the recorded position moves {factor:.4g} times as far as the velocity says in "
+                f"{len(failed)} of {len(candidates)} windows (another unit of the position?): "
+                "windows are measured by the velocity readings alone"
+            )
+            return list(candidates)
+        if failed:
+            self.warnings.append(
+                f"{len(failed)} windows dropped: the position did not move as the velocity says "
+                + (
+                    "(the axis did not follow its command)"
+                    if commanded
+                    else "(a velocity reading frozen at standstill?)"
+                )
+            )
+        if still:
+            self.warnings.append(
+                f"{still} windows dropped: by their displacement the axis stood still"
+            )
+        return kept
+
+    def run(self) -> Segmentation:
+        """The windows of the first way that gives some, labelled; the steps and positions.
+
+        Raises:
+            RecordingError: No way gave a window (the problems say what was
+                tried), or every window was dropped.
+        """
+        method = self.settings.window_method
+        order: tuple[Method, ...] = (
+            ("marker", "command", "plateau") if method == "auto" else (method,)
+        )
+        for way in order:
+            found = self.attempt(way)
+            if found is not None:
+                break
+        else:
+            still = self.still()
+            raise RecordingError(
+                f"axis {self.axis}: no window of constant velocity found"
+                + (f": {still}" if still else ""),
+                [*self.tried, "settings: velocity_tolerance, velocity_floor_mm_min, "
+                 "standstill_mm_min, plateau_min_s, min_window_s, settle_s"],
+            )  # fmt: skip
+        source, candidates, labelled = found
+        if method == "auto" and way != "marker":
+            first = _fallen_back(way, self.marker is not None, self.command is not None)
+            reasons = [t for t in self.tried if not t.endswith("not recorded")]
+            self.warnings[:0] = [first, *reasons]
+        candidates = drop_too_fast(candidates, self, self.summary, self.rapid_mm_min)
+        if self.schedule is not None and not labelled:
+            candidates = self.schedule.match_schedule(
+                candidates, self.x, by_id=False, whole_runs=False
+            )
+            labelled = True
+        if not labelled and source in ("command", "plateau"):
+            candidates = drop_rapids(candidates, self)
+        if not candidates:
+            raise RecordingError(
+                f"axis {self.axis}: every {source} window was dropped",
+                [*self.tried, *self.warnings],
+            )
+        if labelled:
+            assert self.schedule is not None
+            windows, steps, positions = self.schedule.label_by_schedule(candidates, self.x, source)
+        else:
+            windows, steps, positions = label_by_clusters(candidates, self.x, source, self)
+        windows.sort(key=lambda w: w.start)
+        typical = float(np.median([w.samples for w in windows]))
+        coarse = typical < COARSE_WINDOW_SAMPLES
+        if coarse:
+            self.warnings.append(
+                f"coarse data: at {self.dt * 1000:.3g} ms per sample a window holds a median "
+                f"of {typical:.0f} samples (fewer than {COARSE_WINDOW_SAMPLES}): each point is "
+                "uncertain and the Stribeck curve at low speed is not resolved; the friction is "
+                "described by the linear model over its range"
+            )
+        log.debug(
+            "axis %s: %d %s windows, %d steps, %d positions",
+            self.axis,
+            len(windows),
+            source,
+            len(steps),
+            len(positions),
+        )
+        return Segmentation(
+            axis=self.axis,
+            windows=windows,
+            source=source,
+            labelled_by="schedule" if labelled else "clusters",
+            steps=steps,
+            positions=positions,
+            warnings=list(dict.fromkeys(self.warnings)),
+            tried=self.tried,
+            sample_period_s=self.dt,
+            velocity_quantum_mm_min=self.v_quantum,
+            velocity_resolution_mm_min=self.resolution,
+            position_quantum_mm=self.x_quantum,
+            coarse=coarse,
+        )
+
+
+def _fallen_back(way: Method, has_marker: bool, has_command: bool) -> str:
+    """The first warning where the windows come from a way after the marker."""
+    if way == "command":
+        why = "no marker windows" if has_marker else "no marker"
+        return f"{why}: windows from the commanded velocity"
+    if not has_marker and not has_command:
+        return (
+            "no marker and no commanded velocity: windows from constant-velocity "
+            "plateaus of the actual velocity"
+        )
+    return (
+        "neither marker nor commanded velocity gave windows: windows from "
+        "constant-velocity plateaus of the actual velocity"
+    )

@@ -1,0 +1,153 @@
+"""How windows are found: the settings, written into results.json, and their fixed limits."""
+
+from __future__ import annotations
+
+from typing import Final, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+__all__ = [
+    "COARSE_WINDOW_SAMPLES",
+    "DISPLACEMENT_QUANTA",
+    "MIN_WINDOW_SAMPLES",
+    "NOISE_BAND_FACTOR",
+    "Method",
+    "SegmentSettings",
+    "WindowSource",
+]
+
+WindowSource = Literal["marker", "command", "plateau", "schedule"]
+Method = Literal["auto", "marker", "command", "plateau"]
+
+FloatArray = NDArray[np.float64]
+
+MIN_WINDOW_SAMPLES: Final = 3
+"""No window keeps fewer samples, whatever ``min_window_s``: a median and a spread need 3."""
+
+COARSE_WINDOW_SAMPLES: Final = 20
+"""Windows holding fewer samples than this (median over the axis) make the data coarse:
+their medians are uncertain and the Stribeck curve at low speed is not resolved."""
+
+DISPLACEMENT_QUANTA: Final = 2.0
+"""A window's displacement is known to this many position counts (one at each end)."""
+
+NOISE_BAND_FACTOR: Final = 3.0
+"""The tolerance band is at least this many standard errors of the smoothed velocity."""
+
+
+class SegmentSettings(BaseModel):
+    """How windows are found and which samples they keep.
+
+    The defaults suit ncmeasure's own programs (windows of 0.2 to 0.4 s,
+    settle 0.1 s, 1 to 4 ms sampling, lowest step about 10 mm/min) and hold
+    for foreign recordings down to 100 ms sampling: every duration is in
+    seconds, and the sample counts follow from the sample period. They are
+    written into ``results.json`` (``settings``), so a result says how it was
+    made. :class:`~ncmeasure.analysis.analyze.AnalysisSettings` is this model.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    velocity_tolerance: float = Field(
+        default=0.03,
+        gt=0,
+        lt=1,
+        description="A window's velocity must agree with its commanded (or scheduled) one "
+        "within this fraction, or velocity_floor_mm_min, or the velocity signal's resolution "
+        "(one count, its noise), whichever is largest. Also the flatness a plateau must keep.",
+    )
+    velocity_floor_mm_min: float = Field(
+        default=2.0,
+        ge=0,
+        description="Absolute floor of the velocity tolerance in mm/min: at low speed the "
+        "relative tolerance would be smaller than the velocity signal's noise.",
+    )
+    settle_s: float = Field(
+        default=0.1,
+        ge=0,
+        description="Samples until this long after the actual velocity entered the "
+        "tolerance band are cut from each window (acceleration transient, overshoot).",
+    )
+    min_window_s: float = Field(
+        default=0.1,
+        gt=0,
+        description="A window shorter than this after the cut is dropped; it keeps at least "
+        f"{MIN_WINDOW_SAMPLES} samples whatever the sample period.",
+    )
+    plateau_min_s: float = Field(
+        default=0.2,
+        gt=0,
+        description="Shortest plateau of constant actual velocity that counts as a window "
+        "(only without marker and commanded velocity).",
+    )
+    plateau_filter_s: float = Field(
+        default=0.02,
+        ge=0,
+        description="Width of the rolling median that smooths the actual velocity before "
+        "plateaus and the end of transients are detected.",
+    )
+    standstill_mm_min: float = Field(
+        default=1.0,
+        ge=0,
+        description="Velocities below this are standstill, never a window. A velocity of "
+        "one count of the velocity signal or less is standstill too.",
+    )
+    step_tolerance: float = Field(
+        default=0.01,
+        gt=0,
+        description="Without a schedule: windows whose velocities differ by less than this "
+        "fraction (or step_floor_mm_min) belong to the same velocity step.",
+    )
+    step_floor_mm_min: float = Field(
+        default=0.5,
+        ge=0,
+        description="Absolute floor of step_tolerance in mm/min.",
+    )
+    position_gap_mm: float = Field(
+        default=20.0,
+        gt=0,
+        description="Without a schedule: window centres further apart than this (or "
+        "position_gap_fraction of their span) belong to different measuring positions.",
+    )
+    position_gap_fraction: float = Field(
+        default=0.05,
+        ge=0,
+        lt=1,
+        description="Relative part of the position gap.",
+    )
+    max_velocity_mm_min: float | None = Field(
+        default=None,
+        gt=0,
+        description="Windows faster than this are rapid traverse. Default: the schedule's "
+        "top step; without a schedule, rapids are recognised by their count and duration.",
+    )
+    duration_outlier_factor: float = Field(
+        default=4.0,
+        gt=1,
+        description="Without a schedule: windows lasting this many times longer than the "
+        "trend of window duration over velocity are traverses or warm-up strokes.",
+    )
+    rapid_count_factor: float = Field(
+        default=3.0,
+        gt=1,
+        description="Without a schedule: the fastest velocity level is rapid traverse when "
+        "it holds this many times more windows than a typical level.",
+    )
+    window_method: Method = Field(
+        default="auto",
+        description="auto: marker, else commanded velocity, else plateaus. The others force "
+        "one way.",
+    )
+
+    def tolerance_mm_min(self, velocity_mm_min: float | FloatArray) -> FloatArray:
+        """The accepted |actual − target| at a target velocity: relative with a floor.
+
+        The segmentation widens it further by the resolution of the velocity
+        signal it finds in the data (:attr:`Segmentation.velocity_resolution_mm_min`).
+        """
+        return np.maximum(
+            self.velocity_tolerance * np.abs(np.asarray(velocity_mm_min, dtype=np.float64)),
+            self.velocity_floor_mm_min,
+        )

@@ -1,0 +1,185 @@
+"""Vectorised helpers on signals: runs of a mask, clusters, bands, the position's velocity.
+
+Loops run over windows or clusters, never over samples.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.ndimage import maximum_filter1d, minimum_filter1d
+
+from ncmeasure.analysis.windows.model import Cluster
+
+__all__ = [
+    "align",
+    "cluster_gaps",
+    "clusters_of",
+    "command_repeats",
+    "odd",
+    "plateau_mask",
+    "position_velocity",
+    "runs",
+    "unit_factor",
+]
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.intp]
+BoolArray = NDArray[np.bool_]
+
+
+def runs(mask: BoolArray) -> tuple[IntArray, IntArray]:
+    """Start and stop (exclusive) indices of the runs of True in ``mask``."""
+    edges = np.diff(mask.astype(np.int8), prepend=np.int8(0), append=np.int8(0))
+    return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+
+
+def align(ok: BoolArray) -> list[int | None]:
+    """Match rows (found windows) to columns (planned windows), both in program order.
+
+    The most pairs ``ok[i, j]`` such that the order is kept on both sides (a
+    longest common subsequence, by dynamic programming row by row). A greedy
+    match would let one stray stretch (a warm-up stroke at a measured velocity)
+    jump ahead in the schedule and lose every window before the one it took.
+    Among equally long alignments, later rows take the later columns.
+    """
+    rows, cols = ok.shape
+    table = np.zeros((rows + 1, cols + 1), dtype=np.int64)
+    for i in range(1, rows + 1):
+        best = np.maximum(table[i - 1, 1:], table[i - 1, :-1] + ok[i - 1])
+        table[i, 1:] = np.maximum.accumulate(best)
+    result: list[int | None] = [None] * rows
+    i, j = rows, cols
+    while i > 0 and j > 0:
+        if ok[i - 1, j - 1] and table[i, j] == table[i - 1, j - 1] + 1:
+            result[i - 1] = j - 1
+            i, j = i - 1, j - 1
+        elif table[i, j] == table[i - 1, j]:
+            i -= 1
+        else:
+            j -= 1
+    return result
+
+
+def odd(count: float) -> int:
+    size = max(1, round(count))
+    return size if size % 2 else size + 1
+
+
+def unit_factor(ratios: Sequence[float]) -> float | None:
+    """The common factor of position rate over velocity, when the ratios share one.
+
+    A position in another unit moves every window by the same factor (25.4, 1000,
+    0.001); frozen readings at standstill give ratios near 0, and an axis that
+    did not follow its command gives scattered ones: no factor then.
+    """
+    values = np.array([r for r in ratios if math.isfinite(r) and r > 0], dtype=np.float64)
+    if len(values) < max(2, 0.8 * len(ratios)):
+        return None
+    logs = np.log(values)
+    centre = float(np.median(logs))
+    if abs(centre) < math.log(1.2) or float(np.max(np.abs(logs - centre))) > math.log(1.1):
+        return None
+    return math.exp(centre)
+
+
+def cluster_gaps(values: Sequence[float] | FloatArray, gaps: FloatArray | float) -> IntArray:
+    """Gap-based 1-D clustering: sorted values split where neighbours are further apart.
+
+    Args:
+        values: The values (any order).
+        gaps: The largest distance inside a cluster: one number, or one per
+            value, applying to the gap *below* that value in sorted order.
+
+    Returns:
+        The cluster index of every value, 0 for the lowest cluster, in the
+        order of ``values``.
+    """
+    data = np.asarray(values, dtype=np.float64)
+    labels = np.zeros(len(data), dtype=np.intp)
+    if len(data) < 2:
+        return labels
+    order = np.argsort(data, kind="stable")
+    ordered = data[order]
+    limit = np.broadcast_to(np.asarray(gaps, dtype=np.float64), data.shape)[order]
+    breaks = np.diff(ordered) > limit[1:]
+    labels[order] = np.concatenate(([0], np.cumsum(breaks)))
+    return labels
+
+
+def clusters_of(values: FloatArray, labels: IntArray) -> list[Cluster]:
+    result = []
+    for index in range(int(labels.max()) + 1 if len(labels) else 0):
+        members = values[labels == index]
+        result.append(
+            Cluster(
+                index=index,
+                centre=float(np.median(members)),
+                low=float(members.min()),
+                high=float(members.max()),
+                windows=len(members),
+            )
+        )
+    return result
+
+
+def position_velocity(
+    time_s: FloatArray, position_mm: FloatArray, h: int, lo: int, hi: int, offset: int, n: int
+) -> FloatArray:
+    """Velocity from the position by central differences over ±h rows, in mm/min.
+
+    For the rows ``lo`` .. ``hi`` of a recording of ``n`` rows, from arrays that
+    hold its rows from ``offset`` on (at least ``lo − h`` .. ``hi + h``, clipped
+    to the recording): the same values whether the arrays hold the whole
+    recording or a stretch of it.
+    """
+    rows = np.arange(lo, hi)
+    ahead = np.minimum(rows + h, n - 1) - offset
+    behind = np.maximum(rows - h, 0) - offset
+    span = time_s[ahead] - time_s[behind]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        velocity = np.where(span > 0, (position_mm[ahead] - position_mm[behind]) / span * 60.0, 0.0)
+    return np.asarray(velocity, dtype=np.float64)
+
+
+def command_repeats(command: FloatArray) -> BoolArray:
+    """Per row after the first: whether it repeats the row before (within rounding)."""
+    jump = np.abs(np.diff(command))
+    limit = 1e-4 * np.abs(command[1:]) + 1e-3
+    repeats: BoolArray = jump <= limit
+    return repeats
+
+
+def plateau_mask(
+    smooth: FloatArray,
+    band: Callable[[FloatArray], FloatArray],
+    standstill: float,
+    length: int,
+    n: int,
+    offset: int = 0,
+) -> BoolArray:
+    """The rows covered by a flat span of ``length`` rows of the smoothed velocity.
+
+    ``smooth`` holds the rows ``offset`` .. ``offset + len(smooth)`` of a
+    recording of ``n`` rows. A row's value needs the smoothed velocity
+    ``length`` rows either side: it is exact where ``smooth`` reaches that far
+    or to the recording's ends.
+    """
+    count = len(smooth)
+    # ok[j]: the smoothed velocity stays within the tolerance over [j, j + length).
+    low = minimum_filter1d(smooth, length, mode="nearest", origin=-(length // 2))
+    high = maximum_filter1d(smooth, length, mode="nearest", origin=-(length // 2))
+    slowest = minimum_filter1d(np.abs(smooth), length, mode="nearest", origin=-(length // 2))
+    ok = (high - low) <= band(smooth)
+    ok &= slowest >= standstill
+    ok[max(0, n - length + 1 - offset) :] = False
+    # Samples covered by any good span of `length` samples.
+    covered = maximum_filter1d(ok.astype(np.int8), length, origin=(length - 1) // 2) > 0
+    # Two levels that touch without a ramp between them are two plateaus.
+    jump = np.zeros(count, dtype=np.bool_)
+    jump[1:] = np.abs(np.diff(smooth)) > 0.5 * band(smooth[1:])
+    mask: BoolArray = covered & ~jump
+    return mask
