@@ -28,7 +28,7 @@ from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
 from ncmeasure.links import link_class
 from ncmeasure.links.modbus import link as modbus_link
-from ncmeasure.links.modbus.link import ModbusLink, ModbusSettings, next_slot
+from ncmeasure.links.modbus.link import ModbusLink, next_slot
 from ncmeasure.links.modbus.registers import (
     EXCEPTION_MEANINGS,
     builtin_register_maps,
@@ -36,6 +36,7 @@ from ncmeasure.links.modbus.registers import (
     encode_value,
     load_register_map,
 )
+from ncmeasure.links.modbus.settings import ModbusSettings
 from ncmeasure.samples import LinkEvent, SampleBlock, SimulatedClock
 from ncmeasure.sim.modbus_drive import (
     Fault,
