@@ -45,11 +45,13 @@ LAYERS: dict[str, int] = {
     "cli": 11,
     "__main__": 12,
 }
-#: What the simulated drives may take from the links: the protocol knowledge only.
+#: What the simulated drives may take from the links: the protocol knowledge only, and
+#: the Modbus link's settings models, which the simulated Modbus drive serves with.
 SIM_MAY_IMPORT = {
     "ncmeasure.links.canopen.bus",
     "ncmeasure.links.canopen.objects",
     "ncmeasure.links.modbus.registers",
+    "ncmeasure.links.modbus.settings",
 }
 
 

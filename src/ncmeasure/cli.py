@@ -1106,6 +1106,7 @@ def simulate_drive_command(
         threading.Timer(duration, stop.set).start()
     try:
         if link == "modbus":
+            from ncmeasure.links.modbus.settings import settings_from_tables
             from ncmeasure.sim.modbus_drive import ServerInfo, serve
 
             units = {a: v["unit_id"] for a, v in _pairs(unit or [], "--unit", "unit_id").items()}
@@ -1117,17 +1118,18 @@ def simulate_drive_command(
                     soft_wrap=True,
                 )
 
-            serve(
-                units=units or default,
-                host=host,
-                port=port,
-                register_map=register_map,
-                serial_port=serial_port,
-                baudrate=baudrate,
-                parity=parity,
-                ready=ready,
-                stop=stop,
+            settings, axes = settings_from_tables(
+                {
+                    "host": host,
+                    "port": port or 502,  # 0: a free port (free_port)
+                    "register_map": register_map,
+                    "serial_port": serial_port,
+                    "baudrate": baudrate,
+                    "parity": parity,
+                },
+                {axis: {"unit_id": unit_id} for axis, unit_id in (units or default).items()},
             )
+            serve(settings, axes, free_port=port == 0, ready=ready, stop=stop)
         elif link == "canopen":
             from ncmeasure.sim.cia402 import VIRTUAL_BUS_REACH
             from ncmeasure.sim.cia402 import serve as serve_canopen

@@ -264,15 +264,13 @@ def test_rtu_values_arrive_exactly_with_the_real_drive_maps() -> None:
     with pty_null_modem() as (server_port, client_port):
         stop = threading.Event()
         ready = threading.Event()
+        line = ModbusSettings(
+            serial_port=server_port, baudrate=115200, parity="N", register_map="generic"
+        )
         thread = threading.Thread(
             target=drive.serve_forever,
-            kwargs={
-                "serial_port": server_port,
-                "baudrate": 115200,
-                "parity": "N",
-                "ready": lambda _: ready.set(),
-                "stop": stop,
-            },
+            args=(line,),
+            kwargs={"ready": lambda _: ready.set(), "stop": stop},
             daemon=True,
         )
         thread.start()

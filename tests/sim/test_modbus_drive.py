@@ -9,7 +9,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -20,6 +20,7 @@ from pymodbus.exceptions import ConnectionException, ModbusIOException
 
 from ncmeasure.errors import ConfigError, LinkError
 from ncmeasure.links.modbus.registers import decode_words
+from ncmeasure.links.modbus.settings import ModbusAxis, ModbusSettings
 from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.modbus_drive import (
     DriveFaults,
@@ -37,6 +38,15 @@ STEP_S = 0.01
 SOURCE = PatternSource()
 
 
+def link_settings(**link: Any) -> ModbusSettings:
+    """The settings of a link reading the simulated drive (generic map unless given)."""
+    return ModbusSettings.model_validate({"register_map": "generic", **link})
+
+
+def link_axes(units: Mapping[str, int]) -> dict[str, ModbusAxis]:
+    return {axis: ModbusAxis(unit_id=unit_id) for axis, unit_id in units.items()}
+
+
 class Ramp:
     """Position 10 mm per second of the source's time."""
 
@@ -45,8 +55,16 @@ class Ramp:
 
 
 @contextmanager
-def server_thread(**kwargs: Any) -> Iterator[tuple[ServerInfo, DriveFaults]]:
-    """``serve`` in a thread of this process on a free port."""
+def server_thread(
+    units: Mapping[str, int] | None = None,
+    link: Mapping[str, Any] | None = None,
+    axes: Mapping[str, ModbusAxis] | None = None,
+    **kwargs: Any,
+) -> Iterator[tuple[ServerInfo, DriveFaults]]:
+    """``serve`` in a thread of this process on a free port.
+
+    ``link``: more link settings; ``axes``: the axes' link settings instead of ``units``.
+    """
     faults = DriveFaults()
     stop = threading.Event()
     ready = threading.Event()
@@ -60,7 +78,15 @@ def server_thread(**kwargs: Any) -> Iterator[tuple[ServerInfo, DriveFaults]]:
 
     def run() -> None:
         try:
-            serve(faults=faults, ready=on_ready, stop=stop, **{"port": 0, **kwargs})
+            serve(
+                link_settings(**(link or {})),
+                axes or link_axes(units or {}),
+                free_port=True,
+                faults=faults,
+                ready=on_ready,
+                stop=stop,
+                **kwargs,
+            )
         except BaseException as exc:  # reported by the test
             errors.append(exc)
             ready.set()
@@ -123,6 +149,22 @@ def test_registers_follow_the_map_and_the_request_count() -> None:
         # A range beyond the map's registers is an illegal address too.
         response = client.read_input_registers(4, count=10, device_id=1)
         assert response.isError() and response.exception_code == 2
+
+
+def test_serve_shows_what_a_link_with_the_same_settings_reads() -> None:
+    """serve() takes the link's settings: each axis' map, counts per revolution, scales."""
+    axes = {
+        "X": ModbusAxis(unit_id=1, scales={"position_mm": 0.01}),
+        "Z": ModbusAxis(unit_id=3, register_map="ats-rt20", counts_per_rev=4096),
+    }
+    with server_thread(axes=axes, step_s=STEP_S) as (info, _), tcp_client(info) as client:
+        assert info.units == {"X": 1, "Z": 3}
+        x = client.read_input_registers(0, count=2, device_id=1).registers
+        z = client.read_holding_registers(0x0301, count=2, device_id=3).registers
+    assert decode_words(x, "int32") == round(SOURCE.state(0, 0.0).position_mm / 0.01)
+    # the default mechanics: 10 mm screw lead; the axis' own 4096 counts per revolution
+    counts = decode_words(z, "int32", "little")
+    assert counts == round(SOURCE.state(1, 0.0).position_mm / (10.0 / 4096))
 
 
 def test_unknown_unit_behind_tcp_is_a_gateway_exception() -> None:
@@ -293,7 +335,7 @@ def test_port_in_use_is_a_clear_error() -> None:
         busy.listen()
         port = busy.getsockname()[1]
         with pytest.raises(LinkError) as info:
-            serve(units={"X": 1}, port=port)
+            serve(link_settings(port=port), link_axes({"X": 1}))
     assert str(info.value).startswith(
         f"the simulated Modbus drive cannot listen on 127.0.0.1:{port}"
     )
@@ -326,15 +368,11 @@ def test_rtu_over_a_null_modem() -> None:
     with pty_null_modem() as (server_port, client_port):
         stop = threading.Event()
         ready = threading.Event()
+        line = link_settings(serial_port=server_port, baudrate=115200, parity="N")
         thread = threading.Thread(
             target=drive.serve_forever,
-            kwargs={
-                "serial_port": server_port,
-                "baudrate": 115200,
-                "parity": "N",
-                "ready": lambda _: ready.set(),
-                "stop": stop,
-            },
+            args=(line,),
+            kwargs={"ready": lambda _: ready.set(), "stop": stop},
             daemon=True,
         )
         thread.start()
@@ -362,7 +400,7 @@ def test_rtu_over_a_null_modem() -> None:
 def test_bad_serial_port_is_a_link_error() -> None:
     with (
         pytest.raises(LinkError, match="/nonexistent/tty"),
-        server_thread(units={"X": 1}, serial_port="/nonexistent/tty"),
+        server_thread(units={"X": 1}, link={"serial_port": "/nonexistent/tty"}),
     ):
         pass
 

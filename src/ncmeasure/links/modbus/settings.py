@@ -9,14 +9,17 @@ those of the link that reads it.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, ValidationInfo, field_validator, model_validator
+from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
+from ncmeasure.config import format_validation_error
+from ncmeasure.errors import ConfigError
 from ncmeasure.links.base import AxisLinkSettings, LinkSettings
 
-__all__ = ["ModbusAxis", "ModbusSettings"]
+__all__ = ["ModbusAxis", "ModbusSettings", "settings_from_tables"]
 
 
 class ModbusSettings(LinkSettings):
@@ -104,3 +107,36 @@ class ModbusAxis(AxisLinkSettings):
             if not math.isfinite(number) or number == 0:
                 raise PydanticCustomError("scale", "scales must be finite numbers other than 0")
         return value
+
+
+def settings_from_tables(
+    link_table: Mapping[str, Any], axis_tables: Mapping[str, Mapping[str, Any]]
+) -> tuple[ModbusSettings, dict[str, ModbusAxis]]:
+    """A ``[link]`` table and the ``link`` tables of named axes, validated.
+
+    What :meth:`~ncmeasure.links.base.DriveLink.from_tables` does for a link,
+    for a caller that has no machine file (the simulated drive's command line).
+
+    Args:
+        link_table: The ``[link]`` keys (``type`` may be left out).
+        axis_tables: Axis name -> its ``link`` keys, in axis order.
+
+    Raises:
+        ConfigError: one ``location: message`` line per problem (``link.port``,
+            ``axes[1].link.unit_id``).
+    """
+    problems: list[str] = []
+    settings: ModbusSettings | None = None
+    try:
+        settings = ModbusSettings.model_validate({"type": "modbus", **link_table})
+    except ValidationError as exc:
+        problems += format_validation_error(exc, "link")
+    axes: dict[str, ModbusAxis] = {}
+    for index, (name, table) in enumerate(axis_tables.items()):
+        try:
+            axes[name] = ModbusAxis.model_validate(table)
+        except ValidationError as exc:
+            problems += format_validation_error(exc, f"axes[{index}].link")
+    if problems or settings is None:
+        raise ConfigError("the settings of the modbus link are not valid", problems)
+    return settings, axes

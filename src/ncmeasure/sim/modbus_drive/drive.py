@@ -1,10 +1,13 @@
-"""A simulated Modbus drive: a pymodbus server that serves axis states in a register map.
+"""The simulated Modbus drive: a pymodbus server that serves axis states in a register map.
 
 Each served unit id stands for one axis. When a client reads its registers,
 the unit asks a :class:`~ncmeasure.sim.signals.SignalSource` for the axis'
 state and encodes it the way the register map says (data type, word order,
 scale, unit conversion), so a :class:`~ncmeasure.links.modbus.link.ModbusLink`
-reading them gets the source's values quantised by the map.
+reading them gets the source's values quantised by the map. The server takes
+the link's own settings models (:mod:`ncmeasure.links.modbus.settings`): it
+listens where such a link connects, on the serial line it opens, with the
+register maps it reads.
 
 Time: by default the state is taken at the server's elapsed wall-clock time.
 With a :class:`~ncmeasure.samples.SimulatedClock` (``clock``) shared with the
@@ -16,11 +19,8 @@ its own: the n-th read request a unit answers for a register type (counting
 from 0) gets the state at ``n × step_s``. Requests that are not answered
 (faults) do not count.
 
-Fault switches (:class:`Fault`, thread-safe through :class:`DriveFaults`):
-stop answering, answer with a Modbus exception code, answer late, and drop
-the TCP connections. :func:`running_server` runs a server in another process
-and controls it through a pipe; :func:`serve` is the blocking entry point
-behind ``ncmeasure simulate-drive --link modbus``.
+:func:`serve` is the blocking entry point behind ``ncmeasure simulate-drive
+--link modbus``; the faults are in :mod:`~ncmeasure.sim.modbus_drive.faults`.
 """
 
 from __future__ import annotations
@@ -28,16 +28,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import multiprocessing
-import os
-import select
 import socket
 import threading
 import time
-import tty
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from multiprocessing.connection import Connection
 from typing import Any
 
 from pymodbus.constants import ExcCodes
@@ -52,25 +47,22 @@ from ncmeasure.links.modbus.registers import (
     load_register_map,
     signal_factor,
 )
+from ncmeasure.links.modbus.settings import ModbusAxis, ModbusSettings
 from ncmeasure.samples import SimulatedClock
+from ncmeasure.sim.modbus_drive.faults import DriveFaults
 from ncmeasure.sim.signals import AxisState, PatternSource, SignalSource
 
 __all__ = [
-    "DriveFaults",
-    "Fault",
-    "ServerHandle",
+    "ModbusDriveScaling",
     "ServerInfo",
     "SimulatedModbusDrive",
     "SimulatedUnit",
-    "pty_null_modem",
-    "running_server",
     "serve",
 ]
 
 log = logging.getLogger(__name__)
 
 _FUNCTION_OF_CODE = {3: "holding", 4: "input"}
-_VALID_EXCEPTION_CODES = frozenset(int(code) for code in ExcCodes)
 
 
 @dataclass(frozen=True)
@@ -85,6 +77,8 @@ class SimulatedUnit:
         screw_lead_mm: For maps in rpm, revolutions or encoder counts.
         counts_per_rev: For maps in encoder counts.
         rated_current_a: For maps giving current in parts of the rated current.
+        scales: Per-signal scale replacing the map's scale (as the link's
+            ``ModbusAxis.scales``).
     """
 
     axis: str
@@ -94,86 +88,23 @@ class SimulatedUnit:
     screw_lead_mm: float = 10.0
     counts_per_rev: int = 10_000
     rated_current_a: float = 10.0
+    scales: Mapping[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
-class Fault:
-    """A misbehaviour of the simulated drives.
+class ModbusDriveScaling:
+    """The simulated drives' mechanics: what a map in motor units needs (not a link setting).
 
     Args:
-        silent: Read requests get no answer at all.
-        exception_code: Answer with this Modbus exception code (1-8, 10, 11).
-        delay_s: Answer this late (wall-clock).
-        disconnect: Close the TCP connection instead of answering.
-        units: The unit ids affected; ``None``: all.
-        from_s: The fault starts at this server time (``None``: at once). On a
-            :class:`~ncmeasure.samples.SimulatedClock` this is simulated time, so a
-            test sets a fault for exactly the poll cycles it means, however slow the
-            computer is.
-        until_s: The fault ends at this server time (``None``: when cleared).
+        screw_lead_mm: For maps in rpm, revolutions or encoder counts.
+        counts_per_rev: Encoder counts per motor revolution, for maps in counts
+            (an axis' ``ModbusAxis.counts_per_rev``, when given, wins).
+        rated_current_a: For maps giving current in parts of the rated current.
     """
 
-    silent: bool = False
-    exception_code: int | None = None
-    delay_s: float = 0.0
-    disconnect: bool = False
-    units: frozenset[int] | None = None
-    from_s: float | None = None
-    until_s: float | None = None
-
-    def __post_init__(self) -> None:
-        if self.exception_code is not None and self.exception_code not in _VALID_EXCEPTION_CODES:
-            known = ", ".join(str(c) for c in sorted(_VALID_EXCEPTION_CODES))
-            raise ValueError(f"exception code {self.exception_code} is not one of {known}")
-        if self.delay_s < 0:
-            raise ValueError("delay_s must not be negative")
-
-    def applies_to(self, unit_id: int, time_s: float | None = None) -> bool:
-        """Whether the fault affects ``unit_id`` (at server time ``time_s``, when given)."""
-        if self.units is not None and unit_id not in self.units:
-            return False
-        if time_s is None:
-            return True
-        return (self.from_s is None or time_s >= self.from_s) and (
-            self.until_s is None or time_s < self.until_s
-        )
-
-
-NO_FAULT = Fault()
-
-
-class DriveFaults:
-    """The current fault of a server; safe to change from any thread."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._fault = NO_FAULT
-        self._drop: Callable[[], None] | None = None
-
-    def set(self, fault: Fault) -> None:
-        """Replace the current fault."""
-        with self._lock:
-            self._fault = fault
-
-    def clear(self) -> None:
-        """Back to normal answers."""
-        self.set(NO_FAULT)
-
-    def current(self) -> Fault:
-        """The fault in force."""
-        with self._lock:
-            return self._fault
-
-    def drop_connections(self) -> None:
-        """Close every open TCP connection (clients must reconnect)."""
-        with self._lock:
-            drop = self._drop
-        if drop is not None:
-            drop()
-
-    def _attach(self, drop: Callable[[], None] | None) -> None:
-        with self._lock:
-            self._drop = drop
+    screw_lead_mm: float = 10.0
+    counts_per_rev: int = 10_000
+    rated_current_a: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -249,6 +180,7 @@ class SimulatedModbusDrive:
                     screw_lead_mm=unit.screw_lead_mm,
                     rated_current_a=unit.rated_current_a,
                     counts_per_rev=unit.counts_per_rev or reg_map.counts_per_rev,
+                    scale=unit.scales.get(signal),
                 )
                 for signal, entry in reg_map.ordered_signals()
             }
@@ -434,23 +366,29 @@ class SimulatedModbusDrive:
 
     async def run(
         self,
+        settings: ModbusSettings,
         *,
-        host: str = "127.0.0.1",
-        port: int = 5020,
-        serial_port: str | None = None,
-        baudrate: int = 19200,
-        parity: str = "E",
-        stopbits: int = 1,
-        bytesize: int = 8,
+        free_port: bool = False,
         ready: Callable[[ServerInfo], None] | None = None,
         stop: threading.Event | None = None,
     ) -> None:
         """Serve until ``stop`` is set (or the task is cancelled).
 
+        Args:
+            settings: Where a link reading these drives connects: TCP on
+                ``host:port``, or RTU on ``serial_port`` with its line settings.
+                The units bring their own register maps.
+            free_port: TCP: listen on a free port instead of ``settings.port``
+                (``ready`` is told which).
+            ready: Called with the :class:`ServerInfo` once the server listens.
+            stop: Serve until this event is set.
+
         Raises:
             LinkError: the TCP port is in use or the serial port cannot be opened.
         """
-        rtu = serial_port is not None
+        rtu = settings.mode == "rtu"
+        host, serial_port = settings.host, settings.serial_port
+        port = 0 if free_port else settings.port
         if not rtu:
             _check_port_free(host, port)
         self._loop = asyncio.get_running_loop()
@@ -459,10 +397,10 @@ class SimulatedModbusDrive:
                 self._devices(True),
                 framer=FramerType.RTU,
                 port=str(serial_port),
-                baudrate=baudrate,
-                parity=parity,
-                stopbits=stopbits,
-                bytesize=bytesize,
+                baudrate=settings.baudrate,
+                parity=settings.parity,
+                stopbits=settings.stopbits,
+                bytesize=settings.bytesize,
                 trace_packet=self._trace_packet(True),
             )
         else:
@@ -493,10 +431,10 @@ class SimulatedModbusDrive:
             await server.shutdown()  # type: ignore[no-untyped-call]
             self._server = None
 
-    def serve_forever(self, **kwargs: Any) -> None:
+    def serve_forever(self, settings: ModbusSettings, **kwargs: Any) -> None:
         """Blocking :meth:`run` in a new event loop; Ctrl-C stops it."""
         with contextlib.suppress(KeyboardInterrupt):
-            asyncio.run(self.run(**kwargs))
+            asyncio.run(self.run(settings, **kwargs))
 
 
 def _check_port_free(host: str, port: int) -> None:
@@ -518,22 +456,13 @@ def _check_port_free(host: str, port: int) -> None:
 
 
 def serve(
+    settings: ModbusSettings,
+    axes: Mapping[str, ModbusAxis],
     *,
-    units: Mapping[str, int] | None = None,
-    host: str = "127.0.0.1",
-    port: int = 5020,
-    register_map: str = "generic",
-    register_maps: Mapping[str, str] | None = None,
+    scaling: ModbusDriveScaling | None = None,
     source: SignalSource | None = None,
     step_s: float | None = None,
-    serial_port: str | None = None,
-    baudrate: int = 19200,
-    parity: str = "E",
-    stopbits: int = 1,
-    bytesize: int = 8,
-    screw_lead_mm: float = 10.0,
-    counts_per_rev: int = 10_000,
-    rated_current_a: float = 10.0,
+    free_port: bool = False,
     faults: DriveFaults | None = None,
     ready: Callable[[ServerInfo], None] | None = None,
     stop: threading.Event | None = None,
@@ -542,25 +471,23 @@ def serve(
     """Run simulated Modbus drives until interrupted (blocking).
 
     This is what ``ncmeasure simulate-drive --link modbus --port N --unit X=1``
-    calls. Axes are served in the order given; axis ``i`` shows state ``i`` of
-    the source.
+    calls. The drives are what a :class:`~ncmeasure.links.modbus.link.ModbusLink`
+    with the same settings reads: axis ``i`` of ``axes`` is served as its
+    ``unit_id`` with its register map (or ``settings.register_map``) and
+    shows state ``i`` of the source.
 
     Args:
-        units: Axis name -> unit id; default ``{"X": 1}``.
-        host: TCP address to listen on.
-        port: TCP port (0: any free port, see ``ready``).
-        register_map: Map of every unit (built-in name or TOML path).
-        register_maps: Per-axis map replacing ``register_map``.
+        settings: The link settings: TCP ``host``/``port`` or RTU
+            ``serial_port`` with ``baudrate``, ``parity``, ``stopbits``,
+            ``bytesize``; ``register_map`` of every axis without its own.
+        axes: Axis name -> the axis' link settings (``unit_id``,
+            ``register_map``, ``counts_per_rev``, ``scales``), in axis order.
+        scaling: The drives' mechanics for maps in motor units; default
+            :class:`ModbusDriveScaling`.
         source: Axis states; default :class:`PatternSource`.
         step_s: Deterministic mode (see the module docstring).
-        serial_port: Serve Modbus RTU on this serial device instead of TCP.
-        baudrate: RTU baud rate.
-        parity: RTU parity, ``N``, ``E`` or ``O``.
-        stopbits: RTU stop bits.
-        bytesize: RTU data bits.
-        screw_lead_mm: For maps in rpm, revolutions or counts.
-        counts_per_rev: For maps in encoder counts.
-        rated_current_a: For maps in parts of the rated current.
+        free_port: TCP: listen on a free port instead of ``settings.port``
+            (``ready`` is told which).
         faults: Fault switches to control the server from another thread.
         ready: Called with the :class:`ServerInfo` once the server listens.
         stop: Serve until this event is set.
@@ -571,308 +498,21 @@ def serve(
         ConfigError: invalid units or register maps.
         LinkError: the port is in use or the serial port cannot be opened.
     """
-    unit_map = dict(units or {"X": 1})
+    scaling = scaling or ModbusDriveScaling()
     simulated = [
         SimulatedUnit(
             axis,
-            unit_id,
-            (register_maps or {}).get(axis, register_map),
+            link.unit_id,
+            link.register_map or settings.register_map,
             index,
-            screw_lead_mm,
-            counts_per_rev,
-            rated_current_a,
+            scaling.screw_lead_mm,
+            link.counts_per_rev or scaling.counts_per_rev,
+            scaling.rated_current_a,
+            {str(signal): scale for signal, scale in link.scales.items()},
         )
-        for index, (axis, unit_id) in enumerate(unit_map.items())
+        for index, (axis, link) in enumerate(axes.items())
     ]
     drive = SimulatedModbusDrive(
         simulated, source=source, step_s=step_s, faults=faults, clock=clock
     )
-    drive.serve_forever(
-        host=host,
-        port=port,
-        serial_port=serial_port,
-        baudrate=baudrate,
-        parity=parity,
-        stopbits=stopbits,
-        bytesize=bytesize,
-        ready=ready,
-        stop=stop,
-    )
-
-
-# --- a server in another process ----------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _ProcessConfig:
-    units: tuple[SimulatedUnit, ...]
-    source: SignalSource | None
-    step_s: float | None
-    host: str
-    port: int
-    clock: SimulatedClock | None = None
-
-
-def _child_main(config: _ProcessConfig, conn: Connection) -> None:
-    """Entry of the server process: serve, and obey commands from the pipe."""
-    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # this process' own console
-    stop = threading.Event()
-    try:
-        drive = SimulatedModbusDrive(
-            config.units, source=config.source, step_s=config.step_s, clock=config.clock
-        )
-    except ConfigError as exc:
-        conn.send(("error", str(exc)))
-        return
-
-    def obey() -> None:
-        while not stop.is_set():
-            try:
-                if not conn.poll(0.1):
-                    continue
-                command, argument = conn.recv()
-            except (EOFError, OSError):
-                stop.set()
-                return
-            payload: Any = None
-            if command == "fault":
-                drive.faults.set(argument)
-            elif command == "drop":
-                drive.faults.drop_connections()
-            elif command == "reset":
-                drive.reset()
-            elif command == "stats":
-                payload = drive.stats()
-            elif command == "stop":
-                stop.set()
-            conn.send(("ok", payload))
-
-    def ready(info: ServerInfo) -> None:
-        conn.send(("ready", info.port))
-        threading.Thread(target=obey, daemon=True).start()
-
-    try:
-        drive.serve_forever(host=config.host, port=config.port, ready=ready, stop=stop)
-    except LinkError as exc:
-        conn.send(("error", str(exc)))
-
-
-class ServerHandle:
-    """Control of a simulated drive server running in another process."""
-
-    def __init__(
-        self,
-        process: multiprocessing.process.BaseProcess,
-        conn: Connection,
-        host: str,
-        port: int,
-        units: Mapping[str, int],
-    ) -> None:
-        self.process = process
-        self.host = host
-        self.port = port
-        self.units = dict(units)
-        self._conn = conn
-        self._lock = threading.Lock()
-
-    def _command(self, command: str, argument: Any = None, timeout_s: float = 10.0) -> Any:
-        with self._lock:
-            self._conn.send((command, argument))
-            if not self._conn.poll(timeout_s):
-                raise LinkError(f"the simulated drive did not confirm {command!r}")
-            status, payload = self._conn.recv()
-        if status != "ok":
-            raise LinkError(f"the simulated drive refused {command!r}: {payload}")
-        return payload
-
-    def set_fault(self, fault: Fault) -> None:
-        """Make the drives misbehave (see :class:`Fault`)."""
-        self._command("fault", fault)
-
-    def clear_faults(self) -> None:
-        """Back to normal answers."""
-        self._command("fault", NO_FAULT)
-
-    def drop_connections(self) -> None:
-        """Close every TCP connection the server has open."""
-        self._command("drop")
-
-    def reset(self) -> None:
-        """Clear faults and restart the request counters and the clock."""
-        self._command("reset")
-
-    def stats(self) -> dict[int, int]:
-        """Answered read requests per unit id."""
-        result: dict[int, int] = self._command("stats")
-        return result
-
-
-_PROCESS_NAME = "ncmeasure-modbus-drive"
-_MAIN_REIMPORTED_EXIT = 86
-"""Exit code of a drive process that found itself starting a server while importing the
-main module (a script without the ``if __name__ == "__main__":`` guard)."""
-_MAIN_GUARD = (
-    "running_server() was called while the simulated drive process imported your main "
-    "module again (multiprocessing starts it with 'spawn', which runs the script's top "
-    'level once more): call it under `if __name__ == "__main__":` in the script'
-)
-
-
-def _importing_main_in_child() -> bool:
-    """True in a spawned process while it still imports the parent's main module."""
-    return bool(getattr(multiprocessing.current_process(), "_inheriting", False))
-
-
-@contextlib.contextmanager
-def running_server(
-    units: Mapping[str, int] | Sequence[SimulatedUnit] | None = None,
-    *,
-    host: str = "127.0.0.1",
-    port: int = 0,
-    register_map: str = "generic",
-    source: SignalSource | None = None,
-    step_s: float | None = None,
-    start_timeout_s: float = 30.0,
-    clock: SimulatedClock | None = None,
-) -> Iterator[ServerHandle]:
-    """A simulated Modbus TCP drive server in another process, for tests and benchmarks.
-
-    Waits until the server accepts connections, yields a :class:`ServerHandle`
-    and stops the process afterwards.
-
-    Args:
-        units: Axis name -> unit id (all with ``register_map``), or
-            :class:`SimulatedUnit` entries; default ``{"X": 1}``.
-        host: Address to listen on.
-        port: TCP port; 0 picks a free one (``handle.port``).
-        register_map: Map for units given by name.
-        source: Axis states (must be picklable); default :class:`PatternSource`.
-        step_s: Deterministic mode.
-        start_timeout_s: How long to wait for the server to listen.
-        clock: A :class:`~ncmeasure.samples.SimulatedClock` shared with the link
-            (lockstep, through shared memory); ``None``: wall-clock.
-
-    A script that uses it must call it under ``if __name__ == "__main__":``:
-    the server process is started with ``spawn``, which imports the script
-    again; without the guard this is refused at once with that remedy.
-
-    Raises:
-        LinkError: the server did not start (port in use, ...), or the script
-            calls it without the ``__main__`` guard.
-    """
-    if _importing_main_in_child():
-        # Inside the new process, importing the script again: starting a server
-        # here would fail in multiprocessing's bootstrapping. Leave quietly; the
-        # parent sees the exit code and says why.
-        raise SystemExit(_MAIN_REIMPORTED_EXIT)
-    if units is None:
-        units = {"X": 1}
-    if isinstance(units, Mapping):
-        unit_list = tuple(
-            SimulatedUnit(axis, uid, register_map, i) for i, (axis, uid) in enumerate(units.items())
-        )
-    else:
-        unit_list = tuple(units)
-    config = _ProcessConfig(unit_list, source, step_s, host, port, clock)
-    context = multiprocessing.get_context("spawn")
-    parent, child = context.Pipe()
-    process = context.Process(
-        target=_child_main, args=(config, child), name=_PROCESS_NAME, daemon=True
-    )
-    process.start()
-    child.close()
-    try:
-        deadline = time.monotonic() + start_timeout_s
-        message: tuple[str, Any] | None = None
-        while time.monotonic() < deadline:
-            if parent.poll(0.1):
-                with contextlib.suppress(EOFError, OSError):
-                    message = parent.recv()
-                break
-            if not process.is_alive():
-                break
-        if message is None:
-            process.join(timeout=5)  # a closed pipe comes before the exit code
-            if process.exitcode == _MAIN_REIMPORTED_EXIT:
-                raise LinkError(_MAIN_GUARD)
-            if process.exitcode is None:
-                raise LinkError(
-                    f"the simulated Modbus drive process did not start within "
-                    f"{start_timeout_s:g} s (a script that starts it must do so under "
-                    '`if __name__ == "__main__":`, or the process imports it again)'
-                )
-            raise LinkError(
-                f"the simulated Modbus drive process did not start (exit code {process.exitcode})"
-            )
-        status, payload = message
-        if status != "ready":
-            raise LinkError(str(payload))
-        bound = int(payload)
-        _wait_for_port(host, bound, deadline)
-        yield ServerHandle(process, parent, host, bound, {u.axis: u.unit_id for u in unit_list})
-    finally:
-        with contextlib.suppress(OSError, EOFError, ValueError):
-            parent.send(("stop", None))
-        process.join(timeout=5)
-        if process.is_alive():
-            process.terminate()
-            process.join(timeout=5)
-        if process.is_alive():
-            process.kill()
-            process.join(timeout=5)
-        parent.close()
-
-
-def _wait_for_port(host: str, port: int, deadline: float) -> None:
-    while True:
-        try:
-            with socket.create_connection((host, port), timeout=1.0):
-                return
-        except OSError as exc:
-            if time.monotonic() > deadline:
-                raise LinkError(
-                    f"the simulated Modbus drive does not answer on {host}:{port}: {exc}"
-                ) from exc
-            time.sleep(0.05)
-
-
-# --- a serial null modem for RTU without hardware -----------------------------------------
-
-
-@contextlib.contextmanager
-def pty_null_modem() -> Iterator[tuple[str, str]]:
-    """Two pseudo-terminals wired to each other, like a null-modem cable (POSIX).
-
-    Yields the two device paths: a server opens one, a client the other.
-    Bytes written to either arrive at the other; the baud rate is not emulated.
-    """
-    master_a, slave_a = os.openpty()
-    master_b, slave_b = os.openpty()
-    for fd in (slave_a, slave_b):
-        tty.setraw(fd)
-    stop = threading.Event()
-
-    def relay() -> None:
-        while not stop.is_set():
-            try:
-                readable, _, _ = select.select([master_a, master_b], [], [], 0.05)
-            except (OSError, ValueError):
-                return
-            for fd in readable:
-                try:
-                    data = os.read(fd, 4096)
-                except OSError:
-                    continue
-                with contextlib.suppress(OSError):
-                    os.write(master_b if fd == master_a else master_a, data)
-
-    thread = threading.Thread(target=relay, name="ncmeasure-null-modem", daemon=True)
-    thread.start()
-    try:
-        yield os.ttyname(slave_a), os.ttyname(slave_b)
-    finally:
-        stop.set()
-        thread.join(timeout=2)
-        for fd in (master_a, slave_a, master_b, slave_b):
-            with contextlib.suppress(OSError):
-                os.close(fd)
+    drive.serve_forever(settings, free_port=free_port, ready=ready, stop=stop)
