@@ -36,6 +36,10 @@ from ncmeasure.sim.signals import AxisState, PatternSource
 
 STEP_S = 0.01
 SOURCE = PatternSource()
+ANSWER_S = 30.0
+"""How long a client waits for an answer that comes: a guard, however late the host is."""
+SILENT_S = 0.3
+"""How long a client waits for an answer that does not come (a silent unit)."""
 
 
 def link_settings(**link: Any) -> ModbusSettings:
@@ -94,7 +98,7 @@ def server_thread(
     thread = threading.Thread(target=run, daemon=True)
     thread.start()
     try:
-        assert ready.wait(10)
+        assert ready.wait(ANSWER_S)
         if errors:
             raise errors[0]
         yield infos[0], faults
@@ -104,7 +108,7 @@ def server_thread(
 
 
 @contextmanager
-def tcp_client(info: ServerInfo, timeout_s: float = 0.3) -> Iterator[ModbusTcpClient]:
+def tcp_client(info: ServerInfo, timeout_s: float = ANSWER_S) -> Iterator[ModbusTcpClient]:
     client = ModbusTcpClient(str(info.host), port=int(info.port or 0), timeout=timeout_s, retries=0)
     assert connect(client)
     try:
@@ -232,6 +236,25 @@ def test_server_in_lockstep_serves_the_state_at_the_links_time() -> None:
     assert (first, again, later) == (pytest.approx(10.0), pytest.approx(10.0), pytest.approx(35.0))
 
 
+def test_in_lockstep_a_silent_unit_says_so_on_the_clock() -> None:
+    """A link in lockstep stops waiting when the drive says it stays silent (see the link)."""
+    clock = SimulatedClock()
+    with (
+        server_thread(units={"X": 1, "Y": 2}, clock=clock) as (info, faults),
+        tcp_client(info) as client,
+        tcp_client(info, timeout_s=SILENT_S) as impatient,
+    ):
+        assert not client.read_input_registers(0, count=8, device_id=1).isError()
+        faults.set(Fault(silent=True, units=frozenset({2})))
+        with pytest.raises(ModbusIOException):
+            impatient.read_input_registers(0, count=8, device_id=2)
+        deadline = time.monotonic() + ANSWER_S  # the server's thread may not have run yet
+        while clock.unanswered() == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert not client.read_input_registers(0, count=8, device_id=1).isError()
+    assert clock.unanswered() == 1  # the silent request only, not the answered ones
+
+
 def test_a_fault_holds_only_inside_its_time_window() -> None:
     fault = Fault(silent=True, units=frozenset({2}), from_s=1.0, until_s=2.0)
     assert not fault.applies_to(1, 1.5)
@@ -242,7 +265,8 @@ def test_a_fault_holds_only_inside_its_time_window() -> None:
 def test_faults_silent_exception_delay_and_units() -> None:
     with (
         server_thread(units={"X": 1, "Y": 2}, step_s=STEP_S) as (info, faults),
-        tcp_client(info, timeout_s=0.3) as client,
+        tcp_client(info) as client,
+        tcp_client(info, timeout_s=SILENT_S) as impatient,
     ):
         faults.set(Fault(exception_code=3, units=frozenset({2})))
         assert not client.read_input_registers(0, count=8, device_id=1).isError()
@@ -252,8 +276,11 @@ def test_faults_silent_exception_delay_and_units() -> None:
         assert not client.read_input_registers(0, count=8, device_id=2).isError()
         faults.set(Fault(silent=True, units=frozenset({1})))
         with pytest.raises(ModbusIOException):
-            client.read_input_registers(0, count=8, device_id=1)
-    with server_thread(units={"X": 1}, step_s=STEP_S) as (info, faults), tcp_client(info) as client:
+            impatient.read_input_registers(0, count=8, device_id=1)
+    with (
+        server_thread(units={"X": 1}, step_s=STEP_S) as (info, faults),
+        tcp_client(info, timeout_s=SILENT_S) as client,
+    ):
         faults.set(Fault(silent=True))
         with pytest.raises(ModbusIOException):
             client.read_input_registers(0, count=8, device_id=1)
@@ -271,7 +298,8 @@ def test_drop_connections_closes_the_client_socket() -> None:
     with server_thread(units={"X": 1}) as (info, faults), tcp_client(info) as client:
         assert not client.read_input_registers(0, count=2, device_id=1).isError()
         faults.drop_connections()
-        threading.Event().wait(0.2)
+        # the server closes it from its own thread: wait until the end of the stream is here
+        assert select.select([client.socket], [], [], ANSWER_S)[0]
         with pytest.raises(ConnectionException):
             client.read_input_registers(0, count=2, device_id=1)
         close(client)
@@ -377,21 +405,27 @@ def test_rtu_over_a_null_modem() -> None:
         )
         thread.start()
         client = ModbusSerialClient(
-            client_port, baudrate=115200, parity="N", timeout=0.3, retries=0
+            client_port, baudrate=115200, parity="N", timeout=ANSWER_S, retries=0
+        )
+        impatient = ModbusSerialClient(
+            client_port, baudrate=115200, parity="N", timeout=SILENT_S, retries=0
         )
         try:
-            assert ready.wait(10)
+            assert ready.wait(ANSWER_S)
             assert connect(client)
             words = client.read_holding_registers(0x9000, count=14, device_id=5).registers
             state = SOURCE.state(0, 0.0)
             assert decode_words(words[0:2], "int32") == round(state.position_mm / 0.01)
             assert decode_words(words[10:12], "int32") == round(state.velocity_mm_min / 0.6)
             assert decode_words(words[12:14], "int32") == round(state.current_a / 0.001)
+            close(client)
             # Nobody answers an unknown unit on a serial line.
+            assert connect(impatient)
             with pytest.raises(ModbusIOException):
-                client.read_holding_registers(0x9000, count=2, device_id=6)
+                impatient.read_holding_registers(0x9000, count=2, device_id=6)
         finally:
             close(client)
+            close(impatient)
             stop.set()
             thread.join(timeout=10)
     assert drive.stats() == {5: 1}

@@ -29,7 +29,9 @@ simulated drive it runs on a :class:`~ncmeasure.samples.SimulatedClock`, in
 lockstep: before each poll cycle the link sets the simulated time to
 ``slot × period``, the server answers with the machine state of that time, and
 the next cycle follows when this one is done, however slow the computer is;
-the rows are then stamped exactly ``slot × period``.
+the rows are then stamped exactly ``slot × period``. A request then waits for
+its answer until it comes, and times out only when the simulated drive says it
+stays silent (see :mod:`~ncmeasure.links.modbus.transport`).
 
 The parts: :mod:`~ncmeasure.links.modbus.settings` (the settings models),
 :mod:`~ncmeasure.links.modbus.plan` (the requests of a cycle and their
@@ -162,6 +164,8 @@ class ModbusLink(DriveLink):
     # --- open / read / close ----------------------------------------------------------
 
     def _open(self) -> None:
+        clock = self.clock
+        self._transport.lockstep = clock if isinstance(clock, SimulatedClock) else None
         self._transport.connect()
         problems: list[str] = []
         timeouts = 0

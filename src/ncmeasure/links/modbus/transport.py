@@ -6,16 +6,26 @@ request (:meth:`ModbusTransport.execute`): the registers, or a
 :class:`CycleError` that says what went wrong (no answer, connection lost, a
 Modbus exception response, a malformed answer). On an RTU line it keeps the
 3.5-character silence between frames.
+
+In lockstep with ncmeasure's simulated drive (a
+:class:`~ncmeasure.samples.SimulatedClock`), an answer is awaited until it
+comes, however late a busy computer delivers it; a drive that stays silent on
+purpose says so on the clock (:meth:`~ncmeasure.samples.SimulatedClock.leave_unanswered`)
+and the wait ends at once. A request then times out in simulated time, not on
+the wall clock; the wall-clock wait is only a guard (:data:`LOCKSTEP_GUARD_S`)
+against a simulator that is gone.
 """
 
 from __future__ import annotations
 
 import contextlib
+import select
 import socket
 import struct
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Final, Literal
 
 import serial  # type: ignore[import-untyped]
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
@@ -26,8 +36,16 @@ from ncmeasure.errors import LinkError
 from ncmeasure.links.modbus.plan import Request, rtu_silence_s
 from ncmeasure.links.modbus.registers import FUNCTION_NAMES, exception_text
 from ncmeasure.links.modbus.settings import ModbusSettings
+from ncmeasure.samples import SimulatedClock
 
-__all__ = ["CycleError", "Failure", "ModbusTransport"]
+__all__ = ["LOCKSTEP_GUARD_S", "CycleError", "Failure", "ModbusTransport"]
+
+#: In lockstep, the longest wall-clock wait for an answer (and a connection): a guard
+#: against a simulated drive that is gone or hangs, never part of the simulation.
+LOCKSTEP_GUARD_S: Final = 60.0
+
+#: In lockstep, how often the wait for an answer looks whether the drive said it is silent.
+_WATCH_S: Final = 0.002
 
 
 @dataclass(frozen=True)
@@ -57,6 +75,8 @@ class ModbusTransport:
 
     def __init__(self, settings: ModbusSettings) -> None:
         self.settings = settings
+        #: Set before the first :meth:`connect` to wait for answers in lockstep.
+        self.lockstep: SimulatedClock | None = None
         self._client: ModbusTcpClient | ModbusSerialClient | None = None
         self._last_rx = 0.0
 
@@ -67,19 +87,31 @@ class ModbusTransport:
             return f"{self.settings.host}:{self.settings.port}"
         return str(self.settings.serial_port)
 
+    @property
+    def _wait_s(self) -> float:
+        """How long to wait for an answer on the wall clock."""
+        return LOCKSTEP_GUARD_S if self.lockstep is not None else self.settings.timeout_s
+
     def _make_client(self) -> ModbusTcpClient | ModbusSerialClient:
         s = self.settings
+        clock = self.lockstep
         if s.mode == "tcp":
+            if clock is not None:
+                return _LockstepTcpClient(
+                    clock, s.host, port=s.port, timeout=self._wait_s, retries=s.retries
+                )
             return ModbusTcpClient(s.host, port=s.port, timeout=s.timeout_s, retries=s.retries)
-        return ModbusSerialClient(
-            str(s.serial_port),
-            baudrate=s.baudrate,
-            bytesize=s.bytesize,
-            parity=s.parity,
-            stopbits=s.stopbits,
-            timeout=s.timeout_s,
-            retries=s.retries,
-        )
+        line: dict[str, Any] = {
+            "baudrate": s.baudrate,
+            "bytesize": s.bytesize,
+            "parity": s.parity,
+            "stopbits": s.stopbits,
+            "timeout": self._wait_s,
+            "retries": s.retries,
+        }
+        if clock is not None:
+            return _LockstepSerialClient(clock, str(s.serial_port), **line)
+        return ModbusSerialClient(str(s.serial_port), **line)
 
     def connect(self) -> None:
         """Open the socket or serial port ourselves, so a failure keeps its reason.
@@ -92,7 +124,7 @@ class ModbusTransport:
         self._client = client
         if isinstance(client, ModbusTcpClient):
             try:
-                sock = socket.create_connection((s.host, s.port), timeout=s.timeout_s)
+                sock = socket.create_connection((s.host, s.port), timeout=self._wait_s)
             except OSError as exc:
                 reason = exc.strerror or str(exc) or type(exc).__name__
                 raise LinkError(
@@ -108,8 +140,8 @@ class ModbusTransport:
                     bytesize=s.bytesize,
                     parity=s.parity,
                     stopbits=s.stopbits,
-                    timeout=s.timeout_s,
-                    write_timeout=s.timeout_s,
+                    timeout=self._wait_s,
+                    write_timeout=self._wait_s,
                 )
             except (serial.SerialException, OSError, ValueError) as exc:
                 raise LinkError(f"cannot open the serial port {s.serial_port}: {exc}") from exc
@@ -196,3 +228,74 @@ class ModbusTransport:
                 )
             )
         return registers
+
+
+# --- lockstep: answers awaited until they come, or until the drive says it is silent -----
+
+
+class _AnswerWatch:
+    """Whether the answer to the request sent last will come (lockstep)."""
+
+    def __init__(self, clock: SimulatedClock) -> None:
+        self._clock = clock
+        self._unanswered = clock.unanswered()
+
+    def sent(self) -> None:
+        """A request goes out now: the drive has left none of its own unanswered yet."""
+        self._unanswered = self._clock.unanswered()
+
+    def coming(self, arrived: Callable[[float], bool]) -> bool:
+        """Wait until ``arrived(wait_s)`` says bytes are there; False: none will come.
+
+        None will come when the simulated drive has said so on the clock, or (a
+        guard) after :data:`LOCKSTEP_GUARD_S` of wall-clock time.
+        """
+        deadline = time.monotonic() + LOCKSTEP_GUARD_S
+        while not arrived(_WATCH_S):
+            if self._clock.unanswered() != self._unanswered or time.monotonic() > deadline:
+                return False
+        return True
+
+
+class _LockstepTcpClient(ModbusTcpClient):
+    """A TCP client that waits for an answer until it comes or the drive says it is silent."""
+
+    def __init__(self, clock: SimulatedClock, host: str, **kwargs: Any) -> None:
+        super().__init__(host, **kwargs)
+        self._watch = _AnswerWatch(clock)
+
+    def send(self, request: bytes, addr: tuple[Any, ...] | None = None) -> int:
+        self._watch.sent()
+        return int(super().send(request, addr))
+
+    def recv(self, size: int | None) -> bytes:
+        sock = self.socket
+        if sock is not None and not self._watch.coming(
+            lambda wait_s: bool(select.select([sock], [], [], wait_s)[0])
+        ):
+            return b""  # pymodbus: no answer (a time-out)
+        return bytes(super().recv(size))
+
+
+class _LockstepSerialClient(ModbusSerialClient):
+    """A serial client that waits for an answer until it comes or the drive says it is silent."""
+
+    def __init__(self, clock: SimulatedClock, port: str, **kwargs: Any) -> None:
+        super().__init__(port, **kwargs)
+        self._watch = _AnswerWatch(clock)
+
+    def send(self, request: bytes, addr: tuple[Any, ...] | None = None) -> int:
+        self._watch.sent()
+        return int(super().send(request, addr))
+
+    def recv(self, size: int | None) -> bytes:
+        if self.socket is not None and not self._watch.coming(self._input_waiting):
+            return b""  # pymodbus: no answer (a time-out)
+        return bytes(super().recv(size))
+
+    def _input_waiting(self, wait_s: float) -> bool:
+        port = self.socket
+        if port is None or port.in_waiting:
+            return True  # bytes to read (or a closed port, for pymodbus to report)
+        time.sleep(wait_s)
+        return False

@@ -14,10 +14,12 @@ With a :class:`~ncmeasure.samples.SimulatedClock` (``clock``) shared with the
 link, the server is in lockstep with it: the link sets the simulated time of
 each poll cycle before it asks, and every answer shows the state at that time,
 however slow the computer is (a server in another process reads the same
-clock through shared memory). With ``step_s`` the server is deterministic on
-its own: the n-th read request a unit answers for a register type (counting
-from 0) gets the state at ``n × step_s``. Requests that are not answered
-(faults) do not count.
+clock through shared memory). A request the server leaves unanswered on
+purpose (a silent unit) it reports on that clock, so the link's wait for the
+answer ends at once, not after a wall-clock time-out. With ``step_s`` the
+server is deterministic on its own: the n-th read request a unit answers for a
+register type (counting from 0) gets the state at ``n × step_s``. Requests that
+are not answered (faults) do not count.
 
 :func:`serve` is the blocking entry point behind ``ncmeasure simulate-drive
 --link modbus``; the faults are in :mod:`~ncmeasure.sim.modbus_drive.faults`.
@@ -186,7 +188,9 @@ class SimulatedModbusDrive:
             }
             self._units[unit.unit_id] = _UnitRuntime(unit, reg_map, factors)
         self._start = self._now()
-        self._suppress: set[int] = set()
+        # unit id (0: any unknown unit) -> whether to say on the clock that the answer
+        # being built is not sent (a silent unit, not a dropped connection)
+        self._suppress: dict[int, bool] = {}
         self._server: ModbusTcpServer | ModbusSerialServer | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
 
@@ -265,7 +269,7 @@ class SimulatedModbusDrive:
                 if fault.delay_s > 0:
                     await asyncio.sleep(fault.delay_s)
                 if fault.silent or fault.disconnect:
-                    self._suppress.add(unit_id)
+                    self._suppress[unit_id] = not fault.disconnect
                     if fault.disconnect:
                         self._drop_now()
                     return None
@@ -285,7 +289,7 @@ class SimulatedModbusDrive:
     def _catch_all(self, rtu: bool) -> Callable[..., Any]:
         async def action(*_: Any) -> ExcCodes | None:
             if rtu:  # nobody answers an unknown unit on a serial line
-                self._suppress.add(0)
+                self._suppress[0] = True
                 return None
             return ExcCodes.GATEWAY_NO_RESPONSE  # what a TCP gateway answers
 
@@ -341,14 +345,19 @@ class SimulatedModbusDrive:
                 return data
             unit = data[0] if rtu else (data[6] if len(data) > 6 else -1)
             if unit in self._suppress:
-                self._suppress.discard(unit)
+                self._left_unanswered(self._suppress.pop(unit))
                 return b""  # the answer was built but is never sent
             if 0 in self._suppress and unit not in self._units:
-                self._suppress.discard(0)
+                self._left_unanswered(self._suppress.pop(0))
                 return b""
             return data
 
         return trace
+
+    def _left_unanswered(self, silent: bool) -> None:
+        """In lockstep, a silent unit says so on the clock: the link stops waiting at once."""
+        if silent and self.clock is not None:
+            self.clock.leave_unanswered()
 
     def _drop_now(self) -> None:
         server = self._server
