@@ -40,6 +40,7 @@ from pymodbus.client import AsyncModbusTcpClient
 
 from ncmeasure.config import AxisConfig
 from ncmeasure.links.modbus.link import ModbusLink
+from ncmeasure.links.modbus.plan import build_plan
 from ncmeasure.sim.modbus_drive import ServerHandle, running_server
 from ncmeasure.sim.signals import AxisState
 
@@ -156,8 +157,8 @@ async def _poll_bare(server: ServerHandle, seconds: float, plan: Any, width: int
 
 def poll_bare(server: ServerHandle, seconds: float) -> Run:
     """The baseline: pymodbus' async client, the same requests, decoding and scaling."""
-    link = _link(server, 100.0)  # not opened: its register plan only
-    plan = link._requests  # the link's own plan: same units, registers, decoding
+    link = _link(server, 100.0)  # not opened: its settings only
+    plan = build_plan(link.modbus, link.axes).requests  # the link's plan: units, registers
     return asyncio.run(_poll_bare(server, seconds, plan, len(link.channels)))
 
 

@@ -48,8 +48,17 @@ def canopen_machine(
 ) -> Iterator[tuple[MachineConfig, SimulatedDrives]]:
     """Three simulated CiA 402 drives on a fresh virtual bus, and a machine to record them."""
     channel = channel or f"acq-{uuid.uuid4().hex[:8]}"
+    # the drives answer SDO from this process' threads: the time-out only guards against a
+    # hang, however busy the host (as the demo does)
     config = machine(
-        {"type": "canopen", "interface": "virtual", "channel": channel, "sync_hz": 250}, "node_id"
+        {
+            "type": "canopen",
+            "interface": "virtual",
+            "channel": channel,
+            "sync_hz": 250,
+            "sdo_timeout_s": 30.0,
+        },
+        "node_id",
     )
     scaling = DriveScaling(increments_per_rev=10_000, screw_lead_mm=20.0, rated_current_a=17.7)
     with SimulatedDrives.start(

@@ -9,9 +9,11 @@ refuse it, so a contract that stopped checking anything would be noticed.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -24,6 +26,8 @@ PLANNER = Path("plan") / "axis.py"
 """A module low in the pipeline, where an upward import is a violation."""
 ANALYSIS = Path("analysis") / "__init__.py"
 """A module that may import the layers below it, but neither a drive link nor a program."""
+SIMULATOR = Path("sim") / "cia402" / "drive.py"
+"""A simulated drive: it may know the protocol (object maps, settings), not the link."""
 TIMEOUT_S = 600
 
 
@@ -91,8 +95,9 @@ def test_the_package_keeps_its_contracts(copy: Path) -> None:
         (PLANNER, "import ncmeasure", "not from ncmeasure"),
         (ANALYSIS, "from ncmeasure.links.base import DriveLink", "know nothing of each other"),
         (ANALYSIS, "import can", "never talk to a drive"),
+        (SIMULATOR, "from ncmeasure.links.canopen.link import CanOpenLink", "not the links"),
     ],
-    ids=["upward", "upward-relative", "from-the-package", "the-package", "sibling", "bus"],
+    ids=["upward", "upward-relative", "from-the-package", "the-package", "sibling", "bus", "sim"],
 )
 def test_lint_imports_refuses_a_planted_import(
     copy: Path, module: Path, line: str, contract: str
@@ -123,3 +128,19 @@ def test_the_copy_is_what_lint_imports_reads(copy: Path) -> None:
         check=True,
     ).stdout.strip()
     assert Path(where).is_relative_to(copy), (where, ncmeasure.__file__)
+
+
+def test_every_module_of_the_package_has_its_layer() -> None:
+    """A module in no layer is bound by no layers contract: a new one must be placed."""
+    with (ROOT / "pyproject.toml").open("rb") as file:
+        contracts = tomllib.load(file)["tool"]["importlinter"]["contracts"]
+    layers = next(c for c in contracts if c["type"] == "layers")["layers"]
+    placed = {name.strip() for layer in layers for name in re.split(r"[|:]", layer)}
+    present = {
+        f"ncmeasure.{path.name.removesuffix('.py')}"
+        for path in SOURCE.iterdir()
+        if (path.suffix == ".py" and path.name != "__init__.py")
+        or (path.is_dir() and (path / "__init__.py").is_file())
+    }
+    assert present - placed == set(), "add them to the layers contract in pyproject.toml"
+    assert placed - present == set(), "the layers contract names modules that are gone"

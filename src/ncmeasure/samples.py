@@ -173,16 +173,23 @@ class SimulatedClock(LinkClock):
     it too. A simulator in the same process (the CAN bus of python-can's
     ``virtual`` interface is one process) also reports each step done
     (:meth:`step_done`), and the link waits for it (:meth:`wait_step`) before
-    it starts the next cycle.
+    it starts the next cycle. A simulator that leaves a request unanswered on
+    purpose (a silent drive) says so (:meth:`leave_unanswered`, shared memory
+    too): the link then stops waiting for that answer at once, so a time-out
+    is the simulator's word, not a wall-clock wait that a busy computer could
+    run out while a good answer is on its way.
     """
 
-    __slots__ = ("_cond", "_done", "_sent", "_time")
+    __slots__ = ("_cond", "_done", "_sent", "_time", "_unanswered")
 
     def __init__(self) -> None:
         import multiprocessing
 
+        context = multiprocessing.get_context("spawn")
         # A shared double: written by the link, read by a simulator process.
-        self._time: Any = multiprocessing.get_context("spawn").Value("d", 0.0, lock=False)
+        self._time: Any = context.Value("d", 0.0, lock=False)
+        # A shared count: written by the simulator (one writer), read by the link.
+        self._unanswered: Any = context.Value("q", 0, lock=False)
         self._cond = threading.Condition()
         self._done = -1
         self._sent = 0
@@ -230,11 +237,24 @@ class SimulatedClock(LinkClock):
                 return None
             return self._sent
 
+    def leave_unanswered(self) -> None:
+        """The simulator will not answer the request it has now (a silent drive).
+
+        A link waiting for that answer in lockstep sees :meth:`unanswered` grow and
+        stops waiting: the request timed out in simulated time.
+        """
+        self._unanswered.value += 1
+
+    def unanswered(self) -> int:
+        """How many requests the simulator has left unanswered on purpose so far."""
+        return int(self._unanswered.value)
+
     def __getstate__(self) -> dict[str, Any]:
-        return {"time": self._time}
+        return {"time": self._time, "unanswered": self._unanswered}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self._time = state["time"]
+        self._unanswered = state["unanswered"]
         self._cond = threading.Condition()
         self._done = -1
         self._sent = 0

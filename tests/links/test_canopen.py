@@ -48,6 +48,10 @@ SCALING = DriveScaling(increments_per_rev=IPR, screw_lead_mm=LEAD_MM, rated_curr
 SOURCE = PatternSource()
 TIMEOUT_S = 60.0
 """A guard against a hang, never part of what a test asserts."""
+SDO_ANSWER_S = 30.0
+"""How long the link waits for an SDO answer of the simulated drives: they answer from this
+process' threads, so only a guard, however busy the host (as the demo does); the tests
+of a time-out set their own."""
 
 
 def needs_fixture(name: str) -> Path:
@@ -84,7 +88,7 @@ def make(
     clock: SimulatedClock | None = None,
     **link: Any,
 ) -> CanOpenLink:
-    table = {"channel": channel, "sync_hz": 250, **link}
+    table = {"channel": channel, "sync_hz": 250, "sdo_timeout_s": SDO_ANSWER_S, **link}
     axes = [
         (
             axis_config(name, **(axis_changes or {})),

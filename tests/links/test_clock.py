@@ -79,6 +79,30 @@ def test_a_simulator_in_another_process_reads_the_same_time() -> None:
         process.join(30)
 
 
+def _leave_two_unanswered(
+    clock: SimulatedClock, conn: multiprocessing.connection.Connection
+) -> None:
+    clock.leave_unanswered()
+    clock.leave_unanswered()
+    conn.send(clock.unanswered())
+
+
+def test_a_simulator_in_another_process_says_which_requests_it_leaves_unanswered() -> None:
+    clock = SimulatedClock()
+    assert clock.unanswered() == 0
+    clock.leave_unanswered()
+    context = multiprocessing.get_context("spawn")
+    parent, child = context.Pipe()
+    process = context.Process(target=_leave_two_unanswered, args=(clock, child))
+    process.start()
+    try:
+        assert parent.poll(60), "the child process sent nothing"
+        assert parent.recv() == 3
+    finally:
+        process.join(30)
+    assert clock.unanswered() == 3  # the link sees what the simulator counted
+
+
 def _canopen_link() -> links.DriveLink:
     axes = [
         (a, {"node_id": i + 1, "increments_per_rev": 10_000})

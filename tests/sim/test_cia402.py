@@ -34,7 +34,12 @@ from tests.conftest import shared_fixture
 SOURCE = PatternSource()
 SCALING = DriveScaling(increments_per_rev=4096, screw_lead_mm=10.0, rated_current_a=5.0)
 PERIOD_S = 0.002
-TIMEOUT_S = 5.0
+TIMEOUT_S = 60.0
+"""A guard against a hang, never part of what a test asserts."""
+ANSWER_S = 30.0
+"""How long an SDO client waits for an answer that comes: a guard, however busy the host."""
+SILENT_S = 0.3
+"""How long an SDO client waits for an answer that does not come (a silent drive)."""
 
 
 @pytest.fixture
@@ -64,7 +69,7 @@ def network(channel: str) -> Iterator[canopen.Network]:
 
 def node(network: canopen.Network, node_id: int = 1) -> canopen.RemoteNode:
     remote = canopen.RemoteNode(node_id, canopen.ObjectDictionary())  # type: ignore[no-untyped-call]
-    remote.sdo.RESPONSE_TIMEOUT = 0.5
+    remote.sdo.RESPONSE_TIMEOUT = ANSWER_S
     network.add_node(remote)
     return remote
 
@@ -310,6 +315,7 @@ def test_no_pdos_unless_operational(drives: SimulatedDrives, network: canopen.Ne
     remote.nmt.state = "STOPPED"
     assert eventually(lambda: drives[0].nmt_state == "STOPPED")
     network.sync.transmit()
+    remote.sdo.RESPONSE_TIMEOUT = SILENT_S
     with pytest.raises(SdoCommunicationError):  # stopped: no SDO either
         remote.sdo.upload(0x1000, 0)
     assert drives.sync_count == 3
@@ -322,9 +328,11 @@ def test_no_pdos_unless_operational(drives: SimulatedDrives, network: canopen.Ne
 def test_stop_answering_and_resume(drives: SimulatedDrives, network: canopen.Network) -> None:
     remote = node(network)
     drives[0].stop_answering()
+    remote.sdo.RESPONSE_TIMEOUT = SILENT_S
     with pytest.raises(SdoCommunicationError):
         remote.sdo.upload(0x1000, 0)
     drives[0].resume()
+    remote.sdo.RESPONSE_TIMEOUT = ANSWER_S
     assert remote.sdo.upload(0x1000, 0) == u32(0x00020192)
 
 
@@ -350,7 +358,7 @@ def test_slow_answers(drives: SimulatedDrives, network: canopen.Network) -> None
     with pytest.raises(SdoCommunicationError):
         remote.sdo.upload(0x1000, 0)
     drives[0].slow(0.02)
-    remote.sdo.RESPONSE_TIMEOUT = 1.0
+    remote.sdo.RESPONSE_TIMEOUT = ANSWER_S
     assert remote.sdo.upload(0x1000, 0) == u32(0x00020192)
 
 
@@ -364,8 +372,10 @@ def test_reboot_sends_boot_up_and_forgets_the_pdo_configuration(
     boots = Frames({0x701})
     network.notifier.add_listener(boots)  # type: ignore[union-attr]
     drives[0].reboot(downtime_s=0.05)
+    remote.sdo.RESPONSE_TIMEOUT = SILENT_S
     with pytest.raises(SdoCommunicationError):  # silent while booting
         remote.sdo.upload(0x1000, 0)
+    remote.sdo.RESPONSE_TIMEOUT = ANSWER_S
     assert eventually(lambda: len(boots.frames) == 1)
     assert bytes(boots.frames[0].data) == b"\x00"
     assert drives[0].nmt_state == "PRE-OPERATIONAL"

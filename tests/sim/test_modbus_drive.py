@@ -9,7 +9,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -20,6 +20,7 @@ from pymodbus.exceptions import ConnectionException, ModbusIOException
 
 from ncmeasure.errors import ConfigError, LinkError
 from ncmeasure.links.modbus.registers import decode_words
+from ncmeasure.links.modbus.settings import ModbusAxis, ModbusSettings
 from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.modbus_drive import (
     DriveFaults,
@@ -35,6 +36,19 @@ from ncmeasure.sim.signals import AxisState, PatternSource
 
 STEP_S = 0.01
 SOURCE = PatternSource()
+ANSWER_S = 30.0
+"""How long a client waits for an answer that comes: a guard, however late the host is."""
+SILENT_S = 0.3
+"""How long a client waits for an answer that does not come (a silent unit)."""
+
+
+def link_settings(**link: Any) -> ModbusSettings:
+    """The settings of a link reading the simulated drive (generic map unless given)."""
+    return ModbusSettings.model_validate({"register_map": "generic", **link})
+
+
+def link_axes(units: Mapping[str, int]) -> dict[str, ModbusAxis]:
+    return {axis: ModbusAxis(unit_id=unit_id) for axis, unit_id in units.items()}
 
 
 class Ramp:
@@ -45,8 +59,16 @@ class Ramp:
 
 
 @contextmanager
-def server_thread(**kwargs: Any) -> Iterator[tuple[ServerInfo, DriveFaults]]:
-    """``serve`` in a thread of this process on a free port."""
+def server_thread(
+    units: Mapping[str, int] | None = None,
+    link: Mapping[str, Any] | None = None,
+    axes: Mapping[str, ModbusAxis] | None = None,
+    **kwargs: Any,
+) -> Iterator[tuple[ServerInfo, DriveFaults]]:
+    """``serve`` in a thread of this process on a free port.
+
+    ``link``: more link settings; ``axes``: the axes' link settings instead of ``units``.
+    """
     faults = DriveFaults()
     stop = threading.Event()
     ready = threading.Event()
@@ -60,7 +82,15 @@ def server_thread(**kwargs: Any) -> Iterator[tuple[ServerInfo, DriveFaults]]:
 
     def run() -> None:
         try:
-            serve(faults=faults, ready=on_ready, stop=stop, **{"port": 0, **kwargs})
+            serve(
+                link_settings(**(link or {})),
+                axes or link_axes(units or {}),
+                free_port=True,
+                faults=faults,
+                ready=on_ready,
+                stop=stop,
+                **kwargs,
+            )
         except BaseException as exc:  # reported by the test
             errors.append(exc)
             ready.set()
@@ -68,7 +98,7 @@ def server_thread(**kwargs: Any) -> Iterator[tuple[ServerInfo, DriveFaults]]:
     thread = threading.Thread(target=run, daemon=True)
     thread.start()
     try:
-        assert ready.wait(10)
+        assert ready.wait(ANSWER_S)
         if errors:
             raise errors[0]
         yield infos[0], faults
@@ -78,7 +108,7 @@ def server_thread(**kwargs: Any) -> Iterator[tuple[ServerInfo, DriveFaults]]:
 
 
 @contextmanager
-def tcp_client(info: ServerInfo, timeout_s: float = 0.3) -> Iterator[ModbusTcpClient]:
+def tcp_client(info: ServerInfo, timeout_s: float = ANSWER_S) -> Iterator[ModbusTcpClient]:
     client = ModbusTcpClient(str(info.host), port=int(info.port or 0), timeout=timeout_s, retries=0)
     assert connect(client)
     try:
@@ -123,6 +153,22 @@ def test_registers_follow_the_map_and_the_request_count() -> None:
         # A range beyond the map's registers is an illegal address too.
         response = client.read_input_registers(4, count=10, device_id=1)
         assert response.isError() and response.exception_code == 2
+
+
+def test_serve_shows_what_a_link_with_the_same_settings_reads() -> None:
+    """serve() takes the link's settings: each axis' map, counts per revolution, scales."""
+    axes = {
+        "X": ModbusAxis(unit_id=1, scales={"position_mm": 0.01}),
+        "Z": ModbusAxis(unit_id=3, register_map="ats-rt20", counts_per_rev=4096),
+    }
+    with server_thread(axes=axes, step_s=STEP_S) as (info, _), tcp_client(info) as client:
+        assert info.units == {"X": 1, "Z": 3}
+        x = client.read_input_registers(0, count=2, device_id=1).registers
+        z = client.read_holding_registers(0x0301, count=2, device_id=3).registers
+    assert decode_words(x, "int32") == round(SOURCE.state(0, 0.0).position_mm / 0.01)
+    # the default mechanics: 10 mm screw lead; the axis' own 4096 counts per revolution
+    counts = decode_words(z, "int32", "little")
+    assert counts == round(SOURCE.state(1, 0.0).position_mm / (10.0 / 4096))
 
 
 def test_unknown_unit_behind_tcp_is_a_gateway_exception() -> None:
@@ -190,6 +236,25 @@ def test_server_in_lockstep_serves_the_state_at_the_links_time() -> None:
     assert (first, again, later) == (pytest.approx(10.0), pytest.approx(10.0), pytest.approx(35.0))
 
 
+def test_in_lockstep_a_silent_unit_says_so_on_the_clock() -> None:
+    """A link in lockstep stops waiting when the drive says it stays silent (see the link)."""
+    clock = SimulatedClock()
+    with (
+        server_thread(units={"X": 1, "Y": 2}, clock=clock) as (info, faults),
+        tcp_client(info) as client,
+        tcp_client(info, timeout_s=SILENT_S) as impatient,
+    ):
+        assert not client.read_input_registers(0, count=8, device_id=1).isError()
+        faults.set(Fault(silent=True, units=frozenset({2})))
+        with pytest.raises(ModbusIOException):
+            impatient.read_input_registers(0, count=8, device_id=2)
+        deadline = time.monotonic() + ANSWER_S  # the server's thread may not have run yet
+        while clock.unanswered() == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert not client.read_input_registers(0, count=8, device_id=1).isError()
+    assert clock.unanswered() == 1  # the silent request only, not the answered ones
+
+
 def test_a_fault_holds_only_inside_its_time_window() -> None:
     fault = Fault(silent=True, units=frozenset({2}), from_s=1.0, until_s=2.0)
     assert not fault.applies_to(1, 1.5)
@@ -200,7 +265,8 @@ def test_a_fault_holds_only_inside_its_time_window() -> None:
 def test_faults_silent_exception_delay_and_units() -> None:
     with (
         server_thread(units={"X": 1, "Y": 2}, step_s=STEP_S) as (info, faults),
-        tcp_client(info, timeout_s=0.3) as client,
+        tcp_client(info) as client,
+        tcp_client(info, timeout_s=SILENT_S) as impatient,
     ):
         faults.set(Fault(exception_code=3, units=frozenset({2})))
         assert not client.read_input_registers(0, count=8, device_id=1).isError()
@@ -210,8 +276,11 @@ def test_faults_silent_exception_delay_and_units() -> None:
         assert not client.read_input_registers(0, count=8, device_id=2).isError()
         faults.set(Fault(silent=True, units=frozenset({1})))
         with pytest.raises(ModbusIOException):
-            client.read_input_registers(0, count=8, device_id=1)
-    with server_thread(units={"X": 1}, step_s=STEP_S) as (info, faults), tcp_client(info) as client:
+            impatient.read_input_registers(0, count=8, device_id=1)
+    with (
+        server_thread(units={"X": 1}, step_s=STEP_S) as (info, faults),
+        tcp_client(info, timeout_s=SILENT_S) as client,
+    ):
         faults.set(Fault(silent=True))
         with pytest.raises(ModbusIOException):
             client.read_input_registers(0, count=8, device_id=1)
@@ -229,7 +298,8 @@ def test_drop_connections_closes_the_client_socket() -> None:
     with server_thread(units={"X": 1}) as (info, faults), tcp_client(info) as client:
         assert not client.read_input_registers(0, count=2, device_id=1).isError()
         faults.drop_connections()
-        threading.Event().wait(0.2)
+        # the server closes it from its own thread: wait until the end of the stream is here
+        assert select.select([client.socket], [], [], ANSWER_S)[0]
         with pytest.raises(ConnectionException):
             client.read_input_registers(0, count=2, device_id=1)
         close(client)
@@ -293,7 +363,7 @@ def test_port_in_use_is_a_clear_error() -> None:
         busy.listen()
         port = busy.getsockname()[1]
         with pytest.raises(LinkError) as info:
-            serve(units={"X": 1}, port=port)
+            serve(link_settings(port=port), link_axes({"X": 1}))
     assert str(info.value).startswith(
         f"the simulated Modbus drive cannot listen on 127.0.0.1:{port}"
     )
@@ -326,34 +396,36 @@ def test_rtu_over_a_null_modem() -> None:
     with pty_null_modem() as (server_port, client_port):
         stop = threading.Event()
         ready = threading.Event()
+        line = link_settings(serial_port=server_port, baudrate=115200, parity="N")
         thread = threading.Thread(
             target=drive.serve_forever,
-            kwargs={
-                "serial_port": server_port,
-                "baudrate": 115200,
-                "parity": "N",
-                "ready": lambda _: ready.set(),
-                "stop": stop,
-            },
+            args=(line,),
+            kwargs={"ready": lambda _: ready.set(), "stop": stop},
             daemon=True,
         )
         thread.start()
         client = ModbusSerialClient(
-            client_port, baudrate=115200, parity="N", timeout=0.3, retries=0
+            client_port, baudrate=115200, parity="N", timeout=ANSWER_S, retries=0
+        )
+        impatient = ModbusSerialClient(
+            client_port, baudrate=115200, parity="N", timeout=SILENT_S, retries=0
         )
         try:
-            assert ready.wait(10)
+            assert ready.wait(ANSWER_S)
             assert connect(client)
             words = client.read_holding_registers(0x9000, count=14, device_id=5).registers
             state = SOURCE.state(0, 0.0)
             assert decode_words(words[0:2], "int32") == round(state.position_mm / 0.01)
             assert decode_words(words[10:12], "int32") == round(state.velocity_mm_min / 0.6)
             assert decode_words(words[12:14], "int32") == round(state.current_a / 0.001)
+            close(client)
             # Nobody answers an unknown unit on a serial line.
+            assert connect(impatient)
             with pytest.raises(ModbusIOException):
-                client.read_holding_registers(0x9000, count=2, device_id=6)
+                impatient.read_holding_registers(0x9000, count=2, device_id=6)
         finally:
             close(client)
+            close(impatient)
             stop.set()
             thread.join(timeout=10)
     assert drive.stats() == {5: 1}
@@ -362,7 +434,7 @@ def test_rtu_over_a_null_modem() -> None:
 def test_bad_serial_port_is_a_link_error() -> None:
     with (
         pytest.raises(LinkError, match="/nonexistent/tty"),
-        server_thread(units={"X": 1}, serial_port="/nonexistent/tty"),
+        server_thread(units={"X": 1}, link={"serial_port": "/nonexistent/tty"}),
     ):
         pass
 

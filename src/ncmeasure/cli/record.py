@@ -400,6 +400,7 @@ def _serve_modbus(
     parity: str,
 ) -> None:
     """Serve simulated Modbus drives until ``stop``."""
+    from ncmeasure.links.modbus.settings import settings_from_tables
     from ncmeasure.sim.modbus_drive import ServerInfo, serve
 
     def ready(info: ServerInfo) -> None:
@@ -409,17 +410,18 @@ def _serve_modbus(
             soft_wrap=True,
         )
 
-    serve(
-        units=units,
-        host=host,
-        port=port,
-        register_map=register_map,
-        serial_port=serial_port,
-        baudrate=baudrate,
-        parity=parity,
-        ready=ready,
-        stop=stop,
+    settings, axes = settings_from_tables(
+        {
+            "host": host,
+            "port": port or 502,  # 0: a free port (free_port)
+            "register_map": register_map,
+            "serial_port": serial_port,
+            "baudrate": baudrate,
+            "parity": parity,
+        },
+        {axis: {"unit_id": unit_id} for axis, unit_id in units.items()},
     )
+    serve(settings, axes, free_port=port == 0, ready=ready, stop=stop)
 
 
 def _serve_canopen(

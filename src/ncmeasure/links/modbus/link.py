@@ -29,7 +29,15 @@ simulated drive it runs on a :class:`~ncmeasure.samples.SimulatedClock`, in
 lockstep: before each poll cycle the link sets the simulated time to
 ``slot × period``, the server answers with the machine state of that time, and
 the next cycle follows when this one is done, however slow the computer is;
-the rows are then stamped exactly ``slot × period``.
+the rows are then stamped exactly ``slot × period``. A request then waits for
+its answer until it comes, and times out only when the simulated drive says it
+stays silent (see :mod:`~ncmeasure.links.modbus.transport`).
+
+The parts: :mod:`~ncmeasure.links.modbus.settings` (the settings models),
+:mod:`~ncmeasure.links.modbus.plan` (the requests of a cycle and their
+decoding), :mod:`~ncmeasure.links.modbus.transport` (socket or serial port, one
+request); this module keeps open/read/close, the polling thread and the
+accounting of gaps and outages.
 """
 
 from __future__ import annotations
@@ -38,175 +46,27 @@ import contextlib
 import logging
 import math
 import queue
-import socket
-import struct
 import threading
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Annotated, Any, ClassVar, Final, Literal
-
-import serial  # type: ignore[import-untyped]
-from pydantic import Field, ValidationInfo, field_validator, model_validator
-from pydantic_core import PydanticCustomError
-from pymodbus.client import ModbusSerialClient, ModbusTcpClient
-from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
-from pymodbus.pdu import ModbusPDU
+from typing import Any, ClassVar, Final
 
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
 from ncmeasure.links.base import AxisBinding, AxisLinkSettings, DriveLink, LinkSettings
-from ncmeasure.links.modbus.registers import (
-    FUNCTION_NAMES,
-    STRUCT,
-    RegisterMap,
-    exception_text,
-    load_register_map,
-    signal_factor,
-)
-from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent, SampleBlock, SimulatedClock
+from ncmeasure.links.modbus.plan import build_plan, poll_rate
+from ncmeasure.links.modbus.settings import ModbusAxis, ModbusSettings
+from ncmeasure.links.modbus.transport import CycleError, Failure, ModbusTransport
+from ncmeasure.samples import Channel, LinkEvent, SampleBlock, SimulatedClock
 
-__all__ = ["ModbusAxis", "ModbusLink", "ModbusSettings"]
+__all__ = ["CATCH_UP_S", "ModbusLink", "next_slot"]
 
 log = logging.getLogger(__name__)
-
-# --- settings ---------------------------------------------------------------------------
-
-
-class ModbusSettings(LinkSettings):
-    """The ``[link]`` table of a Modbus link."""
-
-    type: Literal["modbus"] = "modbus"
-    mode: Literal["tcp", "rtu"] = Field(
-        default="tcp",
-        description="Modbus TCP (Ethernet, gateway) or Modbus RTU (serial line); "
-        "default: rtu when a serial_port is given, else tcp.",
-    )
-    host: str = Field(default="127.0.0.1", min_length=1, description="TCP: drive or gateway.")
-    port: Annotated[int, Field(ge=1, le=65535)] = Field(default=502, description="TCP port.")
-    serial_port: str | None = Field(
-        default=None,
-        validate_default=True,
-        description="RTU: device path (/dev/ttyUSB0, COM3) or pyserial URL.",
-    )
-    baudrate: Annotated[int, Field(ge=300, le=4_000_000)] = 19200
-    parity: Literal["N", "E", "O"] = "E"
-    stopbits: Literal[1, 2] = 1
-    bytesize: Literal[7, 8] = 8
-    register_map: str = Field(
-        min_length=1, description="Built-in register map name or path of a TOML map."
-    )
-    poll_hz: Annotated[float, Field(gt=0, le=10_000)] = Field(
-        default=100.0, description="Poll cycles per second (rows per second)."
-    )
-    timeout_s: Annotated[float, Field(gt=0, le=60)] = Field(
-        default=0.5, description="How long to wait for an answer."
-    )
-    retries: Annotated[int, Field(ge=0, le=10)] = Field(
-        default=1, description="Repetitions of an unanswered request within a cycle."
-    )
-    reconnect_delay_s: Annotated[float, Field(ge=0, le=60)] = Field(
-        default=0.5, description="Wait before re-opening a lost connection or port."
-    )
-    max_outage_s: Annotated[float, Field(gt=0, le=3600)] = Field(
-        default=10.0, description="Give up after this long without a complete poll cycle."
-    )
-
-    @model_validator(mode="before")
-    @classmethod
-    def _serial_port_means_rtu(cls, data: Any) -> Any:
-        # A serial port given without a mode is a serial line: never poll TCP instead.
-        if isinstance(data, dict) and "mode" not in data and data.get("serial_port"):
-            return {**data, "mode": "rtu"}
-        return data
-
-    @field_validator("serial_port")
-    @classmethod
-    def _check_serial_port(cls, value: str | None, info: ValidationInfo) -> str | None:
-        mode = info.data.get("mode")
-        if mode == "rtu" and not value:
-            raise PydanticCustomError("serial_port", "required when mode is 'rtu'")
-        if mode == "tcp" and value:
-            raise PydanticCustomError(
-                "serial_port",
-                "a serial port is for mode 'rtu', but mode is 'tcp': set mode = 'rtu' (or "
-                "leave mode out) to use the serial line, or leave serial_port out for TCP",
-            )
-        return value
-
-
-class ModbusAxis(AxisLinkSettings):
-    """The ``link`` table of an axis on a Modbus link."""
-
-    unit_id: Annotated[int, Field(ge=1, le=247)] = Field(
-        description="Modbus unit (slave) id of the axis' drive."
-    )
-    register_map: str | None = Field(
-        default=None, min_length=1, description="Register map of this axis' drive."
-    )
-    counts_per_rev: Annotated[int, Field(gt=0)] | None = Field(
-        default=None, description="Encoder counts per motor revolution ('counts' units)."
-    )
-    scales: dict[
-        Literal["current_a", "velocity_mm_min", "position_mm", "velocity_cmd_mm_min"], float
-    ] = Field(default_factory=dict, description="Per-signal scale replacing the map's scale.")
-
-    @field_validator("scales")
-    @classmethod
-    def _check_scales(cls, value: dict[str, float]) -> dict[str, float]:
-        for number in value.values():
-            if not math.isfinite(number) or number == 0:
-                raise PydanticCustomError("scale", "scales must be finite numbers other than 0")
-        return value
-
-
-# --- the poll plan ----------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _FieldPlan:
-    column: int
-    offset: int
-    words: int
-    fmt: str
-    little: bool
-    factor: float
-
-
-@dataclass(frozen=True)
-class _Request:
-    axis: str
-    unit_id: int
-    function: Literal["holding", "input"]
-    address: int
-    count: int
-    fields: tuple[_FieldPlan, ...]
-
-    def describe(self) -> str:
-        last = self.address + self.count - 1
-        return (
-            f"{FUNCTION_NAMES[self.function]} {self.address}..{last} from unit "
-            f"{self.unit_id} (axis {self.axis})"
-        )
-
-
-@dataclass(frozen=True)
-class _Failure:
-    kind: Literal["timeout", "disconnected", "exception", "error"]
-    message: str
-    axis: str | None = None
-    code: int | None = None
-
-
-class _CycleError(Exception):
-    def __init__(self, failure: _Failure) -> None:
-        super().__init__(failure.message)
-        self.failure = failure
 
 
 @dataclass
 class _Outage:
     start: float
-    failure: _Failure
+    failure: Failure
     reconnected: bool = False
     reported: set[tuple[str | None, int | None]] = field(default_factory=set)
 
@@ -216,20 +76,6 @@ class _PendingGap:
     time_s: float
     lost: int
     causes: list[str]
-
-
-def _rtu_char_s(settings: ModbusSettings) -> float:
-    bits = 1 + settings.bytesize + (0 if settings.parity == "N" else 1) + settings.stopbits
-    return bits / settings.baudrate
-
-
-def _rtu_silence_s(settings: ModbusSettings) -> float:
-    # Modbus over serial line V1.02, 2.5.1.1: 3.5 characters, fixed 1.75 ms above 19200 baud.
-    return 3.5 * _rtu_char_s(settings) if settings.baudrate <= 19200 else 0.00175
-
-
-#: Margin on the bare RTU frame times for the drives' own answer delay.
-RTU_MARGIN = 1.25
 
 
 #: How far behind its schedule a paced link still polls every cycle (catching up back
@@ -264,156 +110,23 @@ class ModbusLink(DriveLink):
         if not isinstance(settings, ModbusSettings):
             raise ConfigError("the modbus link needs ModbusSettings")
         self.modbus: ModbusSettings = settings
-        problems: list[str] = []
-        maps: dict[str, RegisterMap] = {}
-        self._maps: dict[str, RegisterMap] = {}
-        self._factors: dict[str, dict[str, float]] = {}
-        used_units: dict[int, str] = {}
-        channels: list[Channel] = []
-        requests: list[_Request] = []
-        for index, binding in enumerate(self.axes):
-            axis_settings = binding.settings
-            if not isinstance(axis_settings, ModbusAxis):
-                raise ConfigError(f"axes[{index}].link: not Modbus axis settings")
-            if axis_settings.unit_id in used_units:
-                problems.append(
-                    f"axes[{index}].link.unit_id: unit {axis_settings.unit_id} is already "
-                    f"used by axis {used_units[axis_settings.unit_id]}"
-                )
-            used_units[axis_settings.unit_id] = binding.name
-            map_name = axis_settings.register_map or settings.register_map
-            where = (
-                f"axes[{index}].link.register_map"
-                if axis_settings.register_map
-                else "link.register_map"
-            )
-            try:
-                if map_name not in maps:
-                    maps[map_name] = load_register_map(map_name)
-            except ConfigError as exc:
-                problems.append(f"{where}: {exc.message}")
-                problems += [f"  {line}" for line in exc.problems]
-                continue
-            reg_map = maps[map_name]
-            self._maps[binding.name] = reg_map
-            factors: dict[str, float] = {}
-            counts = axis_settings.counts_per_rev or reg_map.counts_per_rev
-            for signal, entry in reg_map.ordered_signals():
-                try:
-                    factors[signal] = signal_factor(
-                        signal,
-                        entry,
-                        screw_lead_mm=binding.axis.screw_lead_mm,
-                        rated_current_a=binding.axis.rated_current_a,
-                        counts_per_rev=counts,
-                        scale=axis_settings.scales.get(signal),  # type: ignore[call-overload]
-                    )
-                except ValueError as exc:
-                    key, _, message = str(exc).partition(": ")
-                    loc = (
-                        f"axes[{index}].link.{key}"
-                        if key == "counts_per_rev"
-                        else f"axes[{index}].{key}"
-                    )
-                    problems.append(f"{loc}: {message} ({reg_map.name})")
-            for signal in axis_settings.scales:
-                if signal not in reg_map.signals:
-                    problems.append(
-                        f"axes[{index}].link.scales.{signal}: register map "
-                        f"{reg_map.name} has no {signal}"
-                    )
-            self._factors[binding.name] = factors
-            first_column = len(channels)
-            signals = [s for s, _ in reg_map.ordered_signals()]
-            channels += [Channel(binding.name, s, SIGNAL_UNITS[s]) for s in signals]
-            for function in ("holding", "input"):
-                entries = [
-                    (first_column + i, s, e)
-                    for i, (s, e) in enumerate(reg_map.ordered_signals())
-                    if e.function == function
-                ]
-                if not entries:
-                    continue
-                low = min(e.address for _, _, e in entries)
-                high = max(e.last_address for _, _, e in entries)
-                fields = tuple(
-                    _FieldPlan(
-                        column,
-                        e.address - low,
-                        e.words,
-                        STRUCT[e.type],
-                        e.word_order == "little",
-                        factors.get(s, e.scale),
-                    )
-                    for column, s, e in entries
-                )
-                requests.append(
-                    _Request(
-                        binding.name, axis_settings.unit_id, function, low, high - low + 1, fields
-                    )
-                )
-        if problems:
-            raise ConfigError("the settings of the modbus link are not valid", problems)
-        self._channels = tuple(channels)
-        self._requests = tuple(requests)
-        self._poll_hz = self._check_timing(settings)
+        self._plan = build_plan(settings, self.axes)
+        self._poll_hz = poll_rate(settings, self._plan.requests)
         self._period_s = 1.0 / self._poll_hz
-        self._client: ModbusTcpClient | ModbusSerialClient | None = None
+        self._transport = ModbusTransport(settings)
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._rows: queue.Queue[tuple[float, list[float]] | None] = queue.Queue()
         self._fatal: LinkError | None = None
         self._ended = False
         self._t0 = 0.0
-        self._last_rx = 0.0
         self._pending_gap: _PendingGap | None = None
-
-    # --- timing -------------------------------------------------------------------------
-
-    def _rtu_cycle_s(self) -> float:
-        """Shortest RTU poll cycle: request and answer frames plus silent intervals."""
-        char_s = _rtu_char_s(self.modbus)
-        silence = _rtu_silence_s(self.modbus)
-        total = 0.0
-        for request in self._requests:
-            chars = 8 + 5 + 2 * request.count  # request frame + answer frame
-            total += chars * char_s + 2 * silence
-        return total * RTU_MARGIN
-
-    def _check_timing(self, settings: ModbusSettings) -> float:
-        if settings.mode != "rtu":
-            return settings.poll_hz
-        cycle_s = self._rtu_cycle_s()
-        max_hz = 1.0 / cycle_s
-        if settings.poll_hz <= max_hz:
-            return settings.poll_hz
-        why = (
-            f"{len(self._requests)} request(s) per cycle at {settings.baudrate} baud need "
-            f"{cycle_s * 1000:.1f} ms per cycle (frames, 3.5-character silences and "
-            f"{RTU_MARGIN:g}x margin), so at most {max_hz:.1f} Hz"
-        )
-        if "poll_hz" in settings.model_fields_set or max_hz < 1.0:
-            raise ConfigError(
-                "the modbus link cannot poll that fast",
-                [
-                    f"link.poll_hz: {settings.poll_hz:g} Hz is too fast: {why}; "
-                    "lower poll_hz or raise the baud rate"
-                ],
-            )
-        adjusted = math.floor(max_hz * 10) / 10 if max_hz < 10 else math.floor(max_hz)
-        log.warning(
-            "modbus link: poll rate lowered from the default %g Hz to %g Hz: %s",
-            settings.poll_hz,
-            adjusted,
-            why,
-        )
-        return float(adjusted)
 
     # --- contract -----------------------------------------------------------------------
 
     @property
     def channels(self) -> tuple[Channel, ...]:
-        return self._channels
+        return self._plan.channels
 
     @property
     def nominal_period_s(self) -> float:
@@ -422,185 +135,44 @@ class ModbusLink(DriveLink):
     @property
     def requests_per_cycle(self) -> int:
         """Modbus requests one poll cycle sends (one per axis and register type)."""
-        return len(self._requests)
+        return len(self._plan.requests)
 
     @property
     def endpoint(self) -> str:
         """``host:port`` or the serial port, for messages."""
-        if self.modbus.mode == "tcp":
-            return f"{self.modbus.host}:{self.modbus.port}"
-        return str(self.modbus.serial_port)
+        return self._transport.endpoint
 
     def describe(self) -> dict[str, Any]:
         info = super().describe()
         info["poll_hz"] = self._poll_hz
-        info["requests_per_cycle"] = len(self._requests)
+        info["requests_per_cycle"] = len(self._plan.requests)
         info["time_s"] = (
             "midpoint between sending a poll cycle's first request and "
             "receiving its last answer, s since polling started on the link clock"
         )
-        maps: dict[str, Any] = {}
-        for binding in self.axes:
-            reg_map = self._maps[binding.name]
-            maps[binding.name] = {
-                "name": reg_map.name,
-                "drive": reg_map.drive,
-                "source": reg_map.source.model_dump(mode="json"),
-                "signals": {
-                    signal: {
-                        **entry.model_dump(mode="json"),
-                        "factor": self._factors[binding.name][signal],
-                    }
-                    for signal, entry in reg_map.ordered_signals()
-                },
-            }
-        info["register_maps"] = maps
+        info["register_maps"] = self._plan.describe_maps(self.axes)
         return info
-
-    # --- connection ---------------------------------------------------------------------
-
-    def _make_client(self) -> ModbusTcpClient | ModbusSerialClient:
-        s = self.modbus
-        if s.mode == "tcp":
-            return ModbusTcpClient(s.host, port=s.port, timeout=s.timeout_s, retries=s.retries)
-        return ModbusSerialClient(
-            str(s.serial_port),
-            baudrate=s.baudrate,
-            bytesize=s.bytesize,
-            parity=s.parity,
-            stopbits=s.stopbits,
-            timeout=s.timeout_s,
-            retries=s.retries,
-        )
-
-    def _connect(self) -> None:
-        """Open the socket or serial port ourselves, so a failure keeps its reason."""
-        s = self.modbus
-        client = self._client or self._make_client()
-        self._client = client
-        if isinstance(client, ModbusTcpClient):
-            try:
-                sock = socket.create_connection((s.host, s.port), timeout=s.timeout_s)
-            except OSError as exc:
-                reason = exc.strerror or str(exc) or type(exc).__name__
-                raise LinkError(
-                    f"cannot connect to the Modbus TCP server {s.host}:{s.port}: {reason}"
-                ) from exc
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            client.socket = sock
-        else:
-            try:
-                port = serial.serial_for_url(
-                    str(s.serial_port),
-                    baudrate=s.baudrate,
-                    bytesize=s.bytesize,
-                    parity=s.parity,
-                    stopbits=s.stopbits,
-                    timeout=s.timeout_s,
-                    write_timeout=s.timeout_s,
-                )
-            except (serial.SerialException, OSError, ValueError) as exc:
-                raise LinkError(f"cannot open the serial port {s.serial_port}: {exc}") from exc
-            port.inter_byte_timeout = client.inter_byte_timeout or None
-            client.socket = port
-
-    def _connected(self) -> bool:
-        return self._client is not None and self._client.socket is not None
-
-    def _disconnect(self) -> None:
-        if self._client is not None:
-            with contextlib.suppress(Exception):
-                self._client.close()  # type: ignore[no-untyped-call]
 
     # --- one poll cycle -----------------------------------------------------------------
 
-    def _execute(self, request: _Request) -> list[int]:
-        client = self._client
-        if client is None or client.socket is None:
-            raise _CycleError(_Failure("disconnected", f"not connected to {self.endpoint}"))
-        if self.modbus.mode == "rtu":
-            # The line must stay silent 3.5 characters between frames.
-            wait = self._last_rx + _rtu_silence_s(self.modbus) - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
-        try:
-            if request.function == "holding":
-                response: ModbusPDU = client.read_holding_registers(
-                    request.address, count=request.count, device_id=request.unit_id
-                )
-            else:
-                response = client.read_input_registers(
-                    request.address, count=request.count, device_id=request.unit_id
-                )
-        except ConnectionException as exc:
-            raise _CycleError(
-                _Failure(
-                    "disconnected",
-                    f"connection to {self.endpoint} lost (closed by the other end)",
-                    request.axis,
-                )
-            ) from exc
-        except ModbusIOException as exc:
-            raise _CycleError(
-                _Failure(
-                    "timeout",
-                    f"no valid answer to {request.describe()} within {self.modbus.timeout_s:g} s",
-                    request.axis,
-                )
-            ) from exc
-        except (ModbusException, OSError, ValueError, struct.error) as exc:
-            raise _CycleError(
-                _Failure("error", f"{request.describe()} failed: {exc}", request.axis)
-            ) from exc
-        finally:
-            self._last_rx = time.monotonic()
-        if response.isError():
-            code = int(getattr(response, "exception_code", 0))
-            last = request.address + request.count - 1
-            raise _CycleError(
-                _Failure(
-                    "exception",
-                    f"unit {request.unit_id} (axis {request.axis}) answered "
-                    f"{FUNCTION_NAMES[request.function]} {request.address}..{last} with "
-                    f"{exception_text(code)}",
-                    request.axis,
-                    code,
-                )
-            )
-        registers = list(response.registers)
-        if len(registers) < request.count:
-            raise _CycleError(
-                _Failure(
-                    "error",
-                    f"{request.describe()}: {len(registers)} registers instead of "
-                    f"{request.count} in the answer",
-                    request.axis,
-                )
-            )
-        return registers
-
     def _poll_once(self) -> list[float]:
-        row = [0.0] * len(self._channels)
-        for request in self._requests:
-            registers = self._execute(request)
-            for plan in request.fields:
-                words = registers[plan.offset : plan.offset + plan.words]
-                if plan.little:
-                    words.reverse()
-                data = b"".join(w.to_bytes(2, "big") for w in words)
-                row[plan.column] = struct.unpack(plan.fmt, data)[0] * plan.factor
+        row = [0.0] * len(self._plan.channels)
+        for request in self._plan.requests:
+            self._plan.decode(request, self._transport.execute(request), row)
         return row
 
     # --- open / read / close ----------------------------------------------------------
 
     def _open(self) -> None:
-        self._connect()
+        clock = self.clock
+        self._transport.lockstep = clock if isinstance(clock, SimulatedClock) else None
+        self._transport.connect()
         problems: list[str] = []
         timeouts = 0
-        for request in self._requests:
+        for request in self._plan.requests:
             try:
-                self._execute(request)
-            except _CycleError as exc:
+                self._transport.execute(request)
+            except CycleError as exc:
                 problems.append(exc.failure.message)
                 timeouts += exc.failure.kind == "timeout"
                 if exc.failure.kind == "disconnected":
@@ -648,18 +220,20 @@ class ModbusLink(DriveLink):
                 rows.append(item[1])
         if not rows:
             raise self._fatal or LinkError("the modbus polling stopped")
-        return SampleBlock.from_rows(times, rows, len(self._channels))
+        return SampleBlock.from_rows(times, rows, len(self._plan.channels))
 
     def _close(self) -> None:
         self._stop.set()
         thread = self._thread
         if thread is not None:
             s = self.modbus
-            thread.join(timeout=(s.retries + 1) * s.timeout_s * max(1, len(self._requests)) + 2)
+            thread.join(
+                timeout=(s.retries + 1) * s.timeout_s * max(1, len(self._plan.requests)) + 2
+            )
             if thread.is_alive():
                 log.warning("modbus polling thread did not stop in time")
         self._flush_gap()
-        self._disconnect()
+        self._transport.disconnect()
 
     # --- the polling thread -------------------------------------------------------------
 
@@ -727,27 +301,25 @@ class ModbusLink(DriveLink):
             delay = self._t0 + slot * period - clock.now()
             if delay > 0 and self._stop.wait(clock.wall(delay)):
                 break
-            failure: _Failure | None = None
+            failure: Failure | None = None
             t_start = clock.now()
-            if not self._connected():
+            if not self._transport.connected():
                 if t_start >= next_connect:
                     try:
-                        self._connect()
+                        self._transport.connect()
                         if outage is not None:
                             outage.reconnected = True
                     except LinkError as exc:
-                        failure = _Failure("disconnected", exc.message)
+                        failure = Failure("disconnected", exc.message)
                         next_connect = t_start + reconnect_delay
                 else:
-                    failure = (
-                        outage.failure if outage else _Failure("disconnected", "not connected")
-                    )
+                    failure = outage.failure if outage else Failure("disconnected", "not connected")
             row: list[float] | None = None
             if failure is None:
                 t_start = clock.now()
                 try:
                     row = self._poll_once()
-                except _CycleError as exc:
+                except CycleError as exc:
                     failure = exc.failure
             now = clock.now()
             if row is not None:
@@ -772,9 +344,9 @@ class ModbusLink(DriveLink):
                 outage.failure = failure
                 self._report_failure(outage, failure)
                 # TCP: a late answer must not be taken for the next request's: start afresh.
-                if s.mode == "tcp" and failure.kind != "exception" and self._connected():
-                    self._disconnect()
-                if not self._connected() and next_connect <= now:
+                if s.mode == "tcp" and failure.kind != "exception" and self._transport.connected():
+                    self._transport.disconnect()
+                if not self._transport.connected() and next_connect <= now:
                     next_connect = now + (
                         reconnect_delay if failure.kind == "disconnected" else 0.0
                     )
@@ -795,7 +367,7 @@ class ModbusLink(DriveLink):
             # a failed one (an outage) the cycles missed are skipped.
             now = clock.now()
             slot = next_slot(slot, (now - self._t0) / period, catch_up if row is not None else 0.0)
-            if not self._connected() and next_connect > now:
+            if not self._transport.connected() and next_connect > now:
                 slot = max(slot, math.ceil((next_connect - self._t0) / period))
 
     def _wait_for_reader(self) -> bool:
@@ -805,7 +377,7 @@ class ModbusLink(DriveLink):
                 return False
         return not self._stop.is_set()
 
-    def _report_failure(self, outage: _Outage, failure: _Failure) -> None:
+    def _report_failure(self, outage: _Outage, failure: Failure) -> None:
         key = (failure.axis, failure.code)
         if failure.kind != "exception" or key in outage.reported:
             return
