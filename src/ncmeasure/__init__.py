@@ -2,36 +2,24 @@
 
 The pipeline, one folder per stage, data flowing one way:
 
-1. ``config``    a machine file (TOML) -> validated :class:`MachineConfig`
-2. ``plan``      config -> :class:`Schedule`: velocity steps, positions, windows, timing
-3. ``program``   schedule -> NC main program and one subprogram per axis, per
-                 controller dialect (Jinja templates), and a reader that checks them
-4. ``links``     drive links (CANopen CiA 402, Modbus TCP/RTU, replay) -> sample blocks
-5. ``recording`` crash-safe recordings on disk: format, writer, reader, import sink
-6. ``acquire``   the acquisition service: a link -> a recording, until done
-7. ``traces``    controller traces, CSV/MDF4 exchange and CAN logs -> recordings
-8. ``analysis``  recordings -> friction, fits, diagnosis, comparison; ``report`` -> HTML;
-                 ``compensation`` -> friction tables and offsets for controllers
-9. ``sim``       the virtual machine and simulated drives, for the demo and the tests
-10. ``store``    the fleet store: every fingerprint of every machine, in a database;
-                 ``web`` serves it as a dashboard and a REST API, ``publish`` on the
-                 shop floor (MQTT, OPC UA)
-11. ``cli``      the ``ncmeasure`` command
+1. ``config``       a machine file (TOML) -> validated :class:`MachineConfig`
+2. ``plan``         config -> :class:`Schedule`: velocity steps, positions, windows, timing
+3. ``program``      schedule -> NC main program and one subprogram per axis, per
+                    controller dialect (Jinja templates), and a reader that checks them
+4. ``links``        drive links (CANopen CiA 402, Modbus TCP/RTU, replay) -> sample blocks
+5. ``acquire``      a link -> a crash-safe ``recording`` on disk, until done
+6. ``traces``       controller traces, CSV/MDF4 exchange and CAN logs -> recordings
+7. ``analysis``     recordings -> friction, fits, diagnosis, comparison (results.json);
+                    ``report`` -> HTML; ``compensation`` -> tables and offsets for controllers
+8. ``store``        every fingerprint of every machine, in a database; ``web`` serves it
+                    as a dashboard and a REST API, ``publish`` on the shop floor
+9. ``sim``          the virtual machine and simulated drives; ``demo`` runs it all
+10. ``cli``         the ``ncmeasure`` command
 
-The layers (a module imports only from its own layer and the ones below)::
-
-    cli
-    web, publish ── store
-    demo ─────────────────────────── sim.machine, sim.axis, sim.synthetic
-    report, compensation ── analysis sim.cia402, sim.modbus_drive (the protocol
-    traces ── acquire                  knowledge of links.canopen.objects and
-              links (base, canopen,    links.modbus.registers, not the links)
-              modbus, replay)
-    recording (format, writer, reader, sink)
-    program ── plan ── profile
-    config, errors, validity, samples (the sample vocabulary and the clocks), _version,
-    examples, and the helpers files (whole-file writes), inputs (bounded user
-    files), resources (built-in controllers), hosts (which addresses are loopback)
+``formats`` holds the models of every file these stages write and read, at the
+bottom. The layers, what travels between them, the threads and how to add a
+register map, a dialect, a trace format or a link: ``docs/architecture.md``
+(``lint-imports`` keeps the code to it).
 
 The public API is re-exported here::
 
