@@ -17,9 +17,9 @@ says so), then the whole model, with one ``location: message`` line per problem.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, ClassVar, Self, TypeVar
+from typing import Any, ClassVar, TypeVar
 
-from pydantic import BaseModel, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ncmeasure._version import __version__
 from ncmeasure.errors import NcMeasureError
@@ -30,12 +30,23 @@ __all__ = ["FileHeader", "check_header", "read_file"]
 _M = TypeVar("_M", bound="FileHeader")
 
 
+def _schema_of_header(schema: dict[str, Any], model: type[BaseModel]) -> None:
+    """The JSON Schema says which format and version a file of this kind carries."""
+    fmt, version = getattr(model, "FORMAT", ""), getattr(model, "FORMAT_VERSION", 0)
+    properties = schema.get("properties", {})
+    if fmt and "format" in properties:
+        properties["format"].update(const=fmt, default=fmt)
+        properties["format_version"].update(default=version)
+
+
 class FileHeader(BaseModel):
     """``format``, ``format_version`` and ``ncmeasure_version``: the start of every file.
 
     A subclass sets :attr:`FORMAT` and :attr:`FORMAT_VERSION`; a model built in
     code gets them without naming them, a file read from disk must carry them.
     """
+
+    model_config = ConfigDict(json_schema_extra=_schema_of_header)
 
     FORMAT: ClassVar[str] = ""
     """The value of ``format`` in files of this kind."""
@@ -58,11 +69,12 @@ class FileHeader(BaseModel):
             return {"format": cls.FORMAT, "format_version": cls.FORMAT_VERSION, **data}
         return data
 
-    @model_validator(mode="after")
-    def _check_format(self) -> Self:
-        if self.FORMAT and self.format != self.FORMAT:
-            raise ValueError(f"format must be {self.FORMAT!r}, not {self.format!r}")
-        return self
+    @field_validator("format")
+    @classmethod
+    def _check_format(cls, value: str) -> str:
+        if cls.FORMAT and value != cls.FORMAT:
+            raise ValueError(f"format must be {cls.FORMAT!r}, not {value!r}")
+        return value
 
 
 def check_header(
