@@ -56,6 +56,7 @@ from ncmeasure.sim.axis import Variation
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
 from ncmeasure.sim.machine import MachineRun, VirtualMachine
 from ncmeasure.sim.modbus_drive import running_server
+from ncmeasure.sim.rig import rig_mechanics
 
 __all__ = ["AxisAccuracy", "DemoResult", "DemoRun", "accuracy", "run_demo"]
 
@@ -242,11 +243,12 @@ def _record(
     if link == "canopen":
         channel = f"{settings.get('channel', 'ncmeasure-demo')}-{uuid.uuid4().hex[:8]}"
         nodes = {i: int(axis.link["node_id"]) for i, axis in enumerate(config.axes)}
+        # The drives move the axes the machine file describes, as the virtual machine does
+        # (facts the file leaves out are the rig's): the link reads them with the same facts.
         scaling = {
             i: DriveScaling(
+                mechanics=rig_mechanics(axis.mechanics()),
                 increments_per_rev=int(axis.link["increments_per_rev"]),
-                screw_lead_mm=axis.screw_lead_mm or 20.0,
-                rated_current_a=axis.rated_current_a or 17.7,
             )
             for i, axis in enumerate(config.axes)
         }
