@@ -9,6 +9,7 @@ from ncmeasure.errors import ConfigError
 from ncmeasure.formats.axis import AxisMechanics
 from ncmeasure.sim.axis import AxisModel, AxisParameters
 from ncmeasure.sim.cia402 import DriveScaling
+from ncmeasure.sim.modbus_drive import ModbusDriveScaling, SimulatedUnit
 from ncmeasure.sim.rig import RIG_MECHANICS, rig_mechanics
 from ncmeasure.sim.synthetic import SyntheticAxis
 
@@ -27,6 +28,8 @@ def test_the_rig_is_the_methods_test_rig() -> None:
 def test_every_simulator_embeds_the_rig_by_default() -> None:
     assert AxisParameters().mechanics is RIG_MECHANICS
     assert DriveScaling().mechanics is RIG_MECHANICS
+    assert ModbusDriveScaling().mechanics is RIG_MECHANICS
+    assert SimulatedUnit("X", 1).mechanics is RIG_MECHANICS
     assert SyntheticAxis().mechanics is RIG_MECHANICS
 
 
