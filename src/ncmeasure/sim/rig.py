@@ -3,8 +3,9 @@
 The friction the method builds on was identified on a test rig (*method:
 Reference numbers*): a Bosch Rexroth MSK 100C-0200 motor (I_0 = 17.7 A,
 M_0 = 38 Nm, so k_T ≈ 2.1 Nm/A) drives a ball screw of 40 mm diameter and
-20 mm lead over a travel of about 750 mm, horizontal, the fixed bearing at
-the travel's minimum. :data:`RIG_MECHANICS` states these facts once, as the
+20 mm lead over a travel of about 750 mm. The method does not say how the
+rig stands; here it is horizontal, with the fixed bearing at the travel's
+minimum (its position 1). :data:`RIG_MECHANICS` states these facts once, as the
 machine file states an axis' (:class:`~ncmeasure.formats.axis.StatedMechanics`);
 the axis friction model (:mod:`ncmeasure.sim.axis`), the synthetic recordings
 (:mod:`ncmeasure.sim.synthetic`) and the simulated CiA 402 and Modbus drives
@@ -32,8 +33,8 @@ RIG_MECHANICS = StatedMechanics(
     rated_current_a=17.7,
     screw_lead_mm=20.0,
 )
-"""The test rig's axis: travel 0..750 mm, horizontal, fixed bearing at min,
-k_T 2.1 Nm/A, rated current 17.7 A, lead 20 mm (method, "Reference numbers")."""
+"""The test rig's axis: travel 0..750 mm, k_T 2.1 Nm/A, rated current 17.7 A, lead
+20 mm (method, "Reference numbers"); horizontal, fixed bearing at min."""
 
 
 def rig_mechanics(stated: AxisMechanics | None = None, **facts: object) -> StatedMechanics:
