@@ -63,6 +63,7 @@ import numpy as np
 from ncmeasure.config import AxisConfig
 from ncmeasure.links.canopen.link import CanOpenLink
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
+from ncmeasure.sim.rig import rig_mechanics
 from ncmeasure.sim.signals import PatternSource
 
 Answer = Literal["on_send", "thread"]
@@ -159,7 +160,8 @@ def _drives(answer: Answer) -> tuple[str, SimulatedDrives]:
     """Fresh simulated drives, started on a fresh virtual channel, and that channel."""
     channel = f"bench-canopen-{uuid.uuid4().hex}"
     nodes = {i: i + 1 for i in range(len(AXES))}
-    scaling = DriveScaling(increments_per_rev=IPR, screw_lead_mm=LEAD_MM, rated_current_a=RATED_A)
+    mechanics = rig_mechanics(screw_lead_mm=LEAD_MM, rated_current_a=RATED_A)
+    scaling = DriveScaling(mechanics=mechanics, increments_per_rev=IPR)
     drives = SimulatedDrives.start(channel, nodes, PatternSource(), scaling=scaling, answer=answer)
     return channel, drives
 

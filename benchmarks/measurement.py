@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from ncmeasure.sim.rig import rig_mechanics
 from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities
 
 POSITIONS = (50.0, 212.5, 375.0, 537.5, 700.0)
@@ -25,8 +26,9 @@ def measurement_axes(
         "repetitions": repetitions,
         "dwell_s": 0.2,
     }
+    vertical = rig_mechanics(vertical=True)
     return [
         SyntheticAxis(name="X", coulomb=(2.0, 2.1, 2.2, 2.3, 2.4)[: len(positions)], **common),  # type: ignore[arg-type]
         SyntheticAxis(name="Y", coulomb=1.5, **common),  # type: ignore[arg-type]
-        SyntheticAxis(name="Z", coulomb=2.5, offset=3.0, vertical=True, **common),  # type: ignore[arg-type]
+        SyntheticAxis(name="Z", coulomb=2.5, offset=3.0, mechanics=vertical, **common),  # type: ignore[arg-type]
     ]

@@ -18,6 +18,7 @@ from ncmeasure.recording import Recording, read_recording
 from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
 from ncmeasure.sim.modbus_drive import Fault, running_server
+from ncmeasure.sim.rig import rig_mechanics
 from ncmeasure.sim.signals import AxisState, PatternSource, SignalSource
 from tests.conftest import example_data
 
@@ -60,7 +61,10 @@ def canopen_machine(
         },
         "node_id",
     )
-    scaling = DriveScaling(increments_per_rev=10_000, screw_lead_mm=20.0, rated_current_a=17.7)
+    scaling = {  # the drives move the axes the link reads
+        i: DriveScaling(mechanics=rig_mechanics(axis.mechanics()), increments_per_rev=10_000)
+        for i, axis in enumerate(config.axes)
+    }
     with SimulatedDrives.start(
         channel, {0: 1, 1: 2, 2: 3}, source or PatternSource(), scaling=scaling, clock=clock
     ) as drives:

@@ -55,7 +55,8 @@ from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.axis import Variation
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
 from ncmeasure.sim.machine import MachineRun, VirtualMachine
-from ncmeasure.sim.modbus_drive import running_server
+from ncmeasure.sim.modbus_drive import SimulatedUnit, running_server
+from ncmeasure.sim.rig import rig_mechanics
 
 __all__ = ["AxisAccuracy", "DemoResult", "DemoRun", "accuracy", "run_demo"]
 
@@ -239,14 +240,15 @@ def _record(
         progress(stage, min(1.0, p.link_time_s / total) if total > 0 else None)
 
     notes = f"ncmeasure demo: virtual machine, {label}, simulated time (lockstep)"
+    # The drives move the axes the machine file describes, as the virtual machine does
+    # (facts the file leaves out are the rig's): the link reads them with the same facts.
+    mechanics = [rig_mechanics(axis.mechanics()) for axis in config.axes]
     if link == "canopen":
         channel = f"{settings.get('channel', 'ncmeasure-demo')}-{uuid.uuid4().hex[:8]}"
         nodes = {i: int(axis.link["node_id"]) for i, axis in enumerate(config.axes)}
         scaling = {
             i: DriveScaling(
-                increments_per_rev=int(axis.link["increments_per_rev"]),
-                screw_lead_mm=axis.screw_lead_mm or 20.0,
-                rated_current_a=axis.rated_current_a or 17.7,
+                mechanics=mechanics[i], increments_per_rev=int(axis.link["increments_per_rev"])
             )
             for i, axis in enumerate(config.axes)
         }
@@ -264,12 +266,15 @@ def _record(
                 on_progress=on_progress,
                 clock=clock,
             )
-    units = {axis.name: int(axis.link["unit_id"]) for axis in config.axes}
+    register_map = str(settings.get("register_map", "generic"))
+    units = [
+        SimulatedUnit(axis.name, int(axis.link["unit_id"]), register_map, i, mechanics[i])
+        for i, axis in enumerate(config.axes)
+    ]
     with running_server(
         units,
         host="127.0.0.1",
         port=0,  # a free port, whatever the machine file says
-        register_map=str(settings.get("register_map", "generic")),
         source=run,
         clock=clock,
     ) as server:

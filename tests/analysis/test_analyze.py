@@ -45,6 +45,7 @@ from ncmeasure.formats.results import (
 from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import Recording, RecordingWriter
 from ncmeasure.samples import SIGNAL_UNITS, Channel, SampleBlock
+from ncmeasure.sim.rig import rig_mechanics
 from ncmeasure.sim.synthetic import (
     SyntheticAxis,
     geometric_velocities,
@@ -211,7 +212,7 @@ def test_each_signature_is_recognised(tmp_path: Path, signature: str, way: str) 
     spec = SyntheticAxis(
         positions_mm=P5,
         coulomb=coulomb,
-        fixed_bearing_end=fixed_end,  # type: ignore[arg-type]
+        mechanics=rig_mechanics(fixed_bearing_end=fixed_end),
         velocities_mm_min=geometric_velocities(10.0, 15000.0, 8),
     )
     recording, schedule = _record(tmp_path / "rec", [spec], way, schedule=way == "marker")
@@ -229,10 +230,8 @@ def test_each_signature_is_recognised(tmp_path: Path, signature: str, way: str) 
 def test_vertical_axis_gravity_is_separated(tmp_path: Path) -> None:
     z = SyntheticAxis(
         name="Z",
-        travel_mm=(-500.0, 0.0),
+        mechanics=rig_mechanics(travel_mm=(-500.0, 0.0), fixed_bearing_end="max", vertical=True),
         positions_mm=(-450.0, -250.0, -50.0),
-        fixed_bearing_end="max",
-        vertical=True,
         offset=3.0,  # gravity: larger than the friction, so T₋ is positive too
         velocities_mm_min=geometric_velocities(10.0, 12000.0, 10),
     )
@@ -256,7 +255,7 @@ def test_vertical_axis_gravity_is_separated(tmp_path: Path) -> None:
 def test_vertical_axis_in_one_direction_warns(tmp_path: Path) -> None:
     z = SyntheticAxis(
         name="Z",
-        vertical=True,
+        mechanics=rig_mechanics(vertical=True),
         offset=3.0,
         both_directions=False,
         velocities_mm_min=geometric_velocities(10.0, 12000.0, 8),
@@ -271,7 +270,7 @@ def test_vertical_axis_in_one_direction_warns(tmp_path: Path) -> None:
 def test_current_only_axis_stays_in_amperes(tmp_path: Path) -> None:
     spec = SyntheticAxis(
         unit="A",
-        torque_constant_nm_per_a=None,
+        mechanics=rig_mechanics(torque_constant_nm_per_a=None),
         coulomb=3.0,
         noise=0.03,
         velocities_mm_min=geometric_velocities(10.0, 15000.0, 10),
@@ -307,7 +306,7 @@ def test_machine_file_supplies_what_the_recording_lacks(tmp_path: Path) -> None:
 def test_the_recording_wins_over_the_machine_file_and_says_so(tmp_path: Path) -> None:
     spec = SyntheticAxis(velocities_mm_min=geometric_velocities(10.0, 15000.0, 8))
     recording, _ = _record(tmp_path / "rec", [spec])
-    other = machine_config([SyntheticAxis(torque_constant_nm_per_a=2.5)])
+    other = machine_config([SyntheticAxis(mechanics=rig_mechanics(torque_constant_nm_per_a=2.5))])
     axis = analyze(recording, machine=other).axes["X"]
     assert axis.torque_constant_nm_per_a == 2.1
     assert any(
@@ -321,10 +320,11 @@ def test_three_axes_in_one_recording(tmp_path: Path) -> None:
     steps = geometric_velocities(10.0, 12000.0, 12)
     axes = [
         SyntheticAxis(name="X", coulomb=2.0, velocities_mm_min=steps),
-        SyntheticAxis(name="Y", travel_mm=(0.0, 600.0), positions_mm=(50.0, 300.0, 550.0),
-                      coulomb=1.5, velocities_mm_min=steps),
-        SyntheticAxis(name="Z", travel_mm=(-500.0, 0.0), positions_mm=(-450.0, -250.0, -50.0),
-                      vertical=True, offset=3.0, fixed_bearing_end="max", coulomb=2.5,
+        SyntheticAxis(name="Y", mechanics=rig_mechanics(travel_mm=(0.0, 600.0)),
+                      positions_mm=(50.0, 300.0, 550.0), coulomb=1.5, velocities_mm_min=steps),
+        SyntheticAxis(name="Z", mechanics=rig_mechanics(travel_mm=(-500.0, 0.0), vertical=True,
+                                                        fixed_bearing_end="max"),
+                      positions_mm=(-450.0, -250.0, -50.0), offset=3.0, coulomb=2.5,
                       velocities_mm_min=steps),
     ]  # fmt: skip
     for way in ("marker", "command"):

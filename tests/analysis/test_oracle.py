@@ -32,6 +32,7 @@ from ncmeasure.errors import RecordingError
 from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import Recording, RecordingHead, RecordingWriter
 from ncmeasure.samples import SampleBlock
+from ncmeasure.sim.rig import rig_mechanics
 from ncmeasure.sim.synthetic import (
     SyntheticAxis,
     geometric_velocities,
@@ -159,7 +160,10 @@ def test_three_axes_read_together(tmp_path: Path) -> None:
             name="Y", velocities_mm_min=SMALL.velocities_mm_min, velocity_quantum_mm_min=8.5
         ),
         SyntheticAxis(
-            name="Z", velocities_mm_min=SMALL.velocities_mm_min, vertical=True, offset=1.0
+            name="Z",
+            mechanics=rig_mechanics(vertical=True),
+            velocities_mm_min=SMALL.velocities_mm_min,
+            offset=1.0,
         ),
     ]
     recording, schedule = synthetic_recording(tmp_path / "rec", axes)

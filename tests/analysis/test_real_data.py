@@ -19,6 +19,7 @@ import pytest
 from ncmeasure.analysis.analyze import analyze
 from ncmeasure.errors import RecordingError
 from ncmeasure.samples import Channel
+from ncmeasure.sim.rig import rig_mechanics
 from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities
 from tests.analysis.real_data import Data, decimate, measure, window_rows, write
 
@@ -253,10 +254,8 @@ def test_with_a_command_every_run_counts_and_the_medians_are_unbiased(tmp_path: 
 
 VERTICAL = SyntheticAxis(
     name="Z",
-    travel_mm=(-500.0, 0.0),
+    mechanics=rig_mechanics(travel_mm=(-500.0, 0.0), fixed_bearing_end="max", vertical=True),
     positions_mm=(-450.0, -350.0, -250.0, -150.0, -50.0),
-    fixed_bearing_end="max",
-    vertical=True,
     offset=15.6,  # gravity, against 1.7 Nm of friction
     coulomb=1.4,
     stribeck=0.3,

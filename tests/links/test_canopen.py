@@ -38,13 +38,15 @@ from ncmeasure.links.canopen.objects import (
 from ncmeasure.links.canopen.sync import CycleAssembler, run_sync_schedule
 from ncmeasure.samples import LinkClock, LinkEvent, SimulatedClock
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrive, SimulatedDrives
+from ncmeasure.sim.rig import rig_mechanics
 from ncmeasure.sim.signals import AxisState, PatternSource
 from tests.conftest import shared_fixture
 
 LEAD_MM = 20.0
 IPR = 10_000
 RATED_A = 10.0
-SCALING = DriveScaling(increments_per_rev=IPR, screw_lead_mm=LEAD_MM, rated_current_a=RATED_A)
+MECHANICS = rig_mechanics(screw_lead_mm=LEAD_MM, rated_current_a=RATED_A)
+SCALING = DriveScaling(mechanics=MECHANICS, increments_per_rev=IPR)
 SOURCE = PatternSource()
 TIMEOUT_S = 60.0
 """A guard against a hang, never part of what a test asserts."""
@@ -324,9 +326,7 @@ def test_a_drive_without_a_current_object_is_refused_with_the_reason(eds: str) -
 def test_maxon_map_reads_current_in_ma_and_velocity_in_rpm(
     channel: str, clock: SimulatedClock
 ) -> None:
-    scaling = DriveScaling(
-        increments_per_rev=IPR, screw_lead_mm=LEAD_MM, rated_current_a=RATED_A, velocity_unit="rpm"
-    )
+    scaling = DriveScaling(mechanics=MECHANICS, increments_per_rev=IPR, velocity_unit="rpm")
     with SimulatedDrives.start(
         channel, {0: 5}, SOURCE, scaling=scaling, object_map="maxon_epos4", clock=clock
     ) as sim:

@@ -28,6 +28,7 @@ from ncmeasure.sim.cia402 import (
     SimulatedDrive,
     SimulatedDrives,
 )
+from ncmeasure.sim.rig import rig_mechanics
 from ncmeasure.sim.signals import PatternSource
 from tests.compensation.example import Z_OFFSET_A, example_results
 
@@ -80,7 +81,7 @@ def offsets(tmp_path: Path, machine_file: Path) -> Path:
 
 @pytest.fixture
 def drives(channel: str) -> Iterator[SimulatedDrives]:
-    scaling = DriveScaling(rated_current_a=RATED_CURRENT_A)
+    scaling = DriveScaling(mechanics=rig_mechanics(rated_current_a=RATED_CURRENT_A))
     with SimulatedDrives.start(
         channel, {0: 1, 1: 2, 2: 3}, PatternSource(), scaling=scaling
     ) as sim:

@@ -61,9 +61,13 @@ def modbus_link(tmp_path: Path) -> Iterator[tuple[DriveLink, dict[str, Any]]]:
 @contextlib.contextmanager
 def canopen_link(tmp_path: Path) -> Iterator[tuple[DriveLink, dict[str, Any]]]:
     from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
+    from ncmeasure.sim.rig import rig_mechanics
 
     channel = f"contract-{uuid.uuid4().hex[:8]}"
-    scaling = DriveScaling(increments_per_rev=10_000, screw_lead_mm=20.0, rated_current_a=17.7)
+    scaling = {  # the drives move the axes the link reads
+        i: DriveScaling(mechanics=rig_mechanics(a.mechanics()), increments_per_rev=10_000)
+        for i, a in enumerate(machine_axes())
+    }
     with SimulatedDrives.start(channel, {0: 1, 1: 2, 2: 3}, PatternSource(), scaling=scaling):
         table = {"interface": "virtual", "channel": channel, "sync_hz": 250}
         axes = [

@@ -46,6 +46,7 @@ from ncmeasure.sim.modbus_drive import (
     pty_null_modem,
     running_server,
 )
+from ncmeasure.sim.rig import rig_mechanics
 from ncmeasure.sim.signals import AxisState, PatternSource
 
 STEP_S = 0.01
@@ -258,10 +259,11 @@ def test_values_arrive_exactly_over_tcp(server: ServerHandle) -> None:
 
 
 def test_rtu_values_arrive_exactly_with_the_real_drive_maps() -> None:
+    # the drives move the axes the link reads: the same mechanics
     units = [
-        SimulatedUnit("X", 1, "iai-robo-cylinder", 0),
-        SimulatedUnit("Y", 2, "kinetix3", 1, LEAD_MM, 8192, RATED_A),
-        SimulatedUnit("Z", 3, "ats-rt20", 2, LEAD_MM, 10_000, RATED_A),
+        SimulatedUnit("X", 1, "iai-robo-cylinder", 0, rig_mechanics(axis("X").mechanics())),
+        SimulatedUnit("Y", 2, "kinetix3", 1, rig_mechanics(axis("Y").mechanics()), 8192),
+        SimulatedUnit("Z", 3, "ats-rt20", 2, rig_mechanics(axis("Z").mechanics()), 10_000),
     ]
     drive = SimulatedModbusDrive(units, step_s=STEP_S)
     with pty_null_modem() as (server_port, client_port):

@@ -27,6 +27,7 @@ from ncmeasure.sim.axis import (
     default_components,
     parse_variation,
 )
+from ncmeasure.sim.rig import RIG_MECHANICS, rig_mechanics
 
 # Five measuring positions as the NC program places them on the rig's 0–750 mm
 # travel with a 5 mm margin: next to the fixed bearing (travel min), three in
@@ -167,7 +168,7 @@ def test_fixed_bearing_shift_mirrors_the_loose_bearing() -> None:
 
 
 def test_fixed_bearing_at_max_mirrors_the_axis() -> None:
-    mirrored = AxisParameters(fixed_bearing_end="max")
+    mirrored = AxisParameters(rig_mechanics(fixed_bearing_end="max"))
     variation = Variation(loose_bearing_shift_um=400.0, nut_shift_um=100.0, rail_misalignment_um=30)
     left = AxisModel(variation=variation).friction_torque_nm(POSITIONS_MM, FEED_MM_MIN)
     right = AxisModel(mirrored, variation=variation).friction_torque_nm(
@@ -345,13 +346,13 @@ def test_cover_step_defaults_to_40_percent_of_the_travel_and_must_be_inside() ->
 
 
 def diagnose(variation: Variation, fixed_bearing_end: Literal["min", "max"] = "min") -> Any:
-    axis = AxisParameters(fixed_bearing_end=fixed_bearing_end)
+    axis = AxisParameters(rig_mechanics(fixed_bearing_end=fixed_bearing_end))
     friction = AxisModel(axis, variation=variation).friction_map(POSITIONS_MM, VELOCITIES_MM_MIN)
     return position_dependency(
         POSITIONS_MM,
         VELOCITIES_MM_MIN,
         np.abs(friction).T,
-        travel_mm=axis.travel_mm,
+        travel_mm=axis.mechanics.travel_mm,
         fixed_bearing_end=fixed_bearing_end,
     )
 
@@ -378,7 +379,7 @@ def test_a_preload_example_is_flat_but_raises_the_level(end: Literal["min", "max
     result = diagnose(variation, end)
     assert result.signature == "flat"
     assert result.spread_percent < 0.1
-    axis = AxisParameters(fixed_bearing_end=end)
+    axis = AxisParameters(rig_mechanics(fixed_bearing_end=end))
     nominal = AxisModel(axis).friction_map(POSITIONS_MM, VELOCITIES_MM_MIN)
     varied = AxisModel(axis, variation=variation).friction_map(POSITIONS_MM, VELOCITIES_MM_MIN)
     assert float(varied.mean()) > 1.10 * float(nominal.mean())
@@ -468,7 +469,7 @@ def test_current_at_constant_velocity_is_friction_over_kt() -> None:
 
 
 def test_vertical_axis_adds_gravity() -> None:
-    params = AxisParameters(vertical=True, moved_mass_kg=300.0)
+    params = AxisParameters(rig_mechanics(vertical=True), moved_mass_kg=300.0)
     model = AxisModel(params)
     x = revolution_positions(300.0, 1)
     gravity_nm = 300.0 * 9.81 * 0.020 / (2 * math.pi)
@@ -519,8 +520,9 @@ def test_axis_config_supplies_travel_bearing_end_and_drive_data() -> None:
         screw_lead_mm=10.0,
     )
     model = AxisModel(config)
-    assert model.axis.travel_mm == (-100.0, 500.0)
-    assert model.axis.fixed_bearing_end == "max"
+    assert model.axis.mechanics.travel_mm == (-100.0, 500.0)
+    assert model.axis.mechanics.fixed_bearing_end == "max"
+    assert model.axis.mechanics.vertical
     assert model.axis.torque_constant_nm_per_a == 1.5
     assert model.axis.screw_lead_mm == 10.0
     assert model.axis.gravity_torque_nm > 0
@@ -533,6 +535,17 @@ def test_axis_config_supplies_travel_bearing_end_and_drive_data() -> None:
 
 def test_invalid_parameters_are_config_errors() -> None:
     with pytest.raises(ConfigError, match="travel_mm: min"):
-        AxisParameters(travel_mm=(10.0, 10.0))
+        AxisParameters(rig_mechanics(travel_mm=(10.0, 10.0)))
     with pytest.raises(ConfigError, match="torque_constant_nm_per_a"):
-        AxisParameters(torque_constant_nm_per_a=0.0)
+        AxisParameters(rig_mechanics(torque_constant_nm_per_a=0.0))
+    # the model's own check, for mechanics that were not validated
+    unchecked = RIG_MECHANICS.model_copy(update={"torque_constant_nm_per_a": 0.0})
+    with pytest.raises(ConfigError, match=r"torque_constant_nm_per_a: 0\.0 must be > 0"):
+        AxisParameters(unchecked)
+    # the model needs k_T and the lead stated
+    with pytest.raises(ConfigError) as unstated:
+        AxisParameters(rig_mechanics(torque_constant_nm_per_a=None, screw_lead_mm=None))
+    assert unstated.value.problems == (
+        "torque_constant_nm_per_a: None must be > 0",
+        "screw_lead_mm: None must be > 0",
+    )

@@ -28,11 +28,14 @@ from ncmeasure.sim.cia402 import (
     SimulatedDrives,
     serve,
 )
+from ncmeasure.sim.rig import rig_mechanics
 from ncmeasure.sim.signals import PatternSource
 from tests.conftest import shared_fixture
 
 SOURCE = PatternSource()
-SCALING = DriveScaling(increments_per_rev=4096, screw_lead_mm=10.0, rated_current_a=5.0)
+SCALING = DriveScaling(
+    mechanics=rig_mechanics(screw_lead_mm=10.0, rated_current_a=5.0), increments_per_rev=4096
+)
 PERIOD_S = 0.002
 TIMEOUT_S = 60.0
 """A guard against a hang, never part of what a test asserts."""

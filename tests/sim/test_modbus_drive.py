@@ -32,6 +32,7 @@ from ncmeasure.sim.modbus_drive import (
     running_server,
     serve,
 )
+from ncmeasure.sim.rig import rig_mechanics
 from ncmeasure.sim.signals import AxisState, PatternSource
 
 STEP_S = 0.01
@@ -165,10 +166,14 @@ def test_serve_shows_what_a_link_with_the_same_settings_reads() -> None:
         assert info.units == {"X": 1, "Z": 3}
         x = client.read_input_registers(0, count=2, device_id=1).registers
         z = client.read_holding_registers(0x0301, count=2, device_id=3).registers
+        torque = client.read_holding_registers(0x0307, count=1, device_id=3).registers
     assert decode_words(x, "int32") == round(SOURCE.state(0, 0.0).position_mm / 0.01)
-    # the default mechanics: 10 mm screw lead; the axis' own 4096 counts per revolution
+    # the default mechanics, the rig's: 20 mm screw lead; the axis' own 4096 counts per revolution
     counts = decode_words(z, "int32", "little")
-    assert counts == round(SOURCE.state(1, 0.0).position_mm / (10.0 / 4096))
+    assert counts == round(SOURCE.state(1, 0.0).position_mm / (20.0 / 4096))
+    # and the rig's 17.7 A rated current (the unit's second request: the state at one step)
+    permille = decode_words(torque, "int16")
+    assert permille == round(SOURCE.state(1, STEP_S).current_a / 17.7 * 1000)
 
 
 def test_unknown_unit_behind_tcp_is_a_gateway_exception() -> None:
@@ -181,7 +186,12 @@ def test_registers_of_a_real_drive_map() -> None:
     drive = SimulatedModbusDrive(
         [
             SimulatedUnit(
-                "Z", 3, "ats-rt20", 0, screw_lead_mm=5.0, counts_per_rev=10_000, rated_current_a=4.0
+                "Z",
+                3,
+                "ats-rt20",
+                0,
+                mechanics=rig_mechanics(screw_lead_mm=5.0, rated_current_a=4.0),
+                counts_per_rev=10_000,
             )
         ],
         step_s=STEP_S,

@@ -74,13 +74,14 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from types import MappingProxyType
-from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ncmeasure.config import AxisConfig, parse_assignments
 from ncmeasure.errors import ConfigError
+from ncmeasure.formats.axis import StatedMechanics
+from ncmeasure.sim.rig import RIG_MECHANICS, rig_mechanics
 
 __all__ = [
     "EXAMPLE_VARIATIONS",
@@ -263,11 +264,12 @@ class AxisParameters:
     """Geometry, drive and disturbance data of one axis.
 
     Attributes:
-        travel_mm: Soft limits [min, max]; the nut centre sweeps this range.
-        fixed_bearing_end: Which end of the travel carries the fixed bearing.
-        vertical: Gravity acts on the motor torque (positive direction up).
-        torque_constant_nm_per_a: Motor torque constant k_T.
-        screw_lead_mm: Lead (axis travel per screw revolution).
+        mechanics: The axis' mechanical facts (default: the method's test rig,
+            :data:`~ncmeasure.sim.rig.RIG_MECHANICS`). The model uses the
+            travel (the nut centre sweeps it), the fixed-bearing end,
+            ``vertical`` (gravity acts on the motor torque, positive direction
+            up), the torque constant k_T and the lead (axis travel per screw
+            revolution); k_T and the lead must be stated.
         screw_diameter_mm: Nominal screw diameter (for the screw inertia).
         screw_core_diameter_mm: Core diameter (for the bending stiffness).
         bearing_clearance_mm: Distance of each bearing from the nearest travel
@@ -302,11 +304,7 @@ class AxisParameters:
             smoothly (tanh), so the model has no jump at standstill.
     """
 
-    travel_mm: tuple[float, float] = (0.0, 750.0)
-    fixed_bearing_end: Literal["min", "max"] = "min"
-    vertical: bool = False
-    torque_constant_nm_per_a: float = 2.1
-    screw_lead_mm: float = 20.0
+    mechanics: StatedMechanics = RIG_MECHANICS
     screw_diameter_mm: float = 40.0
     screw_core_diameter_mm: float = 34.0
     bearing_clearance_mm: float = 80.0
@@ -323,10 +321,12 @@ class AxisParameters:
     regularisation_mm_min: float = 1.0
 
     def __post_init__(self) -> None:
-        low, high = self.travel_mm
+        low, high = self.mechanics.travel_mm
+        stated = {
+            "torque_constant_nm_per_a": self.mechanics.torque_constant_nm_per_a,
+            "screw_lead_mm": self.mechanics.screw_lead_mm,
+        }
         positive = (
-            "torque_constant_nm_per_a",
-            "screw_lead_mm",
             "screw_diameter_mm",
             "screw_core_diameter_mm",
             "youngs_modulus_gpa",
@@ -343,10 +343,11 @@ class AxisParameters:
             "noise_a",
             "outlier_a",
         )
+        values = {**stated, **{key: getattr(self, key) for key in positive}}
         bad = [
-            f"{key}: {getattr(self, key)!r} must be > 0"
-            for key in positive
-            if not getattr(self, key) > 0
+            f"{key}: {value!r} must be > 0"
+            for key, value in values.items()
+            if value is None or not value > 0
         ]
         bad += [
             f"{key}: {getattr(self, key)!r} must be >= 0"
@@ -362,23 +363,29 @@ class AxisParameters:
 
     @classmethod
     def from_config(cls, axis: AxisConfig, **overrides: object) -> AxisParameters:
-        """Parameters for a configured axis; drive data it lacks keep the rig's values."""
-        values: dict[str, object] = {
-            "travel_mm": axis.travel_mm,
-            "fixed_bearing_end": axis.fixed_bearing_end,
-            "vertical": axis.vertical,
-        }
-        if axis.torque_constant_nm_per_a is not None:
-            values["torque_constant_nm_per_a"] = axis.torque_constant_nm_per_a
-        if axis.screw_lead_mm is not None:
-            values["screw_lead_mm"] = axis.screw_lead_mm
-        values.update(overrides)
-        return replace(cls(), **values)  # type: ignore[arg-type]
+        """Parameters for a configured axis; mechanical facts it leaves unstated keep the
+        rig's values, and ``overrides`` replace the rig's physics (``moved_mass_kg=300``)."""
+        return replace(cls(mechanics=rig_mechanics(axis.mechanics())), **overrides)  # type: ignore[arg-type]
+
+    @property
+    def torque_constant_nm_per_a(self) -> float:
+        """The mechanics' torque constant k_T."""
+        value = self.mechanics.torque_constant_nm_per_a
+        assert value is not None  # stated: __post_init__ refuses None
+        return value
+
+    @property
+    def screw_lead_mm(self) -> float:
+        """The mechanics' lead."""
+        value = self.mechanics.screw_lead_mm
+        assert value is not None  # stated: __post_init__ refuses None
+        return value
 
     @property
     def span_mm(self) -> float:
         """Distance between fixed and loose bearing."""
-        return self.travel_mm[1] - self.travel_mm[0] + 2 * self.bearing_clearance_mm
+        low, high = self.mechanics.travel_mm
+        return high - low + 2 * self.bearing_clearance_mm
 
     @property
     def bending_stiffness_nm2(self) -> float:
@@ -397,7 +404,7 @@ class AxisParameters:
     @property
     def gravity_torque_nm(self) -> float:
         """Motor torque holding the moved mass on a vertical axis (0 if horizontal)."""
-        if not self.vertical:
+        if not self.mechanics.vertical:
             return 0.0
         return self.moved_mass_kg * _G_M_S2 * self.screw_lead_mm / 1000.0 / (2 * math.pi)
 
@@ -563,7 +570,7 @@ class AxisModel:
         self.components: Components = components if components is not None else Components()
         self.variation: Variation = variation if variation is not None else Variation()
         step_at = self.variation.cover_step_position_mm
-        low, high = axis.travel_mm
+        low, high = axis.mechanics.travel_mm
         if step_at is not None and not low <= step_at <= high:
             raise ConfigError(
                 "invalid assembly variation",
@@ -581,13 +588,13 @@ class AxisModel:
     def nut_distance_mm(self, position_mm: ArrayLike) -> FloatArray:
         """Distance of the nut centre from the fixed bearing, ``s``."""
         x = np.asarray(position_mm, dtype=np.float64)
-        low, high = self.axis.travel_mm
-        from_end = x - low if self.axis.fixed_bearing_end == "min" else high - x
+        low, high = self.axis.mechanics.travel_mm
+        from_end = x - low if self.axis.mechanics.fixed_bearing_end == "min" else high - x
         return np.asarray(self.axis.bearing_clearance_mm + from_end, dtype=np.float64)
 
     def rail_bow(self, position_mm: ArrayLike) -> FloatArray:
         """Shape of a bowed rail: ``4t(1 − t)`` over the travel (0 at both ends, 1 mid-travel)."""
-        low, high = self.axis.travel_mm
+        low, high = self.axis.mechanics.travel_mm
         t = np.clip((np.asarray(position_mm, dtype=np.float64) - low) / (high - low), 0.0, 1.0)
         return np.asarray(4.0 * t * (1.0 - t), dtype=np.float64)
 
@@ -692,7 +699,7 @@ class AxisModel:
         """Position-periodic current ripple of the motor (3 and 18 periods per revolution)."""
         ax = self.axis
         x = np.asarray(position_mm, dtype=np.float64)
-        angle = 2 * math.pi * (x - ax.travel_mm[0]) / ax.screw_lead_mm
+        angle = 2 * math.pi * (x - ax.mechanics.travel_mm[0]) / ax.screw_lead_mm
         torque = ax.cogging_3_nm * np.sin(3 * angle) + ax.cogging_18_nm * np.sin(18 * angle + 0.7)
         return np.asarray(torque / ax.torque_constant_nm_per_a, dtype=np.float64)
 

@@ -53,10 +53,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ncmeasure.config import AxisConfig, MachineConfig, MachineSection, Measurement
+from ncmeasure.formats.axis import StatedMechanics
 from ncmeasure.formats.schedule import AxisSummary, Schedule, Window
 from ncmeasure.plan import RunLengths, run_lengths
 from ncmeasure.recording import Recording, RecordingWriter
 from ncmeasure.samples import SIGNAL_UNITS, Channel, SampleBlock
+from ncmeasure.sim.rig import RIG_MECHANICS
 from ncmeasure.sim.servo import follow, servo
 
 __all__ = [
@@ -91,13 +93,17 @@ class SyntheticAxis:
 
     Attributes:
         name: Axis name.
-        travel_mm: Soft limits.
+        mechanics: The axis' mechanical facts (default: the method's test rig,
+            :data:`~ncmeasure.sim.rig.RIG_MECHANICS`): its travel (soft limits),
+            fixed-bearing end, ``vertical`` (metadata only; the gravity is
+            ``offset``), torque constant k_T (required when ``unit`` is Nm) and
+            lead (metadata). The recording's files state no rated current: the
+            current is in A or Nm, never in parts of it.
         positions_mm: Measuring positions (window centres), ascending.
         velocities_mm_min: Velocity steps (magnitudes), ascending.
         both_directions: Measure in negative direction too.
         repetitions: How often the whole program of the axis is repeated.
         unit: Unit of the friction parameters.
-        torque_constant_nm_per_a: k_T; required when ``unit`` is Nm.
         coulomb: Coulomb friction T_C.
         viscous_per_mm_min: Viscous coefficient b per mm/min.
         stribeck: Extra static friction at standstill, T_S − T_C.
@@ -108,7 +114,8 @@ class SyntheticAxis:
         velocity_noise_mm_min: Standard deviation of the reported velocity's noise.
         inertia_per_m_s2: Torque (in ``unit``) per m/s² of axis acceleration.
         cogging_amplitude: Amplitude of the position-periodic ripple.
-        cogging_period_mm: Its period along the travel.
+        cogging_period_mm: Its period along the travel (default: 18 periods per
+            revolution of the rig's 20 mm lead).
         velocity_coupling: Torque (in ``unit``) the speed controller takes off per
             mm/min the velocity fluctuates above its command (0: the velocity
             noise is measurement noise only).
@@ -125,13 +132,10 @@ class SyntheticAxis:
         dwell_s: Standstill before each run.
         warmup_strokes: Strokes back and forth over the travel at the top
             velocity before measuring.
-        fixed_bearing_end: Which end carries the fixed bearing.
-        vertical: A vertical axis (metadata only; the gravity is ``offset``).
-        screw_lead_mm: Ball-screw lead (metadata).
     """
 
     name: str = "X"
-    travel_mm: tuple[float, float] = (0.0, 750.0)
+    mechanics: StatedMechanics = RIG_MECHANICS
     positions_mm: tuple[float, ...] = (50.0, 375.0, 700.0)
     velocities_mm_min: tuple[float, ...] = field(
         default_factory=lambda: geometric_velocities(10.0, 15000.0, 12)
@@ -139,7 +143,6 @@ class SyntheticAxis:
     both_directions: bool = True
     repetitions: int = 1
     unit: Literal["Nm", "A"] = "Nm"
-    torque_constant_nm_per_a: float | None = 2.1
     coulomb: PerPosition = 2.0
     viscous_per_mm_min: PerPosition = 2e-4
     stribeck: PerPosition = 0.8
@@ -164,12 +167,9 @@ class SyntheticAxis:
     settle_s: float = 0.1
     dwell_s: float = 0.1
     warmup_strokes: int = 1
-    fixed_bearing_end: Literal["min", "max"] = "min"
-    vertical: bool = False
-    screw_lead_mm: float | None = 20.0
 
     def __post_init__(self) -> None:
-        if self.unit == "Nm" and self.torque_constant_nm_per_a is None:
+        if self.unit == "Nm" and self.mechanics.torque_constant_nm_per_a is None:
             raise ValueError(f"axis {self.name}: friction in Nm needs torque_constant_nm_per_a")
         if list(self.positions_mm) != sorted(self.positions_mm) or not self.positions_mm:
             raise ValueError(f"axis {self.name}: positions_mm must be ascending and not empty")
@@ -221,19 +221,20 @@ class SyntheticAxis:
 
     def axis_config(self) -> AxisConfig:
         """The axis as a machine file would describe it."""
+        low, high = self.mechanics.travel_mm
         return AxisConfig(
+            **self._file_mechanics().model_dump(),
             name=self.name,
-            travel_mm=self.travel_mm,
-            park_mm=(self.travel_mm[0] + self.travel_mm[1]) / 2,
+            park_mm=(low + high) / 2,
             max_velocity_mm_min=max(self.rapid_mm_min, max(self.velocities_mm_min)),
             rapid_velocity_mm_min=self.rapid_mm_min,
             max_acceleration_m_s2=self.acceleration_m_s2,
             max_jerk_m_s3=100.0,
-            fixed_bearing_end=self.fixed_bearing_end,
-            vertical=self.vertical,
-            torque_constant_nm_per_a=self.torque_constant_nm_per_a,
-            screw_lead_mm=self.screw_lead_mm,
         )
+
+    def _file_mechanics(self) -> StatedMechanics:
+        """The mechanics as the recording's files state them: without a rated current."""
+        return self.mechanics.model_copy(update={"rated_current_a": None})
 
 
 def machine_config(axes: Sequence[SyntheticAxis], name: str = "synthetic") -> MachineConfig:
@@ -369,8 +370,8 @@ def _plan_axis(
 ) -> list[Window]:
     """Drive one axis through its measurement program; return its scheduled windows."""
     meas = _measurement(spec)
-    low = spec.travel_mm[0] + meas.margin_mm
-    high = spec.travel_mm[1] - meas.margin_mm
+    low = spec.mechanics.travel_mm[0] + meas.margin_mm
+    high = spec.mechanics.travel_mm[1] - meas.margin_mm
     top = max(spec.velocities_mm_min)
     for _ in range(spec.warmup_strokes):
         program.move(low, spec.rapid_mm_min)
@@ -449,7 +450,7 @@ def _signals(
     torque[spikes] += spec.outlier_amplitude * rng.choice([-1.0, 1.0], int(spikes.sum()))
     fluctuation = rng.normal(0.0, spec.velocity_noise_mm_min, len(velocity))
     torque -= spec.velocity_coupling * fluctuation
-    scale = spec.torque_constant_nm_per_a if spec.unit == "Nm" else None
+    scale = spec.mechanics.torque_constant_nm_per_a if spec.unit == "Nm" else None
     current = torque / scale if scale else torque
     reported = velocity + fluctuation
     if spec.velocity_quantum_mm_min > 0:
@@ -552,7 +553,8 @@ def _programs(
     starts: list[float] = []
     first_rows: list[int] = []
     for spec in axes:
-        middle = (spec.travel_mm[0] + spec.travel_mm[1]) / 2
+        low, high = spec.mechanics.travel_mm
+        middle = (low + high) / 2
         program = _Program(dt, spec.acceleration_m_s2 * 1000.0, t_s, middle, next_index=next_index)
         starts.append(t_s)
         first_rows.append(next_index)
@@ -579,7 +581,8 @@ def _axis_signals(
 
     Its program occupies the rows from ``begin``.
     """
-    middle = (spec.travel_mm[0] + spec.travel_mm[1]) / 2
+    low, high = spec.mechanics.travel_mm
+    middle = (low + high) / 2
     own = np.concatenate(program.position)
     end = begin + len(own)
     position_cmd = np.full(total, middle)
@@ -607,17 +610,13 @@ def _summary(
     shifted = sorted(
         {w.nominal_position_mm for w in windows if w.position_mm != w.nominal_position_mm}
     )
+    low, high = spec.mechanics.travel_mm
     return AxisSummary(
+        **spec._file_mechanics().model_dump(),
         name=spec.name,
-        travel_mm=spec.travel_mm,
-        usable_mm=(spec.travel_mm[0] + margin, spec.travel_mm[1] - margin),
-        park_mm=(spec.travel_mm[0] + spec.travel_mm[1]) / 2,
+        usable_mm=(low + margin, high - margin),
+        park_mm=(low + high) / 2,
         max_velocity_mm_min=max(spec.rapid_mm_min, top),
-        vertical=spec.vertical,
-        fixed_bearing_end=spec.fixed_bearing_end,
-        torque_constant_nm_per_a=spec.torque_constant_nm_per_a,
-        rated_current_a=None,
-        screw_lead_mm=spec.screw_lead_mm,
         nominal_positions_mm=list(spec.positions_mm),
         shifted_positions_mm=shifted,
         velocities_mm_min=list(spec.velocities_mm_min),

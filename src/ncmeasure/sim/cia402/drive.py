@@ -26,6 +26,8 @@ from typing import TYPE_CHECKING
 
 from canopen.objectdictionary import ObjectDictionary, ODVariable
 
+from ncmeasure.errors import ConfigError
+from ncmeasure.formats.axis import StatedMechanics
 from ncmeasure.links.canopen.objects import (
     MapObject,
     ObjectMap,
@@ -36,6 +38,7 @@ from ncmeasure.links.canopen.objects import (
 )
 from ncmeasure.sim.cia402.dictionary import INT_FORMATS, Dictionary, Entry, TpdoConfig, clamp
 from ncmeasure.sim.cia402.sdo import ABORT_GENERAL, AbortRule, SdoServer
+from ncmeasure.sim.rig import RIG_MECHANICS
 from ncmeasure.sim.signals import AxisState, SignalSource
 
 if TYPE_CHECKING:
@@ -54,13 +57,47 @@ _NMT_NAMES = {0: "INITIALISING", 4: "STOPPED", 5: "OPERATIONAL", 127: "PRE-OPERA
 
 @dataclass(frozen=True)
 class DriveScaling:
-    """How a simulated drive turns an axis state into drive units."""
+    """How a simulated drive turns an axis state into drive units.
 
+    Attributes:
+        mechanics: The axis the drive moves (default: the method's test rig,
+            :data:`~ncmeasure.sim.rig.RIG_MECHANICS`); its lead and rated
+            current must be stated.
+        increments_per_rev: Encoder increments per motor revolution.
+        gear_ratio: Motor revolutions per screw revolution.
+        velocity_unit: The unit of the velocity objects (an object map unit).
+
+    Raises:
+        ConfigError: the mechanics state no lead or no rated current.
+    """
+
+    mechanics: StatedMechanics = RIG_MECHANICS
     increments_per_rev: int = 10_000
-    screw_lead_mm: float = 20.0
     gear_ratio: float = 1.0
-    rated_current_a: float = 17.7
     velocity_unit: str = "inc_per_s"
+
+    def __post_init__(self) -> None:
+        missing = [
+            f"{name}: a simulated CiA 402 drive needs it"
+            for name in ("screw_lead_mm", "rated_current_a")
+            if getattr(self.mechanics, name) is None
+        ]
+        if missing:
+            raise ConfigError("invalid drive scaling", missing)
+
+    @property
+    def screw_lead_mm(self) -> float:
+        """The mechanics' lead."""
+        value = self.mechanics.screw_lead_mm
+        assert value is not None  # stated: __post_init__ refuses None
+        return value
+
+    @property
+    def rated_current_a(self) -> float:
+        """The mechanics' rated current."""
+        value = self.mechanics.rated_current_a
+        assert value is not None  # stated: __post_init__ refuses None
+        return value
 
 
 @dataclass

@@ -43,6 +43,7 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from ncmeasure.errors import ConfigError, LinkError
+from ncmeasure.formats.axis import StatedMechanics
 from ncmeasure.links.modbus.registers import (
     RegisterMap,
     encode_value,
@@ -52,6 +53,7 @@ from ncmeasure.links.modbus.registers import (
 from ncmeasure.links.modbus.settings import ModbusAxis, ModbusSettings
 from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.modbus_drive.faults import DriveFaults
+from ncmeasure.sim.rig import RIG_MECHANICS
 from ncmeasure.sim.signals import AxisState, PatternSource, SignalSource
 
 __all__ = [
@@ -76,9 +78,11 @@ class SimulatedUnit:
         unit_id: Modbus unit id, 1..247.
         register_map: Built-in map name or path of a TOML map.
         axis_index: Which axis of the signal source (0-based).
-        screw_lead_mm: For maps in rpm, revolutions or encoder counts.
+        mechanics: The axis the unit's drive moves (default: the method's test
+            rig, :data:`~ncmeasure.sim.rig.RIG_MECHANICS`): its lead for maps in
+            rpm, revolutions or encoder counts, its rated current for maps
+            giving current in parts of the rated current.
         counts_per_rev: For maps in encoder counts.
-        rated_current_a: For maps giving current in parts of the rated current.
         scales: Per-signal scale replacing the map's scale (as the link's
             ``ModbusAxis.scales``).
     """
@@ -87,26 +91,26 @@ class SimulatedUnit:
     unit_id: int
     register_map: str = "generic"
     axis_index: int = 0
-    screw_lead_mm: float = 10.0
+    mechanics: StatedMechanics = RIG_MECHANICS
     counts_per_rev: int = 10_000
-    rated_current_a: float = 10.0
     scales: Mapping[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
 class ModbusDriveScaling:
-    """The simulated drives' mechanics: what a map in motor units needs (not a link setting).
+    """What a map in motor units needs of the simulated drives (not a link setting).
 
     Args:
-        screw_lead_mm: For maps in rpm, revolutions or encoder counts.
+        mechanics: The axis every drive moves (default: the method's test rig,
+            :data:`~ncmeasure.sim.rig.RIG_MECHANICS`): its lead for maps in rpm,
+            revolutions or encoder counts, its rated current for maps giving
+            current in parts of the rated current.
         counts_per_rev: Encoder counts per motor revolution, for maps in counts
             (an axis' ``ModbusAxis.counts_per_rev``, when given, wins).
-        rated_current_a: For maps giving current in parts of the rated current.
     """
 
-    screw_lead_mm: float = 10.0
+    mechanics: StatedMechanics = RIG_MECHANICS
     counts_per_rev: int = 10_000
-    rated_current_a: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -179,8 +183,8 @@ class SimulatedModbusDrive:
                 signal: signal_factor(
                     signal,
                     entry,
-                    screw_lead_mm=unit.screw_lead_mm,
-                    rated_current_a=unit.rated_current_a,
+                    screw_lead_mm=unit.mechanics.screw_lead_mm,
+                    rated_current_a=unit.mechanics.rated_current_a,
                     counts_per_rev=unit.counts_per_rev or reg_map.counts_per_rev,
                     scale=unit.scales.get(signal),
                 )
@@ -491,8 +495,9 @@ def serve(
             ``bytesize``; ``register_map`` of every axis without its own.
         axes: Axis name -> the axis' link settings (``unit_id``,
             ``register_map``, ``counts_per_rev``, ``scales``), in axis order.
-        scaling: The drives' mechanics for maps in motor units; default
-            :class:`ModbusDriveScaling`.
+        scaling: What maps in motor units need of the drives (their axis'
+            mechanics, counts per revolution); default :class:`ModbusDriveScaling`,
+            the test rig's axis.
         source: Axis states; default :class:`PatternSource`.
         step_s: Deterministic mode (see the module docstring).
         free_port: TCP: listen on a free port instead of ``settings.port``
@@ -514,9 +519,8 @@ def serve(
             link.unit_id,
             link.register_map or settings.register_map,
             index,
-            scaling.screw_lead_mm,
+            scaling.mechanics,
             link.counts_per_rev or scaling.counts_per_rev,
-            scaling.rated_current_a,
             {str(signal): scale for signal, scale in link.scales.items()},
         )
         for index, (axis, link) in enumerate(axes.items())
