@@ -18,11 +18,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import Field
 
 from ncmeasure.analysis.friction.fit import fit_direction, separate_offset
 from ncmeasure.analysis.friction.table import FrictionTable, window_table
@@ -31,7 +32,7 @@ from ncmeasure.analysis.judgement.verdict import axis_verdict
 from ncmeasure.analysis.windows.model import Segmentation
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
-from ncmeasure.formats.recording import RecordingMeta
+from ncmeasure.formats.recording import RecordedAxis, RecordingMeta
 from ncmeasure.formats.results import (
     AxisResult,
     DirectionResult,
@@ -69,20 +70,12 @@ _DIRECTIONS: tuple[tuple[Literal[1, -1], Literal["positive", "negative"]], ...] 
 )
 
 
-@dataclass
-class AxisFacts:
-    """What the analysis knows about an axis besides its samples, and from where."""
+class AxisFacts(RecordedAxis):
+    """What the analysis knows about an axis besides its samples: its mechanics and
+    velocity limits as the recording, the machine file and the schedule state them,
+    and where they disagree."""
 
-    name: str
-    torque_constant_nm_per_a: float | None = None
-    screw_lead_mm: float | None = None
-    travel_mm: tuple[float, float] | None = None
-    fixed_bearing_end: Literal["min", "max"] | None = None
-    vertical: bool | None = None
-    rated_current_a: float | None = None
-    max_velocity_mm_min: float | None = None
-    rapid_velocity_mm_min: float | None = None
-    warnings: list[str] = field(default_factory=list)
+    warnings: list[str] = Field(default_factory=list)
 
 
 _FACT_KEYS = (
@@ -104,7 +97,8 @@ def axis_facts(
     summary: AxisSummary | None,
 ) -> AxisFacts:
     """Merge the axis data: recording first, then machine file, then schedule."""
-    facts = AxisFacts(name)
+    known: dict[str, Any] = {}
+    warnings: list[str] = []
     sources: list[tuple[str, Mapping[str, Any]]] = []
     for entry in recording.meta.axes:
         if entry.name == name:
@@ -129,17 +123,17 @@ def axis_facts(
         where, value = found[0]
         if key == "travel_mm":
             value = (float(value[0]), float(value[1]))
-        setattr(facts, key, value)
+        known[key] = value
         if key in ("rated_current_a", "max_velocity_mm_min", "rapid_velocity_mm_min"):
             continue  # limits for plausibility only: the first source is enough
         for other, other_value in found[1:]:
             if key == "travel_mm":
                 other_value = (float(other_value[0]), float(other_value[1]))
             if other_value != value:
-                facts.warnings.append(
+                warnings.append(
                     f"{key} is {value} in {where} but {other_value} in {other}: {where} is used"
                 )
-    return facts
+    return AxisFacts(name=name, **known, warnings=warnings)
 
 
 def _combine_offsets(
@@ -518,11 +512,7 @@ def finish_axis(
         verdict=Verdict(level="ok", reason="", action=""),
         quantity=table.quantity,
         unit=table.unit,
-        torque_constant_nm_per_a=facts.torque_constant_nm_per_a,
-        travel_mm=facts.travel_mm,
-        fixed_bearing_end=facts.fixed_bearing_end,
-        vertical=facts.vertical,
-        screw_lead_mm=facts.screw_lead_mm,
+        **facts.mechanics().model_dump(),
         window_source=segmentation.source,
         windows=len(segmentation.windows),
         samples_used=table.samples,

@@ -33,6 +33,7 @@ from typing import Literal
 import numpy as np
 
 from ncmeasure.errors import ConfigError
+from ncmeasure.formats.axis import AxisMechanics
 from ncmeasure.formats.results import AxisResult, DirectionResult, Results
 
 __all__ = [
@@ -87,8 +88,8 @@ class AxisFriction:
 
     axis: str
     unit: Literal["Nm", "A"]
-    torque_constant_nm_per_a: float | None
-    vertical: bool | None
+    mechanics: AxisMechanics
+    """The axis' mechanics as the results state them (torque constant, vertical, ...)."""
     offset: float | None
     """Direction-independent part (gravity on a vertical axis), in the quantity."""
     positive: DirectionFriction
@@ -104,6 +105,16 @@ class AxisFriction:
                 "motor current cannot be computed"
             )
         return value / self.torque_constant_nm_per_a
+
+    @property
+    def torque_constant_nm_per_a(self) -> float | None:
+        """k_T of the motor, where the results state it."""
+        return self.mechanics.torque_constant_nm_per_a
+
+    @property
+    def vertical(self) -> bool | None:
+        """Whether the axis is vertical (None: the results do not say)."""
+        return self.mechanics.vertical
 
     @property
     def common_range_mm_min(self) -> tuple[float, float]:
@@ -228,8 +239,7 @@ def axis_friction(results: Results, axis_name: str) -> AxisFriction:
     return AxisFriction(
         axis=axis_name,
         unit=axis.unit,
-        torque_constant_nm_per_a=axis.torque_constant_nm_per_a,
-        vertical=axis.vertical,
+        mechanics=axis.mechanics(),
         offset=axis.offset.value if axis.offset is not None else None,
         positive=friction_curve(axis_name, axis, "positive"),
         negative=friction_curve(axis_name, axis, "negative"),
