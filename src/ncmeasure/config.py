@@ -33,7 +33,7 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from ncmeasure.errors import ConfigError
-from ncmeasure.formats.axis import StatedMechanics
+from ncmeasure.formats.axis import BearingEnd, StatedMechanics
 from ncmeasure.inputs import MAX_TOML_BYTES, format_validation_error, parse_toml, read_text
 
 __all__ = [
@@ -74,6 +74,8 @@ MAX_WINDOWS = 50_000
 """Most windows any plan may have: what generate, check and the analysis handle in
 seconds and a few hundred MB."""
 Position = Annotated[float, Field(ge=-MAX_POSITION_MM, le=MAX_POSITION_MM)]
+SAFE_PARK_FRACTION = 0.1
+"""A vertical or retract_first axis parks within this fraction of its travel from its safe end."""
 
 
 def to_um(value_mm: float) -> int:
@@ -151,11 +153,21 @@ class MachineSection(_Model):
     park_order: list[str] | None = Field(
         default=None,
         description="Order in which the main program parks the axes, one axis at a time. "
-        "Default: vertical axes first (retract), then the others in file order.",
+        "Vertical and retract_first axes must come first. Default: those first, then the "
+        "others in file order.",
     )
     measure_order: list[str] | None = Field(
         default=None,
-        description="Order in which the axes are measured. Default: file order.",
+        description="Order in which the axes are measured. Vertical and retract_first axes "
+        "must come last (they leave their park after every other axis is done). Default: "
+        "file order, those axes last.",
+    )
+
+    confirm_start: bool = Field(
+        default=True,
+        description="The main program stops before its first move with an operator message "
+        "(work area clear, no tool, override) and waits for cycle start. Set false for "
+        "unattended series started by the PLC.",
     )
 
     controller_options: dict[str, Annotated[int, Field(ge=0, le=99_999)] | bool] = Field(
@@ -362,6 +374,18 @@ class AxisConfig(StatedMechanics):
     max_jerk_m_s3: Annotated[float, Field(ge=0.001, le=100_000)] = Field(
         description="Maximum axis jerk in m/s³."
     )
+    retract_first: bool = Field(
+        default=False,
+        description="Treat the axis like a vertical one: it goes to its park before any "
+        "other axis moves, is measured after all others, and its park must lie at its "
+        "safe end (a quill, a ram, a tool-side axis over the table). Vertical axes always do.",
+    )
+    safe_end: BearingEnd | None = Field(
+        default=None,
+        description="The end of the travel away from the table and workpiece, where a "
+        "vertical or retract_first axis parks. Default: max (ISO 841: the positive "
+        "direction of Z moves the tool away from the workpiece).",
+    )
     measurement: MeasurementOverride | None = Field(
         default=None, description="Per-axis replacement of [measurement] fields."
     )
@@ -380,6 +404,22 @@ class AxisConfig(StatedMechanics):
             "an axis name: an upper-case letter, then up to 7 upper-case letters or digits "
             "(X, Y, Z, Z1, ...)",
         )
+
+    @property
+    def retracts(self) -> bool:
+        """True for an axis that parks first and is measured last (vertical or retract_first)."""
+        return self.vertical or self.retract_first
+
+    @property
+    def safe_side(self) -> BearingEnd:
+        """The end of the travel where the axis is safe (away from the table)."""
+        return self.safe_end or "max"
+
+    def safe_park_mm(self) -> tuple[float, float]:
+        """The part of the travel where a retracting axis may park: the tenth at its safe end."""
+        low, high = self.travel_mm
+        zone = SAFE_PARK_FRACTION * (high - low)
+        return (high - zone, high) if self.safe_side == "max" else (low, low + zone)
 
     @property
     def rapid_mm_min(self) -> float:
@@ -444,13 +484,13 @@ class MachineConfig(_Model):
         """Axes in the order the main program parks them (vertical axes first)."""
         if self.machine.park_order is not None:
             return [self.axis(name) for name in self.machine.park_order]
-        return sorted(self.axes, key=lambda axis: not axis.vertical)
+        return sorted(self.axes, key=lambda axis: not axis.retracts)
 
     def measure_sequence(self) -> list[AxisConfig]:
-        """Axes in the order they are measured."""
+        """Axes in the order they are measured (vertical and retract_first axes last)."""
         if self.machine.measure_order is not None:
             return [self.axis(name) for name in self.machine.measure_order]
-        return list(self.axes)
+        return sorted(self.axes, key=lambda axis: axis.retracts)
 
     def measurement_for(self, axis: AxisConfig) -> Measurement:
         """The measurement of ``axis``: the global table with the axis' overrides applied."""
@@ -467,6 +507,45 @@ class MachineConfig(_Model):
         return Measurement.model_validate(merged)
 
 
+def _retracting(axis: AxisConfig) -> str:
+    return "vertical" if axis.vertical else "retract_first"
+
+
+def _retract_order(config: MachineConfig, key: str, order: list[str]) -> Iterator[str]:
+    """A park order must park retracting axes first; a measure order must measure them last."""
+    retracts = [config.axis(name).retracts for name in order]
+    if key == "park_order":
+        wrong = [
+            name for i, name in enumerate(order) if not retracts[i] and any(retracts[i + 1 :])
+        ]
+        if wrong:
+            late = ", ".join(n for i, n in enumerate(order) if retracts[i] and i > 0)
+            yield (
+                f"machine.park_order: {', '.join(wrong)} would move before {late}, which must "
+                "retract first (vertical or retract_first); list them first"
+            )
+    else:
+        early = [name for i, name in enumerate(order) if retracts[i] and not all(retracts[i:])]
+        if early:
+            yield (
+                f"machine.measure_order: {', '.join(early)} would leave its park before other "
+                "axes are measured; a vertical or retract_first axis is measured last"
+            )
+
+
+def _safe_park(index: int, axis: AxisConfig) -> Iterator[str]:
+    """A vertical or retract_first axis parks in the tenth of its travel at its safe end."""
+    low, high = axis.safe_park_mm()
+    if not low <= axis.park_mm <= high:
+        side = "upper" if axis.safe_side == "max" else "lower"
+        yield (
+            f"axes[{index}].park_mm: {axis.park_mm:.15g} mm is not at the safe end of "
+            f"{_retracting(axis)} axis {axis.name}: it parks first and every other axis "
+            f"traverses with it there, so it must lie in the {side} tenth of its travel "
+            f"[{low:.15g}, {high:.15g}] mm (safe_end = {axis.safe_side!r})"
+        )
+
+
 def _cross_checks(config: MachineConfig) -> Iterator[str]:
     """Checks across fields, each as a ``location: message`` line."""
     names = [axis.name for axis in config.axes]
@@ -477,6 +556,8 @@ def _cross_checks(config: MachineConfig) -> Iterator[str]:
         order = getattr(config.machine, key)
         if order is not None and sorted(order) != sorted(names):
             yield f"machine.{key}: must list every axis exactly once ({', '.join(names)})"
+        elif order is not None:
+            yield from _retract_order(config, key, order)
     for index, axis in enumerate(config.axes):
         low, high = axis.travel_mm
         if not low < high:
@@ -485,6 +566,13 @@ def _cross_checks(config: MachineConfig) -> Iterator[str]:
             yield (
                 f"axes[{index}].park_mm: {axis.park_mm:.15g} mm is outside the travel "
                 f"[{low:.15g}, {high:.15g}] mm"
+            )
+        elif axis.retracts:
+            yield from _safe_park(index, axis)
+        elif axis.safe_end is not None:
+            yield (
+                f"axes[{index}].safe_end: only a vertical or retract_first axis has a safe end "
+                "it parks at; set vertical = true or retract_first = true, or remove safe_end"
             )
     for index, axis in enumerate(config.axes):
         if not axis.travel_mm[0] < axis.travel_mm[1]:

@@ -92,7 +92,12 @@ class AxisSummary(StatedMechanics):
     name: str
     usable_mm: tuple[float, float]
     park_mm: float
+    retracts: bool = False
+    """Vertical or retract_first: parked before any other axis moves, measured last;
+    no other axis moves while it is away from its park."""
     max_velocity_mm_min: float
+    rapid_mm_min: float | None = None
+    """Rapid traverse velocity (the machine file's, or its maximum velocity)."""
     nominal_positions_mm: list[float]
     shifted_positions_mm: list[float]
     """Nominal positions whose windows move inward at high velocities, where the
