@@ -19,23 +19,36 @@ from ncmeasure.formats.schedule import Schedule
 RS274 = shutil.which("rs274")
 AXES = ("X", "Y", "Z", "A", "B", "C")
 """The axes rs274 prints, in its order (it knows no U, V, W without a configuration)."""
-_CALL = re.compile(r"^\s*\d+ N\S* (?P<name>[A-Z_]+)\((?P<args>.*)\)\s*$")
+_CALL = re.compile(r"^\s*\d+ N\S* (?P<name>[A-Z0-9_]+)\((?P<args>.*)\)\s*$")
 
 
 @dataclass(frozen=True)
 class Canon:
     kind: str  # "rapid" | "feed"
     position: tuple[float, ...]
+    """In program coordinates, as rs274 prints a canonical move."""
     feed: float
     marker: float
+    machine: tuple[float, ...] = ()
+    """In machine coordinates: the position plus the active G5x and G92 offsets."""
 
 
-def run_rs274(folder: Path, main: str) -> list[Canon]:
+def _offsets(args: str, skip: int) -> tuple[float, ...]:
+    return tuple(float(v) for v in args.split(",")[skip : skip + len(AXES)])
+
+
+def run_rs274(folder: Path, main: str, parameters: str = "") -> list[Canon]:
+    """The canonical moves of ``main``; ``parameters``: a parameter (.var) file's text,
+    e.g. offsets the operator left active (rs274 reads its lengths in inches)."""
     assert RS274 is not None
     home = folder / "home"
     home.mkdir(exist_ok=True)
+    options = []
+    if parameters:
+        (folder / "rs274.var").write_text(parameters, encoding="utf-8")
+        options = ["-v", "rs274.var"]
     done = subprocess.run(
-        [RS274, "-g", main],
+        [RS274, *options, "-g", main],
         cwd=folder,
         env={**os.environ, "HOME": str(home)},
         capture_output=True,
@@ -47,13 +60,18 @@ def run_rs274(folder: Path, main: str) -> list[Canon]:
     assert "PROGRAM_END()" in output, output[-2000:]
     moves: list[Canon] = []
     feed, marker = 0.0, 0.0
+    g5x = g92 = (0.0,) * len(AXES)
     for line in output.splitlines():
         match = _CALL.match(line)
         if not match:
             assert not re.search(r"error|failed|unknown", line, re.I), line
             continue
         name, args = match.group("name"), match.group("args")
-        if name == "SET_FEED_RATE":
+        if name == "SET_G5X_OFFSET":
+            g5x = _offsets(args, 1)  # the first argument is the coordinate system's number
+        elif name == "SET_G92_OFFSET":
+            g92 = _offsets(args, 0)
+        elif name == "SET_FEED_RATE":
             feed = float(args)
         elif name == "SET_MOTION_OUTPUT_VALUE":
             marker = float(args.split(",")[1])
@@ -62,7 +80,8 @@ def run_rs274(folder: Path, main: str) -> list[Canon]:
         elif name in ("STRAIGHT_TRAVERSE", "STRAIGHT_FEED"):
             values = tuple(float(v) for v in args.split(",")[: len(AXES)])
             kind = "rapid" if name == "STRAIGHT_TRAVERSE" else "feed"
-            moves.append(Canon(kind, values, feed, marker))
+            machine = tuple(v + a + b for v, a, b in zip(values, g5x, g92, strict=True))
+            moves.append(Canon(kind, values, feed, marker, machine))
     return moves
 
 

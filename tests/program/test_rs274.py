@@ -8,12 +8,14 @@ windows of schedule.json, and ncmeasure's own reader must see the same moves.
 from __future__ import annotations
 
 import os
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from ncmeasure.config import MachineConfig, parse_machine
+from ncmeasure.examples import demo_machine, example_machine
 from ncmeasure.program import GeneratedPrograms, generate_programs
 from ncmeasure.program.reader import read_programs
 from tests.conftest import FIXED_TIME
@@ -96,3 +98,38 @@ def test_a_runout_that_is_the_next_window_runs_as_planned(tiny: bool, tmp_path: 
     moves = run_rs274(tmp_path, result.main_file)
     check_against_schedule(moves, result.schedule, markers=True)
     assert_reader_agrees(moves, tmp_path, result, result.main_file)
+
+
+# The operator's settings as a LinuxCNC parameter file: G54 active (5220 = 1) with a work
+# offset, and a G92 offset applied (5210 = 1). rs274 reads the file's lengths in inches.
+OPERATOR_OFFSETS = """\
+5210 1.0
+5211 4.0
+5212 -2.5
+5213 1.5
+5220 1.0
+5221 12.795
+5222 3.0
+5223 -7.25
+"""
+
+
+@pytest.mark.parametrize("machine", ["example", "demo"])
+def test_machine_positions_do_not_depend_on_the_operators_offsets(
+    machine: str, tmp_path: Path
+) -> None:
+    """Every canonical move lands at the same machine position (canonical position plus
+    the active G5x and G92 offsets) with a G54 and a G92 offset active as without."""
+    text = example_machine("linuxcnc") if machine == "example" else demo_machine("linuxcnc")
+    result = generate_programs(parse_machine(tomllib.loads(text)), generated=FIXED_TIME)
+    result.write(tmp_path)
+    plain = run_rs274(tmp_path, result.main_file)
+    shifted = run_rs274(tmp_path, result.main_file, OPERATOR_OFFSETS)
+    assert len(shifted) == len(plain) > 100
+    # the offsets really are active: the program coordinates differ from the machine's
+    assert shifted[0].position != shifted[0].machine
+    for ours, theirs in zip(plain, shifted, strict=True):
+        assert ours.position == ours.machine
+        assert theirs.machine == pytest.approx(ours.machine, abs=1e-4)
+        assert theirs.kind == ours.kind
+    check_against_schedule(plain, result.schedule, markers=True)

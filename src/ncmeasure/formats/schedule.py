@@ -150,6 +150,9 @@ class Schedule(FileHeader):
     """What the marker brackets in the generated programs (see the dialect)."""
     marker_values: Literal["window_id", "flag"] = "window_id"
     controller_options: dict[str, int | bool] = Field(default_factory=dict)
+    confirm_start: bool = False
+    """The main program stops before its first move until cycle start (the machine
+    file's ``confirm_start``); schedules written before it was known say False."""
     """The dialect options the programs were written with."""
     axes: list[AxisSummary]
 

@@ -30,6 +30,7 @@ from ncmeasure.program.reader import (
     Motion,
     ProgramSet,
     ProgramTrace,
+    Stop,
     read_programs,
 )
 
@@ -156,6 +157,8 @@ def check_trace(schedule: Schedule, trace: ProgramTrace, report: CheckReport) ->
         )
     if any(m.calls > 0 for m in parking):
         problems.append("a subprogram is called before every axis is parked")
+    problems.extend(_start_problems(schedule, trace))
+    problems.extend(_retract_problems(schedule, trace))
     feeds_by_axis: dict[str, list[Motion]] = {name: [] for name in axes}
     for motion in trace.motions:
         if len(motion.target) != 1:
@@ -194,6 +197,59 @@ def check_trace(schedule: Schedule, trace: ProgramTrace, report: CheckReport) ->
                 f"axis {name} ends at {final[name]:g} mm, not at its park position "
                 f"{axis.park_mm:g} mm"
             )
+
+
+def _start_problems(schedule: Schedule, trace: ProgramTrace) -> list[str]:
+    """With ``confirm_start`` the main program stops, with a message, before any move."""
+    if not schedule.confirm_start:
+        return []
+    for step in trace.steps:
+        if isinstance(step, Stop):
+            if step.calls == 0 and step.message:
+                return []
+            if step.calls == 0:
+                return [
+                    f"{step.file or step.program}:{step.line}: the stop before the first move "
+                    "shows the operator no message"
+                ]
+        if isinstance(step, Motion):
+            return [
+                f"{_where(step)}: an axis moves before the programmed stop that asks the "
+                "operator to confirm the start (the machine file's confirm_start)"
+            ]
+    return []
+
+
+def _retract_problems(schedule: Schedule, trace: ProgramTrace) -> list[str]:
+    """Vertical and retract_first axes park first; no other axis moves while one of them
+    is away from its park."""
+    retracts = {axis.name: axis.park_mm for axis in schedule.axes if axis.retracts}
+    if not retracts:
+        return []
+    problems: list[str] = []
+    position: dict[str, float | None] = dict.fromkeys(retracts)
+    for motion in trace.motions:
+        moved = set(motion.target)
+        away = sorted(
+            name
+            for name, here in position.items()
+            if name not in moved and (here is None or abs(here - retracts[name]) > _TOL_MM)
+        )
+        if away and moved - set(retracts):
+            state = ", ".join(
+                f"{name} not yet parked"
+                if position[name] is None
+                else f"{name} at {_num(position[name] or 0.0)} mm, park {_num(retracts[name])}"
+                for name in away
+            )
+            problems.append(
+                f"{_where(motion)}: {', '.join(sorted(moved))} moves while a vertical or "
+                f"retract_first axis is away from its park ({state}); it must retract first"
+            )
+            break  # the first one says it; the rest follow from it
+        for name in moved & set(retracts):
+            position[name] = motion.target[name]
+    return problems
 
 
 def _check_names(schedule: Schedule, dialect: Dialect, path: Path) -> None:

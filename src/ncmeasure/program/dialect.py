@@ -321,6 +321,80 @@ class Codes(_Strict):
         return self.m_meaning.get(str(number), "")
 
 
+OffsetKind = Literal["work", "shift", "length", "radius", "cycle"]
+"""What an operator may leave active that moves a programmed position or path:
+``work`` a work offset (G54…G59, G54.1 P, a settable frame, an external offset),
+``shift`` a coordinate shift (G92, G52, a programmable frame, DRF, PRESET),
+``length`` / ``radius`` tool length and radius compensation, ``cycle`` a modal
+canned cycle."""
+OFFSET_KINDS: tuple[OffsetKind, ...] = ("work", "shift", "length", "radius", "cycle")
+OFFSET_MEANING: dict[str, str] = {
+    "work": "a work offset (G54..G59, frame)",
+    "shift": "a coordinate shift (G92, G52, programmable frame)",
+    "length": "tool length compensation",
+    "radius": "tool radius compensation",
+    "cycle": "a modal canned cycle",
+}
+
+
+class CodeEffect(_Strict):
+    """What one code of the prolog or a motion block does to the operator's offsets."""
+
+    meaning: str
+    """What the code is, for messages and the docs."""
+    cancels: Sequence[OffsetKind] = ()
+    """Modal: from this block on, these offsets are off."""
+    bypasses: Sequence[OffsetKind] = ()
+    """Non-modal: the positions of this block ignore these offsets."""
+    sets: Sequence[OffsetKind] = ()
+    """Selects or sets these offsets: refused in a program (its moves would shift)."""
+    source: str = ""
+    """The manual page that says so."""
+
+
+class Verification(_Strict):
+    """Prolog lines that read the active offsets and stop with a message unless they are
+    zero, where the control cannot feed in machine coordinates (FANUC's G53 is rapid
+    only): after them the named offsets are known to be zero, or the program stopped."""
+
+    pattern: Regex
+    """A whole block of the verification (after comments are removed, in capitals)."""
+    proves: Sequence[OffsetKind] = ()
+    """Offsets known to be zero once every pattern has been met, in order."""
+
+
+class Coordinates(_Strict):
+    """How every move lands at the same machine position whatever the operator left
+    active, read by ``ncmeasure check`` from the codes themselves.
+
+    At the start of a program every offset kind the control has may be active. A
+    ``cancels`` code turns it off, a ``bypasses`` code in a motion block ignores it
+    for that block, a verification proves it zero; a motion block while an offset may
+    still act is refused, and so is any code that ``sets`` one.
+    """
+
+    offsets: Sequence[OffsetKind] = OFFSET_KINDS
+    """The offsets the control has."""
+    codes: dict[str, CodeEffect] = Field(default_factory=dict)
+    """Codes by their written form (G53, SUPA, D0, M91), upper case, no leading zeros."""
+    verify: Sequence[Verification] = ()
+    prolog: str = ""
+    """The prolog and each motion block as written, and why they are safe (the docs)."""
+    sources: Sequence[str] = ()
+
+
+class Start(_Strict):
+    """The programmed stop and operator message before the first move."""
+
+    stop: Sequence[Regex] = (r"^M0?0$",)
+    """Blocks that stop the program until cycle start."""
+    message: Sequence[Regex] = ()
+    """Blocks (matched before comments are removed) that show the operator a message."""
+    stop_shows_message: bool = False
+    """The stop itself carries the message (FANUC #3006)."""
+    source: str = ""
+
+
 class Memory(_Strict):
     """How much program text the control is assumed to hold."""
 
@@ -350,6 +424,8 @@ class Dialect(_Strict):
     marker: Marker
     codes: Codes
     memory: Memory = Memory()
+    coordinates: Coordinates = Coordinates()
+    start: Start = Start()
     options: dict[str, int | bool] = Field(default_factory=dict)
     """Machine-specific settings with their defaults; a machine file may override them
     in [machine.controller_options]."""

@@ -28,7 +28,7 @@ from typing import Literal
 
 from ncmeasure.errors import ProgramError
 from ncmeasure.inputs import read_text
-from ncmeasure.program.dialect import OPTION_PLACEHOLDER, Dialect
+from ncmeasure.program.dialect import OFFSET_MEANING, OPTION_PLACEHOLDER, Dialect
 
 __all__ = [
     "CodeUse",
@@ -36,6 +36,7 @@ __all__ = [
     "Motion",
     "ProgramSet",
     "ProgramTrace",
+    "Stop",
     "read_programs",
     "scan_codes",
 ]
@@ -100,6 +101,19 @@ class CodeUse:
         return self.written or str(self.number)
 
 
+@dataclass(frozen=True, slots=True)
+class Stop:
+    """A programmed stop: the program waits for cycle start."""
+
+    program: str
+    line: int
+    message: bool
+    """An operator message was shown with it (in its block or just before)."""
+    calls: int
+    """How many subprogram calls had been made."""
+    file: str = ""
+
+
 # An M word: 'M', spaces allowed, digits; not inside a name (FRICTION_M3, o<m3_x>, %M3).
 _M_WORD = re.compile(r"(?<![A-Z0-9_<%$.\[])M\s*(?P<n>\d+)", re.I)
 
@@ -110,10 +124,12 @@ class ProgramTrace:
 
     motions: list[Motion] = field(default_factory=list)
     dwells_s: list[float] = field(default_factory=list)
-    steps: list[Motion | Dwell] = field(default_factory=list)
-    """Motions and dwells in the order the program commands them."""
+    steps: list[Motion | Dwell | Stop] = field(default_factory=list)
+    """Motions, dwells and stops in the order the program commands them."""
     calls: list[str] = field(default_factory=list)
     ended: bool = False
+    stopped: str = ""
+    """Where the program stopped itself because an offset it verifies was not zero."""
     problems: list[str] = field(default_factory=list)
     """Rules the program files break where they can still be read, one
     ``file:line: message`` each (text outside every program, a program number
@@ -182,6 +198,13 @@ def _pattern(pattern: str | None, options: Mapping[str, int | bool]) -> re.Patte
     return found[0] if found else None
 
 
+def _code_name(address: str, value_text: str) -> str:
+    """How a code is looked up: 'G053' is G53, 'G92.1' stays, 'D00' is D0."""
+    whole, point, fraction = value_text.lstrip("+").partition(".")
+    fraction = fraction.rstrip("0")
+    return f"{address}{_digits(whole)}{'.' + fraction if point and fraction else ''}"
+
+
 def _use(kind: str, digits: str, file: str, line: int) -> CodeUse:
     if not digits.isdigit():  # a user's pattern may find anything: beyond every range
         return CodeUse(kind, _BEYOND, file, line, repr(_shown(digits, 40)))
@@ -189,6 +212,8 @@ def _use(kind: str, digits: str, file: str, line: int) -> CodeUse:
 
 
 _BLOCK_NUMBER = re.compile(r"^N\d+\s*", re.I)
+_MESSAGE = "\x00MESSAGE"
+"""What the reader keeps of a block that shows the operator a message."""
 _MAX_FILE_PROBLEMS = 5
 """Problems of one kind reported per file (the first ones say what is wrong)."""
 
@@ -232,6 +257,9 @@ class ProgramSet:
         self.start = _pattern(r.program_start, effective)
         self.block_end = re.compile(r.block_end + r"\s*$") if r.block_end else None
         self.accepted = {w.upper() for w in r.accepted}
+        self.stops = _patterns(dialect.start.stop, effective)
+        self.messages = _patterns(dialect.start.message, effective)
+        self.verify = [re.compile(v.pattern, re.I) for v in dialect.coordinates.verify]
         self.programs: dict[str, _Program] = {}
         self.first_program: dict[str, str] = {}
         """File name -> key of its first program."""
@@ -276,7 +304,10 @@ class ProgramSet:
             if bad:
                 problems.setdefault("character", []).append(f"{file}:{number}: character {bad}")
             stripped = raw.strip()
-            texts.append(self._clean(raw))
+            if any(p.search(stripped) for p in self.messages):
+                texts.append(_MESSAGE)  # its text is the operator's, not words
+            else:
+                texts.append(self._clean(raw))
             if closed_at:
                 if stripped:
                     after.append(number)
@@ -407,21 +438,39 @@ class ProgramSet:
             for key, rule in self.dialect.codes.options.items()
         }
         found: list[CodeUse] = []
+        fixed = self.stops + self.verify  # the dialect's own blocks: #3006, #5021 are no marker
         for file, texts in self.files.items():
             for index, text in enumerate(texts):
+                if text == _MESSAGE:
+                    continue
                 if self.call and (match := self.call.search(text)):
                     # the called program's name is a name, not words
                     text = text[: match.start("key")] + " " + text[match.end("key") :]
                 for match in _M_WORD.finditer(text):
                     found.append(_use("m", match.group("n"), file, index + 1))
+                if any(p.search(text) for p in fixed):
+                    continue
                 for key, patterns in uses.items():
                     for pattern in patterns:
                         for match in pattern.finditer(text):
                             found.append(_use(key, match.group("n"), file, index + 1))
         return found
 
-    def run(self, main_file: str, axes: set[str], max_blocks: int | None = None) -> ProgramTrace:
+    def run(
+        self,
+        main_file: str,
+        axes: set[str],
+        max_blocks: int | None = None,
+        offsets: Mapping[str, Mapping[str, float]] | None = None,
+    ) -> ProgramTrace:
         """Follow the main program in ``main_file``, moving ``axes``.
+
+        ``offsets`` are what the operator left active when the program starts, by kind
+        (``work``, ``shift``, ``length``; see :data:`~ncmeasure.program.dialect.OffsetKind`)
+        and axis, in mm: the motions' targets are then where the axes really go (the
+        written position plus every offset still acting on the block), and a
+        verification that finds one of them non-zero stops the run
+        (:attr:`ProgramTrace.stopped`).
 
         The trace's problems are those of the run; the files' own are :attr:`problems`.
         A run that commands more than ``max_blocks`` moves, dwells and calls (what the
@@ -434,11 +483,17 @@ class ProgramSet:
         """
         if main_file not in self.first_program:
             raise ProgramError(f"{main_file}: main program not found among the program files")
-        return _Interpreter(self, axes, max_blocks).run(self.first_program[main_file])
+        return _Interpreter(self, axes, max_blocks, offsets).run(self.first_program[main_file])
 
 
 class _Interpreter:
-    def __init__(self, files: ProgramSet, axes: set[str], max_blocks: int | None) -> None:
+    def __init__(
+        self,
+        files: ProgramSet,
+        axes: set[str],
+        max_blocks: int | None,
+        offsets: Mapping[str, Mapping[str, float]] | None,
+    ) -> None:
         self.files = files
         self.max_blocks = max_blocks
         self.dialect = files.dialect
@@ -454,6 +509,23 @@ class _Interpreter:
         self.dwell = files.dwell
         self.tape = files.tape
         self.accepted = files.accepted
+        self.stops = files.stops
+        self.verify = files.verify
+        self.verified = 0
+        """Verification blocks met so far, in order."""
+        coordinates = files.dialect.coordinates
+        self.codes = coordinates.codes
+        self.keywords = [
+            (re.compile(rf"(?<![A-Z0-9_]){re.escape(code)}(?![A-Z0-9_])", re.I), code)
+            for code in self.codes
+            if code.isalpha()
+        ]
+        self.active: set[str] = set(coordinates.offsets)
+        """Offsets the operator may have left active (not yet cancelled or proved zero)."""
+        self.offsets = {kind: dict(values) for kind, values in (offsets or {}).items()}
+        """The operator's offsets still in force, by kind and axis (mm)."""
+        self.reported_offsets = False
+        self.message_shown = False
         self.position: dict[str, float | None] = dict.fromkeys(axes)
         self.mode: Literal["rapid", "feed"] | None = None
         self.feed: float | None = None
@@ -510,10 +582,82 @@ class _Interpreter:
                     raise self._error(program, number, "program end inside a subprogram")
                 self.trace.ended = True
                 break
+            if text == _MESSAGE:
+                self.message_shown = True
+                continue
+            if any(p.search(text) for p in self.stops):
+                shown = self.message_shown or self.dialect.start.stop_shows_message
+                stop = Stop(program.key, number, shown, len(self.trace.calls), program.file)
+                self.trace.steps.append(stop)
+                self.message_shown = False
+                continue
+            if self._verification(text):
+                if self._verified_nonzero():
+                    self.trace.stopped = f"{program.file}:{number}"
+                    break
+                continue
             self._block(program, number, text)
         return self.trace
 
+    def _verification(self, text: str) -> bool:
+        """True for a block of the dialect's offset verification; the last one proves."""
+        for index, pattern in enumerate(self.verify):
+            if pattern.search(text):
+                if index == self.verified:
+                    self.verified += 1
+                    if self.verified == len(self.verify):
+                        for verification in self.dialect.coordinates.verify:
+                            self.active.difference_update(verification.proves)
+                return True
+        return False
+
+    def _verified_nonzero(self) -> bool:
+        """True when the completed verification found one of the offsets it proves non-zero."""
+        if self.verified != len(self.verify) or not self.verify:
+            return False
+        proved = {kind for v in self.dialect.coordinates.verify for kind in v.proves}
+        return any(
+            value != 0.0 for kind in proved for value in self.offsets.pop(kind, {}).values()
+        )
+
+    def _code(self, program: _Program, number: int, code: str, bypassed: set[str]) -> bool:
+        """Apply a code of the dialect's [coordinates.codes]; False if it is none."""
+        effect = self.codes.get(code)
+        if effect is None:
+            return False
+        if effect.sets:
+            what = " and ".join(OFFSET_MEANING[kind] for kind in effect.sets)
+            raise self._error(
+                program,
+                number,
+                f"{code} ({effect.meaning}) selects {what}: every position after it would "
+                "move with the operator's offsets; ncmeasure programs work in machine "
+                "coordinates",
+            )
+        self.active.difference_update(effect.cancels)
+        for kind in effect.cancels:
+            self.offsets.pop(kind, None)
+        bypassed.update(effect.bypasses)
+        return True
+
+    def _offsets(self, program: _Program, number: int, bypassed: set[str]) -> None:
+        """A move while an offset the operator may have left active still acts: a problem."""
+        acting = sorted(self.active - bypassed)
+        if acting and not self.reported_offsets:
+            self.reported_offsets = True  # once: every later move has the same cause
+            what = "; ".join(OFFSET_MEANING[kind] for kind in acting)
+            self.trace.problems.append(
+                f"{program.file}:{number}: an axis moves while the operator's setting may "
+                f"still act on it ({what}): the block would land elsewhere under a non-zero "
+                "offset; the prolog must cancel it or the block select machine coordinates"
+            )
+
     def _block(self, program: _Program, number: int, text: str) -> None:
+        bypassed: set[str] = set()
+        for pattern, code in self.keywords:
+            if pattern.search(text):
+                self._code(program, number, code, bypassed)
+                text = pattern.sub(" ", text).strip()
         for pattern in self.marker_off:
             if pattern.search(text):
                 self.marker_value = 0.0
@@ -564,6 +708,8 @@ class _Interpreter:
                 dwell = True
             elif address == "G" and value == 91.0:
                 raise self._error(program, number, "incremental positioning (G91) is not read")
+            elif self._code(program, number, _code_name(address, value_text), bypassed):
+                pass
             elif (
                 (address == "G" and value == 90.0)
                 or self._accepted(address, value_text)
@@ -583,6 +729,11 @@ class _Interpreter:
             raise self._error(program, number, "axis move before any G0/G1")
         if self.mode == "feed" and not self.feed:
             raise self._error(program, number, "feed move without a feed (F)")
+        self._offsets(program, number, bypassed)
+        for kind, values in self.offsets.items():
+            if kind not in bypassed:
+                for axis in targets:
+                    targets[axis] += values.get(axis, 0.0)
         start = {axis: self.position[axis] for axis in targets}
         motion = Motion(
             kind=self.mode,

@@ -62,6 +62,11 @@ class ProgramRef:
     number: int | None = None
 
 
+START_MESSAGE = "ncmeasure: table clear, no tool, feed override 100? Cycle start to measure"
+"""The operator message of the stop before the first move (comment-safe in every dialect:
+the dialect's forbidden comment characters are removed where it is a comment)."""
+
+
 @dataclass(frozen=True)
 class AxisView:
     """One axis as the templates see it."""
@@ -91,6 +96,10 @@ class ProgramView:
     options: Mapping[str, int | bool]
     marker_scope: str
     marker_values: str
+    confirm_start: bool
+    """The main program stops before its first move with an operator message."""
+    start_message: str
+    """The operator message of that stop."""
 
 
 class _Output:
@@ -568,6 +577,8 @@ def generate_programs(
         options=MappingProxyType(dict(options)),
         marker_scope=marker_scope(dialect, options),
         marker_values=dialect.marker.values,
+        confirm_start=config.machine.confirm_start,
+        start_message=START_MESSAGE,
     )
     env = _environment(dialect, templates_dirs)
     total_moves = sum(len(plan.moves) for plan in plans)
@@ -586,6 +597,7 @@ def generate_programs(
             "marker_scope": marker_scope(dialect, options),
             "controller_options": options,
             "marker_values": dialect.marker.values,
+            "confirm_start": config.machine.confirm_start,
             "warnings": [*schedule.warnings, *dialect_warnings(dialect, options)],
         }
     )

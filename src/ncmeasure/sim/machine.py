@@ -49,7 +49,7 @@ from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, ProgramError
 from ncmeasure.profile import SCurve, s_curve
 from ncmeasure.program.check import read_generated
-from ncmeasure.program.reader import Dwell, Motion, ProgramTrace
+from ncmeasure.program.reader import Dwell, Motion, ProgramTrace, Stop
 from ncmeasure.samples import Channel, SampleBlock, channels_for
 from ncmeasure.sim.axis import AxisModel, Variation
 from ncmeasure.sim.servo import follow, servo
@@ -186,6 +186,8 @@ class VirtualMachine:
         servo_frequency_hz: Natural frequency of the position loop.
         servo_damping: Its damping ratio.
         velocity_noise_mm_min: Standard deviation of the reported velocity's noise.
+        start_mm: Where axes stand when the program starts (default: at their parks), e.g.
+            a vertical axis left low by the operator.
 
     Raises:
         ConfigError: a variation names an axis the machine lacks, or is invalid for it.
@@ -205,6 +207,7 @@ class VirtualMachine:
         servo_frequency_hz: float = 20.0,
         servo_damping: float = 0.7,
         velocity_noise_mm_min: float = 0.2,
+        start_mm: Mapping[str, float] | None = None,
     ) -> None:
         if not dt_s > 0:
             raise ValueError("dt_s must be > 0")
@@ -232,6 +235,7 @@ class VirtualMachine:
         self.servo_frequency_hz = servo_frequency_hz
         self.servo_damping = servo_damping
         self.velocity_noise_mm_min = velocity_noise_mm_min
+        self.start_mm = dict(start_mm or {})
         self._segments = self._plan()
 
     @classmethod
@@ -257,8 +261,11 @@ class VirtualMachine:
     # --- planning -----------------------------------------------------------------------
 
     def _initial(self) -> FloatArray:
-        """Where the axes stand before the program: at their park positions."""
-        return np.array([axis.park_mm for axis in self.config.axes], dtype=np.float64)
+        """Where the axes stand before the program: ``start_mm``, else at their parks."""
+        return np.array(
+            [self.start_mm.get(axis.name, axis.park_mm) for axis in self.config.axes],
+            dtype=np.float64,
+        )
 
     def _plan(self) -> list[_Segment | _Pause]:
         axes = [axis.name for axis in self.config.axes]
@@ -277,6 +284,9 @@ class VirtualMachine:
             if isinstance(step, Dwell):
                 close()
                 plan.append(_Pause(position.copy(), step.seconds, step.marker))
+                continue
+            if isinstance(step, Stop):
+                close()  # the virtual operator presses cycle start at once
                 continue
             target = position.copy()
             for name, value in step.target.items():
