@@ -479,6 +479,11 @@ def test_a_flood_of_problems_is_printed_capped(tmp_path: Path) -> None:
     assert lines[51:] == ["  … and 9950 more"]
 
 
+def _interruptible() -> None:
+    """In the child before it runs: Ctrl-C (SIGINT) at its default, as in a terminal."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_a_stopped_generate_leaves_the_folder_as_it_was(sig: int, tmp_path: Path) -> None:
     """Stopped while it renders (timeout, CI, systemd, Ctrl-C): exit 130, no staging folder."""
@@ -496,6 +501,9 @@ def test_a_stopped_generate_leaves_the_folder_as_it_was(sig: int, tmp_path: Path
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        # as from a terminal: a suite started in the background (`pytest &`) passes on
+        # an ignored SIGINT, and Python then never raises KeyboardInterrupt
+        preexec_fn=_interruptible,
     )
     try:
         while not any(  # wait for the event: programs being written in the staging folder
