@@ -137,7 +137,9 @@ def fanuc_as_one_file(
     """FANUC programs (one O-number per file) joined into one file, as rs274 reads them.
 
     LinuxCNC reads a dwell only as G4 P<seconds>; FANUC's G04 X<seconds> is the same
-    dwell and is rewritten so (FANUC's own P would be milliseconds). The marker's
+    dwell and is rewritten so (FANUC's own P would be milliseconds). The prolog's
+    offset verification (``IF[...]GOTO``, custom macro B) is unknown to LinuxCNC and
+    moves nothing: its conditional jumps are left out (see :func:`fanuc_lines`). The marker's
     non-buffered M code ``sync_m`` is a PLC function of the machine, unknown to
     LinuxCNC, and moves nothing: its blocks are left out.
     """
@@ -147,7 +149,18 @@ def fanuc_as_one_file(
         text = re.sub(r"^G04 X", "G4 P", text, flags=re.M)
         if sync_m:
             text = re.sub(rf"^M{sync_m}\n", "", text, flags=re.M)
-        combined += [line for line in text.splitlines() if line != "%"]
+        combined += fanuc_lines(text)
     combined.append("%")
     (folder / name).write_text("\n".join(combined) + "\n", encoding="utf-8")
     return name
+
+
+def fanuc_lines(text: str) -> list[str]:
+    """A FANUC program's lines as rs274 reads them: without its tape marks and without
+    the offset verification's jumps (macro B ``IF[...]GOTO n`` and ``GOTO n``, which
+    rs274 does not know; the ``#3000`` alarm they jump to is a plain assignment there)."""
+    return [
+        line
+        for line in text.splitlines()
+        if line != "%" and not re.match(r"^(IF\[.*\]GOTO\d+|GOTO\d+)$", line)
+    ]

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -22,6 +23,7 @@ from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ProgramCheckError, ProgramError
 from ncmeasure.formats.schedule import SCHEDULE_FILE, load_schedule
 from ncmeasure.program import check_programs, generate_programs, load_dialect
+from ncmeasure.program.check import axis_numbers
 from ncmeasure.program.reader import Motion, ProgramSet, ProgramTrace, Stop
 from tests.conftest import DIALECTS, FIXED_TIME
 
@@ -34,19 +36,66 @@ OPERATOR = {
     "length": {"Z": 148.2},
 }
 
-# Per dialect: (main program file, the prolog's cancelling line, a motion line of the
-# main program, that line without its machine-coordinate word or None, a line that
-# selects a work offset, a line that sets a shift).
-CASES: dict[str, tuple[str, str, str, str | None, str, str]] = {
-    "linuxcnc": (
+
+@dataclass(frozen=True)
+class Case:
+    main: str
+    """The main program's file."""
+    prolog: tuple[str, str]
+    """A prolog line (pattern) and what it becomes without its cancelling codes."""
+    motion: str
+    """The main program's first motion line (pattern)."""
+    bare: str | None
+    """That line without its machine-coordinate word (None: the dialect has none)."""
+    work: tuple[str, str]
+    """A line that selects a work offset, and its code."""
+    shift: tuple[str, str]
+    """A line that sets a shift, and its code."""
+
+
+CASES = {
+    "linuxcnc": Case(
         "friction.ngc",
-        r"^G17 G21 G90 G94 G40 G49 G80$",
+        (r"^G17 G21 G90 G94 G40 G49 G80$", "G17 G21 G90 G94"),
         r"^G53 G0 Z-5\.000$",
         "G0 Z-5.000",
-        "G55",
-        "G92 X100",
+        ("G55", "G55"),
+        ("G92 X100", "G92"),
+    ),
+    "sinumerik-840d": Case(
+        "FRICTION.MPF",
+        (r"^G40 D0$", ""),
+        r"^SUPA G0 Z-5\.000$",
+        "G0 Z-5.000",
+        ("G54", "G54"),
+        ("TRANS X100", "TRANS"),
+    ),
+    "fanuc": Case(
+        "O1000.nc",
+        (r"^G40 G49 G80$", ""),
+        r"^G00 Z-5\.000$",
+        None,
+        ("G55", "G55"),
+        ("G92 X100.", "G92"),
+    ),
+    "heidenhain-iso": Case(
+        "FRICTION.I",
+        (r"^N30 G00 G40 Z", "N30 G00 Z"),
+        r"^N30 G00 G40 Z-5\.000 M91 \*$",
+        "N30 G00 G40 Z-5.000 *",
+        ("N25 M92 *", "M92"),
+        ("N25 G54 X+100 *", "G54"),
+    ),
+    "twincat": Case(
+        "FRICTION.nc",
+        (r"^G40 D0$", ""),
+        r"^#SUPPRESS OFFSETS Z-5\.000$",
+        "Z-5.000",
+        ("G54", "G54"),
+        ("G92 X100", "G92"),
     ),
 }
+assert sorted(CASES) == sorted(DIALECTS)
 
 
 def _generate(make_config: Make, dialect: str, folder: Path, **machine: object) -> Path:
@@ -64,7 +113,9 @@ def _run(folder: Path, offsets: dict[str, dict[str, float]] | None = None) -> Pr
     dialect = load_dialect(schedule.controller)
     files = ProgramSet(dialect, folder, schedule.controller_options)
     axes = {axis.name for axis in schedule.axes}
-    return files.run(schedule.main_program, axes, offsets=offsets)
+    return files.run(
+        schedule.main_program, axes, offsets=offsets, axis_numbers=axis_numbers(schedule)
+    )
 
 
 def _edit(path: Path, pattern: str, replacement: str) -> None:
@@ -99,22 +150,24 @@ def test_without_the_prolog_the_offsets_would_move_it(
 ) -> None:
     """The reader's model is not vacuous: the same program without its prolog and its
     machine-coordinate words lands elsewhere, and check refuses it."""
-    main, prolog, _, _, _, _ = CASES[dialect]
+    case = CASES[dialect]
     folder = _generate(make_config, dialect, tmp_path)
-    _edit(folder / main, prolog, "")
+    _edit(folder / case.main, *case.prolog)
     with pytest.raises(ProgramCheckError, match="may still act on it"):
         check_programs(folder)
 
 
-@pytest.mark.parametrize("dialect", [d for d in sorted(CASES) if CASES[d][3] is not None])
+@pytest.mark.parametrize("dialect", [d for d in sorted(CASES) if CASES[d].bare is not None])
 def test_a_move_without_its_machine_coordinate_word_is_refused(
     dialect: str, make_config: Make, tmp_path: Path
 ) -> None:
-    main, _, motion, bare, _, _ = CASES[dialect]
+    case = CASES[dialect]
     folder = _generate(make_config, dialect, tmp_path)
-    assert bare is not None
-    _edit(folder / main, motion, bare)
-    with pytest.raises(ProgramCheckError, match=r"a work offset .*may still act|may still act.*work"):
+    assert case.bare is not None
+    _edit(folder / case.main, case.motion, case.bare)
+    with pytest.raises(
+        ProgramCheckError, match=r"a work offset .*may still act|may still act.*work"
+    ):
         check_programs(folder)
     assert _positions(_run(folder, OPERATOR)) != _positions(_run(folder))
 
@@ -124,15 +177,15 @@ def test_a_move_without_its_machine_coordinate_word_is_refused(
 def test_an_offset_slipped_in_before_a_move_is_refused(
     dialect: str, which: str, make_config: Make, tmp_path: Path
 ) -> None:
-    main, _, motion, _, work, shift = CASES[dialect]
+    case = CASES[dialect]
     folder = _generate(make_config, dialect, tmp_path)
-    line = work if which == "work" else shift
-    text = (folder / main).read_text(encoding="utf-8")
-    found = re.search(motion, text, flags=re.M)
+    line, code = case.work if which == "work" else case.shift
+    main = folder / case.main
+    text = main.read_text(encoding="utf-8")
+    found = re.search(case.motion, text, flags=re.M)
     assert found
-    (folder / main).write_text(text[: found.start()] + line + "\n" + text[found.start() :])
-    code = re.escape(line.split()[0])
-    with pytest.raises(ProgramError, match=rf"{code} \(.*\) selects"):
+    main.write_text(text[: found.start()] + line + "\n" + text[found.start() :])
+    with pytest.raises(ProgramError, match=rf"{re.escape(code)} \(.*\) selects"):
         check_programs(folder)
 
 
@@ -168,4 +221,23 @@ def test_a_program_whose_stop_was_removed_is_refused(
     del lines[index]
     main.write_text("\n".join(lines), encoding="utf-8")
     with pytest.raises(ProgramCheckError, match="before the programmed stop"):
+        check_programs(folder)
+
+
+def test_fanuc_proves_every_axis_before_the_first_move(make_config: Make, tmp_path: Path) -> None:
+    """FANUC feeds in work coordinates (its G53 is rapid only): the prolog compares the
+    machine and work position of every axis and stops with an alarm unless they agree.
+    A verification that leaves an axis out proves nothing, and check says so."""
+    folder = _generate(make_config, "fanuc", tmp_path)
+    text = (folder / "O1000.nc").read_text(encoding="utf-8")
+    assert re.findall(r"^IF\[ABS\[#502(\d)-#504(\d)\]GT0\.001\]GOTO9001$", text, re.M) == [
+        ("1", "1"),
+        ("2", "2"),
+        ("3", "3"),
+    ]
+    alarm = text.split("\n").index("N9001#3000=1(WORK OFFSET NOT ZERO)") + 1
+    assert _run(folder, OPERATOR).stopped == f"O1000.nc:{alarm}"
+    assert _run(folder, {"work": {"X": 0.0, "Y": 0.0, "Z": 0.0}}).motions
+    _edit(folder / "O1000.nc", r"^IF\[ABS\[#5022-#5042\]GT0\.001\]GOTO9001$", "")
+    with pytest.raises(ProgramCheckError, match="may still act on it"):
         check_programs(folder)

@@ -319,6 +319,8 @@ def _only_the_marker_variables(
         for key, value in options.items()
         if key in codes and codes[key].kind in ("variable", "output") and value is not True
     }
+    if controller == "fanuc":  # the prolog's system variables: alarm, stop, positions read
+        allowed |= {3000, 3006, *range(5021, 5030), *range(5041, 5050)}
     for where, line in _code_lines(out, files, r"\(.*?\)|;.*$"):
         for match in pattern.finditer(line):
             used = int(next(g for g in match.groups() if g is not None))

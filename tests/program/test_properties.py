@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from ncmeasure.config import parse_machine
 from ncmeasure.errors import PlanError
 from ncmeasure.program import generate_programs
-from ncmeasure.program.check import CheckReport, check_trace
+from ncmeasure.program.check import CheckReport, axis_numbers, check_trace
 from ncmeasure.program.reader import read_programs
 from tests.conftest import DIALECTS, FIXED_TIME
 
@@ -27,14 +27,17 @@ def axis_tables(draw: st.DrawFn, name: str) -> dict[str, Any]:
     low = draw(st.floats(-2000, 2000, **finite))
     length = draw(st.floats(30, 4000, **finite))
     high = low + length
+    vertical = draw(st.booleans())
+    # a vertical axis parks in the tenth of its travel at its upper (safe) end
+    park_low = high - 0.1 * length if vertical else low
     return {
         "name": name,
         "travel_mm": [low, high],
-        "park_mm": draw(st.floats(low, high, **finite)),
+        "park_mm": draw(st.floats(park_low, high, **finite)),
         "max_velocity_mm_min": draw(st.floats(500, 60000, **finite)),
         "max_acceleration_m_s2": draw(st.floats(0.2, 20, **finite)),
         "max_jerk_m_s3": draw(st.floats(1, 500, **finite)),
-        "vertical": draw(st.booleans()),
+        "vertical": vertical,
     }
 
 
@@ -81,6 +84,7 @@ def test_no_dialect_leaves_the_limits(data: dict[str, Any]) -> None:
             schedule.main_program,
             {a.name for a in schedule.axes},
             schedule.controller_options,
+            axis_numbers(schedule),
         )
     report = CheckReport(directory=folder, controller=result.dialect.name)  # type: ignore[arg-type]
     check_trace(schedule, trace, report)

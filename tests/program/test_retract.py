@@ -90,8 +90,8 @@ def _main_axis_lines(folder: Path) -> list[str]:
     text = (folder / schedule.main_program).read_text(encoding="utf-8")
     letters = []
     for line in text.splitlines():
-        line = re.sub(r"\(.*?\)|;.*$", "", line)
-        found = re.search(r"\bG0?[01]\b.*?\b([XYZ])\s*=?\s*[-+]?\d", line)
+        line = re.sub(r"\(.*?\)|;.*$|\"[^\"]*\"", "", line)
+        found = re.search(r"(?<![A-Z#])([XYZ])\s*=?\s*[-+]?\d", line)
         if found:
             letters.append(found.group(1))
     return letters

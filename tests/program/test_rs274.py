@@ -19,7 +19,14 @@ from ncmeasure.examples import demo_machine, example_machine
 from ncmeasure.program import GeneratedPrograms, generate_programs
 from ncmeasure.program.reader import read_programs
 from tests.conftest import FIXED_TIME
-from tests.program.rs274 import AXES, RS274, Canon, check_against_schedule, run_rs274
+from tests.program.rs274 import (
+    AXES,
+    RS274,
+    Canon,
+    check_against_schedule,
+    fanuc_lines,
+    run_rs274,
+)
 
 if RS274 is None and os.environ.get("CI"):
     pytest.fail("rs274 (Debian package linuxcnc-uspace) is required in CI", pytrace=False)
@@ -77,7 +84,7 @@ def test_fanuc_output_runs_in_rs274_fanuc_style(
     result.write(tmp_path)
     combined = ["%"]
     for name in sorted(result.files):  # O1000 (main) first, then its subprograms
-        combined += [line for line in result.files[name].splitlines() if line != "%"]
+        combined += fanuc_lines(result.files[name])
     combined.append("%")
     (tmp_path / "all.ngc").write_text("\n".join(combined) + "\n")
     moves = run_rs274(tmp_path, "all.ngc")

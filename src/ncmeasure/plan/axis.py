@@ -221,6 +221,7 @@ def plan_axis(config: MachineConfig, axis: AxisConfig, start_s: float = 0.0) -> 
         usable_mm=(to_mm(steps.low_um), to_mm(steps.high_um)),
         park_mm=to_mm(park_um),
         retracts=axis.retracts,
+        number=[a.name for a in config.axes].index(axis.name) + 1,
         max_velocity_mm_min=axis.max_velocity_mm_min,
         rapid_mm_min=axis.rapid_mm_min,
         nominal_positions_mm=[to_mm(p) for p in nominal],

@@ -36,6 +36,7 @@ from ncmeasure.program.reader import (
 
 __all__ = [
     "CheckReport",
+    "axis_numbers",
     "check_programs",
     "check_trace",
     "code_problems",
@@ -199,6 +200,11 @@ def check_trace(schedule: Schedule, trace: ProgramTrace, report: CheckReport) ->
             )
 
 
+def axis_numbers(schedule: Schedule) -> dict[str, int]:
+    """The axes' numbers in the control, by name (schedules that do not know them: none)."""
+    return {axis.name: axis.number for axis in schedule.axes if axis.number}
+
+
 def _start_problems(schedule: Schedule, trace: ProgramTrace) -> list[str]:
     """With ``confirm_start`` the main program stops, with a message, before any move."""
     if not schedule.confirm_start:
@@ -357,6 +363,7 @@ def read_generated(
         schedule.main_program,
         {axis.name for axis in schedule.axes},
         schedule.controller_options,
+        axis_numbers(schedule),
     )
     return schedule, dialect, trace
 
@@ -384,7 +391,12 @@ def check_programs(directory: str | Path, controllers_dirs: tuple[Path, ...] = (
     report.problems.extend(files.problems)
     try:
         axes = {axis.name for axis in schedule.axes}
-        trace = files.run(schedule.main_program, axes, schedule.blocks or None)
+        trace = files.run(
+            schedule.main_program,
+            axes,
+            schedule.blocks or None,
+            axis_numbers=axis_numbers(schedule),
+        )
     except ProgramError as exc:
         if not report.problems:
             raise

@@ -392,6 +392,9 @@ class Start(_Strict):
     """Blocks (matched before comments are removed) that show the operator a message."""
     stop_shows_message: bool = False
     """The stop itself carries the message (FANUC #3006)."""
+    without_message: str = ""
+    """Why the dialect's stop shows no message (none could be verified); the setup
+    sheet tells the operator what the stop means instead."""
     source: str = ""
 
 

@@ -198,6 +198,16 @@ def _pattern(pattern: str | None, options: Mapping[str, int | bool]) -> re.Patte
     return found[0] if found else None
 
 
+_ADDRESS_CODE = re.compile(r"[A-Z]\d+(\.\d+)?", re.I)
+"""A code that is an address and a number (G53, D0, M91); others are keywords (SUPA)."""
+
+
+def _keyword(code: str) -> re.Pattern[str]:
+    """A keyword code as a whole word, spaces between its parts as the control reads them."""
+    parts = r"\s+".join(re.escape(part) for part in code.split())
+    return re.compile(rf"(?<![A-Z0-9_#$]){parts}(?![A-Z0-9_])", re.I)
+
+
 def _code_name(address: str, value_text: str) -> str:
     """How a code is looked up: 'G053' is G53, 'G92.1' stays, 'D00' is D0."""
     whole, point, fraction = value_text.lstrip("+").partition(".")
@@ -462,6 +472,7 @@ class ProgramSet:
         axes: set[str],
         max_blocks: int | None = None,
         offsets: Mapping[str, Mapping[str, float]] | None = None,
+        axis_numbers: Mapping[str, int] | None = None,
     ) -> ProgramTrace:
         """Follow the main program in ``main_file``, moving ``axes``.
 
@@ -470,7 +481,8 @@ class ProgramSet:
         and axis, in mm: the motions' targets are then where the axes really go (the
         written position plus every offset still acting on the block), and a
         verification that finds one of them non-zero stops the run
-        (:attr:`ProgramTrace.stopped`).
+        (:attr:`ProgramTrace.stopped`). ``axis_numbers`` are the axes' numbers in the
+        control, for a verification that checks each axis by its number.
 
         The trace's problems are those of the run; the files' own are :attr:`problems`.
         A run that commands more than ``max_blocks`` moves, dwells and calls (what the
@@ -483,7 +495,8 @@ class ProgramSet:
         """
         if main_file not in self.first_program:
             raise ProgramError(f"{main_file}: main program not found among the program files")
-        return _Interpreter(self, axes, max_blocks, offsets).run(self.first_program[main_file])
+        interpreter = _Interpreter(self, axes, max_blocks, offsets, axis_numbers)
+        return interpreter.run(self.first_program[main_file])
 
 
 class _Interpreter:
@@ -493,6 +506,7 @@ class _Interpreter:
         axes: set[str],
         max_blocks: int | None,
         offsets: Mapping[str, Mapping[str, float]] | None,
+        axis_numbers: Mapping[str, int] | None = None,
     ) -> None:
         self.files = files
         self.max_blocks = max_blocks
@@ -511,14 +525,16 @@ class _Interpreter:
         self.accepted = files.accepted
         self.stops = files.stops
         self.verify = files.verify
-        self.verified = 0
-        """Verification blocks met so far, in order."""
+        self.verify_seen: set[int] = set()
+        """Verification patterns met so far."""
+        self.verified_numbers: set[int] = set()
+        """Axis numbers a verification block checked."""
+        self.axis_numbers = dict(axis_numbers or {})
+        self.stop_run = False
         coordinates = files.dialect.coordinates
         self.codes = coordinates.codes
         self.keywords = [
-            (re.compile(rf"(?<![A-Z0-9_]){re.escape(code)}(?![A-Z0-9_])", re.I), code)
-            for code in self.codes
-            if code.isalpha()
+            (_keyword(code), code) for code in self.codes if not _ADDRESS_CODE.fullmatch(code)
         ]
         self.active: set[str] = set(coordinates.offsets)
         """Offsets the operator may have left active (not yet cancelled or proved zero)."""
@@ -562,7 +578,11 @@ class _Interpreter:
                 continue
             if self.tape and self.tape.search(text):
                 continue  # a misplaced tape mark: refused when the file was read
-            if self.call and (match := self.call.search(text)):
+            if (
+                self.call
+                and (match := self.call.search(text))
+                and match.group("key").upper() not in self.codes  # TRAFOOF is no call
+            ):
                 key = _program_key(match.group("key"))
                 if key not in self.programs:
                     raise self._error(program, number, f"calls {key}, which is not among the files")
@@ -586,13 +606,16 @@ class _Interpreter:
                 self.message_shown = True
                 continue
             if any(p.search(text) for p in self.stops):
-                shown = self.message_shown or self.dialect.start.stop_shows_message
+                start = self.dialect.start
+                shown = (
+                    self.message_shown or start.stop_shows_message or bool(start.without_message)
+                )
                 stop = Stop(program.key, number, shown, len(self.trace.calls), program.file)
                 self.trace.steps.append(stop)
                 self.message_shown = False
                 continue
             if self._verification(text):
-                if self._verified_nonzero():
+                if self.stop_run:
                     self.trace.stopped = f"{program.file}:{number}"
                     break
                 continue
@@ -600,24 +623,38 @@ class _Interpreter:
         return self.trace
 
     def _verification(self, text: str) -> bool:
-        """True for a block of the dialect's offset verification; the last one proves."""
+        """True for a block of the dialect's offset verification.
+
+        Once every pattern has been met, and (for patterns with a group ``n``) every
+        axis' number checked, the offsets the verification proves are known to be zero:
+        if the operator's are not, the program stops there (:attr:`ProgramTrace.stopped`).
+        """
         for index, pattern in enumerate(self.verify):
-            if pattern.search(text):
-                if index == self.verified:
-                    self.verified += 1
-                    if self.verified == len(self.verify):
-                        for verification in self.dialect.coordinates.verify:
-                            self.active.difference_update(verification.proves)
-                return True
+            match = pattern.search(text)
+            if not match:
+                continue
+            self.verify_seen.add(index)
+            number = match.groupdict().get("n")
+            if number is not None:
+                self.verified_numbers.add(int(number))
+            if self._proven():
+                proves = {k for v in self.dialect.coordinates.verify for k in v.proves}
+                self.active.difference_update(proves)
+                if any(
+                    value != 0.0 for kind in proves for value in self.offsets.pop(kind, {}).values()
+                ):
+                    self.stop_run = True
+            return True
         return False
 
-    def _verified_nonzero(self) -> bool:
-        """True when the completed verification found one of the offsets it proves non-zero."""
-        if self.verified != len(self.verify) or not self.verify:
+    def _proven(self) -> bool:
+        if len(self.verify_seen) != len(self.verify):
             return False
-        proved = {kind for v in self.dialect.coordinates.verify for kind in v.proves}
-        return any(
-            value != 0.0 for kind in proved for value in self.offsets.pop(kind, {}).values()
+        if not any("n" in pattern.groupindex for pattern in self.verify):
+            return True
+        numbers = self.axis_numbers
+        return bool(numbers) and all(
+            numbers.get(axis) in self.verified_numbers for axis in self.axes
         )
 
     def _code(self, program: _Program, number: int, code: str, bypassed: set[str]) -> bool:
@@ -708,9 +745,7 @@ class _Interpreter:
                 dwell = True
             elif address == "G" and value == 91.0:
                 raise self._error(program, number, "incremental positioning (G91) is not read")
-            elif self._code(program, number, _code_name(address, value_text), bypassed):
-                pass
-            elif (
+            elif self._code(program, number, _code_name(address, value_text), bypassed) or (
                 (address == "G" and value == 90.0)
                 or self._accepted(address, value_text)
                 or address in self.reader.parameter_words.upper()
@@ -790,6 +825,7 @@ def read_programs(
     main_file: str,
     axes: set[str],
     options: Mapping[str, int | bool] | None = None,
+    axis_numbers: Mapping[str, int] | None = None,
 ) -> ProgramTrace:
     """Read the program whose main file is ``main_file`` in ``directory``.
 
@@ -800,6 +836,8 @@ def read_programs(
         axes: Axis names the programs may move.
         options: Controller options the programs were written with
             (default: the dialect's defaults).
+        axis_numbers: The axes' numbers in the control (schedule.json's ``number``),
+            for a dialect whose prolog verifies each axis by its number.
 
     Raises:
         ProgramError: a file is missing or a block cannot be read.
@@ -809,7 +847,7 @@ def read_programs(
     if not main_path.is_file():
         raise ProgramError(f"{main_path}: main program not found")
     files = ProgramSet(dialect, directory, options)
-    trace = files.run(main_file, axes)
+    trace = files.run(main_file, axes, axis_numbers=axis_numbers)
     trace.problems[:0] = files.problems
     return trace
 

@@ -72,6 +72,9 @@ class AxisView:
     """One axis as the templates see it."""
 
     name: str
+    number: int
+    """Its place in the machine file (1 for the first): its number in the control where
+    a dialect addresses axes by number."""
     park_mm: float
     vertical: bool
     sub: ProgramRef | None
@@ -93,6 +96,8 @@ class ProgramView:
     main: ProgramRef
     park: tuple[AxisView, ...]
     measure: tuple[AxisView, ...]
+    axes: tuple[AxisView, ...]
+    """Every axis in the machine file's order."""
     options: Mapping[str, int | bool]
     marker_scope: str
     marker_values: str
@@ -555,6 +560,7 @@ def generate_programs(
         plan = by_name[axis_name]
         return AxisView(
             name=axis_name,
+            number=plan.summary.number,
             park_mm=plan.summary.park_mm,
             vertical=plan.axis.vertical,
             sub=subs[axis_name],
@@ -574,6 +580,7 @@ def generate_programs(
         main=main,
         park=tuple(view_of(a.name) for a in config.park_sequence()),
         measure=tuple(view_of(a.name) for a in config.measure_sequence()),
+        axes=tuple(view_of(a.name) for a in config.axes),
         options=MappingProxyType(dict(options)),
         marker_scope=marker_scope(dialect, options),
         marker_values=dialect.marker.values,

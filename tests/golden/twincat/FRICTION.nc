@@ -1,11 +1,16 @@
 (ncmeasure friction measurement: main program FRICTION)
 (machine: HMX-400 #17)
-(generated 2026-01-15 08:30 UTC by ncmeasure 0.1.0, config 0794808c01591efa)
+(generated 2026-01-15 08:30 UTC by ncmeasure 0.1.0, config eb35f8c4bf787cb2)
+(machine coordinates: #SUPPRESS OFFSETS in every move, radius compensation and tool offset off)
 G17 G71 G90 G94
+G40 D0
+#MSG SYN ["ncmeasure: table clear, no tool, feed override 100? Cycle start to measure"]
+M00
 (park every axis, one at a time)
-G00 Z-5.000
-G00 X375.000
-G00 Y300.000
+G00
+#SUPPRESS OFFSETS Z-5.000
+#SUPPRESS OFFSETS X375.000
+#SUPPRESS OFFSETS Y300.000
 (axis X: 24 windows)
 L FRICTION_X.nc
 (axis Y: 24 windows)
