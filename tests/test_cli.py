@@ -35,13 +35,16 @@ def test_init_generate_check_round_trip(tmp_path: Path) -> None:
     code, out, _ = run("generate", machine, "-o", tmp_path / "out")
     assert code == 0, out
     assert "friction_x.ngc" in out and "next: ncmeasure check" in out
+    assert "SETUP.md" in out and "setup.html" in out
     names = sorted(p.name for p in (tmp_path / "out").iterdir())
     assert names == [
+        "SETUP.md",
         "friction.ngc",
         "friction_x.ngc",
         "friction_y.ngc",
         "friction_z.ngc",
         "schedule.json",
+        "setup.html",
     ]
     code, out, _ = run("check", tmp_path / "out")
     assert code == 0 and "900/900 windows" in out

@@ -36,7 +36,7 @@ import numpy as np
 
 from ncmeasure.config import MachineConfig, load_machine
 from ncmeasure.errors import ConfigError, LinkError, RecordingError
-from ncmeasure.formats.schedule import Schedule
+from ncmeasure.formats.schedule import SCHEDULE_MARGIN_S, Schedule
 from ncmeasure.links import DriveLink, make_link
 from ncmeasure.recording import RecordingWriter
 from ncmeasure.samples import LinkClock, LinkEvent, SampleBlock
@@ -54,8 +54,6 @@ log = logging.getLogger(__name__)
 
 Status = Literal["complete", "incomplete", "interrupted", "link_lost"]
 
-#: Recording goes on this long after the schedule's last window, by default.
-SCHEDULE_MARGIN_S = 30.0
 #: After the duration, rows already on their way are waited for this long (link time).
 IN_FLIGHT_S = 1.0
 

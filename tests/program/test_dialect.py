@@ -136,6 +136,12 @@ BROKEN = {
         'main_file = "{name}.json"',
         "names.main_file: .json is the schedule's extension",
     ),
+    "program files named like the setup sheet": (
+        "linuxcnc",
+        r"^sub_file = .*$",
+        'sub_file = "{name}.md"',
+        "names.sub_file: .md is the setup sheet's extension",
+    ),
     "slash in a program name": (
         "linuxcnc",
         r"^main = .*$",

@@ -254,7 +254,7 @@ def test_generate_refuses_cleanly_or_writes_programs_check_accepts(data: dict[st
         assert report.ok and report.windows_found == report.windows_expected
         schedule = load_schedule(out / "schedule.json")
         assert sorted(p.name for p in out.iterdir()) == sorted(
-            [*schedule.program_files, "schedule.json", "notes.txt"]
+            [*schedule.program_files, "schedule.json", "SETUP.md", "setup.html", "notes.txt"]
         )
         _only_the_dialects_m_codes(
             out, schedule.program_files, schedule.controller_options, schedule.controller

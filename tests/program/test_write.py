@@ -304,11 +304,13 @@ def test_fewer_axes_leave_no_stale_subprogram(tmp_path: Path) -> None:
     data["axes"] = data["axes"][:2]
     generate_programs(config_of(data), generated=FIXED_TIME).write(out)
     assert sorted(p.name for p in out.iterdir()) == [
+        "SETUP.md",
         "friction.ngc",
         "friction_x.ngc",
         "friction_y.ngc",
         "machine.toml",
         "schedule.json",
+        "setup.html",
     ]
     assert check_programs(out).ok
 
@@ -366,7 +368,7 @@ def test_a_failure_while_moving_into_place_restores_the_earlier_programs(
 
     def failing(self: Path, target: Any) -> Any:
         calls["n"] += 1
-        if calls["n"] == 6:  # old files moved aside, some new ones in place
+        if calls["n"] == 9:  # the 7 old files moved aside, 2 new ones in place
             raise OSError(28, "No space left on device")
         return replace(self, target)
 
@@ -403,12 +405,14 @@ def test_generate_into_the_current_folder_stages_inside_it(
     assert code == 0, stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["work"]
     assert sorted(p.name for p in work.iterdir()) == [
+        "SETUP.md",
         "friction.ngc",
         "friction_x.ngc",
         "friction_y.ngc",
         "friction_z.ngc",
         "machine.toml",
         "schedule.json",
+        "setup.html",
     ]
     assert run("generate", "machine.toml", "-o", ".", "-q")[0] == 0  # again, replacing
     assert run("check", ".")[0] == 0

@@ -191,14 +191,20 @@ def generate(
     output: Annotated[
         Path,
         typer.Option(
-            "--output", "-o", help="Folder for the programs and schedule.json (created if missing)."
+            "--output",
+            "-o",
+            help="Folder for the programs, schedule.json and the setup sheet (created if missing).",
         ),
     ],
     controllers_dir: ControllersDir = None,
     templates_dir: TemplatesDir = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Print nothing on success.")] = False,
 ) -> None:
-    """Write the main program, one subprogram per axis, and schedule.json.
+    """Write the main program, one subprogram per axis, schedule.json and the setup sheet.
+
+    The setup sheet (SETUP.md, and setup.html to print) tells the technician at the
+    machine where each axis goes, how long it takes, what to do before cycle start,
+    how to record and where the marker is.
 
     Example: ncmeasure generate machine.toml -o programs/
     """
@@ -206,6 +212,7 @@ def generate(
 
     from ncmeasure.config import load_machine
     from ncmeasure.program import generate_programs
+    from ncmeasure.program.setup import SETUP_HTML, SETUP_MD
 
     config = load_machine(machine)
     if output.exists() and not output.is_dir():
@@ -228,6 +235,14 @@ def generate(
             "next: ", (f"ncmeasure check {output}", "bold"), " (again after copying or editing)"
         )
     )
+    if result.setup is not None:
+        console().print(
+            Text.assemble(
+                "at the machine: read ",
+                (str(output / SETUP_MD), "bold"),
+                f" (or print {SETUP_HTML}) before cycle start",
+            )
+        )
 
 
 @app.command()

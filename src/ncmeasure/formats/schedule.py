@@ -26,6 +26,7 @@ __all__ = [
     "SCHEDULE_FILE",
     "SCHEDULE_FORMAT",
     "SCHEDULE_FORMAT_VERSION",
+    "SCHEDULE_MARGIN_S",
     "AxisSummary",
     "FileName",
     "Schedule",
@@ -36,6 +37,9 @@ __all__ = [
 SCHEDULE_FILE = "schedule.json"
 MAX_SCHEDULE_BYTES = 64 * 1024 * 1024
 """Largest schedule.json read."""
+SCHEDULE_MARGIN_S = 30.0
+"""A recording given a schedule goes on this long after the schedule's estimated end
+(``ncmeasure record --schedule``; the setup sheet tells the technician)."""
 
 
 def _file_name(value: str) -> str:

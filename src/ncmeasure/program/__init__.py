@@ -2,7 +2,9 @@
 
 ``generate_programs(config)`` plans (and refuses a plan beyond the machine
 file's limits); its ``write(dir)`` renders the templates in a sandbox,
-streaming into a staging folder, checks the result and moves it into place.
+streaming into a staging folder, checks the result and moves it into place,
+with schedule.json and the setup sheet for the technician (``setup.py``:
+SETUP.md and setup.html).
 ``check_programs(dir)`` re-reads what was written, independently of the
 templates, and holds it against the soft limits, the maximum feeds, the
 schedule and the dialect's allowed codes.

@@ -157,6 +157,8 @@ def _format_problem(key: str, value: str) -> str | None:
             return f"needs an extension that tells program files from others: {value!r}"
         if suffix == ".json":
             return ".json is the schedule's extension"
+        if suffix in (".md", ".html"):
+            return f"{suffix} is the setup sheet's extension (SETUP.md, setup.html)"
     return None
 
 

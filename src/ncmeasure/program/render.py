@@ -48,6 +48,15 @@ from ncmeasure.program.dialect import (
 )
 from ncmeasure.program.reader import MAX_PROGRAM_BYTES, MAX_PROGRAM_FILE_BYTES
 from ncmeasure.program.sandbox import TemplateSandbox
+from ncmeasure.program.setup import (
+    SETUP_FILES,
+    SETUP_HTML,
+    SETUP_MD,
+    SetupSheet,
+    render_setup_html,
+    render_setup_markdown,
+    setup_sheet,
+)
 from ncmeasure.resources import builtin_dir
 
 __all__ = ["GeneratedPrograms", "ProgramRef", "generate_programs", "generation_time"]
@@ -174,13 +183,17 @@ class GeneratedPrograms:
 
     :meth:`write` streams every file into a staging folder, checks the result
     with ncmeasure's own checker and only then moves it into place; ``files``
-    renders the same text into memory (for small programs and tests).
+    renders the same text into memory (for small programs and tests). Beside
+    the programs go schedule.json and, when ``setup`` is given, the setup sheet
+    (SETUP.md and setup.html).
     """
 
     dialect: Dialect
     schedule: Schedule
     plans: list[AxisPlan]
     main_file: str = ""
+    setup: SetupSheet | None = None
+    """The setup sheet the technician reads before cycle start."""
     _renders: list[tuple[str, Callable[[], Iterator[str]]]] = field(
         default_factory=list, repr=False
     )
@@ -249,10 +262,22 @@ class GeneratedPrograms:
                 what = f"{type(exc).__name__}: {what}"
             raise DialectError(f"template {_template_place(exc, self.dialect)}: {what}") from exc
 
+    @property
+    def setup_files(self) -> dict[str, str]:
+        """The setup sheet's files by name (none without a sheet)."""
+        if self.setup is None:
+            return {}
+        return {
+            SETUP_MD: render_setup_markdown(self.setup),
+            SETUP_HTML: render_setup_html(self.setup),
+        }
+
     def _render_into(self, folder: Path) -> None:
         schedule = self.schedule.model_dump_json(indent=2) + "\n"
         (folder / SCHEDULE_FILE).write_text(schedule, encoding="utf-8", newline="\n")
         del schedule
+        for name, text in self.setup_files.items():
+            (folder / name).write_text(text, encoding="utf-8", newline="\n")
         self._start()
         output = _Output(self._limit_bytes, self._limit_what)
         for name, render in self._renders:
@@ -292,7 +317,7 @@ class GeneratedPrograms:
         directory = Path(directory)
         if directory.exists() and not directory.is_dir():
             raise OutputError(f"{directory}: exists and is not a directory")
-        new = [*self.program_files, SCHEDULE_FILE]
+        new = [*self.program_files, SCHEDULE_FILE, *(SETUP_FILES if self.setup else ())]
         for name in new:  # whatever named the files: nothing lands outside the folder
             if not plain_file_name(name):
                 raise OutputError(
@@ -319,9 +344,10 @@ class GeneratedPrograms:
             shutil.rmtree(staging, ignore_errors=True)
 
     def all_files(self) -> dict[str, str]:
-        """Program files plus schedule.json, by file name (rendered into memory)."""
+        """Program files, schedule.json and the setup sheet, by file name (rendered into
+        memory)."""
         schedule = self.schedule.model_dump_json(indent=2) + "\n"
-        return {**self.files, SCHEDULE_FILE: schedule}
+        return {**self.files, SCHEDULE_FILE: schedule, **self.setup_files}
 
 
 def _previous_generation(directory: Path, dialect: Dialect, new: list[str]) -> list[str]:
@@ -349,6 +375,7 @@ def _previous_generation(directory: Path, dialect: Dialect, new: list[str]) -> l
                 [exc.message],
             ) from exc
         previous.add(SCHEDULE_FILE)
+        previous.update(SETUP_FILES)  # the sheet beside a schedule is its generation's
         if old.program_files:
             previous.update(old.program_files)
         else:  # written before schedules listed their files: every program file is theirs
@@ -366,7 +393,8 @@ def _previous_generation(directory: Path, dialect: Dialect, new: list[str]) -> l
         )
         raise OutputError(
             f"{directory}: holds program files that no schedule.json there names ({shown}); "
-            "check would refuse the folder. Move them away or choose another folder",
+            "check would refuse the folder, and generate overwrites only its own files. "
+            "Move them away or choose another folder",
         )
     return sorted(previous & present)
 
@@ -608,11 +636,18 @@ def generate_programs(
             "warnings": [*schedule.warnings, *dialect_warnings(dialect, options)],
         }
     )
+    programs = [("main program", main.name, main.file_name)] + [
+        (f"subprogram of axis {a.name}", a.sub.name, a.sub.file_name)
+        for a in view.measure
+        if a.sub is not None and dialect.subprograms
+    ]
+    sheet = setup_sheet(config, dialect, schedule, plans, programs, view.generated)
     return GeneratedPrograms(
         dialect=dialect,
         schedule=schedule,
         plans=plans,
         main_file=main.file_name,
+        setup=sheet,
         _renders=renders,
         _limit_bytes=limit_kb * 1024,
         _limit_what=memory,
@@ -674,7 +709,7 @@ def _program_refs(
         p.axis.name: ref(names.sub, p.axis.name, i + 1) if dialect.subprograms else None
         for i, p in enumerate(plans)
     }
-    taken = {SCHEDULE_FILE: "schedule"}
+    taken = {SCHEDULE_FILE: "schedule", **{name.lower(): "setup sheet" for name in SETUP_FILES}}
     for key, named in [("main_file", main)] + [("sub_file", s) for s in subs.values() if s]:
         if named.file_name.lower() in taken:
             raise DialectError(
