@@ -126,8 +126,11 @@ def test_every_dialect_writes_a_sheet_with_the_planned_envelope_and_duration(
         assert f"`{name}`" in text
     assert load_dialect(dialect).title in text
     assert "Z parks first" in text and "`vertical = true`" in text
-    assert "stops before its first move with a message and waits for cycle start" in text
-    assert "machine coordinates, whatever work offset or tool is active" in text
+    loaded = load_dialect(dialect)
+    assert "stops before its first move" in text and "waits for cycle start" in text
+    assert loaded.start.text in text  # the operator's message, as the control shows it
+    # what the operator must do about offsets, as the dialect's manual requires
+    assert loaded.coordinates.operator in text.replace("\\", "")
     assert "--schedule <this folder>/schedule.json" in text
     if schedule["marker_scope"] == "none":
         assert "the windows come from positions" in text

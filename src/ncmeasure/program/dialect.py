@@ -382,12 +382,23 @@ class Coordinates(_Strict):
     verify: Sequence[Verification] = ()
     prolog: str = ""
     """The prolog and each motion block as written, and why they are safe (the docs)."""
+    operator: str = (
+        "The program works in machine coordinates, whatever work offset or tool is active: "
+        "it selects them itself."
+    )
+    """What the setup sheet tells the operator about offsets before cycle start."""
     sources: Sequence[str] = ()
+
+
+START_MESSAGE = "ncmeasure: table clear, no tool, feed override 100? Cycle start to measure"
+"""The operator message of the stop before the first move."""
 
 
 class Start(_Strict):
     """The programmed stop and operator message before the first move."""
 
+    text: str = START_MESSAGE
+    """The message as the dialect's programs show it (FANUC's #3006 shows 26 characters)."""
     stop: Sequence[Regex] = (r"^M0?0$",)
     """Blocks that stop the program until cycle start."""
     message: Sequence[Regex] = ()

@@ -71,11 +71,6 @@ class ProgramRef:
     number: int | None = None
 
 
-START_MESSAGE = "ncmeasure: table clear, no tool, feed override 100? Cycle start to measure"
-"""The operator message of the stop before the first move (comment-safe in every dialect:
-the dialect's forbidden comment characters are removed where it is a comment)."""
-
-
 @dataclass(frozen=True)
 class AxisView:
     """One axis as the templates see it."""
@@ -613,7 +608,7 @@ def generate_programs(
         marker_scope=marker_scope(dialect, options),
         marker_values=dialect.marker.values,
         confirm_start=config.machine.confirm_start,
-        start_message=START_MESSAGE,
+        start_message=dialect.start.text,
     )
     env = _environment(dialect, templates_dirs)
     total_moves = sum(len(plan.moves) for plan in plans)

@@ -196,12 +196,20 @@ def _retract_key(vertical: bool) -> str:
     return "vertical = true" if vertical else "retract_first = true"
 
 
-def _before(config: MachineConfig) -> tuple[Line, ...]:
+def _before(config: MachineConfig, dialect: Dialect) -> tuple[Line, ...]:
     start: Line
-    if config.machine.confirm_start:
+    if config.machine.confirm_start and dialect.start.without_message:
         start = (
-            "The program stops before its first move with a message and waits for cycle "
-            "start (machine file: ",
+            "The program stops before its first move and waits for cycle start (machine "
+            "file: ",
+            Code("confirm_start = true"),
+            f"). The control shows no text there: the stop asks \"{dialect.start.text}\".",
+        )
+    elif config.machine.confirm_start:
+        start = (
+            "The program stops before its first move with the message ",
+            Code(dialect.start.text),
+            " and waits for cycle start (machine file: ",
             Code("confirm_start = true"),
             ").",
         )
@@ -222,10 +230,7 @@ def _before(config: MachineConfig) -> tuple[Line, ...]:
             " of the machine file (the table above). If they differ, do not start: correct "
             "the machine file and generate again.",
         ),
-        (
-            "The program works in machine coordinates, whatever work offset or tool is "
-            "active: it selects them itself.",
-        ),
+        (dialect.coordinates.operator,),
         start,
         (
             "Run the first blocks (the parking) at reduced rapid override and watch every "
@@ -399,7 +404,7 @@ def setup_sheet(
         axes_note="Machine positions. Lowest and highest: what any move of the programs "
         "reaches (parking, warm-up strokes, the start and stop of every run).",
         order=_order(config, schedule),
-        before=_before(config),
+        before=_before(config, dialect),
         recording=_recording(config, schedule),
         marker=_marker(dialect, schedule),
     )
