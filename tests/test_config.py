@@ -11,7 +11,7 @@ import pytest
 from ncmeasure.config import config_hash, load_machine, parse_machine
 from ncmeasure.errors import ConfigError
 from ncmeasure.examples import example_machine
-from tests.conftest import example_data
+from tests.conftest import example_data, small_data
 
 
 def test_example_is_valid_and_documented_defaults_apply() -> None:
@@ -121,3 +121,13 @@ def test_a_union_type_error_names_every_branch_once() -> None:
         "axes[0].park_mm: expected a number, got the text 'x'",
         "measurement.positions: expected an integer or a list, got the text 'three'",
     ]
+
+
+def test_keys_added_later_keep_a_machine_files_hash() -> None:
+    """The fleet store keys a machine type by its file's hash: a file that does not set
+    the keys added since (confirm_start, control_axis, retract_first, safe_end) keeps the
+    hash it had before them; one that sets them otherwise gets another."""
+    data = small_data("linuxcnc")
+    assert config_hash(parse_machine(data)) == "d2be1566a894c0ba"  # as in the first release
+    data["machine"]["confirm_start"] = False
+    assert config_hash(parse_machine(data)) != "d2be1566a894c0ba"

@@ -374,6 +374,12 @@ class AxisConfig(StatedMechanics):
     max_jerk_m_s3: Annotated[float, Field(ge=0.001, le=100_000)] = Field(
         description="Maximum axis jerk in m/s³."
     )
+    control_axis: Annotated[int, Field(ge=1, le=32)] | None = Field(
+        default=None,
+        description="The axis' number in the control, where a dialect addresses axes by "
+        "number (FANUC: parameter 1020 order; its offset check reads #5020+n and #5040+n). "
+        "Default: its place in the machine file, 1 for the first.",
+    )
     retract_first: bool = Field(
         default=False,
         description="Treat the axis like a vertical one: it goes to its park before any "
@@ -404,6 +410,10 @@ class AxisConfig(StatedMechanics):
             "an axis name: an upper-case letter, then up to 7 upper-case letters or digits "
             "(X, Y, Z, Z1, ...)",
         )
+
+    def control_number(self, place: int) -> int:
+        """The axis' number in the control: ``control_axis``, else ``place`` (1-based)."""
+        return self.control_axis or place
 
     @property
     def retracts(self) -> bool:
@@ -550,6 +560,15 @@ def _cross_checks(config: MachineConfig) -> Iterator[str]:
     for index, name in enumerate(names):
         if name in names[:index]:
             yield f"axes[{index}].name: axis {name} appears twice"
+    numbers = [axis.control_number(index + 1) for index, axis in enumerate(config.axes)]
+    for index, number in enumerate(numbers):
+        if number in numbers[:index]:
+            other = numbers.index(number)
+            yield (
+                f"axes[{index}].control_axis: axis {config.axes[index].name} would be control "
+                f"axis {number}, like axis {config.axes[other].name} (axes[{other}]); give "
+                "every axis its own number (control_axis, default: its place in the file)"
+            )
     for key in ("park_order", "measure_order"):
         order = getattr(config.machine, key)
         if order is not None and sorted(order) != sorted(names):
@@ -684,6 +703,14 @@ def load_machine(path: str | Path) -> MachineConfig:
     return parse_machine(read_toml(path, "a machine file"), str(path))
 
 
+_LATER_MACHINE_KEYS: dict[str, object] = {"confirm_start": True}
+_LATER_AXIS_KEYS: dict[str, object] = {
+    "control_axis": None,
+    "retract_first": False,
+    "safe_end": None,
+}
+
+
 def config_hash(config: MachineConfig) -> str:
     """A short, stable fingerprint of a validated machine description.
 
@@ -696,6 +723,16 @@ def config_hash(config: MachineConfig) -> str:
     data = config.model_dump(
         mode="json", exclude={"link": True, "limits": True, "axes": {"__all__": {"link"}}}
     )
+    # Keys added after the first release count only where a file sets them otherwise
+    # than their default: a machine file keeps its hash (and its machine type in the
+    # fleet store) across an upgrade.
+    for key, default in _LATER_MACHINE_KEYS.items():
+        if data["machine"].get(key) == default:
+            del data["machine"][key]
+    for axis in data["axes"]:
+        for key, default in _LATER_AXIS_KEYS.items():
+            if axis.get(key) == default:
+                del axis[key]
     canonical = json.dumps(data, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(canonical.encode("utf-8")).hexdigest()[:16]
 

@@ -138,8 +138,8 @@ def fanuc_as_one_file(
 
     LinuxCNC reads a dwell only as G4 P<seconds>; FANUC's G04 X<seconds> is the same
     dwell and is rewritten so (FANUC's own P would be milliseconds). The prolog's
-    offset verification (``IF[...]GOTO``, custom macro B) is unknown to LinuxCNC and
-    moves nothing: its conditional jumps are left out (see :func:`fanuc_lines`). The marker's
+    offset verification (``IF[...]THEN``, custom macro B) is unknown to LinuxCNC and
+    moves nothing: it is left out (see :func:`fanuc_lines`). The marker's
     non-buffered M code ``sync_m`` is a PLC function of the machine, unknown to
     LinuxCNC, and moves nothing: its blocks are left out.
     """
@@ -157,10 +157,6 @@ def fanuc_as_one_file(
 
 def fanuc_lines(text: str) -> list[str]:
     """A FANUC program's lines as rs274 reads them: without its tape marks and without
-    the offset verification's jumps (macro B ``IF[...]GOTO n`` and ``GOTO n``, which
-    rs274 does not know; the ``#3000`` alarm they jump to is a plain assignment there)."""
-    return [
-        line
-        for line in text.splitlines()
-        if line != "%" and not re.match(r"^(IF\[.*\]GOTO\d+|GOTO\d+)$", line)
-    ]
+    the offset verification (macro B ``IF[...]THEN #3000=1(...)``, which rs274 does not
+    know and which moves nothing)."""
+    return [line for line in text.splitlines() if line != "%" and not line.startswith("IF[")]

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
-from ncmeasure.config import MachineConfig
-from ncmeasure.errors import ProgramCheckError, ProgramError
+from ncmeasure.config import MachineConfig, parse_machine
+from ncmeasure.errors import ConfigError, ProgramCheckError, ProgramError
 from ncmeasure.formats.schedule import SCHEDULE_FILE, load_schedule
 from ncmeasure.program import check_programs, generate_programs, load_dialect
 from ncmeasure.program.check import axis_numbers
@@ -229,15 +229,73 @@ def test_fanuc_proves_every_axis_before_the_first_move(make_config: Make, tmp_pa
     machine and work position of every axis and stops with an alarm unless they agree.
     A verification that leaves an axis out proves nothing, and check says so."""
     folder = _generate(make_config, "fanuc", tmp_path)
-    text = (folder / "O1000.nc").read_text(encoding="utf-8")
-    assert re.findall(r"^IF\[ABS\[#502(\d)-#504(\d)\]GT0\.001\]GOTO9001$", text, re.M) == [
-        ("1", "1"),
-        ("2", "2"),
-        ("3", "3"),
-    ]
-    alarm = text.split("\n").index("N9001#3000=1(WORK OFFSET NOT ZERO)") + 1
-    assert _run(folder, OPERATOR).stopped == f"O1000.nc:{alarm}"
+    main = folder / "O1000.nc"
+    text = main.read_text(encoding="utf-8")
+    verify = re.compile(
+        r"^IF\[ABS\[#502(\d)-#504(\d)\]GT0\.001\]THEN#3000=1\(WORK OFFSET NOT ZERO\)$"
+    )
+    lines = text.split("\n")
+    found = [(i, m.groups()) for i, line in enumerate(lines) if (m := verify.match(line))]
+    assert [groups for _, groups in found] == [("1", "1"), ("2", "2"), ("3", "3")]
+    assert _run(folder, OPERATOR).stopped == f"O1000.nc:{found[-1][0] + 1}"
     assert _run(folder, {"work": {"X": 0.0, "Y": 0.0, "Z": 0.0}}).motions
-    _edit(folder / "O1000.nc", r"^IF\[ABS\[#5022-#5042\]GT0\.001\]GOTO9001$", "")
+    # Y's check replaced by a second one of X: Y is not proved
+    main.write_text(text.replace("#5022-#5042", "#5021-#5041"), encoding="utf-8")
     with pytest.raises(ProgramCheckError, match="may still act on it"):
+        check_programs(folder)
+
+
+def test_fanuc_checks_the_axes_by_their_number_in_the_control(
+    make_config: Make, tmp_path: Path
+) -> None:
+    """A machine file that lists only Y and Z: their numbers in the control (2, 3) are
+    checked, not 1 and 2."""
+    config = make_config("fanuc", small=True)
+    data = config.model_dump()
+    data["axes"] = data["axes"][1:]
+    data["axes"][0]["control_axis"] = 2
+    data["axes"][1]["control_axis"] = 3
+    generate_programs(MachineConfig.model_validate(data), generated=FIXED_TIME).write(tmp_path)
+    text = (tmp_path / "O1000.nc").read_text(encoding="utf-8")
+    assert re.findall(r"^IF\[ABS\[#(\d+)-#(\d+)\]", text, re.M) == [
+        ("5022", "5042"),
+        ("5023", "5043"),
+    ]
+    data["axes"][1]["control_axis"] = 2
+    with pytest.raises(
+        ConfigError, match=r"axes\[1\].control_axis: axis Z would be control axis 2"
+    ):
+        parse_machine(data)
+
+
+@pytest.mark.parametrize(
+    ("dialect", "file", "pattern", "replacement", "problem"),
+    [
+        # words hidden behind an operator message are words: a move in work coordinates
+        ("linuxcnc", "friction.ngc", r"^M0$", "M0\n(MSG,x) G0 Z-400 (y)", "may still act"),
+        ("linuxcnc", "friction.ngc", r"^M0$", "M0\nG53", "moves no axis"),
+        # a cleared message is no message
+        ("sinumerik-840d", "FRICTION.MPF", r'^MSG\(".*"\)$', "MSG()", "shows the operator no"),
+        ("fanuc", "O1000.nc", r"^#3006=1\(.*\)$", "#3006=1", "shows the operator no"),
+        ("twincat", "FRICTION.nc", r'^#MSG SYN \[".*"\]$', '#MSG SYN [" "]', "cannot read"),
+        # a transformation left on changes what every axis word means
+        ("sinumerik-840d", "FRICTION.MPF", r"^TRAFOOF$", "", "kinematic transformation"),
+    ],
+)
+def test_what_only_looks_like_the_prolog_is_refused(
+    dialect: str,
+    file: str,
+    pattern: str,
+    replacement: str,
+    problem: str,
+    make_config: Make,
+    tmp_path: Path,
+) -> None:
+    folder = _generate(make_config, dialect, tmp_path)
+    if "TRAFOOF" in pattern:  # every program of the set switches it off: remove them all
+        for path in folder.glob("*.?PF"):
+            _edit(path, pattern, replacement)
+    else:
+        _edit(folder / file, pattern, replacement)
+    with pytest.raises((ProgramCheckError, ProgramError), match=problem):
         check_programs(folder)

@@ -148,3 +148,29 @@ def test_on_the_virtual_machine_nothing_moves_before_the_vertical_axis_is_up(
         assert not moving[: int(np.argmax(up))].any()
         assert up[1:][moving].all()
         assert moving.any()
+
+
+def test_no_retracting_axis_moves_while_another_is_away_from_its_park(tmp_path: Path) -> None:
+    """Two retracting axes (a vertical Z, a quill W): they park one after the other, and
+    neither moves while the other is away from its park."""
+    data = _data()
+    data["axes"].append(
+        {
+            **_z(data),
+            "name": "W",
+            "vertical": False,
+            "retract_first": True,
+            "travel_mm": [-300.0, 0.0],
+            "park_mm": -5.0,
+        }
+    )
+    data["machine"]["measure_order"] = ["X", "Y", "Z", "W"]
+    generate_programs(parse_machine(data), generated=FIXED_TIME).write(tmp_path)
+    assert check_programs(tmp_path).ok
+    text = (tmp_path / "friction_z.ngc").read_text(encoding="utf-8")
+    last = text.rstrip().split("\n")
+    back = max(i for i, line in enumerate(last) if line.startswith("G53 G0 Z"))
+    del last[back]  # Z stays down at the end of its measurement; W is measured next
+    (tmp_path / "friction_z.ngc").write_text("\n".join(last) + "\n", encoding="utf-8")
+    with pytest.raises(ProgramCheckError, match=r"W moves while a vertical .*\(Z at "):
+        check_programs(tmp_path)

@@ -274,7 +274,7 @@ def own_templates(tmp_path: Path, dialect: str, edit: Callable[[str], str]) -> P
 def test_programs_check_refuses_are_not_written(tmp_path: Path) -> None:
     """A template that forgets to park: the rendered programs fail check, nothing is written."""
     templates = own_templates(
-        tmp_path, "linuxcnc", lambda t: t.replace("G0 {{ axis.park_mm | word(axis.name) }}", "")
+        tmp_path, "linuxcnc", lambda t: t.replace("G53 G0 {{ axis.park_mm | word(axis.name) }}", "")
     )
     out = tmp_path / "out"
     config = config_of(small_data("linuxcnc"))

@@ -97,8 +97,9 @@ class AxisSummary(StatedMechanics):
     usable_mm: tuple[float, float]
     park_mm: float
     number: int = 0
-    """The axis' place in the machine file, 1 for the first: its number in the control
-    where a dialect addresses axes by number (FANUC's #5021 + n); 0 in older schedules."""
+    """The axis' number in the control where a dialect addresses axes by number
+    (FANUC's #5020 + n): the machine file's ``control_axis``, else its place there
+    (1 for the first); 0 in older schedules."""
     retracts: bool = False
     """Vertical or retract_first: parked before any other axis moves, measured last;
     no other axis moves while it is away from its park."""

@@ -227,35 +227,38 @@ def _start_problems(schedule: Schedule, trace: ProgramTrace) -> list[str]:
 
 
 def _retract_problems(schedule: Schedule, trace: ProgramTrace) -> list[str]:
-    """Vertical and retract_first axes park first; no other axis moves while one of them
-    is away from its park."""
+    """Vertical and retract_first axes park first; no axis moves while another of them is
+    away from its park (while they park, one after the other, the rest are not yet)."""
     retracts = {axis.name: axis.park_mm for axis in schedule.axes if axis.retracts}
     if not retracts:
         return []
-    problems: list[str] = []
     position: dict[str, float | None] = dict.fromkeys(retracts)
     for motion in trace.motions:
         moved = set(motion.target)
+        parking = moved <= set(retracts)  # a retracting axis may park before the next one
         away = sorted(
             name
             for name, here in position.items()
-            if name not in moved and (here is None or abs(here - retracts[name]) > _TOL_MM)
+            if name not in moved
+            and (
+                (here is None and not parking)
+                or (here is not None and abs(here - retracts[name]) > _TOL_MM)
+            )
         )
-        if away and moved - set(retracts):
+        if away:
             state = ", ".join(
                 f"{name} not yet parked"
                 if position[name] is None
                 else f"{name} at {_num(position[name] or 0.0)} mm, park {_num(retracts[name])}"
                 for name in away
             )
-            problems.append(
+            return [
                 f"{_where(motion)}: {', '.join(sorted(moved))} moves while a vertical or "
                 f"retract_first axis is away from its park ({state}); it must retract first"
-            )
-            break  # the first one says it; the rest follow from it
+            ]  # the first one says it; the rest follow from it
         for name in moved & set(retracts):
             position[name] = motion.target[name]
-    return problems
+    return []
 
 
 def _check_names(schedule: Schedule, dialect: Dialect, path: Path) -> None:

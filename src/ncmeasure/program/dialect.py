@@ -323,19 +323,21 @@ class Codes(_Strict):
         return self.m_meaning.get(str(number), "")
 
 
-OffsetKind = Literal["work", "shift", "length", "radius", "cycle"]
+OffsetKind = Literal["work", "shift", "length", "radius", "cycle", "transform"]
 """What an operator may leave active that moves a programmed position or path:
 ``work`` a work offset (G54…G59, G54.1 P, a settable frame, an external offset),
 ``shift`` a coordinate shift (G92, G52, a programmable frame, DRF, PRESET),
 ``length`` / ``radius`` tool length and radius compensation, ``cycle`` a modal
-canned cycle."""
+canned cycle, ``transform`` a kinematic transformation (TRAORI, TRANSMIT)."""
 OFFSET_KINDS: tuple[OffsetKind, ...] = ("work", "shift", "length", "radius", "cycle")
+"""The kinds every control has; ``transform`` only where the dialect names it."""
 OFFSET_MEANING: dict[str, str] = {
     "work": "a work offset (G54..G59, frame)",
     "shift": "a coordinate shift (G92, G52, programmable frame)",
     "length": "tool length compensation",
     "radius": "tool radius compensation",
     "cycle": "a modal canned cycle",
+    "transform": "a kinematic transformation",
 }
 
 
@@ -355,14 +357,16 @@ class CodeEffect(_Strict):
 
 
 class Verification(_Strict):
-    """Prolog lines that read the active offsets and stop with a message unless they are
+    """Prolog blocks that read the active offsets and stop with an alarm unless they are
     zero, where the control cannot feed in machine coordinates (FANUC's G53 is rapid
-    only): after them the named offsets are known to be zero, or the program stopped."""
+    only): one block per axis, each self-contained (no jumps a hand edit could
+    reorder), the axis' number in the control in group ``n``. Once every axis has its
+    block the named offsets are known to be zero, or the program stopped."""
 
-    pattern: Regex
-    """A whole block of the verification (after comments are removed, in capitals)."""
+    pattern: Annotated[str, AfterValidator(lambda v: _regex(v, "n"))]
+    """One axis' block (after comments are removed, in capitals); group ``n``."""
     proves: Sequence[OffsetKind] = ()
-    """Offsets known to be zero once every pattern has been met, in order."""
+    """Offsets known to be zero once every axis has been verified."""
 
 
 class Coordinates(_Strict):
@@ -379,7 +383,7 @@ class Coordinates(_Strict):
     """The offsets the control has."""
     codes: dict[str, CodeEffect] = Field(default_factory=dict)
     """Codes by their written form (G53, SUPA, D0, M91), upper case, no leading zeros."""
-    verify: Sequence[Verification] = ()
+    verify: Verification | None = None
     prolog: str = ""
     """The prolog and each motion block as written, and why they are safe (the docs)."""
     operator: str = (
@@ -402,9 +406,13 @@ class Start(_Strict):
     stop: Sequence[Regex] = (r"^M0?0$",)
     """Blocks that stop the program until cycle start."""
     message: Sequence[Regex] = ()
-    """Blocks (matched before comments are removed) that show the operator a message."""
-    stop_shows_message: bool = False
-    """The stop itself carries the message (FANUC #3006)."""
+    """Whole lines, matched before comments are removed, that show the operator a
+    non-empty message."""
+    clear: Sequence[Regex] = ()
+    """Whole lines that clear the message (SINUMERIK ``MSG()``): read, no message."""
+    stop_message: Sequence[Regex] = ()
+    """Whole lines, matched before comments are removed, that stop with their own
+    non-empty message (FANUC ``#3006=1(TEXT)``)."""
     without_message: str = ""
     """Why the dialect's stop shows no message (none could be verified); the setup
     sheet tells the operator what the stop means instead."""

@@ -224,6 +224,8 @@ def _use(kind: str, digits: str, file: str, line: int) -> CodeUse:
 _BLOCK_NUMBER = re.compile(r"^N\d+\s*", re.I)
 _MESSAGE = "\x00MESSAGE"
 """What the reader keeps of a block that shows the operator a message."""
+_STOP_MESSAGE = "\x00STOP MESSAGE"
+"""What the reader keeps of a stop that shows its own message."""
 _MAX_FILE_PROBLEMS = 5
 """Problems of one kind reported per file (the first ones say what is wrong)."""
 
@@ -269,7 +271,10 @@ class ProgramSet:
         self.accepted = {w.upper() for w in r.accepted}
         self.stops = _patterns(dialect.start.stop, effective)
         self.messages = _patterns(dialect.start.message, effective)
-        self.verify = [re.compile(v.pattern, re.I) for v in dialect.coordinates.verify]
+        self.clears = _patterns(dialect.start.clear, effective)
+        self.stop_messages = _patterns(dialect.start.stop_message, effective)
+        verify = dialect.coordinates.verify
+        self.verify = re.compile(verify.pattern, re.I) if verify else None
         self.programs: dict[str, _Program] = {}
         self.first_program: dict[str, str] = {}
         """File name -> key of its first program."""
@@ -314,8 +319,13 @@ class ProgramSet:
             if bad:
                 problems.setdefault("character", []).append(f"{file}:{number}: character {bad}")
             stripped = raw.strip()
+            # a message's text is the operator's, not words
             if any(p.search(stripped) for p in self.messages):
-                texts.append(_MESSAGE)  # its text is the operator's, not words
+                texts.append(_MESSAGE)
+            elif any(p.search(stripped) for p in self.stop_messages):
+                texts.append(_STOP_MESSAGE)
+            elif any(p.search(stripped) for p in self.clears):
+                texts.append("")
             else:
                 texts.append(self._clean(raw))
             if closed_at:
@@ -448,10 +458,11 @@ class ProgramSet:
             for key, rule in self.dialect.codes.options.items()
         }
         found: list[CodeUse] = []
-        fixed = self.stops + self.verify  # the dialect's own blocks: #3006, #5021 are no marker
+        # the dialect's own blocks: #3006, #5021 are no marker
+        fixed = self.stops + ([self.verify] if self.verify else [])
         for file, texts in self.files.items():
             for index, text in enumerate(texts):
-                if text == _MESSAGE:
+                if text in (_MESSAGE, _STOP_MESSAGE):
                     continue
                 if self.call and (match := self.call.search(text)):
                     # the called program's name is a name, not words
@@ -525,8 +536,6 @@ class _Interpreter:
         self.accepted = files.accepted
         self.stops = files.stops
         self.verify = files.verify
-        self.verify_seen: set[int] = set()
-        """Verification patterns met so far."""
         self.verified_numbers: set[int] = set()
         """Axis numbers a verification block checked."""
         self.axis_numbers = dict(axis_numbers or {})
@@ -605,11 +614,9 @@ class _Interpreter:
             if text == _MESSAGE:
                 self.message_shown = True
                 continue
-            if any(p.search(text) for p in self.stops):
-                start = self.dialect.start
-                shown = (
-                    self.message_shown or start.stop_shows_message or bool(start.without_message)
-                )
+            if text == _STOP_MESSAGE or any(p.search(text) for p in self.stops):
+                silent = bool(self.dialect.start.without_message)  # none can be shown
+                shown = self.message_shown or text == _STOP_MESSAGE or silent
                 stop = Stop(program.key, number, shown, len(self.trace.calls), program.file)
                 self.trace.steps.append(stop)
                 self.message_shown = False
@@ -623,39 +630,26 @@ class _Interpreter:
         return self.trace
 
     def _verification(self, text: str) -> bool:
-        """True for a block of the dialect's offset verification.
+        """True for an axis' block of the dialect's offset verification.
 
-        Once every pattern has been met, and (for patterns with a group ``n``) every
-        axis' number checked, the offsets the verification proves are known to be zero:
-        if the operator's are not, the program stops there (:attr:`ProgramTrace.stopped`).
+        Once every axis has been verified by its number, the offsets the verification
+        proves are known to be zero: if the operator left one of them non-zero on a
+        verified axis, the program stops there (:attr:`ProgramTrace.stopped`).
         """
-        for index, pattern in enumerate(self.verify):
-            match = pattern.search(text)
-            if not match:
-                continue
-            self.verify_seen.add(index)
-            number = match.groupdict().get("n")
-            if number is not None:
-                self.verified_numbers.add(int(number))
-            if self._proven():
-                proves = {k for v in self.dialect.coordinates.verify for k in v.proves}
-                self.active.difference_update(proves)
-                if any(
-                    value != 0.0 for kind in proves for value in self.offsets.pop(kind, {}).values()
-                ):
-                    self.stop_run = True
-            return True
-        return False
-
-    def _proven(self) -> bool:
-        if len(self.verify_seen) != len(self.verify):
+        verification = self.dialect.coordinates.verify
+        match = self.verify.search(text) if self.verify else None
+        if verification is None or match is None:
             return False
-        if not any("n" in pattern.groupindex for pattern in self.verify):
-            return True
+        self.verified_numbers.add(int(match.group("n")))
         numbers = self.axis_numbers
-        return bool(numbers) and all(
-            numbers.get(axis) in self.verified_numbers for axis in self.axes
-        )
+        if numbers and all(numbers.get(axis) in self.verified_numbers for axis in self.axes):
+            proves = set(verification.proves)
+            self.active.difference_update(proves)
+            for kind in proves:
+                values = self.offsets.pop(kind, {})
+                if any(value != 0.0 for value in values.values()):
+                    self.stop_run = True
+        return True
 
     def _code(self, program: _Program, number: int, code: str, bypassed: set[str]) -> bool:
         """Apply a code of the dialect's [coordinates.codes]; False if it is none."""
@@ -759,6 +753,10 @@ class _Interpreter:
             self._dwell(program, number, dwell_s)
             return
         if not targets:
+            if bypassed:
+                raise self._error(
+                    program, number, "a machine-coordinate word in a block that moves no axis"
+                )
             return
         if self.mode is None:
             raise self._error(program, number, "axis move before any G0/G1")

@@ -200,10 +200,9 @@ def _before(config: MachineConfig, dialect: Dialect) -> tuple[Line, ...]:
     start: Line
     if config.machine.confirm_start and dialect.start.without_message:
         start = (
-            "The program stops before its first move and waits for cycle start (machine "
-            "file: ",
+            "The program stops before its first move and waits for cycle start (machine file: ",
             Code("confirm_start = true"),
-            f"). The control shows no text there: the stop asks \"{dialect.start.text}\".",
+            f'). The control shows no text there: the stop asks "{dialect.start.text}".',
         )
     elif config.machine.confirm_start:
         start = (
