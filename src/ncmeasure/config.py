@@ -515,9 +515,7 @@ def _retract_order(config: MachineConfig, key: str, order: list[str]) -> Iterato
     """A park order must park retracting axes first; a measure order must measure them last."""
     retracts = [config.axis(name).retracts for name in order]
     if key == "park_order":
-        wrong = [
-            name for i, name in enumerate(order) if not retracts[i] and any(retracts[i + 1 :])
-        ]
+        wrong = [name for i, name in enumerate(order) if not retracts[i] and any(retracts[i + 1 :])]
         if wrong:
             late = ", ".join(n for i, n in enumerate(order) if retracts[i] and i > 0)
             yield (
