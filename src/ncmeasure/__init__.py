@@ -13,7 +13,8 @@ The pipeline, one folder per stage, data flowing one way:
                     ``report`` -> HTML; ``compensation`` -> tables and offsets for controllers
 8. ``store``        every fingerprint of every machine, in a database; ``web`` serves it
                     as a dashboard and a REST API, ``publish`` on the shop floor
-9. ``sim``          the virtual machine and simulated drives; ``demo`` runs it all
+9. ``sim``          the virtual machine and simulated drives; ``demo`` runs it all,
+                    ``dryrun`` runs your own programs on it (both through ``virtual_run``)
 10. ``cli``         the ``ncmeasure`` command
 
 ``formats`` holds the models of every file these stages write and read, at the

@@ -4,7 +4,9 @@
 runs them on the :class:`~ncmeasure.sim.machine.VirtualMachine`, serves the
 drive signals through simulated drives (CiA 402 on a python-can virtual bus,
 or a Modbus TCP server on 127.0.0.1), records them with the real link,
-analyses the recording and writes the HTML report.
+analyses the recording and writes the HTML report. The run itself is
+:func:`~ncmeasure.virtual_run.run_programs`, the path ``ncmeasure dryrun``
+takes with a user's own programs.
 
 With an assembly variation the machine is measured twice, as the machine
 maker would see it: first assembled correctly (the *reference*, the
@@ -29,34 +31,32 @@ The folder it writes::
 from __future__ import annotations
 
 import json
-import shutil
-import time
 import tomllib
-import uuid
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ncmeasure.acquire import AcquisitionResult, record
-from ncmeasure.analysis.analyze import analyze
+from ncmeasure.acquire import AcquisitionResult
 from ncmeasure.analysis.judgement.compare import compare_results
 from ncmeasure.config import MachineConfig, parse_machine
-from ncmeasure.errors import ConfigError, LinkError, OutputError
+from ncmeasure.errors import ConfigError
 from ncmeasure.examples import DEMO_LINKS, demo_machine
 from ncmeasure.formats.comparison import Comparison, write_comparison
-from ncmeasure.formats.results import Results, load_results, write_results
+from ncmeasure.formats.results import Results, load_results
 from ncmeasure.formats.schedule import SCHEDULE_FILE, Schedule
 from ncmeasure.program import generate_programs, load_dialect
 from ncmeasure.recording import read_recording
-from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.axis import Variation
-from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
 from ncmeasure.sim.machine import MachineRun, VirtualMachine
-from ncmeasure.sim.modbus_drive import SimulatedUnit, running_server
-from ncmeasure.sim.rig import rig_mechanics
+from ncmeasure.virtual_run import (
+    Progress,
+    SimulatedLink,
+    prepare_folder,
+    run_programs,
+    simulated_link,
+)
 
 __all__ = ["AxisAccuracy", "DemoResult", "DemoRun", "accuracy", "run_demo"]
 
@@ -73,9 +73,6 @@ _OWN = (
     "comparison.json",
     _MARKER_FILE,
 )
-
-Progress = Callable[[str, float | None], None]
-"""``progress(stage, fraction)``: a new stage with fraction None, then its fraction done."""
 
 
 @dataclass(frozen=True)
@@ -186,114 +183,6 @@ class DemoResult:
         return self.directory / "comparison.json" if self.comparison is not None else None
 
 
-def _prepare(directory: Path, force: bool) -> None:
-    if directory.exists() and not directory.is_dir():
-        raise OutputError(f"{directory}: exists and is not a directory")
-    if directory.is_dir() and any(directory.iterdir()):
-        if not (directory / _MARKER_FILE).is_file():
-            raise OutputError(
-                f"{directory}: exists and is not empty; name a new folder for the demo"
-            )
-        if not force:
-            raise OutputError(
-                f"{directory}: holds an earlier demo; pass --force to replace it, "
-                "or name a new folder"
-            )
-        for name in _OWN:
-            path = directory / name
-            if path.is_dir():
-                shutil.rmtree(path)
-            elif path.exists():
-                path.unlink()
-    directory.mkdir(parents=True, exist_ok=True)
-    (directory / _MARKER_FILE).write_text("written by ncmeasure demo\n", encoding="utf-8")
-
-
-_ANSWER_TIMEOUT_S = 10.0
-"""How long the link waits for a simulated drive's answer (SDO, Modbus request). The
-drives answer on this computer's scheduler, not on a bus: with other work running an
-answer can come a second late, and a real drive's 0.5 s would call a busy computer a
-dead drive. In lockstep nothing else depends on the answer's time."""
-
-
-def _record(
-    config: MachineConfig,
-    run: MachineRun,
-    schedule: Schedule,
-    out: Path,
-    link: str,
-    progress: Progress,
-    stage: str,
-    label: str,
-) -> AcquisitionResult:
-    """Serve ``run`` through simulated drives and record it with the real link, in lockstep.
-
-    Link and drives share a :class:`~ncmeasure.samples.SimulatedClock`: cycle ``k`` is
-    the virtual machine at ``k × period``, as fast as the computer allows, so the
-    recording is the same on an idle and on a loaded computer.
-    """
-    clock = SimulatedClock()
-    settings: dict[str, Any] = dict(config.link or {})
-    total = run.duration_s
-
-    def on_progress(p: Any) -> None:
-        progress(stage, min(1.0, p.link_time_s / total) if total > 0 else None)
-
-    notes = f"ncmeasure demo: virtual machine, {label}, simulated time (lockstep)"
-    # The drives move the axes the machine file describes, as the virtual machine does
-    # (facts the file leaves out are the rig's): the link reads them with the same facts.
-    mechanics = [rig_mechanics(axis.mechanics()) for axis in config.axes]
-    if link == "canopen":
-        channel = f"{settings.get('channel', 'ncmeasure-demo')}-{uuid.uuid4().hex[:8]}"
-        nodes = {i: int(axis.link["node_id"]) for i, axis in enumerate(config.axes)}
-        scaling = {
-            i: DriveScaling(
-                mechanics=mechanics[i], increments_per_rev=int(axis.link["increments_per_rev"])
-            )
-            for i, axis in enumerate(config.axes)
-        }
-        sync_hz = float(settings.get("sync_hz", 250.0))
-        with SimulatedDrives.start(
-            channel, nodes, run, scaling=scaling, period_s=1.0 / sync_hz, clock=clock
-        ):
-            return record(
-                config,
-                out=out,
-                link_settings={"channel": channel, "sdo_timeout_s": _ANSWER_TIMEOUT_S},
-                duration_s=total,
-                schedule=schedule,
-                notes=notes,
-                on_progress=on_progress,
-                clock=clock,
-            )
-    register_map = str(settings.get("register_map", "generic"))
-    units = [
-        SimulatedUnit(axis.name, int(axis.link["unit_id"]), register_map, i, mechanics[i])
-        for i, axis in enumerate(config.axes)
-    ]
-    with running_server(
-        units,
-        host="127.0.0.1",
-        port=0,  # a free port, whatever the machine file says
-        source=run,
-        clock=clock,
-    ) as server:
-        return record(
-            config,
-            out=out,
-            link_settings={
-                "host": "127.0.0.1",
-                "port": server.port,
-                "timeout_s": _ANSWER_TIMEOUT_S,
-            },
-            duration_s=total,
-            schedule=schedule,
-            notes=notes,
-            on_progress=on_progress,
-            clock=clock,
-        )
-
-
 def _truth(vm: VirtualMachine, schedule: Schedule) -> dict[str, Any]:
     """The model's friction torque at every scheduled position and velocity."""
     axes: dict[str, Any] = {}
@@ -320,45 +209,39 @@ def _measure(
     out: Path,
     *,
     label: str,
-    link: str,
+    link: SimulatedLink,
     seed: int,
     progress: Progress,
 ) -> DemoRun:
-    started = time.monotonic()
-    progress(f"{label}: simulating the program", None)
-    variations = {axis.name: variation for axis in config.axes}
-    vm = VirtualMachine.from_programs(config, programs, variations=variations, seed=seed)
-    run = vm.run()
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "truth.json").write_text(
-        json.dumps(_truth(vm, schedule), indent=2) + "\n", encoding="utf-8"
-    )
-    stage = f"{label}: recording {run.duration_s:.0f} s of machine time through {link}"
-    progress(stage, None)
-    acquisition = _record(config, run, schedule, out / "recording", link, progress, stage, label)
-    if acquisition.status not in ("complete", "incomplete"):
-        raise LinkError(
-            f"{label}: the recording ended {acquisition.status}"
-            + (f": {acquisition.error}" if acquisition.error else "")
+    def write_truth(vm: VirtualMachine, _run: MachineRun) -> None:
+        (out / "truth.json").write_text(
+            json.dumps(_truth(vm, schedule), indent=2) + "\n", encoding="utf-8"
         )
-    progress(f"{label}: analysing", None)
-    recording = read_recording(out / "recording")
-    results = analyze(
-        recording,
-        schedule=schedule,
-        machine=config,
-        progress=lambda _stage, fraction: progress(f"{label}: analysing", fraction),
+
+    done = run_programs(
+        config,
+        programs,
+        schedule,
+        out,
+        link=link,
+        notes=f"ncmeasure demo: virtual machine, {label}, simulated time (lockstep)",
+        label=label,
+        variations={axis.name: variation for axis in config.axes},
+        seed=seed,
+        progress=progress,
+        on_simulated=write_truth,
     )
-    write_results(results, out / "results.json")
+    # nothing stops the demo but Ctrl-C, which ends it: a run that returns is whole
+    assert done.results is not None and done.acquisition is not None
     return DemoRun(
         label=label,
         variation=variation,
         directory=out,
-        results=results,
-        acquisition=acquisition,
-        machine_time_s=run.duration_s,
-        wall_time_s=time.monotonic() - started,
-        accuracy=accuracy(results, vm),
+        results=done.results,
+        acquisition=done.acquisition,
+        machine_time_s=done.machine_time_s,
+        wall_time_s=done.wall_time_s,
+        accuracy=accuracy(done.results, done.vm),
     )
 
 
@@ -431,13 +314,16 @@ def run_demo(
     if reference_dir is not None and reference_dir.resolve() == directory.resolve():
         raise ConfigError(f"{directory}: the reference must be another demo folder")
     load_dialect(controller)  # an unknown controller fails before anything is written
-    _prepare(directory, force)
+    prepare_folder(
+        directory, marker=_MARKER_FILE, own=_OWN, what="demo", command="demo", replace=force
+    )
 
     report_progress("writing the machine file and the programs", None)
     config, machine_file, programs, schedule = _write_machine_and_programs(
         directory, controller, link
     )
 
+    drives = simulated_link(config, link)  # the demo machine file's own [link]
     result = DemoResult(directory, link, machine_file, programs)
     varied = variation != Variation()
     if varied:
@@ -452,7 +338,7 @@ def run_demo(
                     Variation(),
                     directory / "reference",
                     label="reference (assembled correctly)",
-                    link=link,
+                    link=drives,
                     seed=seed,
                     progress=report_progress,
                 )
@@ -465,7 +351,7 @@ def run_demo(
             variation,
             directory,
             label="machine with the variation" if varied else "machine",
-            link=link,
+            link=drives,
             seed=seed + 1 if varied else seed,  # its own noise, not the reference's
             progress=report_progress,
         )

@@ -11,8 +11,9 @@ import functools
 import tomllib
 from importlib import resources
 from string import Template
+from typing import Any
 
-__all__ = ["DEMO_LINKS", "demo_machine", "example_machine"]
+__all__ = ["DEMO_LINKS", "demo_link_tables", "demo_machine", "example_machine"]
 
 
 @functools.cache
@@ -45,3 +46,18 @@ def demo_machine(controller: str = "linuxcnc", link: str = "canopen") -> str:
         x_link=axis.substitute(node=1),
         z_link=axis.substitute(node=2),
     )
+
+
+def demo_link_tables(link: str, axes: int) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The demo's ``[link]`` table for ``link`` (``type`` included) and its axes' ``link`` tables.
+
+    The settings ``ncmeasure dryrun`` records a machine file with, where the file has none:
+    axis ``i`` (0-based) gets node or unit id ``i + 1``.
+    """
+    chosen = _demo_links()[link]
+    table: dict[str, Any] = tomllib.loads(chosen["table"])["link"]
+    axis = Template(chosen["axis"])
+    tables = [
+        tomllib.loads(f"link = {{ {axis.substitute(node=i + 1)} }}")["link"] for i in range(axes)
+    ]
+    return table, tables

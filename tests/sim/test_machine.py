@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import pickle
+import re
 import tomllib
 from pathlib import Path
 
@@ -116,6 +117,44 @@ def test_a_move_outside_the_travel_stops_the_virtual_machine(tmp_path: Path) -> 
     sub.write_text(text.replace("G0 X5.000", "G0 X-20.000", 1), encoding="utf-8")
     with pytest.raises(ProgramError, match=r"friction_x.*axis X would move to -20 mm"):
         VirtualMachine.from_programs(config, folder)
+
+
+def test_a_dry_run_follows_the_program_beyond_the_limits(tmp_path: Path) -> None:
+    """``beyond_limits="follow"``: the machine drives a block beyond the travel and a feed
+    above the maximum as written and names each block; the extremes say how far it went.
+    ``stop`` (the default) refuses the first and drives the second at the maximum."""
+    config, _, folder = _programs(tmp_path, "linuxcnc")
+    sub = folder / "friction_x.ngc"
+    text = sub.read_text(encoding="utf-8")
+    warmup = "G1 X745.000 F12000\n"  # the warm-up stroke, along the whole travel
+    assert warmup in text and "G0 X5.000\n" in text
+    text = text.replace(warmup, "G1 X745.000 F60000\n", 1)  # X's maximum: 50 000
+    sub.write_text(text, encoding="utf-8")
+    capped = VirtualMachine.from_programs(config, folder).run().extremes(commanded=True)["X"]
+    assert capped.velocity_mm_min == pytest.approx(50000.0)
+    sub.write_text(text.replace("G0 X5.000\n", "G0 X-20.000\n", 1), encoding="utf-8")
+    vm = VirtualMachine.from_programs(config, folder, beyond_limits="follow")
+    assert len(vm.excursions) == 2
+    assert re.fullmatch(
+        r"friction_x\.ngc:\d+: axis X to -20 mm, outside its travel \[0, 750\] mm",
+        vm.excursions[0],
+    )
+    assert re.fullmatch(
+        r"friction_x\.ngc:\d+: axis X at 60000 mm/min, above its maximum velocity 50000 mm/min",
+        vm.excursions[1],
+    )
+    run = vm.run()
+    commanded, actual = run.extremes(commanded=True)["X"], run.extremes()["X"]
+    assert commanded.min_position_mm == pytest.approx(-20.0)
+    assert commanded.velocity_mm_min == pytest.approx(60000.0)
+    assert commanded.acceleration_m_s2 == pytest.approx(6.0)  # the axis' maximum, never more
+    # the servo follows: overshooting a little after the ramps
+    assert -20.1 < actual.min_position_mm < -20.0
+    assert 60000.0 < actual.velocity_mm_min < 61000.0
+    assert 6.0 < actual.acceleration_m_s2 < 6.5
+    # the other axis never moved beyond its own limits
+    z = run.extremes(commanded=True)["Z"]
+    assert -500.0 <= z.min_position_mm <= z.max_position_mm <= 0.0
 
 
 def test_a_variation_for_an_unknown_axis_is_refused(tmp_path: Path) -> None:

@@ -9,7 +9,7 @@ One module per group of commands, each declaring its options and calling the lib
 - :mod:`~ncmeasure.cli.store`         store add, list, show, trend, check, report, export, import
 - :mod:`~ncmeasure.cli.serve`         serve
 - :mod:`~ncmeasure.cli.publish`       publish mqtt, publish opcua
-- :mod:`~ncmeasure.cli.demo`          demo
+- :mod:`~ncmeasure.cli.demo`          demo, dryrun
 - :mod:`~ncmeasure.cli.compensation`  compensation, apply-compensation
 
 :mod:`~ncmeasure.cli._app` holds the typer apps, the exit codes, the console and the
@@ -43,7 +43,7 @@ __all__ = ["app", "main"]
 # `ncmeasure --help` lists the commands in the order of the README's command table,
 # the pipeline's, whatever the order the modules above register them in.
 _ORDER = [
-    "init", "controllers", "plan", "generate", "check", "record", "export", "import",
+    "init", "controllers", "plan", "generate", "check", "dryrun", "record", "export", "import",
     "simulate-drive", "analyze", "compare", "serve", "simulate", "demo", "compensation",
     "apply-compensation",
 ]  # fmt: skip

@@ -339,11 +339,33 @@ def restore_signals(previous: dict[int, Any]) -> None:
         signal.signal(sig, handler)
 
 
+class _ShownOnFirstProgress:
+    """A progress display as a context, shown from the first progress on: an error before
+    any work (bad input) leaves the console as it was, without an empty line."""
+
+    def __init__(self, bar: Any) -> None:
+        self._bar = bar
+        self._shown = False
+
+    def show(self) -> None:
+        if not self._shown:
+            self._bar.start()
+            self._shown = True
+
+    def __enter__(self) -> "_ShownOnFirstProgress":
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        if self._shown:
+            self._bar.stop()
+
+
 def progress_bar(quiet: bool, *, stages: bool = False) -> tuple[Any, Any]:
-    """A rich progress bar and a ``progress(stage, fraction)`` callback feeding it.
+    """A rich progress bar (a context) and a ``progress(stage, fraction)`` callback feeding it.
 
     ``fraction`` None starts a stage without a figure. With ``stages``, every
-    finished stage stays on the console as a line with its duration.
+    finished stage stays on the console as a line with its duration. The bar shows
+    from the first call of the callback on.
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.text import Text
@@ -359,8 +381,10 @@ def progress_bar(quiet: bool, *, stages: bool = False) -> tuple[Any, Any]:
     )
     task = bar.add_task("starting", total=1.0)
     current: dict[str, Any] = {"stage": None, "since": time.monotonic()}
+    display = _ShownOnFirstProgress(bar)
 
     def update(stage: str, fraction: float | None) -> None:
+        display.show()
         if stage != current["stage"]:
             if stages and current["stage"] is not None:
                 took = time.monotonic() - current["since"]
@@ -372,4 +396,4 @@ def progress_bar(quiet: bool, *, stages: bool = False) -> tuple[Any, Any]:
         if fraction is not None:
             bar.update(task, completed=max(0.0, min(1.0, fraction)))
 
-    return bar, update
+    return display, update

@@ -10,6 +10,7 @@ nothing of them:
 - :mod:`.recording`    a recording's ``meta.json`` and ``events.jsonl``
 - :mod:`.results`      ``results.json``: the analysis of one recording
 - :mod:`.comparison`   a comparison of results, and the limits that judge it
+- :mod:`.dryrun`       ``dryrun.json``: how far a dry run on the virtual machine went
 
 ``ncmeasure schema machine|schedule|results`` prints their JSON Schemas.
 """

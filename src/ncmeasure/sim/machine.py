@@ -15,7 +15,16 @@ continuous-path mode would:
   acceleration and jerk; a move of several axes is interpolated linearly,
   limited by the axis that reaches its limit first;
 * a direction reversal, a change of feed or of kind, and a dwell stop the
-  axes (exact stop).
+  axes (exact stop); so does any other step the reader reports (a programmed
+  stop, for instance: nobody needs to press start on a virtual machine).
+
+A block that leaves an axis' travel stops the virtual machine with a
+:class:`~ncmeasure.errors.ProgramError`, and a feed above an axis' maximum
+velocity is driven at that maximum, as a controller would do
+(``beyond_limits="stop"``). A dry run (``beyond_limits="follow"``) lets the
+machine follow the program wherever it goes instead, and lists each such
+block in :attr:`VirtualMachine.excursions`: what the machine reached
+(:meth:`MachineRun.extremes`) then shows how far the program goes.
 
 The commanded position and velocity run through a second-order servo loop
 (natural frequency ``servo_frequency_hz``, damping ``servo_damping``), so
@@ -41,6 +50,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -55,11 +65,14 @@ from ncmeasure.sim.axis import AxisModel, Variation
 from ncmeasure.sim.servo import follow, servo
 from ncmeasure.sim.signals import AxisState
 
-__all__ = ["MachineRun", "MarkedSpan", "VirtualMachine"]
+__all__ = ["AxisExtremes", "BeyondLimits", "MachineRun", "MarkedSpan", "VirtualMachine"]
 
 FloatArray = NDArray[np.float64]
 
 _DIRECTION_TOLERANCE = 1e-9
+
+BeyondLimits = Literal["stop", "follow"]
+"""What the virtual machine does with a block beyond an axis' limits (see the module)."""
 
 
 @dataclass(frozen=True)
@@ -73,6 +86,20 @@ class MarkedSpan:
     """The axis moving in the span (empty during a dwell)."""
     velocity_mm_min: float
     """Signed commanded velocity of that axis (0 during a dwell)."""
+
+
+@dataclass(frozen=True)
+class AxisExtremes:
+    """How far one axis went in a run: the extremes of its motion.
+
+    ``velocity_mm_min`` and ``acceleration_m_s2`` are magnitudes (the largest
+    in either direction).
+    """
+
+    min_position_mm: float
+    max_position_mm: float
+    velocity_mm_min: float
+    acceleration_m_s2: float
 
 
 @dataclass(frozen=True)
@@ -123,6 +150,10 @@ class MachineRun:
     """Commanded velocity (the interpolator's setpoint)."""
     position_cmd_mm: FloatArray
     """Commanded position (the interpolator's setpoint)."""
+    acceleration_m_s2: FloatArray
+    """Actual acceleration (the servo loop's response to the commanded one)."""
+    acceleration_cmd_m_s2: FloatArray
+    """Commanded acceleration (the interpolator's setpoint)."""
     current_a: FloatArray
     """Motor current."""
     marker: FloatArray
@@ -145,6 +176,24 @@ class MachineRun:
             current_a=float(self.current_a[axis, i]),
             velocity_cmd_mm_min=float(self.velocity_cmd_mm_min[axis, i]),
         )
+
+    def extremes(self, commanded: bool = False) -> dict[str, AxisExtremes]:
+        """Per axis name: the extremes of its actual motion, or of the commanded one.
+
+        The actual velocity is the one the drive reports (with its measurement noise).
+        """
+        position = self.position_cmd_mm if commanded else self.position_mm
+        velocity = self.velocity_cmd_mm_min if commanded else self.velocity_mm_min
+        acceleration = self.acceleration_cmd_m_s2 if commanded else self.acceleration_m_s2
+        return {
+            name: AxisExtremes(
+                min_position_mm=float(position[i].min()),
+                max_position_mm=float(position[i].max()),
+                velocity_mm_min=float(np.abs(velocity[i]).max()),
+                acceleration_m_s2=float(np.abs(acceleration[i]).max()),
+            )
+            for i, name in enumerate(self.axes)
+        }
 
     def time_s(self) -> FloatArray:
         """The grid's machine times."""
@@ -188,10 +237,15 @@ class VirtualMachine:
         velocity_noise_mm_min: Standard deviation of the reported velocity's noise.
         start_mm: Where axes stand when the program starts (default: at their parks), e.g.
             a vertical axis left low by the operator.
+        beyond_limits: ``stop``: a block beyond an axis' travel raises ProgramError, a
+            feed above an axis' maximum velocity is driven at the maximum (a controller's
+            soft limits and feed limit); ``follow``: the machine follows the program there,
+            and :attr:`excursions` lists each such block (a dry run).
 
     Raises:
         ConfigError: a variation names an axis the machine lacks, or is invalid for it.
-        ProgramError: the program moves an axis outside its travel.
+        ProgramError: the program moves an axis the machine lacks, or (``stop``) outside
+            its travel.
     """
 
     def __init__(
@@ -208,9 +262,12 @@ class VirtualMachine:
         servo_damping: float = 0.7,
         velocity_noise_mm_min: float = 0.2,
         start_mm: Mapping[str, float] | None = None,
+        beyond_limits: BeyondLimits = "stop",
     ) -> None:
         if not dt_s > 0:
             raise ValueError("dt_s must be > 0")
+        if beyond_limits not in ("stop", "follow"):
+            raise ValueError("beyond_limits must be 'stop' or 'follow'")
         self.config = config
         self.trace = trace
         names = [axis.name for axis in config.axes]
@@ -236,6 +293,10 @@ class VirtualMachine:
         self.servo_damping = servo_damping
         self.velocity_noise_mm_min = velocity_noise_mm_min
         self.start_mm = dict(start_mm or {})
+        self.beyond_limits: BeyondLimits = beyond_limits
+        self.excursions: list[str] = []
+        """``file:line: what``, per block that takes an axis beyond its travel or above its
+        maximum velocity (only with ``beyond_limits="follow"``; ``stop`` raises instead)."""
         self._segments = self._plan()
 
     @classmethod
@@ -303,6 +364,8 @@ class VirtualMachine:
                 continue
             unit = delta / length
             feed = step.feed_mm_min if step.kind == "feed" else None
+            if feed is not None:
+                self._check_feed(step, unit, feed)
             if (
                 chain is None
                 or chain.kind != step.kind
@@ -321,10 +384,30 @@ class VirtualMachine:
         for axis, value in zip(self.config.axes, target, strict=True):
             low, high = axis.travel_mm
             if not low - 1e-6 <= value <= high + 1e-6:
+                where = f"{step.file or step.program}:{step.line}"
+                if self.beyond_limits == "follow":
+                    self.excursions.append(
+                        f"{where}: axis {axis.name} to {value:g} mm, outside its travel "
+                        f"[{low:g}, {high:g}] mm"
+                    )
+                    continue
                 raise ProgramError(
-                    f"{step.file or step.program}:{step.line}: axis {axis.name} would move to "
-                    f"{value:g} mm, "
+                    f"{where}: axis {axis.name} would move to {value:g} mm, "
                     f"outside its travel [{low:g}, {high:g}] mm; the virtual machine stops"
+                )
+
+    def _check_feed(self, step: Motion, unit: FloatArray, feed: float) -> None:
+        """Note a feed that drives an axis above its maximum velocity (``follow`` only:
+        ``stop`` drives it at the maximum, see :meth:`_segment`)."""
+        if self.beyond_limits != "follow":
+            return
+        for axis, share in zip(self.config.axes, np.abs(unit), strict=True):
+            velocity = float(share) * feed
+            if velocity > axis.max_velocity_mm_min * (1 + 1e-9):
+                self.excursions.append(
+                    f"{step.file or step.program}:{step.line}: axis {axis.name} at "
+                    f"{velocity:g} mm/min, above its maximum velocity "
+                    f"{axis.max_velocity_mm_min:g} mm/min"
                 )
 
     def _segment(self, chain: _Chain) -> _Segment:
@@ -333,7 +416,8 @@ class VirtualMachine:
         limits = self.config.axes
         velocity = min(limits[i].max_velocity_mm_min / unit[i] for i in np.flatnonzero(moving))
         if chain.kind == "feed" and chain.feed is not None:
-            velocity = min(velocity, chain.feed)
+            # a controller drives a feed above the maximum at the maximum; a dry run as written
+            velocity = chain.feed if self.beyond_limits == "follow" else min(velocity, chain.feed)
         acceleration = min(
             limits[i].max_acceleration_m_s2 / unit[i] for i in np.flatnonzero(moving)
         )
@@ -416,13 +500,14 @@ class VirtualMachine:
         b, a_coef = servo(dt, self.servo_frequency_hz, self.servo_damping)
         actual_position = np.empty_like(position)
         actual_velocity = np.empty_like(velocity)
+        actual_acceleration = np.empty_like(acceleration)
         current = np.empty_like(position)
         for i, axis in enumerate(axes):
             actual_position[i] = follow(b, a_coef, position[i])
             followed = follow(b, a_coef, velocity[i])
-            actual_acceleration = follow(b, a_coef, acceleration[i])
+            actual_acceleration[i] = follow(b, a_coef, acceleration[i])
             current[i] = self.models[axis.name].motor_current_a(
-                actual_position[i], followed, actual_acceleration, rng=rng
+                actual_position[i], followed, actual_acceleration[i], rng=rng
             )
             actual_velocity[i] = followed + rng.normal(0.0, self.velocity_noise_mm_min, n)
         return MachineRun(
@@ -432,6 +517,8 @@ class VirtualMachine:
             velocity_mm_min=actual_velocity,
             velocity_cmd_mm_min=velocity,
             position_cmd_mm=position,
+            acceleration_m_s2=actual_acceleration,
+            acceleration_cmd_m_s2=acceleration,
             current_a=current,
             marker=marker,
             spans=tuple(spans),
