@@ -126,7 +126,7 @@ def test_check_refuses_a_program_that_traverses_with_the_vertical_axis_down(
         check_programs(tmp_path)
 
 
-@pytest.mark.parametrize("dialect", ["linuxcnc", "sinumerik-840d"])
+@pytest.mark.parametrize("dialect", DIALECTS)
 def test_on_the_virtual_machine_nothing_moves_before_the_vertical_axis_is_up(
     dialect: str, make_config: Make, tmp_path: Path
 ) -> None:
