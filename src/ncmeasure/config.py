@@ -74,7 +74,7 @@ MAX_WINDOWS = 50_000
 """Most windows any plan may have: what generate, check and the analysis handle in
 seconds and a few hundred MB."""
 Position = Annotated[float, Field(ge=-MAX_POSITION_MM, le=MAX_POSITION_MM)]
-SAFE_PARK_FRACTION = 0.1
+SAFE_PARK_FRACTION = 0.25
 """A vertical or retract_first axis parks within this fraction of its travel from its safe end."""
 
 
@@ -426,7 +426,7 @@ class AxisConfig(StatedMechanics):
         return self.safe_end or "max"
 
     def safe_park_mm(self) -> tuple[float, float]:
-        """The part of the travel where a retracting axis may park: the tenth at its safe end."""
+        """The part of the travel where a retracting axis may park: the quarter at its safe end."""
         low, high = self.travel_mm
         zone = SAFE_PARK_FRACTION * (high - low)
         return (high - zone, high) if self.safe_side == "max" else (low, low + zone)
@@ -542,14 +542,14 @@ def _retract_order(config: MachineConfig, key: str, order: list[str]) -> Iterato
 
 
 def _safe_park(index: int, axis: AxisConfig) -> Iterator[str]:
-    """A vertical or retract_first axis parks in the tenth of its travel at its safe end."""
+    """A vertical or retract_first axis parks in the quarter of its travel at its safe end."""
     low, high = axis.safe_park_mm()
     if not low <= axis.park_mm <= high:
         side = "upper" if axis.safe_side == "max" else "lower"
         yield (
             f"axes[{index}].park_mm: {axis.park_mm:.15g} mm is not at the safe end of "
             f"{_retracting(axis)} axis {axis.name}: it parks first and every other axis "
-            f"traverses with it there, so it must lie in the {side} tenth of its travel "
+            f"traverses with it there, so it must lie in the {side} quarter of its travel "
             f"[{low:.15g}, {high:.15g}] mm (safe_end = {axis.safe_side!r})"
         )
 

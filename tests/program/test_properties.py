@@ -28,8 +28,8 @@ def axis_tables(draw: st.DrawFn, name: str) -> dict[str, Any]:
     length = draw(st.floats(30, 4000, **finite))
     high = low + length
     vertical = draw(st.booleans())
-    # a vertical axis parks in the tenth of its travel at its upper (safe) end (inside it)
-    park_low = high - 0.09 * length if vertical else low
+    # a vertical axis parks in the quarter of its travel at its upper (safe) end (inside it)
+    park_low = high - 0.24 * length if vertical else low
     return {
         "name": name,
         "travel_mm": [low, high],

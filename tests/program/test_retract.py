@@ -42,7 +42,7 @@ def test_a_vertical_axis_parked_low_is_refused_with_the_numbers() -> None:
         parse_machine(data)
     problem = "\n".join(caught.value.problems)
     assert "axes[2].park_mm: -850 mm is not at the safe end of vertical axis Z" in problem
-    assert "[-85.5, 5] mm" in problem  # the upper tenth of -900...5
+    assert "[-221.25, 5] mm" in problem  # the upper quarter of -900...5
     z["park_mm"] = -80.0
     assert parse_machine(data).axis("Z").park_mm == -80.0
 
@@ -52,7 +52,7 @@ def test_the_safe_end_can_be_the_lower_one_and_any_axis_can_retract_first() -> N
     z = _z(data)
     z["travel_mm"] = [0.0, 500.0]
     z["park_mm"] = 10.0
-    with pytest.raises(ConfigError, match=r"upper tenth of its travel \[450, 500\]"):
+    with pytest.raises(ConfigError, match=r"upper quarter of its travel \[375, 500\]"):
         parse_machine(data)
     z["safe_end"] = "min"
     assert parse_machine(data).axis("Z").safe_side == "min"
