@@ -299,3 +299,20 @@ def test_what_only_looks_like_the_prolog_is_refused(
         _edit(folder / file, pattern, replacement)
     with pytest.raises((ProgramCheckError, ProgramError), match=problem):
         check_programs(folder)
+
+
+@pytest.mark.parametrize(
+    ("dialect", "said"),
+    [
+        ("linuxcnc", "every move in machine coordinates whatever offset is active"),
+        ("fanuc", "every move in work coordinates proved equal to the machine's, or a stop"),
+    ],
+)
+def test_check_says_how_the_moves_are_safe(
+    dialect: str, said: str, make_config: Make, tmp_path: Path
+) -> None:
+    from tests.test_cli import run
+
+    folder = _generate(make_config, dialect, tmp_path)
+    code, stdout, _ = run("check", folder)
+    assert code == 0 and said in " ".join(stdout.split()), stdout

@@ -253,6 +253,12 @@ def check(
 ) -> None:
     """Re-read generated programs and verify limits, feeds and windows against schedule.json.
 
+    Also verifies that every move lands at the same machine position whatever work
+    offset, G92 shift or tool offset the operator left active (the prolog cancels or
+    bypasses each, as the controller's manual says; an unknown word is an error), that
+    a vertical axis parks first and nothing traverses while it is away from its park,
+    and that the main program stops with a message before its first move.
+
     Exit code 0: all holds; 1: a program breaks a limit or its schedule; 2: unreadable input.
     """
     from rich.text import Text
@@ -260,11 +266,17 @@ def check(
     from ncmeasure.program import check_programs
 
     report = check_programs(directory, tuple(controllers_dir or ()))
+    coordinates = (
+        "every move in work coordinates proved equal to the machine's, or a stop before it"
+        if report.verifies_offsets
+        else "every move in machine coordinates whatever offset is active"
+    )
     console().print(
         Text.assemble(
             ("ok", "green"),
             f": {directory} ({report.controller}): {report.motions} moves, "
             f"{report.feeds} feeds, {report.windows_found}/{report.windows_expected} windows; "
-            "every position inside the soft limits, every feed within the maximum",
+            "every position inside the soft limits, every feed within the maximum, "
+            f"{coordinates}",
         )
     )

@@ -58,6 +58,9 @@ class CheckReport:
     feeds: int = 0
     windows_expected: int = 0
     windows_found: int = 0
+    verifies_offsets: bool = False
+    """The programs cannot feed in machine coordinates (FANUC): they prove the work
+    coordinates equal them, or stop before the first move."""
     problems: list[str] = field(default_factory=list)
 
     @property
@@ -387,7 +390,11 @@ def check_programs(directory: str | Path, controllers_dirs: tuple[Path, ...] = (
     schedule = load_schedule(directory / SCHEDULE_FILE)
     dialect = load_dialect(schedule.controller, controllers_dirs)
     _check_names(schedule, dialect, directory / SCHEDULE_FILE)
-    report = CheckReport(directory=directory, controller=dialect.name)
+    report = CheckReport(
+        directory=directory,
+        controller=dialect.name,
+        verifies_offsets=dialect.coordinates.verify is not None,
+    )
     report.problems.extend(_file_problems(directory, schedule, dialect))
     files = ProgramSet(dialect, directory, schedule.controller_options)
     report.problems.extend(code_problems(schedule, dialect, files.scan()))
