@@ -314,3 +314,36 @@ def test_raw_can_log_replays_onto_a_virtual_bus(tmp_path: Path) -> None:
     assert sent == 50
     assert [m.arbitration_id for m in received] == [0x181 + k % 3 for k in range(50)]
     assert [int.from_bytes(m.data, "little") for m in received] == list(range(50))
+
+
+def test_a_duration_is_a_limit_the_schedule_a_guide(tmp_path: Path) -> None:
+    """--duration with --schedule: the user's duration is honoured, longer or shorter than
+    the schedule's end, and the result says which ended the recording."""
+    from ncmeasure.cli.record import ended_message
+    from ncmeasure.plan import plan_machine
+
+    config = machine()
+    source = _source_recording(tmp_path / "source", config, rows=2500)  # 10 s at 4 ms
+    schedule, _ = plan_machine(config)
+    short = schedule.model_copy(update={"duration_s": 2.0})  # its end: 3 s with the margin
+    runs = {}
+    for name, duration_s in (("longer", 6.0), ("shorter", 1.0), ("none", None)):
+        runs[name] = record(
+            config,
+            out=tmp_path / name,
+            link="replay",
+            link_settings={"source": str(source), "speed": 0},
+            schedule=short,
+            schedule_margin_s=1.0,
+            duration_s=duration_s,
+        )
+    assert len(read_recording(runs["longer"].directory).time_s) == 1500  # 6 s, not 3
+    assert runs["longer"].ended_by == "duration"
+    assert ended_message(runs["longer"]) == (
+        "ended by --duration 6 s; the schedule's end with its margin (3 s) is only a guide"
+    )
+    assert len(read_recording(runs["shorter"].directory).time_s) == 250
+    assert runs["shorter"].ended_by == "duration"
+    assert len(read_recording(runs["none"].directory).time_s) == 750
+    assert runs["none"].ended_by == "schedule"
+    assert ended_message(runs["none"]).startswith("ended at the schedule's end with its margin")

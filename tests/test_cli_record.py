@@ -547,3 +547,31 @@ def test_shared_fixtures_missing_under_ci_is_a_failure(monkeypatch: pytest.Monke
     monkeypatch.setenv("CI", "false")
     with pytest.raises(pytest.skip.Exception):
         conftest.shared_fixture("eds", "elmo_gold.dcf")
+
+
+def test_record_says_which_limit_ended_it(tmp_path: Path) -> None:
+    """--duration shorter than --schedule's end: honoured, named, and warned about."""
+    machine = _machine(tmp_path)
+    assert run("generate", machine, "-o", tmp_path / "prog", "-q")[0] == 0
+    source = _source(tmp_path / "run1")
+    code, _, err = run(
+        "record",
+        machine,
+        "--link",
+        "replay",
+        "--source",
+        source,
+        "--set",
+        "speed=0",
+        "--schedule",
+        tmp_path / "prog" / "schedule.json",
+        "--duration",
+        "2",
+        "-o",
+        tmp_path / "run2",
+    )
+    text = " ".join(err.split())
+    assert code == 0, err
+    assert len(read_recording(tmp_path / "run2").time_s) == 500
+    assert "ended by --duration 2 s; the schedule's end with its margin (" in text
+    assert "--duration 2 s ended the recording before the schedule's end" in text

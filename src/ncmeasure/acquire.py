@@ -76,6 +76,9 @@ class Progress:
     last_event: str | None = None
 
 
+EndedBy = Literal["duration", "schedule", "source", "stop", "link"]
+
+
 @dataclass
 class AcquisitionResult:
     """How a recording ended."""
@@ -90,6 +93,14 @@ class AcquisitionResult:
     moved_aside: Path | None = None
     """Where an unfinished earlier attempt in the directory was moved (see
     :meth:`RecordingWriter.create`)."""
+    ended_by: EndedBy = "stop"
+    """What ended the recording: the user's ``duration`` (a limit), the ``schedule``'s
+    end with its margin (a guide, when no duration was given), the ``source``'s end
+    (a replay), a ``stop`` (Ctrl-C, SIGTERM) or the ``link`` failing."""
+    duration_s: float | None = None
+    """The user's duration, if one was given."""
+    schedule_end_s: float | None = None
+    """The schedule's estimated end plus its margin, if a schedule was given."""
 
     @property
     def gaps(self) -> int:
@@ -185,17 +196,19 @@ def acquire(
             writer.add_event(event)
 
     reached_end = False
+    ended_by: EndedBy = "stop"
     try:
         while not stop.is_set() and not reached_end:
             block = link.read(timeout_s=read_timeout_s)
             take_events()
             if block is None:
-                reached_end = True  # the source has no more data
+                reached_end, ended_by = True, "source"  # the source has no more data
                 break
             if duration_s is not None:
                 if len(block) and first_time_s is None:
                     first_time_s = float(block.time_s[0])
                 block, reached_end = _until_end(link, block, (first_time_s or 0.0) + duration_s)
+                ended_by = "duration" if reached_end else ended_by
             if len(block):
                 writer.append(block)
                 rows += len(block)
@@ -209,7 +222,7 @@ def acquire(
         writer.close(status="failed")
         raise
     except LinkError as exc:
-        status, error = "link_lost", str(exc)
+        status, error, ended_by = "link_lost", str(exc), "link"
         log.error("link lost: %s", exc)
         try:
             take_events()  # the failing link's last words, if it still has them
@@ -228,6 +241,8 @@ def acquire(
         events=events,
         error=error,
         moved_aside=writer.moved_aside,
+        ended_by=ended_by,
+        duration_s=duration_s,
     )
 
 
@@ -313,9 +328,11 @@ def record(
         link_settings: Link settings overriding the machine file's.
         axis_settings: Per-axis link settings by axis name (e.g. node ids).
         duration_s: How long to record, on the link's clock.
-        schedule: The measurement's schedule: recording stops after its
-            estimated duration plus ``schedule_margin_s``, and the recording
-            carries its config hash.
+        schedule: The measurement's schedule: the recording carries its config
+            hash, and without ``duration_s`` it stops after the schedule's
+            estimated duration plus ``schedule_margin_s`` (a guide: a program slowed
+            by the override or a feed hold runs longer). ``duration_s`` is a limit
+            and wins; the result says which ended the recording.
         schedule_margin_s: Extra time after the schedule's end.
         notes: Free text stored with the recording.
         stop: Set it to stop early.
@@ -342,8 +359,10 @@ def record(
             raise ConfigError(
                 f"the schedule moves axes {', '.join(sorted(unknown))} that the machine lacks"
             )
-        until = schedule.duration_s + schedule_margin_s
-        duration_s = until if duration_s is None else min(duration_s, until)
+        schedule_end_s = schedule.duration_s + schedule_margin_s
+    else:
+        schedule_end_s = None
+    limit_s = duration_s if duration_s is not None else schedule_end_s
     # The link opens first: a drive that cannot be reached leaves no empty recording behind.
     time_scale = link_time_scale(drive_link)
     drive_link.open()
@@ -360,8 +379,11 @@ def record(
             faster_than_real_time=time_scale != 1.0 or drive_link.clock.lockstep,
             time_scale=time_scale,
         )
-        return acquire(
-            drive_link, writer, duration_s=duration_s, stop=stop, on_progress=on_progress
-        )
+        result = acquire(drive_link, writer, duration_s=limit_s, stop=stop, on_progress=on_progress)
     finally:
         drive_link.close()
+    result.duration_s = duration_s
+    result.schedule_end_s = schedule_end_s
+    if result.ended_by == "duration" and duration_s is None:
+        result.ended_by = "schedule"
+    return result

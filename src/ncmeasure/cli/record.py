@@ -141,7 +141,10 @@ def record_command(
     ] = None,
     schedule: Annotated[
         Path | None,
-        typer.Option(help="schedule.json of the program: stop after its end plus a margin."),
+        typer.Option(
+            help="schedule.json of the program: without --duration, stop after its estimated "
+            "end plus a margin (a guide); --duration is a limit and wins."
+        ),
     ] = None,
     raw_log: Annotated[
         Path | None, typer.Option(help="CANopen: also log every frame (.blf/.asc).")
@@ -151,8 +154,9 @@ def record_command(
 ) -> Outcome:
     """Record motor current, velocity and position from the drives into a recording.
 
-    Stops after --duration, at the end of --schedule, at the end of a replay, or on
-    Ctrl-C/SIGTERM; every way of stopping closes the recording with what was received.
+    Stops after --duration (a limit), else at the end of --schedule plus a margin (a
+    guide), at the end of a replay, or on Ctrl-C/SIGTERM, and says which ended it; every
+    way of stopping closes the recording with what was received.
     Exit code 0: complete; 2: bad input; 4: the link failed; 130: stopped by Ctrl-C/SIGTERM.
 
     A file from `ncmeasure init` names no drives: --node (CANopen) or --unit (Modbus)
@@ -277,12 +281,44 @@ def _print_recorded(result: "AcquisitionResult", quiet: bool) -> None:
             f"{result.directory}" + (f"; {result.error}" if result.error else ""),
             soft_wrap=True,
         )
+    ended = ended_message(result)
+    if ended and (not quiet or result.ended_by == "schedule"):
+        console(stderr=True).print(ended, soft_wrap=True)
+    if (
+        result.ended_by == "duration"
+        and result.duration_s is not None
+        and result.schedule_end_s is not None
+        and result.duration_s < result.schedule_end_s
+    ):
+        warn(
+            f"--duration {result.duration_s:g} s ended the recording before the schedule's "
+            f"end ({result.schedule_end_s:g} s with its margin): the last windows may be "
+            "missing"
+        )
     if result.gaps:
         warn(
             f"{result.lost_samples} samples lost in {result.gaps} gap(s), "
             f"{100 * result.lost_share:.2g} % of the recording; the gap events in "
             f"{result.directory} say when and why, and the analysis reports them"
         )
+
+
+def ended_message(result: "AcquisitionResult") -> str:
+    """Which limit ended the recording, when a duration or a schedule was given."""
+    schedule = (
+        f"the schedule's end with its margin ({result.schedule_end_s:g} s)"
+        if result.schedule_end_s is not None
+        else ""
+    )
+    if result.ended_by == "duration" and result.duration_s is not None:
+        beside = f"; {schedule} is only a guide" if schedule else ""
+        return f"ended by --duration {result.duration_s:g} s{beside}"
+    if result.ended_by == "schedule":
+        return (
+            f"ended at {schedule}: a program slowed by the override or a feed hold runs "
+            "longer; give --duration to record longer"
+        )
+    return ""
 
 
 DEFAULT_DRIVES = {"X": 1, "Y": 2, "Z": 3}

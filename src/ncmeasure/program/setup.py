@@ -273,12 +273,10 @@ def _recording(config: MachineConfig, schedule: Schedule) -> tuple[Line, ...]:
             Code("--schedule"),
             f" it stops by itself {stop_s} s after it was started (the program's "
             f"{round(schedule.duration_s)} s plus {SCHEDULE_MARGIN_S:g} s): press cycle start "
-            "at once. If the program will take longer (reduced override, a feed hold), record "
-            "with ",
+            "at once. If the program will take longer (reduced override, a feed hold), add ",
             Code("--duration <seconds>"),
-            " longer than the program instead of ",
-            Code("--schedule"),
-            ".",
+            " longer than the program: a duration is a limit and wins over the schedule, "
+            "and the recorder says which one ended the recording.",
         ),
         (
             "Afterwards: ",
