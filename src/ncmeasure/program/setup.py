@@ -275,8 +275,7 @@ def _recording(config: MachineConfig, schedule: Schedule) -> tuple[Line, ...]:
             f"{round(schedule.duration_s)} s plus {SCHEDULE_MARGIN_S:g} s): press cycle start "
             "at once. If the program will take longer (reduced override, a feed hold), add ",
             Code("--duration <seconds>"),
-            " longer than the program: a duration is a limit and wins over the schedule, "
-            "and the recorder says which one ended the recording.",
+            " longer than the program: it wins over the schedule.",
         ),
         (
             "Afterwards: ",
