@@ -833,10 +833,17 @@ class _Cycles:
         if gap.doubled:
             slots = [self._layout.slots[i] for i in sorted(gap.doubled_slots)]
             late = ", ".join(f"{slot.axis.who} TPDO{slot.number}" for slot in slots)
-            reasons.append(
-                f"{gap.doubled} cycles with two frames of one TPDO ({late}: a drive answered "
-                "a cycle late), so their cycles cannot be told apart"
-            )
+            if self.timed is not None:
+                reasons.append(
+                    f"{gap.doubled} cycles whose frames cannot be told apart ({late} came "
+                    "twice, or after the next SYNC was sent, or was missing beside one that "
+                    "did: the interface returns no own SYNC to order them)"
+                )
+            else:
+                reasons.append(
+                    f"{gap.doubled} cycles with two frames of one TPDO ({late}: a drive "
+                    "answered a cycle late), so their cycles cannot be told apart"
+                )
         if gap.no_sync and self._produces_sync:
             reasons.append(f"{gap.no_sync} SYNC cycles not sent (the host fell behind)")
         elif gap.no_sync:

@@ -222,7 +222,8 @@ class TimedAssembler:
 
     * a frame received after SYNC ``k`` was sent goes to cycle ``k`` when every cycle
       still open before ``k`` already has that PDO; if one of them lacks it, the frame is
-      that cycle's late answer or ``k``'s own, which nothing can tell: both are doubted;
+      that cycle's late answer or ``k``'s own, which nothing can tell: both are doubted
+      (so a missing frame costs its cycle and the next);
     * a second frame of a PDO in one cycle, or a frame before one it usually follows
       (the order learned from the first complete cycle), doubts the cycle, as
       :class:`CycleAssembler` does;
@@ -296,7 +297,13 @@ class TimedAssembler:
                 older.doubted.add(slot)  # its late frame, or the newer cycle's own
                 ambiguous = True
         if ambiguous:
+            # Both are lost. The newer cycle counts the slot as come, so that its next
+            # frame is not taken for this cycle's own: one late or missing frame costs
+            # two cycles, not every cycle after it.
             cycle.doubted.add(slot)
+            if cycle.row[slot] is None:
+                cycle.row[slot] = data
+                cycle.filled += 1
             return
         self._put(cycle, slot, data)
         if at == 0 and cycle.filled == self.slots and len(open_) > 1:
