@@ -334,7 +334,8 @@ def simulate_drive_command(
         typer.Option(
             help="CANopen: python-can interface. The default, virtual, reaches only this "
             "process; for `record` in another terminal use socketcan (with a vcan device) "
-            "or udp_multicast.",
+            "or udp_multicast with a multicast group as channel, e.g. 239.74.163.2 (needs "
+            "the udp-multicast extra: msgpack).",
             rich_help_panel="CANopen",
         ),
     ] = "virtual",

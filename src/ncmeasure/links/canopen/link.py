@@ -58,6 +58,7 @@ module keeps open, read and close, and the accounting of the rows and gaps.
 
 from __future__ import annotations
 
+import collections
 import functools
 import logging
 import math
@@ -92,12 +93,13 @@ from ncmeasure.links.canopen.receive import (
     SdoPoller,
     emcy_event,
 )
-from ncmeasure.links.canopen.settings import CanOpenAxis, CanOpenSettings
+from ncmeasure.links.canopen.settings import HOST_CLOCK_INTERFACES, CanOpenAxis, CanOpenSettings
 from ncmeasure.links.canopen.sync import (
     CycleAssembler,
     ForeignSync,
     LostCycle,
     SyncProducer,
+    TimedAssembler,
     no_echo_error,
 )
 from ncmeasure.samples import Channel, LinkEvent, SampleBlock
@@ -128,6 +130,12 @@ class CanOpenLink(DriveLink):
     READ_BLOCK_S: ClassVar[float] = 0.05
     #: How long the link waits for its first own SYNC to come back through the receive stream.
     ECHO_TIMEOUT_S: ClassVar[float] = 5.0
+    #: Without own SYNCs in the receive stream: how long (wall clock) an incomplete cycle
+    #: waits for late frames (at least 2 SYNC cycles), see :class:`~.sync.TimedAssembler`.
+    LATE_WINDOW_S: ClassVar[float] = 0.02
+    #: Without own SYNCs: the reader finalises cycles whose SYNC went out this long ago
+    #: even when no frame arrives (all drives silent), so their loss is reported.
+    QUIET_FINAL_S: ClassVar[float] = 0.5
     #: Lockstep: the longest (wall-clock) wait for the simulated drives to answer one SYNC.
     #: It guards against a simulator that is not there; it plays no part in the simulation.
     STEP_TIMEOUT_S: ClassVar[float] = 60.0
@@ -217,7 +225,10 @@ class CanOpenLink(DriveLink):
         with self._lock:
             stats = dict(self._cycles.stats)
             stats["pdo_frames"] = self._receiver.pdo_frames if self._receiver else 0
-            stats["early_frames"] = self._cycles.assembler.early_frames
+            timed = self._cycles.timed
+            stats["early_frames"] = (timed or self._cycles.assembler).early_frames
+            if timed is not None:
+                stats["stale_frames"] = timed.stale_frames
         return stats
 
     def describe(self) -> dict[str, Any]:
@@ -243,6 +254,7 @@ class CanOpenLink(DriveLink):
             )
             network.listeners.append(cast(Any, raw_log))
         receiver = self._receiver = self._new_receiver(network.listeners[0])
+        receiver.host_clock = self.settings.interface in HOST_CLOCK_INTERFACES
         network.listeners[0] = cast(Any, receiver)  # PDOs and own SYNCs first, the rest to canopen
         network.connect()
         self._start_thread(self._worker.run, "canopen-link-worker")
@@ -262,6 +274,7 @@ class CanOpenLink(DriveLink):
         if pdo:
             receiver.pdos = {s.cob_id: (i, s.size) for i, s in enumerate(self._layout.slots)}
             receiver.frame = self._cycles.assembler.frame
+        echo = self.settings.echoes_sync
         if pdo and not self.clock.lockstep:
             self._cycles.wake_rows = max(1, round(self.READ_BLOCK_S * self._rate_hz))
         else:  # lockstep and SDO polling wait for every cycle
@@ -287,8 +300,11 @@ class CanOpenLink(DriveLink):
                 failed=self._fail,
                 step_timeout_s=self.STEP_TIMEOUT_S,
             )
+            if echo is False:
+                self._use_send_times()
             self._start_thread(self._sync.run, "canopen-link-sync")
-            self._await_own_sync()
+            if echo is not False:
+                self._await_own_sync(fall_back=echo is None)
         else:
             network.subscribe(0x80, self._on_sync_frame)
 
@@ -303,16 +319,46 @@ class CanOpenLink(DriveLink):
             failed=self._fail,
         )
 
-    def _await_own_sync(self) -> None:
-        """The first own SYNC must come back through the receive stream (bus order)."""
+    def _await_own_sync(self, fall_back: bool) -> None:
+        """The first own SYNC should come back through the receive stream (bus order).
+
+        If it does not within ``ECHO_TIMEOUT_S``: with ``fall_back`` the link gives PDOs to
+        their SYNC by send and receive times from then on (an ``info`` event); else (the
+        machine file says the interface returns them) it is a LinkError.
+        """
         with self._cond:
             seen = self._cond.wait_for(
                 lambda: self._cycles.cycle >= 0 or self._failure is not None,
                 self.ECHO_TIMEOUT_S,
             )
         self._check_failure()
-        if not seen:
+        if seen:
+            return
+        if not fall_back:
             raise no_echo_error(self.settings.interface)
+        self._use_send_times()
+        interface = self.settings.interface or "(python-can config)"
+        self._event(
+            LinkEvent(
+                0.0,
+                "info",
+                f"the CAN interface {interface} does not return the link's own SYNC frames "
+                "(python-can receive_own_messages); PDOs go to their SYNC cycle by the SYNC "
+                "send times and the frames' receive times (set link.sync_echo = false to "
+                "skip this wait)",
+            )
+        )
+
+    def _use_send_times(self) -> None:
+        """No own SYNC in the receive stream: assign PDOs by SYNC send and receive times."""
+        sync, receiver = self._sync, self._receiver
+        assert sync is not None and receiver is not None
+        hold = max(2, math.ceil(self.LATE_WINDOW_S * self._rate_hz))
+        with self._cond:
+            sync.sent.clear()
+            self._cycles.use_send_times(sync.send_times, hold)
+            receiver.timed = self._cycles.timed_frame if self._cycles.pdo() else None
+            sync.timed = True  # the send times are kept from the next SYNC on
 
     def _start_thread(self, target: Callable[[], None], name: str) -> None:
         thread = threading.Thread(target=target, name=name, daemon=True)
@@ -322,7 +368,7 @@ class CanOpenLink(DriveLink):
     def _make_bus(self) -> can.BusABC:
         s = self.settings
         kwargs = s.bus_kwargs()
-        if s.produces_sync or s.raw_log is not None:
+        if s.echoes_sync is not False and (s.produces_sync or s.raw_log is not None):
             # Own SYNCs come back in bus order among the PDOs (and the log shows them).
             kwargs["receive_own_messages"] = True
         return open_bus(s.channel, kwargs, "link.interface")
@@ -439,6 +485,8 @@ class CanOpenLink(DriveLink):
         with self._cond:
             while True:
                 self._check_failure()
+                if self._cycles.timed is not None:
+                    self._cycles.timed_reach(time.time() - self.QUIET_FINAL_S)
                 self._check_outage()
                 if self._cycles.ready:
                     rows = self._cycles.take()
@@ -554,6 +602,10 @@ class _Cycles:
         self._bad_slots: set[int] = set()
         self.mode: Literal["pdo", "sdo_polling"] = "pdo"
         self.assembler = CycleAssembler(1)
+        self.timed: TimedAssembler | None = None
+        """The assembler by send times, where no own SYNC comes back (else None)."""
+        self._send_times: collections.deque[tuple[int, float]] | None = None
+        self._hold_cycles = 2
         self.new_assembler()
         self.cycle = -1
         """The newest SYNC cycle seen on the bus (own SYNCs through the receive stream)."""
@@ -569,6 +621,46 @@ class _Cycles:
         slots = self._layout.slots
         groups = [slot.axis.position for slot in slots] or [0]
         self.assembler = CycleAssembler(max(1, len(slots)), groups)
+        if self._send_times is not None:
+            self.timed = TimedAssembler(
+                max(1, len(slots)), groups, self._send_times, self._hold_cycles
+            )
+
+    def use_send_times(self, send_times: collections.deque[tuple[int, float]], hold: int) -> None:
+        """From now on, assign PDOs by the producer's SYNC send times (no own SYNC returns)."""
+        self._send_times = send_times
+        self._hold_cycles = hold
+        self.new_assembler()
+
+    def timed_frame(self, slot: int, data: bytes, received_s: float) -> None:
+        """A PDO frame and its receive time (receive thread; takes the lock)."""
+        with self._cond:
+            timed = self.timed
+            if timed is None:
+                return
+            timed.frame(slot, data, received_s)
+            self._timed_advance(timed)
+
+    def timed_reach(self, now_s: float) -> None:
+        """The host time ``now_s`` is reached without frames (lock held)."""
+        timed = self.timed
+        if timed is not None and self.mode == "pdo":
+            timed.reach(now_s)
+            self._timed_advance(timed)
+
+    def _timed_advance(self, timed: TimedAssembler) -> None:
+        newest = timed.newest
+        if newest <= self.cycle:
+            self.settle()
+            if len(self.ready) >= max(1, self.wake_rows):
+                self._cond.notify_all()
+            return
+        first = self.cycle < 0
+        self.stats["sync_cycles"] = timed.syncs
+        self.cycle = newest
+        self.settle()
+        if first or len(self.ready) >= self.wake_rows:
+            self._cond.notify_all()
 
     def pdo(self) -> bool:
         """True while the rows come from TPDOs (not SDO polling)."""
@@ -577,12 +669,17 @@ class _Cycles:
     def complete(self, cycle: int, polled: int, max_ready: int) -> bool:
         """Lockstep: ``cycle`` was seen (and polled), and the reader keeps up."""
         return (
-            self.cycle >= cycle
+            (self.cycle >= cycle or self.timed is not None)
             and (self.mode == "pdo" or polled >= cycle)
             and len(self.ready) < max_ready
         )
 
     def newest(self) -> int:
+        """The newest SYNC cycle (lock held); SDO polling without own SYNCs: the newest sent."""
+        send_times = self._send_times
+        if send_times is not None and self.mode != "pdo":
+            while send_times:
+                self.advance(send_times.popleft()[0])
         return self.cycle
 
     def time(self) -> float:
@@ -629,7 +726,7 @@ class _Cycles:
         """Move final rows to the ready list, account lost cycles."""
         if self.mode != "pdo":
             return
-        rows, lost = self.assembler.take()
+        rows, lost = (self.timed or self.assembler).take()
         if not lost:  # the usual case: complete cycles only
             if rows:
                 if self.gap is not None:
@@ -736,10 +833,17 @@ class _Cycles:
         if gap.doubled:
             slots = [self._layout.slots[i] for i in sorted(gap.doubled_slots)]
             late = ", ".join(f"{slot.axis.who} TPDO{slot.number}" for slot in slots)
-            reasons.append(
-                f"{gap.doubled} cycles with two frames of one TPDO ({late}: a drive answered "
-                "a cycle late), so their cycles cannot be told apart"
-            )
+            if self.timed is not None:
+                reasons.append(
+                    f"{gap.doubled} cycles whose frames cannot be told apart ({late} came "
+                    "twice, or after the next SYNC was sent, or was missing beside one that "
+                    "did: the interface returns no own SYNC to order them)"
+                )
+            else:
+                reasons.append(
+                    f"{gap.doubled} cycles with two frames of one TPDO ({late}: a drive "
+                    "answered a cycle late), so their cycles cannot be told apart"
+                )
         if gap.no_sync and self._produces_sync:
             reasons.append(f"{gap.no_sync} SYNC cycles not sent (the host fell behind)")
         elif gap.no_sync:

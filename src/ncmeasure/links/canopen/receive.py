@@ -100,6 +100,11 @@ class Receiver(can.Listener):
         """PDO frames received (only the receive thread writes it)."""
         self.received = 0
         """Frames of others received (lockstep: all the simulated drives sent must be here)."""
+        self.timed: Callable[[int, bytes, float], None] | None = None
+        """Set where the interface returns no own SYNC: PDO frames go here with their
+        receive time on the host's wall clock (the link assigns them by SYNC send times)."""
+        self.host_clock = False
+        """The interface stamps frames with the host's wall clock (else: stamped on arrival)."""
 
     def on_message_received(self, msg: can.Message) -> None:
         # This runs for 9000 PDOs a second and more: the usual frame is handled inline.
@@ -109,11 +114,15 @@ class Receiver(can.Listener):
                 msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame
             ):
                 data = msg.data
-                if len(data) == slot[1]:
+                if self.timed is not None:
+                    self._timed_pdo(slot[0], slot[1], data, msg.timestamp)
+                elif len(data) == slot[1]:
                     self.pdo_frames += 1  # only this thread writes it
                     self.frame(slot[0], bytes(data))
                 else:
                     self.pdo(slot[0], slot[1], data)
+            elif self.timed is not None and msg.arbitration_id == 0x80:
+                return  # the own SYNC, looped back as received (udp_multicast): not a frame
             else:
                 assert self._canopen is not None
                 self._canopen.on_message_received(msg)
@@ -141,6 +150,23 @@ class Receiver(can.Listener):
             self._bad_frame(index, len(data))
             return
         self.frame(index, bytes(data) if len(data) == size else bytes(data[:size]))
+
+    def _timed_pdo(self, index: int, size: int, data: bytearray, timestamp: float) -> None:
+        """A PDO frame without own SYNCs in the stream: its slot, bytes and receive time.
+
+        The receive time is python-can's time stamp where the interface stamps on the
+        host's wall clock (never later than now), else the time it is handled here:
+        never earlier than the frame really arrived, so never before its SYNC was sent.
+        """
+        now = time.time()
+        received = min(timestamp, now) if self.host_clock and timestamp > 0 else now
+        self.pdo_frames += 1  # only this thread writes it
+        if len(data) < size:
+            self._bad_frame(index, len(data))
+            return
+        timed = self.timed
+        assert timed is not None
+        timed(index, bytes(data) if len(data) == size else bytes(data[:size]), received)
 
     def on_error(self, exc: Exception) -> None:
         self._failed(LinkError(f"CAN bus error: {exc}"))

@@ -18,9 +18,23 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from ncmeasure.links.base import AxisLinkSettings, LinkSettings, PathSetting
 from ncmeasure.links.canopen.objects import VelocityUnit
 
-__all__ = ["CanOpenAxis", "CanOpenSettings", "TpdoTable"]
+__all__ = [
+    "HOST_CLOCK_INTERFACES",
+    "NO_ECHO_INTERFACES",
+    "CanOpenAxis",
+    "CanOpenSettings",
+    "TpdoTable",
+]
 
 _RAW_LOG_SUFFIXES = (".blf", ".asc", ".log", ".csv", ".trc")
+NO_ECHO_INTERFACES = frozenset(
+    {"slcan", "serial", "udp_multicast", "gs_usb", "robotell", "seeedstudio"}
+)
+"""python-can interfaces that do not return the frames a bus sent (receive_own_messages)."""
+HOST_CLOCK_INTERFACES = frozenset({"slcan", "serial", "udp_multicast", "virtual", "socketcan"})
+"""python-can interfaces whose frame time stamps are on the host's wall clock (time.time()):
+python-can's own at reception, or the kernel's. Other adapters' clocks cannot be compared
+with the host's SYNC send times, so the link stamps their frames itself on arrival."""
 _RESERVED_BUS_OPTIONS = {"interface", "channel", "bitrate", "receive_own_messages"}
 
 
@@ -53,6 +67,15 @@ class CanOpenSettings(LinkSettings):
     sync_producer: bool = Field(
         default=True,
         description="Produce SYNC; false when the controller or another master produces it.",
+    )
+    sync_echo: bool | None = Field(
+        default=None,
+        description="Whether the interface returns the link's own SYNC frames (python-can "
+        "receive_own_messages): true gives each PDO to the SYNC before it in bus order; false "
+        "to the SYNC by the host's send times and the frames' receive times "
+        "(docs/canopen.md); empty decides by the interface (slcan, serial, udp_multicast, "
+        "gs_usb, robotell and seeedstudio do not return them; another interface that does "
+        "not is noticed at open).",
     )
     nmt_control: bool = Field(
         default=True,
@@ -121,6 +144,15 @@ class CanOpenSettings(LinkSettings):
     def produces_sync(self) -> bool:
         """True when the link sends SYNC itself."""
         return self.sync_producer and not self.listen_only
+
+    @property
+    def echoes_sync(self) -> bool | None:
+        """Whether the link's own SYNC comes back from the interface (None: see at open)."""
+        if self.sync_echo is not None:
+            return self.sync_echo
+        if self.interface in NO_ECHO_INTERFACES:
+            return False
+        return None
 
     @property
     def controls_nmt(self) -> bool:

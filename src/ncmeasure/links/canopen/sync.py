@@ -57,6 +57,7 @@ __all__ = [
     "LossReason",
     "LostCycle",
     "SyncProducer",
+    "TimedAssembler",
     "no_echo_error",
     "run_sync_schedule",
 ]
@@ -189,13 +190,213 @@ class CycleAssembler:
         """The first complete cycle shows each node's order of frames."""
         if self._order is not None:
             return
-        order: dict[int, dict[int, int]] = {}
-        for slot in self._arrival:
-            positions = order.setdefault(self._groups[slot], {})
-            positions.setdefault(slot, len(positions))
-        self._order = [
-            (self._group_index[slot], order[self._groups[slot]][slot]) for slot in range(self.slots)
-        ]
+        self._order = _learned_order(self._arrival, self._groups, self._group_index)
+
+
+class _OpenCycle:
+    """A cycle of :class:`TimedAssembler` that is not final yet."""
+
+    __slots__ = ("arrival", "cycle", "doubted", "filled", "last", "row", "sent_s")
+
+    def __init__(self, cycle: int, sent_s: float, slots: int, groups: int) -> None:
+        self.cycle = cycle
+        self.sent_s = sent_s
+        self.row: list[bytes | None] = [None] * slots
+        self.filled = 0
+        self.doubted: set[int] = set()
+        self.last = [-1] * groups
+        self.arrival: list[int] = []
+
+
+class TimedAssembler:
+    """Collect PDO frames into rows by SYNC send times, where the interface returns no own SYNC.
+
+    The producer notes the host's wall-clock time just *before* it writes each SYNC
+    (``sent``: ``(cycle, time)``, appended by the SYNC thread); every frame comes with
+    its receive time on the same clock (python-can's time stamp where the interface
+    stamps with the host clock, else the time the link got it). A drive answers a SYNC
+    only after it is on the bus, so a frame received before SYNC ``k + 1`` was sent
+    belongs to cycle ``k`` or an earlier one; it may be a frame of an earlier cycle that
+    the adapter, the USB or the host delivered late. What tells them apart is that each
+    PDO comes once per cycle, in the drive's usual order:
+
+    * a frame received after SYNC ``k`` was sent goes to cycle ``k`` when every cycle
+      still open before ``k`` already has that PDO; if one of them lacks it, the frame is
+      that cycle's late answer or ``k``'s own, which nothing can tell: both are doubted
+      (so a missing frame costs its cycle and the next);
+    * a second frame of a PDO in one cycle, or a frame before one it usually follows
+      (the order learned from the first complete cycle), doubts the cycle, as
+      :class:`CycleAssembler` does;
+    * a cycle is final once it is complete and every cycle before it is final, or
+      ``hold_cycles`` newer SYNCs were sent and answered: a frame later than that is not
+      waited for.
+
+    A doubted cycle is lost (``doubled``), as is an incomplete one (``missing``); a
+    cycle number the producer skipped had no SYNC (``no_sync``). So a row holds the
+    frames of one SYNC cycle only. Not thread-safe: the link calls it under its lock.
+
+    Args:
+        slots: Number of PDO slots (every TPDO of every node).
+        groups: The node (any label) of every slot; slots of one node keep an order.
+        sent: The producer's ``(cycle, send time)`` of every SYNC, oldest first.
+        hold_cycles: How many newer SYNCs an incomplete cycle waits for its late frames.
+    """
+
+    def __init__(
+        self,
+        slots: int,
+        groups: Sequence[int] | None,
+        sent: collections.deque[tuple[int, float]],
+        hold_cycles: int = 2,
+    ) -> None:
+        if slots < 1:
+            raise ValueError("slots must be positive")
+        groups = list(groups) if groups is not None else list(range(slots))
+        if len(groups) != slots:
+            raise ValueError("one group per slot")
+        self.slots = slots
+        self._groups = groups
+        self._group_index = [sorted(set(groups)).index(g) for g in groups]
+        self._n_groups = max(self._group_index) + 1
+        self._sent = sent
+        self._hold = max(1, hold_cycles)
+        self.newest = -1
+        """The newest cycle whose SYNC was sent before a frame or time reached (-1: none)."""
+        self.early_frames = 0
+        """Frames received before the first SYNC was sent."""
+        self.stale_frames = 0
+        """Frames received for a cycle that was final already (dropped)."""
+        self.syncs = 0
+        """SYNCs sent and reached."""
+        self._open: list[_OpenCycle] = []
+        self._order: list[tuple[int, int]] | None = None
+        self._rows: list[tuple[int, list[bytes]]] = []
+        self._lost: list[LostCycle] = []
+
+    def frame(self, slot: int, data: bytes, received_s: float) -> None:
+        """A frame of PDO ``slot``, received at ``received_s`` (host wall clock)."""
+        self.reach(received_s)
+        open_ = self._open
+        if not open_:
+            if self.newest < 0:
+                self.early_frames += 1
+            else:
+                self.stale_frames += 1
+            return
+        # The cycle of the newest SYNC sent before the frame (frames may be handled late).
+        at = len(open_) - 1
+        while open_[at].sent_s > received_s:
+            at -= 1
+            if at < 0:
+                self.stale_frames += 1
+                return
+        cycle = open_[at]
+        ambiguous = False
+        for older in open_[:at]:
+            if older.row[slot] is None:
+                older.doubted.add(slot)  # its late frame, or the newer cycle's own
+                ambiguous = True
+        if ambiguous:
+            # Both are lost. The newer cycle counts the slot as come, so that its next
+            # frame is not taken for this cycle's own: one late or missing frame costs
+            # two cycles, not every cycle after it.
+            cycle.doubted.add(slot)
+            if cycle.row[slot] is None:
+                cycle.row[slot] = data
+                cycle.filled += 1
+            return
+        self._put(cycle, slot, data)
+        if at == 0 and cycle.filled == self.slots and len(open_) > 1:
+            self._finish_ready()
+
+    def reach(self, now_s: float) -> None:
+        """Host time ``now_s`` is reached: the SYNCs sent before it open their cycles."""
+        sent = self._sent
+        opened = False
+        while sent and sent[0][1] <= now_s:
+            cycle, sent_s = sent.popleft()
+            if cycle <= self.newest:
+                continue
+            if self.newest >= 0 and cycle > self.newest + 1:
+                self._finish_all()  # a cycle the producer skipped: nothing before it waits
+                everything = frozenset(range(self.slots))
+                self._lost.extend(
+                    LostCycle(skipped, everything, "no_sync")
+                    for skipped in range(self.newest + 1, cycle)
+                )
+            self.newest = cycle
+            self.syncs += 1
+            self._open.append(_OpenCycle(cycle, sent_s, self.slots, self._n_groups))
+            opened = True
+        if opened:
+            self._finish_ready()
+
+    def finish(self) -> None:
+        """Everything open becomes final (the link closes)."""
+        self._finish_all()
+
+    def take(self) -> tuple[list[tuple[int, list[bytes]]], list[LostCycle]]:
+        """The rows and lost cycles that became final since the last call, each in cycle order."""
+        rows, self._rows = self._rows, []
+        lost, self._lost = self._lost, []
+        return rows, lost
+
+    def _put(self, cycle: _OpenCycle, slot: int, data: bytes) -> None:
+        row = cycle.row
+        if self._order is None:
+            cycle.arrival.append(slot)
+            if row[slot] is not None:
+                cycle.doubted.add(slot)
+                return
+        else:
+            group, rank = self._order[slot]
+            if row[slot] is not None or rank < cycle.last[group]:
+                cycle.doubted.add(slot)
+                if row[slot] is not None:
+                    return
+            else:
+                cycle.last[group] = rank
+        row[slot] = data
+        cycle.filled += 1
+
+    def _finish_ready(self) -> None:
+        """Final, oldest first: complete cycles, and those ``hold_cycles`` behind the newest."""
+        open_ = self._open
+        done = 0
+        for cycle in open_[:-1]:
+            if cycle.filled < self.slots and cycle.cycle > self.newest - self._hold:
+                break
+            self._final(cycle)
+            done += 1
+        if done:
+            del open_[:done]
+
+    def _finish_all(self) -> None:
+        for cycle in self._open:
+            self._final(cycle)
+        self._open = []
+
+    def _final(self, cycle: _OpenCycle) -> None:
+        if cycle.doubted:
+            self._lost.append(LostCycle(cycle.cycle, frozenset(cycle.doubted), "doubled"))
+        elif cycle.filled == self.slots:
+            self._rows.append((cycle.cycle, cast(list[bytes], cycle.row)))
+            if self._order is None:
+                self._order = _learned_order(cycle.arrival, self._groups, self._group_index)
+        else:
+            missing = frozenset(i for i, data in enumerate(cycle.row) if data is None)
+            self._lost.append(LostCycle(cycle.cycle, missing))
+
+
+def _learned_order(
+    arrival: Sequence[int], groups: Sequence[int], group_index: Sequence[int]
+) -> list[tuple[int, int]]:
+    """Per slot, its node's index and its position among the node's frames of one cycle."""
+    order: dict[int, dict[int, int]] = {}
+    for slot in arrival:
+        positions = order.setdefault(groups[slot], {})
+        positions.setdefault(slot, len(positions))
+    return [(group_index[slot], order[groups[slot]][slot]) for slot in range(len(groups))]
 
 
 def run_sync_schedule(
@@ -281,6 +482,11 @@ class SyncProducer:
         self._message = can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)
         self.sent: collections.deque[int] = collections.deque()
         """Cycles of own SYNCs sent and not yet seen back, in order."""
+        self.timed = False
+        """True where the interface returns no own SYNC: :attr:`send_times` are kept."""
+        self.send_times: collections.deque[tuple[int, float]] = collections.deque()
+        """``(cycle, host wall-clock time just before the SYNC was written)``, oldest first
+        (:class:`TimedAssembler` takes them)."""
         self.sent_cycle = -1
         """The newest cycle sent."""
 
@@ -309,7 +515,11 @@ class SyncProducer:
         # frames, and on a busy host a SYNC waiting for it came late and was skipped.
         # A deque's append is atomic, and it comes before the send, so the receive
         # thread finds the cycle when it sees the SYNC.
-        self.sent.append(cycle)
+        if self.timed:
+            # Before the write: no drive can answer this SYNC before this time.
+            self.send_times.append((cycle, time.time()))
+        else:
+            self.sent.append(cycle)
         self.sent_cycle = cycle
         try:
             with network.send_lock:  # SDO transfers of the worker share the bus

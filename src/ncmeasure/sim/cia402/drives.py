@@ -424,7 +424,8 @@ VIRTUAL_BUS_REACH = (
     "python-can's virtual bus reaches only this process: a `ncmeasure record` in another "
     "terminal cannot see these drives. For two processes use an interface that crosses them, "
     "e.g. --interface socketcan --channel vcan0 (a vcan device: `ip link add dev vcan0 type "
-    "vcan && ip link set up vcan0`, as root) or --interface udp_multicast (needs msgpack)"
+    "vcan && ip link set up vcan0`, as root) or --interface udp_multicast --channel "
+    "239.74.163.2 (needs msgpack: pip install 'ncmeasure[udp-multicast]')"
 )
 """What to say when simulated drives serve on python-can's in-process ``virtual`` bus."""
 
