@@ -30,7 +30,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
@@ -44,6 +44,7 @@ from ncmeasure.samples import LinkClock, LinkEvent, SampleBlock
 __all__ = [
     "AcquisitionResult",
     "Progress",
+    "Watch",
     "acquire",
     "check_duration",
     "link_time_scale",
@@ -76,7 +77,23 @@ class Progress:
     last_event: str | None = None
 
 
-EndedBy = Literal["duration", "schedule", "source", "stop", "link"]
+EndedBy = Literal["duration", "schedule", "source", "stop", "link", "program", "no_start"]
+
+
+class Watch(Protocol):
+    """Decides which rows a recording keeps and when it ends (``ncmeasure measure``).
+
+    :func:`acquire` hands it every block as it comes; it returns the rows to
+    write (none while it waits for a start, a pre-roll with the start) and, once
+    the recording is to end, what ended it: ``program`` (the program's end was
+    seen), ``schedule`` (its bound) or ``no_start`` (no start came in time).
+    """
+
+    def pass_rows(
+        self, block: SampleBlock, link_now_s: float | None
+    ) -> tuple[SampleBlock, EndedBy | None]:
+        """The rows of ``block`` to keep, and what ended the recording (None: go on)."""
+        ...
 
 
 @dataclass
@@ -152,6 +169,7 @@ def acquire(
     on_progress: Callable[[Progress], None] | None = None,
     progress_interval_s: float = 0.5,
     read_timeout_s: float = 0.2,
+    watch: Watch | None = None,
 ) -> AcquisitionResult:
     """Record from an open ``link`` into ``writer`` until done, then close the writer.
 
@@ -165,6 +183,8 @@ def acquire(
         progress_interval_s: Seconds between progress calls.
         read_timeout_s: Longest wait for data in one read; bounds the reaction
             time to ``stop``.
+        watch: Keeps only the rows it passes and may end the recording (see
+            :class:`Watch`); None: every row is kept.
 
     Returns:
         The result; ``status`` is ``complete`` (duration or end of source, no
@@ -209,6 +229,10 @@ def acquire(
                     first_time_s = float(block.time_s[0])
                 block, reached_end = _until_end(link, block, (first_time_s or 0.0) + duration_s)
                 ended_by = "duration" if reached_end else ended_by
+            if watch is not None and not reached_end:
+                block, watch_end = watch.pass_rows(block, link.now_s())
+                if watch_end is not None:
+                    reached_end, ended_by = True, watch_end
             if len(block):
                 writer.append(block)
                 rows += len(block)
@@ -317,6 +341,7 @@ def record(
     stop: threading.Event | None = None,
     on_progress: Callable[[Progress], None] | None = None,
     clock: LinkClock | None = None,
+    watch: Callable[[DriveLink], Watch] | None = None,
 ) -> AcquisitionResult:
     """Record a machine's drives into the recording directory ``out``.
 
@@ -340,6 +365,9 @@ def record(
         clock: The link's clock: a :class:`~ncmeasure.samples.SimulatedClock`
             for ncmeasure's own simulated drives (lockstep); ``None``: real time.
             ``duration_s`` and the time stamps are on this clock.
+        watch: Builds a :class:`Watch` for the opened link (its channels and clock):
+            it keeps the rows from a start on and ends the recording; the schedule's
+            end is then its business (``duration_s`` stays a limit).
 
     Raises:
         ConfigError: bad machine file or link settings.
@@ -362,7 +390,7 @@ def record(
         schedule_end_s = schedule.duration_s + schedule_margin_s
     else:
         schedule_end_s = None
-    limit_s = duration_s if duration_s is not None else schedule_end_s
+    limit_s = duration_s if duration_s is not None or watch else schedule_end_s
     # The link opens first: a drive that cannot be reached leaves no empty recording behind.
     time_scale = link_time_scale(drive_link)
     drive_link.open()
@@ -379,11 +407,18 @@ def record(
             faster_than_real_time=time_scale != 1.0 or drive_link.clock.lockstep,
             time_scale=time_scale,
         )
-        result = acquire(drive_link, writer, duration_s=limit_s, stop=stop, on_progress=on_progress)
+        result = acquire(
+            drive_link,
+            writer,
+            duration_s=limit_s,
+            stop=stop,
+            on_progress=on_progress,
+            watch=watch(drive_link) if watch is not None else None,
+        )
     finally:
         drive_link.close()
     result.duration_s = duration_s
     result.schedule_end_s = schedule_end_s
-    if result.ended_by == "duration" and duration_s is None:
+    if result.ended_by == "duration" and duration_s is None and watch is None:
         result.ended_by = "schedule"
     return result

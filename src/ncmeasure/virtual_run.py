@@ -23,11 +23,12 @@ replaced by the simulated drives' own.
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 import threading
 import time
 import uuid
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -61,6 +62,7 @@ __all__ = [
     "prepare_folder",
     "record_run",
     "run_programs",
+    "serving",
     "simulated_link",
 ]
 
@@ -249,48 +251,21 @@ def _canopen_settings(
     return settings, axes
 
 
-def record_run(
-    config: MachineConfig,
-    run: MachineRun,
-    schedule: Schedule,
-    out: Path,
-    link: SimulatedLink,
-    *,
-    notes: str,
-    progress: Progress = _silent,
-    stage: str = "recording",
-    stop: threading.Event | None = None,
-) -> AcquisitionResult:
-    """Serve ``run`` through simulated drives and record it with the real link, in lockstep.
+@contextlib.contextmanager
+def serving(
+    config: MachineConfig, run: MachineRun, link: SimulatedLink, clock: SimulatedClock
+) -> Iterator[dict[str, Any]]:
+    """Simulated drives serving ``run`` on ``clock``; yields the link settings that reach them.
 
     The drives move the axes the machine file describes, as the virtual machine
-    does (facts the file leaves out are the test rig's): the link reads them with
-    the same facts.
+    does (facts the file leaves out are the test rig's): a link made from
+    ``link.machine(config)`` with the yielded settings (the bus channel, the port)
+    reads them with the same facts, in lockstep when it runs on ``clock``.
 
     Raises:
         ConfigError: invalid link settings.
-        LinkError: the link or the simulated drives failed to start.
+        LinkError: the simulated drives failed to start.
     """
-    clock = SimulatedClock()
-    total = run.duration_s
-    machine = link.machine(config)
-
-    def on_progress(p: Any) -> None:
-        progress(stage, min(1.0, p.link_time_s / total) if total > 0 else None)
-
-    def recorded(**settings: Any) -> AcquisitionResult:
-        return record(
-            machine,
-            out=out,
-            link_settings=settings,
-            duration_s=total,
-            schedule=schedule,
-            notes=notes,
-            on_progress=on_progress,
-            stop=stop,
-            clock=clock,
-        )
-
     mechanics = [rig_mechanics(axis.mechanics()) for axis in config.axes]
     if link.kind == "canopen":
         channel = f"ncmeasure-vm-{uuid.uuid4().hex[:8]}"  # a virtual bus of its own
@@ -320,7 +295,8 @@ def record_run(
             object_map=object_map,
             clock=clock,
         ):
-            return recorded(channel=channel)
+            yield {"channel": channel}
+        return
     modbus, units = settings_from_tables(link.table, link.axes)
     served = [
         SimulatedUnit(
@@ -341,7 +317,45 @@ def record_run(
         source=run,
         clock=clock,
     ) as server:
-        return recorded(port=server.port)
+        yield {"port": server.port}
+
+
+def record_run(
+    config: MachineConfig,
+    run: MachineRun,
+    schedule: Schedule,
+    out: Path,
+    link: SimulatedLink,
+    *,
+    notes: str,
+    progress: Progress = _silent,
+    stage: str = "recording",
+    stop: threading.Event | None = None,
+) -> AcquisitionResult:
+    """Serve ``run`` through simulated drives and record it with the real link, in lockstep.
+
+    Raises:
+        ConfigError: invalid link settings.
+        LinkError: the link or the simulated drives failed to start.
+    """
+    clock = SimulatedClock()
+    total = run.duration_s
+
+    def on_progress(p: Any) -> None:
+        progress(stage, min(1.0, p.link_time_s / total) if total > 0 else None)
+
+    with serving(config, run, link, clock) as transport:
+        return record(
+            link.machine(config),
+            out=out,
+            link_settings=transport,
+            duration_s=total,
+            schedule=schedule,
+            notes=notes,
+            on_progress=on_progress,
+            stop=stop,
+            clock=clock,
+        )
 
 
 @dataclass

@@ -4,6 +4,7 @@ One module per group of commands, each declaring its options and calling the lib
 
 - :mod:`~ncmeasure.cli.program`       init, schema, controllers, plan, generate, check
 - :mod:`~ncmeasure.cli.record`        record, simulate-drive
+- :mod:`~ncmeasure.cli.measure`       measure (wait for the start, record, analyse, store)
 - :mod:`~ncmeasure.cli.traces`        import, export
 - :mod:`~ncmeasure.cli.analysis`      analyze, compare, simulate
 - :mod:`~ncmeasure.cli.store`         store add, list, show, trend, check, report, export, import
@@ -28,6 +29,7 @@ from ncmeasure.cli import (  # noqa: F401  (importing a module registers its com
     analysis,
     compensation,
     demo,
+    measure,
     program,
     publish,
     record,
@@ -44,7 +46,7 @@ __all__ = ["app", "main"]
 # the pipeline's, whatever the order the modules above register them in.
 _ORDER = [
     "init", "controllers", "plan", "generate", "check", "dryrun", "record", "export", "import",
-    "simulate-drive", "analyze", "compare", "serve", "simulate", "demo", "compensation",
+    "simulate-drive", "measure", "analyze", "compare", "serve", "simulate", "demo", "compensation",
     "apply-compensation",
 ]  # fmt: skip
 

@@ -1,0 +1,651 @@
+"""``ncmeasure measure``: the whole path at the machine, from cycle start to the verdict.
+
+The technician's path at a real machine is ``generate`` → the setup sheet →
+``measure``. :func:`load_programs` checks that the programs folder is the one
+the machine file generates (``schedule.json``'s config hash is the file's);
+:func:`record_program` opens the link (:func:`~ncmeasure.acquire.record`) and
+records one run of the program with a :class:`ProgramWatch`:
+
+- **Start.** Where the link records a marker channel (``<AXIS>_marker``) and
+  the schedule has a marker, the marker's first edge; else the first motion of
+  an axis of the schedule (its velocity above half the smallest velocity it is
+  measured at, or its position leaving where it stood). Before the start only
+  :data:`PRE_ROLL_S` of rows are kept.
+- **Windows passed.** Each axis' windows in turn: by the marker's falling
+  edges where it is recorded, else when the axis crosses the window's end in
+  its direction. The program time each one is passed at, against the
+  schedule's, gives the slowing (the override below 100 %, feed holds).
+- **End.** With the marker, its fall after the last window; else every axis
+  back at its park and still for :data:`STILL_S` after the last window;
+  then :data:`POST_ROLL_S` more. Bounded by the schedule's duration times the
+  measured slowing plus :data:`~ncmeasure.formats.schedule.SCHEDULE_MARGIN_S`.
+
+:func:`evaluate` then does what ``analyze --store --serial --report`` does, and
+compares: the analysis, ``results.json``, the measurement in the fleet store
+(measured at the program's start), the machine's check against its baseline
+(:func:`~ncmeasure.store.check.check_machine`) and the report with that
+comparison. The verdict is the worst of the check's status and the axes'
+verdicts (check: warning, fault: critical).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import logging
+import threading
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from ncmeasure.acquire import AcquisitionResult, EndedBy, Progress, record
+from ncmeasure.config import MachineConfig, config_hash, load_machine
+from ncmeasure.errors import ConfigError, ProgramError
+from ncmeasure.formats.comparison import Limits, Status, worst_status
+from ncmeasure.formats.results import Results, write_results
+from ncmeasure.formats.schedule import SCHEDULE_FILE, SCHEDULE_MARGIN_S, Schedule, Window
+from ncmeasure.links import DriveLink
+from ncmeasure.samples import LinkClock, SampleBlock
+
+__all__ = [
+    "POST_ROLL_S",
+    "PRE_ROLL_S",
+    "STILL_S",
+    "Evaluation",
+    "ProgramWatch",
+    "WatchState",
+    "evaluate",
+    "load_programs",
+    "record_program",
+]
+
+log = logging.getLogger(__name__)
+
+PRE_ROLL_S = 2.0
+"""Rows kept from before the start (link time)."""
+POST_ROLL_S = 1.0
+"""Rows kept after the program's end was seen."""
+STILL_S = 1.0
+"""How long every axis must stand still at its park for the program to have ended."""
+PARK_TOLERANCE_MM = 0.05
+"""An axis this close to its park is at it; one that moved farther has left where it stood."""
+_VERDICT_STATUS: dict[str, Status] = {"ok": "ok", "check": "warning", "fault": "critical"}
+
+Phase = Literal["waiting", "running", "ending", "ended"]
+
+
+def load_programs(programs: Path, machine_file: Path) -> tuple[Schedule, MachineConfig]:
+    """The programs' schedule and their machine file, checked to belong together.
+
+    Raises:
+        ProgramError: no such folder, or no readable schedule.json in it.
+        ConfigError: an unreadable machine file, or not the one of the programs.
+    """
+    from ncmeasure.formats.schedule import load_schedule
+
+    if not programs.is_dir():
+        what = "is not a folder" if programs.exists() else "no such folder"
+        raise ProgramError(
+            f"{programs}: {what}; name the folder `ncmeasure generate MACHINE -o FOLDER` wrote"
+        )
+    schedule = load_schedule(programs / SCHEDULE_FILE)
+    config = load_machine(machine_file)
+    found = config_hash(config)
+    if found != schedule.config_hash:
+        raise ConfigError(
+            f"the programs in {programs} are not the ones {machine_file} generates (config "
+            f"hash {found}, {SCHEDULE_FILE} says {schedule.config_hash}): load the programs "
+            f"of `ncmeasure generate {machine_file} -o {programs}` into the control, or name "
+            "the machine file they came from"
+        )
+    return schedule, config
+
+
+@dataclass(frozen=True)
+class WatchState:
+    """What the watch waits for and how far the program is (for a progress display)."""
+
+    phase: Phase
+    text: str
+    """In words: what it waits for, or where the program is."""
+    windows_passed: int
+    windows_total: int
+    program_time_s: float | None
+    """The program's time since its start (link time), None before the start."""
+    schedule_time_s: float | None
+    """The schedule's time of the last window passed."""
+    slowing: float
+    """Measured program time over the schedule's (1: as planned; 1.25: override 80 %)."""
+
+
+@dataclass
+class _Axis:
+    name: str
+    velocity: int
+    position: int
+    marker: int | None
+    park_mm: float
+    threshold_mm_min: float
+    t_start_s: float
+    windows: list[Window]
+    passed: int = 0
+    marker_on: bool = False
+    stood_mm: float | None = None
+
+
+class ProgramWatch:
+    """Keeps one run of the program from its start to its end (an acquisition's watch).
+
+    Args:
+        channel_names: The link's columns.
+        schedule: The program's schedule.
+        real_time: The link runs on the wall clock (the start's UTC time is then
+            taken back from the link's lag; in lockstep it is the time it was seen).
+        margin_s: Time allowed after the schedule's end, slowed as measured.
+        start_timeout_s: End without a start after this long (link time); None: wait.
+
+    Raises:
+        ConfigError: the link records no velocity or position of a schedule's axis.
+    """
+
+    def __init__(
+        self,
+        channel_names: Sequence[str],
+        schedule: Schedule,
+        *,
+        real_time: bool = True,
+        margin_s: float = SCHEDULE_MARGIN_S,
+        start_timeout_s: float | None = None,
+        pre_roll_s: float = PRE_ROLL_S,
+    ) -> None:
+        index = {name: i for i, name in enumerate(channel_names)}
+        missing = [
+            f"{axis.name}_{signal}"
+            for axis in schedule.axes
+            for signal in ("velocity_mm_min", "position_mm")
+            if f"{axis.name}_{signal}" not in index
+        ]
+        if missing:
+            raise ConfigError(
+                f"the link records no {', '.join(missing)}: the program's start and end "
+                "cannot be seen"
+            )
+        use_marker = schedule.marker_scope != "none"
+        self._axes = [
+            _Axis(
+                name=axis.name,
+                velocity=index[f"{axis.name}_velocity_mm_min"],
+                position=index[f"{axis.name}_position_mm"],
+                marker=index.get(f"{axis.name}_marker") if use_marker else None,
+                park_mm=axis.park_mm,
+                threshold_mm_min=0.5 * min((abs(v) for v in axis.velocities_mm_min), default=2.0),
+                t_start_s=axis.t_start_s,
+                windows=sorted(axis.windows, key=lambda w: w.t_window_end_s),
+            )
+            for axis in schedule.axes
+        ]
+        self.by_marker = any(axis.marker is not None for axis in self._axes)
+        self._schedule = schedule
+        self._real_time = real_time
+        self._margin_s = margin_s
+        self._start_timeout_s = start_timeout_s
+        self._pre_roll_s = pre_roll_s
+        self._held: deque[SampleBlock] = deque()
+        self._first_s: float | None = None
+        self.phase: Phase = "waiting"
+        self.start_s: float | None = None
+        """The start on the link's clock."""
+        self.start_utc: dt.datetime | None = None
+        """The start's wall-clock time (UTC)."""
+        self.offset_s = 0.0
+        """The schedule's time at the start (the marker's first window, an axis' start)."""
+        self.slowing = 1.0
+        self._last_s: float | None = None
+        self._still_since: float | None = None
+        self._end_s: float | None = None
+        self._last_passed: Window | None = None
+        self._last_passed_s: float | None = None
+        self.windows_total = sum(len(axis.windows) for axis in self._axes)
+        self._last_window_s = max(
+            (w.t_window_end_s for axis in self._axes for w in axis.windows), default=0.0
+        )
+
+    # --- what it is doing ----------------------------------------------------------------
+
+    @property
+    def bound_s(self) -> float | None:
+        """The latest end on the link's clock: the schedule, slowed as measured, plus margin."""
+        if self.start_s is None:
+            return None
+        rest = max(0.0, self._schedule.duration_s - self.offset_s)
+        return self.start_s + rest * max(1.0, self.slowing) + self._margin_s
+
+    @property
+    def bound_text(self) -> str:
+        """How the bound is made, in words."""
+        rest = max(0.0, self._schedule.duration_s - self.offset_s)
+        slowed = (
+            f" × {self.slowing:.2f} (the program runs slower than planned: override "
+            f"≈ {100 / self.slowing:.0f} %)"
+            if self.slowing > 1.0
+            else ""
+        )
+        return f"the schedule's {rest:.0f} s{slowed} + {self._margin_s:g} s"
+
+    @property
+    def windows_passed(self) -> int:
+        """Windows passed so far."""
+        return sum(axis.passed for axis in self._axes)
+
+    def state(self) -> WatchState:
+        """What it waits for and how far the program is."""
+        names = ", ".join(axis.name for axis in self._axes)
+        passed = self.windows_passed
+        program_s = (
+            None if self.start_s is None or self._last_s is None else self._last_s - self.start_s
+        )
+        if self.phase == "waiting":
+            text = (
+                f"waiting for the start: the marker's first edge ({names})"
+                if self.by_marker
+                else f"waiting for the start: the first motion of {names}"
+            )
+        elif self.phase == "running":
+            where = (
+                f"; axis {self._last_passed.axis} window {self._last_passed.id} passed at "
+                f"{self._last_passed.t_window_end_s:.0f} s of the schedule"
+                if self._last_passed is not None
+                else ""
+            )
+            waits = (
+                "the marker's fall after the last window"
+                if self.by_marker
+                else "every axis at its park and still after the last window"
+            )
+            text = (
+                f"program running: {passed} of {self.windows_total} windows{where}; "
+                f"waiting for its end ({waits})"
+            )
+        else:
+            text = f"program ended: {passed} of {self.windows_total} windows passed"
+        return WatchState(
+            phase=self.phase,
+            text=text,
+            windows_passed=passed,
+            windows_total=self.windows_total,
+            program_time_s=program_s,
+            schedule_time_s=(
+                self._last_passed.t_window_end_s if self._last_passed is not None else None
+            ),
+            slowing=self.slowing,
+        )
+
+    # --- the rows ------------------------------------------------------------------------
+
+    def pass_rows(
+        self, block: SampleBlock, link_now_s: float | None
+    ) -> tuple[SampleBlock, EndedBy | None]:
+        """The rows of ``block`` to keep, and what ended the recording (None: go on)."""
+        if not len(block):
+            return block, None
+        if self._first_s is None:
+            self._first_s = float(block.time_s[0])
+        self._last_s = float(block.time_s[-1])
+        kept = block
+        if self.phase == "waiting":
+            start = self._find_start(block)
+            if start is None:
+                self._hold(block)
+                timeout = self._start_timeout_s
+                if timeout is not None and self._last_s - self._first_s >= timeout:
+                    return _empty_like(block), "no_start"
+                return _empty_like(block), None
+            self._begin(block, start, link_now_s)
+            kept = self._pre_rolled(block)
+            self._follow(block, start)
+        else:
+            self._follow(block, 0)
+        if self._end_s is not None:
+            cut = int(np.searchsorted(kept.time_s, self._end_s + POST_ROLL_S, "right"))
+            if cut < len(kept):
+                self.phase = "ended"
+                return _head(kept, cut), "program"
+        bound = self.bound_s
+        if bound is not None and self._last_s >= bound:
+            cut = int(np.searchsorted(kept.time_s, bound, "right"))
+            self.phase = "ended"
+            return _head(kept, cut), "schedule"
+        return kept, None
+
+    def _hold(self, block: SampleBlock) -> None:
+        """Keep the last :attr:`pre_roll_s` of rows before the start."""
+        self._held.append(block)
+        newest = float(block.time_s[-1])
+        while len(self._held) > 1 and float(self._held[1].time_s[0]) <= newest - self._pre_roll_s:
+            self._held.popleft()
+
+    def _pre_rolled(self, block: SampleBlock) -> SampleBlock:
+        """The held rows within the pre-roll of the start, then ``block``."""
+        assert self.start_s is not None
+        parts = [*self._held, block]
+        self._held.clear()
+        time_s = np.concatenate([p.time_s for p in parts])
+        values = np.concatenate([p.values for p in parts])
+        first = int(np.searchsorted(time_s, self.start_s - self._pre_roll_s, "left"))
+        return SampleBlock(time_s[first:], values[first:])
+
+    def _find_start(self, block: SampleBlock) -> int | None:
+        """The row of the start in ``block``, if it is there."""
+        found: list[tuple[int, _Axis]] = []
+        for axis in self._axes:
+            if self.by_marker:
+                if axis.marker is None:
+                    continue
+                marker = block.values[:, axis.marker]
+                hits = np.flatnonzero(np.isfinite(marker) & (marker > 0))
+            else:
+                if axis.stood_mm is None:
+                    axis.stood_mm = float(block.values[0, axis.position])
+                velocity = block.values[:, axis.velocity]
+                position = block.values[:, axis.position]
+                hits = np.flatnonzero(
+                    (np.abs(velocity) > axis.threshold_mm_min)
+                    | (np.abs(position - axis.stood_mm) > PARK_TOLERANCE_MM)
+                )
+            if hits.size:
+                found.append((int(hits[0]), axis))
+        if not found:
+            return None
+        row, axis = min(found, key=lambda pair: pair[0])
+        if self.by_marker and axis.windows:
+            first = axis.windows[0]
+            self.offset_s = (
+                first.t_window_start_s
+                if self._schedule.marker_scope == "window"
+                else first.t_start_s
+            )
+        elif axis.stood_mm is not None and abs(axis.stood_mm - axis.park_mm) <= PARK_TOLERANCE_MM:
+            self.offset_s = axis.t_start_s  # parked: its own measurement is its first motion
+        return row
+
+    def _begin(self, block: SampleBlock, row: int, link_now_s: float | None) -> None:
+        self.phase = "running"
+        self.start_s = float(block.time_s[row])
+        now = dt.datetime.now(dt.UTC)
+        lag_s = (link_now_s - self.start_s) if self._real_time and link_now_s is not None else 0.0
+        self.start_utc = now - dt.timedelta(seconds=max(0.0, lag_s))
+        log.info("program start at %.3f s (link time)", self.start_s)
+
+    def _follow(self, block: SampleBlock, row: int) -> None:
+        """Windows passed and the end, from ``row`` of ``block`` on."""
+        time_s = block.time_s[row:]
+        values = block.values[row:]
+        for axis in self._axes:
+            self._pass_windows(axis, time_s, values)
+        if self._end_s is not None:
+            return
+        after_last = self.windows_passed >= self.windows_total or (
+            self.start_s is not None
+            and self._last_s is not None
+            and self._last_s - self.start_s >= (self._last_window_s - self.offset_s) * self.slowing
+        )
+        if self.by_marker:
+            if self.windows_passed >= self.windows_total and self._last_s is not None:
+                self._end_s = self._end_s or self._last_passed_s
+                self.phase = "ending"
+            return
+        still = np.ones(len(time_s), dtype=bool)
+        for axis in self._axes:
+            still &= np.abs(values[:, axis.velocity]) <= axis.threshold_mm_min
+            still &= np.abs(values[:, axis.position] - axis.park_mm) <= PARK_TOLERANCE_MM
+        for i in range(len(time_s)):
+            if not still[i]:
+                self._still_since = None
+            elif self._still_since is None:
+                self._still_since = float(time_s[i])
+        if (
+            after_last
+            and self._still_since is not None
+            and self._last_s is not None
+            and self._last_s - self._still_since >= STILL_S
+        ):
+            self._end_s = self._still_since + STILL_S
+            self.phase = "ending"
+
+    def _pass_windows(self, axis: _Axis, time_s: Any, values: Any) -> None:
+        """Advance ``axis`` past the windows these rows complete."""
+        start = 0
+        if axis.marker is not None:
+            marker = values[:, axis.marker]
+            on = np.isfinite(marker) & (marker > 0)
+            before = np.concatenate(([axis.marker_on], on[:-1]))
+            falls = np.flatnonzero(before & ~on)
+            if len(on):
+                axis.marker_on = bool(on[-1])
+            for fall in falls:
+                if axis.passed < len(axis.windows):
+                    self._passed(axis, float(time_s[fall]))
+            return
+        while axis.passed < len(axis.windows) and start < len(time_s):
+            window = axis.windows[axis.passed]
+            beyond = window.direction * (values[start:, axis.position] - window.window_end_mm)
+            moving = window.direction * values[start:, axis.velocity] > axis.threshold_mm_min
+            hits = np.flatnonzero((beyond >= 0) & moving)
+            if not hits.size:
+                return
+            start += int(hits[0])
+            self._passed(axis, float(time_s[start]))
+            # the next window starts after the axis stopped: skip to where it no longer moves on
+            stopped = np.flatnonzero(~(window.direction * values[start:, axis.velocity] > 0))
+            if not stopped.size:
+                return
+            start += int(stopped[0])
+
+    def _passed(self, axis: _Axis, time_s: float) -> None:
+        window = axis.windows[axis.passed]
+        axis.passed += 1
+        self._last_passed = window
+        self._last_passed_s = time_s
+        if self.start_s is not None:
+            planned_s = window.t_window_end_s - self.offset_s
+            if planned_s > 1.0:
+                self.slowing = max(1.0, (time_s - self.start_s) / planned_s)
+
+
+def _empty_like(block: SampleBlock) -> SampleBlock:
+    return SampleBlock(block.time_s[:0], block.values[:0])
+
+
+def _head(block: SampleBlock, rows: int) -> SampleBlock:
+    return SampleBlock(block.time_s[:rows], block.values[:rows])
+
+
+@dataclass
+class Recorded:
+    """One run of the program as :func:`record_program` recorded it."""
+
+    acquisition: AcquisitionResult
+    watch: ProgramWatch | None
+    """None when the link failed before it opened."""
+
+    @property
+    def started(self) -> bool:
+        """The program's start was seen."""
+        return self.watch is not None and self.watch.start_s is not None
+
+
+def record_program(
+    config: MachineConfig,
+    schedule: Schedule,
+    out: Path,
+    *,
+    link: str | None = None,
+    link_settings: dict[str, Any] | None = None,
+    axis_settings: dict[str, dict[str, Any]] | None = None,
+    notes: str = "",
+    stop: threading.Event | None = None,
+    on_progress: Callable[[Progress, WatchState], None] | None = None,
+    clock: LinkClock | None = None,
+    start_timeout_s: float | None = None,
+    margin_s: float = SCHEDULE_MARGIN_S,
+) -> Recorded:
+    """Open the link, wait for the program's start, record it until its end.
+
+    Args:
+        config: The machine (its ``[link]`` unless ``link``/``link_settings`` say otherwise).
+        schedule: The program's schedule.
+        out: New recording directory.
+        link, link_settings, axis_settings: As :func:`~ncmeasure.acquire.record` takes them.
+        notes: Free text stored with the recording.
+        stop: Set it to stop (Ctrl-C): what was recorded is kept.
+        on_progress: ``on_progress(progress, state)`` about twice a second.
+        clock: The link's clock (a SimulatedClock in lockstep with simulated drives).
+        start_timeout_s: Give up without a start after this long (link time).
+        margin_s: Time allowed after the schedule's end (slowed as measured).
+
+    Raises:
+        ConfigError: bad link settings, or a link that records no velocity or position.
+        LinkError: the link cannot be opened.
+        RecordingError: the recording cannot be written.
+    """
+    watches: list[ProgramWatch] = []
+
+    def watch(drive_link: DriveLink) -> ProgramWatch:
+        made = ProgramWatch(
+            [c.name for c in drive_link.channels],
+            schedule,
+            real_time=drive_link.clock.real_time,
+            margin_s=margin_s,
+            start_timeout_s=start_timeout_s,
+        )
+        watches.append(made)
+        return made
+
+    def progress(p: Progress) -> None:
+        if on_progress is not None and watches:
+            on_progress(p, watches[0].state())
+
+    result = record(
+        config,
+        out=out,
+        link=link,
+        link_settings=link_settings,
+        axis_settings=axis_settings,
+        schedule=schedule,
+        notes=notes,
+        stop=stop,
+        on_progress=progress,
+        clock=clock,
+        watch=watch,
+    )
+    return Recorded(result, watches[0] if watches else None)
+
+
+@dataclass
+class Evaluation:
+    """What :func:`evaluate` wrote and found."""
+
+    results: Results
+    results_file: Path
+    report: Path
+    added: Any
+    """The store's ``Added``: the measurement's id, new or already stored."""
+    check: Any
+    """The store's ``StoreCheck``: the machine against its baseline and its fleet."""
+    status: Status
+    """The verdict: the worst of the check's status and the axes' verdicts."""
+
+
+def verdict_status(results: Results, check_status: Status) -> Status:
+    """The worst of ``check_status`` and the axes' verdicts (check: warning, fault: critical)."""
+    from ncmeasure.analysis.judgement.summary import axis_headline
+
+    levels = [axis_headline(axis, None).verdict.level for axis in results.axes.values()]
+    return worst_status([check_status, *(_VERDICT_STATUS.get(level, "ok") for level in levels)])
+
+
+def evaluate(
+    recording: Path,
+    schedule: Schedule,
+    config: MachineConfig,
+    out: Path,
+    *,
+    store: str | None,
+    info: Any,
+    limits: Limits | None = None,
+    progress: Callable[[str, float | None], None] | None = None,
+) -> Evaluation:
+    """Analyse a recording, store it, check the machine against its baseline, report.
+
+    Args:
+        recording: The recording directory.
+        schedule: The program's schedule.
+        config: The machine.
+        out: Folder for results.json and report.html.
+        store: The fleet store's URL (None: the default store).
+        info: The store's ``MeasurementInfo`` (serial, label, measured time, ...).
+        limits: Warning and critical limits of the change against the baseline.
+        progress: ``progress(stage, fraction)``.
+
+    Raises:
+        NcMeasureError: the analysis, the store or the report failed.
+    """
+    from ncmeasure.analysis.analyze import analyze
+    from ncmeasure.recording import RecordingHead
+    from ncmeasure.report import write_report
+    from ncmeasure.report.traces import RawTraces
+    from ncmeasure.store import open_store, store_url
+    from ncmeasure.store.check import check_machine
+
+    def report(stage: str, fraction: float | None) -> None:
+        if progress is not None:
+            progress(stage, fraction)
+
+    head = RecordingHead.open(recording)
+    traces = RawTraces(head)
+    windows: dict[str, list[tuple[float, float]]] = {}
+    report("analysing", None)
+    results = analyze(
+        head,
+        schedule=schedule,
+        machine=config,
+        progress=lambda _stage, fraction: report("analysing", fraction),
+        window_times=windows,
+        on_windows=traces.watch,
+    )
+    results_file = write_results(results, out / "results.json")
+    report("storing and comparing", None)
+    with open_store(store_url(store), write=True) as fleet:
+        added = fleet.add(results, info)
+        check = check_machine(fleet, info.serial, limits)
+    report("writing the report", None)
+    page = write_report(
+        results,
+        out / "report.html",
+        recording=head,
+        windows=windows,
+        traces=traces.found,
+        comparison=check.comparison,
+    )
+    return Evaluation(
+        results=results,
+        results_file=results_file,
+        report=page,
+        added=added,
+        check=check,
+        status=verdict_status(results, check.status),
+    )
+
+
+def default_output(programs: Path, serial: str, when: dt.datetime | None = None) -> Path:
+    """``PROGRAMS/measurements/SERIAL-YYYYmmddTHHMMSSZ``: a new folder per measurement."""
+    moment = (when or dt.datetime.now(dt.UTC)).astimezone(dt.UTC)
+    return programs / "measurements" / f"{serial}-{moment:%Y%m%dT%H%M%SZ}"
+
+
+def utc_text(moment: dt.datetime) -> str:
+    """ISO 8601 in UTC, to the millisecond (the store's measured time)."""
+    return moment.astimezone(dt.UTC).isoformat(timespec="milliseconds")
