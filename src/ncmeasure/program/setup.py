@@ -241,48 +241,48 @@ def _before(config: MachineConfig, dialect: Dialect) -> tuple[Line, ...]:
 
 
 def _recording(config: MachineConfig, schedule: Schedule) -> tuple[Line, ...]:
-    stop_s = round(schedule.duration_s + SCHEDULE_MARGIN_S)
-    command = (
-        f"ncmeasure record <machine file> -o <recording> --schedule <this folder>/{SCHEDULE_FILE}"
-    )
+    measure = "ncmeasure measure <machine file> --programs <this folder> --serial <serial>"
     lines: list[Line] = [
         (
-            "The recording runs on the computer connected to the drives: ",
-            Code(command),
-            " (with the link options of ",
+            "On the computer connected to the drives: ",
+            Code(measure),
+            " (link options as in ",
             Code("ncmeasure record --help"),
             " unless the machine file's ",
             Code("[link]"),
-            " has them).",
+            " has them). It waits for the program's start, records to its end (also when "
+            "the override slows it), analyses, stores and compares; its exit code is the "
+            "verdict.",
         ),
     ]
     if config.machine.confirm_start:
         lines.append(
             (
                 "Start the main program: it stops at its message before any axis moves. Then "
-                "start the recording, then press cycle start.",
+                "start ",
+                Code("measure"),
+                ", then press cycle start.",
             )
         )
     else:
         lines.append(
-            ("Start the recording first, then the main program (cycle start): it moves at once.",)
+            (
+                "Start ",
+                Code("measure"),
+                " first, then the main program (cycle start): it moves at once.",
+            )
         )
-    lines += [
+    lines.append(
         (
-            "The recording must run until the program has ended. With ",
-            Code("--schedule"),
-            f" it stops by itself {stop_s} s after it was started (the program's "
-            f"{round(schedule.duration_s)} s plus {SCHEDULE_MARGIN_S:g} s): press cycle start "
-            "at once. If the program will take longer (reduced override, a feed hold), add ",
-            Code("--duration <seconds>"),
-            " longer than the program: it wins over the schedule.",
-        ),
-        (
-            "Afterwards: ",
-            Code(f"ncmeasure analyze <recording> --schedule <this folder>/{SCHEDULE_FILE}"),
+            "Recording alone: ",
+            Code(f"ncmeasure record ... --schedule <this folder>/{SCHEDULE_FILE}"),
+            f" stops {round(schedule.duration_s + SCHEDULE_MARGIN_S)} s after it started unless ",
+            Code("--duration"),
+            " says longer; then ",
+            Code("ncmeasure analyze"),
             ".",
-        ),
-    ]
+        )
+    )
     return tuple(lines)
 
 
