@@ -306,6 +306,7 @@ def record_run(
                 increments_per_rev=drive.increments_per_rev,
                 gear_ratio=drive.gear_ratio,
                 velocity_unit=drive.velocity_unit or object_map.velocity_unit,
+                marker_input_bit=drive.marker_input_bit,  # the marker wired to that input
             )
             for i, drive in enumerate(axes)
         }

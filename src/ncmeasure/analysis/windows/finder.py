@@ -295,7 +295,9 @@ class WindowFinder(Detection):
         labelled = False
         if method == "marker" and self.schedule is not None:
             whole_runs = self.scope == "run"
-            by_id = self.marker_values == "window_id"
+            # A marker wired to a digital input (a drive's, a PLC's) only says on or off,
+            # whatever the program writes: such windows are labelled by program order.
+            by_id = self.marker_values == "window_id" and not _on_off(candidates)
             candidates = self.schedule.match_schedule(
                 candidates, self.x, by_id=by_id, whole_runs=whole_runs
             )
@@ -497,6 +499,11 @@ class WindowFinder(Detection):
             position_quantum_mm=self.x_quantum,
             coarse=coarse,
         )
+
+
+def _on_off(candidates: Sequence[Candidate]) -> bool:
+    """Whether the marker windows all carry one value: a flag, not the window ids."""
+    return len(candidates) > 1 and len({c.marker_value for c in candidates}) == 1
 
 
 def _fallen_back(way: Method, has_marker: bool, has_command: bool) -> str:
