@@ -332,6 +332,7 @@ def record_run(
             mechanics[i],
             unit.counts_per_rev or ModbusDriveScaling().counts_per_rev,
             {str(signal): scale for signal, scale in unit.scales.items()},
+            unit.marker,  # the program's marker wired to that input
         )
         for i, (name, unit) in enumerate(units.items())
     ]
