@@ -297,7 +297,16 @@ class WindowFinder(Detection):
             whole_runs = self.scope == "run"
             # A marker wired to a digital input (a drive's, a PLC's) only says on or off,
             # whatever the program writes: such windows are labelled by program order.
-            by_id = self.marker_values == "window_id" and not _on_off(candidates)
+            on_off = self.marker_values == "window_id" and _on_off(candidates)
+            by_id = self.marker_values == "window_id" and not on_off
+            if on_off and whole_runs:
+                # The program clears and sets the id at one standstill between two runs:
+                # on a single input both runs are one.
+                self.tried.append(
+                    "marker: on or off only, where the program writes window ids around "
+                    "whole runs; back-to-back runs cannot be told apart"
+                )
+                return None
             candidates = self.schedule.match_schedule(
                 candidates, self.x, by_id=by_id, whole_runs=whole_runs
             )
