@@ -28,6 +28,7 @@ import pytest
 from typer.testing import CliRunner
 
 from ncmeasure.analysis.analyze import analyze
+from ncmeasure.analysis.windows.find import windows_of
 from ncmeasure.cli import app
 from ncmeasure.config import load_machine
 from ncmeasure.demo import DemoResult, run_demo
@@ -35,6 +36,7 @@ from ncmeasure.formats.results import Results
 from ncmeasure.formats.schedule import load_schedule
 from ncmeasure.recording import read_recording
 from ncmeasure.sim.axis import EXAMPLE_VARIATIONS
+from ncmeasure.sim.machine import VirtualMachine
 from tests.analysis import oracle
 
 BIAS_PERCENT = 1.5
@@ -115,6 +117,52 @@ def test_demo_without_variation(nominals: Callable[[str], DemoResult], link: str
     assert "virtual machine" in html and "Stribeck" in html
     truth = json.loads((folder / "truth.json").read_text(encoding="utf-8"))
     assert truth["axes"]["X"]["variation"] == {}
+
+
+@pytest.mark.parametrize("link", LINKS)
+def test_the_windows_come_from_the_marker_the_drives_report(
+    nominals: Callable[[str], DemoResult], link: str
+) -> None:
+    """The program's marker reaches the recording through a drive input (CANopen: bit 16
+    of the digital inputs 0x60FD; Modbus: discrete input 0), as a machine would wire the
+    controller's marker output, and the analysis cuts the windows from it: every run of
+    the marker is the scheduled window the program drove, in program order, its edges
+    within two samples of where the program set and cleared the marker; every window
+    found lies inside its own marked span, labelled with the schedule's id."""
+    nominal = nominals(link)
+    folder = nominal.directory
+    recording = read_recording(nominal.measured.recording)
+    schedule = load_schedule(folder / "programs" / "schedule.json")
+    run = VirtualMachine.from_programs(
+        load_machine(folder / "machine.toml"), folder / "programs"
+    ).run()
+    spans = [s for s in run.spans if s.axis]  # the program's marked windows, in order
+    planned = [w for axis in schedule.axes for w in axis.windows]
+    assert [(s.axis, s.marker) for s in spans] == [(w.axis, w.id) for w in planned]
+    by_id = {(s.axis, round(s.marker)): s for s in spans}
+    period = recording.meta.nominal_period_s
+    time_s = recording.time_s
+    for name in ("X", "Z"):
+        marker = recording.axis_signal(name, "marker")
+        assert set(np.unique(marker).tolist()) == {0.0, 1.0}  # an input: on or off
+        edges = np.diff(np.concatenate(([0], (marker > 0).astype(np.int8), [0])))
+        starts = time_s[np.flatnonzero(edges == 1)]
+        ends = time_s[np.flatnonzero(edges == -1) - 1]  # the last sample with it set
+        assert len(starts) == len(spans)  # the same wire reaches every drive
+        for start, end, span in zip(starts, ends, spans, strict=True):
+            assert abs(start - span.start_s) <= 2 * period, span
+            assert abs(end - span.end_s) <= 2 * period, span
+        assert nominal.measured.results.axes[name].window_source == "marker"
+        found = windows_of(recording, name, schedule=schedule)
+        own = [w for w in planned if w.axis == name]
+        assert len(found.windows) >= 0.95 * len(own)
+        assert len({w.window_id for w in found.windows}) == len(found.windows)
+        for window in found.windows:
+            assert window.source == "marker"
+            assert window.window_id is not None
+            span = by_id[(name, window.window_id)]
+            assert span.start_s - period <= time_s[window.start]
+            assert time_s[window.stop - 1] <= span.end_s + period
 
 
 @pytest.mark.parametrize("link", LINKS)

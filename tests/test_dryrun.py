@@ -314,7 +314,8 @@ def test_the_transport_is_the_simulated_drives_whatever_the_machine_file_says() 
     modbus = simulated_link(config, "modbus")
     assert modbus.source.startswith("the demo's settings (the machine file has none for modbus)")
     assert modbus.table["host"] == "127.0.0.1" and modbus.table["mode"] == "tcp"
-    assert modbus.axes["X"] == {"unit_id": 1}
+    demo_axis = {"unit_id": 1, "marker": {"function": "discrete", "address": 0}}
+    assert modbus.axes["X"] == demo_axis
     machine = modbus.machine(config)
     assert machine.link is not None and machine.link["type"] == "modbus"
-    assert machine.axes[0].link == {"unit_id": 1}
+    assert machine.axes[0].link == demo_axis

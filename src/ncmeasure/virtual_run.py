@@ -281,6 +281,7 @@ def serving(
                 increments_per_rev=drive.increments_per_rev,
                 gear_ratio=drive.gear_ratio,
                 velocity_unit=drive.velocity_unit or object_map.velocity_unit,
+                marker_input_bit=drive.marker_input_bit,  # the marker wired to that input
             )
             for i, drive in enumerate(axes)
         }
@@ -307,6 +308,7 @@ def serving(
             mechanics[i],
             unit.counts_per_rev or ModbusDriveScaling().counts_per_rev,
             {str(signal): scale for signal, scale in unit.scales.items()},
+            unit.marker,  # the program's marker wired to that input
         )
         for i, (name, unit) in enumerate(units.items())
     ]

@@ -23,6 +23,7 @@ import can
 import canopen
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
@@ -35,6 +36,7 @@ from ncmeasure.links.canopen.objects import (
     load_object_map,
     sdo_error_text,
 )
+from ncmeasure.links.canopen.settings import CanOpenAxis
 from ncmeasure.links.canopen.sync import CycleAssembler, run_sync_schedule
 from ncmeasure.samples import LinkClock, LinkEvent, SimulatedClock
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrive, SimulatedDrives
@@ -1186,3 +1188,12 @@ def test_block_reads_deliver_every_row_in_order(channel: str) -> None:
     for axis in range(2):  # exact up to the first lost cycle, however the blocks fell
         expected_mm = np.rint((10.0 * times[keep] + axis) / (LEAD_MM / IPR)) * (LEAD_MM / IPR)
         np.testing.assert_allclose(positions[:, axis], expected_mm, atol=1e-9)
+
+
+def test_marker_input_bit_is_one_of_the_manufacturer_inputs() -> None:
+    """Bits 0-15 of 0x60FD are CiA 402's own (limit and home switches): refused."""
+    table = {"node_id": 1, "increments_per_rev": 10000}
+    assert CanOpenAxis.model_validate({**table, "marker_input_bit": 16}).marker_input_bit == 16
+    for bit in (2, 32):
+        with pytest.raises(ValidationError):
+            CanOpenAxis.model_validate({**table, "marker_input_bit": bit})

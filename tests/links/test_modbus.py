@@ -36,7 +36,7 @@ from ncmeasure.links.modbus.registers import (
     encode_value,
     load_register_map,
 )
-from ncmeasure.links.modbus.settings import ModbusSettings
+from ncmeasure.links.modbus.settings import ModbusMarker, ModbusSettings, settings_from_tables
 from ncmeasure.samples import LinkEvent, SampleBlock, SimulatedClock
 from ncmeasure.sim.modbus_drive import (
     Fault,
@@ -904,3 +904,58 @@ def test_encode_and_decode_words(data_type: str, order: str, raw: float, words: 
 @given(st.integers(-(2**31), 2**31 - 1), st.sampled_from(["big", "little"]))
 def test_int32_round_trip(raw: int, order: str) -> None:
     assert decode_words(encode_value(raw, "int32", order), "int32", order) == raw
+
+
+# --- the marker ----------------------------------------------------------------------------
+
+
+def test_a_marker_input_is_validated_like_the_other_settings() -> None:
+    with pytest.raises(ConfigError) as info:
+        settings_from_tables(
+            {"register_map": "generic"},
+            {
+                "X": {"unit_id": 1, "marker": {"function": "holding", "address": 5}},
+                "Y": {"unit_id": 2, "marker": {"function": "coil", "address": 5, "bit": 1}},
+                "Z": {"unit_id": 3, "marker": {"function": "output", "address": 5}},
+            },
+        )
+    problems = "\n".join(info.value.problems)
+    assert "axes[0].link.marker: a register marker needs the bit" in problems
+    assert "axes[1].link.marker: bit is for a register" in problems
+    assert "axes[2].link.marker.function" in problems
+
+
+@pytest.mark.parametrize(
+    "marker",
+    [
+        {"function": "discrete", "address": 21},
+        {"function": "coil", "address": 3},
+        {"function": "holding", "address": 40, "bit": 5},
+        {"function": "input", "address": 9, "bit": 15},
+    ],
+)
+def test_the_marker_is_read_from_the_input_the_axis_names(marker: dict[str, int | str]) -> None:
+    """Each kind of input serves the source's marker; the link records it as 0 or 1."""
+    clock = SimulatedClock()
+    settings = ModbusMarker.model_validate(marker)
+    unit = SimulatedUnit("X", 1, marker=settings)
+    with running_server([unit], source=MarkerSource(), clock=clock) as handle:
+        link = ModbusLink.from_tables(
+            {"port": handle.port, "register_map": "generic", "poll_hz": 50},
+            [(axis("X"), {"unit_id": 1, "marker": marker})],
+        )
+        link.use_clock(clock)
+        assert [c.name for c in link.channels][-1] == "X_marker"
+        with link:
+            rows = read_rows(link, 40)
+    values = [v[-1] for _, v in rows]
+    expected = [float(MarkerSource().state(0, t).marker > 0) for t, _ in rows]
+    assert values == expected and set(values) == {0.0, 1.0}
+
+
+@dataclass(frozen=True)
+class MarkerSource:
+    """The marker on for 0.1 s, off for 0.1 s (picklable for the server)."""
+
+    def state(self, axis: int, time_s: float) -> AxisState:
+        return AxisState(10.0 * time_s, 600.0, 1.0, marker=float(round(time_s * 1000) // 100 % 2))

@@ -175,6 +175,7 @@ class MachineRun:
             velocity_mm_min=float(self.velocity_mm_min[axis, i]),
             current_a=float(self.current_a[axis, i]),
             velocity_cmd_mm_min=float(self.velocity_cmd_mm_min[axis, i]),
+            marker=float(self.marker[i]),
         )
 
     def extremes(self, commanded: bool = False) -> dict[str, AxisExtremes]:

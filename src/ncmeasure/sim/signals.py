@@ -23,6 +23,8 @@ class AxisState:
     velocity_mm_min: float
     current_a: float
     velocity_cmd_mm_min: float = 0.0
+    marker: float = 0.0
+    """The program's marker (0: not set), as wired to a drive input."""
 
 
 class SignalSource(Protocol):

@@ -295,7 +295,18 @@ class WindowFinder(Detection):
         labelled = False
         if method == "marker" and self.schedule is not None:
             whole_runs = self.scope == "run"
-            by_id = self.marker_values == "window_id"
+            # A marker wired to a digital input (a drive's, a PLC's) only says on or off,
+            # whatever the program writes: such windows are labelled by program order.
+            on_off = self.marker_values == "window_id" and _on_off(candidates)
+            by_id = self.marker_values == "window_id" and not on_off
+            if on_off and whole_runs:
+                # The program clears and sets the id at one standstill between two runs:
+                # on a single input both runs are one.
+                self.tried.append(
+                    "marker: on or off only, where the program writes window ids around "
+                    "whole runs; back-to-back runs cannot be told apart"
+                )
+                return None
             candidates = self.schedule.match_schedule(
                 candidates, self.x, by_id=by_id, whole_runs=whole_runs
             )
@@ -497,6 +508,11 @@ class WindowFinder(Detection):
             position_quantum_mm=self.x_quantum,
             coarse=coarse,
         )
+
+
+def _on_off(candidates: Sequence[Candidate]) -> bool:
+    """Whether the marker windows all carry one value: a flag, not the window ids."""
+    return len(candidates) > 1 and len({c.marker_value for c in candidates}) == 1
 
 
 def _fallen_back(way: Method, has_marker: bool, has_command: bool) -> str:

@@ -90,6 +90,8 @@ class SlotField:
     obj: MapObject | None
     column: int  # STATUS_COLUMN: statusword; UNREAD: not read
     unread_bytes: int = 0
+    bit: int | None = None
+    """The one bit of the object that is the value (the marker's digital input), else None."""
 
     @property
     def size(self) -> int:
@@ -200,6 +202,7 @@ class LinkAxis:
                 for s in self.slots
             ],
             "velocity_unit": self.velocity_unit,
+            "marker_input_bit": self.settings.marker_input_bit,
             "rated_current_a": self.rated_current_a,
             "position_mm_per_increment": self.position_scale(),
             "velocity_mm_min_per_unit": self.velocity_scale(),
@@ -349,7 +352,12 @@ class Layout:
         if self.settings.listen_only:
             configured = self._configured_tpdos(axis_settings, od, eds, where, problems)
             objects = roles_mapped(configured, self.map, od)
-            missing = [r for r in ("position", "velocity", "current") if r not in objects]
+            if axis_settings.marker_input_bit is None:
+                objects.pop("digital_inputs", None)
+            wanted = ["position", "velocity", "current"]
+            if axis_settings.marker_input_bit is not None:
+                wanted.append("digital_inputs")
+            missing = [r for r in wanted if r not in objects]
             if missing:
                 problems.append(
                     f"{where}.link: the drive's TPDOs as configured "
@@ -361,6 +369,8 @@ class Layout:
         signals = ["current_a", "velocity_mm_min", "position_mm"]
         if "velocity_demand" in objects:
             signals.append("velocity_cmd_mm_min")
+        if "digital_inputs" in objects:
+            signals.append("marker")
         axis = LinkAxis(
             position=position,
             name=binding.name,
@@ -406,6 +416,14 @@ class Layout:
                 )
                 return None
             roles.append("velocity_demand")
+        if axis_settings.marker_input_bit is not None:
+            if self.map.digital_inputs is None:
+                problems.append(
+                    f"{where}.link.marker_input_bit: object map "
+                    f"{self.map.name} has no digital inputs object (0x60FD)"
+                )
+                return None
+            roles.append("digital_inputs")
         return roles
 
     def _objects(
@@ -520,7 +538,11 @@ class Layout:
 def pack_slots(axis: LinkAxis, object_map: ObjectMap) -> None:
     """Pack the axis' objects into TPDOs following the map's layout."""
     groups: list[list[str]] = []
-    for group in object_map.tpdo.layout:
+    placed = {r for group in object_map.tpdo.layout for r in group}
+    # A map of one's own may define the digital inputs without placing them: a TPDO of its own.
+    extra: list[list[str]] = [["digital_inputs"]] if "digital_inputs" not in placed else []
+    layout: list[list[str]] = [list(group) for group in object_map.tpdo.layout]
+    for group in [*layout, *extra]:
         roles = [r for r in group if r in axis.objects]
         size = 0
         current: list[str] = []
@@ -536,7 +558,12 @@ def pack_slots(axis: LinkAxis, object_map: ObjectMap) -> None:
     axis.slots = []
     for k, slot_roles in enumerate(groups):
         fields = [
-            SlotField(r, axis.objects[r], axis.columns.get(SIGNAL_BY_ROLE.get(r, ""), -1))
+            SlotField(
+                r,
+                axis.objects[r],
+                axis.columns.get(SIGNAL_BY_ROLE.get(r, ""), -1),
+                bit=axis.settings.marker_input_bit if r == "digital_inputs" else None,
+            )
             for r in slot_roles
         ]
         slot = Slot(axis, axis.settings.first_tpdo + k, fields)
@@ -558,7 +585,8 @@ def passive_slots(axis: LinkAxis, configured: list[ConfiguredTpdo]) -> None:
             if role:
                 obj = axis.objects[role]
                 column = axis.columns.get(SIGNAL_BY_ROLE.get(role, ""), STATUS_COLUMN)
-                fields.append(SlotField(role, obj, column))
+                bit = axis.settings.marker_input_bit if role == "digital_inputs" else None
+                fields.append(SlotField(role, obj, column, bit=bit))
             else:
                 fields.append(SlotField("", None, UNREAD, size))
         if any(f.role for f in fields):
@@ -629,7 +657,8 @@ def roles_mapped(
         for entry in tpdo.mapping
     }
     found: dict[str, MapObject] = {}
-    for role in ("statusword", "position", "velocity", "velocity_demand", "current"):
+    roles = ("statusword", "position", "velocity", "velocity_demand", "current", "digital_inputs")
+    for role in roles:
         obj = object_map.role(role)
         while obj is not None:
             size = mapped.get((obj.index, obj.subindex))

@@ -87,7 +87,7 @@ _RPM_FACTOR = {"rpm": 1.0, "0.1rpm": 0.1, "0.01rpm": 0.01, "0.001rpm": 0.001}
 ObjectUnit = Literal[
     "inc", "velocity", "permille_rated_current", "permille_rated_torque", "mA", "bits"
 ]
-Role = Literal["statusword", "position", "velocity", "velocity_demand", "current"]
+Role = Literal["statusword", "position", "velocity", "velocity_demand", "current", "digital_inputs"]
 _UNITS_BY_ROLE: Mapping[str, frozenset[str]] = {
     "statusword": frozenset({"bits"}),
     "position": frozenset({"inc"}),
@@ -95,6 +95,7 @@ _UNITS_BY_ROLE: Mapping[str, frozenset[str]] = {
     "velocity_demand": frozenset({"velocity"}),
     "current": frozenset({"permille_rated_current", "permille_rated_torque", "mA"}),
     "rated_current": frozenset({"mA"}),
+    "digital_inputs": frozenset({"bits"}),
 }
 #: Role -> signal column it fills (the statusword fills none).
 SIGNAL_BY_ROLE: Mapping[str, str] = {
@@ -102,6 +103,7 @@ SIGNAL_BY_ROLE: Mapping[str, str] = {
     "velocity": "velocity_mm_min",
     "velocity_demand": "velocity_cmd_mm_min",
     "current": "current_a",
+    "digital_inputs": "marker",  # one bit of it: the axis' marker_input_bit
 }
 
 
@@ -186,6 +188,7 @@ class ObjectMap(_Model):
     current: MapObject
     velocity_demand: MapObject | None = None
     rated_current: MapObject | None = None
+    digital_inputs: MapObject | None = None
     tpdo: TpdoLayout
 
     @model_validator(mode="after")
@@ -403,6 +406,7 @@ def _add_map_objects(od: ObjectDictionary, object_map: ObjectMap, rated_current_
         "velocity_demand",
         "current",
         "rated_current",
+        "digital_inputs",
     ):
         obj = object_map.role(role)
         while obj is not None:

@@ -280,7 +280,9 @@ class RowDecoder:
         # One buffer and one structured view for the whole block: a row is its slots' bytes.
         block = np.frombuffer(b"".join([b"".join(r) for _, r in rows]), dtype=row_dtype)
         for name, axis, f in fields:
-            if f.column >= 0:
+            if f.column >= 0 and f.bit is not None:  # the marker: one digital input
+                values[:, f.column] = (block[name] >> f.bit) & 1
+            elif f.column >= 0:
                 np.multiply(block[name], axis.scales[f.role], out=values[:, f.column])
             else:
                 self._check_status(axis, block[name], time_s)

@@ -212,6 +212,14 @@ class CanOpenAxis(AxisLinkSettings):
     read_velocity_demand: bool = Field(
         default=False, description="Also read the velocity demand value (0x606B)."
     )
+    marker_input_bit: int | None = Field(
+        default=None,
+        ge=16,
+        le=31,
+        description="Bit of the drive's digital inputs 0x60FD (16-31, the manufacturer-"
+        "specific inputs) wired to the controller's marker output: recorded as the axis' "
+        "marker. Bits 0-15 are CiA 402's (limit and home switches, interlock, reserved).",
+    )
     first_tpdo: int = Field(
         default=1,
         ge=1,

@@ -54,6 +54,8 @@ class FieldPlan:
     fmt: str
     little: bool
     factor: float
+    bit: int | None = None
+    """The marker: this bit of the register (0 for an input or coil) is the value."""
 
 
 @dataclass(frozen=True)
@@ -62,7 +64,7 @@ class Request:
 
     axis: str
     unit_id: int
-    function: Literal["holding", "input"]
+    function: Literal["holding", "input", "discrete", "coil"]
     address: int
     count: int
     fields: tuple[FieldPlan, ...]
@@ -90,6 +92,9 @@ class PollPlan:
     def decode(request: Request, registers: Sequence[int], row: list[float]) -> None:
         """Write the signals of ``request``'s answer into their columns of ``row``."""
         for plan in request.fields:
+            if plan.bit is not None:
+                row[plan.column] = float((registers[plan.offset] >> plan.bit) & 1)
+                continue
             words = list(registers[plan.offset : plan.offset + plan.words])
             if plan.little:
                 words.reverse()
@@ -163,6 +168,14 @@ def build_plan(settings: ModbusSettings, axes: Sequence[AxisBinding]) -> PollPla
         requests += _requests(
             binding.name, axis_settings.unit_id, reg_map, first_column, factors[binding.name]
         )
+        marker = axis_settings.marker
+        if marker is not None:
+            channels.append(Channel(binding.name, "marker", SIGNAL_UNITS["marker"]))
+            field = FieldPlan(len(channels) - 1, 0, 1, ">H", False, 1.0, bit=marker.bit or 0)
+            unit = marker.unit_id or axis_settings.unit_id
+            requests.append(
+                Request(binding.name, unit, marker.function, marker.address, 1, (field,))
+            )
     if problems:
         raise ConfigError("the settings of the modbus link are not valid", problems)
     return PollPlan(tuple(channels), tuple(requests), maps, factors)

@@ -78,6 +78,8 @@ EXCEPTION_MEANINGS: Mapping[int, str] = {
 FUNCTION_NAMES: Mapping[str, str] = {
     "holding": "read holding registers (03)",
     "input": "read input registers (04)",
+    "discrete": "read discrete inputs (02)",
+    "coil": "read coils (01)",
 }
 _MAX_REGISTERS_PER_REQUEST = 125  # Modbus limit of function 03/04
 

@@ -12,14 +12,22 @@ import math
 from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 from pydantic_core import PydanticCustomError
 
 from ncmeasure.config import format_validation_error
 from ncmeasure.errors import ConfigError
 from ncmeasure.links.base import AxisLinkSettings, LinkSettings
 
-__all__ = ["ModbusAxis", "ModbusSettings", "settings_from_tables"]
+__all__ = ["ModbusAxis", "ModbusMarker", "ModbusSettings", "settings_from_tables"]
 
 
 class ModbusSettings(LinkSettings):
@@ -84,6 +92,41 @@ class ModbusSettings(LinkSettings):
         return value
 
 
+class ModbusMarker(BaseModel):
+    """Where the controller's marker output reaches the bus: one bit of a drive or a PLC."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    function: Literal["discrete", "coil", "holding", "input"] = Field(
+        description="discrete input (read with 02), coil (01), or a bit of a holding (03) "
+        "or input (04) register."
+    )
+    address: Annotated[int, Field(ge=0, le=65535)] = Field(
+        description="Address of the input, coil or register, 0-based as sent in the request."
+    )
+    bit: Annotated[int, Field(ge=0, le=15)] | None = Field(
+        default=None, description="Registers: the bit (0 = least significant) that is the marker."
+    )
+    unit_id: Annotated[int, Field(ge=1, le=247)] | None = Field(
+        default=None,
+        description="The unit that has the input (a PLC); default: the axis' drive.",
+    )
+
+    @model_validator(mode="after")
+    def _check_bit(self) -> ModbusMarker:
+        register = self.function in ("holding", "input")
+        if register and self.bit is None:
+            raise PydanticCustomError(
+                "marker_bit", "a register marker needs the bit that carries it: bit = 0..15"
+            )
+        if not register and self.bit is not None:
+            raise PydanticCustomError(
+                "marker_bit",
+                "bit is for a register; a discrete input or a coil is one bit already",
+            )
+        return self
+
+
 class ModbusAxis(AxisLinkSettings):
     """The ``link`` table of an axis on a Modbus link."""
 
@@ -99,6 +142,11 @@ class ModbusAxis(AxisLinkSettings):
     scales: dict[
         Literal["current_a", "velocity_mm_min", "position_mm", "velocity_cmd_mm_min"], float
     ] = Field(default_factory=dict, description="Per-signal scale replacing the map's scale.")
+    marker: ModbusMarker | None = Field(
+        default=None,
+        description="The input wired to the controller's marker output, recorded as the "
+        "axis' marker (0 or 1).",
+    )
 
     @field_validator("scales")
     @classmethod

@@ -178,6 +178,14 @@ class ModbusTransport:
                 response: ModbusPDU = client.read_holding_registers(
                     request.address, count=request.count, device_id=request.unit_id
                 )
+            elif request.function == "discrete":
+                response = client.read_discrete_inputs(
+                    request.address, count=request.count, device_id=request.unit_id
+                )
+            elif request.function == "coil":
+                response = client.read_coils(
+                    request.address, count=request.count, device_id=request.unit_id
+                )
             else:
                 response = client.read_input_registers(
                     request.address, count=request.count, device_id=request.unit_id
@@ -217,7 +225,10 @@ class ModbusTransport:
                     code,
                 )
             )
-        registers = list(response.registers)
+        if request.function in ("discrete", "coil"):  # bits, padded to whole bytes
+            registers = [int(bit) for bit in response.bits[: request.count]]
+        else:
+            registers = list(response.registers)
         if len(registers) < request.count:
             raise CycleError(
                 Failure(

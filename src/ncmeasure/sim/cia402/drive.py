@@ -29,6 +29,7 @@ from canopen.objectdictionary import ObjectDictionary, ODVariable
 from ncmeasure.errors import ConfigError
 from ncmeasure.formats.axis import StatedMechanics
 from ncmeasure.links.canopen.objects import (
+    SIGNAL_BY_ROLE,
     MapObject,
     ObjectMap,
     build_dictionary,
@@ -66,6 +67,9 @@ class DriveScaling:
         increments_per_rev: Encoder increments per motor revolution.
         gear_ratio: Motor revolutions per screw revolution.
         velocity_unit: The unit of the velocity objects (an object map unit).
+        marker_input_bit: The bit of the digital inputs 0x60FD the program's
+            marker (:attr:`AxisState.marker <ncmeasure.sim.signals.AxisState>`) is
+            wired to: set while the marker is; None: nothing wired, all inputs 0.
 
     Raises:
         ConfigError: the mechanics state no lead or no rated current.
@@ -75,6 +79,7 @@ class DriveScaling:
     increments_per_rev: int = 10_000
     gear_ratio: float = 1.0
     velocity_unit: str = "inc_per_s"
+    marker_input_bit: int | None = None
 
     def __post_init__(self) -> None:
         missing = [
@@ -219,9 +224,10 @@ class SimulatedDrive:
             ("current", "permille_rated_current"): lambda st: st.current_a / rated * 1000,
             ("current", "permille_rated_torque"): lambda st: st.current_a / rated * 1000,
             ("current", "mA"): lambda st: st.current_a * 1000,
+            ("digital_inputs", "bits"): self._digital_inputs,
         }
         dynamic: dict[tuple[int, int], _Dynamic] = {}
-        for role in ("statusword", "position", "velocity", "velocity_demand", "current"):
+        for role in (*SIGNAL_BY_ROLE, "statusword"):
             obj = self.object_map.role(role)
             while obj is not None:
                 key = (obj.index, obj.subindex)
@@ -237,6 +243,10 @@ class SimulatedDrive:
 
     def _statusword(self, state: AxisState) -> float:
         return self._status
+
+    def _digital_inputs(self, state: AxisState) -> float:
+        bit = self.scaling.marker_input_bit
+        return float(1 << bit) if bit is not None and state.marker > 0 else 0.0
 
     # --- fault switches ---------------------------------------------------------------
 

@@ -50,7 +50,7 @@ from ncmeasure.links.modbus.registers import (
     load_register_map,
     signal_factor,
 )
-from ncmeasure.links.modbus.settings import ModbusAxis, ModbusSettings
+from ncmeasure.links.modbus.settings import ModbusAxis, ModbusMarker, ModbusSettings
 from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.modbus_drive.faults import DriveFaults
 from ncmeasure.sim.rig import RIG_MECHANICS
@@ -66,7 +66,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-_FUNCTION_OF_CODE = {3: "holding", 4: "input"}
+_FUNCTION_OF_CODE = {1: "coil", 2: "discrete", 3: "holding", 4: "input"}
 
 
 @dataclass(frozen=True)
@@ -85,6 +85,9 @@ class SimulatedUnit:
         counts_per_rev: For maps in encoder counts.
         scales: Per-signal scale replacing the map's scale (as the link's
             ``ModbusAxis.scales``).
+        marker: Where the program's marker (``AxisState.marker``) is wired: the
+            link's ``ModbusAxis.marker``, an input, coil or register bit of this
+            unit, 1 while the marker is set; None: not served.
     """
 
     axis: str
@@ -94,6 +97,7 @@ class SimulatedUnit:
     mechanics: StatedMechanics = RIG_MECHANICS
     counts_per_rev: int = 10_000
     scales: Mapping[str, float] = field(default_factory=dict)
+    marker: ModbusMarker | None = None
 
 
 @dataclass(frozen=True)
@@ -133,7 +137,7 @@ class _UnitRuntime:
     unit: SimulatedUnit
     register_map: RegisterMap
     factors: dict[str, float]
-    counters: dict[int, int] = field(default_factory=lambda: {3: 0, 4: 0})
+    counters: dict[int, int] = field(default_factory=lambda: dict.fromkeys(_FUNCTION_OF_CODE, 0))
     answered: int = 0
 
 
@@ -179,6 +183,7 @@ class SimulatedModbusDrive:
             if unit.unit_id in self._units:
                 raise ConfigError(f"unit id {unit.unit_id} is given twice")
             reg_map = load_register_map(unit.register_map)
+            _check_marker(unit, reg_map)
             factors = {
                 signal: signal_factor(
                     signal,
@@ -208,7 +213,7 @@ class SimulatedModbusDrive:
         self.faults.clear()
         with self._lock:
             for runtime in self._units.values():
-                runtime.counters = {3: 0, 4: 0}
+                runtime.counters = dict.fromkeys(_FUNCTION_OF_CODE, 0)
                 runtime.answered = 0
             self._start = self._now()
 
@@ -243,6 +248,13 @@ class SimulatedModbusDrive:
             raw = getattr(state, signal) / runtime.factors[signal]
             for i, word in enumerate(encode_value(raw, entry.type, entry.word_order)):
                 words[entry.address + i] = word
+        marker = runtime.unit.marker
+        if marker is not None and marker.function == function:
+            on = state.marker > 0
+            if marker.bit is not None:  # a register bit
+                words[marker.address] = int(on) << marker.bit
+            else:  # a coil or discrete input: bit (address % 16) of register (address // 16)
+                words[marker.address // 16] = int(on) << (marker.address % 16)
         return words
 
     # --- pymodbus plumbing ----------------------------------------------------------------
@@ -303,7 +315,12 @@ class SimulatedModbusDrive:
         devices: list[SimDevice] = []
         bits = [SimData(0, values=[False] * 16, datatype=DataType.BITS)]
         for unit_id, runtime in self._units.items():
-            blocks: dict[str, list[SimData]] = {}
+            blocks: dict[str, list[SimData]] = {"coil": list(bits), "discrete": list(bits)}
+            marker = runtime.unit.marker
+            if marker is not None and marker.bit is None:
+                blocks[marker.function] = [
+                    SimData(marker.address // 16, values=[False] * 16, datatype=DataType.BITS)
+                ]
             for function in ("holding", "input"):
                 used = [
                     e for _, e in runtime.register_map.ordered_signals() if e.function == function
@@ -322,10 +339,19 @@ class SimulatedModbusDrive:
                     ]
                 else:
                     blocks[function] = [SimData(0, datatype=DataType.INVALID)]
+                if marker is not None and marker.function == function:
+                    register = SimData(marker.address, values=0, datatype=DataType.REGISTERS)
+                    valid = [b for b in blocks[function] if b.datatype != DataType.INVALID]
+                    blocks[function] = sorted([*valid, register], key=lambda b: b.address)
             devices.append(
                 SimDevice(
                     unit_id,
-                    simdata=(list(bits), list(bits), blocks["holding"], blocks["input"]),
+                    simdata=(
+                        blocks["coil"],
+                        blocks["discrete"],
+                        blocks["holding"],
+                        blocks["input"],
+                    ),
                     action=self._action(unit_id),
                 )
             )
@@ -450,6 +476,26 @@ class SimulatedModbusDrive:
             asyncio.run(self.run(settings, **kwargs))
 
 
+def _check_marker(unit: SimulatedUnit, reg_map: RegisterMap) -> None:
+    """Refuse a marker the simulated unit cannot serve: another unit's, or on a signal."""
+    marker = unit.marker
+    if marker is None:
+        return
+    if marker.unit_id not in (None, unit.unit_id):
+        raise ConfigError(
+            f"axis {unit.axis}: the simulated drive serves the marker on the axis' own unit "
+            f"{unit.unit_id}, not on unit {marker.unit_id}"
+        )
+    for signal, entry in reg_map.ordered_signals():
+        if entry.function == marker.function and entry.address <= marker.address <= (
+            entry.last_address
+        ):
+            raise ConfigError(
+                f"axis {unit.axis}: the marker's {marker.function} register {marker.address} "
+                f"is {signal}'s in register map {reg_map.name}"
+            )
+
+
 def _check_port_free(host: str, port: int) -> None:
     """Fail early and clearly when the TCP port is taken (pymodbus only logs it)."""
     if port == 0:
@@ -522,6 +568,7 @@ def serve(
             scaling.mechanics,
             link.counts_per_rev or scaling.counts_per_rev,
             {str(signal): scale for signal, scale in link.scales.items()},
+            link.marker,
         )
         for index, (axis, link) in enumerate(axes.items())
     ]
