@@ -39,7 +39,7 @@ from ncmeasure.measure import PRE_ROLL_S, ProgramWatch
 from ncmeasure.recording import read_recording
 from ncmeasure.samples import SampleBlock, SimulatedClock
 from ncmeasure.sim.axis import Variation
-from ncmeasure.sim.machine import VirtualMachine
+from ncmeasure.sim.machine import MachineRun, VirtualMachine
 from ncmeasure.virtual_run import serving, simulated_link
 from tests.conftest import machine_toml
 
@@ -88,18 +88,19 @@ def _machine_running(
     kind: str,
     monkeypatch: pytest.MonkeyPatch,
     variations: dict[str, Variation] | None = None,
-) -> Iterator[tuple[list[str], VirtualMachine]]:
+) -> Iterator[tuple[list[str], VirtualMachine, MachineRun]]:
     """The programs on the virtual machine behind simulated drives, from before cycle
-    start; yields the transport options for the command's link."""
+    start; yields the transport options for the command's link, the machine and its run."""
     config = load_machine(machine)
     vm = VirtualMachine.from_programs(
         config, programs, lead_in_s=LEAD_IN_S, lead_out_s=LEAD_OUT_S, variations=variations
     )
     clock = SimulatedClock()
     monkeypatch.setattr("ncmeasure.cli.measure.link_clock", lambda: clock)
-    with serving(config, vm.run(), simulated_link(config, kind), clock) as transport:
+    run = vm.run()
+    with serving(config, run, simulated_link(config, kind), clock) as transport:
         options = [f"--{key}={value}" for key, value in transport.items()]
-        yield options, vm
+        yield options, vm, run
 
 
 def _measure(machine: Path, programs: Path, out: Path, store: Path, *extra: str) -> Any:
@@ -119,13 +120,16 @@ def test_measure_from_cycle_start_to_the_verdict(
     machine, programs, _ = _generated(tmp_path, kind)
     schedule = load_schedule(programs / "schedule.json")
     store = tmp_path / "fleet.db"
-    with _machine_running(machine, programs, kind, monkeypatch) as (transport, vm):
+    with _machine_running(machine, programs, kind, monkeypatch) as (transport, vm, run):
         first = _measure(machine, programs, tmp_path / "m1", store, *transport, "--label=delivery")
     assert first.exit_code in EXIT.values(), first.output
     recording = read_recording(tmp_path / "m1" / "recording")
     time_s = recording.time_s
-    # Started by the program's start: the first motion, with a pre-roll of standstill.
-    program_start_s = vm.lead_in_s
+    # Started by the program's start, with a pre-roll: the marker's first edge, which the
+    # demo's link settings wire to the drives' inputs (else the first motion).
+    assert "X_marker" in [c.name for c in recording.channels]
+    program_start_s = min(span.start_s for span in run.spans)
+    assert program_start_s > vm.lead_in_s  # after the parking and the warm-up
     assert program_start_s - PRE_ROLL_S - 0.05 <= time_s[0] <= program_start_s - PRE_ROLL_S + 0.05
     # Ended by the program's end: standing still at the parks a moment after it,
     # long before the bound (the schedule's duration + 30 s) and the drives' standstill.
@@ -148,7 +152,7 @@ def test_measure_from_cycle_start_to_the_verdict(
     # A second measurement of the same machine, its X axis' bearings loosened: compared
     # with the baseline, and the exit code is the verdict's.
     loose = {"X": Variation(bearing_preload_change=-0.6, loose_bearing_shift_um=30)}
-    with _machine_running(machine, programs, kind, monkeypatch, loose) as (transport, _vm):
+    with _machine_running(machine, programs, kind, monkeypatch, loose) as (transport, _vm, _run):
         second = _measure(machine, programs, tmp_path / "m2", store, *transport)
     assert "stored as measurement 2 of M17" in second.output, second.output
     checked = tmp_path / "check.json"
@@ -187,6 +191,8 @@ def _rows(schedule: Any, time_s: np.ndarray, marker: np.ndarray) -> SampleBlock:
     for i, axis in enumerate(schedule.axes):
         values[:, 3 * i + 1] = axis.park_mm
         values[:, 3 * i + 2] = marker if i == 0 else 0.0
+    # the first axis moves while the marker is on (its windows), 1 mm per row
+    values[:, 1] += np.cumsum(marker > 0)
     return SampleBlock(time_s, values)
 
 

@@ -12,13 +12,15 @@ records one run of the program with a :class:`ProgramWatch`:
   measured at, or its position leaving where it stood). Before the start only
   :data:`PRE_ROLL_S` of rows are kept.
 - **Windows passed.** Each axis' windows in turn: by the marker's falling
-  edges where it is recorded, else when the axis crosses the window's end in
-  its direction. The program time each one is passed at, against the
+  edges where it is recorded (a span counts for the axis that moved during it:
+  one marker output is often wired to every drive's input), else when the axis
+  crosses the window's end in its direction. The program time each one is passed at, against the
   schedule's, gives the slowing (the override below 100 %, feed holds).
-- **End.** With the marker, its fall after the last window; else every axis
-  back at its park and still for :data:`STILL_S` after the last window;
-  then :data:`POST_ROLL_S` more. Bounded by the schedule's duration times the
-  measured slowing plus :data:`~ncmeasure.formats.schedule.SCHEDULE_MARGIN_S`.
+- **End.** Every axis back at its park and still for :data:`STILL_S` after
+  the last window (with or without the marker: the run-out and the return to
+  park follow the marker's last fall); then :data:`POST_ROLL_S` more.
+  Bounded by the schedule's duration times the measured slowing plus
+  :data:`~ncmeasure.formats.schedule.SCHEDULE_MARGIN_S`.
 
 :func:`evaluate` then does what ``analyze --store --serial --report`` does, and
 compares: the analysis, ``results.json``, the measurement in the fleet store
@@ -134,6 +136,11 @@ class _Axis:
     passed: int = 0
     marker_on: bool = False
     stood_mm: float | None = None
+    moved_mm: float = 0.0
+    """How far the axis must move while the marker is on for the span to be its own: half
+    its shortest window (one marker is often wired to every drive's input)."""
+    rise_mm: float | None = None
+    """Where the axis stood when the marker last rose."""
 
 
 class ProgramWatch:
@@ -184,6 +191,11 @@ class ProgramWatch:
                 threshold_mm_min=0.5 * min((abs(v) for v in axis.velocities_mm_min), default=2.0),
                 t_start_s=axis.t_start_s,
                 windows=sorted(axis.windows, key=lambda w: w.t_window_end_s),
+                moved_mm=0.5
+                * min(
+                    (abs(w.window_end_mm - w.window_start_mm) for w in axis.windows),
+                    default=0.0,
+                ),
             )
             for axis in schedule.axes
         ]
@@ -260,11 +272,7 @@ class ProgramWatch:
                 if self._last_passed is not None
                 else ""
             )
-            waits = (
-                "the marker's fall after the last window"
-                if self.by_marker
-                else "every axis at its park and still after the last window"
-            )
+            waits = "every axis at its park and still after the last window"
             text = (
                 f"program running: {passed} of {self.windows_total} windows{where}; "
                 f"waiting for its end ({waits})"
@@ -392,11 +400,8 @@ class ProgramWatch:
             and self._last_s is not None
             and self._last_s - self.start_s >= (self._last_window_s - self.offset_s) * self.slowing
         )
-        if self.by_marker:
-            if self.windows_passed >= self.windows_total and self._last_s is not None:
-                self._end_s = self._end_s or self._last_passed_s
-                self.phase = "ending"
-            return
+        # with a marker too: the program ends when every axis is back at its park and
+        # still after the last window (the run-out and the return follow the last fall)
         still = np.ones(len(time_s), dtype=bool)
         for axis in self._axes:
             still &= np.abs(values[:, axis.velocity]) <= axis.threshold_mm_min
@@ -422,12 +427,20 @@ class ProgramWatch:
             marker = values[:, axis.marker]
             on = np.isfinite(marker) & (marker > 0)
             before = np.concatenate(([axis.marker_on], on[:-1]))
-            falls = np.flatnonzero(before & ~on)
+            edges = np.flatnonzero(on != before)
             if len(on):
                 axis.marker_on = bool(on[-1])
-            for fall in falls:
-                if axis.passed < len(axis.windows):
-                    self._passed(axis, float(time_s[fall]))
+            for edge in edges:
+                here = float(values[edge, axis.position])
+                if on[edge]:  # a rise: where the axis stands
+                    axis.rise_mm = here
+                    continue
+                # a fall: the span was this axis' window only if it moved meanwhile (the
+                # same marker may reach every drive's input while another axis runs)
+                moved = axis.rise_mm is not None and abs(here - axis.rise_mm) >= axis.moved_mm
+                axis.rise_mm = None
+                if moved and axis.passed < len(axis.windows):
+                    self._passed(axis, float(time_s[edge]))
             return
         while axis.passed < len(axis.windows) and start < len(time_s):
             window = axis.windows[axis.passed]

@@ -116,8 +116,8 @@ def measure_command(
     """Wait for the program's start, record it to its end, analyse, store, compare, report.
 
     Start the command, then cycle start on the control. The start is the marker's first
-    edge where the link records a marker, else the first motion of an axis; the end the
-    marker's fall after the last window, else every axis back at its park and still.
+    edge where the link records a marker, else the first motion of an axis; the end: every
+    axis back at its park and still after the last window.
     The recording is bounded by the schedule's duration, stretched as far as the program
     runs slower (override), plus 30 s. The measurement is stored with --serial (measured
     at the program's start) and compared with the machine's baseline in the store.
