@@ -135,7 +135,7 @@ def test_every_dialect_writes_a_sheet_with_the_planned_envelope_and_duration(
     if schedule["marker_scope"] == "none":
         assert "the windows come from positions" in text
     else:
-        assert "Marker: " in text and "`ncmeasure record` reads the drives only" in text
+        assert "Marker: " in text and "`marker_input_bit`" in text
         for key, value in schedule["controller_options"].items():
             assert f"`{key} = {value}`" in text
 

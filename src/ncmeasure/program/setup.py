@@ -346,14 +346,17 @@ def _marker(dialect: Dialect, schedule: Schedule) -> tuple[Line, ...]:
         where = " or ".join(_WHERE[kind] for kind in kinds) or "trace it"
         lines.append(
             (
-                f"To record it: {where}, together with the axis signals, and import that trace (",
+                "To record it with the drives: wire it to a drive's digital input (",
+                Code("marker_input_bit"),
+                " in the axis' CANopen link table, ",
+                Code("marker"),
+                " for Modbus; docs/controllers.md); or ",
+                f"{where}, together with the axis signals, and import that trace (",
                 Code("ncmeasure import"),
-                "; a column map names it ",
+                ", column ",
                 Code("<AXIS>_marker"),
-                "); ",
-                Code("ncmeasure record"),
-                " reads the drives only. Without a marker the analysis cuts the windows from "
-                f"the commanded velocity or the constant-velocity stretches, with {SCHEDULE_FILE}.",
+                "). Without a marker the analysis cuts the windows from the commanded "
+                f"velocity or the constant-velocity stretches, with {SCHEDULE_FILE}.",
             )
         )
     lines += [(warning,) for warning in dialect_warnings(dialect, dict(options))]
