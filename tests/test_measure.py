@@ -176,7 +176,7 @@ def test_programs_of_another_machine_file_are_refused(tmp_path: Path) -> None:
     other.write_text(machine_toml(data), encoding="utf-8")
     result = _measure(other, programs, tmp_path / "m", tmp_path / "db")
     assert result.exit_code == 2, result.output
-    assert "are not the ones" in result.output
+    assert "is not the machine file the programs in" in result.output
     assert not (tmp_path / "m").exists()
 
 

@@ -35,8 +35,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from ncmeasure.config import MachineConfig, config_hash, load_machine
-from ncmeasure.errors import ConfigError, ProgramError
+from ncmeasure.config import MachineConfig
 from ncmeasure.formats.dryrun import (
     DRYRUN_FILE,
     AxisLimits,
@@ -46,7 +45,8 @@ from ncmeasure.formats.dryrun import (
     Reach,
     write_dryrun,
 )
-from ncmeasure.formats.schedule import SCHEDULE_FILE, Schedule, load_schedule
+from ncmeasure.formats.schedule import Schedule
+from ncmeasure.program.check import programs_of
 from ncmeasure.recording import read_recording
 from ncmeasure.sim.machine import AxisExtremes, MachineRun, VirtualMachine
 from ncmeasure.virtual_run import (
@@ -177,32 +177,6 @@ def judge_reach(config: MachineConfig, run: MachineRun) -> list[AxisReach]:
     return found
 
 
-def _load(programs: Path, machine_file: Path) -> tuple[Schedule, MachineConfig]:
-    """The programs' schedule and their machine file, checked to belong together.
-
-    Raises:
-        ProgramError: no such folder, or no readable schedule.json in it.
-        ConfigError: an unreadable machine file, or not the one of the programs.
-    """
-    if not programs.is_dir():
-        what = "is not a folder" if programs.exists() else "no such folder"
-        raise ProgramError(
-            f"{programs}: {what}; name the folder `ncmeasure generate MACHINE -o FOLDER` wrote"
-        )
-    schedule = load_schedule(programs / SCHEDULE_FILE)
-    config = load_machine(machine_file)
-    found = config_hash(config)
-    if found != schedule.config_hash:
-        raise ConfigError(
-            f"{machine_file} is not the machine file the programs in {programs} were "
-            f"generated from (config hash {found}, {SCHEDULE_FILE} says "
-            f"{schedule.config_hash}): generate them again from it "
-            f"(ncmeasure generate {machine_file} -o {programs}), or name the file they "
-            "came from"
-        )
-    return schedule, config
-
-
 def run_dryrun(
     programs: str | Path,
     machine_file: str | Path,
@@ -242,7 +216,7 @@ def run_dryrun(
     """
     programs = Path(programs)
     machine_file = Path(machine_file)
-    schedule, config = _load(programs, machine_file)
+    schedule, config = programs_of(programs, machine_file)
     drives = simulated_link(config, link)
     directory = Path(output) if output is not None else programs / DRYRUN_FOLDER
     replaced = prepare_folder(

@@ -44,11 +44,11 @@ from typing import Any, Literal
 import numpy as np
 
 from ncmeasure.acquire import AcquisitionResult, EndedBy, Progress, record
-from ncmeasure.config import MachineConfig, config_hash, load_machine
-from ncmeasure.errors import ConfigError, ProgramError
+from ncmeasure.config import MachineConfig
+from ncmeasure.errors import ConfigError
 from ncmeasure.formats.comparison import Limits, Status, worst_status
 from ncmeasure.formats.results import Results, write_results
-from ncmeasure.formats.schedule import SCHEDULE_FILE, SCHEDULE_MARGIN_S, Schedule, Window
+from ncmeasure.formats.schedule import SCHEDULE_MARGIN_S, Schedule, Window
 from ncmeasure.links import DriveLink
 from ncmeasure.samples import LinkClock, SampleBlock
 
@@ -80,30 +80,11 @@ Phase = Literal["waiting", "running", "ending", "ended"]
 
 
 def load_programs(programs: Path, machine_file: Path) -> tuple[Schedule, MachineConfig]:
-    """The programs' schedule and their machine file, checked to belong together.
+    """The programs' schedule and their machine file, checked to belong together
+    (:func:`~ncmeasure.program.check.programs_of`)."""
+    from ncmeasure.program.check import programs_of
 
-    Raises:
-        ProgramError: no such folder, or no readable schedule.json in it.
-        ConfigError: an unreadable machine file, or not the one of the programs.
-    """
-    from ncmeasure.formats.schedule import load_schedule
-
-    if not programs.is_dir():
-        what = "is not a folder" if programs.exists() else "no such folder"
-        raise ProgramError(
-            f"{programs}: {what}; name the folder `ncmeasure generate MACHINE -o FOLDER` wrote"
-        )
-    schedule = load_schedule(programs / SCHEDULE_FILE)
-    config = load_machine(machine_file)
-    found = config_hash(config)
-    if found != schedule.config_hash:
-        raise ConfigError(
-            f"the programs in {programs} are not the ones {machine_file} generates (config "
-            f"hash {found}, {SCHEDULE_FILE} says {schedule.config_hash}): load the programs "
-            f"of `ncmeasure generate {machine_file} -o {programs}` into the control, or name "
-            "the machine file they came from"
-        )
-    return schedule, config
+    return programs_of(programs, machine_file)
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ncmeasure.errors import ProgramCheckError, ProgramError
+from ncmeasure.config import MachineConfig, config_hash, load_machine
+from ncmeasure.errors import ConfigError, ProgramCheckError, ProgramError
 from ncmeasure.formats.schedule import SCHEDULE_FILE, AxisSummary, Schedule, load_schedule
 from ncmeasure.program.dialect import (
     Dialect,
@@ -372,6 +373,33 @@ def read_generated(
         axis_numbers(schedule),
     )
     return schedule, dialect, trace
+
+
+def programs_of(programs: Path, machine_file: Path) -> tuple[Schedule, MachineConfig]:
+    """The schedule of the programs in ``programs`` and the machine file, checked to
+    belong together (the machine file's config hash is the one schedule.json carries).
+
+    Raises:
+        ProgramError: no such folder, or no readable schedule.json in it.
+        ConfigError: an unreadable machine file, or not the one of the programs.
+    """
+    if not programs.is_dir():
+        what = "is not a folder" if programs.exists() else "no such folder"
+        raise ProgramError(
+            f"{programs}: {what}; name the folder `ncmeasure generate MACHINE -o FOLDER` wrote"
+        )
+    schedule = load_schedule(programs / SCHEDULE_FILE)
+    config = load_machine(machine_file)
+    found = config_hash(config)
+    if found != schedule.config_hash:
+        raise ConfigError(
+            f"{machine_file} is not the machine file the programs in {programs} were "
+            f"generated from (config hash {found}, {SCHEDULE_FILE} says "
+            f"{schedule.config_hash}): generate them again from it "
+            f"(ncmeasure generate {machine_file} -o {programs}) and load them into the "
+            "control, or name the file they came from"
+        )
+    return schedule, config
 
 
 def check_programs(directory: str | Path, controllers_dirs: tuple[Path, ...] = ()) -> CheckReport:
