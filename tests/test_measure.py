@@ -42,17 +42,10 @@ from ncmeasure.sim.axis import Variation
 from ncmeasure.sim.machine import MachineRun, VirtualMachine
 from ncmeasure.virtual_run import serving, simulated_link
 from tests.conftest import machine_toml
+from tests.test_dryrun import SHORT
 
 runner = CliRunner()
 
-SHORT = {
-    "positions": 2,
-    "velocity_steps": 2,
-    "min_velocity_mm_min": 500,
-    "max_velocity_mm_min": 3000,
-    "window_samples": 50,
-    "warmup_strokes": 0,
-}
 LEAD_IN_S = 6.0
 """Standstill before cycle start: longer than the pre-roll, so the wait is exercised."""
 LEAD_OUT_S = 300.0

@@ -65,6 +65,16 @@ __all__ = [
 LossReason = Literal["missing", "no_sync", "doubled"]
 
 
+def _slot_groups(slots: int, groups: Sequence[int] | None) -> list[int]:
+    """The node of every PDO slot (each its own without ``groups``), checked."""
+    if slots < 1:
+        raise ValueError("slots must be positive")
+    found = list(groups) if groups is not None else list(range(slots))
+    if len(found) != slots:
+        raise ValueError("one group per slot")
+    return found
+
+
 @dataclass(frozen=True)
 class LostCycle:
     """A SYNC cycle that will not become a row."""
@@ -95,18 +105,13 @@ class CycleAssembler:
     """
 
     def __init__(self, slots: int, groups: Sequence[int] | None = None) -> None:
-        if slots < 1:
-            raise ValueError("slots must be positive")
-        groups = list(groups) if groups is not None else list(range(slots))
-        if len(groups) != slots:
-            raise ValueError("one group per slot")
         self.slots = slots
-        self._groups = groups
+        self._groups = _slot_groups(slots, groups)
         self.newest = -1
         """The cycle of the newest SYNC seen (-1 before the first)."""
         self.early_frames = 0
         """Frames that came before the first SYNC (they belong to no cycle of this link)."""
-        self._group_index = [sorted(set(groups)).index(g) for g in groups]
+        self._group_index = [sorted(set(self._groups)).index(g) for g in self._groups]
         self._order: list[tuple[int, int]] | None = None
         """Per slot, its node's index and its usual position among the node's frames
         (learned from the first complete cycle); None before."""
@@ -249,14 +254,9 @@ class TimedAssembler:
         sent: collections.deque[tuple[int, float]],
         hold_cycles: int = 2,
     ) -> None:
-        if slots < 1:
-            raise ValueError("slots must be positive")
-        groups = list(groups) if groups is not None else list(range(slots))
-        if len(groups) != slots:
-            raise ValueError("one group per slot")
         self.slots = slots
-        self._groups = groups
-        self._group_index = [sorted(set(groups)).index(g) for g in groups]
+        self._groups = _slot_groups(slots, groups)
+        self._group_index = [sorted(set(self._groups)).index(g) for g in self._groups]
         self._n_groups = max(self._group_index) + 1
         self._sent = sent
         self._hold = max(1, hold_cycles)
