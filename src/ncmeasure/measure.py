@@ -55,12 +55,16 @@ from ncmeasure.samples import LinkClock, SampleBlock
 __all__ = [
     "POST_ROLL_S",
     "PRE_ROLL_S",
+    "SERIES_LOG",
+    "SERIES_RETRY_S",
     "STILL_S",
     "Evaluation",
     "ProgramWatch",
+    "SeriesLog",
     "WatchState",
     "evaluate",
     "load_programs",
+    "read_series_log",
     "record_program",
 ]
 
@@ -643,3 +647,89 @@ def default_output(programs: Path, serial: str, when: dt.datetime | None = None)
 def utc_text(moment: dt.datetime) -> str:
     """ISO 8601 in UTC, to the millisecond (the store's measured time)."""
     return moment.astimezone(dt.UTC).isoformat(timespec="milliseconds")
+
+
+SERIES_LOG = "series.log"
+"""The file of a series folder with a line per run and per link outage."""
+SERIES_COLUMNS = (
+    "time_utc",
+    "run",
+    "outcome",
+    "verdict",
+    "measurement",
+    "windows",
+    "folder",
+    "note",
+)
+"""The series log's columns (tab-separated, a header line first)."""
+SERIES_RETRY_S = (2.0, 4.0, 8.0, 15.0, 30.0)
+"""Waits (wall clock) before each new try to reach the drives in a series; the last repeats."""
+
+
+class SeriesLog:
+    """The series log: a tab-separated line per run (and per link outage), on disk at once.
+
+    Each line is appended, flushed and synced before the next run starts, so a crash or a
+    power cut loses no finished line. A technician reads it in any editor or spreadsheet.
+
+    Raises:
+        OutputError: the log cannot be written.
+    """
+
+    def __init__(self, path: Path) -> None:
+        from ncmeasure.errors import OutputError
+
+        self.path = path
+        try:
+            if not path.exists() or path.stat().st_size == 0:
+                self._append("\t".join(SERIES_COLUMNS))
+        except OSError as exc:
+            raise OutputError(f"{path}: cannot write the series log ({exc.strerror})") from exc
+
+    def line(
+        self,
+        *,
+        run: int | str,
+        outcome: str,
+        verdict: str = "",
+        measurement: int | str = "",
+        windows: str = "",
+        folder: str = "",
+        note: str = "",
+        moment: dt.datetime | None = None,
+    ) -> None:
+        """Append one line (tabs and line breaks in the texts become spaces)."""
+        from ncmeasure.errors import OutputError
+
+        cells = [
+            utc_text(moment or dt.datetime.now(dt.UTC)),
+            str(run),
+            outcome,
+            verdict,
+            str(measurement),
+            windows,
+            folder,
+            note,
+        ]
+        text = "\t".join(" ".join(str(c).split()) for c in cells)
+        try:
+            self._append(text)
+        except OSError as exc:
+            raise OutputError(f"{self.path}: cannot write the series log ({exc.strerror})") from exc
+
+    def _append(self, text: str) -> None:
+        import os
+
+        with self.path.open("a", encoding="utf-8") as file:
+            file.write(text + "\n")
+            file.flush()
+            os.fsync(file.fileno())
+
+
+def read_series_log(path: Path) -> list[dict[str, str]]:
+    """The series log's lines as dictionaries by column (for scripts and tests)."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    if not lines:
+        return []
+    header = lines[0].split("\t")
+    return [dict(zip(header, line.split("\t"), strict=False)) for line in lines[1:] if line]

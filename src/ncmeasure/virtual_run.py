@@ -253,14 +253,21 @@ def _canopen_settings(
 
 @contextlib.contextmanager
 def serving(
-    config: MachineConfig, run: MachineRun, link: SimulatedLink, clock: SimulatedClock
+    config: MachineConfig,
+    run: MachineRun,
+    link: SimulatedLink,
+    clock: SimulatedClock,
+    *,
+    port: int = 0,
 ) -> Iterator[dict[str, Any]]:
     """Simulated drives serving ``run`` on ``clock``; yields the link settings that reach them.
 
     The drives move the axes the machine file describes, as the virtual machine
     does (facts the file leaves out are the test rig's): a link made from
     ``link.machine(config)`` with the yielded settings (the bus channel, the port)
-    reads them with the same facts, in lockstep when it runs on ``clock``.
+    reads them with the same facts, in lockstep when it runs on ``clock``. Modbus drives
+    listen on 127.0.0.1 at ``port`` (0: a free one, whatever the machine file says; a
+    given port serves the same drives again after an outage).
 
     Raises:
         ConfigError: invalid link settings.
@@ -315,7 +322,7 @@ def serving(
     with running_server(
         served,
         host="127.0.0.1",
-        port=0,  # a free port, whatever the machine file says
+        port=port,
         source=run,
         clock=clock,
     ) as server:

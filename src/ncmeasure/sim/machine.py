@@ -46,6 +46,7 @@ may run faster than real time (the recording says so in its metadata).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -65,7 +66,14 @@ from ncmeasure.sim.axis import AxisModel, Variation
 from ncmeasure.sim.servo import follow, servo
 from ncmeasure.sim.signals import AxisState
 
-__all__ = ["AxisExtremes", "BeyondLimits", "MachineRun", "MarkedSpan", "VirtualMachine"]
+__all__ = [
+    "AxisExtremes",
+    "BeyondLimits",
+    "MachineRun",
+    "MarkedSpan",
+    "VirtualMachine",
+    "one_after_another",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -220,6 +228,52 @@ class MachineRun:
                 self.marker[index],
             ]
         return channels, SampleBlock(index * self.dt_s, np.column_stack(columns))
+
+
+def one_after_another(runs: Sequence[MachineRun]) -> MachineRun:
+    """Runs one after another on one time grid: a program started again and again (a series).
+
+    Each run keeps its lead-in and lead-out (the standstill between two program starts);
+    the marked spans move to their place. The program's start is the first run's, its end
+    the last run's.
+
+    Raises:
+        ValueError: no runs, or runs of other axes or another time step.
+    """
+    if not runs:
+        raise ValueError("one_after_another needs at least one run")
+    first = runs[0]
+    if any(r.axes != first.axes or r.dt_s != first.dt_s for r in runs):
+        raise ValueError("runs of other axes or another time step cannot follow one another")
+    shifts: list[float] = []
+    samples = 0
+    for r in runs:
+        shifts.append(samples * first.dt_s)
+        samples += r.marker.size
+    spans = tuple(
+        dataclasses.replace(span, start_s=span.start_s + shift, end_s=span.end_s + shift)
+        for r, shift in zip(runs, shifts, strict=True)
+        for span in r.spans
+    )
+
+    def joined(name: str) -> FloatArray:
+        return np.concatenate([getattr(r, name) for r in runs], axis=-1)
+
+    return MachineRun(
+        axes=first.axes,
+        dt_s=first.dt_s,
+        position_mm=joined("position_mm"),
+        velocity_mm_min=joined("velocity_mm_min"),
+        velocity_cmd_mm_min=joined("velocity_cmd_mm_min"),
+        position_cmd_mm=joined("position_cmd_mm"),
+        acceleration_m_s2=joined("acceleration_m_s2"),
+        acceleration_cmd_m_s2=joined("acceleration_cmd_m_s2"),
+        current_a=joined("current_a"),
+        marker=joined("marker"),
+        spans=spans,
+        program_start_s=first.program_start_s,
+        program_end_s=runs[-1].program_end_s + shifts[-1],
+    )
 
 
 class VirtualMachine:
