@@ -239,3 +239,38 @@ def test_a_slow_program_stretches_the_bound(tmp_path: Path) -> None:
         10 + (schedule.duration_s - offset) * watch.slowing + 5.0, rel=1e-6
     )
     assert "override ≈ 50 %" in watch.bound_text
+
+
+def test_a_marker_that_never_rises_leaves_the_start_to_the_motion(tmp_path: Path) -> None:
+    """The drives' marker input is recorded but not wired (or not set): the program runs
+    all the same; after the schedule's time to the first window and a grace the first
+    motion is the start, the windows pass by position and the end is seen."""
+    machine, programs, _ = _generated(tmp_path, "canopen")
+    schedule = load_schedule(programs / "schedule.json")
+    vm = VirtualMachine.from_programs(
+        load_machine(machine), programs, lead_in_s=LEAD_IN_S, lead_out_s=30.0
+    )
+    channels, rows = vm.run().sample(0.01)
+    names = [c.name for c in channels]
+    values = rows.values.copy()
+    values[:, [i for i, n in enumerate(names) if n.endswith("_marker")]] = 0.0
+    watch = ProgramWatch(names, schedule, real_time=False)
+    assert watch.by_marker
+    kept, ended = [], None
+    for lo in range(0, len(rows.time_s), 100):
+        block = SampleBlock(rows.time_s[lo : lo + 100], values[lo : lo + 100])
+        part, ended = watch.pass_rows(block, None)
+        kept.append(part.time_s)
+        if ended:
+            break
+    assert ended == "program" and watch.marker_missing
+    time_kept = np.concatenate(kept)
+    moving = np.flatnonzero(
+        np.any(np.abs(values[:, [names.index(f"{a.name}_velocity_mm_min") for a in schedule.axes]])
+               > 1.0, axis=1))  # fmt: skip
+    first_motion_s = rows.time_s[moving[0]]
+    assert watch.start_s == pytest.approx(first_motion_s, abs=0.05)
+    assert time_kept[0] == pytest.approx(first_motion_s - PRE_ROLL_S, abs=0.05)
+    program_end_s = vm.lead_in_s + vm.program_duration_s
+    assert program_end_s < time_kept[-1] < program_end_s + 5.0
+    assert watch.windows_passed == watch.windows_total

@@ -76,6 +76,9 @@ POST_ROLL_S = 1.0
 """Rows kept after the program's end was seen."""
 STILL_S = 1.0
 """How long every axis must stand still at its park for the program to have ended."""
+MARKER_GRACE_S = 10.0
+"""Time allowed, beyond the schedule's, between the first motion and the marker's first edge:
+after it a marker that never rose is taken for a wiring fault and the motion is the start."""
 PARK_TOLERANCE_MM = 0.05
 """An axis this close to its park is at it; one that moved farther has left where it stood."""
 _VERDICT_STATUS: dict[str, Status] = {"ok": "ok", "check": "warning", "fault": "critical"}
@@ -126,6 +129,8 @@ class _Axis:
     its shortest window (one marker is often wired to every drive's input)."""
     rise_mm: float | None = None
     """Where the axis stood when the marker last rose."""
+    armed: bool = False
+    """Without a marker: the axis has stood on the start's side of its next window."""
 
 
 class ProgramWatch:
@@ -185,6 +190,20 @@ class ProgramWatch:
             for axis in schedule.axes
         ]
         self.by_marker = any(axis.marker is not None for axis in self._axes)
+        self.marker_missing = False
+        """The marker is recorded but never rose while the axes moved: started by motion."""
+        self._motion_s: float | None = None
+        self._motion_axis: _Axis | None = None
+        first_marked = min(
+            (
+                (w.t_window_start_s if schedule.marker_scope == "window" else w.t_start_s)
+                - axis.t_start_s
+                for axis in schedule.axes
+                for w in axis.windows[:1]
+            ),
+            default=0.0,
+        )
+        self._marker_grace_s = 2.0 * max(0.0, first_marked) + MARKER_GRACE_S
         self._schedule = schedule
         self._real_time = real_time
         self._margin_s = margin_s
@@ -250,6 +269,11 @@ class ProgramWatch:
                 if self.by_marker
                 else f"waiting for the start: the first motion of {names}"
             )
+            if self.by_marker and self._motion_s is not None:
+                text += (
+                    "; the axes move but the marker has not risen (if it never does, the "
+                    "first motion is taken for the start)"
+                )
         elif self.phase == "running":
             where = (
                 f"; axis {self._last_passed.axis} window {self._last_passed.id} passed at "
@@ -289,16 +313,23 @@ class ProgramWatch:
         self._last_s = float(block.time_s[-1])
         kept = block
         if self.phase == "waiting":
-            start = self._find_start(block)
-            if start is None:
+            start = self._find_start(block, by_marker=self.by_marker)
+            if start is None and self.by_marker and self._marker_never_rose(block):
+                start_s = self._motion_s
+                assert start_s is not None
+                self._begin_at(start_s, link_now_s)
+                kept = self._pre_rolled(block)
+                self._follow(kept, int(np.searchsorted(kept.time_s, start_s, "left")))
+            elif start is None:
                 self._hold(block)
                 timeout = self._start_timeout_s
                 if timeout is not None and self._last_s - self._first_s >= timeout:
                     return _empty_like(block), "no_start"
                 return _empty_like(block), None
-            self._begin(block, start, link_now_s)
-            kept = self._pre_rolled(block)
-            self._follow(block, start)
+            else:
+                self._begin(block, start, link_now_s)
+                kept = self._pre_rolled(block)
+                self._follow(block, start)
         else:
             self._follow(block, 0)
         if self._end_s is not None:
@@ -317,6 +348,8 @@ class ProgramWatch:
         """Keep the last :attr:`pre_roll_s` of rows before the start."""
         self._held.append(block)
         newest = float(block.time_s[-1])
+        if self._motion_s is not None:  # from the first motion on: it may become the start
+            newest = min(newest, self._motion_s)
         while len(self._held) > 1 and float(self._held[1].time_s[0]) <= newest - self._pre_roll_s:
             self._held.popleft()
 
@@ -330,30 +363,73 @@ class ProgramWatch:
         first = int(np.searchsorted(time_s, self.start_s - self._pre_roll_s, "left"))
         return SampleBlock(time_s[first:], values[first:])
 
-    def _find_start(self, block: SampleBlock) -> int | None:
+    def _marker_never_rose(self, block: SampleBlock) -> bool:
+        """The axes moved and the marker has not risen for longer than the schedule allows
+        (a marker input not wired, or not set by the program): from now on the first motion
+        is the start and the windows are passed by position. Notes the first motion."""
+        if self._motion_s is None:
+            first = self._first_motion(block)
+            if first is None:
+                return False
+            self._motion_s = float(block.time_s[first[0]])
+            self._motion_axis = first[1]
+        assert self._last_s is not None
+        if self._last_s - self._motion_s < self._marker_grace_s:
+            return False
+        log.warning(
+            "the axes moved for %.0f s and the marker never rose: the start is the first "
+            "motion (check the marker's wiring, SETUP.md)",
+            self._last_s - self._motion_s,
+        )
+        self.by_marker = False
+        self.marker_missing = True
+        for axis in self._axes:
+            axis.marker = None
+        if self._motion_axis is not None:
+            self._start_offset(self._motion_axis, by_marker=False)
+        return True
+
+    def _first_motion(self, block: SampleBlock) -> tuple[int, _Axis] | None:
+        """The first row in ``block`` where an axis moves (and the axis), not yet the start."""
+        found = [
+            (int(hits[0]), axis)
+            for axis in self._axes
+            if (hits := self._motion_rows(axis, block)).size
+        ]
+        return min(found, key=lambda pair: pair[0], default=None)
+
+    def _motion_rows(self, axis: _Axis, block: SampleBlock) -> Any:
+        if axis.stood_mm is None:
+            axis.stood_mm = float(block.values[0, axis.position])
+        velocity = block.values[:, axis.velocity]
+        position = block.values[:, axis.position]
+        return np.flatnonzero(
+            (np.abs(velocity) > axis.threshold_mm_min)
+            | (np.abs(position - axis.stood_mm) > PARK_TOLERANCE_MM)
+        )
+
+    def _find_start(self, block: SampleBlock, *, by_marker: bool) -> int | None:
         """The row of the start in ``block``, if it is there."""
         found: list[tuple[int, _Axis]] = []
         for axis in self._axes:
-            if self.by_marker:
+            if by_marker:
                 if axis.marker is None:
                     continue
                 marker = block.values[:, axis.marker]
                 hits = np.flatnonzero(np.isfinite(marker) & (marker > 0))
             else:
-                if axis.stood_mm is None:
-                    axis.stood_mm = float(block.values[0, axis.position])
-                velocity = block.values[:, axis.velocity]
-                position = block.values[:, axis.position]
-                hits = np.flatnonzero(
-                    (np.abs(velocity) > axis.threshold_mm_min)
-                    | (np.abs(position - axis.stood_mm) > PARK_TOLERANCE_MM)
-                )
+                hits = self._motion_rows(axis, block)
             if hits.size:
                 found.append((int(hits[0]), axis))
         if not found:
             return None
         row, axis = min(found, key=lambda pair: pair[0])
-        if self.by_marker and axis.windows:
+        self._start_offset(axis, by_marker)
+        return row
+
+    def _start_offset(self, axis: _Axis, by_marker: bool) -> None:
+        """The schedule's time at the start, from the axis that started."""
+        if by_marker and axis.windows:
             first = axis.windows[0]
             self.offset_s = (
                 first.t_window_start_s
@@ -362,11 +438,13 @@ class ProgramWatch:
             )
         elif axis.stood_mm is not None and abs(axis.stood_mm - axis.park_mm) <= PARK_TOLERANCE_MM:
             self.offset_s = axis.t_start_s  # parked: its own measurement is its first motion
-        return row
 
     def _begin(self, block: SampleBlock, row: int, link_now_s: float | None) -> None:
+        self._begin_at(float(block.time_s[row]), link_now_s)
+
+    def _begin_at(self, start_s: float, link_now_s: float | None) -> None:
         self.phase = "running"
-        self.start_s = float(block.time_s[row])
+        self.start_s = start_s
         now = dt.datetime.now(dt.UTC)
         lag_s = (link_now_s - self.start_s) if self._real_time and link_now_s is not None else 0.0
         self.start_utc = now - dt.timedelta(seconds=max(0.0, lag_s))
@@ -427,20 +505,27 @@ class ProgramWatch:
                 if moved and axis.passed < len(axis.windows):
                     self._passed(axis, float(time_s[edge]))
             return
+        # Without a marker a window is passed when the axis, having stood on its start's
+        # side, crosses its end moving its way: state kept across blocks, so the result
+        # does not depend on how the rows arrive.
         while axis.passed < len(axis.windows) and start < len(time_s):
             window = axis.windows[axis.passed]
+            if not axis.armed:
+                before = np.flatnonzero(
+                    window.direction * (values[start:, axis.position] - window.window_start_mm) <= 0
+                )
+                if not before.size:
+                    return
+                start += int(before[0])
+                axis.armed = True
             beyond = window.direction * (values[start:, axis.position] - window.window_end_mm)
             moving = window.direction * values[start:, axis.velocity] > axis.threshold_mm_min
             hits = np.flatnonzero((beyond >= 0) & moving)
             if not hits.size:
                 return
             start += int(hits[0])
+            axis.armed = False
             self._passed(axis, float(time_s[start]))
-            # the next window starts after the axis stopped: skip to where it no longer moves on
-            stopped = np.flatnonzero(~(window.direction * values[start:, axis.velocity] > 0))
-            if not stopped.size:
-                return
-            start += int(stopped[0])
 
     def _passed(self, axis: _Axis, time_s: float) -> None:
         window = axis.windows[axis.passed]

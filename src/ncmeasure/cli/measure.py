@@ -305,6 +305,12 @@ def _measure_once(job: _Job, out: Path, stop: threading.Event) -> _RunEnd:
         )
         return _RunEnd("no_start", "problems", rows, text=text)
     windows = f"{watch.windows_passed}/{watch.windows_total}"
+    if watch.marker_missing:
+        warn(
+            "the marker channel is recorded but never rose while the axes moved: the start "
+            "was the first motion and the windows come from the velocity; check how the "
+            "marker output is wired to the drives' input (SETUP.md)"
+        )
     if acquisition.ended_by == "schedule":
         warn(
             f"the program's end was not seen: the recording ended at its bound "
