@@ -148,11 +148,6 @@ def modbus_link(server: ServerHandle, axis: str, ready: ModbusReady | None) -> M
     )
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the simulated Modbus server answers the ready write with an exception "
-    "response (1 or 2); the write path of sim/modbus_drive is not yet right",
-)
 def test_modbus_writes_the_coil(server: ServerHandle) -> None:
     with modbus_link(server, "X", COIL) as link:
         assert link.signals_ready
@@ -163,11 +158,6 @@ def test_modbus_writes_the_coil(server: ServerHandle) -> None:
         assert server.outputs()[1] == {"coil 5": 0}
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the simulated Modbus server answers the ready write with an exception "
-    "response (1 or 2); the write path of sim/modbus_drive is not yet right",
-)
 def test_modbus_changes_only_its_bit_of_the_holding_register(server: ServerHandle) -> None:
     with modbus_link(server, "Y", REGISTER) as link:
         link.set_ready(True)

@@ -307,8 +307,12 @@ class SimulatedModbusDrive:
                     return None
                 if fault.exception_code is not None:
                     return ExcCodes(fault.exception_code)
-            if values is not None:
-                return self._write(runtime, function_code, start_address, registers, values)
+            if function_code in _WRITES:
+                # pymodbus asks twice for a write: first without the values (the check of the
+                # address), then with them; a value of 0 or False comes as it is, not as a list
+                if values is None:
+                    return self._writable(runtime, function_code)
+                return self._write(runtime, function_code, values)
             function = _FUNCTION_OF_CODE.get(function_code)
             if function is None:
                 return ExcCodes.ILLEGAL_FUNCTION
@@ -320,22 +324,25 @@ class SimulatedModbusDrive:
 
         return action
 
-    def _write(
-        self,
-        runtime: _UnitRuntime,
-        function_code: int,
-        start_address: int,
-        registers: list[int],
-        values: Any,
-    ) -> ExcCodes | None:
-        """A write to the unit's ready output: held; any other write is refused."""
+    @staticmethod
+    def _writable(runtime: _UnitRuntime, function_code: int) -> ExcCodes | None:
+        """None where a write of ``function_code`` reaches the unit's ready output."""
         ready = runtime.unit.ready
-        table = _WRITES.get(function_code)
-        if ready is None or table != ready.function:
+        if ready is None or _WRITES.get(function_code) != ready.function:
             return ExcCodes.ILLEGAL_FUNCTION
-        value = int(bool(values[0])) if table == "coil" else int(values[0])
+        return None
+
+    def _write(self, runtime: _UnitRuntime, function_code: int, values: Any) -> ExcCodes | None:
+        """A write to the unit's ready output: held; any other write is refused."""
+        refused = self._writable(runtime, function_code)
+        if refused is not None:
+            return refused
+        ready = runtime.unit.ready
+        assert ready is not None
+        first = values[0] if isinstance(values, list | tuple) else values
+        value = int(bool(first)) if ready.function == "coil" else int(first)
         with self._lock:
-            runtime.written[f"{table} {ready.address}"] = value
+            runtime.written[f"{ready.function} {ready.address}"] = value
         return None
 
     def _catch_all(self, rtu: bool) -> Callable[..., Any]:
