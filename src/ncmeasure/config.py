@@ -128,6 +128,12 @@ class _Model(BaseModel):
     )
 
 
+READY_TIMEOUT_S = 60.0
+"""Default of ``machine.ready_timeout_s``: how long a program waits for the recorder."""
+READY_OUTPUT_KEYS = {"canopen": "ready_output_bit", "modbus": "ready"}
+"""The per-axis link key naming where the recorder's ready output leaves the bus."""
+
+
 class MachineSection(_Model):
     """The ``[machine]`` table: which machine, which controller, which program."""
 
@@ -168,6 +174,19 @@ class MachineSection(_Model):
         description="The main program stops before its first move with an operator message "
         "(work area clear, no tool, override) and waits for cycle start. Set false for "
         "unattended series started by the PLC.",
+    )
+
+    ready_input: Annotated[int, Field(ge=0, le=99_999)] | None = Field(
+        default=None,
+        description="The controller's digital input wired to the recorder's ready signal "
+        "(the output the link names: a drive's 0x60FE bit, a Modbus coil). The main program "
+        "waits for it before its first move and stops with RECORDER NOT READY after "
+        "ready_timeout_s. Default: no wait.",
+    )
+    ready_timeout_s: Annotated[float, Field(gt=0, le=3600)] = Field(
+        default=READY_TIMEOUT_S,
+        description="How long the main program waits for the recorder's ready signal "
+        "(with ready_input).",
     )
 
     controller_options: dict[str, Annotated[int, Field(ge=0, le=99_999)] | bool] = Field(
@@ -554,6 +573,45 @@ def _safe_park(index: int, axis: AxisConfig) -> Iterator[str]:
         )
 
 
+def _ready_checks(config: MachineConfig) -> Iterator[str]:
+    """The recorder-ready handshake is configured whole or not at all.
+
+    The controller's side is ``machine.ready_input`` (and its time-out); the bus side
+    is one axis' link key (:data:`READY_OUTPUT_KEYS`) where the machine file has a
+    CANopen or Modbus ``[link]``. Without a ``[link]`` table the link comes from the
+    command line and checks itself when it opens.
+    """
+    machine = config.machine
+    if machine.ready_input is None and "ready_timeout_s" in machine.model_fields_set:
+        yield (
+            "machine.ready_timeout_s: a time-out for the recorder's ready signal, but no "
+            "machine.ready_input the program waits on; set both, or neither"
+        )
+    link_type = (config.link or {}).get("type")
+    key = READY_OUTPUT_KEYS.get(link_type) if isinstance(link_type, str) else None
+    if key is None:
+        return
+    naming = [i for i, axis in enumerate(config.axes) if key in axis.link]
+    if machine.ready_input is not None and not naming:
+        yield (
+            f"machine.ready_input: the program waits for the recorder's ready signal, but no "
+            f"axis' link names where it leaves the bus: set axes[i].link.{key} on the axis "
+            "whose drive has the output wired to the controller, or remove ready_input"
+        )
+    if machine.ready_input is None:
+        for index in naming:
+            yield (
+                f"axes[{index}].link.{key}: the recorder signals ready, but no program waits "
+                "for it: set machine.ready_input (the controller's input it is wired to), or "
+                f"remove {key}"
+            )
+    for index in naming[1:]:
+        yield (
+            f"axes[{index}].link.{key}: the ready output is already named on "
+            f"axes[{naming[0]}]; name it on one axis only"
+        )
+
+
 def _cross_checks(config: MachineConfig) -> Iterator[str]:
     """Checks across fields, each as a ``location: message`` line."""
     names = [axis.name for axis in config.axes]
@@ -569,6 +627,7 @@ def _cross_checks(config: MachineConfig) -> Iterator[str]:
                 f"axis {number}, like axis {config.axes[other].name} (axes[{other}]); give "
                 "every axis its own number (control_axis, default: its place in the file)"
             )
+    yield from _ready_checks(config)
     for key in ("park_order", "measure_order"):
         order = getattr(config.machine, key)
         if order is not None and sorted(order) != sorted(names):
@@ -703,7 +762,11 @@ def load_machine(path: str | Path) -> MachineConfig:
     return parse_machine(read_toml(path, "a machine file"), str(path))
 
 
-_LATER_MACHINE_KEYS: dict[str, object] = {"confirm_start": True}
+_LATER_MACHINE_KEYS: dict[str, object] = {
+    "confirm_start": True,
+    "ready_input": None,
+    "ready_timeout_s": READY_TIMEOUT_S,
+}
 _LATER_AXIS_KEYS: dict[str, object] = {
     "control_axis": None,
     "retract_first": False,

@@ -161,6 +161,11 @@ class Schedule(FileHeader):
     confirm_start: bool = False
     """The main program stops before its first move until cycle start (the machine
     file's ``confirm_start``); schedules written before it was known say False."""
+    ready_input: int | None = None
+    """The controller input the main program waits on for the recorder's ready signal
+    before its first move (the machine file's ``ready_input``); None: no wait."""
+    ready_timeout_s: float | None = None
+    """How long it waits (the machine file's ``ready_timeout_s``), with ``ready_input``."""
     """The dialect options the programs were written with."""
     axes: list[AxisSummary]
 

@@ -304,6 +304,35 @@ class DriveLink(ABC):
         with self._events_lock:
             self._events.append(event)
 
+    # --- the recorder's ready signal ------------------------------------------------------
+
+    @property
+    def signals_ready(self) -> bool:
+        """True when the link can set an output the controller waits on before its
+        program moves (the machine file names one: a drive's digital output, a coil)."""
+        return False
+
+    def set_ready(self, on: bool) -> None:
+        """Set the recorder's ready output on (recording) or off.
+
+        The main program waits for it (the machine file's ``machine.ready_input``)
+        before its first move. A link that cannot signal ready (:attr:`signals_ready`
+        False) does nothing and logs that it did not.
+
+        Raises:
+            LinkError: the link is not open, or the drive or PLC refused the write.
+        """
+        if self._state != "open":
+            raise LinkError(f"{self.name} link is not open")
+        if not self.signals_ready:
+            log.info("%s link: no ready output named; the ready signal is not set", self.name)
+            return
+        self._set_ready(bool(on))
+
+    def _set_ready(self, on: bool) -> None:
+        """Write the ready output (backends with :attr:`signals_ready`)."""
+        raise NotImplementedError
+
     def empty_block(self) -> SampleBlock:
         """A block without rows, for a read that timed out."""
         return SampleBlock(np.empty(0), np.empty((0, len(self.channels))))

@@ -31,6 +31,7 @@ from ncmeasure.program.reader import (
     Motion,
     ProgramSet,
     ProgramTrace,
+    ReadyWait,
     Stop,
     read_programs,
 )
@@ -163,6 +164,7 @@ def check_trace(schedule: Schedule, trace: ProgramTrace, report: CheckReport) ->
     if any(m.calls > 0 for m in parking):
         problems.append("a subprogram is called before every axis is parked")
     problems.extend(_start_problems(schedule, trace))
+    problems.extend(_ready_problems(schedule, trace))
     problems.extend(_retract_problems(schedule, trace))
     feeds_by_axis: dict[str, list[Motion]] = {name: [] for name in axes}
     for motion in trace.motions:
@@ -228,6 +230,52 @@ def _start_problems(schedule: Schedule, trace: ProgramTrace) -> list[str]:
                 "operator to confirm the start (the machine file's confirm_start)"
             ]
     return []
+
+
+def _ready_problems(schedule: Schedule, trace: ProgramTrace) -> list[str]:
+    """With ``ready_input`` the main program waits for the recorder before any move,
+    after the start confirmation, on that input, with that time-out; without it, never."""
+    waits = [step for step in trace.steps if isinstance(step, ReadyWait)]
+    wanted = schedule.ready_input
+    if wanted is None:
+        return [
+            f"{w.file or w.program}:{w.line}: waits for the recorder's ready signal on input "
+            f"{w.input}, but the machine file names no ready_input"
+            for w in waits
+        ]
+    confirmed = not schedule.confirm_start
+    for step in trace.steps:
+        if isinstance(step, Stop) and step.calls == 0:
+            confirmed = True
+        elif isinstance(step, ReadyWait):
+            where = f"{step.file or step.program}:{step.line}"
+            problems: list[str] = []
+            if step.calls or not confirmed:
+                problems.append(
+                    f"{where}: the wait for the recorder's ready signal must be in the main "
+                    "program after the start confirmation, before the first move"
+                )
+            if step.input != wanted:
+                problems.append(
+                    f"{where}: waits on input {step.input}, but the machine file's "
+                    f"ready_input is {wanted}"
+                )
+            timeout = schedule.ready_timeout_s
+            if timeout is not None and abs(step.timeout_s - timeout) > 1e-9:
+                problems.append(
+                    f"{where}: waits at most {step.timeout_s:g} s, but the machine file's "
+                    f"ready_timeout_s is {timeout:g} s"
+                )
+            return problems
+        elif isinstance(step, Motion):
+            return [
+                f"{_where(step)}: an axis moves before the program waits for the recorder's "
+                f"ready signal (the machine file's ready_input = {wanted})"
+            ]
+    return [
+        "the main program never waits for the recorder's ready signal (the machine "
+        f"file's ready_input = {wanted})"
+    ]
 
 
 def _retract_problems(schedule: Schedule, trace: ProgramTrace) -> list[str]:

@@ -40,6 +40,7 @@ __all__ = [
     "marker_m_functions",
     "marker_scope",
     "option_problems",
+    "ready_problems",
     "validate_for_dialect",
 ]
 
@@ -419,6 +420,51 @@ class Start(_Strict):
     source: str = ""
 
 
+READY_MESSAGE = "RECORDER NOT READY"
+"""What a program shows when the recorder's ready signal did not come in time."""
+
+
+class Ready(_Strict):
+    """How the main program waits for the recorder's ready signal before its first move.
+
+    The machine file's ``ready_input`` names the controller's digital input the
+    recorder's ready output is wired to; the program waits until it is high, at most
+    ``ready_timeout_s``, and on a time-out shows :data:`READY_MESSAGE` and ends, so a
+    cycle start never moves the machine while nothing records. The templates write the
+    blocks; the reader recognises them by these patterns (matched against whole
+    lines, block numbers removed, before comments are removed): the wait, then the
+    time-out branch line by line. A dialect without a verified way to wait says why
+    in ``unsupported``, and ``generate`` refuses ``ready_input`` for it.
+    """
+
+    unsupported: str = ""
+    """Why the dialect's programs cannot wait for an input (nothing verified)."""
+    wait: Regex | None = None
+    """The block that waits; groups ``input`` (the input's number) and ``timeout``
+    (seconds)."""
+    any_wait: Regex | None = None
+    """Any block that waits on an input: one ``wait`` does not match lacks its
+    time-out (or is malformed) and is refused."""
+    on_timeout: Sequence[Regex] = ()
+    """The lines right after the wait, in order: the branch taken on a time-out, which
+    shows the message and ends the program."""
+    inputs: Sequence[tuple[int, int]] = ()
+    """Input numbers the control has, as inclusive ranges."""
+    input_meaning: str = "digital input"
+    wiring: str = ""
+    """How the recorder's ready output reaches the input, for the setup sheet."""
+    source: str = ""
+
+    @model_validator(mode="after")
+    def _complete(self) -> Ready:
+        if not self.unsupported and (self.wait is None or not self.inputs):
+            raise ValueError("[ready] needs wait and inputs, or unsupported saying why not")
+        if self.wait is not None:
+            _regex(self.wait, "input")
+            _regex(self.wait, "timeout")
+        return self
+
+
 class Memory(_Strict):
     """How much program text the control is assumed to hold."""
 
@@ -450,6 +496,9 @@ class Dialect(_Strict):
     memory: Memory = Memory()
     coordinates: Coordinates = Coordinates()
     start: Start = Start()
+    ready: Ready = Ready(
+        unsupported="no way for a program to wait on an input was verified for this controller"
+    )
     options: dict[str, int | bool] = Field(default_factory=dict)
     """Machine-specific settings with their defaults; a machine file may override them
     in [machine.controller_options]."""
@@ -596,9 +645,32 @@ def validate_for_dialect(config: MachineConfig, dialect: Dialect) -> dict[str, i
         if isinstance(value, int) and not isinstance(value, bool) and value < 0:
             problems.append(f"machine.controller_options.{key}: must not be negative")
     problems += option_problems(dialect, options)
+    problems += ready_problems(config, dialect)
     if problems:
         raise ConfigError(f"the machine does not fit controller {dialect.name}", problems)
     return options
+
+
+def ready_problems(config: MachineConfig, dialect: Dialect) -> list[str]:
+    """What stops the main program from waiting for the recorder's ready signal."""
+    number = config.machine.ready_input
+    if number is None:
+        return []
+    ready = dialect.ready
+    if ready.unsupported:
+        return [
+            f"machine.ready_input: {dialect.title} programs cannot wait for the recorder's "
+            f"ready signal ({ready.unsupported}); remove ready_input and have the "
+            "technician press cycle start once the recorder waits (ncmeasure measure shows "
+            "when it does)"
+        ]
+    if not any(low <= number <= high for low, high in ready.inputs):
+        source = f"; {ready.source}" if ready.source else ""
+        return [
+            f"machine.ready_input: {number} is not {_article(ready.input_meaning)} "
+            f"{dialect.title} has ({_ranges(ready.inputs)}{source})"
+        ]
+    return []
 
 
 def _article(noun: str) -> str:

@@ -36,6 +36,7 @@ __all__ = [
     "Motion",
     "ProgramSet",
     "ProgramTrace",
+    "ReadyWait",
     "Stop",
     "read_programs",
     "scan_codes",
@@ -114,6 +115,22 @@ class Stop:
     file: str = ""
 
 
+@dataclass(frozen=True, slots=True)
+class ReadyWait:
+    """A wait for the recorder's ready signal: the program goes on once the input is
+    high, or shows a message and ends after ``timeout_s`` (the dialect's time-out branch,
+    which the reader skips: the recorder it assumes is ready)."""
+
+    program: str
+    line: int
+    input: int
+    """The controller's input waited on."""
+    timeout_s: float
+    calls: int
+    """How many subprogram calls had been made."""
+    file: str = ""
+
+
 # An M word: 'M', spaces allowed, digits; not inside a name (FRICTION_M3, o<m3_x>, %M3).
 _M_WORD = re.compile(r"(?<![A-Z0-9_<%$.\[])M\s*(?P<n>\d+)", re.I)
 
@@ -124,8 +141,8 @@ class ProgramTrace:
 
     motions: list[Motion] = field(default_factory=list)
     dwells_s: list[float] = field(default_factory=list)
-    steps: list[Motion | Dwell | Stop] = field(default_factory=list)
-    """Motions, dwells and stops in the order the program commands them."""
+    steps: list[Motion | Dwell | Stop | ReadyWait] = field(default_factory=list)
+    """Motions, dwells, stops and ready waits in the order the program commands them."""
     calls: list[str] = field(default_factory=list)
     ended: bool = False
     stopped: str = ""
@@ -226,6 +243,12 @@ _MESSAGE = "\x00MESSAGE"
 """What the reader keeps of a block that shows the operator a message."""
 _STOP_MESSAGE = "\x00STOP MESSAGE"
 """What the reader keeps of a stop that shows its own message."""
+_READY = "\x00READY "
+"""What the reader keeps of a ready wait: the prefix, then input and time-out."""
+_READY_BRANCH = "\x00READY BRANCH"
+"""A line of a ready wait's time-out branch (not run: the recorder is ready)."""
+_READY_BROKEN = "\x00READY BROKEN "
+"""A ready wait the reader refuses, then why."""
 _MAX_FILE_PROBLEMS = 5
 """Problems of one kind reported per file (the first ones say what is wrong)."""
 
@@ -273,6 +296,10 @@ class ProgramSet:
         self.messages = _patterns(dialect.start.message, effective)
         self.clears = _patterns(dialect.start.clear, effective)
         self.stop_messages = _patterns(dialect.start.stop_message, effective)
+        ready = dialect.ready
+        self.ready_wait = _pattern(ready.wait, effective)
+        self.ready_any = _pattern(ready.any_wait, effective)
+        self.ready_branch = _patterns(ready.on_timeout, effective)
         verify = dialect.coordinates.verify
         self.verify = re.compile(verify.pattern, re.I) if verify else None
         self.programs: dict[str, _Program] = {}
@@ -312,6 +339,8 @@ class ProgramSet:
         problems: dict[str, list[str]] = {}
         blank_so_far, tape_line, closed_at = True, 0, 0
         after: list[int] = []  # lines with text after the closing tape mark
+        branch: list[re.Pattern[str]] = []  # the time-out branch lines still expected
+        wait_index = 0
         for index, raw in enumerate(raw_lines):
             number = index + 1
             raw = raw.removesuffix("\r")  # CR LF line ends
@@ -319,8 +348,21 @@ class ProgramSet:
             if bad:
                 problems.setdefault("character", []).append(f"{file}:{number}: character {bad}")
             stripped = raw.strip()
+            block = _BLOCK_NUMBER.sub("", stripped)
+            if branch and branch[0].search(block):
+                branch.pop(0)
+                texts.append(_READY_BRANCH)
+                continue
+            if branch:  # the wait is not followed by its time-out branch
+                texts[wait_index] = _READY_BROKEN + f"branch {number}"
+                branch = []
+            if self.ready_wait and (match := self.ready_wait.search(block)):
+                texts.append(f"{_READY}{match.group('input')} {match.group('timeout')}")
+                branch, wait_index = list(self.ready_branch), index
+            elif self.ready_any and self.ready_any.search(block):
+                texts.append(_READY_BROKEN + "wait")
             # a message's text is the operator's, not words
-            if any(p.search(stripped) for p in self.messages):
+            elif any(p.search(stripped) for p in self.messages):
                 texts.append(_MESSAGE)
             elif any(p.search(stripped) for p in self.stop_messages):
                 texts.append(_STOP_MESSAGE)
@@ -354,6 +396,8 @@ class ProgramSet:
                 found.append(current)
             elif current is None:
                 outside.append(index)
+        if branch:
+            texts[wait_index] = _READY_BROKEN + "end"
         end = closed_at - 1 if closed_at else len(texts)
         if current is None or current is default:  # no program number: the file is its program
             default.end = end
@@ -462,7 +506,7 @@ class ProgramSet:
         fixed = self.stops + ([self.verify] if self.verify else [])
         for file, texts in self.files.items():
             for index, text in enumerate(texts):
-                if text in (_MESSAGE, _STOP_MESSAGE):
+                if text.startswith("\x00"):  # messages, ready waits: not words
                     continue
                 if self.call and (match := self.call.search(text)):
                     # the called program's name is a name, not words
@@ -614,6 +658,11 @@ class _Interpreter:
             if text == _MESSAGE:
                 self.message_shown = True
                 continue
+            if text == _READY_BRANCH:
+                continue  # the time-out branch: the recorder is ready
+            if text.startswith(_READY):
+                self._ready(program, number, text)
+                continue
             if text == _STOP_MESSAGE or any(p.search(text) for p in self.stops):
                 silent = bool(self.dialect.start.without_message)  # none can be shown
                 shown = self.message_shown or text == _STOP_MESSAGE or silent
@@ -628,6 +677,37 @@ class _Interpreter:
                 continue
             self._block(program, number, text)
         return self.trace
+
+    def _ready(self, program: _Program, number: int, text: str) -> None:
+        """A wait for the recorder's ready signal: a step; a broken one is refused."""
+        if text.startswith(_READY_BROKEN):
+            why = text.removeprefix(_READY_BROKEN)
+            title = self.dialect.title
+            if why == "wait":
+                message = (
+                    "waits for an input, but not as a wait for the recorder's ready signal "
+                    f"with its time-out ({title}: {self.dialect.ready.wait}): a wait without "
+                    "a time-out would hold the program for ever; generate the programs again"
+                )
+            else:
+                found = "the file ends" if why == "end" else f"line {why} is something else"
+                message = (
+                    "the wait for the recorder's ready signal is not followed by its time-out "
+                    f"branch (message and program end), {found}: without it a time-out would "
+                    "go on to move the machine; generate the programs again"
+                )
+            raise self._error(program, number, message)
+        written_input, written_timeout = text.removeprefix(_READY).split()
+        self.trace.steps.append(
+            ReadyWait(
+                program.key,
+                number,
+                _whole(written_input),
+                self._number(program, number, written_timeout),
+                len(self.trace.calls),
+                program.file,
+            )
+        )
 
     def _verification(self, text: str) -> bool:
         """True for an axis' block of the dialect's offset verification.

@@ -40,6 +40,7 @@ from ncmeasure.formats.schedule import SCHEDULE_FILE, Schedule
 from ncmeasure.inputs import plain_file_name, read_text
 from ncmeasure.plan import SMALLER, AxisPlan, Move, SizeLimit, plan_machine
 from ncmeasure.program.dialect import (
+    READY_MESSAGE,
     Dialect,
     dialect_warnings,
     load_dialect,
@@ -87,6 +88,23 @@ class AxisView:
 
 
 @dataclass(frozen=True)
+class ReadyView:
+    """The wait for the recorder's ready signal, as the templates write it."""
+
+    input: int
+    """The controller's digital input (machine.ready_input)."""
+    timeout: str
+    """The time-out in seconds, as the dialect writes a number of seconds."""
+    message: str
+    """What the program shows on a time-out."""
+
+
+def _timeout_text(seconds: float) -> str:
+    """Seconds without a trailing zero or point: 60, 2.5."""
+    return f"{seconds:.3f}".rstrip("0").rstrip(".") or "0"
+
+
+@dataclass(frozen=True)
 class ProgramView:
     """Everything the templates of one machine get."""
 
@@ -109,6 +127,8 @@ class ProgramView:
     """The main program stops before its first move with an operator message."""
     start_message: str
     """The operator message of that stop."""
+    ready: ReadyView | None = None
+    """The wait for the recorder before the first move (None: no wait)."""
 
 
 class _Output:
@@ -609,6 +629,13 @@ def generate_programs(
         marker_values=dialect.marker.values,
         confirm_start=config.machine.confirm_start,
         start_message=dialect.start.text,
+        ready=None
+        if config.machine.ready_input is None
+        else ReadyView(
+            input=config.machine.ready_input,
+            timeout=_timeout_text(config.machine.ready_timeout_s),
+            message=READY_MESSAGE,
+        ),
     )
     env = _environment(dialect, templates_dirs)
     total_moves = sum(len(plan.moves) for plan in plans)
@@ -628,6 +655,10 @@ def generate_programs(
             "controller_options": options,
             "marker_values": dialect.marker.values,
             "confirm_start": config.machine.confirm_start,
+            "ready_input": config.machine.ready_input,
+            "ready_timeout_s": (
+                None if config.machine.ready_input is None else config.machine.ready_timeout_s
+            ),
             "warnings": [*schedule.warnings, *dialect_warnings(dialect, options)],
         }
     )

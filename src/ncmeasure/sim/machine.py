@@ -60,7 +60,7 @@ from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, ProgramError
 from ncmeasure.profile import SCurve, s_curve
 from ncmeasure.program.check import read_generated
-from ncmeasure.program.reader import Dwell, Motion, ProgramTrace, Stop
+from ncmeasure.program.reader import Dwell, Motion, ProgramTrace, ReadyWait, Stop
 from ncmeasure.samples import Channel, SampleBlock, channels_for
 from ncmeasure.sim.axis import AxisModel, Variation
 from ncmeasure.sim.servo import follow, servo
@@ -403,6 +403,9 @@ class VirtualMachine:
                 continue
             if isinstance(step, Stop):
                 close()  # the virtual operator presses cycle start at once
+                continue
+            if isinstance(step, ReadyWait):
+                close()  # the simulated recorder is always ready: the wait passes at once
                 continue
             target = position.copy()
             for name, value in step.target.items():

@@ -72,6 +72,7 @@ from typing import Any, ClassVar, Literal, cast
 import can
 import canopen
 from canopen.emcy import EmcyError
+from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError, OutputError
 from ncmeasure.links.base import AxisBinding, AxisLinkSettings, DriveLink, LinkSettings
@@ -236,6 +237,54 @@ class CanOpenLink(DriveLink):
         info["mode"] = self._cycles.mode
         info.update(self._layout.describe())  # object map, bus load, scales
         return info
+
+    # --- the recorder's ready signal -----------------------------------------------------
+
+    #: CiA 402 digital outputs: sub 1 the physical outputs, sub 2 the bit mask that
+    #: enables them (UNSIGNED32 each).
+    DIGITAL_OUTPUTS: ClassVar[int] = 0x60FE
+
+    def _ready_drive(self) -> DriveNode | None:
+        for drive in self._nodes:
+            if drive.axis.settings.ready_output_bit is not None:
+                return drive
+        return None
+
+    @property
+    def signals_ready(self) -> bool:
+        """True when an axis names ``ready_output_bit`` (a bit of its drive's 0x60FE:01)."""
+        return self._ready_drive() is not None
+
+    def _set_ready(self, on: bool) -> None:
+        """Read, change and write back the one bit of 0x60FE:01 (SDO); switching on, also
+        the bit of the enable mask 0x60FE:02 where the drive has one."""
+        drive = self._ready_drive()
+        assert drive is not None  # signals_ready
+        bit = drive.axis.settings.ready_output_bit
+        assert bit is not None
+        mask = 1 << bit
+        if on:
+            self._enable_output(drive, mask)
+        what = f"setting the ready output (0x{self.DIGITAL_OUTPUTS:04X}:01 bit {bit})"
+        try:
+            old = int.from_bytes(drive.upload(self.DIGITAL_OUTPUTS, 1)[:4], "little")
+            new = old | mask if on else old & ~mask
+            if new != old:
+                drive.download(self.DIGITAL_OUTPUTS, 1, new.to_bytes(4, "little"))
+        except (SdoAbortedError, SdoCommunicationError) as exc:
+            raise drive.failure(what, exc) from exc
+        log.info("%s: ready output bit %d %s", drive.axis.who, bit, "on" if on else "off")
+
+    def _enable_output(self, drive: DriveNode, mask: int) -> None:
+        """Set the output's bit in the enable mask 0x60FE:02, where the drive has it."""
+        try:
+            enabled = int.from_bytes(drive.upload(self.DIGITAL_OUTPUTS, 2)[:4], "little")
+            if not enabled & mask:
+                drive.download(self.DIGITAL_OUTPUTS, 2, (enabled | mask).to_bytes(4, "little"))
+        except SdoAbortedError as exc:  # no mask, or a fixed one: the output is the drive's
+            log.info("%s: 0x60FE:02 not changed (%s)", drive.axis.who, exc)
+        except SdoCommunicationError as exc:
+            raise drive.failure("enabling the ready output (0x60FE:02)", exc) from exc
 
     # --- open ------------------------------------------------------------------------
 

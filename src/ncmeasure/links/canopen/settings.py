@@ -220,6 +220,14 @@ class CanOpenAxis(AxisLinkSettings):
         "specific inputs) wired to the controller's marker output: recorded as the axis' "
         "marker. Bits 0-15 are CiA 402's (limit and home switches, interlock, reserved).",
     )
+    ready_output_bit: int | None = Field(
+        default=None,
+        ge=16,
+        le=31,
+        description="Bit of the drive's digital outputs 0x60FE:01 (16-31, the manufacturer-"
+        "specific outputs) wired to the controller's ready input (machine.ready_input): the "
+        "link sets it while it records. Bits 0-15 are CiA 402's (bit 0: brake).",
+    )
     first_tpdo: int = Field(
         default=1,
         ge=1,

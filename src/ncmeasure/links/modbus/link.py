@@ -153,6 +153,23 @@ class ModbusLink(DriveLink):
         info["register_maps"] = self._plan.describe_maps(self.axes)
         return info
 
+    # --- the recorder's ready signal -------------------------------------------------
+
+    @property
+    def signals_ready(self) -> bool:
+        """True when an axis names ``ready`` (a coil or register bit)."""
+        return any(getattr(b.settings, "ready", None) is not None for b in self.axes)
+
+    def _set_ready(self, on: bool) -> None:
+        for binding in self.axes:
+            settings = binding.settings
+            assert isinstance(settings, ModbusAxis)
+            if settings.ready is not None:
+                unit = settings.ready.unit_id or settings.unit_id
+                self._transport.write_ready(settings.ready, unit, on)
+                log.info("ready output %s (axis %s)", "on" if on else "off", binding.name)
+                return
+
     # --- one poll cycle -----------------------------------------------------------------
 
     def _poll_once(self) -> list[float]:

@@ -27,7 +27,13 @@ from ncmeasure.config import format_validation_error
 from ncmeasure.errors import ConfigError
 from ncmeasure.links.base import AxisLinkSettings, LinkSettings
 
-__all__ = ["ModbusAxis", "ModbusMarker", "ModbusSettings", "settings_from_tables"]
+__all__ = [
+    "ModbusAxis",
+    "ModbusMarker",
+    "ModbusReady",
+    "ModbusSettings",
+    "settings_from_tables",
+]
 
 
 class ModbusSettings(LinkSettings):
@@ -127,6 +133,37 @@ class ModbusMarker(BaseModel):
         return self
 
 
+class ModbusReady(BaseModel):
+    """Where the recorder's ready signal leaves the bus: a coil, or a bit of a holding
+    register, of a drive or a PLC, wired to the controller's ``machine.ready_input``."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    function: Literal["coil", "holding"] = Field(
+        description="coil (written with 05) or a bit of a holding register (read with 03, "
+        "written with 06: the other bits stay as they are)."
+    )
+    address: Annotated[int, Field(ge=0, le=65535)] = Field(
+        description="Address of the coil or register, 0-based as sent in the request."
+    )
+    bit: Annotated[int, Field(ge=0, le=15)] | None = Field(
+        default=None, description="Holding register: the bit (0 = least significant)."
+    )
+    unit_id: Annotated[int, Field(ge=1, le=247)] | None = Field(
+        default=None, description="The unit that has the output (a PLC); default: the axis' drive."
+    )
+
+    @model_validator(mode="after")
+    def _check_bit(self) -> ModbusReady:
+        if self.function == "holding" and self.bit is None:
+            raise PydanticCustomError(
+                "ready_bit", "a register output needs the bit that carries it: bit = 0..15"
+            )
+        if self.function == "coil" and self.bit is not None:
+            raise PydanticCustomError("ready_bit", "bit is for a register; a coil is one bit")
+        return self
+
+
 class ModbusAxis(AxisLinkSettings):
     """The ``link`` table of an axis on a Modbus link."""
 
@@ -146,6 +183,11 @@ class ModbusAxis(AxisLinkSettings):
         default=None,
         description="The input wired to the controller's marker output, recorded as the "
         "axis' marker (0 or 1).",
+    )
+    ready: ModbusReady | None = Field(
+        default=None,
+        description="The output wired to the controller's ready input (machine.ready_input): "
+        "the link sets it while it records.",
     )
 
     @field_validator("scales")

@@ -22,6 +22,7 @@ import contextlib
 import select
 import socket
 import struct
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -35,7 +36,7 @@ from pymodbus.pdu import ModbusPDU
 from ncmeasure.errors import LinkError
 from ncmeasure.links.modbus.plan import Request, rtu_silence_s
 from ncmeasure.links.modbus.registers import FUNCTION_NAMES, exception_text
-from ncmeasure.links.modbus.settings import ModbusSettings
+from ncmeasure.links.modbus.settings import ModbusReady, ModbusSettings
 from ncmeasure.samples import SimulatedClock
 
 __all__ = ["LOCKSTEP_GUARD_S", "CycleError", "Failure", "ModbusTransport"]
@@ -79,6 +80,8 @@ class ModbusTransport:
         self.lockstep: SimulatedClock | None = None
         self._client: ModbusTcpClient | ModbusSerialClient | None = None
         self._last_rx = 0.0
+        # one request on the line at a time: the polling thread's, or a write's
+        self._lock = threading.Lock()
 
     @property
     def endpoint(self) -> str:
@@ -158,6 +161,41 @@ class ModbusTransport:
             with contextlib.suppress(Exception):
                 self._client.close()  # type: ignore[no-untyped-call]
 
+    def write_ready(self, ready: ModbusReady, unit_id: int, on: bool) -> None:
+        """Set the ready output: write the coil, or read the holding register, change its
+        bit and write it back (the other bits as they were).
+
+        Raises:
+            LinkError: not connected, no answer, or an exception response.
+        """
+        where = f"{ready.function} {ready.address} of unit {unit_id}"
+        with self._lock:
+            client = self._client
+            if client is None or client.socket is None:
+                raise LinkError(f"cannot set the ready output ({where}): not connected")
+            try:
+                if ready.function == "coil":
+                    response: ModbusPDU = client.write_coil(ready.address, on, device_id=unit_id)
+                else:
+                    assert ready.bit is not None  # ModbusReady requires it
+                    read = client.read_holding_registers(ready.address, count=1, device_id=unit_id)
+                    if read.isError() or not read.registers:
+                        code = int(getattr(read, "exception_code", 0))
+                        raise LinkError(
+                            f"cannot read the ready output ({where}): {exception_text(code)}"
+                        )
+                    mask = 1 << ready.bit
+                    old = int(read.registers[0])
+                    value = old | mask if on else old & ~mask
+                    response = client.write_register(ready.address, value, device_id=unit_id)
+            except (ModbusException, OSError, ValueError, struct.error) as exc:
+                raise LinkError(f"cannot set the ready output ({where}): {exc}") from exc
+            finally:
+                self._last_rx = time.monotonic()
+        if response.isError():
+            code = int(getattr(response, "exception_code", 0))
+            raise LinkError(f"cannot set the ready output ({where}): {exception_text(code)}")
+
     def execute(self, request: Request) -> list[int]:
         """Send ``request`` and return the registers of the answer.
 
@@ -165,6 +203,10 @@ class ModbusTransport:
             CycleError: not connected, no valid answer within the time-out, the
                 connection lost, a Modbus exception response, a short answer.
         """
+        with self._lock:
+            return self._execute(request)
+
+    def _execute(self, request: Request) -> list[int]:
         client = self._client
         if client is None or client.socket is None:
             raise CycleError(Failure("disconnected", f"not connected to {self.endpoint}"))

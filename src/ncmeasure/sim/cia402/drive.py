@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from canopen.objectdictionary import ObjectDictionary, ODVariable
+from canopen.objectdictionary import ObjectDictionary, ODRecord, ODVariable
 
 from ncmeasure.errors import ConfigError
 from ncmeasure.formats.axis import StatedMechanics
@@ -126,6 +126,23 @@ class _Plan:
     counter: int = 0
 
 
+def _digital_outputs() -> ODRecord:
+    """CiA 402 0x60FE digital outputs: sub 1 physical outputs, sub 2 bit mask."""
+    record = ODRecord("digital outputs", 0x60FE)
+    for subindex, name, data_type in (
+        (0, "highest sub-index supported", 0x05),  # UNSIGNED8
+        (1, "physical outputs", 0x07),  # UNSIGNED32
+        (2, "bit mask", 0x07),
+    ):
+        var = ODVariable(name, 0x60FE, subindex)
+        var.data_type = data_type
+        var.access_type = "ro" if subindex == 0 else "rw"
+        var.default = 2 if subindex == 0 else 0
+        var.pdo_mappable = subindex == 1
+        record.add_member(var)
+    return record
+
+
 class SimulatedDrive:
     """One simulated CiA 402 drive (a CANopen node). Attach it to :class:`SimulatedDrives`.
 
@@ -191,7 +208,9 @@ class SimulatedDrive:
         """A drive with the built-in CiA 402 dictionary of ``object_map``.
 
         It also has the torque offset 0x60B2:00 (INTEGER16, read-write, 0), which
-        ``ncmeasure apply-compensation`` writes.
+        ``ncmeasure apply-compensation`` writes, and the digital outputs 0x60FE (sub 1
+        physical outputs, sub 2 bit mask; UNSIGNED32, read-write, 0), which hold the
+        recorder's ready output a link writes (:meth:`value`).
         """
         od = build_dictionary(
             object_map, node_id, rated_current_ma=round(scaling.rated_current_a * 1000)
@@ -203,6 +222,8 @@ class SimulatedDrive:
             offset.default = 0
             offset.pdo_mappable = True
             od.add_object(offset)
+        if 0x60FE not in od:
+            od.add_object(_digital_outputs())
         return cls(node_id, axis, od, object_map, scaling)
 
     def _set_rated_current(self, obj: MapObject | None) -> None:

@@ -50,7 +50,7 @@ from ncmeasure.links.modbus.registers import (
     load_register_map,
     signal_factor,
 )
-from ncmeasure.links.modbus.settings import ModbusAxis, ModbusMarker, ModbusSettings
+from ncmeasure.links.modbus.settings import ModbusAxis, ModbusMarker, ModbusReady, ModbusSettings
 from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.modbus_drive.faults import DriveFaults
 from ncmeasure.sim.rig import RIG_MECHANICS
@@ -88,6 +88,9 @@ class SimulatedUnit:
         marker: Where the program's marker (``AxisState.marker``) is wired: the
             link's ``ModbusAxis.marker``, an input, coil or register bit of this
             unit, 1 while the marker is set; None: not served.
+        ready: The recorder's ready output (the link's ``ModbusAxis.ready``): a coil
+            or holding register of this unit a link may write; the written value is
+            held (:meth:`SimulatedModbusDrive.outputs`). None: writes are refused.
     """
 
     axis: str
@@ -98,6 +101,7 @@ class SimulatedUnit:
     counts_per_rev: int = 10_000
     scales: Mapping[str, float] = field(default_factory=dict)
     marker: ModbusMarker | None = None
+    ready: ModbusReady | None = None
 
 
 @dataclass(frozen=True)
@@ -139,6 +143,12 @@ class _UnitRuntime:
     factors: dict[str, float]
     counters: dict[int, int] = field(default_factory=lambda: dict.fromkeys(_FUNCTION_OF_CODE, 0))
     answered: int = 0
+    written: dict[str, int] = field(default_factory=dict)
+    """The ready output's value as last written: 'coil <address>' or 'holding <address>'."""
+
+
+_WRITES = {5: "coil", 15: "coil", 6: "holding", 16: "holding"}
+"""Write function codes and the tables they write."""
 
 
 class SimulatedModbusDrive:
@@ -222,6 +232,12 @@ class SimulatedModbusDrive:
         with self._lock:
             return {uid: rt.answered for uid, rt in self._units.items()}
 
+    def outputs(self) -> dict[int, dict[str, int]]:
+        """Per unit id, the values a link wrote to its ready output
+        (``{'coil 40': 1}``, ``{'holding 200': 8}``)."""
+        with self._lock:
+            return {uid: dict(rt.written) for uid, rt in self._units.items()}
+
     def _now(self) -> float:
         return self.clock.now() if self.clock is not None else time.monotonic()
 
@@ -291,8 +307,14 @@ class SimulatedModbusDrive:
                     return None
                 if fault.exception_code is not None:
                     return ExcCodes(fault.exception_code)
+            if function_code in _WRITES:
+                # pymodbus asks twice for a write: first without the values (the check of the
+                # address), then with them; a value of 0 or False comes as it is, not as a list
+                if values is None:
+                    return self._writable(runtime, function_code)
+                return self._write(runtime, function_code, values)
             function = _FUNCTION_OF_CODE.get(function_code)
-            if function is None or values is not None:
+            if function is None:
                 return ExcCodes.ILLEGAL_FUNCTION
             t = self._state_time(runtime, function_code)
             state = self.source.state(runtime.unit.axis_index, t)
@@ -301,6 +323,27 @@ class SimulatedModbusDrive:
             return None
 
         return action
+
+    @staticmethod
+    def _writable(runtime: _UnitRuntime, function_code: int) -> ExcCodes | None:
+        """None where a write of ``function_code`` reaches the unit's ready output."""
+        ready = runtime.unit.ready
+        if ready is None or _WRITES.get(function_code) != ready.function:
+            return ExcCodes.ILLEGAL_FUNCTION
+        return None
+
+    def _write(self, runtime: _UnitRuntime, function_code: int, values: Any) -> ExcCodes | None:
+        """A write to the unit's ready output: held; any other write is refused."""
+        refused = self._writable(runtime, function_code)
+        if refused is not None:
+            return refused
+        ready = runtime.unit.ready
+        assert ready is not None
+        first = values[0] if isinstance(values, list | tuple) else values
+        value = int(bool(first)) if ready.function == "coil" else int(first)
+        with self._lock:
+            runtime.written[f"{ready.function} {ready.address}"] = value
+        return None
 
     def _catch_all(self, rtu: bool) -> Callable[..., Any]:
         async def action(*_: Any) -> ExcCodes | None:
@@ -321,6 +364,18 @@ class SimulatedModbusDrive:
                 blocks[marker.function] = [
                     SimData(marker.address // 16, values=[False] * 16, datatype=DataType.BITS)
                 ]
+            ready = runtime.unit.ready
+            if ready is not None and ready.function == "coil":
+                if marker is not None and marker.function == "coil" and marker.bit is None:
+                    if marker.address // 16 != ready.address // 16:
+                        raise ConfigError(
+                            f"axis {runtime.unit.axis}: the simulated drive serves the marker "
+                            "coil and the ready coil within the same 16 coils only"
+                        )
+                else:
+                    blocks["coil"] = [
+                        SimData(ready.address // 16, values=[False] * 16, datatype=DataType.BITS)
+                    ]
             for function in ("holding", "input"):
                 used = [
                     e for _, e in runtime.register_map.ordered_signals() if e.function == function
@@ -341,6 +396,10 @@ class SimulatedModbusDrive:
                     blocks[function] = [SimData(0, datatype=DataType.INVALID)]
                 if marker is not None and marker.function == function:
                     register = SimData(marker.address, values=0, datatype=DataType.REGISTERS)
+                    valid = [b for b in blocks[function] if b.datatype != DataType.INVALID]
+                    blocks[function] = sorted([*valid, register], key=lambda b: b.address)
+                if ready is not None and ready.function == function:
+                    register = SimData(ready.address, values=0, datatype=DataType.REGISTERS)
                     valid = [b for b in blocks[function] if b.datatype != DataType.INVALID]
                     blocks[function] = sorted([*valid, register], key=lambda b: b.address)
             devices.append(
@@ -569,6 +628,7 @@ def serve(
             link.counts_per_rev or scaling.counts_per_rev,
             {str(signal): scale for signal, scale in link.scales.items()},
             link.marker,
+            link.ready,
         )
         for index, (axis, link) in enumerate(axes.items())
     ]

@@ -68,6 +68,8 @@ def _child_main(config: _ProcessConfig, conn: Connection) -> None:
                 drive.reset()
             elif command == "stats":
                 payload = drive.stats()
+            elif command == "outputs":
+                payload = drive.outputs()
             elif command == "stop":
                 stop.set()
             conn.send(("ok", payload))
@@ -129,6 +131,12 @@ class ServerHandle:
     def stats(self) -> dict[int, int]:
         """Answered read requests per unit id."""
         result: dict[int, int] = self._command("stats")
+        return result
+
+    def outputs(self) -> dict[int, dict[str, int]]:
+        """Per unit id, what a link wrote to its ready output (see
+        :meth:`SimulatedModbusDrive.outputs`)."""
+        result: dict[int, dict[str, int]] = self._command("outputs")
         return result
 
 
