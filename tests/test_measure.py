@@ -23,7 +23,7 @@ import contextlib
 import json
 import sqlite3
 import tomllib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -53,10 +53,15 @@ LEAD_OUT_S = 300.0
 EXIT = {"ok": 0, "warning": 1, "critical": 3}
 
 
-def _generated(folder: Path, kind: str) -> tuple[Path, Path, dict[str, Any]]:
-    """An example machine with a short measurement, its link the simulated drives', and
-    its generated programs."""
-    init = runner.invoke(app, ["init", "--controller", "sinumerik-840d"])
+def _generated(
+    folder: Path,
+    kind: str,
+    controller: str = "sinumerik-840d",
+    extra: Callable[[dict[str, Any]], None] | None = None,
+) -> tuple[Path, Path, dict[str, Any]]:
+    """An example machine with a short measurement, its link the simulated drives' (then
+    changed by ``extra``), and its generated programs."""
+    init = runner.invoke(app, ["init", "--controller", controller])
     assert init.exit_code == 0, init.output
     data = tomllib.loads(init.stdout)
     data["measurement"].update(SHORT)
@@ -67,6 +72,8 @@ def _generated(folder: Path, kind: str) -> tuple[Path, Path, dict[str, Any]]:
     data["link"] = {"type": kind, **{k: v for k, v in link.table.items() if v not in (None, {})}}
     for axis in data["axes"]:
         axis["link"] = dict(link.axes[axis["name"]])
+    if extra is not None:
+        extra(data)
     machine.write_text(machine_toml(data), encoding="utf-8")  # the link keeps the hash
     programs = folder / "programs"
     generated = runner.invoke(app, ["generate", str(machine), "-o", str(programs), "-q"])
@@ -81,6 +88,7 @@ def _machine_running(
     kind: str,
     monkeypatch: pytest.MonkeyPatch,
     variations: dict[str, Variation] | None = None,
+    servers: list[Any] | None = None,
 ) -> Iterator[tuple[list[str], VirtualMachine, MachineRun]]:
     """The programs on the virtual machine behind simulated drives, from before cycle
     start; yields the transport options for the command's link, the machine and its run."""
@@ -91,7 +99,8 @@ def _machine_running(
     clock = SimulatedClock()
     monkeypatch.setattr("ncmeasure.cli.measure.link_clock", lambda: clock)
     run = vm.run()
-    with serving(config, run, simulated_link(config, kind), clock) as transport:
+    link = simulated_link(config, kind)
+    with serving(config, run, link, clock, servers=servers) as transport:
         options = [f"--{key}={value}" for key, value in transport.items()]
         yield options, vm, run
 
@@ -274,3 +283,31 @@ def test_a_marker_that_never_rises_leaves_the_start_to_the_motion(tmp_path: Path
     program_end_s = vm.lead_in_s + vm.program_duration_s
     assert program_end_s < time_kept[-1] < program_end_s + 5.0
     assert watch.windows_passed == watch.windows_total
+
+
+def test_the_recorder_tells_the_program_it_is_ready(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The machine wires a Modbus coil back to the control's input 2: the LinuxCNC main
+    program waits for it (M66) before its first move; measure sets it on once it waits
+    for the start and off when the recording ends."""
+
+    def ready(data: dict[str, Any]) -> None:
+        data["machine"]["ready_input"] = 2
+        data["machine"]["ready_timeout_s"] = 30.0
+        data["axes"][0]["link"]["ready"] = {"function": "holding", "address": 900, "bit": 0}
+
+    machine, programs, data = _generated(tmp_path, "modbus", "linuxcnc", ready)
+    main = programs / "friction.ngc"  # the main program
+    assert "M66 P2 L3 Q30" in main.read_text(encoding="utf-8")
+    servers: list[Any] = []
+    with _machine_running(machine, programs, "modbus", monkeypatch, servers=servers) as (
+        transport,
+        _vm,
+        _run,
+    ):
+        result = _measure(machine, programs, tmp_path / "m", tmp_path / "db", *transport)
+        writes = servers[0].output_writes()
+    assert result.exit_code in EXIT.values(), result.output
+    unit = data["axes"][0]["link"]["unit_id"]
+    assert writes[unit] == [1, 0], writes  # on while it waited and recorded, then off

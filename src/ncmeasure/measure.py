@@ -605,6 +605,10 @@ def record_program(
             start_timeout_s=start_timeout_s,
         )
         watches.append(made)
+        if drive_link.signals_ready:
+            # the program waits for it before its first move; closing the link sets it off
+            drive_link.set_ready(True)
+            log.info("ready output set: the program may start")
         return made
 
     def progress(p: Progress) -> None:

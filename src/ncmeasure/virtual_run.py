@@ -259,6 +259,7 @@ def serving(
     clock: SimulatedClock,
     *,
     port: int = 0,
+    servers: list[Any] | None = None,
 ) -> Iterator[dict[str, Any]]:
     """Simulated drives serving ``run`` on ``clock``; yields the link settings that reach them.
 
@@ -267,7 +268,8 @@ def serving(
     ``link.machine(config)`` with the yielded settings (the bus channel, the port)
     reads them with the same facts, in lockstep when it runs on ``clock``. Modbus drives
     listen on 127.0.0.1 at ``port`` (0: a free one, whatever the machine file says; a
-    given port serves the same drives again after an outage).
+    given port serves the same drives again after an outage). ``servers`` gets the
+    Modbus server's handle (what a link wrote to the drives).
 
     Raises:
         ConfigError: invalid link settings.
@@ -316,6 +318,7 @@ def serving(
             unit.counts_per_rev or ModbusDriveScaling().counts_per_rev,
             {str(signal): scale for signal, scale in unit.scales.items()},
             unit.marker,  # the program's marker wired to that input
+            unit.ready,  # the recorder's ready output, held as written
         )
         for i, (name, unit) in enumerate(units.items())
     ]
@@ -326,6 +329,8 @@ def serving(
         source=run,
         clock=clock,
     ) as server:
+        if servers is not None:
+            servers.append(server)
         yield {"port": server.port}
 
 

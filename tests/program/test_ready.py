@@ -118,3 +118,15 @@ def test_dialects_without_a_verified_wait_refuse_the_key(controller: str) -> Non
 def test_an_input_the_control_lacks_is_refused() -> None:
     with pytest.raises(ConfigError, match="digital input"):
         generate_programs(parse_machine(ready_data(ready_input=64)), generated=FIXED_TIME)
+
+
+def test_the_setup_sheet_says_how_the_program_waits(tmp_path: Path) -> None:
+    written(tmp_path, ready_data())
+    sheet = (tmp_path / "SETUP.md").read_text(encoding="utf-8")
+    assert (
+        "waits up to 45 s before its first move for the recorder's ready signal on input 2" in sheet
+    )
+    assert "motion.digital-in-NN" in sheet
+    plain = tmp_path / "plain"
+    written(plain, small_data("linuxcnc"))
+    assert "ready signal" not in (plain / "SETUP.md").read_text(encoding="utf-8")

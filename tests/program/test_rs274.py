@@ -18,7 +18,7 @@ from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.examples import demo_machine, example_machine
 from ncmeasure.program import GeneratedPrograms, generate_programs
 from ncmeasure.program.reader import read_programs
-from tests.conftest import FIXED_TIME
+from tests.conftest import FIXED_TIME, example_data
 from tests.program.rs274 import (
     AXES,
     RS274,
@@ -140,3 +140,27 @@ def test_machine_positions_do_not_depend_on_the_operators_offsets(
         assert theirs.machine == pytest.approx(ours.machine, abs=1e-4)
         assert theirs.kind == ours.kind
     check_against_schedule(plain, result.schedule, markers=True)
+
+
+def test_the_ready_wait_runs_in_rs274_and_its_time_out_ends_the_program(tmp_path: Path) -> None:
+    """LinuxCNC's interpreter accepts the recorder-ready wait (M66 … L3 Q…); with the input
+    high the program moves as without the wait, and on a time-out (#5399 = -1) the main
+    program ends before its first move."""
+    plain = example_data("linuxcnc")
+    waiting = example_data("linuxcnc")
+    waiting["machine"]["ready_input"] = 2
+    folders = {}
+    for name, data in (("plain", plain), ("waiting", waiting)):
+        result = generate_programs(parse_machine(data), generated=FIXED_TIME)
+        folders[name] = tmp_path / name
+        result.write(folders[name])
+    main = result.main_file
+    text = (folders["waiting"] / main).read_text(encoding="utf-8")
+    assert "M66 P2 L3 Q60" in text
+    moves = run_rs274(folders["waiting"], main)
+    assert moves and moves == run_rs274(folders["plain"], main)
+    # the recorder never answered: M66 sets #5399 to -1, the branch ends the program
+    (folders["waiting"] / main).write_text(
+        text.replace("M66 P2 L3 Q60\n", "M66 P2 L3 Q60\n#5399=-1\n"), encoding="utf-8"
+    )
+    assert run_rs274(folders["waiting"], main) == []

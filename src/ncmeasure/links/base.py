@@ -111,6 +111,7 @@ class DriveLink(ABC):
         self.settings = settings
         self.axes = tuple(axes)
         self._state: Literal["new", "open", "closed"] = "new"
+        self._ready_on = False
         self._events: list[LinkEvent] = []
         self._events_lock = threading.Lock()
         self._clock = REAL_TIME
@@ -280,9 +281,16 @@ class DriveLink(ABC):
         return events
 
     def close(self) -> None:
-        """Stop and release everything. Safe to call more than once."""
+        """Stop and release everything (a ready output left on is set off first, as far
+        as the drive still answers). Safe to call more than once."""
         if self._state == "closed":
             return
+        if self._state == "open" and self._ready_on:
+            try:
+                self._set_ready(False)
+                self._ready_on = False
+            except Exception as exc:  # a lost link cannot set it off: say so, close anyway
+                log.warning("%s link: the ready output could not be set off: %s", self.name, exc)
         self._safe_close()
 
     def _safe_close(self) -> None:
@@ -328,6 +336,7 @@ class DriveLink(ABC):
             log.info("%s link: no ready output named; the ready signal is not set", self.name)
             return
         self._set_ready(bool(on))
+        self._ready_on = bool(on)
 
     def _set_ready(self, on: bool) -> None:
         """Write the ready output (backends with :attr:`signals_ready`)."""

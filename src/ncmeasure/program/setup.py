@@ -240,7 +240,7 @@ def _before(config: MachineConfig, dialect: Dialect) -> tuple[Line, ...]:
     )
 
 
-def _recording(config: MachineConfig, schedule: Schedule) -> tuple[Line, ...]:
+def _recording(config: MachineConfig, schedule: Schedule, dialect: Dialect) -> tuple[Line, ...]:
     measure = "ncmeasure measure <machine file> --programs <this folder> --serial <serial>"
     lines: list[Line] = [
         (
@@ -270,6 +270,18 @@ def _recording(config: MachineConfig, schedule: Schedule) -> tuple[Line, ...]:
                 "Start ",
                 Code("measure"),
                 " first, then the main program (cycle start): it moves at once.",
+            )
+        )
+    if schedule.ready_input is not None:
+        lines.append(
+            (
+                f"The main program waits up to {schedule.ready_timeout_s or 0:g} s before its "
+                f"first move for the recorder's ready signal on input {schedule.ready_input}; ",
+                Code("measure"),
+                " sets it while it records. On a time-out the program stops with RECORDER NOT "
+                "READY and ends: start ",
+                Code("measure"),
+                ", then the program again. Wiring: " + dialect.ready.wiring,
             )
         )
     lines.append(
@@ -404,7 +416,7 @@ def setup_sheet(
         "reaches (parking, warm-up strokes, the start and stop of every run).",
         order=_order(config, schedule),
         before=_before(config, dialect),
-        recording=_recording(config, schedule),
+        recording=_recording(config, schedule, dialect),
         marker=_marker(dialect, schedule),
     )
 

@@ -145,6 +145,8 @@ class _UnitRuntime:
     answered: int = 0
     written: dict[str, int] = field(default_factory=dict)
     """The ready output's value as last written: 'coil <address>' or 'holding <address>'."""
+    writes: list[int] = field(default_factory=list)
+    """Every value written to the ready output, in order."""
 
 
 _WRITES = {5: "coil", 15: "coil", 6: "holding", 16: "holding"}
@@ -231,6 +233,11 @@ class SimulatedModbusDrive:
         """Answered read requests per unit id."""
         with self._lock:
             return {uid: rt.answered for uid, rt in self._units.items()}
+
+    def output_writes(self) -> dict[int, list[int]]:
+        """Per unit id, every value written to its ready output, in order."""
+        with self._lock:
+            return {uid: list(rt.writes) for uid, rt in self._units.items()}
 
     def outputs(self) -> dict[int, dict[str, int]]:
         """Per unit id, the values a link wrote to its ready output
@@ -343,6 +350,7 @@ class SimulatedModbusDrive:
         value = int(bool(first)) if ready.function == "coil" else int(first)
         with self._lock:
             runtime.written[f"{ready.function} {ready.address}"] = value
+            runtime.writes.append(value)
         return None
 
     def _catch_all(self, rtu: bool) -> Callable[..., Any]:

@@ -70,6 +70,8 @@ def _child_main(config: _ProcessConfig, conn: Connection) -> None:
                 payload = drive.stats()
             elif command == "outputs":
                 payload = drive.outputs()
+            elif command == "output_writes":
+                payload = drive.output_writes()
             elif command == "stop":
                 stop.set()
             conn.send(("ok", payload))
@@ -131,6 +133,11 @@ class ServerHandle:
     def stats(self) -> dict[int, int]:
         """Answered read requests per unit id."""
         result: dict[int, int] = self._command("stats")
+        return result
+
+    def output_writes(self) -> dict[int, list[int]]:
+        """Per unit id, every value a link wrote to its ready output, in order."""
+        result: dict[int, list[int]] = self._command("output_writes")
         return result
 
     def outputs(self) -> dict[int, dict[str, int]]:
