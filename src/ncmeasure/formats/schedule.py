@@ -158,6 +158,7 @@ class Schedule(FileHeader):
     """What the marker brackets in the generated programs (see the dialect)."""
     marker_values: Literal["window_id", "flag"] = "window_id"
     controller_options: dict[str, int | bool] = Field(default_factory=dict)
+    """The dialect options the programs were written with."""
     confirm_start: bool = False
     """The main program stops before its first move until cycle start (the machine
     file's ``confirm_start``); schedules written before it was known say False."""
@@ -166,7 +167,6 @@ class Schedule(FileHeader):
     before its first move (the machine file's ``ready_input``); None: no wait."""
     ready_timeout_s: float | None = None
     """How long it waits (the machine file's ``ready_timeout_s``), with ``ready_input``."""
-    """The dialect options the programs were written with."""
     axes: list[AxisSummary]
 
     @field_validator("program_files")
