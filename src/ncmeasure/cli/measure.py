@@ -49,7 +49,6 @@ from ncmeasure.cli.record import (
     Units,
 )
 from ncmeasure.errors import ConfigError, LinkError, NcMeasureError, OutputError, RecordingError
-from ncmeasure.formats.comparison import worst_status
 
 if TYPE_CHECKING:
     from rich.text import Text
@@ -449,6 +448,8 @@ def _series(job: _Job, folder: Path, runs: int | None) -> Outcome:
     say.print(f"series ended: {len(stored)} run(s) stored; the log: {log.path}", soft_wrap=True)
     if not stored:
         return "interrupted" if stop.is_set() else "link_lost"
+    from ncmeasure.formats.comparison import worst_status
+
     return worst_status(stored)  # type: ignore[arg-type]
 
 
