@@ -183,7 +183,8 @@ def _store_request(
     if store is None:
         if label is not None or measured_utc is not None or publish is not None:
             raise ConfigError(
-                "--label, --measured-at and --publish are for --store: give --store too"
+                "--label, --measured-at and --publish are for --store: give --store and "
+                "--serial too"
             )
         return None, None
     chosen = serial if serial is not None else recorded_serial

@@ -2,7 +2,7 @@
 
 ``ncmeasure schema results`` prints the JSON Schema. The shape, per axis::
 
-    recording                            machine (type), serial, start_utc, source, samples, gaps, ...
+    recording                            machine (type), serial, start_utc, source, gaps, ...
     skipped.<AXIS>                       why an axis could not be analysed, in words
     axes.<AXIS>.verdict                  level ok / check / fault, reason, action
     axes.<AXIS>.quantity                 "torque_nm" (with a torque constant) or "current_a"

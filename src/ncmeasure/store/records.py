@@ -90,7 +90,9 @@ class MeasurementInfo(_Record):
     )
     site: str | None = Field(default=None, description="Where the machine stands.")
     machine_type: str | None = Field(
-        default=None, description="The type's name; default: the machine name in the results."
+        default=None,
+        description="The type's name; default: the machine name in the results (a machine "
+        "new to the store needs one of them).",
     )
     operator: str | None = Field(default=None, description="Who measured.")
     temperature_c: float | None = Field(
