@@ -128,6 +128,7 @@ def test_keys_added_later_keep_a_machine_files_hash() -> None:
     the keys added since (confirm_start, control_axis, retract_first, safe_end) keeps the
     hash it had before them; one that sets them otherwise gets another."""
     data = small_data("linuxcnc")
+    data["machine"]["name"] = "HMX-400 #17"  # the example's name in the first release
     assert config_hash(parse_machine(data)) == "d2be1566a894c0ba"  # as in the first release
     data["machine"]["confirm_start"] = False
     assert config_hash(parse_machine(data)) != "d2be1566a894c0ba"

@@ -36,6 +36,7 @@ import numpy as np
 
 from ncmeasure.config import MachineConfig, load_machine
 from ncmeasure.errors import ConfigError, LinkError, RecordingError
+from ncmeasure.formats.identity import check_serial
 from ncmeasure.formats.schedule import SCHEDULE_MARGIN_S, Schedule
 from ncmeasure.links import DriveLink, make_link
 from ncmeasure.recording import RecordingWriter
@@ -342,6 +343,7 @@ def record(
     on_progress: Callable[[Progress], None] | None = None,
     clock: LinkClock | None = None,
     watch: Callable[[DriveLink], Watch] | None = None,
+    serial: str | None = None,
 ) -> AcquisitionResult:
     """Record a machine's drives into the recording directory ``out``.
 
@@ -368,14 +370,18 @@ def record(
         watch: Builds a :class:`Watch` for the opened link (its channels and clock):
             it keeps the rows from a start on and ends the recording; the schedule's
             end is then its business (``duration_s`` stays a limit).
+        serial: The serial number of the machine measured (its machine file names
+            the type): it goes into ``meta.json`` and from there into the results.
 
     Raises:
-        ConfigError: bad machine file or link settings.
+        ConfigError: bad machine file, link settings or serial number.
         LinkError: the link cannot be opened (nothing is recorded then).
         RecordingError: the recording cannot be created or written (see
             :func:`acquire`).
     """
     check_duration(duration_s)
+    if serial is not None:
+        check_serial(serial)
     config = machine if isinstance(machine, MachineConfig) else load_machine(machine)
     drive_link = make_link(config, link, link_settings, axis_settings)
     if clock is not None:
@@ -400,6 +406,7 @@ def record(
             drive_link.channels,
             nominal_period_s=drive_link.nominal_period_s,
             machine=config,
+            serial=serial,
             link=drive_link.describe(),
             config_hash=schedule.config_hash if schedule else None,
             notes=notes,

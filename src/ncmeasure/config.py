@@ -138,8 +138,10 @@ class MachineSection(_Model):
     """The ``[machine]`` table: which machine, which controller, which program."""
 
     name: Annotated[str, Field(min_length=1, max_length=64)] = Field(
-        description="Machine name and serial number, written into every program header.",
-        examples=["HMX-400 #17"],
+        description="Machine type, written into every program header: one file and one "
+        "program serve every machine of the type; the serial number is given at "
+        "measurement (`ncmeasure measure --serial`, `record --serial`, `analyze --serial`).",
+        examples=["HMX-400"],
     )
     controller: str = Field(
         description="Controller dialect, one of `ncmeasure controllers` "

@@ -169,7 +169,7 @@ def test_what_a_template_may_do_still_works(tmp_path: Path) -> None:
         parse_machine(small_data("linuxcnc")), templates_dirs=[templates], generated=FIXED_TIME
     )
     result.write(tmp_path / "out")
-    assert "(3 AXES HMX-400 #17 2)" in (tmp_path / "out" / "friction.ngc").read_text()
+    assert "(3 AXES HMX-400 2)" in (tmp_path / "out" / "friction.ngc").read_text()
 
 
 @pytest.mark.parametrize("dialect", DIALECTS)

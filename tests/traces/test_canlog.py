@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime as dt
 from pathlib import Path
 
 import can
@@ -12,6 +13,7 @@ from typer.testing import CliRunner
 from ncmeasure.acquire import record
 from ncmeasure.cli import app
 from ncmeasure.errors import ConfigError, RecordingError
+from ncmeasure.formats.identity import iso_utc
 from ncmeasure.recording import read_recording
 from ncmeasure.samples import SimulatedClock
 from ncmeasure.traces import detect_format, import_trace
@@ -188,3 +190,22 @@ def test_a_damaged_log_is_a_clear_error(recorded: tuple[Path, object], tmp_path:
     with pytest.raises(RecordingError, match=str(broken)):
         import_trace(broken, tmp_path / "r", machine=config)  # type: ignore[arg-type]
     assert not (tmp_path / "r").exists()
+
+
+def test_a_log_dates_the_measurement_by_absolute_time_stamps(
+    recorded: tuple[Path, object], tmp_path: Path
+) -> None:
+    """Time stamps in seconds since 1970 (BLF, candump) date the measurement by the first
+    frame; a log that counts from 0 gives no date (never the time of the import)."""
+    folder, config = recorded
+    first_s = next(iter(can.LogReader(str(folder / "bus.blf")))).timestamp
+    result = import_trace(folder / "bus.blf", tmp_path / "rec", machine=config)  # type: ignore[arg-type]
+    assert result.meta.start_utc == iso_utc(dt.datetime.fromtimestamp(first_s, dt.UTC))
+    assert any("from the first frame's time stamp" in line for line in result.report)
+    relative = tmp_path / "relative.log"
+    with can.Logger(str(relative)) as writer:
+        for msg in can.LogReader(str(folder / "bus.blf")):
+            msg.timestamp -= first_s
+            writer.on_message_received(msg)
+    undated = import_trace(relative, tmp_path / "undated", machine=config)  # type: ignore[arg-type]
+    assert undated.meta.start_utc is None

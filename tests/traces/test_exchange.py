@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime as dt
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -220,6 +221,23 @@ def test_an_import_the_disk_refuses_says_so_and_promises_nothing_of_its_files(
     assert "the import is not kept" in message
     assert "readable" not in message and "aside" not in message
     assert not (tmp_path / "copy").exists()
+
+
+def test_mdf4_keeps_the_serial_and_an_unknown_start(tmp_path: Path, make_config: Make) -> None:
+    """A recording whose time is unknown (an import without a date) stays unknown through
+    MDF4: the file header's time is not taken for it."""
+    pytest.importorskip("asammdf")
+    with RecordingWriter.create(
+        tmp_path / "original", ALL_SIGNALS[:2], nominal_period_s=0.001, machine=make_config(),
+        serial="M17", start_utc=None,
+    ) as writer:  # fmt: skip
+        writer.append(SampleBlock(np.arange(10) * 0.001, np.ones((10, 2))))
+    path = export_mdf4(Recording.open(tmp_path / "original"), tmp_path / "out.mf4")
+    copy = import_mdf4(path, tmp_path / "copy")
+    assert copy.meta.start_utc is None and copy.meta.serial == "M17"
+    when = dt.datetime(2024, 3, 5, 14, 22, tzinfo=dt.UTC)
+    dated = import_mdf4(path, tmp_path / "dated", measured_at=when)
+    assert dated.meta.start_utc == "2024-03-05T14:22:00.000+00:00"
 
 
 def test_mdf4_round_trip(tmp_path: Path, make_config: Make) -> None:

@@ -261,16 +261,45 @@ def test_failed_import_keeps_an_existing_empty_directory_empty(tmp_path: Path) -
     assert list(target.iterdir()) == []
 
 
-def test_start_time_without_zone_is_kept_in_link_only(
+def test_a_start_time_that_is_no_iso_date_leaves_the_time_unknown(
     tmp_path: Path, fixture_text: Callable[[str], str]
 ) -> None:
+    """An unreadable start is kept in link, and the measurement's time is unknown: never
+    the time of the import."""
     text = fixture_text("sinumerik_trace.xml").replace(
         "2024-05-06T10:15:00+02:00", "06.05.2024 10:15"
     )
-    before = dt.datetime.now(dt.UTC)
-    rec = import_trace(write(tmp_path, text), tmp_path / "rec").recording
-    assert rec.meta.link["trace_start"] == "06.05.2024 10:15"
-    assert dt.datetime.fromisoformat(rec.meta.start_utc) >= before.replace(microsecond=0)
+    result = import_trace(write(tmp_path, text), tmp_path / "rec")
+    assert result.meta.link["trace_start"] == "06.05.2024 10:15"
+    assert result.meta.start_utc is None
+    assert any("measurement's time is unknown" in line for line in result.report)
+
+
+def test_a_start_time_without_zone_is_taken_as_utc(
+    tmp_path: Path, fixture_text: Callable[[str], str]
+) -> None:
+    text = fixture_text("sinumerik_trace.xml").replace(
+        "2024-05-06T10:15:00+02:00", "2024-05-06T10:15:00"
+    )
+    result = import_trace(write(tmp_path, text), tmp_path / "rec")
+    assert result.meta.start_utc == "2024-05-06T10:15:00.000+00:00"
+    assert (
+        "measured at 2024-05-06 10:15:00 UTC (from frameHeader startTime, no time zone: "
+        "taken as UTC)" in result.report
+    )
+
+
+def test_measured_at_wins_over_the_start_time(
+    tmp_path: Path, fixture_text: Callable[[str], str]
+) -> None:
+    path = write(tmp_path, fixture_text("sinumerik_trace.xml"))
+    when = dt.datetime(2024, 5, 7, 6, 0, tzinfo=dt.UTC)
+    result = import_trace(path, tmp_path / "rec", measured_at=when)
+    assert result.meta.start_utc == "2024-05-07T06:00:00.000+00:00"
+    assert (
+        "measured at 2024-05-07 06:00:00 UTC (--measured-at); the data say 2024-05-06 "
+        "08:15:00 UTC (frameHeader startTime)" in result.report
+    )
 
 
 def test_failure_after_rows_reached_the_disk_removes_them(

@@ -31,7 +31,8 @@ from ncmeasure.analysis.reading import RecordingPasses
 from ncmeasure.analysis.windows.settings import SegmentSettings
 from ncmeasure.analysis.windows.watch import AxisWindows, OnWindows, Watchers
 from ncmeasure.config import MachineConfig
-from ncmeasure.errors import RecordingError
+from ncmeasure.errors import ConfigError, RecordingError
+from ncmeasure.formats.identity import check_serial
 from ncmeasure.formats.results import AxisResult, RecordingInfo, Results
 from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import Recording, RecordingHead, RowChunk
@@ -127,6 +128,7 @@ def analyze(
     rows: int = CHUNK_ROWS,
     window_times: dict[str, list[tuple[float, float]]] | None = None,
     on_windows: OnWindows | None = None,
+    serial: str | None = None,
 ) -> Results:
     """Analyse every axis of a recording: friction per position, direction and velocity.
 
@@ -163,13 +165,19 @@ def analyze(
             :class:`~ncmeasure.report.traces.RawTraces`). Where no reading
             follows, the recording is read once more, only the channels the
             tasks need; a recording in memory is handed over whole.
+        serial: The serial number of the machine measured, for the results
+            (``recording.serial``) where the recording does not carry it.
 
     Returns:
         The results, ready for :func:`~ncmeasure.formats.results.write_results`.
+        ``recording.machine`` is the recording's machine (type) name, else the
+        machine file's; ``recording.serial`` the recording's serial, else ``serial``.
 
     Raises:
         RecordingError: No axis could be analysed (the message lists why, axis
             by axis), or ``axes`` names an axis that was not recorded.
+        ConfigError: ``serial`` is not a serial number, or the recording was made
+            on a machine of another serial.
     """
     settings = settings or AnalysisSettings()
     head = (
@@ -177,10 +185,11 @@ def analyze(
         if isinstance(recording, Recording | RecordingHead)
         else RecordingHead.open(recording)
     )
+    machine_name, serial_number = _identity(head, machine, serial)
     chosen = chosen_axes(head, axes)
     report: Progress = progress or _quiet
     passes = RecordingPasses(head, chosen, schedule, machine, settings, rows, report)
-    return results_of(
+    results = results_of(
         head,
         chosen,
         passes,
@@ -190,6 +199,28 @@ def analyze(
         window_times=window_times,
         on_windows=on_windows,
     )
+    info = results.recording.model_copy(update={"machine": machine_name, "serial": serial_number})
+    return results.model_copy(update={"recording": info})
+
+
+def _identity(
+    head: Recording | RecordingHead, machine: MachineConfig | None, serial: str | None
+) -> tuple[str | None, str | None]:
+    """The machine (type) name and the serial number of the results.
+
+    Raises:
+        ConfigError: ``serial`` is not a serial number, or not the recording's.
+    """
+    meta = head.meta
+    if serial is not None:
+        check_serial(serial)
+        if meta.serial is not None and meta.serial != serial:
+            raise ConfigError(
+                f"{head.directory}: the recording was made on machine {meta.serial!r} "
+                f"(serial in its meta.json), not on {serial!r}"
+            )
+    name = meta.machine if meta.machine is not None else (machine.machine.name if machine else None)
+    return name, meta.serial if meta.serial is not None else serial
 
 
 def _common_warnings(
@@ -300,6 +331,7 @@ def _results(
         recording=RecordingInfo(
             directory=str(head.directory),
             machine=meta.machine,
+            serial=meta.serial,
             start_utc=meta.start_utc,
             config_hash=meta.config_hash,
             source=meta.source,

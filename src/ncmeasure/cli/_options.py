@@ -50,6 +50,30 @@ StoreOption = Annotated[
     ),
 ]
 
+MeasuredAtOption = Annotated[
+    str | None,
+    typer.Option(
+        "--measured-at",
+        metavar="ISO8601",
+        help="When the machine was measured, e.g. 2024-03-05T14:22:10+01:00 (a time without "
+        "a zone is UTC; a date alone is its midnight UTC). Default: the recording's start; "
+        "needed where that is unknown (an import whose data carry no date).",
+        show_default=False,
+    ),
+]
+
+
+def measured_at(text: str | None) -> str | None:
+    """``--measured-at`` as ISO 8601 text in UTC (None: not given).
+
+    Raises:
+        ConfigError: The text is not an ISO 8601 date-time.
+    """
+    from ncmeasure.formats.identity import iso_utc, parse_utc
+
+    return None if text is None else iso_utc(parse_utc(text, "--measured-at"))
+
+
 WarningOption = Annotated[
     float | None,
     typer.Option(help="Warning limit of the change against the baseline, in % (default 20)."),

@@ -11,9 +11,11 @@ from ncmeasure.cli._app import Outcome, app, console, handle_errors, progress_ba
 from ncmeasure.cli._fleet import measurement_info, mqtt_target, open_store, publish_added
 from ncmeasure.cli._options import (
     CriticalOption,
+    MeasuredAtOption,
     PublishOption,
     WarningOption,
     limits,
+    measured_at,
     settings,
 )
 from ncmeasure.cli._verdicts import print_comparison, print_verdicts, print_warnings
@@ -91,17 +93,22 @@ def analyze_command(
         typer.Option(
             "--store",
             metavar="URL",
-            help="Also add the results to this fleet store (needs --serial; see "
-            "`ncmeasure store --help`).",
+            help="Also add the results to this fleet store, as the machine of --serial (or of "
+            "the recording's serial); see `ncmeasure store --help`.",
             show_default=False,
         ),
     ] = None,
     serial: Annotated[
-        str | None, typer.Option(help="The machine's serial number, for --store.")
+        str | None,
+        typer.Option(
+            help="The serial number of the machine measured, for the results and --store "
+            "(default: the recording's; the machine file names the type)."
+        ),
     ] = None,
     label: Annotated[
         str | None, typer.Option(help="For --store: delivery, service, after-repair, ...")
     ] = None,
+    measured: MeasuredAtOption = None,
     publish: PublishOption = None,
 ) -> None:
     """Friction per position, direction and velocity; fits; position diagnosis; a verdict.
@@ -118,10 +125,12 @@ def analyze_command(
     from ncmeasure.recording import RecordingHead
 
     target = output or run.with_name(run.name + ".results.json")
-    info, broker = _store_request(run, store, serial, label, publish)
     analysis_settings = _analysis_settings(set_ or [])
     # Read chunk by chunk: memory follows the windows, not the recording's length.
     recording = RecordingHead.open(run)
+    info, broker = _store_request(
+        run, recording.meta.serial, store, serial, label, measured_at(measured), publish
+    )
     plan_schedule = load_schedule(schedule) if schedule else None
     config = load_machine(machine) if machine else None
     traces = None
@@ -142,6 +151,7 @@ def analyze_command(
             progress=update,
             window_times=windows,
             on_windows=traces.watch if traces is not None else None,
+            serial=serial,
         )
     write_results(results, target)
     if report is not None:
@@ -159,19 +169,35 @@ def analyze_command(
 
 
 def _store_request(
-    run: Path, store: str | None, serial: str | None, label: str | None, publish: str | None
+    run: Path,
+    recorded_serial: str | None,
+    store: str | None,
+    serial: str | None,
+    label: str | None,
+    measured_utc: str | None,
+    publish: str | None,
 ) -> tuple[Any, Any]:
-    """``analyze --store --serial --label --publish`` checked: the measurement's info for
-    the store (None: not stored) and the broker to publish to (None: none)."""
-    if (store is None) != (serial is None) or (label is not None and store is None):
-        raise ConfigError("--store, --serial and --label go together: give --store and --serial")
-    if publish is not None and store is None:
-        raise ConfigError("--publish sends what --store stored: give --store and --serial too")
+    """``analyze --store --serial --label --measured-at --publish`` checked: the
+    measurement's info for the store (None: not stored) and the broker to publish to
+    (None: none). The serial is ``--serial``, else the recording's."""
+    if store is None:
+        if label is not None or measured_utc is not None or publish is not None:
+            raise ConfigError(
+                "--label, --measured-at and --publish are for --store: give --store and "
+                "--serial too"
+            )
+        return None, None
+    chosen = serial if serial is not None else recorded_serial
+    if chosen is None:
+        raise ConfigError(
+            "--store needs the machine's serial number: give --serial (the recording carries none)"
+        )
     broker = mqtt_target(publish)
-    info = (
-        measurement_info(serial=serial, label=label, recording_location=str(run.absolute()))
-        if serial is not None
-        else None
+    info = measurement_info(
+        serial=chosen,
+        label=label,
+        recording_location=str(run.absolute()),
+        measured_utc=measured_utc,
     )
     return info, broker
 

@@ -150,6 +150,13 @@ def record_command(
         Path | None, typer.Option(help="CANopen: also log every frame (.blf/.asc).")
     ] = None,
     notes: Annotated[str, typer.Option(help="Free text stored with the recording.")] = "",
+    serial: Annotated[
+        str | None,
+        typer.Option(
+            help="The serial number of the machine measured (the machine file names its "
+            "type): kept in meta.json and carried into the results and the store."
+        ),
+    ] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No live display.")] = False,
 ) -> Outcome:
     """Record motor current, velocity and position from the drives into a recording.
@@ -205,6 +212,7 @@ def record_command(
             notes=notes,
             stop=stop,
             on_progress=on_progress,
+            serial=serial,
         )
 
     result = _record_live(run, quiet)

@@ -11,10 +11,12 @@ from ncmeasure.cli._app import Outcome, console, handle_errors, progress_bar, st
 from ncmeasure.cli._fleet import measurement_info, mqtt_target, open_store, publish_added
 from ncmeasure.cli._options import (
     CriticalOption,
+    MeasuredAtOption,
     PublishOption,
     StoreOption,
     WarningOption,
     limits,
+    measured_at,
 )
 from ncmeasure.cli._verdicts import LEVEL_STYLE, verdict_text
 from ncmeasure.errors import ConfigError
@@ -36,7 +38,11 @@ def store_add_command(
     site: Annotated[str | None, typer.Option(help="Where the machine stands.")] = None,
     machine_type: Annotated[
         str | None,
-        typer.Option("--type", help="The machine type (default: the machine name in the results)."),
+        typer.Option(
+            "--type",
+            help="The machine type (default: the machine name in the results); a machine new "
+            "to the store needs one.",
+        ),
     ] = None,
     operator: Annotated[str | None, typer.Option(help="Who measured.")] = None,
     temperature_c: Annotated[
@@ -49,6 +55,7 @@ def store_add_command(
         str | None,
         typer.Option(help="Where the raw recording is kept (default: its folder in the results)."),
     ] = None,
+    measured: MeasuredAtOption = None,
     store: StoreOption = None,
     publish: PublishOption = None,
 ) -> None:
@@ -67,6 +74,7 @@ def store_add_command(
         temperature_c=temperature_c,
         operating_hours=operating_hours,
         recording_location=recording,
+        measured_utc=measured_at(measured),
     )
     target = mqtt_target(publish)
     results = load_results(results_file)

@@ -76,6 +76,18 @@ def import_command(
             "Not with --format or --axis.",
         ),
     ] = None,
+    measured: Annotated[
+        str | None,
+        typer.Option(
+            "--measured-at",
+            metavar="ISO8601",
+            help="When the machine was measured, e.g. 2024-03-05T14:22:10+01:00; a time "
+            "without a zone is taken as UTC. Default: the date in the data (an XML start "
+            "time, a Date: line before the header, a date-time column); without one the "
+            "time is unknown (never the import's), and `store add` asks for it.",
+            show_default=False,
+        ),
+    ] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress, no report.")] = False,
 ) -> None:
     """Turn a controller trace or an exported CSV/MDF4 file into a recording.
@@ -89,8 +101,11 @@ def import_command(
     ·  ncmeasure import capture.blf --machine machine.toml -o run2
     """
     from ncmeasure.config import load_machine, parse_assignments
+    from ncmeasure.formats.identity import parse_utc
     from ncmeasure.traces import import_trace
     from ncmeasure.traces.mdf4 import import_mdf4
+
+    measured_at = parse_utc(measured, "--measured-at") if measured is not None else None
 
     axis_names = dict(
         parse_assignments(axis or [], "--axis", form="TRACE_AXIS=MACHINE_AXIS", example="1=X")
@@ -100,7 +115,7 @@ def import_command(
     if columns is None and (
         fmt == "mdf4" or (fmt is None and file.suffix.lower() in (".mf4", ".mdf"))
     ):
-        recording = import_mdf4(file, output, machine=config)
+        recording = import_mdf4(file, output, machine=config, measured_at=measured_at)
         report = list(recording.meta.link.get("report", []))
         samples, channels = len(recording.time_s), len(recording.channels)
     else:
@@ -113,6 +128,7 @@ def import_command(
                 axis_names=axis_names or None,
                 progress=progress,
                 columns=columns,
+                measured_at=measured_at,
             )
         # the counts from meta.json: reading a large recording back would cost its size in memory
         report, samples = result.report, result.meta.samples or 0

@@ -2,7 +2,7 @@
 
 A recording is a directory of three files (``docs/recording-format.md``)::
 
-    meta.json      what was recorded: machine, axes, link, channels, status (RecordingMeta)
+    meta.json      what was recorded: machine, serial, axes, link, channels, status (RecordingMeta)
     samples.bin    append-only frames of float64 rows: time_s, then one column per channel
     events.jsonl   one LinkEvent per line: gaps, faults, reboots, reconnects (EventRecord)
 
@@ -18,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from ncmeasure.formats.axis import AxisMechanics
 from ncmeasure.formats.header import FileHeader
+from ncmeasure.formats.identity import Serial
 from ncmeasure.samples import Channel, EventKind, LinkEvent
 
 __all__ = [
@@ -88,11 +89,16 @@ class RecordingMeta(FileHeader):
     FORMAT_VERSION: ClassVar[int] = FORMAT_VERSION
 
     machine: str | None = None
+    """The machine file's ``[machine] name``: the machine type."""
+    serial: Serial | None = None
+    """The serial number of the machine measured, where it was given (``--serial``)."""
     axes: list[RecordedAxis] = Field(default_factory=list)
     link: dict[str, Any] = Field(default_factory=dict)
     channels: list[ChannelMeta] = Field(min_length=1)
     nominal_period_s: float = Field(gt=0, allow_inf_nan=False)
-    start_utc: str
+    start_utc: str | None
+    """When the first sample was taken (ISO 8601, UTC); null when unknown: an import
+    whose data carry no date and that was given none (``--measured-at``)."""
     config_hash: str | None = None
     notes: str = ""
     source: str = ""

@@ -2,7 +2,7 @@
 
 ``ncmeasure schema results`` prints the JSON Schema. The shape, per axis::
 
-    recording                            source, samples, gaps, gap_samples, gap_share
+    recording                            machine (type), serial, start_utc, source, gaps, ...
     skipped.<AXIS>                       why an axis could not be analysed, in words
     axes.<AXIS>.verdict                  level ok / check / fault, reason, action
     axes.<AXIS>.quantity                 "torque_nm" (with a torque constant) or "current_a"
@@ -37,6 +37,7 @@ from ncmeasure.errors import ConfigError
 from ncmeasure.files import write_whole
 from ncmeasure.formats.axis import AxisMechanics
 from ncmeasure.formats.header import FileHeader, read_file
+from ncmeasure.formats.identity import Serial
 
 __all__ = [
     "RESULTS_FORMAT",
@@ -294,8 +295,11 @@ class RecordingInfo(_Model):
     """Where the data came from."""
 
     directory: str
-    machine: str | None
-    start_utc: str | None
+    machine: str | None = Field(description="The machine type (the machine file's name).")
+    serial: Serial | None = Field(
+        default=None, description="The serial number of the machine measured, where given."
+    )
+    start_utc: str | None = Field(description="When the measurement began; null: unknown.")
     config_hash: str | None
     source: str
     status: str | None = Field(default=None, description="How the recording ended.")

@@ -8,6 +8,7 @@ times are finite and strictly increasing.
 from __future__ import annotations
 
 import contextlib
+import datetime as dt
 import logging
 import tempfile
 from collections.abc import Callable, Sequence
@@ -175,7 +176,9 @@ class ImportSink:
         nominal_period_s: The sample period; None: inferred from the times.
         what: How error messages name the input (``the file``, ``the trace``).
         meta: Further arguments of :meth:`RecordingWriter.create` (source,
-            notes, link, start_utc, ...).
+            notes, link, serial, ...); ``start_utc`` is the time the data say
+            the first sample was taken, None (the default) when they do not: an
+            import never takes its own time for the measurement's.
     """
 
     def __init__(
@@ -193,7 +196,7 @@ class ImportSink:
         self.machine = machine
         self.nominal_period_s = nominal_period_s
         self.what = what
-        self.meta = meta
+        self.meta = {"start_utc": None, **meta}
         self.existed = directory.exists()
         self.rows = 0
         self.writer: RecordingWriter | None = None
@@ -235,6 +238,16 @@ class ImportSink:
             writer.flush()
             return
         self.writer.append(SampleBlock(time_s, values))  # it writes a frame per FLUSH_ROWS
+
+    def start_at(self, start_utc: dt.datetime | None) -> None:
+        """When the first sample was taken (None: unknown); before the first rows only.
+
+        Raises:
+            RecordingError: The recording is written already.
+        """
+        if self.writer is not None:
+            raise RecordingError(f"{self.directory}: the start is set before the first rows")
+        self.meta["start_utc"] = start_utc
 
     def ensure_writer(self) -> RecordingWriter:
         """The writer, created on first use (with the period known by then).

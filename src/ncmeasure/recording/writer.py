@@ -20,7 +20,7 @@ import zlib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any, Self, get_args
+from typing import IO, Any, Literal, Self, get_args
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,6 +28,7 @@ from pydantic import ValidationError
 
 from ncmeasure.config import MachineConfig, format_validation_error
 from ncmeasure.errors import LinkError, RecordingError
+from ncmeasure.formats.identity import iso_utc
 from ncmeasure.formats.recording import ChannelMeta, RecordedAxis, RecordingMeta, RecordingStatus
 from ncmeasure.inputs import parse_json, read_text
 from ncmeasure.recording.format import (
@@ -429,6 +430,7 @@ class RecordingWriter:
         *,
         nominal_period_s: float,
         machine: MachineConfig | None = None,
+        serial: str | None = None,
         link: Mapping[str, Any] | None = None,
         config_hash: str | None = None,
         notes: str = "",
@@ -436,7 +438,7 @@ class RecordingWriter:
         faster_than_real_time: bool = False,
         time_scale: float = 1.0,
         flush_interval_s: float = 0.25,
-        start_utc: dt.datetime | None = None,
+        start_utc: dt.datetime | Literal["now"] | None = "now",
     ) -> RecordingWriter:
         """Start a new recording in ``directory`` (created with its parents).
 
@@ -453,6 +455,8 @@ class RecordingWriter:
             nominal_period_s: The intended time between two rows.
             machine: The machine file; its name and the recorded axes' data go
                 into ``meta.json``. Every channel's axis must be one of its axes.
+            serial: The serial number of the machine measured (the machine
+                file names its type), for ``meta.json``.
             link: What :meth:`DriveLink.describe` returns.
             config_hash: The schedule's config hash, to match the recording
                 with the program that was run.
@@ -464,7 +468,9 @@ class RecordingWriter:
                 clock's speed (a virtual machine), the replay speed (0: as fast
                 as possible), 1 for real time.
             flush_interval_s: Longest time rows stay in memory, at most 0.5 s.
-            start_utc: When the recording began; now when not given.
+            start_utc: When the first sample was taken: ``"now"`` (a recording
+                made here), a time (an import whose data say it), or None: unknown
+                (an import without a date; never the time of the import).
 
         Raises:
             RecordingError: The directory holds anything but an unfinished
@@ -475,15 +481,16 @@ class RecordingWriter:
         _check_arguments(channels, nominal_period_s, time_scale, flush_interval_s)
         path = Path(directory)
         axes = _recorded_axes(path, channels, machine)
-        start = (start_utc or dt.datetime.now(dt.UTC)).astimezone(dt.UTC)
+        start = dt.datetime.now(dt.UTC) if isinstance(start_utc, str) else start_utc
         try:
             meta = RecordingMeta(
                 machine=machine.machine.name if machine is not None else None,
+                serial=serial,
                 axes=axes,
                 link=dict(link or {}),
                 channels=[ChannelMeta.from_channel(c) for c in channels],
                 nominal_period_s=nominal_period_s,
-                start_utc=start.isoformat(timespec="milliseconds"),
+                start_utc=iso_utc(start) if start is not None else None,
                 config_hash=config_hash,
                 notes=notes,
                 source=source,

@@ -166,11 +166,15 @@ def _recording_facts(results: Results, recording: Recording | RecordingHead | No
 
 def _facts(results: Results, recording: Recording | RecordingHead | None) -> tuple[Fact, ...]:
     info = results.recording
-    machine = info.machine or (recording.meta.machine if recording is not None else None)
-    facts = [
-        Fact("Machine", machine or "not named"),
+    meta = recording.meta if recording is not None else None
+    machine = info.machine or (meta.machine if meta is not None else None)
+    serial = info.serial or (meta.serial if meta is not None else None)
+    facts = [Fact("Machine", machine or "not named")]
+    if serial:
+        facts.append(Fact("Serial number", serial))
+    facts += [
         Fact("Recording", info.directory),
-        Fact("Recorded", format_date(info.start_utc)),
+        Fact("Recorded", format_date(info.start_utc) if info.start_utc else "unknown (no date)"),
         Fact("Analysed", format_date(results.created_utc)),
         Fact("Source", info.source or "–"),
         *_recording_facts(results, recording),

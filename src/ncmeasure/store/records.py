@@ -19,6 +19,13 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from pydantic_core import PydanticCustomError
 
 from ncmeasure.errors import ConfigError
+from ncmeasure.formats.identity import (
+    SERIAL_PATTERN,
+    SERIAL_WORDS,
+    check_serial,
+    iso_utc,
+    parse_utc,
+)
 from ncmeasure.formats.results import VerdictLevel
 from ncmeasure.inputs import format_validation_error
 
@@ -34,8 +41,6 @@ __all__ = [
     "utc_text",
 ]
 
-SERIAL_PATTERN = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9 ._+#-]{0,62}[A-Za-z0-9._+#-])?")
-"""A serial: letters, digits, space and ``. _ + # -``, 1–64 characters, no space at an end."""
 LABEL_PATTERN = re.compile(r"[a-z0-9](?:[a-z0-9._-]{0,62})?")
 """A label such as ``delivery``, ``service``, ``after-repair``: lower case, digits, ``._-``."""
 TEXT_LIMIT = 200
@@ -43,7 +48,6 @@ TEMPERATURE_RANGE_C = (-40.0, 120.0)
 OPERATING_HOURS_MAX = 1_000_000.0
 LOCATION_LIMIT = 4096
 
-_SERIAL_WORDS = "letters, digits, space and . _ + # - (1 to 64 characters)"
 _LABEL_WORDS = "lower-case letters, digits and . _ - (1 to 64 characters, e.g. delivery)"
 
 
@@ -52,13 +56,6 @@ _REFUSAL = "store_value"
 
 def _refuse(message: str) -> PydanticCustomError:
     return PydanticCustomError(_REFUSAL, message)
-
-
-def check_serial(serial: str) -> str:
-    """``serial`` if it is one the store takes, else a :class:`ConfigError` in words."""
-    if not SERIAL_PATTERN.fullmatch(serial):
-        raise ConfigError(f"serial {serial!r}: use {_SERIAL_WORDS}")
-    return serial
 
 
 def utc_text(text: str | None, what: str) -> str:
@@ -93,7 +90,9 @@ class MeasurementInfo(_Record):
     )
     site: str | None = Field(default=None, description="Where the machine stands.")
     machine_type: str | None = Field(
-        default=None, description="The type's name; default: the machine name in the results."
+        default=None,
+        description="The type's name; default: the machine name in the results (a machine "
+        "new to the store needs one of them).",
     )
     operator: str | None = Field(default=None, description="Who measured.")
     temperature_c: float | None = Field(
@@ -104,14 +103,17 @@ class MeasurementInfo(_Record):
         default=None, description="Where the raw recording is kept (it stays a file)."
     )
     measured_utc: str | None = Field(
-        default=None, description="ISO 8601; default: the recording's start."
+        default=None,
+        description="When the machine was measured, ISO 8601 (UTC where no zone is given); "
+        "default: the recording's start. Needed where that is unknown (an import whose "
+        "data carry no date).",
     )
 
     @field_validator("serial")
     @classmethod
     def _check_serial(cls, value: str) -> str:
         if not SERIAL_PATTERN.fullmatch(value):
-            raise _refuse(f"serial {value!r}: use {_SERIAL_WORDS}")
+            raise _refuse(f"serial {value!r}: use {SERIAL_WORDS}")
         return value
 
     @field_validator("label")
@@ -142,6 +144,16 @@ class MeasurementInfo(_Record):
         if value is not None and not (math.isfinite(value) and low <= value <= high):
             raise _refuse(f"{what} {value!r}: must lie within {low:g} to {high:g}")
         return value
+
+    @field_validator("measured_utc")
+    @classmethod
+    def _check_time(cls, value: str | None) -> str | None:
+        if value is None:
+            return None
+        try:
+            return iso_utc(parse_utc(value, "measured time"))
+        except ConfigError as exc:
+            raise _refuse(exc.message) from exc
 
     @field_validator("recording_location")
     @classmethod

@@ -65,18 +65,37 @@ def _get_or_create(db: Connection, table: Any, key: dict[str, Any], extra: dict[
 def add_measurement(
     db: Connection, results: Results, info: MeasurementInfo, canonical: bytes, digest: str
 ) -> Added:
+    recorded = results.recording
+    if recorded.serial is not None and recorded.serial != info.serial:
+        raise ConfigError(
+            f"these results are of machine {recorded.serial!r} (recording.serial), "
+            f"not {info.serial!r}: store them under {recorded.serial!r}"
+        )
     existing = _existing(db, digest, info.serial)
     if existing is not None:
         return existing
     now = utc_text(None, "now")
-    config_hash = results.recording.config_hash or ""
-    type_name = info.machine_type or results.recording.machine or "(unnamed)"
+    config_hash = recorded.config_hash or ""
+    measured_text = info.measured_utc or recorded.start_utc
+    if measured_text is None:
+        raise ConfigError(
+            f"measurement of {info.serial!r}: the measurement's time is unknown (the import "
+            "found no date): store it with --measured-at"
+        )
+    measured = utc_text(measured_text, "measured time")
     machine = find_machine(db, info.serial)
+    type_name = info.machine_type or recorded.machine
+    if machine is None and type_name is None:
+        raise ConfigError(
+            f"machine {info.serial!r} is new to the store and the results name no machine "
+            "type: name the machine type: --type TYPE, or analyse with --machine FILE"
+        )
     if machine is not None and info.machine_type and machine.type_name != info.machine_type:
         raise ConfigError(
             f"machine {info.serial!r} is of type {machine.type_name!r}, not {info.machine_type!r}"
         )
     if machine is None:
+        assert type_name is not None
         kind = _get_or_create(
             db,
             t.machine_types,
@@ -93,9 +112,6 @@ def add_measurement(
         assert machine is not None
     if info.site is not None and machine.site != info.site:
         db.execute(update(t.machines).where(t.machines.c.id == machine.id).values(site=info.site))
-    measured = utc_text(
-        info.measured_utc or results.recording.start_utc or results.created_utc, "measured time"
-    )
     kind = _get_or_create(
         db,
         t.machine_types,

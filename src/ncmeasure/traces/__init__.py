@@ -38,6 +38,7 @@ directory. The formats and what was verified about them: ``docs/traces.md``.
 
 from __future__ import annotations
 
+import datetime as dt
 import logging
 import os
 from collections.abc import Callable, Mapping
@@ -154,6 +155,7 @@ def import_trace(
     axis_names: Mapping[str, str] | None = None,
     progress: ProgressFn | None = None,
     columns: ColumnMap | str | os.PathLike[str] | None = None,
+    measured_at: dt.datetime | None = None,
 ) -> TraceImport:
     """Make a recording from a controller trace export.
 
@@ -172,6 +174,10 @@ def import_trace(
         columns: A column map (or the path of its TOML file): read ``path`` as
             delimited text whose columns the map names (:func:`import_columns`);
             ``format`` and ``axis_names`` do not apply then.
+        measured_at: When the machine was measured (aware; it wins over a date in
+            the data). Without it the recording's ``start_utc`` is the data's date
+            (an XML start time, a preamble's ``Date: 2024-03-05 14:22:10``, a
+            date-time column), else null: unknown, never the time of the import.
 
     Returns:
         The recording (source ``import:<format>``, ``import:columns`` with a
@@ -199,7 +205,9 @@ def import_trace(
                 "axis_names does not apply with a column map: its channel names "
                 "(X_current_a, ...) already name the axes"
             )
-        return import_columns(source, target, columns, machine=machine, progress=progress)
+        return import_columns(
+            source, target, columns, machine=machine, progress=progress, measured_at=measured_at
+        )
     if format == "columns":
         raise ConfigError("the columns format needs a column map (columns=MAP.toml, --columns)")
     if format is not None and format not in FORMATS:
@@ -207,13 +215,21 @@ def import_trace(
     check_source(source)
     name = format if format is not None else detect_format(source)
     if name == "csv":
-        return _import_recording_csv(source, target, machine, axis_names, progress)
+        return _import_recording_csv(source, target, machine, axis_names, progress, measured_at)
     if name == "can-log" and axis_names:
         raise ConfigError(
             "axis_names does not apply to a CAN log: the machine file's node ids name the axes"
         )
     check_target(target)
-    job = ImportJob(source, target, name, machine=machine, axis_names=axis_names, progress=progress)
+    job = ImportJob(
+        source,
+        target,
+        name,
+        machine=machine,
+        axis_names=axis_names,
+        progress=progress,
+        measured_at=measured_at,
+    )
     return run_import(job, _IMPORTERS[name])
 
 
@@ -223,6 +239,7 @@ def _import_recording_csv(
     machine: MachineConfig | None,
     axis_names: Mapping[str, str] | None,
     progress: ProgressFn | None,
+    measured_at: dt.datetime | None,
 ) -> TraceImport:
     """The generic CSV of ``ncmeasure export``: columns already name axes and signals."""
     if axis_names:
@@ -231,7 +248,7 @@ def _import_recording_csv(
             "(rename the columns instead)"
         )
     total = source.stat().st_size
-    meta = import_csv_meta(source, target, machine=machine)
+    meta = import_csv_meta(source, target, machine=machine, start_utc=measured_at)
     if progress is not None:
         progress(total, total)
     report = [
@@ -239,4 +256,10 @@ def _import_recording_csv(
         for c in (m.to_channel() for m in meta.channels)
     ]
     report.extend(meta.link.get("report", []))
+    report.append(
+        "the file holds no date: the measurement's time is unknown (give it with "
+        "--measured-at; the fleet store needs it)"
+        if measured_at is None
+        else f"measured at {meta.start_utc} (--measured-at)"
+    )
     return TraceImport(target, meta, report)

@@ -15,6 +15,7 @@ live.
 
 from __future__ import annotations
 
+import datetime as dt
 import logging
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -35,6 +36,9 @@ log = logging.getLogger(__name__)
 
 #: File endings of the CAN logs python-can reads (Vector BLF and ASC, candump, PCAN TRC).
 CAN_LOG_SUFFIXES: Final = (".blf", ".asc", ".log", ".trc")
+#: Time stamps from here on (2001-09-09) are seconds since 1970 (BLF, candump), the
+#: measurement's date; smaller ones count from the log's start (ASC), and give no date.
+ABSOLUTE_AFTER_S: Final = 1e9
 
 
 def is_can_log(path: Path) -> bool:
@@ -56,6 +60,11 @@ def _frames(job: ImportJob, counts: dict[str, int]) -> Iterator[can.Message]:
     try:
         for msg in reader:
             counts["frames"] += 1
+            if counts["frames"] == 1 and msg.timestamp >= ABSOLUTE_AFTER_S:
+                # read before the first row is written: the recording starts with it
+                job.found_start(
+                    dt.datetime.fromtimestamp(msg.timestamp, dt.UTC), "the first frame's time stamp"
+                )
             yield msg
     except (ValueError, EOFError, IndexError, can.CanError) as exc:
         raise RecordingError(

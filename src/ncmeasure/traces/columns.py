@@ -27,6 +27,7 @@ Reference of every key: ``docs/traces.md``, section "Any CSV with a column map".
 from __future__ import annotations
 
 import csv
+import datetime as dt
 import logging
 import math
 import os
@@ -63,7 +64,13 @@ from ncmeasure.traces.job import (
     run_import,
 )
 from ncmeasure.traces.merge import CHUNK_ROWS
-from ncmeasure.traces.text import TextLines, decimal_mark, parse_number
+from ncmeasure.traces.text import (
+    TextLines,
+    decimal_mark,
+    iso_datetime,
+    parse_number,
+    preamble_date,
+)
 
 __all__ = ["ChannelColumn", "ColumnMap", "TimeColumn", "import_columns", "load_column_map"]
 
@@ -73,6 +80,8 @@ log = logging.getLogger(__name__)
 FORMAT_NAME: Final = "columns"
 _SEPARATORS: Final = (",", ";", "\t")
 _SEPARATOR_NAMES: Final = {",": "comma", ";": "semicolon", "\t": "tab"}
+_PREAMBLE_DATE_LINES: Final = 200
+"""Lines of a preamble searched for the measurement's date."""
 
 _Finite = Annotated[float, Field(allow_inf_nan=False)]
 
@@ -125,6 +134,21 @@ class TimeColumn(_Model):
         default=1.0, description="Multiplies the raw time into seconds (ms -> 0.001)."
     )
     offset: _Finite = Field(default=0.0, description="Added after scaling, in seconds.")
+    format: Literal["number", "iso"] | None = Field(
+        default=None,
+        description="number: the column holds times in numbers (x scale into seconds); iso: "
+        "ISO 8601 date-times (2024-03-05 14:22:10.250, UTC without a zone), and the first "
+        "row is the measurement's start. Default: told from the first row.",
+    )
+
+    @field_validator("format")
+    @classmethod
+    def _iso_unscaled(cls, value: str | None, info: ValidationInfo) -> str | None:
+        if value == "iso" and (info.data.get("scale", 1.0) != 1 or info.data.get("offset", 0.0)):
+            raise PydanticCustomError(
+                "time_format", "date-times are not scaled: leave scale and offset out"
+            )
+        return value
 
 
 class ColumnMap(_Model):
@@ -154,7 +178,9 @@ class ColumnMap(_Model):
         "fraction when not given.",
     )
     skip_lines: Annotated[int, Field(ge=0)] = Field(
-        default=0, description="Lines before the header row (a preamble) that are skipped."
+        default=0,
+        description="Lines before the header row (a preamble) that are skipped; one ISO 8601 "
+        "date-time in them (Date: 2024-03-05 14:22:10) is the measurement's start.",
     )
 
     @field_validator("time")
@@ -211,6 +237,7 @@ def import_columns(
     *,
     machine: MachineConfig | None = None,
     progress: ProgressFn | None = None,
+    measured_at: dt.datetime | None = None,
 ) -> TraceImport:
     """Make a recording from a delimited text file through a column map.
 
@@ -221,6 +248,9 @@ def import_columns(
         machine: The machine file: the mapped axes must be its axes; their
             data go into ``meta.json``.
         progress: Called now and then with ``(bytes_read, total_bytes)``.
+        measured_at: When the machine was measured; else the first row of a
+            date-time column, else one ISO 8601 date-time in the skipped preamble,
+            else unknown (``start_utc`` null).
 
     Returns:
         The recording (source ``import:columns``) and the report: which column
@@ -244,7 +274,13 @@ def import_columns(
     check_source(source)
     check_target(target)
     job = ImportJob(
-        source, target, FORMAT_NAME, machine=machine, axis_names=None, progress=progress
+        source,
+        target,
+        FORMAT_NAME,
+        machine=machine,
+        axis_names=None,
+        progress=progress,
+        measured_at=measured_at,
     )
     job.link["mapping"] = map_file
     job.link["column_map"] = column_map.model_dump(mode="json", exclude_none=True)
@@ -305,6 +341,7 @@ class _Reader:
         self.map_name = map_name
         self.lines = lines
         self.rows: Iterator[str] = iter(lines)
+        self.preamble: list[str] = []
 
     def read(self) -> RecordingMeta:
         header_text = self._header_line()
@@ -338,7 +375,15 @@ class _Reader:
             else None
         )
         self._report_header(separator, header, header_line, channels, columns, time_column)
-        sink = self.job.open_sink(channels, nominal_period_s=self.mapping.period_s)
+        start, where = preamble_date(self.preamble)
+        if start is None and where:
+            self.job.note(f"{where}: none is taken as the measurement's start")
+        sink = self.job.open_sink(
+            channels,
+            nominal_period_s=self.mapping.period_s,
+            start_utc=start,
+            start_source=f"the preamble, {where}",
+        )
         decimal = self._read_rows(
             csv.reader(self.rows, delimiter=separator),
             separator,
@@ -355,12 +400,15 @@ class _Reader:
 
     def _header_line(self) -> str:
         skip = self.mapping.skip_lines
-        for _ in range(skip):
-            if next(self.rows, None) is None:
+        for number in range(skip):
+            line = next(self.rows, None)
+            if line is None:
                 raise RecordingError(
                     f"{self.job.path}: the file ends after {self.lines.line_number} line(s), "
                     f"before the header (skip_lines = {skip} in {self.map_name})"
                 )
+            if number < _PREAMBLE_DATE_LINES:
+                self.preamble.append(line)
         if skip:
             self.job.note(f"{skip} line(s) before the header skipped (skip_lines)")
         for line in self.rows:
@@ -452,6 +500,7 @@ class _Reader:
         period_s = self.mapping.period_s if time_column is None else None
         chunk = _Chunk(path, columns, time_column, period_s, append)
         raw, line_numbers = chunk.raw, chunk.line_numbers  # emptied in place by each flush
+        dates = _DateTimes(self.job, self.mapping.time)
 
         for cells in reader:
             if not any(cell.strip() for cell in cells):
@@ -473,11 +522,14 @@ class _Reader:
                 decimal = decimal_mark([cells[i] for i in indices])
             for k, column in enumerate(read):
                 cell = cells[column.index].strip()
-                if not cell:
-                    if k == 0 and time_column is not None:
+                if k == 0 and time_column is not None:
+                    if not cell:
                         raise RecordingError(
                             f"{path}:{line}: the time column {column.name!r} is empty"
                         )
+                    if dates.seconds(cell, f"{path}:{line}", raw):
+                        continue
+                if not cell:
                     empty[k] += 1
                     if first_empty[k] is None:
                         first_empty[k] = f"{path}:{line}"
@@ -514,6 +566,67 @@ class _Reader:
                 f"{path}: a single data row; the sample period needs at least two rows "
                 "(or period_s in the column map instead of a time column)"
             )
+
+
+class _DateTimes:
+    """A time column of ISO 8601 date-times: seconds from its first row, which is the
+    measurement's start (``time.format = "iso"``, or told from the first row)."""
+
+    def __init__(self, job: ImportJob, spec: TimeColumn | None) -> None:
+        self.job = job
+        self.spec = spec
+        self.iso: bool | None = None if spec is None else _ISO_FORMATS.get(spec.format)
+        self.first: dt.datetime | None = None
+
+    def seconds(self, cell: str, where: str, raw: array[float]) -> bool:
+        """Append the seconds of ``cell`` to ``raw`` when the column holds date-times;
+        False when it holds numbers.
+
+        Raises:
+            RecordingError: a cell of a date-time column is not an ISO 8601 date-time.
+        """
+        assert self.spec is not None
+        if self.iso is None:
+            self.iso = (
+                self.spec.scale == 1
+                and self.spec.offset == 0
+                and iso_datetime(cell) is not None
+                and _is_not_number(cell)
+            )
+            if self.iso:
+                self.job.note(
+                    f"time column {self.spec.column!r} holds ISO 8601 date-times (detected): "
+                    "times from them, the first row is the measurement's start"
+                )
+        if not self.iso:
+            return False
+        try:
+            written = dt.datetime.fromisoformat(cell)
+        except ValueError as exc:
+            raise RecordingError(
+                f"{where}: time column {self.spec.column!r}: {cell!r} is not an ISO 8601 "
+                "date-time (2024-03-05 14:22:10.250)"
+            ) from exc
+        when = written if written.tzinfo is not None else written.replace(tzinfo=dt.UTC)
+        if self.first is None:
+            self.first = when
+            self.job.found_start(written, f"the first row of time column {self.spec.column!r}")
+        raw.append((when - self.first).total_seconds())
+        return True
+
+
+_ISO_FORMATS: Final[dict[str | None, bool | None]] = {"iso": True, "number": False, None: None}
+
+
+def _is_not_number(cell: str) -> bool:
+    try:
+        parse_number(cell, ",")
+    except ValueError:
+        try:
+            parse_number(cell, ".")
+        except ValueError:
+            return True
+    return False
 
 
 class _Chunk:

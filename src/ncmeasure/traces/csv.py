@@ -7,6 +7,7 @@ repr that reads back to the same float64; :func:`import_csv` reads such a file
 
 from __future__ import annotations
 
+import datetime as dt
 import itertools
 import logging
 from collections.abc import Callable, Sequence
@@ -128,6 +129,7 @@ def import_csv(
     *,
     machine: MachineConfig | None = None,
     nominal_period_s: float | None = None,
+    start_utc: dt.datetime | None = None,
 ) -> Recording:
     """Make a recording from a CSV file in the layout of :func:`export_csv`.
 
@@ -140,6 +142,8 @@ def import_csv(
         directory: The new recording (must not exist or be empty).
         machine: The machine file, for the axis data in ``meta.json``.
         nominal_period_s: The sample period; the median time step when not given.
+        start_utc: When the machine was measured: the file holds no date, so
+            without it the recording's start is unknown (null).
 
     Returns:
         The new recording, read back.
@@ -150,7 +154,9 @@ def import_csv(
             not increase; or the recording cannot be written. What the import
             wrote is removed again then.
     """
-    import_csv_meta(path, directory, machine=machine, nominal_period_s=nominal_period_s)
+    import_csv_meta(
+        path, directory, machine=machine, nominal_period_s=nominal_period_s, start_utc=start_utc
+    )
     return Recording.open(directory)
 
 
@@ -160,6 +166,7 @@ def import_csv_meta(
     *,
     machine: MachineConfig | None = None,
     nominal_period_s: float | None = None,
+    start_utc: dt.datetime | None = None,
 ) -> RecordingMeta:
     """:func:`import_csv` without reading the recording back: its ``meta.json``.
 
@@ -176,6 +183,7 @@ def import_csv_meta(
                 channels,
                 machine=machine,
                 nominal_period_s=nominal_period_s,
+                start_utc=start_utc,
                 source="import:csv",
                 notes=f"imported from {source.name}",
             )

@@ -72,8 +72,14 @@ class ImportJob:
         machine: MachineConfig | None,
         axis_names: Mapping[str, str] | None,
         progress: ProgressFn | None,
+        measured_at: dt.datetime | None = None,
     ) -> None:
         self.path = path
+        self.measured_at = measured_at
+        """When the user says the machine was measured (wins over the data's date)."""
+        self.start_utc: dt.datetime | None = None
+        """When the data say the measurement began (None: they hold no date)."""
+        self.start_source = ""
         self.directory = directory
         self.format_name = format_name
         self.machine = machine
@@ -100,20 +106,39 @@ class ImportJob:
         *,
         nominal_period_s: float | None,
         start_utc: dt.datetime | None = None,
+        start_source: str = "the trace's header",
     ) -> ImportSink:
-        """The recording the rows go to (created on disk when the first rows arrive)."""
+        """The recording the rows go to (created on disk when the first rows arrive).
+
+        Args:
+            channels: Its columns.
+            nominal_period_s: The sample period; None: inferred from the times.
+            start_utc: When the data say the measurement began (None: they hold
+                no date, or :meth:`found_start` says it before the first rows).
+            start_source: Where that date comes from, for the report.
+        """
         self.sink = ImportSink(
             self.directory,
             channels,
             machine=self.machine,
             nominal_period_s=nominal_period_s,
             what="the trace",
-            start_utc=start_utc,
             source=f"import:{self.format_name}",
             notes=f"imported from {self.path.name}",
             link=self.link,
         )
+        self.found_start(start_utc, start_source)
         return self.sink
+
+    def found_start(self, start_utc: dt.datetime | None, source: str) -> None:
+        """The data's date of the measurement's start, found before the first rows are
+        written (e.g. the first row of a date-time column); ``--measured-at`` wins."""
+        if start_utc is not None and start_utc.tzinfo is None:
+            start_utc = start_utc.replace(tzinfo=dt.UTC)
+            source += ", no time zone: taken as UTC"
+        self.start_utc, self.start_source = start_utc, source
+        if self.sink is not None:
+            self.sink.start_at(self.measured_at or start_utc)
 
     def finish(self) -> RecordingMeta:
         """Close the recording with the complete report (it is not read back)."""
@@ -121,15 +146,35 @@ class ImportJob:
             raise RecordingError(f"{self.path}: no samples to import")
         for line in self.sink.validity_lines():
             self.note(line)
+        self.note(self._start_line())
         self.link["report"] = list(self.report)
         meta = self.sink.close("complete", link=dict(self.link))
         self.tick(self.total_bytes)  # the whole file is done, even if an end marker stopped reading
         return meta
 
+    def _start_line(self) -> str:
+        """The report's sentence on when the machine was measured, and how that is known."""
+        found = self.start_utc
+        if self.measured_at is not None:
+            line = f"measured at {_utc_words(self.measured_at)} (--measured-at)"
+            if found is not None and found != self.measured_at:
+                line += f"; the data say {_utc_words(found)} ({self.start_source})"
+            return line
+        if found is not None:
+            return f"measured at {_utc_words(found)} (from {self.start_source})"
+        return (
+            "the data hold no date: the measurement's time is unknown (give it with "
+            "--measured-at; the fleet store needs it)"
+        )
+
     def discard(self) -> None:
         """Remove what this import wrote."""
         if self.sink is not None:
             self.sink.discard()
+
+
+def _utc_words(when: dt.datetime) -> str:
+    return when.astimezone(dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
 
 
 def check_source(path: Path) -> None:

@@ -76,7 +76,8 @@ def export_mdf4(recording: Recording | RecordingHead | PathArg, path: PathArg) -
     try:
         mdf = asammdf.MDF(version="4.10")
         try:
-            mdf.header.start_time = dt.datetime.fromisoformat(rec.meta.start_utc)
+            if rec.meta.start_utc is not None:  # unknown: the embedded meta.json says so
+                mdf.header.start_time = dt.datetime.fromisoformat(rec.meta.start_utc)
 
             def first_group(time_s: np.ndarray, values: np.ndarray) -> None:
                 mdf.append(
@@ -158,6 +159,7 @@ def import_mdf4(
     *,
     machine: MachineConfig | None = None,
     nominal_period_s: float | None = None,
+    measured_at: dt.datetime | None = None,
 ) -> Recording:
     """Make a recording from an MDF4 file written by :func:`export_mdf4` or a similar tool.
 
@@ -172,6 +174,8 @@ def import_mdf4(
             (default: the embedded metadata's axes, if any).
         nominal_period_s: The sample period; the embedded value or else the
             median time step when not given.
+        measured_at: When the machine was measured; default: the embedded
+            metadata's start, else the file header's.
 
     Returns:
         The new recording, read back.
@@ -211,12 +215,7 @@ def import_mdf4(
             nominal_period_s = float(embedded["nominal_period_s"])
         if embedded.get("status") in ("incomplete", "interrupted", "link_lost", "failed"):
             status = embedded["status"]
-    try:
-        start = dt.datetime.fromisoformat(str((embedded or {}).get("start_utc")))
-    except ValueError:
-        start = start_time if isinstance(start_time, dt.datetime) else dt.datetime.now(dt.UTC)
-    if start.tzinfo is None:
-        start = start.replace(tzinfo=dt.UTC)
+    start = measured_at or _start_time(embedded, start_time)
     job = ImportSink(
         target,
         [c for c, _, _ in found],
@@ -296,9 +295,22 @@ def _mdf_samples(
     return time_s, values
 
 
+def _start_time(embedded: dict[str, Any] | None, header_time: Any) -> dt.datetime | None:
+    """When the measurement began: the embedded metadata's start (None there: it was
+    unknown), else the file header's measurement start; never the time of the import."""
+    when: Any = header_time
+    if embedded is not None and "start_utc" in embedded:
+        when = None
+        with contextlib.suppress(TypeError, ValueError):
+            when = dt.datetime.fromisoformat(embedded["start_utc"])
+    if not isinstance(when, dt.datetime):
+        return None
+    return when if when.tzinfo is not None else when.replace(tzinfo=dt.UTC)
+
+
 def _embedded_meta(embedded: dict[str, Any]) -> dict[str, Any]:
     """The fields of embedded metadata that the new recording keeps."""
-    original = {k: embedded.get(k) for k in ("link", "config_hash", "notes")}
+    original = {k: embedded.get(k) for k in ("link", "config_hash", "notes", "serial")}
     meta: dict[str, Any] = {k: v for k, v in original.items() if v is not None}
     meta["faster_than_real_time"] = bool(embedded.get("faster_than_real_time", False))
     with contextlib.suppress(TypeError, ValueError):

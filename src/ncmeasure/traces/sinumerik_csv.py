@@ -43,7 +43,7 @@ from ncmeasure.traces.axes import plan_channels
 from ncmeasure.traces.job import ImportJob
 from ncmeasure.traces.merge import CarryForward
 from ncmeasure.traces.sinumerik_xml import parse_signal_name, sinumerik_candidates
-from ncmeasure.traces.text import TextLines, decimal_mark, parse_number
+from ncmeasure.traces.text import TextLines, decimal_mark, parse_number, preamble_date
 
 __all__ = ["import_sinumerik_csv"]
 
@@ -104,11 +104,13 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     rows: Iterator[str] = iter(lines)
     found: tuple[str, list[str], float] | None = None
     skipped = 0
+    preamble: list[str] = []
     for line in rows:
         found = _header(line)
         if found is not None:
             break
         skipped += 1
+        preamble.append(line)
         if lines.line_number >= _HEADER_SEARCH_LINES:
             break
     if found is None:
@@ -134,7 +136,15 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     ]
     if time_factor != 1.0:
         job.note(f"time column {header[0]!r} converted to seconds (x {time_factor:g})")
-    sink = job.open_sink([m.channel for m in mapped], nominal_period_s=None)
+    start, where = preamble_date(preamble)
+    if start is None and where:
+        job.note(f"{where}: none is taken as the measurement's start")
+    sink = job.open_sink(
+        [m.channel for m in mapped],
+        nominal_period_s=None,
+        start_utc=start,
+        start_source=f"the lines before the header, {where}",
+    )
     assembler = CarryForward(sink, [m.channel.name for m in mapped], [m.factor for m in mapped])
     decimal: str | None = "." if separator == "," else None
     width = len(header)

@@ -408,7 +408,10 @@ class _TraceReader:
         if self.session_name:
             self.job.link["session"] = self.session_name
         sink = self.job.open_sink(
-            [m.channel for m in mapped], nominal_period_s=period, start_utc=start
+            [m.channel for m in mapped],
+            nominal_period_s=period,
+            start_utc=start,
+            start_source="frameHeader startTime",
         )
         self.assembler = CarryForward(
             sink, [m.channel.name for m in mapped], [m.factor for m in mapped]
@@ -454,14 +457,14 @@ class _TraceReader:
 
 
 def _parse_start(text: str | None) -> dt.datetime | None:
-    """The trace start, when the header gives it with a time zone (else the import time is used)."""
+    """The trace start of ``frameHeader/@startTime`` (ISO 8601; without a time zone it is
+    taken as UTC and the report says so); None when there is none or it does not parse."""
     if not text:
         return None
     try:
-        start = dt.datetime.fromisoformat(text.strip())
+        return dt.datetime.fromisoformat(text.strip())
     except ValueError:
         return None
-    return start if start.tzinfo is not None else None
 
 
 def import_sinumerik_xml(job: ImportJob) -> RecordingMeta:

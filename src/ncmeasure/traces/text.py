@@ -24,8 +24,10 @@ __all__ = [
     "decimal_mark",
     "filetime_to_datetime",
     "is_invalid",
+    "iso_datetime",
     "normalize_unit",
     "parse_number",
+    "preamble_date",
     "unit_factor",
 ]
 
@@ -181,3 +183,54 @@ class TextLines:
 def filetime_to_datetime(ticks: int) -> dt.datetime:
     """A Windows FILETIME (100 ns ticks since 1601-01-01 UTC) as an aware datetime."""
     return dt.datetime(1601, 1, 1, tzinfo=dt.UTC) + dt.timedelta(microseconds=ticks // 10)
+
+
+_ISO_DATETIME: Final = re.compile(
+    r"(?<![\w.:/-])(\d{4}-\d{2}-\d{2})[T ](\d{2}:\d{2}(?::\d{2}(?:[.,]\d{1,9})?)?)"
+    r"(Z|[+-]\d{2}(?::?\d{2})?)?(?![\w.:/-])"
+)
+"""An ISO 8601 date-time in text: ``2024-03-05 14:22:10``, ``2024-03-05T14:22:10.5+01:00``.
+A date alone, or a date written another way (``05.03.2024``, ``03/05/24``), is not one:
+its reading depends on the locale."""
+
+
+def _as_utc(when: dt.datetime) -> dt.datetime:
+    return when if when.tzinfo is not None else when.replace(tzinfo=dt.UTC)
+
+
+def _iso_datetimes(text: str) -> dict[dt.datetime, dt.datetime]:
+    """The ISO 8601 date-times in ``text``: in UTC -> as written (naive without a zone)."""
+    found: dict[dt.datetime, dt.datetime] = {}
+    for match in _ISO_DATETIME.finditer(text):
+        date, time, zone = match.groups()
+        try:
+            when = dt.datetime.fromisoformat(f"{date}T{time.replace(',', '.')}{zone or ''}")
+        except ValueError:
+            continue
+        found.setdefault(_as_utc(when), when)
+    return found
+
+
+def iso_datetime(text: str) -> dt.datetime | None:
+    """The ISO 8601 date-time that ``text`` is (a cell) or holds (a line); None: none, or
+    several different; without a zone it is naive (the caller takes it as UTC)."""
+    found = _iso_datetimes(text)
+    return next(iter(found.values())) if len(found) == 1 else None
+
+
+def preamble_date(lines: Sequence[str]) -> tuple[dt.datetime | None, str]:
+    """The date-time of a preamble (the lines before a file's header): the one ISO 8601
+    date-time its lines hold, and where (``line 2 'Date: 2024-03-05 14:22:10'``).
+
+    Returns:
+        ``(None, why)`` when the lines hold several different ones; ``(None, "")`` for none.
+    """
+    found: dict[dt.datetime, tuple[dt.datetime, str]] = {}
+    for number, line in enumerate(lines, start=1):
+        for key, when in _iso_datetimes(line).items():
+            found.setdefault(key, (when, f"line {number} {line.strip()[:60]!r}"))
+    if len(found) == 1:
+        return next(iter(found.values()))
+    if found:
+        return None, f"the lines before the header hold {len(found)} different date-times"
+    return None, ""

@@ -41,6 +41,8 @@ increase; its unit is not documented, so the times come from ``COUNT`` and
 
 from __future__ import annotations
 
+import contextlib
+import datetime as dt
 import logging
 import math
 import re
@@ -105,6 +107,38 @@ class _Curve:
         kind = self.keys.get("CHANNELTYPE", "?")
         axis = self.keys.get("AXISTYPE", "")
         return f"curve {self.number} ({kind}{' ' + axis if axis else ''})"
+
+
+_DOTTED_DATE: Final = re.compile(r"(\d{1,2})\.(\d{1,2})\.(\d{4})")
+_CLOCK: Final = re.compile(r"(\d{1,2}):(\d{2})(?::(\d{2}))?")
+
+
+def _start(global_keys: dict[str, str]) -> tuple[dt.datetime | None, str]:
+    """The measurement's start of the ``%[GLOBAL]`` block: ``%DATE=06.05.2024`` (day first,
+    as the TNC writes dates) or ISO 8601, with ``%TIME=14:22:10`` or the time after the
+    date where given. No zone: UTC (the report says so); a date alone is its midnight."""
+    text = global_keys.get("DATE", "").strip()
+    if not text:
+        return None, ""
+    with contextlib.suppress(ValueError):
+        if "T" in text or (":" in text and "-" in text):
+            return dt.datetime.fromisoformat(text), "%DATE"
+    date_text, _, rest = text.partition(" ")
+    clock_text = global_keys.get("TIME", "").strip() or rest.strip()
+    day = _DOTTED_DATE.fullmatch(date_text)
+    clock = _CLOCK.fullmatch(clock_text)
+    try:
+        date = (
+            dt.date(int(day[3]), int(day[2]), int(day[1]))
+            if day is not None
+            else dt.date.fromisoformat(date_text)
+        )
+        time = dt.time(int(clock[1]), int(clock[2]), int(clock[3] or 0)) if clock else None
+    except ValueError:
+        return None, ""
+    if time is None:
+        return dt.datetime.combine(date, dt.time()), "%DATE, a date alone: its midnight"
+    return dt.datetime.combine(date, time), "%DATE and %TIME"
 
 
 def _normalize(text: str) -> str:
@@ -228,7 +262,10 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     used = plan_sources(range(len(curves)), candidates, job)
     longest = max(count for count, _ in timing)
     period = min(timing[index][1] for index, _ in used) * 1e-6
-    sink = job.open_sink([m.channel for _, m in used], nominal_period_s=period)
+    start, where = _start(global_keys)
+    sink = job.open_sink(
+        [m.channel for _, m in used], nominal_period_s=period, start_utc=start, start_source=where
+    )
     merge = SeriesMerge(
         sink,
         [m.channel.name for _, m in used],

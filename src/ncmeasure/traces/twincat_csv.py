@@ -359,7 +359,10 @@ def _open_merge(
     periods = [p / 1000.0 for p in sample_times if p is not None and p > 0]
     start = filetime_to_datetime(header.start_ticks) if header.start_ticks else None
     sink = job.open_sink(
-        [m.channel for _, m in used], nominal_period_s=min(periods, default=None), start_utc=start
+        [m.channel for _, m in used],
+        nominal_period_s=min(periods, default=None),
+        start_utc=start,
+        start_source="Starttime of export",
     )
     return SeriesMerge(
         sink,

@@ -1,6 +1,6 @@
 (ncmeasure friction measurement: axis X)
-(machine: HMX-400 #17)
-(generated 2026-01-15 08:30 UTC by ncmeasure 0.1.0, config 0794808c01591efa)
+(machine: HMX-400)
+(generated 2026-01-15 08:30 UTC by ncmeasure 0.1.0, config ccdb01d1c345377d)
 (machine coordinates: #SUPPRESS OFFSETS in every move, radius compensation and tool offset off)
 G17 G71 G90 G94
 G40 D0
