@@ -144,6 +144,7 @@ def test_measure_from_cycle_start_to_the_verdict(
     # Analysed, stored, reported; the first measurement is the baseline.
     results = load_results(tmp_path / "m1" / "results.json")
     assert set(results.axes) == {a.name for a in schedule.axes}
+    assert results.recording.serial == "M17" and recording.meta.serial == "M17"
     assert (tmp_path / "m1" / "report.html").is_file()
     assert "stored as measurement 1 of M17" in first.output
     assert "its baseline from now on" in first.output

@@ -574,6 +574,7 @@ def record_program(
     clock: LinkClock | None = None,
     start_timeout_s: float | None = None,
     margin_s: float = SCHEDULE_MARGIN_S,
+    serial: str | None = None,
 ) -> Recorded:
     """Open the link, wait for the program's start, record it until its end.
 
@@ -588,6 +589,7 @@ def record_program(
         clock: The link's clock (a SimulatedClock in lockstep with simulated drives).
         start_timeout_s: Give up without a start after this long (link time).
         margin_s: Time allowed after the schedule's end (slowed as measured).
+        serial: The machine's serial number, written into the recording's meta.json.
 
     Raises:
         ConfigError: bad link settings, or a link that records no velocity or position.
@@ -627,6 +629,7 @@ def record_program(
         on_progress=progress,
         clock=clock,
         watch=watch,
+        serial=serial,
     )
     return Recorded(result, watches[0] if watches else None)
 

@@ -277,6 +277,7 @@ def _measure_once(job: _Job, out: Path, stop: threading.Event) -> _RunEnd:
             on_progress=show,
             clock=link_clock(),
             start_timeout_s=job.start_timeout,
+            serial=job.serial,
         )
 
     recorded = _live(run, job.quiet, job.schedule.duration_s)
