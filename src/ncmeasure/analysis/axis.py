@@ -38,6 +38,7 @@ from ncmeasure.formats.results import (
     DirectionResult,
     OffsetResult,
     Point,
+    PooledFit,
     PositionDependency,
     PositionResult,
     Verdict,
@@ -64,6 +65,11 @@ __all__ = [
 Progress = Callable[[str, float], None]
 
 FloatArray = NDArray[np.float64]
+
+POOL_BELOW_SPEEDS = 3
+"""A direction at a position needs this many speeds for a line (Coulomb + viscous) of its
+own; where no position holds that many, the positions are pooled per direction."""
+
 _DIRECTIONS: tuple[tuple[Literal[1, -1], Literal["positive", "negative"]], ...] = (
     (1, "positive"),
     (-1, "negative"),
@@ -241,10 +247,26 @@ def _dependency(
     elif singles:
         values = np.where(single_pos, median[1], np.where(single_neg, -median[-1], values))
         noise = np.where(single_pos, error[1], np.where(single_neg, error[-1], noise))
+    # Positions compare only at matching speed and matching direction: one row per
+    # step and kind of cell (both directions, positive only, negative only).
+    kinds = np.where(both, 0, np.where(single_pos, 1, np.where(single_neg, -1, 2)))
+    keep = np.isfinite(values)
+    rows: list[tuple[int, int]] = [
+        (j, kind)
+        for j in range(len(steps))
+        for kind in (0, 1, -1)
+        if (keep[j] & (kinds[j] == kind)).any()
+    ]
+    grouped = np.full((len(rows), len(positions)), np.nan)
+    grouped_noise = np.full((len(rows), len(positions)), np.nan)
     velocities = []
-    for s in steps:
-        speeds = np.abs(table.velocity_mm_min[table.step == s])
+    for r, (j, kind) in enumerate(rows):
+        cells = keep[j] & (kinds[j] == kind)
+        grouped[r, cells] = values[j, cells]
+        grouped_noise[r, cells] = noise[j, cells]
+        speeds = np.abs(table.velocity_mm_min[table.step == steps[j]])
         velocities.append(float(np.median(speeds)))
+    values, noise = grouped, grouped_noise
     travel = facts.travel_mm
     if travel is None:
         centres = [c.centre for c in segmentation.positions]
@@ -424,6 +446,7 @@ class _Positions:
     own: dict[int, OffsetResult]
     offset: OffsetResult | None
     results: list[PositionResult]
+    pooled: PooledFit | None
 
 
 def _fit_positions(
@@ -448,6 +471,10 @@ def _fit_positions(
             if found is not None:
                 own[index] = found
     offset = _combine_offsets([(position_mm[i], o) for i, o in own.items()], facts.vertical)
+    sparse = _too_few_speeds(points)
+    if offset is None and sparse:
+        # No position holds both directions at one speed: pair the speeds across positions.
+        offset = _pooled_offset(points)
     if facts.vertical and offset is None:
         warnings.append(
             "vertical axis measured in one direction only: gravity is not separated from "
@@ -476,7 +503,69 @@ def _fit_positions(
                 position_mm=position_mm[index], position_index=index, directions=directions
             )
         )
-    return _Positions(position_mm, empty, own, offset, positions)
+    pooled = None
+    if sparse:
+        pooled = _pooled_fit(points, position_mm, offset, segmentation.coarse)
+        if pooled is not None:
+            warnings.append(pooled.note)
+    return _Positions(position_mm, empty, own, offset, positions, pooled)
+
+
+def _speeds(found: Sequence[Point]) -> int:
+    return len({abs(p.velocity_mm_min) for p in found})
+
+
+def _too_few_speeds(points: Mapping[int, Mapping[int, list[Point]]]) -> bool:
+    """No position holds enough speeds in one direction for a line of its own."""
+    most = max(
+        (_speeds(found) for by_sign in points.values() for found in by_sign.values()), default=0
+    )
+    return 0 < most < POOL_BELOW_SPEEDS and len(points) > 1
+
+
+def _pooled(points: Mapping[int, Mapping[int, list[Point]]], sign: int) -> list[Point]:
+    return [p for by_sign in points.values() for p in by_sign[sign]]
+
+
+def _pooled_offset(points: Mapping[int, Mapping[int, list[Point]]]) -> OffsetResult | None:
+    """The offset from speeds measured in both directions, at whichever positions."""
+    found = separate_offset(_pooled(points, 1), _pooled(points, -1))
+    if found is None:
+        return None
+    return found.model_copy(
+        update={
+            "explanation": "Positions pooled (no position holds both directions at one speed): "
+            + found.explanation
+        }
+    )
+
+
+def _pooled_fit(
+    points: Mapping[int, Mapping[int, list[Point]]],
+    position_mm: Mapping[int, float],
+    offset: OffsetResult | None,
+    coarse: bool,
+) -> PooledFit | None:
+    """Both directions' fits over every position's points; None where they hold no line."""
+    directions: dict[Literal["positive", "negative"], DirectionResult | None] = {}
+    for sign, key in _DIRECTIONS:
+        found = _pooled(points, sign)
+        directions[key] = (
+            fit_direction(found, sign, offset=offset, coarse=coarse)
+            if _speeds(found) >= POOL_BELOW_SPEEDS
+            else None
+        )
+    if all(d is None for d in directions.values()):
+        return None
+    most = max(_speeds(found) for by_sign in points.values() for found in by_sign.values())
+    note = (
+        f"every position holds at most {most} speed(s) per direction, too few for a friction "
+        f"line of its own: Coulomb and viscous friction come from the {len(points)} positions "
+        "pooled per direction (friction taken as the same along the travel)"
+    )
+    return PooledFit(
+        positions_mm=[position_mm[i] for i in points], directions=directions, note=note
+    )
 
 
 def finish_axis(
@@ -523,6 +612,7 @@ def finish_axis(
         implausible_values=found.implausible_counts,
         positions=fitted.results,
         offset=fitted.offset,
+        pooled=fitted.pooled,
         position_dependency=dependency,
         warnings=list(dict.fromkeys(warnings)),
     )

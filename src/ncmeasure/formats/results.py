@@ -14,7 +14,10 @@
             .fit                         Coulomb + viscous over its linear range
             .stribeck / .extended        nonlinear fits (parameters null when not identifiable)
     axes.<AXIS>.offset                   with both directions: bias (gravity, torque offset)
-    axes.<AXIS>.position_dependency      spread_percent, signature, causes[] best first
+    axes.<AXIS>.pooled                   fits over all positions pooled, where no position
+                                         holds enough speeds for a line of its own
+    axes.<AXIS>.position_dependency      spread_percent, signature, causes[] best first,
+                                         identifiable, compared_groups, noise_spread_percent
 
 Friction values are in the axis' ``quantity``: Nm when the torque constant is
 known (T = k_T · I), else A. The points are the measured values, offset
@@ -51,6 +54,7 @@ __all__ = [
     "NonlinearFit",
     "OffsetResult",
     "Point",
+    "PooledFit",
     "PositionDependency",
     "PositionResult",
     "RecordingInfo",
@@ -87,8 +91,10 @@ Signature = Literal[
     "step",
     "irregular",
     "insufficient_data",
+    "not_identifiable",
 ]
-"""How friction changes along the travel."""
+"""How friction changes along the travel (``not_identifiable``: the layout of the
+measurement cannot tell position effects from speed and direction effects)."""
 
 ModelName = Literal["linear", "stribeck", "extended"]
 """The friction models: Coulomb + viscous, Stribeck, extended Stribeck."""
@@ -226,6 +232,19 @@ class VelocityProfile(_Model):
     spread_percent: float = Field(description="(max − min) / mean × 100.")
 
 
+class PooledFit(_Model):
+    """Both directions' fits over the points of every position together.
+
+    Made where each position holds too few speeds for a line of its own (e.g. a
+    controller trace that runs each speed on its own part of the travel); it
+    takes friction to be the same along the travel.
+    """
+
+    positions_mm: list[float] = Field(description="The positions whose points were pooled.")
+    directions: dict[Literal["positive", "negative"], DirectionResult | None]
+    note: str = Field(description="Why the positions were pooled, in one sentence.")
+
+
 class Cause(_Model):
     """A likely assembly cause, with how strongly the data point at it."""
 
@@ -245,6 +264,23 @@ class PositionDependency(_Model):
     signature: Signature
     profiles: list[VelocityProfile]
     causes: list[Cause] = Field(description="Likely causes, best first.")
+    identifiable: bool = Field(
+        default=True,
+        description="False when no two positions were measured at the same speed in the same "
+        "direction: position effects cannot be told from speed and direction effects, and "
+        "spread_percent is 0.",
+    )
+    compared_groups: int | None = Field(
+        default=None,
+        description="Groups of matched speed and direction holding 2 positions or more: the "
+        "only comparisons position effects are judged from.",
+    )
+    noise_spread_percent: float | None = Field(
+        default=None,
+        description="The spread the same layout shows without any position effect: the 99th "
+        "percentile over permutations of the values among the positions of each matched group "
+        "(null where the layout gives no such null, e.g. a single group).",
+    )
 
 
 class Verdict(_Model):
@@ -287,6 +323,11 @@ class AxisResult(AxisMechanics):
     )
     positions: list[PositionResult]
     offset: OffsetResult | None = None
+    pooled: PooledFit | None = Field(
+        default=None,
+        description="Friction lines over all positions pooled, per direction: only where no "
+        "position holds enough speeds for a line of its own.",
+    )
     position_dependency: PositionDependency | None = None
     warnings: list[str] = Field(default_factory=list)
 

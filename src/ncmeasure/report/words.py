@@ -35,6 +35,10 @@ SIGNATURE_TEXT: Final[dict[Signature, str]] = {
     "step": "Friction changes in a step between two positions.",
     "irregular": "Friction varies along the travel without a clear pattern.",
     "insufficient_data": "Too few positions were measured to judge the travel.",
+    "not_identifiable": (
+        "Each speed was measured at its own positions: the pattern along the travel cannot "
+        "be told from the speed dependence."
+    ),
 }
 """One sentence per signature of friction along the travel."""
 
@@ -46,6 +50,7 @@ SIGNATURE_SHORT: Final[dict[Signature, str]] = {
     "step": "step",
     "irregular": "irregular",
     "insufficient_data": "too few positions",
+    "not_identifiable": "not separable from speed",
 }
 """A few words per signature, for the summary table."""
 

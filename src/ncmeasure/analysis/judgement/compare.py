@@ -518,6 +518,7 @@ CHANGE_SHAPE: dict[Signature, str] = {
     "step": "a step along the travel",
     "irregular": "irregular along the travel",
     "insufficient_data": "shape unknown (too few positions)",
+    "not_identifiable": "shape unknown (each speed at its own positions)",
 }
 """How a change is spread along the travel, in a few words (findings, console, report)."""
 

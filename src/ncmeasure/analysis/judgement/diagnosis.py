@@ -1,18 +1,35 @@
 """Position dependency of friction along the travel and the assembly causes it points at.
 
-Input is a table of friction magnitudes, one row per velocity and one column
-per measuring position. The table is reduced to one *relative profile*
-(friction at each position divided by the mean over the positions, the same
-for every velocity) by a least-squares fit of
+Input is a table of friction magnitudes, one row per *matched group* (one
+velocity, measured in one and the same direction, or as the half difference of
+both, at every position of the row) and one column per measuring position. The
+table is reduced to one *relative profile* (friction at each position divided
+by the mean over the positions, the same for every group) by a least-squares
+fit of
 
     ln T[j, k] = α_j + β_k
 
-(α_j: the level of velocity j, β_k: the effect of position k). Working in
+(α_j: the level of group j, β_k: the effect of position k). Working in
 logarithms normalises every velocity by its own level, so high and low
-speeds weigh alike, and missing cells need no special case. The shape of
-the profile is then classified into a :data:`~ncmeasure.formats.results.Signature`
-and mapped to ranked causes following method.md, "What the patterns mean".
-The rules and the scores are written out in ``docs/analysis-models.md``.
+speeds weigh alike, and missing cells need no special case.
+
+Only groups with two positions or more say anything about position: a group
+with one position is absorbed by its own α_j. Positions are compared only
+through such groups (the positions linked by them; where they fall apart into
+separate sets, the largest set is judged). Where no group holds two positions,
+e.g. a trapezoid program that runs every speed on its own part of the travel,
+position effects cannot be told from the speed (and direction) dependence: the
+result is ``not_identifiable`` and names no cause.
+
+What counts as a spread beyond noise comes from the table itself: the
+residuals of every group are permuted among that group's positions
+(:data:`PERMUTATIONS`, seeded), which keeps the layout and the noise and holds
+no position effect; a pattern needs a spread above all but
+:data:`SIGNIFICANCE_LEVEL` of the permuted tables' spreads, besides the F or χ²
+test. The shape of the profile is then classified into a
+:data:`~ncmeasure.formats.results.Signature` and mapped to ranked causes
+following method.md, "What the patterns mean". The rules and the scores are
+written out in ``docs/analysis-models.md``.
 """
 
 from __future__ import annotations
@@ -42,6 +59,8 @@ __all__ = [
     "FLAT_THRESHOLD_PERCENT",
     "FULL_STRENGTH_PERCENT",
     "MONOTONE_TOLERANCE_FRACTION",
+    "NOT_IDENTIFIABLE_TEXT",
+    "PERMUTATIONS",
     "SIGNIFICANCE_LEVEL",
     "STEP_RATIO",
     "position_dependency",
@@ -50,6 +69,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.intp]
 
 FLAT_THRESHOLD_PERCENT = 5.0
 """A spread of the averaged profile below this is flat, however significant.
@@ -61,6 +81,19 @@ runs 20 min apart.
 
 SIGNIFICANCE_LEVEL = 0.01
 """A position effect must also be significant at this level (F or χ² test)."""
+
+PERMUTATIONS = 199
+"""Permutations of the values within the matched groups for the table's own null
+(p = (1 + exceeding) / (1 + 199) reaches 0.005, below :data:`SIGNIFICANCE_LEVEL`)."""
+
+_PERMUTATION_SEED = 20_260_101
+"""The permutations are seeded: the same table always gets the same verdict."""
+
+NOT_IDENTIFIABLE_TEXT = (
+    "each speed was measured at its own positions: the pattern along the travel cannot be "
+    "told from the speed dependence"
+)
+"""Why no position dependency is judged where no group holds two positions."""
 
 STEP_RATIO = 3.0
 """A step is one jump between adjacent positions at least this many times every other jump."""
@@ -92,6 +125,9 @@ class _Profile:
     cov_log: FloatArray | None  # covariance of the centred log profile, or None
     p_value: float | None  # position effect test; None when untestable
     velocities_used: int
+    null_spread: float | None  # the spread of the table's own null (permutations), or None
+    p_permutation: float | None  # share of permuted tables with at least the spread
+    left_out: list[int]  # numbers of positions with data outside the compared set
 
 
 def _as_table(values: ArrayLike, n_velocities: int, n_positions: int, name: str) -> FloatArray:
@@ -106,15 +142,73 @@ def _as_table(values: ArrayLike, n_velocities: int, n_positions: int, name: str)
     return table
 
 
+def _compared_positions(usable: NDArray[np.bool_]) -> tuple[IntArray, IntArray]:
+    """The rows and columns judged: the largest set of positions linked by groups of 2+.
+
+    Two positions are linked when one group (row) holds both; position effects
+    are estimable between linked positions only. Returns the rows with 2
+    positions or more within the set, and the set's columns (ascending).
+    """
+    rows = np.flatnonzero(np.count_nonzero(usable, axis=1) >= 2)
+    parent = list(range(usable.shape[1]))
+
+    def root(k: int) -> int:
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    for j in rows:
+        first, *others = np.flatnonzero(usable[j]).tolist()
+        for k in others:
+            parent[root(k)] = root(first)
+    linked = np.any(usable[rows], axis=0)
+    roots = np.array([root(k) for k in range(usable.shape[1])])
+    if not linked.any():
+        return rows[:0], np.flatnonzero(linked)
+    sizes = np.bincount(roots[linked], minlength=usable.shape[1])
+    cols = np.flatnonzero(linked & (roots == int(np.argmax(sizes))))
+    keep = rows[np.any(usable[np.ix_(rows, cols)], axis=1)]
+    return keep, cols
+
+
+def _permuted_spreads(
+    y: FloatArray, jj: IntArray, projector: FloatArray, n_v: int, n_p: int
+) -> FloatArray | None:
+    """The profile's spread with every group's residuals permuted among its positions.
+
+    ``y`` are the residuals of the fit (what the group levels and the position
+    effects leave); a permutation within each group keeps the layout, the
+    weights and the noise, and holds no position effect (residuals, not the
+    values: permuted values would carry a strong position effect into the null
+    and widen it). ``projector`` maps values to the coefficients. None where
+    no permutation changes the spread (a single group: permuting its positions
+    only reorders the profile).
+    """
+    if n_v < 2:
+        return None
+    rng = np.random.default_rng(_PERMUTATION_SEED)
+    permuted = np.empty((y.size, PERMUTATIONS))
+    for j in range(n_v):
+        cells = np.flatnonzero(jj == j)
+        block = np.broadcast_to(y[cells][:, None], (cells.size, PERMUTATIONS))
+        permuted[cells] = rng.permuted(block, axis=0)
+    beta = np.zeros((n_p, PERMUTATIONS))
+    beta[1:] = (projector @ permuted)[n_v:]
+    shape = np.exp(beta - beta.mean(axis=0))
+    return np.asarray((shape.max(axis=0) - shape.min(axis=0)) / shape.mean(axis=0))
+
+
 def _fit_profile(
     positions: FloatArray, numbers: Sequence[int], table: FloatArray, noise: FloatArray | None
 ) -> _Profile | None:
-    """Fit ln T = α_j + β_k over the valid cells; None with fewer than 2 usable positions."""
+    """Fit ln T = α_j + β_k over the compared cells; None with fewer than 2 compared positions."""
     usable = np.isfinite(table) & (table > 0)
     # Rows need 2 positions to say anything about position; a column dropped
     # here has no value in those rows, so the row counts stay as they are.
-    rows = np.flatnonzero(np.count_nonzero(usable, axis=1) >= 2)
-    cols = np.flatnonzero(np.any(usable[rows], axis=0))
+    rows, cols = _compared_positions(usable)
+    with_data = np.flatnonzero(np.any(usable, axis=0))
+    left_out = [int(numbers[int(k)]) for k in with_data if k not in set(cols.tolist())]
     valid = usable[np.ix_(rows, cols)]
     n_v, n_p = rows.size, cols.size
     if n_v == 0 or n_p < 2:
@@ -139,7 +233,9 @@ def _fit_profile(
     has_pos = kk > 0
     design[np.flatnonzero(has_pos), n_v + kk[has_pos] - 1] = 1.0
     root_w = np.sqrt(weight)
-    coef, *_ = np.linalg.lstsq(design * root_w[:, None], y * root_w, rcond=None)
+    # One pseudo-inverse serves the fit and every permutation of the null.
+    projector = np.linalg.pinv(design * root_w[:, None]) * root_w[None, :]
+    coef = projector @ y
     residual = y - design @ coef
     rss1 = float(np.sum(weight * residual**2))
     dof = y.size - (n_v + n_p - 1)
@@ -180,6 +276,14 @@ def _fit_profile(
     shape = np.exp(beta - beta.mean())
     relative = shape / shape.mean()
     level = float(np.mean(np.exp(alpha[:, None] + beta[None, :])))
+    spread = float((relative.max() - relative.min()) / relative.mean())
+    null = _permuted_spreads(residual, jj, projector, n_v, n_p)
+    null_spread = p_permutation = None
+    if null is not None:
+        null_spread = float(np.quantile(null, 1.0 - SIGNIFICANCE_LEVEL))
+        # A hair of tolerance: a permutation that reproduces the table is no larger.
+        exceeding = int(np.count_nonzero(null >= spread * (1.0 - 1e-9)))
+        p_permutation = (1 + exceeding) / (1 + PERMUTATIONS)
     return _Profile(
         positions_mm=positions[cols],
         numbers=[int(numbers[int(c)]) for c in cols],
@@ -188,6 +292,9 @@ def _fit_profile(
         cov_log=cov_log,
         p_value=p_value,
         velocities_used=n_v,
+        null_spread=null_spread,
+        p_permutation=p_permutation,
+        left_out=left_out,
     )
 
 
@@ -306,6 +413,9 @@ def position_dependency(
 
     profiles = _profiles(positions, labels, velocities, table)
     fit = _fit_profile(positions, labels, table, noise_table)
+    usable = np.isfinite(table) & (table > 0)
+    if fit is None and np.count_nonzero(np.any(usable, axis=0)) >= 2:
+        return _not_identifiable(labels, usable)
     if fit is None:
         return PositionDependency(
             spread_percent=0.0,
@@ -333,12 +443,44 @@ def position_dependency(
         spread_percent=spread * 100.0,
     )
     signature, causes = _diagnose(fit, spread, travel_mm, fixed_bearing_end)
+    if fit.left_out:
+        listed = ", ".join(str(n) for n in fit.left_out)
+        lead = causes[0].evidence + (
+            f" Position(s) {listed} share no speed and direction with these and are not compared."
+        )
+        causes = [causes[0].model_copy(update={"evidence": lead}), *causes[1:]]
     return PositionDependency(
         spread_percent=spread * 100.0,
         trend_per_100mm=slope * 100.0 * 100.0,
         signature=signature,
         profiles=[average, *profiles],
         causes=causes,
+        compared_groups=fit.velocities_used,
+        noise_spread_percent=None if fit.null_spread is None else fit.null_spread * 100.0,
+    )
+
+
+def _not_identifiable(labels: Sequence[int], usable: NDArray[np.bool_]) -> PositionDependency:
+    """Positions with data, but no group holding two of them: nothing to compare."""
+    groups = int(np.count_nonzero(np.any(usable, axis=1)))
+    with_data = int(np.count_nonzero(np.any(usable, axis=0)))
+    return PositionDependency(
+        spread_percent=0.0,
+        trend_per_100mm=0.0,
+        signature="not_identifiable",
+        profiles=[],
+        causes=[
+            _cause(
+                "none",
+                0.0,
+                f"{NOT_IDENTIFIABLE_TEXT[0].upper()}{NOT_IDENTIFIABLE_TEXT[1:]} ({with_data} "
+                f"positions, {groups} groups of one speed and direction, none of them at two "
+                "positions or more). Measure every speed at the same positions, in both "
+                "directions, to judge the travel.",
+            )
+        ],
+        identifiable=False,
+        compared_groups=0,
     )
 
 
@@ -423,7 +565,9 @@ def _diagnose(
             )
         ]
     o = _oriented(fit, spread, travel_mm, fixed_bearing_end)
-    significant = fit.p_value is None or fit.p_value < SIGNIFICANCE_LEVEL
+    significant = (fit.p_value is None or fit.p_value < SIGNIFICANCE_LEVEL) and (
+        fit.p_permutation is None or fit.p_permutation < SIGNIFICANCE_LEVEL
+    )
     if spread_pct < FLAT_THRESHOLD_PERCENT or not significant:
         return _flat(o)
     return _both_ends(o) or _step(o) or _rising(o) or _irregular(o)
@@ -435,6 +579,12 @@ def _flat(o: _Oriented) -> Diagnosis:
     if spread_pct < FLAT_THRESHOLD_PERCENT:
         why = f"below the {FLAT_THRESHOLD_PERCENT:g} % threshold"
         score = 0.9 - 0.4 * spread_pct / FLAT_THRESHOLD_PERCENT
+    elif o.fit.null_spread is not None and spread_pct <= o.fit.null_spread * 100.0:
+        why = (
+            f"within the noise (the same layout shows up to {o.fit.null_spread * 100.0:.1f} % "
+            "without a position effect)"
+        )
+        score = 0.5
     else:
         why = "within the noise between velocities"
         score = 0.5

@@ -52,6 +52,7 @@ SIGNATURE_WORDS: Final[dict[Signature, str]] = {
     "step": "a step",
     "irregular": "irregular",
     "insufficient_data": "too few positions to tell",
+    "not_identifiable": "not separable from the speed dependence",
 }
 """A few words per pattern along the travel."""
 
@@ -167,16 +168,19 @@ class Headline:
         verdict: The verdict; with a comparison, combined with it.
         own_verdict: The axis' verdict from its own measurement alone.
         unit: ``Nm`` or ``A`` (the axis' quantity).
-        coulomb: Mean Coulomb friction over the positions; None when no fit determines it.
+        coulomb: Mean Coulomb friction over the positions (over the pooled fits where no
+            position holds a line of its own); None when no fit determines it.
         coulomb_per_position: Per measuring position (in order), the mean of
             its directions, None where no direction has a value.
         position_numbers: The number of each measuring position (index + 1).
         curves: Curves (position × direction) whose Coulomb friction entered.
         curves_measured: Curves measured.
         viscous_per_m_min: Mean viscous friction per m/min over the same curves.
-        spread_percent: Friction's spread along the travel, (max − min) / mean.
+        spread_percent: Friction's spread along the travel, (max − min) / mean; None
+            where the layout cannot tell it from the speed dependence.
         signature: Its pattern.
         against: The comparison of the axis, when there is one.
+        pooled: Coulomb and viscous friction come from the positions pooled.
     """
 
     verdict: Verdict
@@ -191,6 +195,7 @@ class Headline:
     spread_percent: float | None
     signature: Signature | None
     against: AxisComparison | None = None
+    pooled: bool = False
 
     @property
     def coulomb_range(self) -> tuple[float, float] | None:
@@ -204,6 +209,8 @@ class Headline:
         if self.coulomb is None:
             return "not determined"
         text = f"{format_number(self.coulomb)} {self.unit}"
+        if self.pooled:
+            return text + " (positions pooled)"
         bounds = self.coulomb_range
         if bounds is not None:
             positions = sum(v is not None for v in self.coulomb_per_position)
@@ -216,6 +223,8 @@ class Headline:
     @property
     def travel_text(self) -> str:
         """The spread along the travel: ``spread 21 % along the travel, rising towards ...``."""
+        if self.signature == "not_identifiable":
+            return "no profile along the travel (each speed at its own positions)"
         if self.spread_percent is None or self.signature is None:
             return "no profile along the travel"
         return (
@@ -265,7 +274,18 @@ def axis_headline(result: AxisResult, against: AxisComparison | None = None) -> 
                 viscous.append(fit.viscous_per_mm_min * 1000.0)
         per_position.append(_mean(values))
     known = [v for v in per_position if v is not None]
+    pooled: list[float] = []
+    if not known and result.pooled is not None:
+        # No position holds a line of its own: the positions pooled per direction.
+        for found in result.pooled.directions.values():
+            fit = None if found is None else found.fit
+            if fit is None or fit.coulomb is None or not math.isfinite(fit.coulomb):
+                continue
+            pooled.append(fit.coulomb)
+            if fit.viscous_per_mm_min is not None and math.isfinite(fit.viscous_per_mm_min):
+                viscous.append(fit.viscous_per_mm_min * 1000.0)
     dependency = result.position_dependency
+    identifiable = dependency is not None and dependency.identifiable
     verdict = result.verdict
     if against is not None:
         verdict = comparison_verdict(verdict, against.status, against.change)
@@ -273,13 +293,14 @@ def axis_headline(result: AxisResult, against: AxisComparison | None = None) -> 
         verdict=verdict,
         own_verdict=result.verdict,
         unit=result.unit,
-        coulomb=_mean(known),
+        coulomb=_mean(known) if known else _mean(pooled),
         coulomb_per_position=tuple(per_position),
         position_numbers=tuple(p.position_index + 1 for p in result.positions),
         curves=curves,
         curves_measured=measured,
         viscous_per_m_min=_mean(viscous),
-        spread_percent=dependency.spread_percent if dependency is not None else None,
+        spread_percent=dependency.spread_percent if identifiable and dependency else None,
         signature=dependency.signature if dependency is not None else None,
+        pooled=bool(pooled),
         against=against,
     )

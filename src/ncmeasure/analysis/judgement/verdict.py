@@ -15,8 +15,10 @@ where there is one) and says:
     fault threshold; a comparison beyond its warning limit; or a measurement
     that cannot show the assembly (fewer than 3 positions with data, gravity
     not separated on a vertical axis, a measuring position without a single
-    window, or fewer than :data:`MIN_WINDOW_SHARE` of the scheduled windows
-    kept).
+    window, fewer than :data:`MIN_WINDOW_SHARE` of the scheduled windows
+    kept, or a layout where no two positions share a speed and a direction:
+    position effects cannot be told from the speed dependence, and no cause
+    is named).
 ``ok``
     Nothing of that: friction along the travel is flat or within the noise.
 
@@ -32,7 +34,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Final, Literal
 
-from ncmeasure.analysis.judgement.diagnosis import FLAT_THRESHOLD_PERCENT
+from ncmeasure.analysis.judgement.diagnosis import FLAT_THRESHOLD_PERCENT, NOT_IDENTIFIABLE_TEXT
 from ncmeasure.formats.results import AxisResult, PositionDependency, Verdict
 
 __all__ = [
@@ -110,10 +112,14 @@ def axis_verdict(
         )
     concerns = _measurement_concerns(result, planned_windows, gap_share, empty_positions)
     if concerns:
+        confounded = dependency is not None and not dependency.identifiable
         return Verdict(
             level="check",
             reason="The measurement cannot show the assembly fully: " + "; ".join(concerns) + ".",
-            action="Measure again with the points named fixed.",
+            action="Measure every speed at the same positions, in both directions, to judge "
+            "the travel."
+            if confounded and len(concerns) == 1
+            else "Measure again with the points named fixed.",
         )
     if dependency is None:
         spread_text = "one measuring position"
@@ -146,7 +152,9 @@ def _measurement_concerns(
     concerns = []
     dependency = result.position_dependency
     positions = len(result.positions)
-    if dependency is None or dependency.signature == "insufficient_data":
+    if dependency is not None and not dependency.identifiable:
+        concerns.append(NOT_IDENTIFIABLE_TEXT)
+    elif dependency is None or dependency.signature == "insufficient_data":
         concerns.append(
             f"friction at {positions} measuring position(s) only, the pattern along the travel "
             "needs 3"
