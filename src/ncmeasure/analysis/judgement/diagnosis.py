@@ -234,7 +234,9 @@ def _fit_profile(
     design[np.flatnonzero(has_pos), n_v + kk[has_pos] - 1] = 1.0
     root_w = np.sqrt(weight)
     # One pseudo-inverse serves the fit and every permutation of the null.
-    projector = np.linalg.pinv(design * root_w[:, None]) * root_w[None, :]
+    projector: FloatArray = np.asarray(
+        np.linalg.pinv(design * root_w[:, None]) * root_w[None, :], dtype=np.float64
+    )
     coef = projector @ y
     residual = y - design @ coef
     rss1 = float(np.sum(weight * residual**2))
