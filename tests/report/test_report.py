@@ -722,3 +722,16 @@ def test_chromium_without_images_has_no_plot_colours(plain_report: Path, tmp_pat
     )
     image = screenshot(bare, tmp_path, 2400)
     assert all(pixels_like(image, colour) < 50 for colour in PALETTE[:3])
+
+
+def test_a_trapezoid_trace_reads_check_without_a_cause(healthy: Results, tmp_path: Path) -> None:
+    """Each speed at its own positions: the page says so, names no cause, shows the line."""
+    from tests.analysis.test_layout import axis_result, trapezoid
+
+    results = healthy.model_copy(update={"axes": {"X": axis_result(trapezoid())}})
+    page = _text(write_report(results, tmp_path / "trapezoid.html"))
+    rows = _verdict_rows(page)
+    assert '<span class="badge level-check">check</span>' in rows["X"]
+    assert "each speed was measured at its own positions" in rows["X"]
+    assert "Guide rail" not in page and "guide rail" not in page
+    assert "positions pooled" in page

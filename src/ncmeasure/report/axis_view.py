@@ -64,6 +64,10 @@ def _diagnosis(section: AxisSection) -> Diagnosis | None:
     if dependency is None:
         return None
     trend = dependency.trend_per_100mm
+    if not dependency.identifiable:
+        text = dependency.causes[0].evidence if dependency.causes else ""
+        pattern = SIGNATURE_TEXT.get(dependency.signature, dependency.signature)
+        return Diagnosis(pattern=pattern, text=text, causes=None)
     text = (
         f"Friction varies by {percent_text(dependency.spread_percent)} along the travel "
         f"(max − min relative to the mean); the trend is {trend:+.1f} % per 100 mm "

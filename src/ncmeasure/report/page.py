@@ -213,6 +213,8 @@ def _travel_short(result: AxisResult) -> str:
     if dependency is None:
         return "–"
     short = SIGNATURE_SHORT.get(dependency.signature, dependency.signature)
+    if not dependency.identifiable:
+        return short
     return f"{dependency.spread_percent:.0f} % spread, {short}"
 
 

@@ -200,7 +200,7 @@ def _write_report(
             "(Stribeck effect), are as visible as the fast ones.",
         )
         advance(f"axis {name}: Stribeck curves")
-        if result.position_dependency is not None:
+        if result.position_dependency is not None and result.position_dependency.identifiable:
             section.travel = keep(
                 plot_travel(name, result, section.bearings),
                 f"{stem}_travel.png",

@@ -154,7 +154,7 @@ def curves_svg(salt: str, axis: str, result: AxisResult) -> str:
 
 def travel_svg(salt: str, axis: str, result: AxisResult) -> str | None:
     """The report's friction-along-the-travel figure, as SVG; None without that analysis."""
-    if result.position_dependency is None:
+    if result.position_dependency is None or not result.position_dependency.identifiable:
         return None
     layout = bearing_layout(axis, None, result)
     return _drawn(lambda: plot_travel(axis, result, layout), f"travel/{salt}/{axis}")
