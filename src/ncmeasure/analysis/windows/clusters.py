@@ -8,7 +8,8 @@ times more windows than a typical level, and windows lasting
 over velocity, where their level holds a window too many or stands alone
 (warm-up strokes over the whole travel). Then velocities are
 clustered into steps (gaps in |v| larger than ``step_tolerance`` relative,
-``step_floor_mm_min`` absolute, and :data:`STEP_QUANTA` counts of the velocity) and window centres into positions (gaps
+``step_floor_mm_min`` absolute, :data:`STEP_QUANTA` counts of the velocity)
+and window centres into positions (gaps
 larger than ``position_gap_mm`` or ``position_gap_fraction`` of the span,
 found among the slower half of the steps, whose windows no planner shifts;
 every window then joins the nearest position).

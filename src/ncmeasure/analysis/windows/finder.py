@@ -278,8 +278,9 @@ class WindowFinder(Detection):
         leaves it out): stairs stay apart. A joined plateau's level is the
         median of all its readings, and it carries σ, which widens its band
         when it is trimmed. A joined plateau, or one whose own noise is
-        correlated (ρ ≥ ``CORRELATED_RHO``) and reaches beyond the band, is grown over the readings next to it that its noise
-        explains (:meth:`_widened`).
+        correlated (ρ ≥ ``CORRELATED_RHO``) and reaches beyond the band, is
+        grown over the readings next to it that its noise explains
+        (:meth:`_widened`).
         """
         result: list[Candidate] = []
         for candidate in candidates:

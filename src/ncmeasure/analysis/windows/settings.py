@@ -16,8 +16,8 @@ __all__ = [
     "JOIN_SPREAD",
     "MIN_WINDOW_SAMPLES",
     "NOISE_BAND_FACTOR",
-    "Method",
     "STEP_QUANTA",
+    "Method",
     "SegmentSettings",
     "WindowSource",
 ]

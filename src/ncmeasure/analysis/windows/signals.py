@@ -78,7 +78,8 @@ def correlated_noise(values: FloatArray) -> tuple[float, float]:
     median deviations (of a velocity in counts most differences are 0 or one
     count, where a median says nothing), without the differences beyond five
     times the typical one (a step between two levels, a spike). ρ is held to
-    0 .. 0.95. Returns (0, 0) under 5 finite values or on a constant level.
+    0 .. 0.95, and σ to at most the scatter around the stretch's median.
+    Returns (0, 0) under 5 finite values or on a constant level.
     """
     data = np.asarray(values, dtype=np.float64)
     data = data[np.isfinite(data)]
@@ -89,7 +90,12 @@ def correlated_noise(values: FloatArray) -> tuple[float, float]:
     if var1 <= 0.0 or var2 <= 0.0:
         return 0.0, 0.0
     rho = min(max(3.0 - var2 / var1, 0.0), 0.95)
-    return math.sqrt(var1 / (2.0 * (1.0 - rho))), rho
+    sigma = math.sqrt(var1 / (2.0 * (1.0 - rho)))
+    # Where 1 − ρ is small its estimate is uncertain: the scatter around the median
+    # (the level of a steady stretch) bounds σ; a step between levels does not count
+    # there, the differences hold σ down.
+    direct = math.sqrt(_trimmed_square(data - float(np.median(data))))
+    return min(sigma, direct), rho
 
 
 def _trimmed_square(differences: FloatArray) -> float:
