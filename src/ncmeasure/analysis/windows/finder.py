@@ -91,6 +91,7 @@ from ncmeasure.analysis.windows.settings import (
     DISPLACEMENT_QUANTA,
     JOIN_GAP_SAMPLES,
     JOIN_SPREAD,
+    STEADY_SCATTER,
     Method,
     WindowSource,
 )
@@ -273,7 +274,8 @@ class WindowFinder(Detection):
         start to the second one's end (:func:`~ncmeasure.analysis.windows.signals.correlated_noise`,
         σ) explains both: their levels differ by at most the band or
         ``JOIN_SPREAD``·σ, and every reading lies within as much of the joined
-        stretch's median, above standstill.
+        stretch's median, above standstill; ``JOIN_SPREAD``·σ must stay within
+        ``STEADY_SCATTER`` of the level (a move between is no noise).
         A step between two levels is no noise (the differences' mean square
         leaves it out): stairs stay apart. A joined plateau's level is the
         median of all its readings, and it carries σ, which widens its band
@@ -300,7 +302,8 @@ class WindowFinder(Detection):
                 # broke it off all the same (white noise breaks no steady run).
                 sigma, rho = correlated_noise(self.v_detect[candidate.start : candidate.stop])
                 band = float(self.band(candidate.level_mm_min))
-                if rho >= CORRELATED_RHO and JOIN_SPREAD * sigma > band:
+                steady = JOIN_SPREAD * sigma <= STEADY_SCATTER * abs(candidate.level_mm_min)
+                if rho >= CORRELATED_RHO and steady and JOIN_SPREAD * sigma > band:
                     candidate = replace(candidate, noise_mm_min=sigma)
             if candidate.noise_mm_min > 0:
                 low = result[k - 1].stop if k > 0 else 0
@@ -320,6 +323,8 @@ class WindowFinder(Detection):
             return False
         level = float(np.median(span))
         band = float(self.band(level))
+        if JOIN_SPREAD * sigma > STEADY_SCATTER * abs(level):
+            return False  # noise as large as that is no steady run (a move, a ramp between)
         if abs(first.level_mm_min - second.level_mm_min) > max(band, JOIN_SPREAD * sigma):
             return False
         if np.min(np.abs(span)) < self.standstill or np.min(span * np.sign(level)) <= 0:

@@ -16,6 +16,7 @@ __all__ = [
     "JOIN_SPREAD",
     "MIN_WINDOW_SAMPLES",
     "NOISE_BAND_FACTOR",
+    "STEADY_SCATTER",
     "STEP_QUANTA",
     "Method",
     "SegmentSettings",
@@ -47,6 +48,10 @@ level (the largest excursion of 500 samples of correlated noise is about 4 of th
 
 STEP_QUANTA: Final = 1.5
 """Without a schedule, window levels this many velocity counts apart or closer are one step."""
+
+STEADY_SCATTER: Final = 0.25
+"""Plateaus are joined only where JOIN_SPREAD standard deviations of the noise stay within
+this fraction of the speed (a drive's averaged velocity: 6–12 %)."""
 
 CORRELATED_RHO: Final = 0.5
 """A velocity whose noise has at least this lag-1 autocorrelation is an averaged one."""
