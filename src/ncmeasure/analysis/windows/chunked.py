@@ -372,7 +372,8 @@ class ChunkedFinder(WindowFinder):
         runs = self.found.plateaus
         levels = []
         if runs:
-            self._gather(runs)
+            # Joining neighbouring plateaus reads the readings between them too.
+            self._gather(self.bridged(runs))
             for start, stop in runs:
                 low = max(0, start - self.settle_n - self.filter_n)
                 high = min(self.n, stop + self.filter_n)

@@ -5,9 +5,11 @@ Rapid traverse is dropped first: windows faster than ``max_velocity_mm_min``
 Without a schedule, the fastest level when it holds ``rapid_count_factor``
 times more windows than a typical level, and windows lasting
 ``duration_outlier_factor`` times longer than their level's trend of duration
-over velocity (warm-up strokes over the whole travel). Then velocities are
+over velocity, where their level holds a window too many or stands alone
+(warm-up strokes over the whole travel). Then velocities are
 clustered into steps (gaps in |v| larger than ``step_tolerance`` relative,
-``step_floor_mm_min`` absolute) and window centres into positions (gaps
+``step_floor_mm_min`` absolute, :data:`STEP_QUANTA` counts of the velocity)
+and window centres into positions (gaps
 larger than ``position_gap_mm`` or ``position_gap_fraction`` of the span,
 found among the slower half of the steps, whose windows no planner shifts;
 every window then joins the nearest position).
@@ -24,7 +26,7 @@ from scipy.stats import theilslopes
 
 from ncmeasure.analysis.windows.detection import Detection
 from ncmeasure.analysis.windows.model import Candidate, Cluster, VelocityWindow, labelled_window
-from ncmeasure.analysis.windows.settings import SegmentSettings, WindowSource
+from ncmeasure.analysis.windows.settings import STEP_QUANTA, SegmentSettings, WindowSource
 from ncmeasure.analysis.windows.signals import cluster_gaps, clusters_of
 from ncmeasure.formats.schedule import AxisSummary
 
@@ -69,11 +71,24 @@ def drop_too_fast(
     return kept
 
 
-def levels(candidates: Sequence[Candidate], settings: SegmentSettings) -> IntArray:
-    """The velocity level (step) of every candidate, 0 for the slowest."""
+def levels(
+    candidates: Sequence[Candidate], settings: SegmentSettings, quantum_mm_min: float = 0.0
+) -> IntArray:
+    """The velocity level (step) of every candidate, 0 for the slowest.
+
+    Levels closer than ``step_tolerance`` (relative), ``step_floor_mm_min``, or
+    :data:`STEP_QUANTA` counts of the velocity signal (``quantum_mm_min``) are one
+    step: the median of readings in counts sits on one count or the next.
+    """
     speeds = np.abs(np.array([c.level_mm_min for c in candidates]))
     gaps = np.maximum(settings.step_tolerance * speeds, settings.step_floor_mm_min)
+    gaps = np.maximum(gaps, STEP_QUANTA * quantum_mm_min)
     return cluster_gaps(speeds, gaps)
+
+
+def _quantum(detection: Detection) -> float:
+    """The count that groups the steps: the readings' own, unless the position measures."""
+    return 0.0 if detection.from_position else detection.v_quantum
 
 
 def drop_rapids(candidates: list[Candidate], detection: Detection) -> list[Candidate]:
@@ -81,7 +96,7 @@ def drop_rapids(candidates: list[Candidate], detection: Detection) -> list[Candi
     settings = detection.settings
     if len(candidates) < 3:
         return candidates
-    labels = levels(candidates, settings)
+    labels = levels(candidates, settings, _quantum(detection))
     count = int(labels.max()) + 1
     per_level = np.bincount(labels, minlength=count)
     if count >= 3:
@@ -102,7 +117,7 @@ def drop_rapids(candidates: list[Candidate], detection: Detection) -> list[Candi
                 f"where the others hold about {typical:g}: taken as rapid traverse, dropped"
             )
             candidates = [c for c, k in zip(candidates, labels, strict=True) if k != fastest]
-            labels = levels(candidates, settings)
+            labels = levels(candidates, settings, _quantum(detection))
             count = int(labels.max()) + 1
     speeds = np.abs(np.array([c.level_mm_min for c in candidates]))
     durations = np.array([(c.stop - c.start) * detection.dt for c in candidates])
@@ -115,6 +130,11 @@ def drop_rapids(candidates: list[Candidate], detection: Detection) -> list[Candi
     else:
         expected = level_d[labels]
     long = log_d - expected > math.log(settings.duration_outlier_factor)
+    # A warm-up stroke or traverse is a window too many at its level, or alone at a
+    # level of its own; a long window where its level holds as many as a typical
+    # one is a clean run whose neighbours came out short.
+    per_level = np.bincount(labels, minlength=count)
+    long &= per_level[labels] != np.median(per_level)
     if long.any():
         detection.warnings.append(
             f"{int(long.sum())} windows last over {settings.duration_outlier_factor:g} times "
@@ -133,7 +153,7 @@ def label_by_clusters(
     """The windows labelled by the velocity steps and the positions found among them."""
     settings = detection.settings
     speeds = np.abs(np.array([c.level_mm_min for c in candidates]))
-    step_of = levels(candidates, settings)
+    step_of = levels(candidates, settings, _quantum(detection))
     steps = clusters_of(speeds, step_of)
     centres = np.array([float(np.nanmean(x[c.start : c.stop])) for c in candidates])
     # Anchor the positions on the slower half of the steps: planners shift the

@@ -87,11 +87,15 @@ from ncmeasure.analysis.windows.model import Candidate, Segmentation
 from ncmeasure.analysis.windows.schedule import ScheduleMatch
 from ncmeasure.analysis.windows.settings import (
     COARSE_WINDOW_SAMPLES,
+    CORRELATED_RHO,
     DISPLACEMENT_QUANTA,
+    JOIN_GAP_SAMPLES,
+    JOIN_SPREAD,
+    STEADY_SCATTER,
     Method,
     WindowSource,
 )
-from ncmeasure.analysis.windows.signals import unit_factor
+from ncmeasure.analysis.windows.signals import correlated_noise, unit_factor
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.schedule import AxisSummary, Schedule
 
@@ -222,9 +226,114 @@ class WindowFinder(Detection):
             return True
         return False
 
+    def join_gap_n(self) -> int:
+        """Samples between two plateaus that may still be one speed (:meth:`joined`)."""
+        return max(JOIN_GAP_SAMPLES, 2 * self.plateau_n, 2 * self.filter_n, 2 * self.settle_n)
+
+    def bridged(self, runs: Sequence[tuple[int, int]]) -> list[tuple[int, int]]:
+        """What joining reads: the runs widened by :meth:`join_gap_n` either side, merged."""
+        gap = self.join_gap_n()
+        result: list[tuple[int, int]] = []
+        for start, stop in runs:
+            low, high = max(0, start - gap), min(self.n, stop + gap)
+            if result and low <= result[-1][1]:
+                result[-1] = (result[-1][0], high)
+            else:
+                result.append((low, high))
+        return result
+
+    def _widened(self, candidate: Candidate, low: int, high: int) -> Candidate:
+        """A joined plateau grown over the readings next to it that its noise explains.
+
+        By at most :meth:`join_gap_n` samples each way, not beyond ``low`` ..
+        ``high`` (its neighbours): so a steady run is one window of all its
+        samples, not of the stretches where the velocity happened to hold.
+        """
+        gap = self.join_gap_n()
+        level, sigma = candidate.level_mm_min, candidate.noise_mm_min
+        spread = max(float(self.band(level)), JOIN_SPREAD * sigma)
+        before_low = max(low, candidate.start - gap)
+        before = self.v_detect[before_low : candidate.start]
+        near = np.abs(before - level) <= spread
+        start = candidate.start - (int(np.argmin(near[::-1])) if not near.all() else len(near))
+        after_high = min(high, candidate.stop + gap)
+        after = self.v_detect[candidate.stop : after_high]
+        near = np.abs(after - level) <= spread
+        stop = candidate.stop + (int(np.argmin(near)) if not near.all() else len(near))
+        return replace(candidate, start=start, stop=stop)
+
+    def joined(self, candidates: Sequence[Candidate]) -> list[Candidate]:
+        """Neighbouring plateaus of one speed, broken apart by its correlated noise, joined.
+
+        A drive's averaged velocity wanders around its level for many samples
+        (lag-1 autocorrelation 0.7 to 0.9): the smoothed velocity leaves a band
+        set by the tolerance now and then, and one steady run breaks into
+        plateaus of the stretches where the velocity happened to hold. Two
+        neighbouring plateaus (at most :meth:`join_gap_n` samples apart, same
+        direction) are one when the noise of the velocity from the first one's
+        start to the second one's end (:func:`~ncmeasure.analysis.windows.signals.correlated_noise`,
+        σ) explains both: their levels differ by at most the band or
+        ``JOIN_SPREAD``·σ, and every reading lies within as much of the joined
+        stretch's median, above standstill; ``JOIN_SPREAD``·σ must stay within
+        ``STEADY_SCATTER`` of the level (a move between is no noise).
+        A step between two levels is no noise (the differences' mean square
+        leaves it out): stairs stay apart. A joined plateau's level is the
+        median of all its readings, and it carries σ, which widens its band
+        when it is trimmed. A joined plateau, or one whose own noise is
+        correlated (ρ ≥ ``CORRELATED_RHO``) and reaches beyond the band, is
+        grown over the readings next to it that its noise explains
+        (:meth:`_widened`).
+        """
+        result: list[Candidate] = []
+        for candidate in candidates:
+            if result and self._joins(result[-1], candidate):
+                last = result[-1]
+                span = self.v_detect[last.start : candidate.stop]
+                sigma, _ = correlated_noise(span)
+                level = float(np.nanmedian(span))
+                result[-1] = replace(
+                    last, stop=candidate.stop, level_mm_min=level, noise_mm_min=sigma
+                )
+            else:
+                result.append(candidate)
+        for k, candidate in enumerate(result):
+            if candidate.noise_mm_min == 0:
+                # A plateau on its own may be a piece of a run whose correlated noise
+                # broke it off all the same (white noise breaks no steady run).
+                sigma, rho = correlated_noise(self.v_detect[candidate.start : candidate.stop])
+                band = float(self.band(candidate.level_mm_min))
+                steady = JOIN_SPREAD * sigma <= STEADY_SCATTER * abs(candidate.level_mm_min)
+                if rho >= CORRELATED_RHO and steady and JOIN_SPREAD * sigma > band:
+                    candidate = replace(candidate, noise_mm_min=sigma)
+            if candidate.noise_mm_min > 0:
+                low = result[k - 1].stop if k > 0 else 0
+                high = result[k + 1].start if k + 1 < len(result) else self.n
+                result[k] = self._widened(candidate, low, high)
+        return result
+
+    def _joins(self, first: Candidate, second: Candidate) -> bool:
+        if second.start - first.stop > self.join_gap_n():
+            return False
+        if first.level_mm_min * second.level_mm_min <= 0:
+            return False
+        span = self.v_detect[first.start : second.stop]
+        span = span[np.isfinite(span)]
+        sigma, _ = correlated_noise(span)
+        if len(span) == 0 or sigma <= 0:
+            return False
+        level = float(np.median(span))
+        band = float(self.band(level))
+        if JOIN_SPREAD * sigma > STEADY_SCATTER * abs(level):
+            return False  # noise as large as that is no steady run (a move, a ramp between)
+        if abs(first.level_mm_min - second.level_mm_min) > max(band, JOIN_SPREAD * sigma):
+            return False
+        if np.min(np.abs(span)) < self.standstill or np.min(span * np.sign(level)) <= 0:
+            return False
+        return bool(np.max(np.abs(span - level)) <= max(band, JOIN_SPREAD * sigma))
+
     def plateau_found(self, runs: Sequence[tuple[int, int, float]]) -> list[Candidate]:
         settings = self.settings
-        result = [Candidate(start, stop, level) for start, stop, level in runs]
+        result = self.joined([Candidate(start, stop, level) for start, stop, level in runs])
         if not result:
             self.tried.append(
                 f"plateaus: no stretch of {settings.plateau_min_s:g} s where the actual velocity "
@@ -237,7 +346,13 @@ class WindowFinder(Detection):
     # -- trimming ----------------------------------------------------------------------
 
     def trim(
-        self, start: int, stop: int, level: float, *, guard_end: bool = False
+        self,
+        start: int,
+        stop: int,
+        level: float,
+        *,
+        guard_end: bool = False,
+        noise_mm_min: float = 0.0,
     ) -> tuple[int, int] | None:
         """Cut transients: begin ``settle_s`` after the velocity settled, end at its last good.
 
@@ -252,7 +367,8 @@ class WindowFinder(Detection):
         chunk = self.v_detect[low:high]
         chunk = np.where(np.isfinite(chunk), chunk, np.inf)
         smooth = median_filter(chunk, size=width, mode="nearest") if width > 1 else chunk
-        inside = np.abs(smooth - level) <= self.band(level)
+        band = np.maximum(self.band(level), JOIN_SPREAD * noise_mm_min)
+        inside = np.abs(smooth - level) <= band
         a, b = start - low, stop - low
         good = inside[a:b]
         if not good.any():
@@ -325,6 +441,7 @@ class WindowFinder(Detection):
                 candidate.stop,
                 candidate.level_mm_min,
                 guard_end=source == "plateau",
+                noise_mm_min=candidate.noise_mm_min,
             )
             if cut is not None:
                 trimmed.append(replace(candidate, start=cut[0], stop=cut[1]))
@@ -401,7 +518,9 @@ class WindowFinder(Detection):
                     still += 1
                     continue
                 # The transient is cut again against the measured velocity.
-                cut = self.trim(candidate.start, candidate.stop, slope)
+                cut = self.trim(
+                    candidate.start, candidate.stop, slope, noise_mm_min=candidate.noise_mm_min
+                )
                 if cut is None:
                     continue
                 candidate = replace(candidate, start=cut[0], stop=cut[1], level_mm_min=slope)

@@ -120,6 +120,8 @@ class Candidate:
     level_mm_min: float
     marker_value: float | None = None
     scheduled: ScheduledWindow | None = None
+    noise_mm_min: float = 0.0
+    """The scatter of the velocity around the level where plateaus were joined (0: none)."""
 
 
 def labelled_window(

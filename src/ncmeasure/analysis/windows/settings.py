@@ -10,9 +10,14 @@ from pydantic import BaseModel, ConfigDict, Field
 
 __all__ = [
     "COARSE_WINDOW_SAMPLES",
+    "CORRELATED_RHO",
     "DISPLACEMENT_QUANTA",
+    "JOIN_GAP_SAMPLES",
+    "JOIN_SPREAD",
     "MIN_WINDOW_SAMPLES",
     "NOISE_BAND_FACTOR",
+    "STEADY_SCATTER",
+    "STEP_QUANTA",
     "Method",
     "SegmentSettings",
     "WindowSource",
@@ -35,6 +40,26 @@ DISPLACEMENT_QUANTA: Final = 2.0
 
 NOISE_BAND_FACTOR: Final = 3.0
 """The tolerance band is at least this many standard errors of the smoothed velocity."""
+
+JOIN_SPREAD: Final = 6.0
+"""Plateaus next to each other are one speed when their levels, and the velocity between
+and in them, stay within this many standard deviations of its own noise of their common
+level (the largest excursion of 500 samples of correlated noise is about 4 of them)."""
+
+STEP_QUANTA: Final = 1.5
+"""Without a schedule, window levels this many velocity counts apart or closer are one step."""
+
+STEADY_SCATTER: Final = 0.25
+"""Plateaus are joined only where JOIN_SPREAD standard deviations of the noise stay within
+this fraction of the speed (a drive's averaged velocity: 6–12 %)."""
+
+CORRELATED_RHO: Final = 0.5
+"""A velocity whose noise has at least this lag-1 autocorrelation is an averaged one."""
+
+JOIN_GAP_SAMPLES: Final = 400
+"""Plateaus at most this many samples apart may be joined (at least: twice
+``plateau_min_s``): an excursion of a drive's averaged velocity at 6.4 ms per sample
+lasts up to a few hundred samples; the readings between must stay near the level."""
 
 
 class SegmentSettings(BaseModel):

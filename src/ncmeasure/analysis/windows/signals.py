@@ -19,6 +19,7 @@ __all__ = [
     "cluster_gaps",
     "clusters_of",
     "command_repeats",
+    "correlated_noise",
     "odd",
     "plateau_mask",
     "position_velocity",
@@ -62,6 +63,48 @@ def align(ok: BoolArray) -> list[int | None]:
         else:
             j -= 1
     return result
+
+
+def correlated_noise(values: FloatArray) -> tuple[float, float]:
+    """Standard deviation and lag-1 autocorrelation of a stretch's noise.
+
+    For a stationary noise of standard deviation σ and autocorrelation ρ at lag 1
+    (ρ² at lag 2, as a drive's moving average gives), the first differences have
+    the variance 2σ²(1 − ρ) and the second ones 2σ²(1 − ρ)(3 − ρ): their ratio
+    is 3 − ρ, whatever σ. So ρ = 3 − var₂/var₁ and σ = √(var₁ / (2(1 − ρ))).
+    White noise gives ρ ≈ 0 and the plain second-difference figure; a drive's
+    averaged velocity (ρ of 0.7 to 0.9) gives the 1.8 to 3.5 times larger σ
+    that second differences alone miss. The variances are mean squares, not
+    median deviations (of a velocity in counts most differences are 0 or one
+    count, where a median says nothing), without the differences beyond five
+    times the typical one (a step between two levels, a spike). ρ is held to
+    0 .. 0.95, and σ to at most the scatter around the stretch's median.
+    Returns (0, 0) under 5 finite values or on a constant level.
+    """
+    data = np.asarray(values, dtype=np.float64)
+    data = data[np.isfinite(data)]
+    if len(data) < 5:
+        return 0.0, 0.0
+    var1 = _trimmed_square(np.diff(data))
+    var2 = _trimmed_square(np.diff(data, n=2))
+    if var1 <= 0.0 or var2 <= 0.0:
+        return 0.0, 0.0
+    rho = min(max(3.0 - var2 / var1, 0.0), 0.95)
+    sigma = math.sqrt(var1 / (2.0 * (1.0 - rho)))
+    # Where 1 − ρ is small its estimate is uncertain: the scatter around the median
+    # (the level of a steady stretch) bounds σ; a step between levels does not count
+    # there, the differences hold σ down.
+    direct = math.sqrt(_trimmed_square(data - float(np.median(data))))
+    return min(sigma, direct), rho
+
+
+def _trimmed_square(differences: FloatArray) -> float:
+    """Mean square of the differences, without those beyond 5 × the middle 90 %'s RMS."""
+    size = np.abs(differences)
+    middle = size[size <= np.quantile(size, 0.9)]
+    typical = math.sqrt(float(np.mean(middle**2))) if len(middle) else 0.0
+    kept = size[size <= 5.0 * typical] if typical > 0 else middle
+    return float(np.mean(kept**2)) if len(kept) else 0.0
 
 
 def odd(count: float) -> int:
