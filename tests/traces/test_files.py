@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 from typer.testing import CliRunner
 
 from ncmeasure.analysis.analyze import analyze
+from ncmeasure.analysis.reading import recording_gaps
 from ncmeasure.cli import app
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
@@ -250,8 +251,11 @@ def test_one_file_per_speed_and_direction_is_one_recording(
     segments = [e for e in rec.events if e.kind == "info" and "segment" in e.details]
     assert [e.details["segment"] for e in segments] == [f.name for f in files]
     assert [e.time_s for e in segments] == [60.0 * k for k in range(len(files))]
+    # the step into a file's segment is no lost sample
+    assert recording_gaps(rec) == (0, 0, 0)
     # one analysable recording: a friction value at every speed and direction
     results = analyze(tmp_path / "rec", machine=machine)
+    assert not any("lost" in w for w in results.axes["X"].warnings), results.axes["X"].warnings
     x = results.axes["X"]
     found = {
         round(point.velocity_mm_min)
@@ -524,3 +528,72 @@ def test_read_recording_of_a_join_is_complete(tmp_path: Path) -> None:
     rec = read_recording(tmp_path / "rec")
     assert rec.meta.status == "complete"
     assert not math.isnan(rec.meta.nominal_period_s)
+
+
+# --- Parquet -----------------------------------------------------------------------------
+
+PARQUET_MAP = """\
+time = { column = "t" }
+[channels]
+X_velocity_mm_min = { column = "v", scale = 60 }
+X_current_a = { column = 3 }
+"""
+
+
+def test_parquet_in_batches(tmp_path: Path) -> None:
+    pa = pytest.importorskip("pyarrow")
+    pq = pytest.importorskip("pyarrow.parquet")
+    n = 2 * CHUNK_ROWS + 5
+    t = np.arange(n) * 0.004
+    v = np.sin(t)
+    i = np.cos(t)
+    table = pa.table({"t": t, "v": v, "i": i, "status": ["RUN"] * n})
+    pq.write_table(table, tmp_path / "run.parquet", row_group_size=5000)
+    result = import_trace(
+        tmp_path / "run.parquet",
+        tmp_path / "rec",
+        columns=write_map(tmp_path / "m.toml", PARQUET_MAP),
+    )
+    rec = result.recording
+    np.testing.assert_array_equal(rec.time_s, t)
+    np.testing.assert_array_equal(rec.axis_signal("X", "velocity_mm_min"), v * 60)
+    np.testing.assert_array_equal(rec.axis_signal("X", "current_a"), i)
+    assert f"run.parquet: Parquet file, {n} rows, 4 column(s)" in result.report
+    assert "1 column(s) not in the column map, not imported: 'status'" in result.report
+
+
+def test_parquet_timestamps_give_times_and_the_start(tmp_path: Path) -> None:
+    pa = pytest.importorskip("pyarrow")
+    pq = pytest.importorskip("pyarrow.parquet")
+    start = np.datetime64("2024-03-05T14:22:10", "ns")
+    stamps = start + np.arange(4) * np.timedelta64(2, "ms")
+    table = pa.table(
+        {"t": pa.array(stamps, pa.timestamp("ns")), "v": [1.0, 2, 3, 4], "i": [0.5] * 4}
+    )
+    pq.write_table(table, tmp_path / "run.parquet")
+    result = import_trace(
+        tmp_path / "run.parquet",
+        tmp_path / "rec",
+        columns=write_map(tmp_path / "m.toml", PARQUET_MAP),
+    )
+    np.testing.assert_allclose(result.recording.time_s, [0, 0.002, 0.004, 0.006])
+    assert result.meta.start_utc is not None
+    assert result.meta.start_utc.startswith("2024-03-05T14:22:10")
+
+
+def test_parquet_problems(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import sys
+
+    pa = pytest.importorskip("pyarrow")
+    pq = pytest.importorskip("pyarrow.parquet")
+    pq.write_table(pa.table({"t": [0.0, 1.0], "v": ["a", "b"], "i": [1.0, 2.0]}), tmp_path / "x.pq")
+    mapping = write_map(tmp_path / "m.toml", PARQUET_MAP)
+    with pytest.raises(RecordingError, match=r"x.pq: column 'v' holds string, not numbers"):
+        import_trace(tmp_path / "x.pq", tmp_path / "rec", columns=mapping)
+    other = write_map(tmp_path / "o.toml", PARQUET_MAP.replace('"v"', '"speed"'))
+    with pytest.raises(RecordingError, match=r"x.pq: no column 'speed'"):
+        import_trace(tmp_path / "x.pq", tmp_path / "rec", columns=other)
+    monkeypatch.setitem(sys.modules, "pyarrow", None)
+    with pytest.raises(RecordingError, match=r"needs pyarrow: pip install 'ncmeasure\[parquet\]'"):
+        import_trace(tmp_path / "x.pq", tmp_path / "rec", columns=mapping)
+    assert not (tmp_path / "rec").exists()

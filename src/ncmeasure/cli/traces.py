@@ -78,8 +78,8 @@ def import_command(
         Path | None,
         typer.Option(
             "--columns",
-            help="Column map (TOML): read FILE as any CSV (or MATLAB .mat) whose columns "
-            "(variables) it names (channel = column by header text or 1-based position, "
+            help="Column map (TOML): read FILE as any CSV (or MATLAB .mat, Parquet) whose "
+            "columns (variables) it names (channel = column by header text or 1-based position, "
             "scale, offset; period_s or a time column). "
             "Not with --format or --axis.",
         ),

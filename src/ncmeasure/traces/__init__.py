@@ -22,10 +22,15 @@ Formats (:data:`FORMATS`):
 ``can-log``        a CAN log of a CANopen bus (``.blf``, ``.asc``, ``.log``, ``.trc``),
                    decoded with the machine file's CANopen link settings   :mod:`.canlog`
 
-Any other delimited text file (a data collector's CSV, a PLC log) imports
-through a column map that names the column of each channel:
+Any other delimited text file (a data collector's CSV, a PLC log, an EPOS
+Studio export), a MATLAB ``.mat`` file or a Parquet file imports through a
+column map that names the column (or variable) of each channel:
 :func:`import_columns` (or ``import_trace(..., columns="map.toml")``),
-:mod:`.columns`.
+:mod:`.columns`, :mod:`.matlab`, :mod:`.parquet`.
+
+Several files become one recording, each a segment (:func:`import_traces`,
+:mod:`.files`); an axis with a position and no velocity channel gets a
+velocity derived from the position (:mod:`.derive`).
 
 Each importer maps the controller's axes (an index or a name) to axis names
 (``axis_names``, else the machine file's axes, else a default name), converts

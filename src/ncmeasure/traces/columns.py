@@ -66,6 +66,7 @@ from ncmeasure.traces.job import (
 )
 from ncmeasure.traces.matlab import import_matlab_meta, is_matlab
 from ncmeasure.traces.merge import CHUNK_ROWS
+from ncmeasure.traces.parquet import import_parquet_meta, is_parquet
 from ncmeasure.traces.text import (
     TextLines,
     decimal_mark,
@@ -298,6 +299,8 @@ def import_columns(
     def read(job: ImportJob) -> RecordingMeta:
         if is_matlab(job.path):
             return _read_matlab(job, column_map, map_label)
+        if is_parquet(job.path):
+            return _read_parquet(job, column_map, map_label)
         with TextLines(job.path, job) as lines:
             try:
                 return _Reader(job, column_map, map_label, lines).read()
@@ -312,6 +315,26 @@ def import_columns(
 
 def _read_matlab(job: ImportJob, mapping: ColumnMap, map_label: str) -> RecordingMeta:
     """A MATLAB file through the map: each ``column`` names a variable (:mod:`.matlab`)."""
+    refs, scales, open_sink = _whole_file_columns(job, mapping, map_label, "variable")
+    return import_matlab_meta(job, refs, scales, mapping.period_s, map_label, open_sink)
+
+
+def _read_parquet(job: ImportJob, mapping: ColumnMap, map_label: str) -> RecordingMeta:
+    """A Parquet file through the map: each ``column`` names a column (:mod:`.parquet`)."""
+    refs, scales, open_sink = _whole_file_columns(job, mapping, map_label, "column")
+    return import_parquet_meta(job, refs, scales, mapping.period_s, open_sink)
+
+
+def _whole_file_columns(
+    job: ImportJob, mapping: ColumnMap, map_label: str, word: str
+) -> tuple[
+    dict[str, str | int],
+    dict[str, tuple[float, float]],
+    Callable[[], Callable[[NDArray[np.float64], NDArray[np.float64]], None]],
+]:
+    """What a binary file's reader needs from the map: target -> column (``time_s``
+    first, then the channels in the recording's order), target -> (scale, offset), and
+    how to open the recording; the report's lines on them."""
     channels = _ordered_channels(mapping, job.machine)
     refs: dict[str, str | int] = {}
     scales: dict[str, tuple[float, float]] = {}
@@ -319,27 +342,27 @@ def _read_matlab(job: ImportJob, mapping: ColumnMap, map_label: str) -> Recordin
         refs["time_s"] = mapping.time.column
         scales["time_s"] = (mapping.time.scale, mapping.time.offset)
         job.note(
-            f"time_s [s]: from variable {mapping.time.column!r} "
+            f"time_s [s]: from {word} {mapping.time.column!r} "
             f"({_conversion(mapping.time.scale, mapping.time.offset)})"
         )
     else:
-        job.note(f"time_s [s]: no time variable; sample k is at k x {mapping.period_s:.10g} s")
+        job.note(f"time_s [s]: no time {word}; sample k is at k x {mapping.period_s:.10g} s")
     for channel in channels:
         spec = mapping.channels[channel.name]
         refs[channel.name] = spec.column
         scales[channel.name] = (spec.scale, spec.offset)
         job.note(
-            f"{channel.name} [{channel.unit}]: from variable {spec.column!r} "
+            f"{channel.name} [{channel.unit}]: from {word} {spec.column!r} "
             f"({_conversion(spec.scale, spec.offset)})"
         )
     unused = [k for k in ("delimiter", "decimal", "skip_lines") if k in mapping.model_fields_set]
     if unused:
-        job.note(f"{', '.join(unused)} of {map_label}: not used for a MATLAB file")
+        job.note(f"{', '.join(unused)} of {map_label}: not used for this file")
 
     def open_sink() -> Callable[[NDArray[np.float64], NDArray[np.float64]], None]:
         return job.open_sink(channels, nominal_period_s=mapping.period_s).append
 
-    return import_matlab_meta(job, refs, scales, mapping.period_s, map_label, open_sink)
+    return refs, scales, open_sink
 
 
 def _check_axes(mapping: ColumnMap, machine: MachineConfig | None, map_label: str) -> None:

@@ -237,7 +237,7 @@ def _join(
                     if note:
                         report.append(f"{source.name}: {note}")
                     shift_s = placed - float(time_s[0])
-                    first_s = placed
+                    first_s = float(time_s[0] + shift_s)  # as written, to the bit
                 block = np.full((len(time_s), len(channels)), np.nan)
                 block[:, where] = values
                 sink.append(time_s + shift_s, block)
