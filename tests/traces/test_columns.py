@@ -147,7 +147,9 @@ def test_tab_separated(tmp_path: Path) -> None:
     )
     result = import_columns(data, tmp_path / "rec", mapping)
     np.testing.assert_array_equal(result.recording.time_s, [0.5, 1.5])
-    np.testing.assert_array_equal(result.recording.values, [[-10.25], [-10.5]])
+    np.testing.assert_array_equal(result.recording.column("Z_position_mm"), [-10.25, -10.5])
+    # no velocity channel: derived from the position (mm/s x 60)
+    np.testing.assert_array_equal(result.recording.column("Z_velocity_mm_min"), [-15.0, -15.0])
     assert result.recording.meta.nominal_period_s == 1.0
     assert "header at line 1: 3 columns separated by tab (detected)" in result.report
 
@@ -333,7 +335,7 @@ def test_missing_column_names_it_and_lists_the_header(tmp_path: Path) -> None:
         "the header has: 'Timestamp', 'X1_CurrentFeedback', 'X1_ActualVelocity', "
         "'X1_ActualPosition', 'X1_CommandVelocity', 'Status'"
     )
-    assert "set skip_lines" in info.value.problems[1]
+    assert "no line of the first 5 holds every named column" in info.value.problems[1]
     assert not (tmp_path / "rec").exists()
 
 

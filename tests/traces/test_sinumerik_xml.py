@@ -52,6 +52,7 @@ def test_fixture_parses_to_exact_channels_values_and_times(
         "X_velocity_mm_min",
         "X_position_mm",
         "Y_current_a",
+        "Y_velocity_mm_min",  # derived from Y_position_mm (central differences)
         "Y_position_mm",
     )
     np.testing.assert_array_equal(rec.time_s, [0.0, 0.002, 0.004, 0.006, 0.008])
@@ -65,7 +66,11 @@ def test_fixture_parses_to_exact_channels_values_and_times(
             [2.5, 6000.0, 10.5, 0.5, -21.0],
         ]
     )
-    np.testing.assert_array_equal(rec.values, expected)  # NaN == NaN for this assert
+    # NaN == NaN for this assert
+    np.testing.assert_array_equal(rec.values[:, [0, 1, 2, 3, 5]], expected)
+    np.testing.assert_allclose(
+        rec.column("Y_velocity_mm_min"), [0.0, -7500.0, -7500.0, -7500.0, -15000.0]
+    )
     assert rec.meta.source == "import:sinumerik-xml"
     assert rec.meta.nominal_period_s == 0.002  # the fastest dataSignal interval
     assert rec.meta.machine == machine.machine.name
@@ -103,8 +108,10 @@ def test_without_machine_axes_get_default_names_and_rpm_is_not_converted(tmp_pat
     result = import_trace(XML, tmp_path / "rec")
     assert result.recording.channel_names == (
         "A1_current_a",
+        "A1_velocity_mm_min",  # the rpm are not converted: derived from the position
         "A1_position_mm",
         "A2_current_a",
+        "A2_velocity_mm_min",
         "A2_position_mm",
     )
     assert any(
@@ -116,7 +123,7 @@ def test_without_machine_axes_get_default_names_and_rpm_is_not_converted(tmp_pat
 
 def test_axis_names_choose_and_drop_axes(tmp_path: Path, machine: MachineConfig) -> None:
     result = import_trace(XML, tmp_path / "rec", machine=machine, axis_names={"2": "Z"})
-    assert result.recording.channel_names == ("Z_current_a", "Z_position_mm")
+    assert result.recording.channel_names == ("Z_current_a", "Z_velocity_mm_min", "Z_position_mm")
     np.testing.assert_array_equal(
         result.recording.column("Z_position_mm"), [-20, -20, -20.5, -20.5, -21]
     )
@@ -143,7 +150,7 @@ def test_records_before_every_signal_has_a_value_are_dropped_and_reported(tmp_pa
     )
     result = import_trace(write(tmp_path, trace(recs)), tmp_path / "rec")
     np.testing.assert_array_equal(result.recording.time_s, [0.004, 0.006])
-    np.testing.assert_array_equal(result.recording.values, [[3.0, 7.5], [4.0, 7.5]])
+    np.testing.assert_array_equal(result.recording.values[:, [0, 2]], [[3.0, 7.5], [4.0, 7.5]])
     assert "2 leading records dropped: not every channel had a value before t = 0.004 s" in (
         result.report
     )
@@ -158,7 +165,9 @@ def test_invalid_markers_become_nan_until_the_next_valid_value(tmp_path: Path, m
         '<rec time="0.006" f1="4"/>'
     )
     result = import_trace(write(tmp_path, trace(recs)), tmp_path / "rec")
-    np.testing.assert_array_equal(result.recording.values, [[1, 5], [NAN, 5], [NAN, 6], [4, 6]])
+    np.testing.assert_array_equal(
+        result.recording.values[:, [0, 2]], [[1, 5], [NAN, 5], [NAN, 6], [4, 6]]
+    )
     assert any(line.startswith("A1_current_a: 1 invalid sample(s)") for line in result.report)
 
 
@@ -306,7 +315,8 @@ def test_failure_after_rows_reached_the_disk_removes_them(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # more records than one chunk, so rows are on disk when the error comes
-    recs = "".join(f'<rec time="{i / 1000!r}" f1="{i}" f2="{i}"/>' for i in range(10_000))
+    # (a chunk is written once the next one's first row is there: the derived velocity)
+    recs = "".join(f'<rec time="{i / 1000!r}" f1="{i}" f2="{i}"/>' for i in range(20_000))
     recs += '<rec time="1.0" f1="1"/>'  # goes back in time
     target = tmp_path / "rec"
     on_disk: list[int] = []
@@ -317,7 +327,7 @@ def test_failure_after_rows_reached_the_disk_removes_them(
         on_disk.append((target / "samples.bin").stat().st_size)
 
     monkeypatch.setattr(RecordingWriter, "flush", spying_flush)
-    with pytest.raises(RecordingError, match=r"<rec> #10001, time=1\.0: time 1\.0 s is not later"):
+    with pytest.raises(RecordingError, match=r"<rec> #20001, time=1\.0: time 1\.0 s is not later"):
         import_trace(write(tmp_path, trace(recs)), target)
     assert on_disk and on_disk[0] > 0
     assert_nothing_left(target)
@@ -507,7 +517,11 @@ def test_position_and_velocity_are_never_taken_from_two_measuring_systems(
         tmp_path, variables, [[-300.0, 1.0, -300.0, 0.0], [-300.0, 1.0, -300.0, 3.0]]
     )
     result = import_trace(path, tmp_path / "rec")
-    assert result.recording.channel_names == ("A1_current_a", "A1_position_mm")
+    assert result.recording.channel_names == (
+        "A1_current_a",
+        "A1_velocity_mm_min",  # derived from the position of measuring system 2
+        "A1_position_mm",
+    )
     assert (
         "/Nck/!SD/nckServoDataActVel1stEnc64 [u1, 1]: not imported (axis A1 takes its values "
         "from measuring system 2; this is measuring system 1, and the two are not mixed)"
@@ -577,8 +591,13 @@ def test_axes_choose_their_measuring_systems_independently(tmp_path: Path) -> No
     )
     recs = '<rec time="0" f1="-300" f2="-1100" f3="-300" f4="50" f5="-750"/>'
     result = import_trace(write(tmp_path, trace(recs, signals)), tmp_path / "rec")
-    assert result.recording.channel_names == ("A1_position_mm", "A2_position_mm")
-    np.testing.assert_array_equal(result.recording.values, [[-300.0, 50.0]])
+    assert result.recording.channel_names == (
+        "A1_velocity_mm_min",
+        "A1_position_mm",
+        "A2_velocity_mm_min",
+        "A2_position_mm",
+    )
+    np.testing.assert_array_equal(result.recording.values[:, [1, 3]], [[-300.0, 50.0]])
 
 
 def test_session_settings_outside_the_capture_setup_are_not_the_session(tmp_path: Path) -> None:

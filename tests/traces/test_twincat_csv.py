@@ -62,10 +62,11 @@ def test_one_timeline_per_channel_with_decimal_comma(
 
 def test_shared_timeline_semicolon_and_eof(tmp_path: Path, machine: MachineConfig) -> None:
     rec = import_trace(SHARED, tmp_path / "rec", machine=machine).recording
-    assert rec.channel_names == ("X_current_a", "X_position_mm", "Y_current_a")
+    assert rec.channel_names == ("X_current_a", "X_velocity_mm_min", "X_position_mm", "Y_current_a")
     np.testing.assert_array_equal(rec.time_s, [0.0, 0.001, 0.002, 0.003, 0.004])
+    np.testing.assert_array_equal(rec.column("X_velocity_mm_min"), [15000.0] * 5)  # 0.25 mm/ms
     np.testing.assert_array_equal(
-        rec.values,
+        rec.values[:, [0, 2, 3]],
         [
             [1.5, 100.0, -0.5],
             [1.75, 100.25, -0.5],  # Y at 2 ms carried forward
@@ -84,7 +85,12 @@ def test_comma_separated_export_with_a_header_it_cannot_split(tmp_path: Path) ->
     path = tmp_path / "comma.csv"
     path.write_text(text, encoding="utf-8")
     result = import_trace(path, tmp_path / "rec")
-    assert result.recording.channel_names == ("X_current_a", "X_position_mm", "Y_current_a")
+    assert result.recording.channel_names == (
+        "X_current_a",
+        "X_velocity_mm_min",
+        "X_position_mm",
+        "Y_current_a",
+    )
     np.testing.assert_array_equal(
         result.recording.column("X_position_mm"), [100, 100.25, 100.5, 100.75, 101]
     )
@@ -137,7 +143,7 @@ def test_full_timestamp(tmp_path: Path) -> None:
 def test_nc_variable_found_through_its_symbol_name(tmp_path: Path) -> None:
     path = edited(tmp_path, SHARED, ("Name;X_current_a;X.ActPos;", "Name;X_current_a;Position;"))
     result = import_trace(path, tmp_path / "rec", axis_names={"X": "X", "MAIN.AxisX": "Z"})
-    assert result.recording.channel_names == ("X_current_a", "Z_position_mm")
+    assert result.recording.channel_names == ("X_current_a", "Z_velocity_mm_min", "Z_position_mm")
     assert "Z_position_mm [mm]: from Position (no unit conversion)" in result.report
     assert "controller axis Y: not imported (not in axis_names)" in result.report
 

@@ -27,6 +27,7 @@ from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ncmeasure.analysis.axis import (
     AxisFacts,
@@ -62,15 +63,26 @@ def recording_gaps(recording: Recording) -> tuple[int, int, int]:
     """Gaps of a recording: holes in its time axis, samples lost in them, gap events.
 
     A hole is a time step longer than 1.5 nominal periods; it lost
-    round(step / period) − 1 samples. Where the link reported more lost samples
+    round(step / period) − 1 samples. The step into a segment (the start of
+    another file of an import of several, an ``info`` event with
+    ``details["segment"]``) is no hole. Where the link reported more lost samples
     in its gap events than the time axis shows (a gap at the very end), the
     larger count is taken.
     """
     period = recording.meta.nominal_period_s
     steps = np.diff(recording.time_s)
-    holes = steps > 1.5 * period
+    holes = (steps > 1.5 * period) & ~np.isin(
+        recording.time_s[1:], segment_starts(recording.events)
+    )
     lost = int(np.sum(np.round(steps[holes] / period) - 1)) if holes.any() else 0
     return _with_events(int(np.count_nonzero(holes)), lost, recording.events)
+
+
+def segment_starts(events: Sequence[LinkEvent]) -> NDArray[np.float64]:
+    """The times where a segment begins (a file of an import of several)."""
+    return np.array(
+        [e.time_s for e in events if e.kind == "info" and "segment" in e.details], dtype=np.float64
+    )
 
 
 def _with_events(holes: int, lost: int, events: Sequence[LinkEvent]) -> tuple[int, int, int]:
@@ -79,8 +91,11 @@ def _with_events(holes: int, lost: int, events: Sequence[LinkEvent]) -> tuple[in
     return max(holes, len(gap_events)), max(lost, reported), len(gap_events)
 
 
-def _holes_task(period: float) -> Generator[Callable[[RowChunk], None], None, tuple[int, int]]:
-    """Holes of the time axis and the samples lost in them, chunk by chunk (as recording_gaps)."""
+def _holes_task(
+    period: float, starts: NDArray[np.float64]
+) -> Generator[Callable[[RowChunk], None], None, tuple[int, int]]:
+    """Holes of the time axis and the samples lost in them, chunk by chunk (as recording_gaps;
+    the step into a segment at ``starts`` is none)."""
     found = {"holes": 0, "lost": 0}
     last: list[float] = []
 
@@ -88,8 +103,9 @@ def _holes_task(period: float) -> Generator[Callable[[RowChunk], None], None, tu
         times = chunk.time_s
         if len(times) == 0:
             return
-        steps = np.diff(np.concatenate((last[-1:], times)))
-        holes = steps > 1.5 * period
+        ends = np.concatenate((last[-1:], times))
+        steps = np.diff(ends)
+        holes = (steps > 1.5 * period) & ~np.isin(ends[1:], starts)
         if holes.any():
             found["holes"] += int(np.count_nonzero(holes))
             found["lost"] += int(np.sum(np.round(steps[holes] / period) - 1))
@@ -266,7 +282,7 @@ class RecordingPasses:
         tasks: dict[str, Generator[Callable[[RowChunk], None], None, Any]] = {
             a: f.sweep_task() for a, f in self.finders.items()
         }
-        tasks[""] = _holes_task(head.meta.nominal_period_s)
+        tasks[""] = _holes_task(head.meta.nominal_period_s, segment_starts(head.events))
         holes, lost = run_tasks(read, tasks)[""]
         first = next(iter(self.statistics.values()), None)
         if first is not None:

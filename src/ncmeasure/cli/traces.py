@@ -42,7 +42,14 @@ def export_command(
 @app.command("import")
 @handle_errors
 def import_command(
-    file: Annotated[Path, typer.Argument(help="Trace or exported file to import.")],
+    files: Annotated[
+        list[str],
+        typer.Argument(
+            help="Trace or exported file(s) to import: files, folders (their files) or glob "
+            "patterns ('captures/*.csv'); several become one recording, file after file.",
+            metavar="FILE...",
+        ),
+    ],
     output: Annotated[Path, typer.Option("--output", "-o", help="New recording directory.")],
     fmt: Annotated[
         str | None,
@@ -71,8 +78,9 @@ def import_command(
         Path | None,
         typer.Option(
             "--columns",
-            help="Column map (TOML): read FILE as any CSV whose columns it names "
-            "(channel = column, scale, offset; period_s or a time column). "
+            help="Column map (TOML): read FILE as any CSV (or MATLAB .mat, Parquet) whose "
+            "columns (variables) it names (channel = column by header text or 1-based position, "
+            "scale, offset; period_s or a time column). "
             "Not with --format or --axis.",
         ),
     ] = None,
@@ -90,49 +98,47 @@ def import_command(
     ] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress, no report.")] = False,
 ) -> None:
-    """Turn a controller trace or an exported CSV/MDF4 file into a recording.
+    """Turn controller traces or exported CSV/MDF4 files into a recording.
 
     Reads SINUMERIK trace XML and CSV, TwinCAT Scope CSV, TNCscope text and the
-    CSV of `ncmeasure export`, any CSV through a column map (--columns), and CAN logs
-    of a CANopen bus (.blf, .asc, .log, .trc: decoded with the machine file's [link]
-    settings, as the CANopen link reads the live bus); reports what was mapped,
-    converted and left out.
+    CSV of `ncmeasure export`, any CSV or MATLAB .mat file through a column map
+    (--columns), and CAN logs of a CANopen bus (.blf, .asc, .log, .trc: decoded with
+    the machine file's [link] settings, as the CANopen link reads the live bus);
+    reports what was mapped, converted and left out. Several files (one per speed
+    and direction, as EPOS Studio exports them) become one recording, each file a
+    segment. A position without a velocity channel gives a derived velocity.
     Examples: ncmeasure import trace.xml --machine machine.toml --axis 1=X -o run1
     ·  ncmeasure import capture.blf --machine machine.toml -o run2
+    ·  ncmeasure import captures/ --columns epos.toml -o run3
     """
     from ncmeasure.config import load_machine, parse_assignments
     from ncmeasure.formats.identity import parse_utc
-    from ncmeasure.traces import import_trace
-    from ncmeasure.traces.mdf4 import import_mdf4
+    from ncmeasure.traces import import_traces
+    from ncmeasure.traces.files import expand_sources
 
     measured_at = parse_utc(measured, "--measured-at") if measured is not None else None
 
     axis_names = dict(
         parse_assignments(axis or [], "--axis", form="TRACE_AXIS=MACHINE_AXIS", example="1=X")
     )
-    report: list[str] = []
     config = load_machine(machine) if machine else None
-    if columns is None and (
-        fmt == "mdf4" or (fmt is None and file.suffix.lower() in (".mf4", ".mdf"))
-    ):
-        recording = import_mdf4(file, output, machine=config, measured_at=measured_at)
-        report = list(recording.meta.link.get("report", []))
-        samples, channels = len(recording.time_s), len(recording.channels)
-    else:
-        with _import_progress(file.name, quiet) as progress:
-            result = import_trace(
-                file,
-                output,
-                format=fmt,
-                machine=config,
-                axis_names=axis_names or None,
-                progress=progress,
-                columns=columns,
-                measured_at=measured_at,
-            )
-        # the counts from meta.json: reading a large recording back would cost its size in memory
-        report, samples = result.report, result.meta.samples or 0
-        channels = len(result.meta.channels)
+    sources = expand_sources(files)
+    with _import_progress(
+        sources[0].name if len(sources) == 1 else f"{len(sources)} files", quiet
+    ) as progress:
+        result = import_traces(
+            sources,
+            output,
+            format=fmt,
+            machine=config,
+            axis_names=axis_names or None,
+            progress=progress,
+            columns=columns,
+            measured_at=measured_at,
+        )
+    # the counts from meta.json: reading a large recording back would cost its size in memory
+    report, samples = result.report, result.meta.samples or 0
+    channels = len(result.meta.channels)
     if not quiet:
         for line in report:
             console(stderr=True).print(f"  {line}")

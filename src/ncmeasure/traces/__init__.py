@@ -22,10 +22,15 @@ Formats (:data:`FORMATS`):
 ``can-log``        a CAN log of a CANopen bus (``.blf``, ``.asc``, ``.log``, ``.trc``),
                    decoded with the machine file's CANopen link settings   :mod:`.canlog`
 
-Any other delimited text file (a data collector's CSV, a PLC log) imports
-through a column map that names the column of each channel:
+Any other delimited text file (a data collector's CSV, a PLC log, an EPOS
+Studio export), a MATLAB ``.mat`` file or a Parquet file imports through a
+column map that names the column (or variable) of each channel:
 :func:`import_columns` (or ``import_trace(..., columns="map.toml")``),
-:mod:`.columns`.
+:mod:`.columns`, :mod:`.matlab`, :mod:`.parquet`.
+
+Several files become one recording, each a segment (:func:`import_traces`,
+:mod:`.files`); an axis with a position and no velocity channel gets a
+velocity derived from the position (:mod:`.derive`).
 
 Each importer maps the controller's axes (an index or a name) to axis names
 (``axis_names``, else the machine file's axes, else a default name), converts
@@ -41,7 +46,7 @@ from __future__ import annotations
 import datetime as dt
 import logging
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Final
 
@@ -51,6 +56,7 @@ from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.traces.canlog import import_can_log, is_can_log
 from ncmeasure.traces.columns import ColumnMap, import_columns, load_column_map
 from ncmeasure.traces.csv import import_csv_meta
+from ncmeasure.traces.files import ImportOne, expand_sources, join_imports
 from ncmeasure.traces.job import (
     ImportJob,
     ProgressFn,
@@ -59,6 +65,7 @@ from ncmeasure.traces.job import (
     check_target,
     run_import,
 )
+from ncmeasure.traces.matlab import is_matlab
 from ncmeasure.traces.sinumerik_csv import import_sinumerik_csv
 from ncmeasure.traces.sinumerik_xml import import_sinumerik_xml
 from ncmeasure.traces.tncscope import import_tncscope
@@ -71,6 +78,7 @@ __all__ = [
     "detect_format",
     "import_columns",
     "import_trace",
+    "import_traces",
     "load_column_map",
 ]
 
@@ -112,6 +120,11 @@ def detect_format(path: str | os.PathLike[str]) -> str:
         raise RecordingError(f"{source}: cannot be read ({exc.strerror or exc})") from exc
     if not head.strip():
         raise RecordingError(f"{source}: the file is empty")
+    if is_matlab(source):
+        raise RecordingError(
+            f"{source}: a MATLAB file: name its variables in a column map "
+            '(--columns MAP.toml, column = "data.time"; docs/traces.md)'
+        )
     if b"\x00" in head:
         raise RecordingError(
             f"{source}: a binary file, not a trace export (formats: {', '.join(FORMATS)})"
@@ -179,6 +192,9 @@ def import_trace(
             (an XML start time, a preamble's ``Date: 2024-03-05 14:22:10``, a
             date-time column), else null: unknown, never the time of the import.
 
+    An axis with a position and no velocity channel gets its velocity derived from
+    the position (:func:`~ncmeasure.traces.files.derive_velocity`); the report says so.
+
     Returns:
         The recording (source ``import:<format>``, ``import:columns`` with a
         column map) and the report.
@@ -192,6 +208,62 @@ def import_trace(
             column map is not valid, or ``columns`` comes with ``format`` or
             ``axis_names``.
     """
+    return join_imports(
+        [Path(path)],
+        Path(directory),
+        _importer(format, machine, axis_names, columns, progress),
+        machine=machine,
+        measured_at=measured_at,
+    )
+
+
+def _importer(
+    format: str | None,
+    machine: MachineConfig | None,
+    axis_names: Mapping[str, str] | None,
+    columns: ColumnMap | str | os.PathLike[str] | None,
+    progress: ProgressFn | None = None,
+) -> ImportOne:
+    """Reads one file into a new recording with these settings (:func:`_import_file`;
+    ``format="mdf4"`` or an ``.mf4`` name: :func:`~ncmeasure.traces.mdf4.import_mdf4`)."""
+
+    def import_one(
+        source: Path, target: Path, when: dt.datetime | None, step: ProgressFn | None
+    ) -> TraceImport:
+        if columns is None and (
+            format == "mdf4" or (format is None and source.suffix.lower() in (".mf4", ".mdf"))
+        ):
+            from ncmeasure.traces.mdf4 import import_mdf4
+
+            check_source(source)
+            rec = import_mdf4(source, target, machine=machine, measured_at=when)
+            return TraceImport(target, rec.meta, list(rec.meta.link.get("report", [])))
+        return _import_file(
+            source,
+            target,
+            format=format,
+            machine=machine,
+            axis_names=axis_names,
+            progress=progress or step,
+            columns=columns,
+            measured_at=when,
+        )
+
+    return import_one
+
+
+def _import_file(
+    path: Path,
+    directory: Path,
+    *,
+    format: str | None,
+    machine: MachineConfig | None,
+    axis_names: Mapping[str, str] | None,
+    progress: ProgressFn | None,
+    columns: ColumnMap | str | os.PathLike[str] | None,
+    measured_at: dt.datetime | None,
+) -> TraceImport:
+    """One file into a new recording, as its format's importer reads it."""
     source = Path(path)
     target = Path(directory)
     if columns is not None:
@@ -231,6 +303,44 @@ def import_trace(
         measured_at=measured_at,
     )
     return run_import(job, _IMPORTERS[name])
+
+
+def import_traces(
+    sources: Sequence[str | os.PathLike[str]],
+    directory: str | os.PathLike[str],
+    *,
+    format: str | None = None,
+    machine: MachineConfig | None = None,
+    axis_names: Mapping[str, str] | None = None,
+    progress: ProgressFn | None = None,
+    columns: ColumnMap | str | os.PathLike[str] | None = None,
+    measured_at: dt.datetime | None = None,
+) -> TraceImport:
+    """Make one recording from several files: each file a segment, file after file.
+
+    ``sources`` are files, folders (their files in natural name order: ``v2``
+    before ``v10``) or glob patterns (``"captures/*.csv"``). Each file is read
+    as :func:`import_trace` reads it (``format="mdf4"`` or an ``.mf4`` name:
+    :func:`~ncmeasure.traces.mdf4.import_mdf4`); a segment sits at the file's
+    own start time where every file names one, else one after another with a
+    gap (:mod:`.files`). An axis with a position and no velocity channel gets
+    its velocity derived from the position, also for a single file. The
+    report lists each file.
+
+    Raises:
+        RecordingError: An argument names no file, or a file cannot be imported
+            (the message names it). Nothing is left in ``directory`` then.
+        ConfigError: As for :func:`import_trace`.
+    """
+    files = expand_sources(sources)
+    return join_imports(
+        files,
+        Path(directory),
+        _importer(format, machine, axis_names, columns),
+        machine=machine,
+        measured_at=measured_at,
+        progress=progress,
+    )
 
 
 def _import_recording_csv(

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import csv
 import datetime as dt
+import itertools
 import logging
 import math
 import os
@@ -63,13 +64,17 @@ from ncmeasure.traces.job import (
     check_target,
     run_import,
 )
+from ncmeasure.traces.matlab import import_matlab_meta, is_matlab
 from ncmeasure.traces.merge import CHUNK_ROWS
+from ncmeasure.traces.parquet import import_parquet_meta, is_parquet
 from ncmeasure.traces.text import (
     TextLines,
     decimal_mark,
     iso_datetime,
+    normalize_unit,
     parse_number,
     preamble_date,
+    unit_factor,
 )
 
 __all__ = ["ChannelColumn", "ColumnMap", "TimeColumn", "import_columns", "load_column_map"]
@@ -84,6 +89,8 @@ _PREAMBLE_DATE_LINES: Final = 200
 """Lines of a preamble searched for the measurement's date."""
 
 _Finite = Annotated[float, Field(allow_inf_nan=False)]
+ColumnRef = Annotated[str, Field(min_length=1)] | Annotated[int, Field(ge=1)]
+"""A column: its text in the header row, or its 1-based position (``column = 1``)."""
 
 
 class _Model(BaseModel):
@@ -113,8 +120,9 @@ _ChannelName = Annotated[str, AfterValidator(_channel_name)]
 class ChannelColumn(_Model):
     """Where one channel comes from: ``{ column = "...", scale = 60, offset = 0 }``."""
 
-    column: Annotated[str, Field(min_length=1)] = Field(
-        description="The column's name in the file's header row (exactly as written)."
+    column: ColumnRef = Field(
+        description="The column's name in the file's header row (exactly as written), its "
+        "1-based position (column = 2), or in a MATLAB file the variable (data.current)."
     )
     scale: _Finite = Field(
         default=1.0, description="Multiplies the raw value into the channel's unit (mm/s -> 60)."
@@ -127,8 +135,9 @@ class ChannelColumn(_Model):
 class TimeColumn(_Model):
     """The time column: ``{ column = "t", scale = 0.001 }`` for milliseconds."""
 
-    column: Annotated[str, Field(min_length=1)] = Field(
-        description="The column's name in the file's header row."
+    column: ColumnRef = Field(
+        description="The column's name in the file's header row, its 1-based position "
+        "(column = 1, e.g. under an empty header cell), or in a MATLAB file the variable."
     )
     scale: Annotated[_Finite, Field(gt=0)] = Field(
         default=1.0, description="Multiplies the raw time into seconds (ms -> 0.001)."
@@ -179,8 +188,10 @@ class ColumnMap(_Model):
     )
     skip_lines: Annotated[int, Field(ge=0)] = Field(
         default=0,
-        description="Lines before the header row (a preamble) that are skipped; one ISO 8601 "
-        "date-time in them (Date: 2024-03-05 14:22:10) is the measurement's start.",
+        description="Lines skipped before the header is looked for. Not needed for a "
+        "preamble: the header is the first line holding every column named by its text. One "
+        "ISO 8601 date-time in the lines before the header (Date: 2024-03-05 14:22:10) is the "
+        "measurement's start.",
     )
 
     @field_validator("time")
@@ -286,6 +297,10 @@ def import_columns(
     job.link["column_map"] = column_map.model_dump(mode="json", exclude_none=True)
 
     def read(job: ImportJob) -> RecordingMeta:
+        if is_matlab(job.path):
+            return _read_matlab(job, column_map, map_label)
+        if is_parquet(job.path):
+            return _read_parquet(job, column_map, map_label)
         with TextLines(job.path, job) as lines:
             try:
                 return _Reader(job, column_map, map_label, lines).read()
@@ -296,6 +311,58 @@ def import_columns(
                 ) from exc
 
     return run_import(job, read)
+
+
+def _read_matlab(job: ImportJob, mapping: ColumnMap, map_label: str) -> RecordingMeta:
+    """A MATLAB file through the map: each ``column`` names a variable (:mod:`.matlab`)."""
+    refs, scales, open_sink = _whole_file_columns(job, mapping, map_label, "variable")
+    return import_matlab_meta(job, refs, scales, mapping.period_s, map_label, open_sink)
+
+
+def _read_parquet(job: ImportJob, mapping: ColumnMap, map_label: str) -> RecordingMeta:
+    """A Parquet file through the map: each ``column`` names a column (:mod:`.parquet`)."""
+    refs, scales, open_sink = _whole_file_columns(job, mapping, map_label, "column")
+    return import_parquet_meta(job, refs, scales, mapping.period_s, open_sink)
+
+
+def _whole_file_columns(
+    job: ImportJob, mapping: ColumnMap, map_label: str, word: str
+) -> tuple[
+    dict[str, str | int],
+    dict[str, tuple[float, float]],
+    Callable[[], Callable[[NDArray[np.float64], NDArray[np.float64]], None]],
+]:
+    """What a binary file's reader needs from the map: target -> column (``time_s``
+    first, then the channels in the recording's order), target -> (scale, offset), and
+    how to open the recording; the report's lines on them."""
+    channels = _ordered_channels(mapping, job.machine)
+    refs: dict[str, str | int] = {}
+    scales: dict[str, tuple[float, float]] = {}
+    if mapping.time is not None:
+        refs["time_s"] = mapping.time.column
+        scales["time_s"] = (mapping.time.scale, mapping.time.offset)
+        job.note(
+            f"time_s [s]: from {word} {mapping.time.column!r} "
+            f"({_conversion(mapping.time.scale, mapping.time.offset)})"
+        )
+    else:
+        job.note(f"time_s [s]: no time {word}; sample k is at k x {mapping.period_s:.10g} s")
+    for channel in channels:
+        spec = mapping.channels[channel.name]
+        refs[channel.name] = spec.column
+        scales[channel.name] = (spec.scale, spec.offset)
+        job.note(
+            f"{channel.name} [{channel.unit}]: from {word} {spec.column!r} "
+            f"({_conversion(spec.scale, spec.offset)})"
+        )
+    unused = [k for k in ("delimiter", "decimal", "skip_lines") if k in mapping.model_fields_set]
+    if unused:
+        job.note(f"{', '.join(unused)} of {map_label}: not used for this file")
+
+    def open_sink() -> Callable[[NDArray[np.float64], NDArray[np.float64]], None]:
+        return job.open_sink(channels, nominal_period_s=mapping.period_s).append
+
+    return refs, scales, open_sink
 
 
 def _check_axes(mapping: ColumnMap, machine: MachineConfig | None, map_label: str) -> None:
@@ -319,6 +386,7 @@ class _Column:
     """A column the map reads: its place in the row and how its values convert."""
 
     name: str
+    """How messages name it: ``'X1_Current'``, or ``2`` / ``2 ('Velocity')`` by position."""
     index: int
     scale: float
     offset: float
@@ -332,8 +400,31 @@ def _conversion(scale: float, offset: float) -> str:
     return " ".join(parts) if parts else "no conversion"
 
 
+def _label(ref: str | int, header: Sequence[str]) -> str:
+    """A column as messages name it: its text, or its position (with the header's text)."""
+    if isinstance(ref, str):
+        return repr(ref)
+    text = header[ref - 1] if ref <= len(header) else ""
+    return f"{ref} ({text!r})" if text else str(ref)
+
+
+#: Lines searched for the header (the first line holding every column named by its text).
+HEADER_SEARCH_LINES: Final = 1000
+_TIME_UNITS: Final = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9, "min": 60.0}
+
+
+@dataclass(frozen=True)
+class _Header:
+    """The header row: where, its cells and its separator, and the lines before it."""
+
+    line: int
+    cells: list[str]
+    separator: str
+    text: str
+
+
 class _Reader:
-    """One pass over the file: header, then rows in chunks to the recording."""
+    """One pass over the file: header, units row, then rows in chunks to the recording."""
 
     def __init__(self, job: ImportJob, mapping: ColumnMap, map_name: str, lines: TextLines) -> None:
         self.job = job
@@ -342,32 +433,49 @@ class _Reader:
         self.lines = lines
         self.rows: Iterator[str] = iter(lines)
         self.preamble: list[str] = []
+        self.units_line = 0
+        self.first_row: str | None = None
+        self.deferred: list[str] = []
+        """Report lines that follow the header's."""
 
     def read(self) -> RecordingMeta:
-        header_text = self._header_line()
-        header_line = self.lines.line_number
-        wanted = list(
-            dict.fromkeys(
-                ([self.mapping.time.column] if self.mapping.time else [])
-                + [c.column for c in self.mapping.channels.values()]
-            )
-        )
-        separator = self.mapping.delimiter or _detect_separator(
-            header_text, wanted, self.mapping.decimal
-        )
-        header = [c.strip() for c in next(csv.reader([header_text], delimiter=separator), [])]
-        index = self._column_indices(header, wanted, header_line)
-        channels = _ordered_channels(self.mapping, self.job.machine)
-        columns = [
-            _Column(spec.column, index[spec.column], spec.scale, spec.offset, channel.name)
-            for channel, spec in ((c, self.mapping.channels[c.name]) for c in channels)
+        mapping = self.mapping
+        refs = ([mapping.time.column] if mapping.time else []) + [
+            c.column for c in mapping.channels.values()
         ]
-        time_spec = self.mapping.time
+        named = list(dict.fromkeys(r for r in refs if isinstance(r, str)))
+        head = self._header(named)
+        header, separator, header_line = head.cells, head.separator, head.line
+        index = self._column_indices(header, refs, header_line)
+        channels = _ordered_channels(mapping, self.job.machine)
+        specs = [mapping.channels[c.name] for c in channels]
+        rows: Iterator[str] = self.rows
+        units: dict[str | int, str] = {}
+        first = self._first_row()
+        if first is not None:
+            units = self._units_row(first, separator, refs, index, header, header_line)
+            if not units:
+                rows = itertools.chain([first], rows)  # a data row: read it as one
+        scales = {
+            name: self._scale(spec, units.get(spec.column), name, header)
+            for name, spec in zip((c.name for c in channels), specs, strict=True)
+        }
+        columns = [
+            _Column(
+                _label(spec.column, header),
+                index[spec.column],
+                scales[channel.name],
+                spec.offset,
+                channel.name,
+            )
+            for channel, spec in zip(channels, specs, strict=True)
+        ]
+        time_spec = mapping.time
         time_column = (
             _Column(
-                time_spec.column,
+                _label(time_spec.column, header),
                 index[time_spec.column],
-                time_spec.scale,
+                self._time_scale(time_spec, units.get(time_spec.column), header),
                 time_spec.offset,
                 "time_s",
             )
@@ -375,17 +483,19 @@ class _Reader:
             else None
         )
         self._report_header(separator, header, header_line, channels, columns, time_column)
+        for line in self.deferred:
+            self.job.note(line)
         start, where = preamble_date(self.preamble)
         if start is None and where:
             self.job.note(f"{where}: none is taken as the measurement's start")
         sink = self.job.open_sink(
             channels,
-            nominal_period_s=self.mapping.period_s,
+            nominal_period_s=mapping.period_s,
             start_utc=start,
             start_source=f"the preamble, {where}",
         )
         decimal = self._read_rows(
-            csv.reader(self.rows, delimiter=separator),
+            csv.reader(rows, delimiter=separator),
             separator,
             header,
             header_line,
@@ -394,51 +504,186 @@ class _Reader:
             sink.append,
         )
         if decimal is not None:
-            how = "from the column map" if self.mapping.decimal else "detected"
+            how = "from the column map" if mapping.decimal else "detected"
             self.job.note(f"numbers use a decimal {'comma' if decimal == ',' else 'point'} ({how})")
         return self.job.finish()
 
-    def _header_line(self) -> str:
+    def _skip(self) -> None:
         skip = self.mapping.skip_lines
-        for number in range(skip):
+        for _ in range(skip):
             line = next(self.rows, None)
             if line is None:
                 raise RecordingError(
                     f"{self.job.path}: the file ends after {self.lines.line_number} line(s), "
                     f"before the header (skip_lines = {skip} in {self.map_name})"
                 )
-            if number < _PREAMBLE_DATE_LINES:
-                self.preamble.append(line)
+            self._keep(line)
         if skip:
             self.job.note(f"{skip} line(s) before the header skipped (skip_lines)")
+
+    def _keep(self, line: str) -> None:
+        if len(self.preamble) < _PREAMBLE_DATE_LINES:
+            self.preamble.append(line)
+
+    def _header(self, named: Sequence[str]) -> _Header:
+        """The header: the first non-blank line holding every column named by its text, or
+        the last of consecutive such lines (a preamble may list the channels just above
+        it); the first non-blank line when the map names every column by position."""
+        self._skip()
+        path = self.job.path
+        best: tuple[int, int, str] | None = None  # named columns found, line, text
+        found_header: _Header | None = None
+        searched = 0
         for line in self.rows:
-            if line.strip():
-                return line
-        if self.lines.line_number == 0:
-            raise RecordingError(f"{self.job.path}: the file is empty")
-        raise RecordingError(f"{self.job.path}: no header row (only blank lines)")
+            if not line.strip():
+                continue
+            separator = self.mapping.delimiter or _detect_separator(
+                line, named, self.mapping.decimal
+            )
+            cells = [c.strip() for c in next(csv.reader([line], delimiter=separator), [])]
+            found = sum(name in cells for name in named)
+            if not named:
+                return _Header(self.lines.line_number, cells, separator, line)
+            if found == len(named):
+                if found_header is not None:
+                    self._keep(found_header.text)
+                found_header = _Header(self.lines.line_number, cells, separator, line)
+                continue
+            if found_header is not None:
+                self.first_row = line  # the line after the header: units or data
+                return found_header
+            if best is None or found >= best[0]:
+                best = (found, self.lines.line_number, line)
+            self._keep(line)
+            searched += 1
+            if searched >= HEADER_SEARCH_LINES:
+                break
+        if found_header is not None:
+            return found_header  # the file ends after the header
+        if best is None:
+            if self.lines.line_number == 0:
+                raise RecordingError(f"{path}: the file is empty")
+            raise RecordingError(f"{path}: no header row (only blank lines)")
+        _, number, text = best
+        separator = self.mapping.delimiter or _detect_separator(text, named, self.mapping.decimal)
+        cells = [c.strip() for c in next(csv.reader([text], delimiter=separator), [])]
+        missing = [name for name in named if name not in cells]
+        raise RecordingError(
+            f"{path}:{number}: column(s) named in {self.map_name} not in the header: "
+            f"{', '.join(map(repr, missing))}",
+            [
+                f"the header has: {', '.join(map(repr, cells))}",
+                f"no line of the first {searched} holds every named column (the last line "
+                "with the most of them is taken for the header); check the names, or name a "
+                "column by its position (column = 1)",
+            ],
+        )
 
     def _column_indices(
-        self, header: Sequence[str], wanted: Sequence[str], header_line: int
-    ) -> dict[str, int]:
+        self, header: Sequence[str], refs: Sequence[str | int], header_line: int
+    ) -> dict[str | int, int]:
         where = f"{self.job.path}:{header_line}"
-        missing = [name for name in wanted if name not in header]
-        if missing:
-            problems = [f"the header has: {', '.join(map(repr, header))}"]
-            if not self.mapping.skip_lines:
-                problems.append("if the header is not the first line, set skip_lines")
-            raise RecordingError(
-                f"{where}: column(s) named in {self.map_name} not in the header: "
-                f"{', '.join(map(repr, missing))}",
-                problems,
-            )
-        repeated = [name for name in wanted if header.count(name) > 1]
+        repeated = [r for r in dict.fromkeys(refs) if isinstance(r, str) and header.count(r) > 1]
         if repeated:
             raise RecordingError(
                 f"{where}: the header has more than one column named "
-                f"{', '.join(map(repr, repeated))}; the column map cannot tell them apart"
+                f"{', '.join(map(repr, repeated))}; the column map cannot tell them apart "
+                "(name them by position: column = 3)"
             )
-        return {name: header.index(name) for name in wanted}
+        beyond = [r for r in refs if isinstance(r, int) and r > len(header)]
+        if beyond:
+            raise RecordingError(
+                f"{where}: column {beyond[0]} of {self.map_name} is beyond the header's "
+                f"{len(header)} cell(s): {', '.join(map(repr, header))}"
+            )
+        return {r: (r - 1 if isinstance(r, int) else header.index(r)) for r in refs}
+
+    def _first_row(self) -> str | None:
+        """The first non-blank line after the header (None: the file ends)."""
+        if self.first_row is not None:
+            return self.first_row
+        for line in self.rows:
+            if line.strip():
+                return line
+        return None
+
+    def _units_row(
+        self,
+        line: str,
+        separator: str,
+        refs: Sequence[str | int],
+        index: dict[str | int, int],
+        header: Sequence[str],
+        header_line: int,
+    ) -> dict[str | int, str]:
+        """The units of the mapped columns when ``line`` is a units row (``ms;rpm;mA``: the
+        mapped cells are words, no number), else nothing (it is a data row)."""
+        cells = next(csv.reader([line], delimiter=separator), [])
+        mapped = {r: cells[index[r]].strip() if index[r] < len(cells) else "" for r in refs}
+        words = [c for c in mapped.values() if c]
+        if not words or any(not _is_not_number(c) or iso_datetime(c) for c in words):
+            return {}
+        number = self.lines.line_number
+        listed = ", ".join(c.strip() or "(empty)" for c in cells)
+        self.deferred.append(f"units row at line {number} (under the header, not data): {listed}")
+        if len(cells) > len(header) and any(c.strip() for c in cells[len(header) :]):
+            raise RecordingError(
+                f"{self.job.path}:{number}: the units row has {len(cells)} cells, the header "
+                f"(line {header_line}) {len(header)}"
+            )
+        self.units_line = number
+        return {r: unit for r, unit in mapped.items() if unit}
+
+    def _scale(
+        self, spec: ChannelColumn, unit: str | None, name: str, header: Sequence[str]
+    ) -> float:
+        """The channel's scale: the map's, else the units row's factor; checked against it."""
+        if unit is None:
+            return spec.scale
+        channel = channel_from_name(name)
+        assert channel is not None
+        factor = unit_factor(channel.signal, unit)
+        return self._checked(
+            "scale" in spec.model_fields_set,
+            spec.scale,
+            factor,
+            unit,
+            f"{name} [{channel.unit}]",
+            f"channels.{name}.scale",
+        )
+
+    def _time_scale(self, spec: TimeColumn, unit: str | None, header: Sequence[str]) -> float:
+        if unit is None:
+            return spec.scale
+        factor = _TIME_UNITS.get(normalize_unit(unit))
+        return self._checked(
+            "scale" in spec.model_fields_set, spec.scale, factor, unit, "time_s [s]", "time.scale"
+        )
+
+    def _checked(
+        self, given: bool, scale: float, factor: float | None, unit: str, what: str, key: str
+    ) -> float:
+        where = f"{self.job.path}:{self.units_line}"
+        if given:
+            if factor is None:
+                self.deferred.append(
+                    f"{what}: the units row says {unit!r}, converted with the column map's "
+                    f"{key} = {scale:.10g}"
+                )
+            elif not math.isclose(scale, factor, rel_tol=1e-9):
+                self.deferred.append(
+                    f"{what}: the units row says {unit!r} (x {factor:.10g}), the column map's "
+                    f"{key} = {scale:.10g} is used"
+                )
+            return scale
+        if factor is None:
+            raise RecordingError(
+                f"{where}: {what}: the units row says {unit!r}, which the column map cannot "
+                f"convert; give {key} (the factor from {unit!r} into the channel's unit)"
+            )
+        if factor != 1:
+            self.deferred.append(f"{what}: x {factor:.10g} from the units row's {unit!r}")
+        return factor
 
     def _report_header(
         self,
@@ -454,20 +699,27 @@ class _Reader:
             note(f"header at line {header_line}: one column")
         else:
             how = "from the column map" if self.mapping.delimiter else "detected"
+            before = header_line - 1 - self.mapping.skip_lines
+            after = (
+                f"; the {before} line(s) before it are no data (the first line holding every "
+                "column named by its text)"
+                if before > 0
+                else ""
+            )
             note(
                 f"header at line {header_line}: {len(header)} columns separated by "
-                f"{_SEPARATOR_NAMES[separator]} ({how})"
+                f"{_SEPARATOR_NAMES[separator]} ({how}){after}"
             )
         if time_column is not None:
             note(
-                f"time_s [s]: from column {time_column.name!r} "
+                f"time_s [s]: from column {time_column.name} "
                 f"({_conversion(time_column.scale, time_column.offset)})"
             )
         else:
             note(f"time_s [s]: no time column; row k is at k x {self.mapping.period_s:.10g} s")
         for channel, column in zip(channels, columns, strict=True):
             note(
-                f"{channel.name} [{channel.unit}]: from column {column.name!r} "
+                f"{channel.name} [{channel.unit}]: from column {column.name} "
                 f"({_conversion(column.scale, column.offset)})"
             )
         used = {c.index for c in columns} | ({time_column.index} if time_column else set())
@@ -500,7 +752,9 @@ class _Reader:
         period_s = self.mapping.period_s if time_column is None else None
         chunk = _Chunk(path, columns, time_column, period_s, append)
         raw, line_numbers = chunk.raw, chunk.line_numbers  # emptied in place by each flush
-        dates = _DateTimes(self.job, self.mapping.time)
+        dates = _DateTimes(
+            self.job, self.mapping.time, time_column.name if time_column is not None else ""
+        )
 
         for cells in reader:
             if not any(cell.strip() for cell in cells):
@@ -509,7 +763,7 @@ class _Reader:
             if len(cells) < needed:
                 short = next(c for c in read if c.index >= len(cells))
                 raise RecordingError(
-                    f"{path}:{line}: {len(cells)} cell(s); column {short.name!r} is cell "
+                    f"{path}:{line}: {len(cells)} cell(s); column {short.name} is cell "
                     f"{short.index + 1} of {width} in the header (line {header_line})"
                 )
             if len(cells) > width and any(cell.strip() for cell in cells[width:]):
@@ -525,7 +779,7 @@ class _Reader:
                 if k == 0 and time_column is not None:
                     if not cell:
                         raise RecordingError(
-                            f"{path}:{line}: the time column {column.name!r} is empty"
+                            f"{path}:{line}: the time column {column.name} is empty"
                         )
                     if dates.seconds(cell, f"{path}:{line}", raw):
                         continue
@@ -541,7 +795,7 @@ class _Reader:
                     other_mark = ("," if decimal != "," else ".") in cell
                     reason = f" ({exc})" if other_mark else ""
                     raise RecordingError(
-                        f"{path}:{line}: column {column.name!r}: {cell!r} is not a number{reason}"
+                        f"{path}:{line}: column {column.name}: {cell!r} is not a number{reason}"
                     ) from exc
             line_numbers.append(line)
             if len(line_numbers) >= CHUNK_ROWS:
@@ -551,7 +805,7 @@ class _Reader:
         for column, count, first in zip(read, empty, first_empty, strict=True):
             if count:
                 self.job.note(
-                    f"{column.target}: {count} empty cell(s) in column {column.name!r} stored "
+                    f"{column.target}: {count} empty cell(s) in column {column.name} stored "
                     f"as NaN; first at {first}"
                 )
         return decimal
@@ -572,9 +826,10 @@ class _DateTimes:
     """A time column of ISO 8601 date-times: seconds from its first row, which is the
     measurement's start (``time.format = "iso"``, or told from the first row)."""
 
-    def __init__(self, job: ImportJob, spec: TimeColumn | None) -> None:
+    def __init__(self, job: ImportJob, spec: TimeColumn | None, label: str = "") -> None:
         self.job = job
         self.spec = spec
+        self.label = label
         self.iso: bool | None = None if spec is None else _ISO_FORMATS.get(spec.format)
         self.first: dt.datetime | None = None
 
@@ -595,7 +850,7 @@ class _DateTimes:
             )
             if self.iso:
                 self.job.note(
-                    f"time column {self.spec.column!r} holds ISO 8601 date-times (detected): "
+                    f"time column {self.label} holds ISO 8601 date-times (detected): "
                     "times from them, the first row is the measurement's start"
                 )
         if not self.iso:
@@ -604,13 +859,13 @@ class _DateTimes:
             written = dt.datetime.fromisoformat(cell)
         except ValueError as exc:
             raise RecordingError(
-                f"{where}: time column {self.spec.column!r}: {cell!r} is not an ISO 8601 "
+                f"{where}: time column {self.label}: {cell!r} is not an ISO 8601 "
                 "date-time (2024-03-05 14:22:10.250)"
             ) from exc
         when = written if written.tzinfo is not None else written.replace(tzinfo=dt.UTC)
         if self.first is None:
             self.first = when
-            self.job.found_start(written, f"the first row of time column {self.spec.column!r}")
+            self.job.found_start(written, f"the first row of time column {self.label}")
         raw.append((when - self.first).total_seconds())
         return True
 

@@ -23,6 +23,7 @@ from ncmeasure.errors import RecordingError
 from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.recording import ImportSink, Recording
 from ncmeasure.samples import Channel
+from ncmeasure.traces.derive import DerivingSink, derived_line, needs_velocity
 
 __all__ = [
     "ImportJob",
@@ -111,13 +112,16 @@ class ImportJob:
         """The recording the rows go to (created on disk when the first rows arrive).
 
         Args:
-            channels: Its columns.
+            channels: Its columns. An axis with a position and no velocity channel gets
+                its velocity derived as the rows are written (:mod:`.derive`): give
+                the rows of ``channels``, the recording holds the derived one as well.
             nominal_period_s: The sample period; None: inferred from the times.
             start_utc: When the data say the measurement began (None: they hold
                 no date, or :meth:`found_start` says it before the first rows).
             start_source: Where that date comes from, for the report.
         """
-        self.sink = ImportSink(
+        derived = needs_velocity(channels)
+        self.sink = (DerivingSink if derived else ImportSink)(
             self.directory,
             channels,
             machine=self.machine,
@@ -128,6 +132,8 @@ class ImportJob:
             link=self.link,
         )
         self.found_start(start_utc, start_source)
+        for axis in derived:
+            self.note(derived_line(axis))
         return self.sink
 
     def found_start(self, start_utc: dt.datetime | None, source: str) -> None:
@@ -144,6 +150,8 @@ class ImportJob:
         """Close the recording with the complete report (it is not read back)."""
         if self.sink is None:
             raise RecordingError(f"{self.path}: no samples to import")
+        if isinstance(self.sink, DerivingSink):
+            self.sink.drain()  # the last rows, before their values are counted
         for line in self.sink.validity_lines():
             self.note(line)
         self.note(self._start_line())
