@@ -37,6 +37,16 @@ def shared_fixture(*parts: str) -> Path:
 FIXED_TIME = dt.datetime(2026, 1, 15, 8, 30, tzinfo=dt.UTC)
 
 
+def optional(module: str) -> Any:
+    """An optional library a test needs: skipped where it is not installed, except in CI,
+    which installs every extra (a missing one there is a failure, not a silent skip)."""
+    if os.environ.get("CI"):
+        import importlib
+
+        return importlib.import_module(module)
+    return pytest.importorskip(module)
+
+
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption(
         "--update-golden",

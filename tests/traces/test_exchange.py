@@ -18,6 +18,7 @@ from ncmeasure.samples import Channel, LinkEvent, SampleBlock
 from ncmeasure.traces import csv as csv_module
 from ncmeasure.traces.csv import export_csv, import_csv
 from ncmeasure.traces.mdf4 import export_mdf4, import_mdf4
+from tests.conftest import optional
 from tests.test_recording import ALL_SIGNALS, LINK, FullDisk, same_bits, write_frames
 
 Make = Callable[..., MachineConfig]
@@ -226,7 +227,7 @@ def test_an_import_the_disk_refuses_says_so_and_promises_nothing_of_its_files(
 def test_mdf4_keeps_the_serial_and_an_unknown_start(tmp_path: Path, make_config: Make) -> None:
     """A recording whose time is unknown (an import without a date) stays unknown through
     MDF4: the file header's time is not taken for it."""
-    pytest.importorskip("asammdf")
+    optional("asammdf")
     with RecordingWriter.create(
         tmp_path / "original", ALL_SIGNALS[:2], nominal_period_s=0.001, machine=make_config(),
         serial="M17", start_utc=None,
@@ -241,7 +242,7 @@ def test_mdf4_keeps_the_serial_and_an_unknown_start(tmp_path: Path, make_config:
 
 
 def test_mdf4_round_trip(tmp_path: Path, make_config: Make) -> None:
-    asammdf = pytest.importorskip("asammdf")
+    asammdf = optional("asammdf")
     config = make_config()
     directory = tmp_path / "original"
     rng = np.random.default_rng(3)
@@ -279,7 +280,7 @@ def test_mdf4_round_trip(tmp_path: Path, make_config: Make) -> None:
 
 
 def test_mdf4_import_of_a_foreign_file(tmp_path: Path) -> None:
-    asammdf = pytest.importorskip("asammdf")
+    asammdf = optional("asammdf")
     time_s = np.arange(100) * 0.01
     path = tmp_path / "scope.mf4"
     mdf = asammdf.MDF(version="4.10")
@@ -332,7 +333,7 @@ def test_mdf4_without_asammdf_names_the_extra(
 def test_mdf4_export_is_written_whole_under_the_name_asked_for(tmp_path: Path) -> None:
     """asammdf writes .mf4 files: the export still lands exactly at the path given, via a
     temporary file, and a symlink beside it is never followed."""
-    pytest.importorskip("asammdf")
+    optional("asammdf")
     write_frames(tmp_path / "r", frames=1, rows_per_frame=5)
     victim = tmp_path / "victim.txt"
     victim.write_text("keep me")

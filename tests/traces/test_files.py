@@ -23,6 +23,7 @@ from ncmeasure.traces import import_columns, import_trace, import_traces
 from ncmeasure.traces.csv import export_csv
 from ncmeasure.traces.derive import derive_velocity
 from ncmeasure.traces.merge import CHUNK_ROWS
+from tests.conftest import optional
 
 runner = CliRunner()
 
@@ -457,7 +458,7 @@ def test_matlab_v5(tmp_path: Path) -> None:
 
 
 def test_matlab_v73(tmp_path: Path) -> None:
-    h5py = pytest.importorskip("h5py")
+    h5py = optional("h5py")
     vectors = mat_vectors()
     path = tmp_path / "run73.mat"
     with h5py.File(path, "w", userblock_size=512) as file:
@@ -541,8 +542,8 @@ X_current_a = { column = 3 }
 
 
 def test_parquet_in_batches(tmp_path: Path) -> None:
-    pa = pytest.importorskip("pyarrow")
-    pq = pytest.importorskip("pyarrow.parquet")
+    pa = optional("pyarrow")
+    pq = optional("pyarrow.parquet")
     n = 2 * CHUNK_ROWS + 5
     t = np.arange(n) * 0.004
     v = np.sin(t)
@@ -563,8 +564,8 @@ def test_parquet_in_batches(tmp_path: Path) -> None:
 
 
 def test_parquet_timestamps_give_times_and_the_start(tmp_path: Path) -> None:
-    pa = pytest.importorskip("pyarrow")
-    pq = pytest.importorskip("pyarrow.parquet")
+    pa = optional("pyarrow")
+    pq = optional("pyarrow.parquet")
     start = np.datetime64("2024-03-05T14:22:10", "ns")
     stamps = start + np.arange(4) * np.timedelta64(2, "ms")
     table = pa.table(
@@ -584,8 +585,8 @@ def test_parquet_timestamps_give_times_and_the_start(tmp_path: Path) -> None:
 def test_parquet_problems(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import sys
 
-    pa = pytest.importorskip("pyarrow")
-    pq = pytest.importorskip("pyarrow.parquet")
+    pa = optional("pyarrow")
+    pq = optional("pyarrow.parquet")
     pq.write_table(pa.table({"t": [0.0, 1.0], "v": ["a", "b"], "i": [1.0, 2.0]}), tmp_path / "x.pq")
     mapping = write_map(tmp_path / "m.toml", PARQUET_MAP)
     with pytest.raises(RecordingError, match=r"x.pq: column 'v' holds string, not numbers"):
