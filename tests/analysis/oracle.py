@@ -22,6 +22,7 @@ axis' windows into its result (:func:`~ncmeasure.analysis.axis.finish_axis`).
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterable, Sequence
 
@@ -46,7 +47,11 @@ from ncmeasure.analysis.axis import (
 from ncmeasure.analysis.reading import recording_gaps
 from ncmeasure.analysis.windows.finder import WindowFinder
 from ncmeasure.analysis.windows.model import Candidate, Segmentation
-from ncmeasure.analysis.windows.settings import MIN_WINDOW_SAMPLES, SegmentSettings
+from ncmeasure.analysis.windows.settings import (
+    HOLE_PERIODS,
+    MIN_WINDOW_SAMPLES,
+    SegmentSettings,
+)
 from ncmeasure.analysis.windows.signals import (
     command_repeats,
     plateau_mask,
@@ -213,10 +218,15 @@ class WholeFinder(WindowFinder):
             command, _ = bridge(command, time_s, hold=True)
         self.command = command
         self.positions_known = position is not None
+        self.holes = (np.flatnonzero(np.diff(time_s) > HOLE_PERIODS * self.dt) + 1).tolist()
         if position is None:
-            # Relative positions are enough to tell measuring positions apart.
+            # Relative positions are enough to tell measuring positions apart; none is
+            # carried across a hole of the time axis: each segment from its own start.
             filled = np.where(np.isfinite(velocity), velocity, 0.0)
-            self.x = np.cumsum(filled) * (self.dt / 60.0)
+            bounds = [0, *self.holes, len(filled)]
+            self.x = np.concatenate(
+                [np.cumsum(filled[a:b]) for a, b in itertools.pairwise(bounds)]
+            ) * (self.dt / 60.0)
             self.warnings.append(
                 "no position channel: positions integrated from the velocity (relative)"
             )
@@ -273,11 +283,15 @@ class WholeFinder(WindowFinder):
         finite = np.where(np.isfinite(self.v_detect), self.v_detect, 0.0)
         smooth = median_filter(finite, size=self.filter_n, mode="nearest")
         starts, stops = runs(plateau_mask(smooth, self.band, self.standstill, length, self.n))
+        found = [
+            (start, stop)
+            for start, stop in zip(starts.tolist(), stops.tolist(), strict=True)
+            if stop - start >= length
+        ]
         return self.plateau_found(
             [
                 (start, stop, float(np.median(smooth[start:stop])))
-                for start, stop in zip(starts.tolist(), stops.tolist(), strict=True)
-                if stop - start >= length
+                for start, stop in self.split_at_holes(found, length)
             ]
         )
 

@@ -131,10 +131,13 @@ class ChunkedFinder(WindowFinder):
         if not self.needs_agreement:
             self.setup_detection(None)
         self.found = Found()
+        self.holes = []
 
     # -- the rows, cleaned and bridged -------------------------------------------------
 
-    def _rows(self, derived: bool) -> Callable[[RowChunk], list[Block]]:
+    def _rows(
+        self, derived: bool, holes: list[int] | None = None
+    ) -> Callable[[RowChunk], list[Block]]:
         """For one pass: a chunk's rows -> the blocks of rows complete (:func:`cleaned_rows`)."""
         return cleaned_rows(
             self.axis,
@@ -145,6 +148,7 @@ class ChunkedFinder(WindowFinder):
             dt=self.dt,
             h=self.h if derived and self.from_position else 0,
             derived=derived,
+            holes=holes,
         )
 
     def agreement_task(self) -> Generator[Feed, None, None]:
@@ -179,10 +183,11 @@ class ChunkedFinder(WindowFinder):
     # -- the pass over the rows --------------------------------------------------------
 
     def sweep_task(self) -> Generator[Feed, None, None]:
-        """Pass: marker runs and command stretches (see the module docstring)."""
+        """Pass: marker runs, command stretches and the holes of the time axis."""
         assert not self.needs_agreement
         self.found = Found()
-        rows = self._rows(derived=True)
+        self.holes = []
+        rows = self._rows(derived=True, holes=self.holes)
         state = SweepState(plateaus=Ahead(0, 0, self.n), want_plateaus=False, want_still=False)
 
         def feed(chunk: RowChunk) -> None:
@@ -369,7 +374,7 @@ class ChunkedFinder(WindowFinder):
         if self.plateau_too_short():
             return []
         self._sweep_plateaus()
-        runs = self.found.plateaus
+        runs = self.split_at_holes(self.found.plateaus, self.plateau_n)
         levels = []
         if runs:
             # Joining neighbouring plateaus reads the readings between them too.

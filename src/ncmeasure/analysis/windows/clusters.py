@@ -149,8 +149,15 @@ def label_by_clusters(
     x: FloatArray,
     source: WindowSource,
     detection: Detection,
+    *,
+    one_position: bool = False,
 ) -> tuple[list[VelocityWindow], list[Cluster], list[Cluster]]:
-    """The windows labelled by the velocity steps and the positions found among them."""
+    """The windows labelled by the velocity steps and the positions found among them.
+
+    ``one_position``: the windows' positions cannot be compared (integrated from the
+    velocity in segments between holes of the time axis): every window is position 0,
+    at the median of their positions in their own segments.
+    """
     settings = detection.settings
     speeds = np.abs(np.array([c.level_mm_min for c in candidates]))
     step_of = levels(candidates, settings, _quantum(detection))
@@ -164,6 +171,8 @@ def label_by_clusters(
         anchor = centres[np.isfinite(centres)]
     span = float(anchor.max() - anchor.min()) if len(anchor) else 0.0
     gap = max(settings.position_gap_mm, settings.position_gap_fraction * span)
+    if one_position:
+        gap = math.inf
     anchor_of = cluster_gaps(anchor, gap)
     anchors = clusters_of(anchor, anchor_of)
     anchor_x = np.array([a.centre for a in anchors])

@@ -29,6 +29,11 @@ Real data sets the rules (``docs/analysis.md``, section 1):
   widen every tolerance band and raise the standstill threshold to at least
   one count; where they exceed ``velocity_floor_mm_min`` and a position was
   recorded, windows are found and measured by the position;
+* no window spans a hole of the time axis (a step over
+  :data:`~ncmeasure.analysis.windows.settings.HOLE_PERIODS` sample periods: a
+  link outage, the step between two imported files): every stretch is cut at
+  the holes, no plateaus are joined across one, and without a position
+  channel the windows of several segments are one position;
 * every window must agree with its displacement (v·Δt): a velocity reading
   frozen at standstill, or an axis that did not follow its command, is no
   window; where the velocity comes from the readings, the window's velocity
@@ -71,6 +76,8 @@ Pure numpy/scipy; loops run over windows, never over samples.
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import logging
 import math
 from collections.abc import Sequence
@@ -125,6 +132,9 @@ class WindowFinder(Detection):
     v_detect: FloatArray
     command: FloatArray | None
     marker: FloatArray | None
+    holes: list[int]
+    """The rows that follow a hole of the time axis (a step over
+    :data:`~ncmeasure.analysis.windows.settings.HOLE_PERIODS` sample periods), in order."""
 
     def setup_schedule(self, schedule: Schedule | None) -> None:
         """The axis' part of the schedule, and how its program writes the marker."""
@@ -171,6 +181,35 @@ class WindowFinder(Detection):
 
     # -- what each way found ---------------------------------------------------------
 
+    def split_at_holes(
+        self, stretches: Sequence[tuple[int, int]], least: int = 1
+    ) -> list[tuple[int, int]]:
+        """The stretches cut at every hole of the time axis, the pieces of ``least`` rows kept.
+
+        The axis may have moved any distance, at any speed, in a hole (a link
+        outage, the step between two files): what lies either side of one is two
+        stretches, never one window.
+        """
+        holes = np.asarray(self.holes, dtype=np.intp)
+        result = []
+        for start, stop in stretches:
+            cuts = holes[(holes > start) & (holes < stop)].tolist()
+            bounds = [start, *cuts, stop]
+            result += [(a, b) for a, b in itertools.pairwise(bounds) if b - a >= least]
+        return result
+
+    def hole_between(self, start: int, stop: int) -> bool:
+        """Whether a hole of the time axis lies inside the rows ``start`` .. ``stop``."""
+        k = bisect.bisect_right(self.holes, start)
+        return k < len(self.holes) and self.holes[k] < stop
+
+    def segment_bounds(self, row: int) -> tuple[int, int]:
+        """The first row of ``row``'s segment (after the hole before it) and the end."""
+        k = bisect.bisect_right(self.holes, row)
+        return (self.holes[k - 1] if k > 0 else 0), (
+            self.holes[k] if k < len(self.holes) else self.n
+        )
+
     def marker_wanted(self) -> bool:
         """Whether there is a marker to look at (else why not, in ``tried``)."""
         if self.marker is None:
@@ -193,11 +232,12 @@ class WindowFinder(Detection):
             self.settings.standstill_mm_min if self.command is not None else self.standstill
         )
         result = []
-        for start, stop, value in zip(starts, stops, values, strict=True):
-            level = float(np.nanmedian(reference[start:stop]))
-            if not abs(level) >= standstill:
-                continue
-            result.append(Candidate(start, stop, level, marker_value=float(value)))
+        for run_start, run_stop, value in zip(starts, stops, values, strict=True):
+            for start, stop in self.split_at_holes([(run_start, run_stop)]):
+                level = float(np.nanmedian(reference[start:stop]))
+                if not abs(level) >= standstill:
+                    continue
+                result.append(Candidate(start, stop, level, marker_value=float(value)))
         if not result:
             self.tried.append(f"marker: {len(starts)} marker windows, all at standstill")
         return result
@@ -206,8 +246,9 @@ class WindowFinder(Detection):
         self, begins: Sequence[int], ends: Sequence[int], levels: Sequence[float]
     ) -> list[Candidate]:
         result = [
-            Candidate(int(b), int(e), float(c))
+            Candidate(start, stop, float(c))
             for b, e, c in zip(begins, ends, levels, strict=True)
+            for start, stop in self.split_at_holes([(int(b), int(e))], self.min_n)
         ]
         if not result:
             self.tried.append(
@@ -250,6 +291,8 @@ class WindowFinder(Detection):
         samples, not of the stretches where the velocity happened to hold.
         """
         gap = self.join_gap_n()
+        first, end = self.segment_bounds(candidate.start)
+        low, high = max(low, first), min(high, end)
         level, sigma = candidate.level_mm_min, candidate.noise_mm_min
         spread = max(float(self.band(level)), JOIN_SPREAD * sigma)
         before_low = max(low, candidate.start - gap)
@@ -314,6 +357,8 @@ class WindowFinder(Detection):
     def _joins(self, first: Candidate, second: Candidate) -> bool:
         if second.start - first.stop > self.join_gap_n():
             return False
+        if self.hole_between(first.start, second.stop):
+            return False  # the axis may have done anything in the hole
         if first.level_mm_min * second.level_mm_min <= 0:
             return False
         span = self.v_detect[first.start : second.stop]
@@ -593,7 +638,9 @@ class WindowFinder(Detection):
             assert self.schedule is not None
             windows, steps, positions = self.schedule.label_by_schedule(candidates, self.x, source)
         else:
-            windows, steps, positions = label_by_clusters(candidates, self.x, source, self)
+            windows, steps, positions = label_by_clusters(
+                candidates, self.x, source, self, one_position=self._incomparable(candidates)
+            )
         windows.sort(key=lambda w: w.start)
         typical = float(np.median([w.samples for w in windows]))
         coarse = typical < COARSE_WINDOW_SAMPLES
@@ -627,6 +674,28 @@ class WindowFinder(Detection):
             position_quantum_mm=self.x_quantum,
             coarse=coarse,
         )
+
+    def _incomparable(self, candidates: Sequence[Candidate]) -> bool:
+        """Whether positions integrated from the velocity lie in segments between holes.
+
+        Without a position channel a window's position is the velocity integrated
+        from the start of its segment; across a hole of the time axis the axis may
+        have moved any distance, so windows of two segments cannot be put at one
+        position or at two. They are then all one position, and a warning says so.
+        """
+        if self.positions_known or not self.holes:
+            return False
+        segments = {bisect.bisect_right(self.holes, c.start) for c in candidates}
+        if len(segments) < 2:
+            return False
+        self.warnings.append(
+            f"no position channel, and the windows lie in {len(segments)} segments between "
+            f"holes of the time axis ({len(self.holes)} holes: separate captures, link "
+            "outages): where the axis stood in one relative to another is unknown, so all "
+            "windows are taken as one position (positions integrated in each segment from "
+            "its start); the position dependence is not judged"
+        )
+        return True
 
 
 def _on_off(candidates: Sequence[Candidate]) -> bool:

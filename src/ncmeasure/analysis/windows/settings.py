@@ -12,6 +12,7 @@ __all__ = [
     "COARSE_WINDOW_SAMPLES",
     "CORRELATED_RHO",
     "DISPLACEMENT_QUANTA",
+    "HOLE_PERIODS",
     "JOIN_GAP_SAMPLES",
     "JOIN_SPREAD",
     "MIN_WINDOW_SAMPLES",
@@ -34,6 +35,11 @@ MIN_WINDOW_SAMPLES: Final = 3
 COARSE_WINDOW_SAMPLES: Final = 20
 """Windows holding fewer samples than this (median over the axis) make the data coarse:
 their medians are uncertain and the Stribeck curve at low speed is not resolved."""
+
+HOLE_PERIODS: Final = 1.5
+"""A time step longer than this many sample periods is a hole (a link outage, the step
+between two files of an import): no window spans it, no position is carried across it
+(the rule of the hole counter, :func:`ncmeasure.analysis.reading.recording_gaps`)."""
 
 DISPLACEMENT_QUANTA: Final = 2.0
 """A window's displacement is known to this many position counts (one at each end)."""

@@ -5,6 +5,7 @@ Loops run over windows or clusters, never over samples.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Sequence
 
@@ -20,10 +21,12 @@ __all__ = [
     "clusters_of",
     "command_repeats",
     "correlated_noise",
+    "hole_rows",
     "odd",
     "plateau_mask",
     "position_velocity",
     "runs",
+    "segment_sums",
     "unit_factor",
 ]
 
@@ -36,6 +39,36 @@ def runs(mask: BoolArray) -> tuple[IntArray, IntArray]:
     """Start and stop (exclusive) indices of the runs of True in ``mask``."""
     edges = np.diff(mask.astype(np.int8), prepend=np.int8(0), append=np.int8(0))
     return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+
+
+def hole_rows(time_s: FloatArray, limit_s: float, before_s: float | None = None) -> IntArray:
+    """Indices into ``time_s`` of the rows that follow a hole (a step longer than ``limit_s``).
+
+    ``before_s`` is the time of the row before ``time_s[0]`` (None: the first row of a
+    recording, after no hole).
+    """
+    times = np.asarray(time_s, dtype=np.float64)
+    if before_s is not None:
+        times = np.concatenate(([before_s], times))
+    steps = np.diff(times)
+    found = np.flatnonzero(steps > limit_s)
+    return found if before_s is not None else found + 1
+
+
+def segment_sums(values: FloatArray, holes: IntArray, carry: float) -> tuple[FloatArray, float]:
+    """The running sum of ``values`` that starts again at 0 on every row of ``holes``.
+
+    Sums from ``carry`` up to the first hole (the sum of the rows before, e.g. of the
+    chunk before); a sequential sum, so the same bits in chunks of any size. Returns
+    the sums and the carry of the rows after.
+    """
+    bounds = [0, *np.asarray(holes).tolist(), len(values)]
+    parts = [
+        np.cumsum(np.concatenate(([carry if k == 0 else 0.0], values[a:b])))[1:]
+        for k, (a, b) in enumerate(itertools.pairwise(bounds))
+    ]
+    summed = np.asarray(np.concatenate(parts), dtype=np.float64)
+    return summed, float(summed[-1]) if len(summed) else carry
 
 
 def align(ok: BoolArray) -> list[int | None]:

@@ -22,7 +22,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ncmeasure.analysis.windows.scan import AxisStatistics, Rows, bridge_chunk
-from ncmeasure.analysis.windows.signals import position_velocity, runs
+from ncmeasure.analysis.windows.settings import HOLE_PERIODS
+from ncmeasure.analysis.windows.signals import hole_rows, position_velocity, runs, segment_sums
 from ncmeasure.recording import RowChunk
 
 __all__ = [
@@ -226,18 +227,23 @@ def cleaned_rows(
     dt: float,
     h: int,
     derived: bool,
+    holes: list[int] | None = None,
 ) -> Callable[[RowChunk], list[Block]]:
     """For one pass: a chunk's rows -> the blocks of rows now complete.
 
     The columns t, v, x, and where recorded (``has``) cmd, marker, i, and with
     ``derived`` vd (the velocity the windows are found by): the position's
     central differences need ``h`` rows ahead, so blocks lag by ``h`` rows.
-    Without a usable position, x is the integrated velocity (relative).
+    Without a usable position, x is the integrated velocity, relative to the start
+    of its segment: the sum starts again after every hole of the time axis (a step
+    over ``HOLE_PERIODS`` sample periods), where the axis may have moved any
+    distance. ``holes``, where given, gets the rows that follow a hole.
     """
     stats = statistics
     n = stats.rows
     scale = dt / 60.0
     carry = {"x": 0.0}
+    last: list[float] = []
     ahead = Ahead(h, h, n)
 
     def cleaned(chunk: RowChunk, signal: str) -> FloatArray:
@@ -270,13 +276,16 @@ def cleaned_rows(
         index = chunk.first // stats.chunk_rows
         columns: Columns = {"t": chunk.time_s}
         columns["v"] = bridged(chunk, "velocity_mm_min", index)
+        after = hole_rows(chunk.time_s, HOLE_PERIODS * dt, last[0] if last else None)
+        if len(chunk.time_s):
+            last[:] = [float(chunk.time_s[-1])]
+        if holes is not None:
+            holes.extend((after + chunk.first).tolist())
         if positions_known:
             columns["x"] = bridged(chunk, "position_mm", index)
         else:
             filled = np.where(np.isfinite(columns["v"]), columns["v"], 0.0)
-            summed = np.cumsum(np.concatenate(([carry["x"]], filled)))[1:]
-            if len(summed):
-                carry["x"] = float(summed[-1])
+            summed, carry["x"] = segment_sums(filled, after, carry["x"])
             columns["x"] = summed * scale
         if has["velocity_cmd_mm_min"]:
             columns["cmd"] = held(chunk, index)
