@@ -47,13 +47,10 @@ from ncmeasure.analysis.axis import (
 from ncmeasure.analysis.reading import recording_gaps
 from ncmeasure.analysis.windows.finder import WindowFinder
 from ncmeasure.analysis.windows.model import Candidate, Segmentation
-from ncmeasure.analysis.windows.settings import (
-    HOLE_PERIODS,
-    MIN_WINDOW_SAMPLES,
-    SegmentSettings,
-)
+from ncmeasure.analysis.windows.settings import MIN_WINDOW_SAMPLES, SegmentSettings
 from ncmeasure.analysis.windows.signals import (
     command_repeats,
+    hole_rows,
     plateau_mask,
     position_velocity,
     runs,
@@ -218,7 +215,7 @@ class WholeFinder(WindowFinder):
             command, _ = bridge(command, time_s, hold=True)
         self.command = command
         self.positions_known = position is not None
-        self.holes = (np.flatnonzero(np.diff(time_s) > HOLE_PERIODS * self.dt) + 1).tolist()
+        self.holes = hole_rows(time_s, self.dt).tolist()
         if position is None:
             # Relative positions are enough to tell measuring positions apart; none is
             # carried across a hole of the time axis: each segment from its own start.

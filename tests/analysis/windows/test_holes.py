@@ -18,6 +18,7 @@ from ncmeasure.analysis.analyze import analyze
 from ncmeasure.analysis.windows.find import array_rows, axis_windows, find_windows
 from ncmeasure.analysis.windows.model import Segmentation
 from ncmeasure.analysis.windows.settings import SegmentSettings
+from ncmeasure.analysis.windows.signals import hole_rows
 from ncmeasure.config import MachineConfig
 from ncmeasure.traces import import_traces
 from tests.analysis import oracle
@@ -129,6 +130,42 @@ def test_a_hole_within_one_window_is_kept_with_a_position() -> None:
     assert len(found.windows) == 2
     assert not any("one position" in w for w in found.warnings)
     assert found == oracle.find_windows("X", time_s, velocity, position_mm=position)
+
+
+def test_holes_in_chunks_and_slower_segments() -> None:
+    """A hole is a step over 1.5 periods and the step before: a segment sampled more slowly
+    is no run of holes; the rows of any chunking give the same holes."""
+    rng = np.random.default_rng(5)
+    fast = np.arange(200) * DT
+    slow = fast[-1] + 2.0 + np.arange(100) * 2.5 * DT  # a file at 25 ms after one at 10 ms
+    outage = slow[-1] + 4 * DT + np.arange(100) * 2.5 * DT  # 3 samples lost
+    time_s = np.concatenate((fast, slow, outage)) + rng.uniform(0, 1e-4, 400)
+    whole = hole_rows(time_s, DT)
+    assert whole.tolist() == [200, 300]
+    for size in (1, 2, 3, 37, 199, 200, 201):
+        found: list[int] = []
+        before: list[float] = []
+        for lo in range(0, len(time_s), size):
+            part = time_s[lo : lo + size]
+            found += (hole_rows(part, DT, before) + lo).tolist()
+            before = [*before, *part[-2:].tolist()][-2:]
+        assert found == whole.tolist(), size
+
+
+def test_windows_in_segments_of_two_sample_periods() -> None:
+    """Captures at 10, 10 and 25 ms in one recording: a window in each, none across."""
+    t1, v1 = _captures(6, (True, True))
+    t2, v2 = _captures(7, (True, True))
+    t3, v3 = _captures(8, (True, True))
+    second = t1[-1] + 2.0 + t2
+    time_s = np.concatenate((t1, second, second[-1] + 2.0 + 2.5 * t3))
+    velocity = np.concatenate((v1, v2, -v3))
+    found = find_windows("X", time_s, velocity)
+    assert [w.start // len(t1) for w in found.windows] == [0, 1, 2]
+    for window in found.windows:
+        steps = np.diff(time_s[window.start : window.stop])
+        assert steps.max() < 1.5 * steps.min()
+    assert found == oracle.find_windows("X", time_s, velocity)
 
 
 def test_captures_of_an_import_without_position(tmp_path: Path, machine: MachineConfig) -> None:

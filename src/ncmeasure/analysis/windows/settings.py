@@ -37,9 +37,10 @@ COARSE_WINDOW_SAMPLES: Final = 20
 their medians are uncertain and the Stribeck curve at low speed is not resolved."""
 
 HOLE_PERIODS: Final = 1.5
-"""A time step longer than this many sample periods is a hole (a link outage, the step
-between two files of an import): no window spans it, no position is carried across it
-(the rule of the hole counter, :func:`ncmeasure.analysis.reading.recording_gaps`)."""
+"""A time step longer than this many sample periods (the rule of the hole counter,
+:func:`ncmeasure.analysis.reading.recording_gaps`), and than this many times the step
+before it, is a hole (a link outage, the step between two files of an import): no
+window spans it, no position is carried across it."""
 
 DISPLACEMENT_QUANTA: Final = 2.0
 """A window's displacement is known to this many position counts (one at each end)."""

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
 from ncmeasure.analysis.windows.model import Cluster
+from ncmeasure.analysis.windows.settings import HOLE_PERIODS
 
 __all__ = [
     "align",
@@ -41,18 +42,25 @@ def runs(mask: BoolArray) -> tuple[IntArray, IntArray]:
     return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
 
 
-def hole_rows(time_s: FloatArray, limit_s: float, before_s: float | None = None) -> IntArray:
-    """Indices into ``time_s`` of the rows that follow a hole (a step longer than ``limit_s``).
+def hole_rows(time_s: FloatArray, period_s: float, before_s: Sequence[float] = ()) -> IntArray:
+    """Indices into ``time_s`` of the rows that follow a hole of the time axis.
 
-    ``before_s`` is the time of the row before ``time_s[0]`` (None: the first row of a
-    recording, after no hole).
+    A hole is a time step longer than :data:`HOLE_PERIODS` times the sample
+    period ``period_s`` and than the step before it: the files of an import may
+    differ in sample period (the recording's is their median step), and a file
+    sampled more slowly is no run of holes; its first step after the gap into it
+    is no hole either. ``before_s``: the times of the (up to two) rows before
+    ``time_s[0]``, in order; a recording's first step has the period before it.
     """
-    times = np.asarray(time_s, dtype=np.float64)
-    if before_s is not None:
-        times = np.concatenate(([before_s], times))
+    earlier = [float(t) for t in before_s][-2:]
+    times = np.concatenate((earlier, np.asarray(time_s, dtype=np.float64)))
     steps = np.diff(times)
-    found = np.flatnonzero(steps > limit_s)
-    return found if before_s is not None else found + 1
+    previous = np.concatenate(([period_s], steps[:-1]))
+    if len(earlier) == 2:
+        previous[0] = earlier[1] - earlier[0]
+    hole = steps > HOLE_PERIODS * np.maximum(period_s, previous)
+    found: IntArray = np.flatnonzero(hole) + 1 - len(earlier)
+    return found
 
 
 def segment_sums(values: FloatArray, holes: IntArray, carry: float) -> tuple[FloatArray, float]:

@@ -22,7 +22,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ncmeasure.analysis.windows.scan import AxisStatistics, Rows, bridge_chunk
-from ncmeasure.analysis.windows.settings import HOLE_PERIODS
 from ncmeasure.analysis.windows.signals import hole_rows, position_velocity, runs, segment_sums
 from ncmeasure.recording import RowChunk
 
@@ -235,15 +234,15 @@ def cleaned_rows(
     ``derived`` vd (the velocity the windows are found by): the position's
     central differences need ``h`` rows ahead, so blocks lag by ``h`` rows.
     Without a usable position, x is the integrated velocity, relative to the start
-    of its segment: the sum starts again after every hole of the time axis (a step
-    over ``HOLE_PERIODS`` sample periods), where the axis may have moved any
-    distance. ``holes``, where given, gets the rows that follow a hole.
+    of its segment: the sum starts again after every hole of the time axis
+    (:func:`~ncmeasure.analysis.windows.signals.hole_rows`), where the axis may
+    have moved any distance. ``holes``, where given, gets the rows that follow a hole.
     """
     stats = statistics
     n = stats.rows
     scale = dt / 60.0
     carry = {"x": 0.0}
-    last: list[float] = []
+    times_before: list[float] = []
     ahead = Ahead(h, h, n)
 
     def cleaned(chunk: RowChunk, signal: str) -> FloatArray:
@@ -276,9 +275,8 @@ def cleaned_rows(
         index = chunk.first // stats.chunk_rows
         columns: Columns = {"t": chunk.time_s}
         columns["v"] = bridged(chunk, "velocity_mm_min", index)
-        after = hole_rows(chunk.time_s, HOLE_PERIODS * dt, last[0] if last else None)
-        if len(chunk.time_s):
-            last[:] = [float(chunk.time_s[-1])]
+        after = hole_rows(chunk.time_s, dt, times_before)
+        times_before[:] = [*times_before, *chunk.time_s[-2:].tolist()][-2:]
         if holes is not None:
             holes.extend((after + chunk.first).tolist())
         if positions_known:
