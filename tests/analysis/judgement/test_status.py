@@ -86,3 +86,33 @@ def test_viscous_friction_is_shown_not_judged() -> None:
     assert judged.status == "ok"
     (change,) = [c for c in judged.axes["X"].changes if c.characteristic == "viscous_per_m_min"]
     assert change.change == pytest.approx(-30.0)
+
+
+@pytest.mark.parametrize(
+    ("latest", "base", "which"),
+    [
+        (None, 1.0, "the latest"),
+        (1.0, None, "the baseline"),
+        (None, None, "the latest and the baseline"),
+    ],
+)
+def test_a_change_that_cannot_be_judged_is_never_a_silent_ok(
+    latest: float | None, base: float | None, which: str
+) -> None:
+    def figures(coulomb: float | None) -> AxisFigures:
+        values = {"coulomb": coulomb, "viscous_per_m_min": 0.1, "spread_percent": 3.0}
+        return AxisFigures("X", "Nm", "ok", values)
+
+    judged = machine_status({"X": figures(latest)}, baseline={"X": figures(base)})
+    assert judged.status == "warning"
+    assert judged.reasons == [
+        f"axis X: no friction line in {which} measurement: the change since the baseline "
+        "cannot be judged"
+    ]
+    # at least a warning: a fault stays critical
+    faulty = AxisFigures("X", "Nm", "fault", figures(latest).values)
+    assert machine_status({"X": faulty}, baseline={"X": figures(base)}).status == "critical"
+    # without a baseline nothing changes: there is no change to judge
+    assert machine_status({"X": figures(latest)}).status == "ok"
+    # Coulomb friction on both sides: judged on it, as before
+    assert machine_status({"X": figures(1.02)}, baseline={"X": figures(1.0)}).status == "ok"

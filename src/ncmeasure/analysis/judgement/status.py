@@ -18,7 +18,9 @@ same figures of the baseline, and the axis' place in its type's fleet
   (:data:`CHARACTERISTICS`: Coulomb friction in percent, the spread along the
   travel in percentage points) against ``Limits.warning_percent`` and
   ``Limits.critical_percent``. Viscous friction is shown, not judged: it follows
-  the lubricant's temperature by several percent per kelvin;
+  the lubricant's temperature by several percent per kelvin. Where a baseline
+  exists but the latest or the baseline has no Coulomb friction for the axis (no
+  friction line), the change cannot be judged: a warning, never a silent ok;
 * an outlier of its type (the modified z-score rule, :func:`is_outlier`): a
   warning;
 * absolute sanity, at least a warning even without a baseline or a fleet large
@@ -247,6 +249,25 @@ def _change_text(change: Change) -> str:
     return f"{_BY_NAME[change.characteristic].title} {change.change:+.1f}{unit} since the baseline"
 
 
+def _unjudged_reason(latest: AxisFigures, base: AxisFigures) -> str | None:
+    """Why the change since the baseline cannot be judged: a side without Coulomb friction.
+
+    Coulomb friction is what the change is judged on; without it on either side
+    the axis is at least a warning, never a silent ok.
+    """
+    missing = [
+        which
+        for which, figures in (("the latest", latest), ("the baseline", base))
+        if figures.values.get("coulomb") is None
+    ]
+    if not missing:
+        return None
+    return (
+        f"no friction line in {' and '.join(missing)} measurement: the change since the "
+        "baseline cannot be judged"
+    )
+
+
 def _sibling_reason(axis: AxisFigures, others: Sequence[AxisFigures]) -> str | None:
     own = axis.values.get("coulomb")
     peers = [
@@ -296,6 +317,10 @@ def axis_status(
             statuses.append(change.status)
             if change.status != "ok":
                 reasons.append(f"axis {axis.axis}: {_change_text(change)} ({change.status})")
+        unjudged = _unjudged_reason(axis, baseline)
+        if unjudged is not None:
+            statuses.append("warning")
+            reasons.append(f"axis {axis.axis}: {unjudged}")
     sibling = _sibling_reason(axis, siblings)
     if sibling is not None:
         statuses.append("warning")
