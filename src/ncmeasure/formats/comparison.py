@@ -146,6 +146,11 @@ class RunSummary(_Model):
         default_factory=dict, description="Per axis: its status against the base."
     )
     reasons: list[str] = Field(default_factory=list, description="Why the status is not ok.")
+    change_status: dict[str, Status] = Field(
+        default_factory=dict,
+        description="Per axis: the status of its change since the base alone, without its own "
+        "verdict (what the comparison adds to the verdict).",
+    )
 
 
 class FleetAxis(_Model):

@@ -671,6 +671,7 @@ def _run_summary(
         ),
         status=judged.status,
         axis_status={name: a.status for name, a in judged.axes.items()},
+        change_status={name: a.change_status for name, a in judged.axes.items()},
         reasons=judged.reasons,
     )
 

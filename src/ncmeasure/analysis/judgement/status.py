@@ -171,6 +171,10 @@ class AxisStatus:
     """Characteristics that are outliers of the type (modified z)."""
     reasons: tuple[str, ...] = ()
     """Every finding that is not ok, in words."""
+    change_status: Status = "ok"
+    """The change since the baseline alone (without the axis' own verdict, its siblings and
+    its fleet): the worst judged change, a warning where it cannot be judged; ok without a
+    baseline. What a comparison with a reference adds to the axis' own verdict."""
 
 
 @dataclass(frozen=True)
@@ -311,16 +315,18 @@ def axis_status(
     if axis.verdict in ("check", "fault"):
         reasons.append(f"axis {axis.axis}: verdict {axis.verdict}")
     changes: list[Change] = []
+    since_baseline: list[Status] = []
     if baseline is not None and baseline.unit == axis.unit:
         changes = _changes(axis, baseline, limits)
         for change in changes:
-            statuses.append(change.status)
+            since_baseline.append(change.status)
             if change.status != "ok":
                 reasons.append(f"axis {axis.axis}: {_change_text(change)} ({change.status})")
         unjudged = _unjudged_reason(axis, baseline)
         if unjudged is not None:
-            statuses.append("warning")
+            since_baseline.append("warning")
             reasons.append(f"axis {axis.axis}: {unjudged}")
+    statuses.extend(since_baseline)
     sibling = _sibling_reason(axis, siblings)
     if sibling is not None:
         statuses.append("warning")
@@ -354,6 +360,7 @@ def axis_status(
         changes=tuple(changes),
         outliers=tuple(outliers),
         reasons=tuple(reasons),
+        change_status=worst_status(since_baseline),
     )
 
 
