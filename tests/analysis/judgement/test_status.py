@@ -116,3 +116,12 @@ def test_a_change_that_cannot_be_judged_is_never_a_silent_ok(
     assert machine_status({"X": figures(latest)}).status == "ok"
     # Coulomb friction on both sides: judged on it, as before
     assert machine_status({"X": figures(1.02)}, baseline={"X": figures(1.0)}).status == "ok"
+
+
+def test_the_change_alone_is_kept_apart_from_the_verdict() -> None:
+    """What a comparison adds to an axis' own verdict: the change since the baseline alone."""
+    fault = machine_status({"X": _axis("X", 1.0, "fault")}, baseline={"X": _axis("X", 1.0)})
+    assert (fault.status, fault.axes["X"].change_status) == ("critical", "ok")
+    moved = machine_status({"X": _axis("X", 0.85)}, baseline={"X": _axis("X", 1.0)})
+    assert (moved.status, moved.axes["X"].change_status) == ("warning", "warning")
+    assert machine_status({"X": _axis("X", 1.0)}).axes["X"].change_status == "ok"
