@@ -81,7 +81,6 @@ MARKER_GRACE_S = 10.0
 after it a marker that never rose is taken for a wiring fault and the motion is the start."""
 PARK_TOLERANCE_MM = 0.05
 """An axis this close to its park is at it; one that moved farther has left where it stood."""
-_VERDICT_STATUS: dict[str, Status] = {"ok": "ok", "check": "warning", "fault": "critical"}
 
 Phase = Literal["waiting", "running", "ending", "ended"]
 
@@ -650,11 +649,16 @@ class Evaluation:
 
 
 def verdict_status(results: Results, check_status: Status) -> Status:
-    """The worst of ``check_status`` and the axes' verdicts (check: warning, fault: critical)."""
-    from ncmeasure.analysis.judgement.summary import axis_headline
+    """The worst of ``check_status`` and the axes' verdicts (check: warning, fault: critical).
 
-    levels = [axis_headline(axis, None).verdict.level for axis in results.axes.values()]
-    return worst_status([check_status, *(_VERDICT_STATUS.get(level, "ok") for level in levels)])
+    ``store check``'s status already holds the verdicts (the one rule,
+    :func:`~ncmeasure.analysis.judgement.status.machine_status`); this adds nothing to it
+    and is kept for a status that did not come from there.
+    """
+    from ncmeasure.analysis.judgement.status import VERDICT_STATUS
+
+    levels = [axis.verdict.level for axis in results.axes.values()]
+    return worst_status([check_status, *(VERDICT_STATUS.get(level, "ok") for level in levels)])
 
 
 def evaluate(
@@ -726,7 +730,7 @@ def evaluate(
         report=page,
         added=added,
         check=check,
-        status=verdict_status(results, check.status),
+        status=check.status,
     )
 
 

@@ -134,7 +134,7 @@ def test_store_add_publishes_what_was_stored(
         write_results(make_results(when, factor), tmp_path / f"{name}.json")
         for name, when, factor in (
             ("delivery", "2026-01-10T08:00:00+00:00", 1.0),
-            ("service", "2029-01-10T08:00:00+00:00", 0.75),
+            ("service", "2029-01-10T08:00:00+00:00", 0.85),
         )
     ]
     code, out, err = run("store", "add", files[0], "--serial", "M 17#b", "--label", "delivery",
@@ -163,8 +163,8 @@ def test_store_add_publishes_what_was_stored(
         assert latest.coulomb is not None and base.coulomb is not None
         change = (latest.coulomb - base.coulomb) / abs(base.coulomb) * 100
         assert message["coulomb_change_percent"] == pytest.approx(change)
-        assert message["coulomb_change_percent"] == pytest.approx(-25.0, abs=0.5)
-        # −25 %: beyond the 20 % warning limit, within the 40 % critical one
+        assert message["coulomb_change_percent"] == pytest.approx(-15.0, abs=0.5)
+        # −15 %: beyond the 10 % warning limit, within the 25 % critical one
         assert message["change_status"] == "warning" and message["status"] in (
             "warning",
             "critical",
@@ -297,12 +297,15 @@ def test_publish_on_demand_sends_exactly_what_is_stored(
         assert message["status"] == shown.status  # store report's and the dashboard's light
         assert message["measurement_id"] == machine.latest_id
         assert message["coulomb"] == shown.latest["coulomb"]
-        assert (message["warning_percent"], message["critical_percent"]) == (20.0, 40.0)
+        assert (message["warning_percent"], message["critical_percent"]) == (10.0, 25.0)
 
 
 @pytest.mark.parametrize(
     ("limits", "change_status"),
-    [(("--warning", "10", "--critical", "20"), "critical"), (("--warning", "30"), "ok")],
+    [
+        (("--warning", "10", "--critical", "20"), "critical"),
+        (("--warning", "30", "--critical", "40"), "ok"),
+    ],
 )
 def test_the_limits_judge_the_published_change(
     broker: Broker, store_with_machine: str, limits: tuple[str, ...], change_status: str

@@ -8,7 +8,7 @@ import pytest
 from sqlalchemy import func, select
 
 from ncmeasure.errors import ConfigError
-from ncmeasure.formats.results import Results
+from ncmeasure.formats.results import Results, Verdict
 from ncmeasure.store import MeasurementInfo, measurement_info, open_store
 from ncmeasure.store import schema as t
 from ncmeasure.store.check import check_machine
@@ -104,26 +104,38 @@ def test_machines_measurements_and_trend(store_url: str, make_results: Make) -> 
             store.machine("M99")
 
 
+def _ok(results: Results) -> Results:
+    """The same results with every axis' own verdict ok: the status follows the change alone."""
+    ok = Verdict(level="ok", reason="flat along the travel", action="none")
+    axes = {name: a.model_copy(update={"verdict": ok}) for name, a in results.axes.items()}
+    return results.model_copy(update={"axes": axes})
+
+
 def test_check_against_delivery_and_fleet(store_url: str, make_results: Make) -> None:
     with open_store(store_url, write=True) as store:
         store.add(
-            make_results("2026-01-10T08:00:00+00:00"),
+            _ok(make_results("2026-01-10T08:00:00+00:00")),
             MeasurementInfo(serial="M17", label="delivery"),
         )
         store.add(
-            make_results("2029-01-10T08:00:00+00:00", factor=0.5),  # lost half its friction
+            _ok(make_results("2029-01-10T08:00:00+00:00", factor=0.5)),  # lost half its friction
             MeasurementInfo(serial="M17", label="service"),
         )
         for index, factor in enumerate((0.96, 1.0, 1.03, 0.98, 1.02)):
             store.add(
-                make_results(f"2026-0{index + 2}-01T08:00:00+00:00", factor),
+                _ok(make_results(f"2026-0{index + 2}-01T08:00:00+00:00", factor)),
                 MeasurementInfo(serial=f"M{20 + index}", label="delivery"),
             )
         check = check_machine(store, "M17")
         other = check_machine(store, "M21")
     assert check.baseline is not None and check.baseline.label == "delivery"
     assert check.latest.label == "service"
-    assert check.status == "critical"  # −50 % against delivery, beyond the 40 % limit
+    assert check.status == "critical"  # −50 % against delivery, beyond the 25 % limit
+    assert check.axis_status == {"X": "critical", "Z": "critical"}
+    assert any(
+        "axis X: Coulomb friction -50.0 % since the baseline (critical)" in finding
+        for finding in check.findings
+    )
     assert check.fleet_machines == 5
     coulomb = {f.axis: f for f in check.fleet if f.characteristic == "coulomb"}
     assert coulomb["X"].outlier and coulomb["X"].modified_z is not None
@@ -131,6 +143,25 @@ def test_check_against_delivery_and_fleet(store_url: str, make_results: Make) ->
     assert any("outlier of its type" in finding for finding in check.findings)
     assert other.status == "ok" and other.baseline is None
     assert not any(f.outlier for f in other.fleet)
+
+
+def test_a_fault_verdict_makes_the_check_critical(store_url: str, make_results: Make) -> None:
+    """The fixture's axis X has the verdict fault: critical without any change."""
+    results = make_results("2026-01-10T08:00:00+00:00")
+    assert results.axes["X"].verdict.level == "fault"
+    with open_store(store_url, write=True) as store:
+        store.add(results, MeasurementInfo(serial="M17", label="delivery"))
+        alone = check_machine(store, "M17")
+        store.add(
+            make_results("2029-01-10T08:00:00+00:00"),
+            MeasurementInfo(serial="M17", label="service"),
+        )
+        unchanged = check_machine(store, "M17")
+    for check in (alone, unchanged):
+        assert check.status == "critical"
+        assert check.axis_status["X"] == "critical"
+        assert "axis X: verdict fault" in check.findings
+    assert unchanged.baseline is not None and alone.baseline is None
 
 
 def test_comparability_is_stated(store_url: str, make_results: Make) -> None:

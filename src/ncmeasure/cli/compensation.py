@@ -54,6 +54,14 @@ def compensation_command(
             "the unit of dig_drv.act_torque for your drive."
         ),
     ] = 1000.0,
+    force: Annotated[
+        bool,
+        typer.Option(
+            "--force",
+            help="Write the table also for an axis whose verdict is fault (it would "
+            "compensate the fault).",
+        ),
+    ] = False,
 ) -> None:
     """Friction compensation for the controller, from a measurement, with sources and limits.
 
@@ -64,8 +72,9 @@ def compensation_command(
     docs/shop-floor.md explains how to apply each. Review before loading it; a cia402 file
     is then written to the drives by `ncmeasure apply-compensation FILE --machine M --yes`.
 
-    An axis the analysis could not fit in both directions, or not vertical for cia402, is
-    refused in one line (exit 2).
+    An axis the analysis could not fit in both directions, not vertical for cia402, or
+    whose verdict is fault (unless --force), is refused in one line (exit 2). The file's
+    header says per axis which positions it averaged and how much they differ.
 
     Example: ncmeasure compensation run1.results.json --controller twincat --axis X -o X.lis
     """
@@ -83,6 +92,7 @@ def compensation_command(
         machine=load_machine(machine) if machine is not None else None,
         units_per_a=units_per_a,
         source=results_file.name,
+        force=force,
     )
     if output is None:
         sys.stdout.write(text)

@@ -81,6 +81,15 @@ class DirectionFriction:
         values = [_position_friction(d, off, sign, speed_mm_min) for d, off, sign in self._curves]
         return float(np.mean(values))
 
+    def spread_percent(self, speed_mm_min: float) -> float:
+        """How much the averaged positions differ at ``speed_mm_min``: (max − min)/mean × 100
+        (0 for one position)."""
+        values = [
+            abs(_position_friction(d, off, sign, speed_mm_min)) for d, off, sign in self._curves
+        ]
+        mean = float(np.mean(values))
+        return (max(values) - min(values)) / mean * 100.0 if mean > 0 else 0.0
+
 
 @dataclass(frozen=True)
 class AxisFriction:

@@ -73,6 +73,8 @@ class Header:
     analysed: str
     version: str
     config_hash: str
+    averaged: tuple[str, ...] = ()
+    """Per axis: the positions averaged and how much they differ (the spread along the travel)."""
 
 
 @dataclass(frozen=True)
@@ -339,7 +341,21 @@ def _environment(template_dirs: Sequence[Path]) -> TemplateSandbox:
     return env
 
 
-def _header(results: Results, source: str) -> Header:
+def _averaged(friction: AxisFriction) -> str:
+    """What the table averaged over for one axis, and how much that hides."""
+    parts = []
+    for d in (friction.positive, friction.negative):
+        low, high = d.speed_range_mm_min
+        where = ", ".join(f"{p:g}" for p in d.positions_mm)
+        spread = max(d.spread_percent(low), d.spread_percent(high))
+        parts.append(
+            f"{d.direction} averaged over {len(d.positions_mm)} position(s) ({where} mm), "
+            f"which differ by up to {spread:.1f} % (max − min)/mean"
+        )
+    return f"axis {friction.axis}: " + "; ".join(parts)
+
+
+def _header(results: Results, source: str, frictions: Sequence[AxisFriction] = ()) -> Header:
     info = results.recording
     return Header(
         results=source,
@@ -348,7 +364,29 @@ def _header(results: Results, source: str) -> Header:
         analysed=results.created_utc,
         version=__version__,
         config_hash=info.config_hash or "(none)",
+        averaged=tuple(_averaged(f) for f in frictions),
     )
+
+
+def refuse_faults(results: Results, names: Sequence[str], *, force: bool = False) -> None:
+    """Refuse to compensate an axis whose verdict is ``fault``, unless ``force``.
+
+    A friction table averages the positions; on an axis with an assembly fault it
+    would feed the fault's friction forward as if it were the machine's.
+
+    Raises:
+        ConfigError: an axis' verdict is fault and ``force`` is not set.
+    """
+    if force:
+        return
+    for name in names:
+        axis = results.axes.get(name)
+        if axis is not None and axis.verdict.level == "fault":
+            raise ConfigError(
+                f"axis {name}: the verdict is fault ({axis.verdict.reason}); a friction table "
+                "would compensate the fault, not the machine. Repair and measure again, or "
+                "give --force to write it anyway"
+            )
 
 
 def render_compensation(
@@ -361,6 +399,7 @@ def render_compensation(
     units_per_a: float = 1000.0,
     source: str = "results.json",
     template_dirs: Sequence[Path] = (),
+    force: bool = False,
 ) -> str:
     """The compensation file of one controller from the results of one measurement.
 
@@ -377,11 +416,12 @@ def render_compensation(
         source: The results file's name, for the header.
         template_dirs: Folders with a ``compensation/`` folder of own templates, searched
             before the built-in ones.
+        force: Compensate an axis whose verdict is fault too (:func:`refuse_faults`).
 
     Raises:
         ConfigError: an unknown controller, points out of the controller's limits, an
             axis without a friction model, a non-vertical axis or missing drive data for
-            ``cia402``.
+            ``cia402``; an axis whose verdict is fault without ``force``.
         DialectError: a template fails.
     """
     if controller not in CONTROLLERS:
@@ -409,8 +449,9 @@ def render_compensation(
                 "no axis of the results is vertical: the torque offset 0x60B2 is written for "
                 "vertical axes only"
             )
+    refuse_faults(results, names, force=force)
     frictions = [axis_friction(results, name) for name in names]
-    header = _header(results, source)
+    header = _header(results, source, frictions)
     if controller == "twincat":
         view = CompensationView(
             header,

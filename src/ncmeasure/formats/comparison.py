@@ -60,28 +60,36 @@ class _Model(BaseModel):
 class Limits(_Model):
     """When a change of friction is worth a warning, and when it is critical.
 
-    Defaults, from method.md's reference numbers:
+    Defaults, from the method's physics and the measurement's own uncertainty
+    (docs/fleet.md, "The limits"; the numbers are the virtual machine's axis
+    model, ``ncmeasure.sim.axis``):
 
-    - friction varies by ~40 % along the travel of one healthy industrial
-      axis, new identical machines spread by ~50 %, and a ball screw loses up
-      to ~60 % over its life through preload loss. A change of the whole
-      friction level by 40 % is therefore of the size of a full preload loss
-      or a machine at the far end of its type's spread: **critical 40 %**.
-    - half of that, **warning 20 %**, is well above run-to-run repeatability
-      (three runs 20 min apart agreed) and matches the ~20 % step a single
-      sticking telescopic cover produced: a change a technician should look at.
+    - a healthy re-measurement changes Coulomb friction by the torque accuracy
+      of the drive (about ±1.5 %, so up to 3 % between two measurements)
+      plus the run-to-run scatter (0.02–0.2 % between seeds of the virtual
+      machine): **warning 10 %** is three times that, and a ball-screw nut one
+      preload class too high (+19 % Coulomb friction in the model; the
+      carriages' preload doubled: +12 %) passes it;
+    - **critical 25 %**: beyond any single preload change the model knows (a
+      full loss of the nut's preload is −13 %, every preload −60 % is −20 %),
+      so critical means more than one component, or a fault of its own.
 
-    The figures compared with the limits are medians over the velocities of
-    one (axis, position, direction), so a single noisy velocity step does not
-    trip them.
+    They apply to the change of Coulomb friction (percent) and of the spread
+    along the travel (percentage points) since the baseline; every surface
+    decides a machine's status with them in one place,
+    :func:`~ncmeasure.analysis.judgement.status.machine_status`.
+
+    ``compare`` also shows the change point by point (medians over the
+    velocities of one axis, position and direction, with their own status
+    against the same limits): where the change is, not the machine's status.
 
     Outliers in a fleet use the robust modified z-score of Iglewicz & Hoaglin,
     0.6745·(x − median)/MAD, against ``outlier_z`` (3.5, their recommendation);
     with fewer than ``outlier_min_runs`` runs no outlier is named.
     """
 
-    warning_percent: float = Field(default=20.0, gt=0)
-    critical_percent: float = Field(default=40.0, gt=0)
+    warning_percent: float = Field(default=10.0, gt=0)
+    critical_percent: float = Field(default=25.0, gt=0)
     outlier_z: float = Field(default=3.5, gt=0, description="Modified z-score threshold.")
     outlier_min_runs: int = Field(default=3, ge=3)
 
@@ -133,7 +141,16 @@ class RunSummary(_Model):
         description="Largest |median deviation| of any axis, position and direction."
     )
     worst: str | None = Field(description="Where that largest deviation is.")
-    status: Status
+    status: Status = Field(description="The machine's status against the base (one rule).")
+    axis_status: dict[str, Status] = Field(
+        default_factory=dict, description="Per axis: its status against the base."
+    )
+    reasons: list[str] = Field(default_factory=list, description="Why the status is not ok.")
+    change_status: dict[str, Status] = Field(
+        default_factory=dict,
+        description="Per axis: the status of its change since the base alone, without its own "
+        "verdict (what the comparison adds to the verdict).",
+    )
 
 
 class FleetAxis(_Model):

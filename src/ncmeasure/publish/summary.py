@@ -12,10 +12,15 @@ MAINTENANCE_REQUIRED 4; https://reference.opcfoundation.org/DI/docs/4.5.4/),
 itself NAMUR NE 107's status signals. The mapping, worst first:
 
 * FAILURE: the analysis found an assembly fault (verdict ``fault``).
-* OFF_SPEC: a characteristic changed beyond the critical limit since the baseline.
-* MAINTENANCE_REQUIRED: the verdict ``check``, a change beyond the warning limit,
-  or an outlier of the machine's type: the axis works, but wants attention.
-* NORMAL: none of these.
+* OFF_SPEC: any other ``critical`` status (a change beyond the critical limit).
+* MAINTENANCE_REQUIRED: the status ``warning`` (the verdict ``check``, a change
+  beyond the warning limit, an outlier of the machine's type, friction far from
+  the machine's other axes or from its type): the axis works, but wants attention.
+* NORMAL: the status ``ok``.
+
+The status is the one rule of every surface
+(:func:`~ncmeasure.analysis.judgement.status.machine_status`); the health only
+tells a fault from another critical status.
 
 CHECK_FUNCTION ("functional checks are currently performed") says that work on
 the device makes its values temporarily invalid; the store does not know of a
@@ -68,9 +73,9 @@ _SEVERITY: tuple[Health, ...] = (
 
 def device_health(axis: AxisOverview) -> Health:
     """The DI DeviceHealth of an axis (the mapping of the module docstring)."""
-    if axis.verdict == "fault":
-        return "FAILURE"
     status = axis.status
+    if status == "critical" and axis.verdict == "fault":
+        return "FAILURE"
     if status == "critical":
         return "OFF_SPEC"
     if status == "warning":

@@ -28,14 +28,20 @@ from sqlalchemy import func, select
 
 from ncmeasure.analysis.judgement.compare import POSITION_MATCH_TOLERANCE_MM, compare_results
 from ncmeasure.analysis.judgement.fleet import modified_z_against
+from ncmeasure.analysis.judgement.status import (
+    CHARACTERISTICS,
+    AxisFigures,
+    FleetPlace,
+    figures_of,
+    is_outlier,
+    machine_status,
+)
 from ncmeasure.errors import ComparisonError
 from ncmeasure.files import write_whole
-from ncmeasure.formats.comparison import Comparison, Limits, Status, worst_status
+from ncmeasure.formats.comparison import Comparison, Limits, Status
 from ncmeasure.formats.results import Results
 from ncmeasure.store import schema as t
-from ncmeasure.store.overview import is_outlier
 from ncmeasure.store.records import MeasurementSummary, check_serial
-from ncmeasure.store.rows import CHARACTERISTICS
 from ncmeasure.store.store import Store
 
 __all__ = [
@@ -98,7 +104,12 @@ class StoreCheck(BaseModel):
     fleet: list[FleetFigure]
     fleet_machines: int = Field(description="Other machines of the type with a measurement.")
     findings: list[str]
-    status: Status = Field(description="ok, warning or critical.")
+    status: Status = Field(
+        description="ok, warning or critical: the one rule of ncmeasure.analysis.judgement.status."
+    )
+    axis_status: dict[str, Status] = Field(
+        default_factory=dict, description="Per axis: its status by the same rule."
+    )
 
 
 def _positions(results: Results, axis: str) -> list[float]:
@@ -275,11 +286,11 @@ def check_machine(store: Store, serial: str, limits: Limits | None = None) -> St
     latest = next(m for m in measurements if m.id == machine.latest_measurement_id)
     latest_results = store.results(latest.id)
     findings: list[str] = []
-    status: Status = "ok"
     first = _baseline(measurements)
     baseline = first if first.id != latest.id else None
     comparison: Comparison | None = None
     rules: Comparability | None = None
+    base_figures: dict[str, AxisFigures] | None = None
     if baseline is None:
         findings.append("only the baseline is stored: nothing to compare over the machine's life")
     else:
@@ -288,6 +299,7 @@ def check_machine(store: Store, serial: str, limits: Limits | None = None) -> St
         if rules.refused is not None:
             findings.append(f"not compared with the baseline: {rules.refused}")
         else:
+            base_figures = figures_of(base_results)
             base_label = baseline.label or f"measurement {baseline.id}"
             other_label = latest.label or f"measurement {latest.id}"
             if other_label == base_label:
@@ -300,7 +312,6 @@ def check_machine(store: Store, serial: str, limits: Limits | None = None) -> St
                 rules = Comparability(differences=rules.differences, refused=exc.message)
                 findings.append(f"not compared with the baseline: {exc.message}")
             else:
-                status = comparison.status
                 findings.extend(comparison.findings)
     fleet, fleet_machines = _fleet(store, machine.type_id, machine.id, latest_results, limits)
     if fleet_machines < limits.outlier_min_runs:
@@ -308,14 +319,18 @@ def check_machine(store: Store, serial: str, limits: Limits | None = None) -> St
             f"{fleet_machines} other machine(s) of type {summary.machine_type!r} in the store: "
             f"at least {limits.outlier_min_runs} are needed to name outliers"
         )
+    places: dict[str, list[FleetPlace]] = defaultdict(list)
     for figure in fleet:
-        if figure.outlier:
-            status = worst_status((status, "warning"))
-            findings.append(
-                f"axis {figure.axis}: {figure.characteristic} {figure.value:.4g} {figure.unit} is "
-                f"an outlier of its type (fleet median {figure.fleet_median:.4g}, modified z "
-                f"{figure.modified_z:+.1f} over {figure.machines} machines)"
+        places[figure.axis].append(
+            FleetPlace(
+                figure.characteristic, figure.fleet_median, figure.modified_z, figure.machines
             )
+        )
+    judged = machine_status(
+        figures_of(latest_results), baseline=base_figures, fleet=places, limits=limits
+    )
+    findings.extend(judged.reasons)
+    status = judged.status
     return StoreCheck(
         serial=serial,
         machine_type=summary.machine_type,
@@ -327,6 +342,7 @@ def check_machine(store: Store, serial: str, limits: Limits | None = None) -> St
         fleet_machines=fleet_machines,
         findings=findings,
         status=status,
+        axis_status={name: a.status for name, a in judged.axes.items()},
     )
 
 

@@ -27,11 +27,19 @@ from typing import Any
 import numpy as np
 from sqlalchemy import select
 
-from ncmeasure.analysis.judgement.diagnosis import FLAT_THRESHOLD_PERCENT
 from ncmeasure.analysis.judgement.fleet import modified_z_leave_one_out
+from ncmeasure.analysis.judgement.status import (
+    CHARACTERISTICS,
+    AxisFigures,
+    AxisStatus,
+    Change,
+    FleetPlace,
+    change_status,
+    is_outlier,
+    machine_status,
+)
 from ncmeasure.formats.comparison import Limits, Status, worst_status
 from ncmeasure.store import schema as t
-from ncmeasure.store.rows import CHARACTERISTICS, Characteristic
 from ncmeasure.store.store import Store
 
 __all__ = [
@@ -44,51 +52,10 @@ __all__ = [
     "fleet_overview",
     "is_outlier",
 ]
+# change_status, is_outlier and Change are the judgement's (judgement.status), named
+# here too for the overview's readers.
 
-_VERDICT_STATUS: dict[str, Status] = {"ok": "ok", "check": "warning", "fault": "critical"}
 _CHUNK = 500  # ids per IN (...) query: far below every database's parameter limit
-
-
-def is_outlier(
-    characteristic: Characteristic, value: float, median: float, z: float | None, limits: Limits
-) -> bool:
-    """The outlier rule of ``store check`` and the fleet overview.
-
-    A modified z beyond ``limits.outlier_z``, and a difference from the fleet's
-    median that matters: the warning limit of a friction level (relative), or
-    the spread a healthy axis keeps (:data:`FLAT_THRESHOLD_PERCENT` points). A
-    fleet that hardly scatters would otherwise make any difference a large z.
-    """
-    if z is None or abs(z) <= limits.outlier_z:
-        return False
-    floor = (
-        abs(median) * limits.warning_percent / 100.0
-        if characteristic.relative
-        else FLAT_THRESHOLD_PERCENT
-    )
-    return abs(value - median) > floor
-
-
-def change_status(change: float, limits: Limits) -> Status:
-    """A change (percent, or points of the spread) against the warning and critical limits."""
-    size = abs(change)
-    if size >= limits.critical_percent:
-        return "critical"
-    if size >= limits.warning_percent:
-        return "warning"
-    return "ok"
-
-
-@dataclass(frozen=True)
-class Change:
-    """One characteristic of an axis: the latest value against the baseline's."""
-
-    characteristic: str
-    baseline: float
-    latest: float
-    change: float
-    """Percent of the baseline (friction levels), or percentage points (the spread)."""
-    status: Status
 
 
 @dataclass(frozen=True)
@@ -118,14 +85,23 @@ class AxisOverview:
     latest: dict[str, float | None]
     changes: list[Change] = field(default_factory=list)
     outliers: list[Outlier] = field(default_factory=list)
+    judged: AxisStatus | None = None
+    """The one rule's answer (:func:`~ncmeasure.analysis.judgement.status.machine_status`)."""
 
     @property
     def status(self) -> Status:
-        """The light: the worst of the verdict (check: warning, fault: critical), the
-        changes since the baseline, and an outlier (a warning)."""
-        outlier: list[Status] = ["warning"] if self.outliers else []
-        verdict = _VERDICT_STATUS.get(self.verdict, "ok")
-        return worst_status([verdict, *(c.status for c in self.changes), *outlier])
+        """The light: the status of :func:`~ncmeasure.analysis.judgement.status.machine_status`
+        (the verdict, the changes since the baseline, the fleet, the sibling axes)."""
+        return self.judged.status if self.judged is not None else "ok"
+
+    @property
+    def reasons(self) -> tuple[str, ...]:
+        """Why the status is not ok, in words."""
+        return self.judged.reasons if self.judged is not None else ()
+
+    def figures(self) -> AxisFigures:
+        """The axis as the judgement reads it."""
+        return AxisFigures(self.axis, self.unit, self.verdict, self.latest)
 
 
 @dataclass
@@ -190,22 +166,6 @@ def _finite(value: float | None) -> float | None:
     return float(value) if value is not None and math.isfinite(value) else None
 
 
-def _changes(base: Any, latest: Any, limits: Limits) -> list[Change]:
-    changes = []
-    for c in CHARACTERISTICS:
-        before, after = _finite(getattr(base, c.name)), _finite(getattr(latest, c.name))
-        if before is None or after is None:
-            continue
-        if c.relative:
-            if before == 0:
-                continue
-            change = (after - before) / abs(before) * 100.0
-        else:
-            change = after - before
-        changes.append(Change(c.name, before, after, change, change_status(change, limits)))
-    return changes
-
-
 def fleet_overview(store: Store, limits: Limits | None = None) -> FleetOverview:
     """Every machine of the store × every axis: latest verdict, change, outliers.
 
@@ -253,8 +213,10 @@ def fleet_overview(store: Store, limits: Limits | None = None) -> FleetOverview:
     # per (type, axis, unit, characteristic): the machines' latest values
     fleet: dict[tuple[str, str, str, str], list[tuple[AxisOverview, MachineOverview, float]]]
     fleet = defaultdict(list)
+    baselines: dict[str, dict[str, AxisFigures]] = {}
     for machine in overviews:
-        base_rows = {r.axis: r for r in rows[machine.baseline_id]}
+        if machine.baseline_id != machine.latest_id:
+            baselines[machine.serial] = {r.axis: _figures(r) for r in rows[machine.baseline_id]}
         for row in sorted(rows[machine.latest_id], key=lambda r: r.axis):
             axis = AxisOverview(
                 axis=row.axis,
@@ -262,10 +224,6 @@ def fleet_overview(store: Store, limits: Limits | None = None) -> FleetOverview:
                 verdict=row.verdict,
                 latest={c.name: _finite(getattr(row, c.name)) for c in CHARACTERISTICS},
             )
-            base = base_rows.get(row.axis)
-            compared = machine.baseline_id != machine.latest_id
-            if compared and base is not None and base.unit == row.unit:
-                axis.changes = _changes(base, row, limits)
             machine.axes[row.axis] = axis
             for c in CHARACTERISTICS:
                 value = axis.latest[c.name]
@@ -273,7 +231,20 @@ def fleet_overview(store: Store, limits: Limits | None = None) -> FleetOverview:
                     fleet[(machine.machine_type, row.axis, row.unit, c.name)].append(
                         (axis, machine, value)
                     )
-    outliers = _outliers(fleet, limits)
+    places: dict[tuple[str, str], dict[str, list[FleetPlace]]] = defaultdict(
+        lambda: defaultdict(list)
+    )
+    outliers = _outliers(fleet, limits, places)
+    for machine in overviews:
+        judged = machine_status(
+            {name: axis.figures() for name, axis in machine.axes.items()},
+            baseline=baselines.get(machine.serial),
+            fleet=places[(machine.serial, machine.machine_type)],
+            limits=limits,
+        )
+        for name, axis in machine.axes.items():
+            axis.judged = judged.axes[name]
+            axis.changes = list(judged.axes[name].changes)
     types: dict[str, int] = defaultdict(int)
     for machine in overviews:
         types[machine.machine_type] += 1
@@ -286,22 +257,37 @@ def fleet_overview(store: Store, limits: Limits | None = None) -> FleetOverview:
     )
 
 
+def _figures(row: Any) -> AxisFigures:
+    return AxisFigures(
+        row.axis,
+        row.unit,
+        row.verdict,
+        {c.name: _finite(getattr(row, c.name)) for c in CHARACTERISTICS},
+    )
+
+
 def _outliers(
     fleet: dict[tuple[str, str, str, str], list[tuple[AxisOverview, MachineOverview, float]]],
     limits: Limits,
+    places: dict[tuple[str, str], dict[str, list[FleetPlace]]],
 ) -> list[Outlier]:
+    """The outliers of the fleet, all at once; ``places`` gets every axis' place in it."""
     by_name = {c.name: c for c in CHARACTERISTICS}
     found: list[Outlier] = []
     for (machine_type, axis_name, unit, name), members in fleet.items():
         others = len(members) - 1
-        if others < limits.outlier_min_runs:
+        if others < 1:
             continue
         values = np.array([value for _, _, value in members])
+        enough = others >= limits.outlier_min_runs
         z, medians = modified_z_leave_one_out(values)
         c = by_name[name]
         shown = c.unit_of(unit)
         for (axis, machine, value), zi, median in zip(members, z, medians, strict=True):
-            if is_outlier(c, value, float(median), float(zi), limits):
+            places[(machine.serial, machine_type)][axis.axis].append(
+                FleetPlace(name, float(median), float(zi) if enough else None, others)
+            )
+            if enough and is_outlier(c, value, float(median), float(zi), limits):
                 outlier = Outlier(
                     serial=machine.serial,
                     machine_type=machine_type,

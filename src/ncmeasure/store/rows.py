@@ -13,8 +13,9 @@ import json
 import math
 import zlib
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
+from ncmeasure.analysis.judgement.status import CHARACTERISTICS, Characteristic
 from ncmeasure.analysis.judgement.summary import axis_headline
 from ncmeasure.formats.results import AxisResult, LinearFit, NonlinearFit, Results
 
@@ -28,29 +29,6 @@ __all__ = [
     "results_digest",
     "rows_of_axis",
 ]
-
-
-@dataclass(frozen=True)
-class Characteristic:
-    """One figure of an axis that the store trends and checks."""
-
-    name: str
-    title: str
-    unit: Literal["quantity", "%", "quantity per m/min"]
-    relative: bool = True
-    """Compared as a relative change (friction levels), else in points (spread in %)."""
-
-    def unit_of(self, quantity_unit: str) -> str:
-        """The unit of its values for an axis measured in ``quantity_unit`` (Nm or A)."""
-        return self.unit.replace("quantity", quantity_unit)
-
-
-CHARACTERISTICS = (
-    Characteristic("coulomb", "Coulomb friction", "quantity"),
-    Characteristic("viscous_per_m_min", "viscous friction", "quantity per m/min"),
-    Characteristic("spread_percent", "spread along the travel", "%", relative=False),
-)
-"""What ``store trend`` and ``store check`` follow over a machine's life and its fleet."""
 
 
 def canonical_json(results: Results) -> bytes:

@@ -133,6 +133,7 @@ def _findings(machine: MachineOverview) -> str:
             if c.status != "ok"
         ]
         found += [f"{axis.axis}: {_TITLES[o.characteristic]} an outlier" for o in axis.outliers]
+        found += [r for r in axis.reasons if " × " in r]  # far from its siblings or its fleet
     return " · ".join(found[:4])
 
 

@@ -18,6 +18,7 @@ from ncmeasure.formats.comparison import AxisChange, Comparison, Limits
 from ncmeasure.formats.results import (
     AxisResult,
     DirectionResult,
+    LinearFit,
     Point,
     PositionResult,
     RecordingInfo,
@@ -35,6 +36,29 @@ def curve(v: float) -> float:
 
 Factor = Callable[[str, int, str, float], float]  # axis, position index, direction, speed
 
+LINE_FROM_MM_MIN = 300.0
+"""The fixture's lines start here: above the Stribeck region of ``curve`` (e^-5 of it left)."""
+
+
+def line(points: list[Point]) -> LinearFit:
+    """The line through the points above the Stribeck region, as the analysis fits it: its
+    Coulomb friction is the curve's 1.5 times the points' factor."""
+    above = [p for p in points if abs(p.velocity_mm_min) >= LINE_FROM_MM_MIN]
+    speeds = np.array([abs(p.velocity_mm_min) for p in above])
+    friction = np.array([abs(p.median) for p in above])
+    viscous, coulomb = np.polyfit(speeds, friction, 1)
+    return LinearFit(
+        coulomb=float(coulomb),
+        viscous_per_mm_min=float(viscous),
+        coulomb_stderr=None,
+        viscous_stderr=None,
+        chi2_reduced=1.0,
+        accepted=True,
+        n_points=len(above),
+        velocity_range_mm_min=(float(speeds.min()), float(speeds.max())),
+        points_below_range=len(points) - len(above),
+    )
+
 
 def results(
     machine: str | None = "HMX-400 #17",
@@ -49,8 +73,10 @@ def results(
     created: str = "2026-01-15T08:30:00+00:00",
     travel_mm: tuple[float, float] | None = None,
     fixed_bearing_end: Literal["min", "max"] | None = None,
+    lines: bool = True,
 ) -> Results:
-    """Results of a machine whose friction is the healthy curve times ``factor``."""
+    """Results of a machine whose friction is the healthy curve times ``factor``; with
+    ``lines``, each direction holds the line fitted to its points."""
     rng = np.random.default_rng(seed)
 
     def scale(axis: str, i: int, direction: str, v: float) -> float:
@@ -65,7 +91,7 @@ def results(
                     velocity_mm_min=sign * float(v), median=sign * t, mean=sign * t, std=0.05, n=100
                 )
             )
-        return DirectionResult(points=pts, fit=None)
+        return DirectionResult(points=pts, fit=line(pts) if lines else None)
 
     axis_results = {
         axis: AxisResult(
@@ -111,7 +137,14 @@ def results(
 
 @pytest.mark.parametrize(
     ("factor", "status"),
-    [(1.05, "ok"), (0.7, "warning"), (1.3, "warning"), (0.5, "critical")],
+    [
+        (1.05, "ok"),
+        (0.85, "warning"),
+        (1.15, "warning"),
+        (0.7, "critical"),
+        (1.3, "critical"),
+        (0.5, "critical"),
+    ],
 )
 def test_lifetime_deviation_limits_and_status(factor: float, status: str) -> None:
     base = results(created="2026-01-15T08:30:00+00:00")
@@ -137,20 +170,41 @@ def test_global_decrease_is_called_preload_loss() -> None:
     text = " ".join(comparison.findings)
     assert "-38.0 %" in text
     assert "preload" in text
-    assert comparison.runs[0].status == "warning"
+    assert comparison.runs[0].status == "critical"  # beyond 25 %
 
 
 def test_local_change_is_reported_as_local() -> None:
     def stuck_cover(axis: str, i: int, direction: str, v: float) -> float:
-        return 1.3 if (axis, i) == ("X", 2) else 1.0
+        return 1.4 if (axis, i) == ("X", 2) else 1.0
 
     comparison = compare_results(results(), [results(factor=stuck_cover)])
-    assert comparison.runs[0].status == "warning"
+    assert comparison.runs[0].status == "warning"  # Coulomb friction of axis X +13.3 %
+    assert comparison.runs[0].axis_status == {"X": "warning", "Y": "ok"}
     assert "axis X position 3 (700 mm)" in (comparison.runs[0].worst or "")
     assert any("local cause" in line for line in comparison.findings)
     groups = {(g.axis, g.position_index, g.direction): g for g in comparison.groups}
-    assert groups["X", 2, "negative"].median_deviation_percent == pytest.approx(30.0)
+    assert groups["X", 2, "negative"].median_deviation_percent == pytest.approx(40.0)
     assert groups["X", 1, "negative"].status == "ok"
+
+
+def test_without_friction_lines_the_change_is_a_warning_not_ok() -> None:
+    base = results(created="2026-01-15T08:30:00+00:00")
+    for later, which in (
+        (results(factor=0.7, lines=False, created="2028-01-15T08:30:00+00:00"), "the latest"),
+        (results(factor=1.0, lines=False, created="2028-01-15T08:30:00+00:00"), "the latest"),
+    ):
+        comparison = compare_results(base, [later])
+        (run,) = comparison.runs
+        assert run.status == "warning"
+        assert run.axis_status == {"X": "warning", "Y": "warning"}
+        assert run.reasons[0] == (
+            f"axis X: no friction line in {which} measurement: the change since the baseline "
+            "cannot be judged"
+        )
+    unfitted = results(lines=False)
+    comparison = compare_results(unfitted, [results(factor=1.02, created="2028-01-15T08:30:00Z")])
+    assert comparison.runs[0].status == "warning"
+    assert "no friction line in the baseline measurement" in comparison.runs[0].reasons[0]
 
 
 def test_limits_use_the_median_over_velocities_not_single_points() -> None:
@@ -221,7 +275,7 @@ def test_fleet_outlier_among_six_machines() -> None:
 
 
 def test_fleet_without_outlier() -> None:
-    runs = [results(f"M{i}", 1 + 0.02 * i, noise=0.01, seed=i) for i in range(6)]
+    runs = [results(f"M{i}", 1 + 0.015 * i, noise=0.01, seed=i) for i in range(6)]
     comparison = compare_results(runs[0], runs[1:])
     assert all(stats.outliers == [] for stats in comparison.fleet)
     assert comparison.status == "ok"
@@ -341,15 +395,15 @@ def along(values: list[float]) -> Factor:
 
 
 def test_global_increase_points_at_preload_or_carriage() -> None:
-    comparison, change = change_of(1.3)
+    comparison, change = change_of(1.2)
     assert change.signature == "flat"
-    assert change.mean_change_percent == pytest.approx(30.0, abs=1.0)
+    assert change.mean_change_percent == pytest.approx(20.0, abs=1.0)
     assert change.points == 2 * 5 * SPEEDS.size
     assert change.positions_mm == FIVE
-    assert change.change_percent == pytest.approx([30.0] * 5, abs=1.5)
+    assert change.change_percent == pytest.approx([20.0] * 5, abs=1.5)
     assert [c.cause for c in change.causes] == ["preload_or_carriage", "cover_or_seal"]
-    assert 0.5 < change.causes[0].score < 0.9
-    assert "+30" in change.causes[0].evidence and "global offset" in change.causes[0].evidence
+    assert 0.5 < change.causes[0].score < 0.9  # between the warning and the critical limit
+    assert "+20" in change.causes[0].evidence and "global offset" in change.causes[0].evidence
     assert any(
         "axis X" in line and "likely cause" in line and "preload_or_carriage" in line
         for line in comparison.findings

@@ -614,7 +614,7 @@ def compare_results(
         deviations.extend(points)
         groups.extend(run_groups)
         changes.extend(_axis_changes(label, base_label, base, points, limits))
-        runs.append(_run_summary(label, other, points, run_groups, limits))
+        runs.append(_run_summary(label, base, other, points, run_groups, limits))
     if empty:
         raise ComparisonError(
             "no point of "
@@ -646,13 +646,18 @@ def compare_results(
 
 def _run_summary(
     label: str,
+    base: Results,
     other: Results,
     points: Sequence[PointDeviation],
     groups: Sequence[GroupDeviation],
     limits: Limits,
 ) -> RunSummary:
-    """A run's largest median deviation and its status."""
+    """A run's largest median deviation, and its status by the one rule
+    (:func:`~ncmeasure.analysis.judgement.status.machine_status`, the base as baseline)."""
+    from ncmeasure.analysis.judgement.status import figures_of, machine_status
+
     worst = max(groups, key=lambda g: abs(g.median_deviation_percent))
+    judged = machine_status(figures_of(other), baseline=figures_of(base), limits=limits)
     return RunSummary(
         label=label,
         machine=other.recording.machine,
@@ -664,7 +669,10 @@ def _run_summary(
             f"{worst.median_deviation_percent:+.1f} % (median of {worst.points} "
             "velocities)"
         ),
-        status=_status(worst.median_deviation_percent, limits),
+        status=judged.status,
+        axis_status={name: a.status for name, a in judged.axes.items()},
+        change_status={name: a.change_status for name, a in judged.axes.items()},
+        reasons=judged.reasons,
     )
 
 
@@ -719,13 +727,14 @@ def _findings(
     for run in runs:
         if run.status == "ok":
             lines.append(
-                f"{run.label!r} against {base_label!r}: every change within "
-                f"±{limits.warning_percent:g} % (largest {run.worst}); ok."
+                f"{run.label!r} against {base_label!r}: ok ({band}; largest change of a "
+                f"point {run.worst})."
             )
         else:
             lines.append(
-                f"{run.label!r} against {base_label!r}: largest change {run.worst}; "
-                f"{run.status} ({band})."
+                f"{run.label!r} against {base_label!r}: {run.status} ({band}): "
+                + "; ".join(run.reasons)
+                + f". Largest change of a point {run.worst}."
             )
         if mode == "lifetime":
             lines.extend(_global_or_local(run.label, groups, limits))

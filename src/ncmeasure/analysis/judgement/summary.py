@@ -88,7 +88,8 @@ class AxisComparison:
         axis: The axis name.
         label: The compared run.
         base: The base run.
-        status: The worst status of the axis' positions and directions.
+        status: The status of the axis' change against the base (the one rule of
+            :mod:`~ncmeasure.analysis.judgement.status`, without the axis' own verdict).
         change: The change in words, for a verdict's reason: e.g. ``friction
             +9.7 % on average, rising towards the loose bearing; at most
             +34.2 % at position 5 (745 mm), negative``.
@@ -131,7 +132,12 @@ def axis_comparison(
     groups = [g for g in comparison.groups if g.label == run and g.axis == axis]
     if run is None or not groups:
         return None
-    status = worst_status(g.status for g in groups)
+    summary = next((r for r in comparison.runs if r.label == run), None)
+    status: Status = worst_status(g.status for g in groups)
+    if summary is not None and axis in summary.change_status:
+        # the one rule's judgement of the change (judgement.status); the axis' own
+        # verdict is combined with it by comparison_verdict, not counted twice
+        status = summary.change_status[axis]
     worst = max(groups, key=lambda g: abs(g.median_deviation_percent))
     change: AxisChange | None = next(
         (c for c in comparison.changes if c.label == run and c.axis == axis), None
