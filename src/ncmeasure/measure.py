@@ -46,7 +46,7 @@ import numpy as np
 from ncmeasure.acquire import AcquisitionResult, EndedBy, Progress, record
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError
-from ncmeasure.formats.comparison import Limits, Status, worst_status
+from ncmeasure.formats.comparison import Limits, Status
 from ncmeasure.formats.results import Results, write_results
 from ncmeasure.formats.schedule import SCHEDULE_MARGIN_S, Schedule, Window
 from ncmeasure.links import DriveLink
@@ -645,20 +645,7 @@ class Evaluation:
     check: Any
     """The store's ``StoreCheck``: the machine against its baseline and its fleet."""
     status: Status
-    """The verdict: the worst of the check's status and the axes' verdicts."""
-
-
-def verdict_status(results: Results, check_status: Status) -> Status:
-    """The worst of ``check_status`` and the axes' verdicts (check: warning, fault: critical).
-
-    ``store check``'s status already holds the verdicts (the one rule,
-    :func:`~ncmeasure.analysis.judgement.status.machine_status`); this adds nothing to it
-    and is kept for a status that did not come from there.
-    """
-    from ncmeasure.analysis.judgement.status import VERDICT_STATUS
-
-    levels = [axis.verdict.level for axis in results.axes.values()]
-    return worst_status([check_status, *(VERDICT_STATUS.get(level, "ok") for level in levels)])
+    """The verdict: the store check's status (the one rule, which holds the axes' verdicts)."""
 
 
 def evaluate(

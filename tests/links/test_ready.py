@@ -13,39 +13,15 @@ from typing import Any
 
 import pytest
 
-from ncmeasure.config import AxisConfig
 from ncmeasure.errors import LinkError
 from ncmeasure.links.canopen.link import CanOpenLink
 from ncmeasure.links.modbus.link import ModbusLink
 from ncmeasure.links.modbus.settings import ModbusReady
 from ncmeasure.samples import SimulatedClock
-from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
+from ncmeasure.sim.cia402 import SimulatedDrives
 from ncmeasure.sim.modbus_drive import ServerHandle, SimulatedUnit, running_server
-from ncmeasure.sim.rig import rig_mechanics
 from ncmeasure.sim.signals import PatternSource
-
-LEAD_MM = 20.0
-RATED_A = 10.0
-SCALING = DriveScaling(
-    mechanics=rig_mechanics(screw_lead_mm=LEAD_MM, rated_current_a=RATED_A),
-    increments_per_rev=10_000,
-)
-
-
-def axis_config(name: str) -> AxisConfig:
-    return AxisConfig.model_validate(
-        {
-            "name": name,
-            "travel_mm": (0.0, 500.0),
-            "park_mm": 10.0,
-            "max_velocity_mm_min": 20_000,
-            "max_acceleration_m_s2": 1.0,
-            "max_jerk_m_s3": 10.0,
-            "screw_lead_mm": LEAD_MM,
-            "rated_current_a": RATED_A,
-        }
-    )
-
+from tests.links.test_canopen import SCALING, axis_config
 
 # --- CANopen --------------------------------------------------------------------------
 
