@@ -35,7 +35,7 @@ from ncmeasure.cli import app
 from ncmeasure.config import load_machine
 from ncmeasure.formats.results import load_results
 from ncmeasure.formats.schedule import load_schedule
-from ncmeasure.measure import PRE_ROLL_S, ProgramWatch
+from ncmeasure.measure import PRE_ROLL_S, SERIES_LOG, ProgramWatch, read_series_log
 from ncmeasure.recording import read_recording
 from ncmeasure.samples import SampleBlock, SimulatedClock
 from ncmeasure.sim.axis import Variation
@@ -312,3 +312,20 @@ def test_the_recorder_tells_the_program_it_is_ready(
     assert result.exit_code in EXIT.values(), result.output
     unit = data["axes"][0]["link"]["unit_id"]
     assert writes[unit] == [1, 0], writes  # on while it waited and recorded, then off
+
+
+@pytest.mark.parametrize("series", [False, True])
+def test_no_start_within_the_time_out(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, series: bool
+) -> None:
+    """Nobody pressed cycle start: a single run and a series without any run end alike,
+    with the reason, not as a link failure."""
+    machine, programs, _ = _generated(tmp_path, "modbus")
+    extra = ["--start-timeout", "2", *(["--series"] if series else [])]
+    with _machine_running(machine, programs, "modbus", monkeypatch) as (transport, _vm, _run):
+        result = _measure(machine, programs, tmp_path / "m", tmp_path / "db", *transport, *extra)
+    assert result.exit_code == 2, result.output
+    assert "did not start within 2 s" in result.output
+    if series:
+        outcomes = [row["outcome"] for row in read_series_log(tmp_path / "m" / SERIES_LOG)]
+        assert outcomes == ["no start", "series ended"]

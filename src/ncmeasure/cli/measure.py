@@ -391,6 +391,7 @@ def _series(job: _Job, folder: Path, runs: int | None) -> Outcome:
     previous = stop_on_signals(stop)
     stored: list[Outcome] = []
     number, failures = 1, 0
+    no_start: str | None = None
     try:
         while not stop.is_set() and (runs is None or len(stored) < runs):
             run_folder = folder / f"run-{number:03d}"
@@ -432,6 +433,7 @@ def _series(job: _Job, folder: Path, runs: int | None) -> Outcome:
             if end.kind == "no_start":
                 log.line(run=number, outcome="no start", note=end.text)
                 shutil.rmtree(run_folder, ignore_errors=True)
+                no_start = end.text
                 break
             wait_s = SERIES_RETRY_S[min(failures, len(SERIES_RETRY_S) - 1)]
             if not end.started:
@@ -448,7 +450,9 @@ def _series(job: _Job, folder: Path, runs: int | None) -> Outcome:
     log.line(run="", outcome="series ended", note=f"{len(stored)} run(s) stored")
     say.print(f"series ended: {len(stored)} run(s) stored; the log: {log.path}", soft_wrap=True)
     if not stored:
-        return "interrupted" if stop.is_set() else "link_lost"
+        if no_start is not None:  # nothing measured: the same error as a single run
+            raise RecordingError(no_start)
+        return "interrupted"
     from ncmeasure.formats.comparison import worst_status
 
     return worst_status(stored)  # type: ignore[arg-type]
