@@ -181,7 +181,8 @@ def measure_command(
     Exit code 0: ok; 1: a warning (a change beyond the warning limit, an axis to check);
     3: critical (beyond the critical limit, an axis at fault); 2: bad input (programs not
     the machine file's); 4: the link failed; 130: Ctrl-C (what was recorded is kept).
-    A series exits with the worst verdict of its runs (130 if none was stored).
+    A series exits with the worst verdict of its runs (none stored: 130 after Ctrl-C, 2
+    when no program started within --start-timeout).
 
     Example: ncmeasure measure m.toml --programs programs --serial M17 --label delivery
     """
