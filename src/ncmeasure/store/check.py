@@ -31,6 +31,7 @@ from ncmeasure.analysis.judgement.fleet import modified_z_against
 from ncmeasure.analysis.judgement.status import (
     CHARACTERISTICS,
     AxisFigures,
+    ChangeFigures,
     FleetPlace,
     figures_of,
     is_outlier,
@@ -327,7 +328,13 @@ def check_machine(store: Store, serial: str, limits: Limits | None = None) -> St
             )
         )
     judged = machine_status(
-        figures_of(latest_results), baseline=base_figures, fleet=places, limits=limits
+        figures_of(latest_results),
+        baseline=base_figures,
+        fleet=places,
+        limits=limits,
+        changes=None
+        if comparison is None
+        else {c.axis: ChangeFigures.of(c) for c in comparison.changes},
     )
     findings.extend(judged.reasons)
     status = judged.status

@@ -178,8 +178,15 @@ def test_local_change_is_reported_as_local() -> None:
         return 1.4 if (axis, i) == ("X", 2) else 1.0
 
     comparison = compare_results(results(), [results(factor=stuck_cover)])
-    assert comparison.runs[0].status == "warning"  # Coulomb friction of axis X +13.3 %
-    assert comparison.runs[0].axis_status == {"X": "warning", "Y": "ok"}
+    # Coulomb friction of axis X +13.3 % (a warning), and a local change of 40 % at one
+    # position: the change's own pattern names a cause, beyond the fault spread
+    assert comparison.runs[0].status == "critical"
+    assert comparison.runs[0].axis_status == {"X": "critical", "Y": "ok"}
+    assert any(
+        r.startswith("axis X: since the baseline, friction changed along the travel by")
+        and r.endswith("(critical)")
+        for r in comparison.runs[0].reasons
+    )
     assert "axis X position 3 (700 mm)" in (comparison.runs[0].worst or "")
     assert any("local cause" in line for line in comparison.findings)
     groups = {(g.axis, g.position_index, g.direction): g for g in comparison.groups}

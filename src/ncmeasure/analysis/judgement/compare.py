@@ -62,6 +62,7 @@ from ncmeasure.formats.results import (
 )
 
 __all__ = [
+    "CHANGE_FLAT_PERCENT",
     "CHANGE_SHAPE",
     "GLOBAL_CHANGE_PERCENT",
     "GLOBAL_SCORE_AT_CRITICAL",
@@ -84,6 +85,18 @@ GLOBAL_CHANGE_PERCENT = FLAT_THRESHOLD_PERCENT
 The same 5 % below which a profile along the travel counts as flat: above the
 few-percent repeatability of runs (method.md) and independent of the warning
 limit, which says whether the change matters, not what caused it.
+"""
+
+CHANGE_FLAT_PERCENT = 1.5
+"""A change along the travel below this is flat (no local cause), however significant.
+
+The machine's own profile divides out of a change, so what remains of a healthy
+re-measurement is the noise of both runs and the drift of the profile between them:
+0.1 to 0.5 % on the virtual machine's nominal axes, up to about 1 % with its
+realistic fingerprint and drift on (docs/analysis-models.md, *Detection limits*). A
+loose bearing shifted by 50 µm changes the profile by 2.3 to 2.8 %. The single
+measurement keeps :data:`~ncmeasure.analysis.judgement.diagnosis.FLAT_THRESHOLD_PERCENT`:
+there, a healthy axis' own fingerprint is part of the profile.
 """
 
 GLOBAL_SCORE_AT_WARNING = 0.5
@@ -406,6 +419,7 @@ def _axis_change(
         travel_mm=travel,
         fixed_bearing_end=fixed_end,
         numbers=numbers,
+        flat_threshold_percent=CHANGE_FLAT_PERCENT,
     )
     mean = float(np.mean([p.deviation_percent for p in points]))
     average = next((p for p in dependency.profiles if p.velocity_mm_min is None), None)
@@ -614,7 +628,8 @@ def compare_results(
         deviations.extend(points)
         groups.extend(run_groups)
         changes.extend(_axis_changes(label, base_label, base, points, limits))
-        runs.append(_run_summary(label, base, other, points, run_groups, limits))
+        run_changes = [c for c in changes if c.label == label]
+        runs.append(_run_summary(label, base, other, points, run_groups, run_changes, limits))
     if empty:
         raise ComparisonError(
             "no point of "
@@ -650,14 +665,20 @@ def _run_summary(
     other: Results,
     points: Sequence[PointDeviation],
     groups: Sequence[GroupDeviation],
+    changes: Sequence[AxisChange],
     limits: Limits,
 ) -> RunSummary:
     """A run's largest median deviation, and its status by the one rule
     (:func:`~ncmeasure.analysis.judgement.status.machine_status`, the base as baseline)."""
-    from ncmeasure.analysis.judgement.status import figures_of, machine_status
+    from ncmeasure.analysis.judgement.status import ChangeFigures, figures_of, machine_status
 
     worst = max(groups, key=lambda g: abs(g.median_deviation_percent))
-    judged = machine_status(figures_of(other), baseline=figures_of(base), limits=limits)
+    judged = machine_status(
+        figures_of(other),
+        baseline=figures_of(base),
+        limits=limits,
+        changes={c.axis: ChangeFigures.of(c) for c in changes},
+    )
     return RunSummary(
         label=label,
         machine=other.recording.machine,

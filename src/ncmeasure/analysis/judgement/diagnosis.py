@@ -224,7 +224,11 @@ def _fit_profile(
             noise = None
             weight = np.ones_like(y)
         else:
-            rel_noise = np.where(ok, rel_noise, typical)
+            # No cell counts as more precise than the table's typical one: the fastest
+            # cells have the smallest relative error, but viscous friction dilutes a
+            # position effect there (a fault adds the same torque at every speed), so
+            # (T/σ)² weights would let 12,000 mm/min decide the profile.
+            rel_noise = np.maximum(np.where(ok, rel_noise, typical), typical)
             weight = 1.0 / rel_noise**2
     else:
         weight = np.ones_like(y)
@@ -368,6 +372,7 @@ def position_dependency(
     fixed_bearing_end: Literal["min", "max"],
     noise: ArrayLike | None = None,
     numbers: Sequence[int] | None = None,
+    flat_threshold_percent: float = FLAT_THRESHOLD_PERCENT,
 ) -> PositionDependency:
     """Describe how friction changes along the travel and rank the likely causes.
 
@@ -386,6 +391,11 @@ def position_dependency(
         numbers: The number of each measuring position as the report shows it
             (1 = the lowest scheduled position); default 1, 2, ... in
             ascending order. Evidence names positions as "position 2 (375 mm)".
+        flat_threshold_percent: A spread below this is flat, however significant:
+            :data:`FLAT_THRESHOLD_PERCENT` for one measurement (a healthy axis' own
+            profile), less for the change between two measurements of one axis
+            (:data:`~ncmeasure.analysis.judgement.compare.CHANGE_FLAT_PERCENT`), where
+            the machine's own profile divides out.
 
     Returns:
         Profiles (the average first, ``velocity_mm_min`` None, then one per
@@ -444,7 +454,7 @@ def position_dependency(
         values=[float(r * fit.level) for r in rel],
         spread_percent=spread * 100.0,
     )
-    signature, causes = _diagnose(fit, spread, travel_mm, fixed_bearing_end)
+    signature, causes = _diagnose(fit, spread, travel_mm, fixed_bearing_end, flat_threshold_percent)
     if fit.left_out:
         listed = ", ".join(str(n) for n in fit.left_out)
         lead = causes[0].evidence + (
@@ -548,6 +558,7 @@ def _diagnose(
     spread: float,
     travel_mm: tuple[float, float],
     fixed_bearing_end: Literal["min", "max"],
+    flat_threshold_percent: float = FLAT_THRESHOLD_PERCENT,
 ) -> Diagnosis:
     """Signature and ranked causes of the averaged relative profile.
 
@@ -570,17 +581,17 @@ def _diagnose(
     significant = (fit.p_value is None or fit.p_value < SIGNIFICANCE_LEVEL) and (
         fit.p_permutation is None or fit.p_permutation < SIGNIFICANCE_LEVEL
     )
-    if spread_pct < FLAT_THRESHOLD_PERCENT or not significant:
-        return _flat(o)
+    if spread_pct < flat_threshold_percent or not significant:
+        return _flat(o, flat_threshold_percent)
     return _both_ends(o) or _step(o) or _rising(o) or _irregular(o)
 
 
-def _flat(o: _Oriented) -> Diagnosis:
+def _flat(o: _Oriented, threshold_percent: float) -> Diagnosis:
     """No position effect beyond the threshold or the noise."""
     n, spread_pct = o.n, o.spread_pct
-    if spread_pct < FLAT_THRESHOLD_PERCENT:
-        why = f"below the {FLAT_THRESHOLD_PERCENT:g} % threshold"
-        score = 0.9 - 0.4 * spread_pct / FLAT_THRESHOLD_PERCENT
+    if spread_pct < threshold_percent:
+        why = f"below the {threshold_percent:g} % threshold"
+        score = 0.9 - 0.4 * spread_pct / threshold_percent
     elif o.fit.null_spread is not None and spread_pct <= o.fit.null_spread * 100.0:
         why = (
             f"within the noise (the same layout shows up to {o.fit.null_spread * 100.0:.1f} % "
@@ -657,6 +668,8 @@ def _step(o: _Oriented) -> Diagnosis | None:
     if not (np.all(np.abs(d[big]) >= STEP_RATIO * others) and abs(d[big]) > 2 * jump_se[big]):
         return None
     explained = _best_step(q)[1]
+    if _bearing_rise(o, big, d) >= explained:
+        return None  # a convex rise towards the bearing at that end, not a step
     lead = 0.3 + 0.6 * explained * o.strength
     ratio = abs(d[big]) / others.max() if others.size and others.max() > 0 else math.inf
     # Name the two positions in ascending order along the travel.
@@ -704,6 +717,29 @@ def _step(o: _Oriented) -> Diagnosis | None:
             ),
         )
     return "step", causes
+
+
+def _bearing_rise(o: _Oriented, big: int, d: FloatArray) -> float:
+    """How much of the profile a rise towards the bearing next to the largest jump explains.
+
+    A shifted bearing's force grows faster the closer the nut comes (the span to the
+    bearing shortens with its cube), so its profile is convex: small rises far from
+    it, the largest in the last interval, every jump rising. Such a profile passes
+    the step rule once the last jump is three times the others; it is a bearing
+    when every jump rises towards it and a power of the distance (t, t², t³)
+    explains it at least as well as a step. 0 where the jump is not at an end
+    rising towards its bearing.
+    """
+    n = o.n
+    if big == n - 2 and d[big] > 0 and np.all(d > 0):
+        t = o.t
+    elif big == 0 and d[big] < 0 and np.all(d < 0):
+        t = 1.0 - o.t
+    else:
+        return 0.0
+    span = float(np.ptp(t)) or 1.0
+    u = (t - t.min()) / span
+    return max(_explained(o.q, u**power) for power in (1, 2, 3))
 
 
 def _rising(o: _Oriented) -> Diagnosis | None:

@@ -13,7 +13,13 @@ the travel, :func:`~ncmeasure.analysis.judgement.summary.axis_headline`), the
 same figures of the baseline, and the axis' place in its type's fleet
 (:class:`FleetPlace`). An axis' status is the worst of:
 
-* its own verdict: ``check`` is a warning, ``fault`` critical;
+* its own verdict: ``check`` is a warning, ``fault`` critical; but where a
+  baseline exists and the diagnosis of the change since it (:class:`ChangeFigures`)
+  is flat, a verdict from the axis' pattern along the travel does not count: that
+  pattern is the machine's own fingerprint, unchanged;
+* a local change since the baseline (the change's pattern along the travel names
+  a bearing, the nut, a rail or a cover): a warning, critical from
+  :data:`~ncmeasure.analysis.judgement.verdict.FAULT_SPREAD_PERCENT`;
 * the change since the baseline of each judged characteristic
   (:data:`CHARACTERISTICS`: Coulomb friction in percent, the spread along the
   travel in percentage points) against ``Limits.warning_percent`` and
@@ -43,6 +49,7 @@ from typing import Final, Literal
 
 from ncmeasure.analysis.judgement.diagnosis import FLAT_THRESHOLD_PERCENT
 from ncmeasure.analysis.judgement.summary import axis_headline
+from ncmeasure.analysis.judgement.verdict import ChangeFigures, fingerprint_unchanged
 from ncmeasure.formats.comparison import Limits, Status, worst_status
 from ncmeasure.formats.results import AxisResult, Results
 
@@ -54,6 +61,7 @@ __all__ = [
     "AxisFigures",
     "AxisStatus",
     "Change",
+    "ChangeFigures",
     "Characteristic",
     "FleetPlace",
     "MachineStatus",
@@ -118,6 +126,8 @@ class AxisFigures:
     """The axis' own verdict: ok, check or fault."""
     values: Mapping[str, float | None]
     """Per characteristic name: its value (None when not determined)."""
+    signature: str | None = None
+    """The axis' own pattern along the travel (None when unknown)."""
 
     @classmethod
     def of(cls, name: str, result: AxisResult) -> AxisFigures:
@@ -128,7 +138,7 @@ class AxisFigures:
             "viscous_per_m_min": _finite(headline.viscous_per_m_min),
             "spread_percent": _finite(headline.spread_percent),
         }
-        return cls(name, result.unit, result.verdict.level, values)
+        return cls(name, result.unit, result.verdict.level, values, headline.signature)
 
 
 def figures_of(results: Results) -> dict[str, AxisFigures]:
@@ -171,6 +181,8 @@ class AxisStatus:
     """Characteristics that are outliers of the type (modified z)."""
     reasons: tuple[str, ...] = ()
     """Every finding that is not ok, in words."""
+    notes: tuple[str, ...] = ()
+    """Findings that lifted a verdict (a pattern unchanged since the baseline), in words."""
     change_status: Status = "ok"
     """The change since the baseline alone (without the axis' own verdict, its siblings and
     its fleet): the worst judged change, a warning where it cannot be judged; ok without a
@@ -298,6 +310,7 @@ def axis_status(
     siblings: Sequence[AxisFigures] = (),
     fleet: Iterable[FleetPlace] = (),
     limits: Limits | None = None,
+    change: ChangeFigures | None = None,
 ) -> AxisStatus:
     """The status of one axis (the rule of the module docstring).
 
@@ -308,20 +321,34 @@ def axis_status(
         siblings: The figures of the machine's other axes in the same measurement.
         fleet: The axis' characteristics against the other machines of its type.
         limits: The warning and critical limits, the outlier rule.
+        change: The diagnosis of the change since the baseline (with ``baseline``).
     """
     limits = limits or Limits()
-    statuses: list[Status] = [VERDICT_STATUS.get(axis.verdict, "ok")]
+    statuses: list[Status] = []
     reasons: list[str] = []
-    if axis.verdict in ("check", "fault"):
-        reasons.append(f"axis {axis.axis}: verdict {axis.verdict}")
+    notes: list[str] = []
+    compared = baseline is not None and baseline.unit == axis.unit
+    if compared and fingerprint_unchanged(axis.verdict, axis.signature, change):
+        notes.append(
+            f"axis {axis.axis}: verdict {axis.verdict} from its pattern along the travel, "
+            "unchanged since the baseline (the machine's own fingerprint)"
+        )
+    else:
+        statuses.append(VERDICT_STATUS.get(axis.verdict, "ok"))
+        if axis.verdict in ("check", "fault"):
+            reasons.append(f"axis {axis.axis}: verdict {axis.verdict}")
     changes: list[Change] = []
     since_baseline: list[Status] = []
-    if baseline is not None and baseline.unit == axis.unit:
+    if baseline is not None and compared:
+        if change is not None and change.local:
+            local = VERDICT_STATUS[change.level]
+            since_baseline.append(local)
+            reasons.append(f"axis {axis.axis}: since the baseline, {change.text()} ({local})")
         changes = _changes(axis, baseline, limits)
-        for change in changes:
-            since_baseline.append(change.status)
-            if change.status != "ok":
-                reasons.append(f"axis {axis.axis}: {_change_text(change)} ({change.status})")
+        for found in changes:
+            since_baseline.append(found.status)
+            if found.status != "ok":
+                reasons.append(f"axis {axis.axis}: {_change_text(found)} ({found.status})")
         unjudged = _unjudged_reason(axis, baseline)
         if unjudged is not None:
             since_baseline.append("warning")
@@ -360,6 +387,7 @@ def axis_status(
         changes=tuple(changes),
         outliers=tuple(outliers),
         reasons=tuple(reasons),
+        notes=tuple(notes),
         change_status=worst_status(since_baseline),
     )
 
@@ -370,6 +398,7 @@ def machine_status(
     baseline: Mapping[str, AxisFigures] | None = None,
     fleet: Mapping[str, Sequence[FleetPlace]] | None = None,
     limits: Limits | None = None,
+    changes: Mapping[str, ChangeFigures] | None = None,
 ) -> MachineStatus:
     """The status of a machine and of each of its axes: the one rule every surface shows.
 
@@ -379,6 +408,8 @@ def machine_status(
             the two cannot be compared).
         fleet: Per axis, its characteristics against its type's fleet.
         limits: The warning and critical limits, the outlier rule.
+        changes: Per axis, the diagnosis of the change since the baseline (where the
+            caller compared the two: ``compare``, ``store check``, the store's summary).
     """
     limits = limits or Limits()
     axes = {}
@@ -390,5 +421,6 @@ def machine_status(
             siblings=siblings,
             fleet=() if fleet is None else fleet.get(name, ()),
             limits=limits,
+            change=None if changes is None else changes.get(name),
         )
     return MachineStatus(axes)

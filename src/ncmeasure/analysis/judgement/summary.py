@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from typing import Final, Literal
 
 from ncmeasure.analysis.judgement.compare import CHANGE_SHAPE
-from ncmeasure.analysis.judgement.verdict import comparison_verdict, percent_text
+from ncmeasure.analysis.judgement.verdict import ChangeFigures, comparison_verdict, percent_text
 from ncmeasure.formats.comparison import AxisChange, Comparison, GroupDeviation, worst_status
 from ncmeasure.formats.results import AxisResult, Cause, Signature, Verdict
 
@@ -98,6 +98,7 @@ class AxisComparison:
         worst: The position and direction with the largest median change.
         cause: The likely cause of the change, best first (None without a
             change diagnosis).
+        diagnosis: The change diagnosis in brief, as the judgement reads it.
     """
 
     axis: str
@@ -108,6 +109,7 @@ class AxisComparison:
     mean_change_percent: float | None
     worst: GroupDeviation
     cause: Cause | None = None
+    diagnosis: ChangeFigures | None = None
 
 
 def _where(group: GroupDeviation) -> str:
@@ -163,6 +165,7 @@ def axis_comparison(
         mean_change_percent=mean,
         worst=worst,
         cause=change.causes[0] if change is not None and change.causes else None,
+        diagnosis=ChangeFigures.of(change) if change is not None else None,
     )
 
 
@@ -294,7 +297,13 @@ def axis_headline(result: AxisResult, against: AxisComparison | None = None) -> 
     identifiable = dependency is not None and dependency.identifiable
     verdict = result.verdict
     if against is not None:
-        verdict = comparison_verdict(verdict, against.status, against.change)
+        verdict = comparison_verdict(
+            verdict,
+            against.status,
+            against.change,
+            signature=dependency.signature if dependency is not None else None,
+            diagnosis=against.diagnosis,
+        )
     return Headline(
         verdict=verdict,
         own_verdict=result.verdict,

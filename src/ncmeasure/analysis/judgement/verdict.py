@@ -32,18 +32,29 @@ was kept still covers the measurement.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Final, Literal
 
 from ncmeasure.analysis.judgement.diagnosis import FLAT_THRESHOLD_PERCENT, NOT_IDENTIFIABLE_TEXT
+from ncmeasure.formats.comparison import AxisChange
 from ncmeasure.formats.results import AxisResult, PositionDependency, Verdict
 
 __all__ = [
     "FAULT_SPREAD_PERCENT",
+    "LOCAL_SIGNATURES",
     "MIN_WINDOW_SHARE",
+    "ChangeFigures",
     "axis_verdict",
+    "cause_words",
     "comparison_verdict",
+    "fingerprint_unchanged",
     "percent_text",
 ]
+
+LOCAL_SIGNATURES: Final = frozenset(
+    {"rising_to_loose_bearing", "rising_to_fixed_bearing", "high_at_both_ends", "step", "irregular"}
+)
+"""Patterns along the travel that point at a local cause (a bearing, the nut, a rail, a cover)."""
 
 FAULT_SPREAD_PERCENT: Final = 15.0
 """A local pattern this strong is a fault: three times the flat threshold, three times the
@@ -69,6 +80,87 @@ _CAUSE_ACTION: Final = {
     "cover_or_seal": "check the telescopic cover, wipers and cable chain where the step is",
     "preload_or_carriage": "check the preload of bearings and nut and the guide carriages",
 }
+
+
+@dataclass(frozen=True)
+class ChangeFigures:
+    """The diagnosis of an axis' change since its reference, in brief.
+
+    What the judgement reads of a comparison's
+    :class:`~ncmeasure.formats.comparison.AxisChange` (the ratio of the two
+    measurements along the travel, the machine's own profile divided out); the
+    store keeps the same figures per measurement.
+    """
+
+    signature: str
+    """The pattern of the change along the travel."""
+    cause: str
+    """Its leading cause (``none`` when no change shows)."""
+    spread_percent: float
+    """How much the change varies along the travel, (max − min) / mean, %."""
+    mean_percent: float
+    """The mean change, %."""
+
+    @classmethod
+    def of(cls, change: AxisChange) -> ChangeFigures:
+        """The figures of a comparison's change of one axis."""
+        lead = change.causes[0].cause if change.causes else "none"
+        return cls(change.signature, lead, change.spread_percent, change.mean_change_percent)
+
+    @property
+    def local(self) -> bool:
+        """The change has a local pattern with a named cause (a bearing, the nut, ...)."""
+        return self.signature in LOCAL_SIGNATURES and self.cause not in (
+            "none",
+            "preload_or_carriage",
+        )
+
+    @property
+    def level(self) -> Literal["ok", "check", "fault"]:
+        """What a local change alone means: ``fault`` from :data:`FAULT_SPREAD_PERCENT`,
+        else ``check``; ``ok`` for a change without a local cause."""
+        if not self.local:
+            return "ok"
+        return "fault" if self.spread_percent >= FAULT_SPREAD_PERCENT else "check"
+
+    def text(self) -> str:
+        """The local change in words: ``friction changed along the travel by 2.8 % (rising
+        towards the loose bearing): likely a shifted or tilted loose bearing``."""
+        shape = _SHAPE_WORDS.get(self.signature, self.signature.replace("_", " "))
+        return (
+            f"friction changed along the travel by {percent_text(self.spread_percent)} "
+            f"({shape}): likely {cause_words(self.cause, self.mean_percent)}"
+        )
+
+
+_SHAPE_WORDS: Final = {
+    "rising_to_loose_bearing": "rising towards the loose bearing",
+    "rising_to_fixed_bearing": "rising towards the fixed bearing",
+    "high_at_both_ends": "largest at both ends",
+    "step": "a step",
+    "irregular": "irregular",
+}
+
+
+def cause_words(cause: str, mean_percent: float = 0.0) -> str:
+    """A cause in words (a lower preload for a fall of a global change)."""
+    if cause == "preload_or_carriage" and mean_percent < 0:
+        return (
+            "a preload loss of the ball-screw nut or the bearings, a guide carriage or "
+            "the lubricant"
+        )
+    return _CAUSE_WORDS.get(cause, cause.replace("_", " "))
+
+
+def fingerprint_unchanged(level: str, signature: str | None, change: ChangeFigures | None) -> bool:
+    """An axis' own verdict comes from its pattern along the travel, and the comparison with
+    its reference shows no change of it: the pattern is the machine's own fingerprint."""
+    return (
+        change is not None
+        and change.signature == "flat"
+        and level in ("check", "fault")
+        and signature in LOCAL_SIGNATURES
+    )
 
 
 def _significant(dependency: PositionDependency) -> bool:
@@ -173,33 +265,72 @@ def _measurement_concerns(
 
 
 def comparison_verdict(
-    verdict: Verdict, status: Literal["ok", "warning", "critical"], change: str
+    verdict: Verdict,
+    status: Literal["ok", "warning", "critical"],
+    change: str,
+    *,
+    signature: str | None = None,
+    diagnosis: ChangeFigures | None = None,
 ) -> Verdict:
-    """The verdict with a comparison against a reference: the worse of both, comparison first.
+    """The verdict with a comparison against a reference: the change is judged, not the
+    machine's own fingerprint.
 
     Args:
         verdict: The axis' own verdict.
-        status: The comparison's status for the axis.
+        status: The comparison's status for the axis (the one rule,
+            :func:`~ncmeasure.analysis.judgement.status.axis_status`: the change's
+            limits and a local change's cause).
         change: The change against the reference, in words (for the reason).
+        signature: The axis' own pattern along the travel.
+        diagnosis: The diagnosis of the change, when there is one: its cause is named,
+            and an own verdict from a pattern that did not change is lifted.
     """
+    unchanged = fingerprint_unchanged(verdict.level, signature, diagnosis)
+    own = "ok" if unchanged else verdict.level
+    named = diagnosis is not None and (
+        diagnosis.local or (diagnosis.cause != "none" and status != "ok")
+    )
+    why = ""
+    if diagnosis is not None and diagnosis.local:
+        why = f"; {diagnosis.text()}"
+    elif named and diagnosis is not None:
+        why = f"; likely {cause_words(diagnosis.cause, diagnosis.mean_percent)}"
+    action = (
+        _CAUSE_ACTION.get(diagnosis.cause, "look for the cause of the change")
+        if named and diagnosis is not None
+        else None
+    )
     if status == "critical":
         return Verdict(
             level="fault",
-            reason=f"Against the reference: {change}, beyond the critical limit.",
-            action=verdict.action
-            if verdict.level == "fault"
+            reason=f"Against the reference: {change}, beyond the critical limit{why}.",
+            action=_sentence(action)
+            if action
+            else verdict.action
+            if own == "fault"
             else "Find the cause of the change before the machine is shipped or used again.",
         )
-    if status == "warning" and verdict.level == "ok":
+    if status == "warning" and own == "ok":
         return Verdict(
             level="check",
-            reason=f"Against the reference: {change}, beyond the warning limit.",
-            action="Measure again to confirm the change; if it repeats, look for its cause.",
+            reason=f"Against the reference: {change}, beyond the warning limit{why}.",
+            action=f"Measure again to confirm the change; if it repeats, {action}."
+            if action
+            else "Measure again to confirm the change; if it repeats, look for its cause.",
         )
-    if status == "ok" and verdict.level == "ok":
+    if status == "ok" and unchanged:
         return Verdict(
             level="ok",
-            reason=f"Against the reference: {change}, within the limits. {verdict.reason}",
+            reason=f"Against the reference: {change}, within the limits. The pattern along "
+            "the travel was there in the reference as well: it is this machine's own "
+            f"fingerprint, not a change (on its own: {verdict.reason[0].lower()}"
+            f"{verdict.reason[1:].rstrip('.')}).",
+            action="None. Keep comparing with the same reference.",
+        )
+    if status == "ok" and own == "ok":
+        return Verdict(
+            level="ok",
+            reason=f"Against the reference: {change}, within the limits{why}. {verdict.reason}",
             action=verdict.action,
         )
     return verdict
