@@ -39,14 +39,14 @@ from ncmeasure.acquire import AcquisitionResult, record
 from ncmeasure.analysis.analyze import analyze
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, LinkError, OutputError
-from ncmeasure.examples import DEMO_LINKS, demo_link_tables
+from ncmeasure.examples import DEMO_LINKS, demo_link_tables, demo_machine
 from ncmeasure.formats.results import Results, write_results
 from ncmeasure.formats.schedule import Schedule
 from ncmeasure.inputs import format_validation_error
 from ncmeasure.links.canopen.objects import load_object_map
 from ncmeasure.links.canopen.settings import CanOpenAxis, CanOpenSettings
 from ncmeasure.links.modbus.settings import settings_from_tables
-from ncmeasure.recording import read_recording
+from ncmeasure.recording import RecordingWriter, read_recording
 from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.axis import Variation
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
@@ -56,10 +56,12 @@ from ncmeasure.sim.rig import rig_mechanics
 
 __all__ = [
     "ANSWER_TIMEOUT_S",
+    "DemoBench",
     "Progress",
     "SimulatedLink",
     "VirtualRun",
     "prepare_folder",
+    "record_directly",
     "record_run",
     "run_programs",
     "serving",
@@ -370,6 +372,90 @@ def record_run(
             stop=stop,
             clock=clock,
         )
+
+
+def record_directly(
+    config: MachineConfig,
+    run: MachineRun,
+    schedule: Schedule,
+    out: Path,
+    *,
+    period_s: float = 0.004,
+    notes: str = "virtual machine, recorded without a drive link",
+) -> Path:
+    """Write the virtual machine's signals as a recording, without drives and link.
+
+    What the drives would report, sampled every ``period_s``, without the link's
+    quantisation and timing: the fast path for studies over many runs (detection
+    limits, false alarms), where serving every run through simulated drives would
+    only cost time. The demo and the dry run record through the real link
+    (:func:`record_run`).
+
+    Returns:
+        The recording directory ``out``.
+    """
+    channels, block = run.sample(period_s)
+    with RecordingWriter.create(
+        out,
+        channels,
+        nominal_period_s=period_s,
+        machine=config,
+        config_hash=schedule.config_hash,
+        source="virtual machine",
+        notes=notes,
+        faster_than_real_time=True,
+    ) as writer:
+        writer.append(block)
+    return out
+
+
+@dataclass
+class DemoBench:
+    """The demo machine and its LinuxCNC programs, measured again and again without a link.
+
+    The fast path of detection and false-alarm studies (``tests/analysis/judgement/
+    test_detection.py``, ``benchmarks/detection.py``): every :meth:`measure` runs the
+    programs on a :class:`~ncmeasure.sim.machine.VirtualMachine`, writes its signals
+    with :func:`record_directly` into a new folder and analyses them as ``ncmeasure
+    analyze`` would (about a second per measurement).
+    """
+
+    config: MachineConfig
+    programs: Path
+    schedule: Schedule
+    folder: Path
+    runs: int = 0
+
+    @classmethod
+    def create(cls, folder: Path) -> DemoBench:
+        """Write the demo machine's programs into ``folder``/programs."""
+        import tomllib
+
+        from ncmeasure.config import parse_machine
+        from ncmeasure.program import generate_programs
+
+        config = parse_machine(tomllib.loads(demo_machine()))
+        generated = generate_programs(config)
+        programs = folder / "programs"
+        generated.write(programs)
+        return cls(config, programs, generated.schedule, folder)
+
+    def measure(self, seed: int, variation: Variation | None = None, **options: Any) -> Results:
+        """One measurement, every axis with ``variation``, its noise from ``seed``.
+
+        ``options`` go to the :class:`~ncmeasure.sim.machine.VirtualMachine`.
+        """
+        vm = VirtualMachine.from_programs(
+            self.config,
+            self.programs,
+            seed=seed,
+            variations={a.name: variation or Variation() for a in self.config.axes},
+            **options,
+        )
+        self.runs += 1
+        out = self.folder / f"run-{self.runs:03d}"
+        record_directly(self.config, vm.run(), self.schedule, out)
+        return analyze(out, schedule=self.schedule, machine=self.config)
 
 
 @dataclass
