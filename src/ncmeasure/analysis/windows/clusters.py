@@ -149,6 +149,10 @@ def drop_rapids(candidates: list[Candidate], detection: Detection) -> list[Candi
     return candidates
 
 
+THIN_STEP_NEAR = 0.05
+"""A thin step within this share of a neighbour's level can be a piece of that neighbour's run."""
+
+
 def drop_thin_steps(candidates: list[Candidate], detection: Detection) -> list[Candidate]:
     """Without a command or a schedule: drop the steps that only a fragment of a run backs.
 
@@ -156,7 +160,10 @@ def drop_thin_steps(candidates: list[Candidate], detection: Detection) -> list[C
     each step next to it (the one it has, at the ends) is no speed of its own but a
     piece of a run where the readings happened to hold another level (a "215 mm/min"
     step of 4 samples where nothing ran above 200, a 492 beside 500 samples at 499):
-    its windows are dropped, and counted in ``detection``'s warnings.
+    its windows are dropped, and counted in ``detection``'s warnings. Only a step within
+    :data:`THIN_STEP_NEAR` of a neighbour's level, or the fastest one, can be such a
+    piece: a short step far from the others (the slowest speed of a short program) is a
+    speed of its own.
     """
     if len(candidates) < 2:
         return candidates
@@ -165,10 +172,17 @@ def drop_thin_steps(candidates: list[Candidate], detection: Detection) -> list[C
     if count < 2:
         return candidates
     samples = np.bincount(labels, weights=[c.stop - c.start for c in candidates], minlength=count)
+    speeds = np.abs(np.array([c.level_mm_min for c in candidates]))
+    level = np.array([float(np.median(speeds[labels == k])) for k in range(count)])
     thin = np.zeros(count, dtype=np.bool_)
     for k in range(count):
-        nearby = [samples[j] for j in (k - 1, k + 1) if 0 <= j < count]
-        thin[k] = samples[k] < THIN_STEP_SHARE * min(nearby)
+        nearby = [j for j in (k - 1, k + 1) if 0 <= j < count]
+        # a fragment lies next to the run it broke from (within THIN_STEP_NEAR of its
+        # level), or above the fastest run (an overshoot); a short slow step is a step
+        close = any(abs(level[k] - level[j]) <= THIN_STEP_NEAR * level[j] for j in nearby)
+        thin[k] = (close or k == count - 1) and samples[k] < THIN_STEP_SHARE * min(
+            samples[j] for j in nearby
+        )
     if not thin.any():
         return candidates
     dropped = [c for c, k in zip(candidates, labels, strict=True) if thin[k]]
