@@ -89,3 +89,47 @@ def test_correlated_noise_leaves_a_step_between_levels_out() -> None:
     readings += rng.normal(0, 0.5, len(readings))
     sigma, _ = correlated_noise(readings)
     assert sigma == pytest.approx(0.5, rel=0.2)
+
+
+@pytest.mark.parametrize(
+    ("dt_s", "scatter", "rho", "seed"),
+    [
+        (0.0064, 0.02, 0.87, 1),
+        (0.0064, 0.015, 0.72, 3),
+        (0.0064, 0.01, 0.72, 2),
+        (0.01, 0.02, 0.72, 2),
+    ],
+)
+def test_smoothing_spans_several_samples_of_an_averaged_velocity(
+    dt_s: float, scatter: float, rho: float, seed: int
+) -> None:
+    # A median of 3 samples (0.02 s at 6.4 ms) follows every excursion of the averaged
+    # velocity: captures broke apart or found no plateau at all (2 of 10 captures lost).
+    data = captures(dt_s, seed=seed, scatter=scatter, rho=rho)
+    seg = find_windows("X", data.time_s, data.velocity_mm_min)
+    assert len(seg.windows) == len(data.speeds_mm_min)
+    assert len(seg.steps) == len(SPEEDS_MM_MIN)
+    assert all(w.samples >= 0.8 * CAPTURE_SAMPLES for w in seg.windows)
+
+
+def test_a_fragment_of_a_run_is_no_step_of_its_own() -> None:
+    # At 32 ms the readings hold 492 mm/min for 15 samples at the start of the 500 capture,
+    # then wander to 499: without a rule a step of its own beside the 497-sample ones.
+    data = captures(0.032, seed=3, scatter=0.015, rho=0.8)
+    seg = find_windows("X", data.time_s, data.velocity_mm_min)
+    assert [s.centre for s in seg.steps] == pytest.approx(list(SPEEDS_MM_MIN), rel=0.01)
+    assert all(s.windows == 2 for s in seg.steps)
+    assert any("1 windows at 492 mm/min dropped" in w for w in seg.warnings)
+
+
+def test_an_overshoot_of_a_few_samples_is_no_step_above_the_top_speed() -> None:
+    # An overshoot to 216 mm/min after the run-up to 200, where nothing ran above 200: a
+    # window of 4 samples once the transient is cut, and without a rule a step of its own.
+    data = captures(0.256, seed=1, speeds_mm_min=(50.0, 100.0, 200.0))
+    velocity = data.velocity_mm_min.copy()
+    first = int(np.argmax(velocity >= 200.0))
+    velocity[first : first + 6] = 216.0
+    seg = find_windows("X", data.time_s, velocity)
+    assert [s.centre for s in seg.steps] == pytest.approx([50.0, 100.0, 200.0], rel=0.02)
+    assert any("at 216 mm/min dropped" in w for w in seg.warnings)
+    assert max(abs(w.velocity_mm_min) for w in seg.windows) < 205.0

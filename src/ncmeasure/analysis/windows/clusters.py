@@ -26,11 +26,16 @@ from scipy.stats import theilslopes
 
 from ncmeasure.analysis.windows.detection import Detection
 from ncmeasure.analysis.windows.model import Candidate, Cluster, VelocityWindow, labelled_window
-from ncmeasure.analysis.windows.settings import STEP_QUANTA, SegmentSettings, WindowSource
+from ncmeasure.analysis.windows.settings import (
+    STEP_QUANTA,
+    THIN_STEP_SHARE,
+    SegmentSettings,
+    WindowSource,
+)
 from ncmeasure.analysis.windows.signals import cluster_gaps, clusters_of
 from ncmeasure.formats.schedule import AxisSummary
 
-__all__ = ["drop_rapids", "drop_too_fast", "label_by_clusters", "levels"]
+__all__ = ["drop_rapids", "drop_thin_steps", "drop_too_fast", "label_by_clusters", "levels"]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
@@ -142,6 +147,53 @@ def drop_rapids(candidates: list[Candidate], detection: Detection) -> list[Candi
         )
         candidates = [c for c, bad in zip(candidates, long, strict=True) if not bad]
     return candidates
+
+
+THIN_STEP_NEAR = 0.05
+"""A thin step within this share of a neighbour's level can be a piece of that neighbour's run."""
+
+
+def drop_thin_steps(candidates: list[Candidate], detection: Detection) -> list[Candidate]:
+    """Without a command or a schedule: drop the steps that only a fragment of a run backs.
+
+    A step whose windows hold fewer than :data:`THIN_STEP_SHARE` of the samples of
+    each step next to it (the one it has, at the ends) is no speed of its own but a
+    piece of a run where the readings happened to hold another level (a "215 mm/min"
+    step of 4 samples where nothing ran above 200, a 492 beside 500 samples at 499):
+    its windows are dropped, and counted in ``detection``'s warnings. Only a step within
+    :data:`THIN_STEP_NEAR` of a neighbour's level, or the fastest one, can be such a
+    piece: a short step far from the others (the slowest speed of a short program) is a
+    speed of its own.
+    """
+    if len(candidates) < 2:
+        return candidates
+    labels = levels(candidates, detection.settings, _quantum(detection))
+    count = int(labels.max()) + 1
+    if count < 2:
+        return candidates
+    samples = np.bincount(labels, weights=[c.stop - c.start for c in candidates], minlength=count)
+    speeds = np.abs(np.array([c.level_mm_min for c in candidates]))
+    level = np.array([float(np.median(speeds[labels == k])) for k in range(count)])
+    thin = np.zeros(count, dtype=np.bool_)
+    for k in range(count):
+        nearby = [j for j in (k - 1, k + 1) if 0 <= j < count]
+        # a fragment lies next to the run it broke from (within THIN_STEP_NEAR of its
+        # level), or above the fastest run (an overshoot); a short slow step is a step
+        close = any(abs(level[k] - level[j]) <= THIN_STEP_NEAR * level[j] for j in nearby)
+        thin[k] = (close or k == count - 1) and samples[k] < THIN_STEP_SHARE * min(
+            samples[j] for j in nearby
+        )
+    if not thin.any():
+        return candidates
+    dropped = [c for c, k in zip(candidates, labels, strict=True) if thin[k]]
+    speeds = sorted({round(abs(c.level_mm_min), 3) for c in dropped})
+    detection.warnings.append(
+        f"{len(dropped)} windows at {', '.join(f'{s:g}' for s in speeds)} mm/min dropped: "
+        f"together they hold fewer than {THIN_STEP_SHARE:g} of the samples of the velocity "
+        "steps next to them (a piece of a run where the readings held another level, "
+        "no speed of its own)"
+    )
+    return [c for c, k in zip(candidates, labels, strict=True) if not thin[k]]
 
 
 def label_by_clusters(

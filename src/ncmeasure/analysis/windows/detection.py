@@ -15,6 +15,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ncmeasure.analysis.windows.settings import (
+    FILTER_PLATEAU_SHARE,
+    MIN_FILTER_SAMPLES,
     MIN_WINDOW_SAMPLES,
     NOISE_BAND_FACTOR,
     SegmentSettings,
@@ -46,9 +48,13 @@ class Detection:
         settings = self.settings
         self.detect_resolution = 0.0
         self.settle_n = round(settings.settle_s / self.dt)
-        self.filter_n = odd(settings.plateau_filter_s / self.dt)
         self.min_n = max(MIN_WINDOW_SAMPLES, math.ceil(settings.min_window_s / self.dt - 1e-9))
         self.plateau_n = max(MIN_WINDOW_SAMPLES, round(settings.plateau_min_s / self.dt))
+        # The smoothing: plateau_filter_s, and at least MIN_FILTER_SAMPLES where a plateau
+        # holds FILTER_PLATEAU_SHARE such widths (an odd count: a median has a middle).
+        least = min(MIN_FILTER_SAMPLES, self.plateau_n // FILTER_PLATEAU_SHARE)
+        least = max(1, least if least % 2 else least - 1)
+        self.filter_n = max(odd(settings.plateau_filter_s / self.dt), least)
 
     def setup_resolution(self, v_quantum: float, x_quantum: float, sigma: float) -> None:
         """What the velocity signal resolves, and whether windows come from the position."""

@@ -88,7 +88,12 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import median_filter
 
-from ncmeasure.analysis.windows.clusters import drop_rapids, drop_too_fast, label_by_clusters
+from ncmeasure.analysis.windows.clusters import (
+    drop_rapids,
+    drop_thin_steps,
+    drop_too_fast,
+    label_by_clusters,
+)
 from ncmeasure.analysis.windows.detection import Detection
 from ncmeasure.analysis.windows.model import Candidate, Segmentation
 from ncmeasure.analysis.windows.schedule import ScheduleMatch
@@ -629,6 +634,8 @@ class WindowFinder(Detection):
             labelled = True
         if not labelled and source in ("command", "plateau"):
             candidates = drop_rapids(candidates, self)
+        if not labelled and source == "plateau":
+            candidates = drop_thin_steps(candidates, self)
         if not candidates:
             raise RecordingError(
                 f"axis {self.axis}: every {source} window was dropped",

@@ -12,13 +12,16 @@ __all__ = [
     "COARSE_WINDOW_SAMPLES",
     "CORRELATED_RHO",
     "DISPLACEMENT_QUANTA",
+    "FILTER_PLATEAU_SHARE",
     "HOLE_PERIODS",
     "JOIN_GAP_SAMPLES",
     "JOIN_SPREAD",
+    "MIN_FILTER_SAMPLES",
     "MIN_WINDOW_SAMPLES",
     "NOISE_BAND_FACTOR",
     "STEADY_SCATTER",
     "STEP_QUANTA",
+    "THIN_STEP_SHARE",
     "Method",
     "SegmentSettings",
     "WindowSource",
@@ -31,6 +34,17 @@ FloatArray = NDArray[np.float64]
 
 MIN_WINDOW_SAMPLES: Final = 3
 """No window keeps fewer samples, whatever ``min_window_s``: a median and a spread need 3."""
+
+MIN_FILTER_SAMPLES: Final = 5
+"""The rolling median spans at least this many samples (and ``plateau_filter_s``), as far
+as :data:`FILTER_PLATEAU_SHARE` allows: a drive's averaged velocity wanders over several
+samples (lag-1 autocorrelation 0.7 to 0.9), and a median of one to three of them follows
+every excursion, which breaks a steady run apart or leaves it without a plateau."""
+
+FILTER_PLATEAU_SHARE: Final = 4
+"""The rolling median spans at most a plateau (``plateau_min_s``) over this many samples
+where ``plateau_filter_s`` asks for less: the shortest plateau, and a step between two
+speeds, stay resolved (the median keeps an edge, and cuts half its width off each end)."""
 
 COARSE_WINDOW_SAMPLES: Final = 20
 """Windows holding fewer samples than this (median over the axis) make the data coarse:
@@ -55,6 +69,13 @@ level (the largest excursion of 500 samples of correlated noise is about 4 of th
 
 STEP_QUANTA: Final = 1.5
 """Without a schedule, window levels this many velocity counts apart or closer are one step."""
+
+THIN_STEP_SHARE: Final = 0.125
+"""Without a command or a schedule, a velocity step whose windows hold fewer than this
+share of the samples of each step next to it is no step of its own: a fragment of a run
+(the velocity wandered off its level at a run's start or end, an overshoot) whose level
+the readings happened to hold. Windows of one program at neighbouring speeds differ in
+length by the speeds' ratio, a few times at most."""
 
 STEADY_SCATTER: Final = 0.25
 """Plateaus are joined only where JOIN_SPREAD standard deviations of the noise stay within
