@@ -1,11 +1,17 @@
 """One status of a machine on every surface, from one store.
 
-The machine's Coulomb friction rose by 21 % since its delivery while the friction
-of each measured point rose by less (the viscous part did not move): the point
-by point and the Coulomb figures fall on either side of a limit, the case in
-which ``store check``, ``store report``, the dashboard, MQTT and OPC UA used to
-disagree. Every surface must show the status of the one rule
-(:func:`ncmeasure.analysis.judgement.status.machine_status`).
+Every surface (``store check``, ``store report``, the dashboard's fleet grid and
+machine page, the REST API, MQTT and OPC UA) must show the status of the one
+rule (:func:`ncmeasure.analysis.judgement.status.machine_status`), in the cases
+in which they used to disagree:
+
+* Coulomb friction rose by 21 % since delivery while the friction of each
+  measured point rose by less (the viscous part did not move): the point by
+  point and the Coulomb figures fall on either side of a limit;
+* an axis whose own verdict is ``fault`` from its pattern along the travel, that
+  pattern unchanged since delivery (the machine's fingerprint): ok;
+* friction raised at one end of the travel since delivery: a local change, a
+  warning although no characteristic crossed a limit.
 """
 
 from __future__ import annotations
@@ -19,8 +25,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from ncmeasure.analysis.judgement.compare import compare_results
-from ncmeasure.analysis.judgement.status import figures_of, machine_status
-from ncmeasure.formats.comparison import Status
+from ncmeasure.formats.comparison import Status, worst_status
 from ncmeasure.formats.results import AxisResult, Results, Verdict
 from ncmeasure.publish.summary import axis_summaries, device_health, worst_health
 from ncmeasure.store import MeasurementInfo, open_store
@@ -28,6 +33,7 @@ from ncmeasure.store.check import check_machine
 from ncmeasure.store.overview import fleet_overview
 from ncmeasure.store.report import write_fleet_report
 from ncmeasure.web import create_app
+from tests.report.example import scaled_axis
 
 Make = Callable[..., Results]
 
@@ -81,27 +87,73 @@ def _results(base: Results, when: str, rise: float = 0.0) -> Results:
     return base.model_copy(update={"axes": axes, "recording": recording, "created_utc": when})
 
 
-@pytest.fixture
-def one_machine(tmp_path: Path, base_results: Results) -> tuple[str, Results, Results]:
+def _raised_at_the_end(axis: AxisResult, factor: float) -> AxisResult:
+    """The axis with the friction of its last position ``factor`` times as high."""
+    raised = scaled_axis(axis, factor)
+    return axis.model_copy(update={"positions": [*axis.positions[:-1], raised.positions[-1]]})
+
+
+def _measured(base: Results, when: str, change: Callable[[str, AxisResult], AxisResult]) -> Results:
+    axes = {name: change(name, axis) for name, axis in base.axes.items()}
+    recording = base.recording.model_copy(update={"directory": f"runs/{when}", "start_utc": when})
+    return base.model_copy(update={"axes": axes, "recording": recording, "created_utc": when})
+
+
+DELIVERED = "2026-01-10T08:00:00+00:00"
+NOW = "2027-01-10T08:00:00+00:00"
+CASES: dict[str, tuple[Callable[[Results], tuple[Results, Results]], Status]] = {
+    # Coulomb friction +21 %, the points less: a warning
+    "coulomb rise": (
+        lambda base: (_results(base, DELIVERED), _results(base, NOW, RISE)),
+        "warning",
+    ),
+    # axis X's own verdict is fault (a shifted loose bearing), re-measured 1 % higher
+    # everywhere: the pattern is the machine's fingerprint, unchanged
+    "fingerprint unchanged": (
+        lambda base: (
+            _measured(base, DELIVERED, lambda _, axis: axis),
+            _measured(base, NOW, lambda _, axis: scaled_axis(axis, 1.01)),
+        ),
+        "ok",
+    ),
+    # axis Z's friction +8 % at one end (Coulomb friction +2.7 %, within every limit):
+    # a local change since delivery, a warning
+    "local change": (
+        lambda base: (
+            _measured(base, DELIVERED, lambda _, axis: _healthy(axis)),
+            _measured(
+                base,
+                NOW,
+                lambda name, axis: (
+                    _raised_at_the_end(_healthy(axis), 1.08) if name == "Z" else _healthy(axis)
+                ),
+            ),
+        ),
+        "warning",
+    ),
+}
+
+
+@pytest.fixture(params=list(CASES))
+def one_machine(
+    request: pytest.FixtureRequest, tmp_path: Path, base_results: Results
+) -> tuple[str, Results, Results, Status]:
+    build, expected = CASES[request.param]
+    delivered, now = build(base_results)
     url = f"sqlite:///{tmp_path / 'fleet.db'}"
-    delivered = _results(base_results, "2026-01-10T08:00:00+00:00")
-    now = _results(base_results, "2027-01-10T08:00:00+00:00", RISE)
     with open_store(url, write=True) as store:
         store.add(delivered, MeasurementInfo(serial="M7", label="delivery", site="Hall 3"))
         store.add(now, MeasurementInfo(serial="M7", label="service"))
-    return url, delivered, now
+    return url, delivered, now, expected
 
 
 def test_every_surface_shows_the_one_status(
-    one_machine: tuple[str, Results, Results], tmp_path: Path
+    one_machine: tuple[str, Results, Results, Status], tmp_path: Path
 ) -> None:
-    url, delivered, now = one_machine
-    rule = machine_status(figures_of(now), baseline=figures_of(delivered)).status
-    assert rule == "warning"  # Coulomb +21 %: above the warning limit, below the critical one
-
+    url, delivered, now, expected = one_machine
     comparison = compare_results(delivered, [now], labels=["delivery", "service"])
-    # the points moved less than Coulomb friction: the case where surfaces disagreed
-    assert max(r.max_abs_deviation_percent for r in comparison.runs) < RISE * 100
+    rule = comparison.runs[0].status
+    assert rule == expected
 
     with open_store(url) as store:
         check = check_machine(store, "M7")
@@ -115,12 +167,13 @@ def test_every_surface_shows_the_one_status(
     ]
     (machine,) = overview.machines
     summaries = axis_summaries(overview)
-    mqtt = {s.message()["status"] for s in summaries}
+    mqtt = {s.axis.axis: s.message()["status"] for s in summaries}
     opcua = _HEALTH_STATUS[worst_health(device_health(a) for a in machine.axes.values())]
 
     with TestClient(create_app(url), base_url="http://127.0.0.1") as client:
         fleet_html = client.get("/").text
         machine_html = client.get("/machines/M7").text
+        api_check = client.get("/api/v1/machines/M7/check").json()
     (fleet_page,) = re.findall(r'class="light check-(\w+)"', fleet_html)
     machine_page = re.search(r'<h1>Machine M7 <span class="badge status-(\w+)"', machine_html)
     assert machine_page is not None
@@ -132,11 +185,13 @@ def test_every_surface_shows_the_one_status(
         "overview": machine.status,
         "fleet page": fleet_page,
         "machine page": machine_page.group(1),
-        "MQTT": mqtt.pop() if len(mqtt) == 1 else f"several: {mqtt}",
+        "REST": api_check["status"],
+        "MQTT": worst_status(mqtt.values()),
         "OPC UA": opcua,
     }
     assert shown == dict.fromkeys(shown, rule)
     # per axis too: store check, compare and the overview agree axis by axis
     per_axis = {name: a.status for name, a in machine.axes.items()}
     assert check.axis_status == per_axis
+    assert mqtt == per_axis
     assert comparison.runs[0].axis_status == per_axis

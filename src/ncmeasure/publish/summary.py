@@ -11,7 +11,9 @@ The health state follows the OPC UA DI ``DeviceHealthEnumeration`` (OPC 10000-10
 MAINTENANCE_REQUIRED 4; https://reference.opcfoundation.org/DI/docs/4.5.4/),
 itself NAMUR NE 107's status signals. The mapping, worst first:
 
-* FAILURE: the analysis found an assembly fault (verdict ``fault``).
+* FAILURE: the analysis found an assembly fault (verdict ``fault``; not a
+  pattern along the travel unchanged since the baseline, the machine's own
+  fingerprint, which does not count).
 * OFF_SPEC: any other ``critical`` status (a change beyond the critical limit).
 * MAINTENANCE_REQUIRED: the status ``warning`` (the verdict ``check``, a change
   beyond the warning limit, an outlier of the machine's type, friction far from
@@ -74,7 +76,7 @@ _SEVERITY: tuple[Health, ...] = (
 def device_health(axis: AxisOverview) -> Health:
     """The DI DeviceHealth of an axis (the mapping of the module docstring)."""
     status = axis.status
-    if status == "critical" and axis.verdict == "fault":
+    if status == "critical" and axis.verdict == "fault" and axis.verdict_counts:
         return "FAILURE"
     if status == "critical":
         return "OFF_SPEC"

@@ -3,7 +3,9 @@
 Against the baseline (the first measurement labelled ``delivery``, else the
 first), the comparison is :func:`~ncmeasure.analysis.judgement.compare.compare_results`,
 with its limits and exit status, after the comparability rules
-(:func:`comparability`) have said what differs between the two measurements.
+(:func:`~ncmeasure.store.changes.comparability`) have said what differs between the
+two measurements: :func:`~ncmeasure.store.changes.compare_with_baseline`, the function
+that also stores the change for the other surfaces (the fleet overview).
 
 Against the fleet (the latest measurement of every other machine of its type),
 each characteristic (:data:`~ncmeasure.store.rows.CHARACTERISTICS`) of each
@@ -18,7 +20,6 @@ from __future__ import annotations
 import json
 import os
 from collections import defaultdict
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,50 +27,35 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import func, select
 
-from ncmeasure.analysis.judgement.compare import POSITION_MATCH_TOLERANCE_MM, compare_results
 from ncmeasure.analysis.judgement.fleet import modified_z_against
 from ncmeasure.analysis.judgement.status import (
     CHARACTERISTICS,
     AxisFigures,
-    ChangeFigures,
     FleetPlace,
     figures_of,
     is_outlier,
     machine_status,
 )
-from ncmeasure.errors import ComparisonError
 from ncmeasure.files import write_whole
 from ncmeasure.formats.comparison import Comparison, Limits, Status
 from ncmeasure.formats.results import Results
 from ncmeasure.store import schema as t
+from ncmeasure.store.changes import (
+    BaselineChange,
+    Comparability,
+    baseline_of,
+    compare_with_baseline,
+)
 from ncmeasure.store.records import MeasurementSummary, check_serial
 from ncmeasure.store.store import Store
 
 __all__ = [
-    "TEMPERATURE_WARNING_K",
-    "Comparability",
     "FleetFigure",
     "StoreCheck",
     "check_json",
     "check_machine",
-    "comparability",
     "write_check",
 ]
-
-TEMPERATURE_WARNING_K = 5.0
-"""Temperatures further apart than this make a comparison doubtful: the lubricant's
-viscosity, and with it viscous friction, changes by several percent per kelvin."""
-
-
-class Comparability(BaseModel):
-    """What differs between two measurements, and whether that invalidates comparing them."""
-
-    model_config = ConfigDict(frozen=True)
-
-    differences: list[str] = Field(
-        default_factory=list, description="Differences that weaken the comparison."
-    )
-    refused: str | None = Field(default=None, description="Why the two cannot be compared at all.")
 
 
 class FleetFigure(BaseModel):
@@ -111,89 +97,6 @@ class StoreCheck(BaseModel):
     axis_status: dict[str, Status] = Field(
         default_factory=dict, description="Per axis: its status by the same rule."
     )
-
-
-def _positions(results: Results, axis: str) -> list[float]:
-    return [p.position_mm for p in results.axes[axis].positions]
-
-
-def _speeds(results: Results, axis: str) -> set[float]:
-    return {
-        round(abs(point.velocity_mm_min), 1)
-        for position in results.axes[axis].positions
-        for found in position.directions.values()
-        if found is not None
-        for point in found.points
-    }
-
-
-def comparability(
-    base: MeasurementSummary,
-    base_results: Results,
-    other: MeasurementSummary,
-    other_results: Results,
-) -> Comparability:
-    """What differs between two measurements of one machine (docs/fleet.md, the rules).
-
-    Refused: no axis in common, or an axis measured in another quantity (Nm
-    against A). Warnings: another program (config hash), other positions or
-    velocities, temperatures more than :data:`TEMPERATURE_WARNING_K` apart (or
-    one unknown), another link.
-    """
-    differences: list[str] = []
-    common = sorted(set(base_results.axes) & set(other_results.axes))
-    if not common:
-        return Comparability(
-            refused=f"no axis in common ({', '.join(base_results.axes)} against "
-            f"{', '.join(other_results.axes)})"
-        )
-    for axis in common:
-        b, o = base_results.axes[axis], other_results.axes[axis]
-        if b.quantity != o.quantity:
-            return Comparability(
-                refused=f"axis {axis} is in {b.unit} in one and {o.unit} in the other "
-                "measurement (a torque constant was given only once); analyse both alike"
-            )
-    if base.config_hash != other.config_hash:
-        differences.append(
-            f"another program: config {base.config_hash or '(none)'} against "
-            f"{other.config_hash or '(none)'}; only the points both measured are compared"
-        )
-    for axis in common:
-        bp, op = _positions(base_results, axis), _positions(other_results, axis)
-        matched = sum(any(abs(x - y) <= POSITION_MATCH_TOLERANCE_MM for y in op) for x in bp)
-        if matched < len(bp) or len(op) != len(bp):
-            differences.append(
-                f"axis {axis}: positions differ ({matched} of {len(bp)} within "
-                f"{POSITION_MATCH_TOLERANCE_MM:g} mm)"
-            )
-        bs, os_ = _speeds(base_results, axis), _speeds(other_results, axis)
-        if bs != os_:
-            shared = len(bs & os_)
-            differences.append(
-                f"axis {axis}: velocities differ ({shared} of {len(bs)} velocity steps in common)"
-            )
-    temperatures = (base.temperature_c, other.temperature_c)
-    if None in temperatures:
-        if temperatures != (None, None):
-            differences.append(
-                "temperature known for only one measurement: a warm machine has less friction"
-            )
-    else:
-        t_base, t_other = temperatures
-        assert t_base is not None and t_other is not None
-        if abs(t_base - t_other) > TEMPERATURE_WARNING_K:
-            differences.append(
-                f"temperatures differ by {abs(t_base - t_other):.1f} K ({t_base:g} °C against "
-                f"{t_other:g} °C): "
-                "friction falls as the machine warms; measure at a similar temperature"
-            )
-    if base.link != other.link:
-        differences.append(
-            f"measured through another link ({base.link} against {other.link}): current "
-            "scaling and filtering may differ"
-        )
-    return Comparability(differences=differences)
 
 
 def _fleet_values(
@@ -268,10 +171,6 @@ def _fleet(
     return figures, int(machines)
 
 
-def _baseline(measurements: Sequence[MeasurementSummary]) -> MeasurementSummary:
-    return next((m for m in measurements if m.label == "delivery"), measurements[0])
-
-
 def check_machine(store: Store, serial: str, limits: Limits | None = None) -> StoreCheck:
     """A machine's latest measurement against its baseline and its fleet.
 
@@ -287,33 +186,18 @@ def check_machine(store: Store, serial: str, limits: Limits | None = None) -> St
     latest = next(m for m in measurements if m.id == machine.latest_measurement_id)
     latest_results = store.results(latest.id)
     findings: list[str] = []
-    first = _baseline(measurements)
+    first = baseline_of(measurements)
     baseline = first if first.id != latest.id else None
-    comparison: Comparison | None = None
-    rules: Comparability | None = None
+    met: BaselineChange | None = None
     base_figures: dict[str, AxisFigures] | None = None
     if baseline is None:
         findings.append("only the baseline is stored: nothing to compare over the machine's life")
     else:
         base_results = store.results(baseline.id)
-        rules = comparability(baseline, base_results, latest, latest_results)
-        if rules.refused is not None:
-            findings.append(f"not compared with the baseline: {rules.refused}")
-        else:
+        met = compare_with_baseline(baseline, base_results, latest, latest_results, limits)
+        findings.extend(met.findings)
+        if met.baseline_counts:
             base_figures = figures_of(base_results)
-            base_label = baseline.label or f"measurement {baseline.id}"
-            other_label = latest.label or f"measurement {latest.id}"
-            if other_label == base_label:
-                other_label = f"{other_label} ({latest.measured_utc[:10]})"
-            try:
-                comparison = compare_results(
-                    base_results, [latest_results], labels=[base_label, other_label], limits=limits
-                )
-            except ComparisonError as exc:
-                rules = Comparability(differences=rules.differences, refused=exc.message)
-                findings.append(f"not compared with the baseline: {exc.message}")
-            else:
-                findings.extend(comparison.findings)
     fleet, fleet_machines = _fleet(store, machine.type_id, machine.id, latest_results, limits)
     if fleet_machines < limits.outlier_min_runs:
         findings.append(
@@ -332,9 +216,7 @@ def check_machine(store: Store, serial: str, limits: Limits | None = None) -> St
         baseline=base_figures,
         fleet=places,
         limits=limits,
-        changes=None
-        if comparison is None
-        else {c.axis: ChangeFigures.of(c) for c in comparison.changes},
+        changes=None if met is None else met.changes,
     )
     findings.extend(judged.reasons)
     status = judged.status
@@ -343,8 +225,8 @@ def check_machine(store: Store, serial: str, limits: Limits | None = None) -> St
         machine_type=summary.machine_type,
         latest=latest,
         baseline=baseline,
-        comparability=rules,
-        comparison=comparison,
+        comparability=None if met is None else met.rules,
+        comparison=None if met is None else met.comparison,
         fleet=fleet,
         fleet_machines=fleet_machines,
         findings=findings,

@@ -12,12 +12,16 @@ fleet of ten thousand machines takes seconds, not ten thousand checks.
 
 The change since the baseline here is that of the characteristics (a relative
 change of the friction levels, a change in percentage points of the spread
-along the travel) against the warning and critical limits; ``store check
-SERIAL`` compares the two measurements point by point and says more.
+along the travel) against the warning and critical limits, and the diagnosis
+of the change along the travel that ``store check`` makes: stored when a
+measurement is added (:mod:`ncmeasure.store.changes`), read here for every
+machine in a few queries, compared on reading (and logged) where a store lacks
+it. ``store check SERIAL`` shows the comparison point by point.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from collections import defaultdict
 from collections.abc import Iterator, Sequence
@@ -40,6 +44,7 @@ from ncmeasure.analysis.judgement.status import (
 )
 from ncmeasure.formats.comparison import Limits, Status, worst_status
 from ncmeasure.store import schema as t
+from ncmeasure.store.changes import StoredChange, current_change, stored_changes
 from ncmeasure.store.store import Store
 
 __all__ = [
@@ -56,6 +61,7 @@ __all__ = [
 # here too for the overview's readers.
 
 _CHUNK = 500  # ids per IN (...) query: far below every database's parameter limit
+_log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -83,6 +89,8 @@ class AxisOverview:
     verdict: str
     """The latest measurement's verdict: ok, check or fault."""
     latest: dict[str, float | None]
+    signature: str | None = None
+    """The latest measurement's pattern along the travel."""
     changes: list[Change] = field(default_factory=list)
     outliers: list[Outlier] = field(default_factory=list)
     judged: AxisStatus | None = None
@@ -99,9 +107,15 @@ class AxisOverview:
         """Why the status is not ok, in words."""
         return self.judged.reasons if self.judged is not None else ()
 
+    @property
+    def verdict_counts(self) -> bool:
+        """The axis' own verdict enters its status: not a pattern along the travel that is
+        the machine's fingerprint, unchanged since the baseline."""
+        return self.judged is None or not self.judged.notes
+
     def figures(self) -> AxisFigures:
         """The axis as the judgement reads it."""
-        return AxisFigures(self.axis, self.unit, self.verdict, self.latest)
+        return AxisFigures(self.axis, self.unit, self.verdict, self.latest, self.signature)
 
 
 @dataclass
@@ -153,7 +167,7 @@ def _chunks(ids: Sequence[int]) -> Iterator[list[int]]:
 def _axis_rows(store: Store, measurement_ids: Sequence[int]) -> dict[int, list[Any]]:
     a = t.axis_results
     found: dict[int, list[Any]] = defaultdict(list)
-    columns = [a.c.measurement_id, a.c.axis, a.c.unit, a.c.verdict]
+    columns = [a.c.measurement_id, a.c.axis, a.c.unit, a.c.verdict, a.c.signature]
     columns += [a.c[c.name] for c in CHARACTERISTICS]
     with store.reading("read the fleet") as db:
         for ids in _chunks(sorted(set(measurement_ids))):
@@ -223,6 +237,7 @@ def fleet_overview(store: Store, limits: Limits | None = None) -> FleetOverview:
                 unit=row.unit,
                 verdict=row.verdict,
                 latest={c.name: _finite(getattr(row, c.name)) for c in CHARACTERISTICS},
+                signature=row.signature,
             )
             machine.axes[row.axis] = axis
             for c in CHARACTERISTICS:
@@ -235,12 +250,15 @@ def fleet_overview(store: Store, limits: Limits | None = None) -> FleetOverview:
         lambda: defaultdict(list)
     )
     outliers = _outliers(fleet, limits, places)
+    changes = _changes(store, machines, overviews)
     for machine in overviews:
+        met = changes.get(machine.serial)
         judged = machine_status(
             {name: axis.figures() for name, axis in machine.axes.items()},
-            baseline=baselines.get(machine.serial),
+            baseline=baselines.get(machine.serial) if met is None or met.baseline_counts else None,
             fleet=places[(machine.serial, machine.machine_type)],
             limits=limits,
+            changes=None if met is None else met.changes,
         )
         for name, axis in machine.axes.items():
             axis.judged = judged.axes[name]
@@ -263,7 +281,35 @@ def _figures(row: Any) -> AxisFigures:
         row.unit,
         row.verdict,
         {c.name: _finite(getattr(row, c.name)) for c in CHARACTERISTICS},
+        row.signature,
     )
+
+
+def _changes(
+    store: Store, machines: Sequence[Any], overviews: Sequence[MachineOverview]
+) -> dict[str, StoredChange]:
+    """Per serial (with a baseline): the stored change since the baseline; where none is
+    stored (a store filled by an older ncmeasure), compared now."""
+    ids = {found.serial: found.id for found in machines}
+    pairs = {
+        m.serial: (m.latest_id, m.baseline_id) for m in overviews if m.latest_id != m.baseline_id
+    }
+    with store.reading("read the changes since the baselines") as db:
+        stored = stored_changes(db, pairs.values())
+        missing = [serial for serial, pair in pairs.items() if pair not in stored]
+        found = {serial: stored[pair] for serial, pair in pairs.items() if pair in stored}
+        for serial in missing:
+            now = current_change(db, ids[serial])
+            if now is not None:
+                found[serial] = StoredChange.of(now[2])
+    if missing:
+        _log.warning(
+            "%d machine(s) without a stored change since their baseline (stored by another "
+            "ncmeasure version, or before it kept them): compared now, which is slower; "
+            "adding a measurement to a machine stores its change",
+            len(missing),
+        )
+    return found
 
 
 def _outliers(

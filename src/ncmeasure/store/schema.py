@@ -14,6 +14,11 @@
     fits            every fit per position and direction (linear, stribeck, extended)
     fit_parameters  the parameters of a fit with standard error or 95 % interval
     causes          the likely assembly causes of the position signature, ranked
+    baseline_changes per machine's (latest, baseline) pair: how they met (compared,
+                    refused by the comparability rules, no point matched) and which
+                    ncmeasure version compared them
+    axis_changes    per pair and axis: the diagnosis of the change since the baseline
+                    (its pattern along the travel, its cause, its spread and mean)
 
 The schema changes only through an Alembic revision (``migrations/versions``);
 ``tests/store/test_migrations.py`` proves the revisions build exactly these tables.
@@ -26,6 +31,7 @@ from sqlalchemy import (
     Column,
     Float,
     ForeignKey,
+    ForeignKeyConstraint,
     Index,
     Integer,
     LargeBinary,
@@ -38,7 +44,9 @@ from sqlalchemy import (
 
 __all__ = [
     "axes",
+    "axis_changes",
     "axis_results",
+    "baseline_changes",
     "causes",
     "fit_parameters",
     "fits",
@@ -207,4 +215,41 @@ causes = Table(
     Column("cause", String(32), nullable=False),
     Column("score", Float, nullable=False),
     Column("evidence", Text, nullable=False),
+)
+
+baseline_changes = Table(
+    "baseline_changes",
+    metadata,
+    Column(
+        "measurement_id",
+        ForeignKey("measurements.id", ondelete="CASCADE"),
+        primary_key=True,
+        doc="The machine's latest measurement.",
+    ),
+    Column(
+        "baseline_id",
+        ForeignKey("measurements.id", ondelete="CASCADE"),
+        primary_key=True,
+        index=True,
+        doc="Its baseline: the first labelled delivery, else the first.",
+    ),
+    Column("outcome", String(16), nullable=False, doc="compared, refused or failed."),
+    Column("ncmeasure_version", String(32), nullable=False, doc="Who compared them."),
+)
+
+axis_changes = Table(
+    "axis_changes",
+    metadata,
+    Column("measurement_id", Integer, primary_key=True),
+    Column("baseline_id", Integer, primary_key=True),
+    Column("axis", String(32), primary_key=True),
+    Column("signature", String(32), nullable=False, doc="The change's pattern along the travel."),
+    Column("cause", String(32), nullable=False, doc="Its leading cause (none: no change)."),
+    Column("spread_percent", Float, doc="(max − min)/mean of the change along the travel."),
+    Column("mean_percent", Float, doc="The mean change."),
+    ForeignKeyConstraint(
+        ["measurement_id", "baseline_id"],
+        ["baseline_changes.measurement_id", "baseline_changes.baseline_id"],
+        ondelete="CASCADE",
+    ),
 )

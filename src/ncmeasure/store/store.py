@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
@@ -12,6 +12,7 @@ from sqlalchemy.exc import SQLAlchemyError
 from ncmeasure.errors import ConfigError
 from ncmeasure.formats.results import Results
 from ncmeasure.store import schema as t
+from ncmeasure.store.changes import measurement_summaries, record_changes, verdicts_of
 from ncmeasure.store.database import connect, display_url, translate, write_begin
 from ncmeasure.store.records import (
     Added,
@@ -68,6 +69,8 @@ class Store:
 
         The same results (byte for byte, as canonical JSON) are stored once: adding
         them again to the same machine changes nothing; to another machine is refused.
+        The machine's latest measurement is compared with its baseline and the change
+        stored (:func:`~ncmeasure.store.changes.record_changes`), for every surface to read.
 
         Raises:
             ConfigError: Invalid info, or these results belong to another machine.
@@ -79,7 +82,8 @@ class Store:
         """Store several measurements in one transaction: all of them or none.
 
         For loading many at once (a script filling a store): one commit instead of one
-        per measurement. Each is stored as :meth:`add` stores it.
+        per measurement. Each is stored as :meth:`add` stores it; then each machine's
+        change since its baseline (:func:`~ncmeasure.store.changes.record_changes`).
 
         Raises:
             ConfigError: Invalid info, or results of another machine (nothing stored).
@@ -94,7 +98,9 @@ class Store:
         with self._writing(
             "add the measurement" if len(prepared) == 1 else "add measurements"
         ) as db:
-            return [add_measurement(db, *one) for one in prepared]
+            added = [add_measurement(db, *one) for one in prepared]
+            record_changes(db, [a.serial for a in added])
+            return added
 
     # ----------------------------------------------------------------------- reading
 
@@ -108,20 +114,6 @@ class Store:
                 "the machines)"
             )
         return row
-
-    def _verdicts(
-        self, db: Connection, measurement_ids: Sequence[int]
-    ) -> dict[int, dict[str, str]]:
-        found: dict[int, dict[str, str]] = {m: {} for m in measurement_ids}
-        if not measurement_ids:
-            return found
-        for row in db.execute(
-            select(t.axis_results.c.measurement_id, t.axis_results.c.axis, t.axis_results.c.verdict)
-            .where(t.axis_results.c.measurement_id.in_(list(measurement_ids)))
-            .order_by(t.axis_results.c.axis)
-        ):
-            found[row.measurement_id][row.axis] = row.verdict
-        return found
 
     def machines(self) -> list[MachineSummary]:
         """Every machine, by serial."""
@@ -148,7 +140,7 @@ class Store:
                 .outerjoin(latest, latest.c.id == t.machines.c.latest_measurement_id)
                 .order_by(t.machines.c.serial)
             ).all()
-            verdicts = self._verdicts(db, [r.latest_id for r in rows if r.latest_id is not None])
+            verdicts = verdicts_of(db, [r.latest_id for r in rows if r.latest_id is not None])
         return [
             MachineSummary(
                 serial=r.serial,
@@ -168,39 +160,7 @@ class Store:
         check_serial(serial)
         with self.reading("read the machine") as db:
             machine = self.machine_row(db, serial)
-            rows = db.execute(
-                select(
-                    t.measurements.c.id,
-                    t.measurements.c.measured_utc,
-                    t.measurements.c.label,
-                    t.measurements.c.operator,
-                    t.measurements.c.temperature_c,
-                    t.measurements.c.operating_hours,
-                    t.measurements.c.link,
-                    t.measurements.c.config_hash,
-                    t.measurements.c.ncmeasure_version,
-                    t.measurements.c.recording_location,
-                )
-                .where(t.measurements.c.machine_id == machine.id)
-                .order_by(t.measurements.c.measured_utc, t.measurements.c.id)
-            ).all()
-            verdicts = self._verdicts(db, [r.id for r in rows])
-        measurements = [
-            MeasurementSummary(
-                id=r.id,
-                measured_utc=r.measured_utc,
-                label=r.label,
-                operator=r.operator,
-                temperature_c=r.temperature_c,
-                operating_hours=r.operating_hours,
-                link=r.link,
-                config_hash=r.config_hash,
-                ncmeasure_version=r.ncmeasure_version,
-                recording_location=r.recording_location,
-                verdicts=verdicts[r.id],
-            )
-            for r in rows
-        ]
+            measurements = measurement_summaries(db, machine.id)
         latest = next((m for m in measurements if m.id == machine.latest_measurement_id), None)
         summary = MachineSummary(
             serial=machine.serial,
