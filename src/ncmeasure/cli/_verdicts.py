@@ -76,12 +76,13 @@ def print_verdict(
 
 
 def append_change(line: "Text", headline: "Headline", against: "AxisComparison") -> None:
-    """The change against the base, unless the verdict says it already, and its likely cause."""
+    """The change against the base and its likely cause, unless the verdict says them already."""
     from ncmeasure.report.words import CAUSE_TITLES
 
     if against.change not in headline.verdict.reason:
         line.append(f" Against {against.base!r}: {against.status}, {against.change}.")
-    if against.cause is not None and against.cause.cause != "none":
+    named = "likely" in headline.verdict.reason.split("Against the reference:", 1)[-1]
+    if against.cause is not None and against.cause.cause != "none" and not named:
         title = CAUSE_TITLES.get(against.cause.cause, against.cause.cause)
         line.append(f" Likely cause of the change: {title} (score {against.cause.score:.2f}).")
 
