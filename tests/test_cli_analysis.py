@@ -126,7 +126,8 @@ def test_compare_lifetime_exit_codes(tmp_path: Path) -> None:
     assert f"worn.results: axis X: fault · Coulomb friction {figure};" in out
     assert re.search(r"Against the reference: friction -\d+\.\d % on average, alike along the "
                      r"travel; at most -\d+\.\d % at position \d \(\d+ mm\), \w+, beyond the "
-                     r"critical limit; likely a preload loss of the ball-screw nut", out), out  # fmt: skip
+                     r"critical limit; likely a preload loss of the ball-screw nut",
+                     out), out  # fmt: skip
     assert json.loads((tmp_path / "cmp.json").read_text())["format"] == "ncmeasure-comparison"
     code, out, _ = run(
         "compare",
