@@ -147,11 +147,13 @@ def test_a_healthy_fingerprint_varies_by_a_few_percent_along_the_travel(
     low, high = config.axes[0].travel_mm
     along = np.linspace(low, high, 151)
     spreads = [_spread_percent(_model(config, Realism(), m, 0).coulomb_nm(along)) for m in SEEDS]
-    # documented: typically 2–6 % (10th to 90th percentile), median about 4 %
-    assert float(np.percentile(spreads, 10)) >= 2.0
-    assert float(np.percentile(spreads, 90)) <= 6.5
-    assert 3.0 <= float(np.median(spreads)) <= 5.0
-    assert max(spreads) > 5.0  # some healthy axes are beyond the 5 % "flat" threshold
+    # documented: Coulomb friction varies by about 4–11 % along the travel (10th to 90th
+    # percentile), median about 7 %; the analysis' velocity-averaged profile shows about
+    # 0.55 times that, 2–6 %, beyond its 5 % "flat" threshold for one axis in four
+    assert float(np.percentile(spreads, 10)) >= 3.0
+    assert float(np.percentile(spreads, 90)) <= 12.0
+    assert 5.0 <= float(np.median(spreads)) <= 9.0
+    assert min(spreads) > 1.0
     without = AxisModel(config.axes[0]).coulomb_nm(along)
     assert _spread_percent(without) == pytest.approx(0.0, abs=1e-9)
 

@@ -167,8 +167,8 @@ class Realism:
     shift_tolerance_um: float = 10.0
     rail_bow_tolerance_um: float = 5.0
     nut_preload_tolerance: float = 0.15
-    nut_profile: float = 0.06
-    guide_profile: float = 0.04
+    nut_profile: float = 0.12
+    guide_profile: float = 0.08
     coulomb_drift: float = 0.02
     lubricant_viscous_drift: float = 0.10
     motor_viscous_drift: float = 0.02
