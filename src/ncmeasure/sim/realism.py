@@ -35,10 +35,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ncmeasure.errors import ConfigError
-from ncmeasure.sim.axis import AxisModel, Condition, Profile, Variation
+from ncmeasure.sim.axis import AxisModel, Components, Condition, Profile, Variation
 from ncmeasure.sim.rig import RIG_MECHANICS
 
-__all__ = ["AxisRealism", "Drift", "Fingerprint", "Realism", "random_profile"]
+__all__ = ["AxisRealism", "Drift", "Fingerprint", "Realism", "random_profile", "with_tolerance"]
 
 FloatArray = NDArray[np.float64]
 
@@ -115,13 +115,13 @@ class AxisRealism:
 
     def condition(self) -> Condition:
         """Fingerprint and drift as an :class:`~ncmeasure.sim.axis.Condition`."""
-        names = set(self.fingerprint.profile) | set(_LUBRICATED) | {"motor"}
+        names = [f.name for f in fields(Components)]
         profile = {
             name: self.fingerprint.profile.get(name, Profile()) + self.drift.profile
-            for name in sorted(names)
+            for name in names
         }
         return Condition(
-            coulomb_factor=dict.fromkeys(sorted(names), self.drift.coulomb_factor),
+            coulomb_factor=dict.fromkeys(names, self.drift.coulomb_factor),
             viscous_factor=dict(self.drift.viscous_factor),
             profile=profile,
         )
