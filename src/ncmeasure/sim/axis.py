@@ -62,6 +62,14 @@ Assembly variances (:class:`Variation`) change the normal forces:
 :data:`EXAMPLE_VARIATIONS` holds one variation per assembly cause, of a size
 the analysis recognises on the rig axis.
 
+A :class:`Condition` holds what a well-assembled axis has on top of its
+components' nominal values: the level of each component's Coulomb and
+viscous friction (temperature, lubrication) and a smooth relative profile of
+its static friction along the travel (:class:`Profile`: uneven lubricant
+film, preload tolerance of nut and carriages). Without one (the default) the
+components are exactly their nominal selves; :mod:`ncmeasure.sim.realism`
+draws conditions for a machine and a run.
+
 The motor current is ``(friction + J α + gravity) / k_T`` plus cogging
 ripple (3 and 18 periods per motor revolution), optional Gaussian noise and
 rare outliers. Units are in the names: positions in mm, velocities in
@@ -89,6 +97,8 @@ __all__ = [
     "AxisParameters",
     "Component",
     "Components",
+    "Condition",
+    "Profile",
     "Variation",
     "default_components",
     "parse_variation",
@@ -409,6 +419,90 @@ class AxisParameters:
         return self.moved_mass_kg * _G_M_S2 * self.screw_lead_mm / 1000.0 / (2 * math.pi)
 
 
+@dataclass(frozen=True)
+class Profile:
+    """A smooth relative change along the travel: ``Σ_k c_k cos(πkt) + s_k sin(πkt)``.
+
+    ``t`` runs from 0 at the travel's minimum to 1 at its maximum, so mode ``k``
+    has the wavelength ``2 L / k`` (L the travel): a few modes give a profile
+    of low spatial frequencies only. Profiles add coefficient by coefficient.
+
+    Attributes:
+        cos: ``c_1, c_2, ...`` (relative, 0.01 = 1 %).
+        sin: ``s_1, s_2, ...``, as many as ``cos``.
+    """
+
+    cos: tuple[float, ...] = ()
+    sin: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        if len(self.cos) != len(self.sin):
+            raise ConfigError(
+                "invalid profile",
+                [f"cos, sin: {len(self.cos)} and {len(self.sin)} coefficients, must be as many"],
+            )
+        if not all(math.isfinite(c) for c in (*self.cos, *self.sin)):
+            raise ConfigError("invalid profile", ["cos, sin: a coefficient is not finite"])
+
+    def __add__(self, other: Profile) -> Profile:
+        n = max(len(self.cos), len(other.cos))
+
+        def padded(values: tuple[float, ...]) -> NDArray[np.float64]:
+            return np.pad(np.asarray(values, dtype=np.float64), (0, n - len(values)))
+
+        return Profile(
+            cos=tuple(float(c) for c in padded(self.cos) + padded(other.cos)),
+            sin=tuple(float(c) for c in padded(self.sin) + padded(other.sin)),
+        )
+
+    def at(self, t: ArrayLike) -> FloatArray:
+        """The relative change at relative positions ``t`` (0..1 over the travel)."""
+        t = np.asarray(t, dtype=np.float64)
+        value = np.zeros_like(t)
+        for k, (c, s) in enumerate(zip(self.cos, self.sin, strict=True), start=1):
+            value = value + c * np.cos(math.pi * k * t) + s * np.sin(math.pi * k * t)
+        return np.asarray(value, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class Condition:
+    """How an axis' friction departs from its components' nominal values.
+
+    Keys are component names (``motor``, ``fixed_bearing``, ``loose_bearing``,
+    ``nut``, ``guides``, ``covers``); a component not named keeps its nominal
+    value. The default condition changes nothing.
+
+    Attributes:
+        coulomb_factor: Factor on a component's Coulomb and Stribeck friction
+            (its level: lubricant state, temperature).
+        viscous_factor: Factor on a component's viscous coefficient (the oil's
+            viscosity, the motor's iron losses).
+        profile: Relative change of a component's Coulomb and Stribeck friction
+            along the travel, ``× (1 + profile(t))``.
+    """
+
+    coulomb_factor: Mapping[str, float] = field(default_factory=dict)
+    viscous_factor: Mapping[str, float] = field(default_factory=dict)
+    profile: Mapping[str, Profile] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        known = {f.name for f in fields(Components)}
+        bad = [
+            f"{part}.{name}: not a component (known: {', '.join(sorted(known))})"
+            for part in ("coulomb_factor", "viscous_factor", "profile")
+            for name in getattr(self, part)
+            if name not in known
+        ]
+        bad += [
+            f"{part}.{name}: {value!r} must be > 0"
+            for part in ("coulomb_factor", "viscous_factor")
+            for name, value in getattr(self, part).items()
+            if not (math.isfinite(value) and value > 0)
+        ]
+        if bad:
+            raise ConfigError("invalid axis condition", bad)
+
+
 COVER_STEP_DEFAULT = 0.4
 """Default place of a cover step, as a fraction of the travel from its minimum.
 
@@ -554,6 +648,8 @@ class AxisModel:
             (its travel, bearing end, orientation, k_T and lead are used).
         components: Component friction (default: the method's test rig).
         variation: Assembly variances (default: none).
+        condition: Levels and profiles of the components' friction (default:
+            nominal; see :mod:`ncmeasure.sim.realism`).
     """
 
     def __init__(
@@ -561,6 +657,7 @@ class AxisModel:
         axis: AxisParameters | AxisConfig | None = None,
         components: Components | None = None,
         variation: Variation | None = None,
+        condition: Condition | None = None,
     ) -> None:
         if axis is None:
             axis = AxisParameters()
@@ -569,6 +666,7 @@ class AxisModel:
         self.axis: AxisParameters = axis
         self.components: Components = components if components is not None else Components()
         self.variation: Variation = variation if variation is not None else Variation()
+        self.condition: Condition | None = condition
         step_at = self.variation.cover_step_position_mm
         low, high = axis.mechanics.travel_mm
         if step_at is not None and not low <= step_at <= high:
@@ -649,6 +747,39 @@ class AxisModel:
             factors[name] = factor
         return factors
 
+    def _static_factors(self, x: FloatArray) -> dict[str, FloatArray]:
+        """Per component: static friction relative to nominal, with the condition."""
+        factors = self._load_factors(x)
+        condition = self.condition
+        if condition is None:
+            return factors
+        low, high = self.axis.mechanics.travel_mm
+        t = np.clip((x - low) / (high - low), 0.0, 1.0)
+        for name in factors:
+            factor = factors[name] * condition.coulomb_factor.get(name, 1.0)
+            profile = condition.profile.get(name)
+            if profile is not None:
+                factor = factor * (1.0 + profile.at(t))
+            factors[name] = factor
+        return factors
+
+    def coulomb_nm(self, position_mm: ArrayLike) -> FloatArray:
+        """Coulomb friction torque along the travel (Nm): the static friction without
+        Stribeck hump and viscous part, with variation and condition, broadcast."""
+        x = np.asarray(position_mm, dtype=np.float64)
+        factors = self._static_factors(x)
+        total = sum(
+            (comp.coulomb_nm * factors[name] for name, comp in self.components.items()),
+            start=np.zeros_like(x),
+        )
+        if self.variation.cover_step != 0:
+            total = total + np.where(
+                x >= self._cover_step_mm,
+                self.variation.cover_step * self.components.coulomb_nm,
+                0.0,
+            )
+        return np.asarray(total, dtype=np.float64)
+
     def component_breakdown(
         self, position_mm: ArrayLike, velocity_mm_min: ArrayLike
     ) -> dict[str, FloatArray]:
@@ -659,14 +790,18 @@ class AxisModel:
         ax = self.axis
         omega = _omega_rad_s(v, ax.screw_lead_mm)
         sign = np.tanh(v / ax.regularisation_mm_min)
-        factors = self._load_factors(x)
+        factors = self._static_factors(x)
+        viscous = {} if self.condition is None else self.condition.viscous_factor
         result: dict[str, FloatArray] = {}
         for name, comp in self.components.items():
             decay = np.exp(-np.abs(v) / comp.stribeck_velocity_mm_min)
             static = comp.coulomb_nm + comp.stribeck_nm * decay
             # The load-dependent share scales with the normal force; factor is
             # relative to the whole Coulomb torque, so apply it to static friction.
-            torque = static * factors[name] * sign + comp.viscous_nms_rad * omega
+            torque = (
+                static * factors[name] * sign
+                + comp.viscous_nms_rad * viscous.get(name, 1.0) * omega
+            )
             result[name] = np.asarray(torque, dtype=np.float64)
         if self.variation.cover_step != 0:
             # The nominal friction of the whole axis, without variation.

@@ -33,6 +33,15 @@ current comes from the axis' :class:`~ncmeasure.sim.axis.AxisModel`
 (friction per component and assembly variation, inertia, gravity, cogging,
 noise, outliers). A wrong program therefore shows up as wrong data.
 
+With a :class:`~ncmeasure.sim.realism.Realism` (off by default) each axis
+also gets what a real one has: a healthy fingerprint along the travel, drawn
+from ``machine_seed`` and the same in every run of the machine, a run-to-run
+drift of its friction and of the drive's torque gain, drawn from ``seed``,
+and the drives' own noise (the current's ADC steps and noise, the speed
+loop's answer to the encoder, the velocity as the encoder's position
+difference). :attr:`VirtualMachine.realised` says what was drawn, and each
+axis' model (:attr:`VirtualMachine.models`) is then the run's true friction.
+
 Everything is computed once, on a uniform time grid (``dt_s``, default
 1 ms), and seeded, so a run is reproducible. The result, a
 :class:`MachineRun`, is a :class:`~ncmeasure.sim.signals.SignalSource` that
@@ -63,6 +72,7 @@ from ncmeasure.program.check import read_generated
 from ncmeasure.program.reader import Dwell, Motion, ProgramTrace, ReadyWait, Stop
 from ncmeasure.samples import Channel, SampleBlock, channels_for
 from ncmeasure.sim.axis import AxisModel, Variation
+from ncmeasure.sim.realism import AxisRealism, Realism, with_tolerance
 from ncmeasure.sim.servo import follow, servo
 from ncmeasure.sim.signals import AxisState
 
@@ -283,22 +293,29 @@ class VirtualMachine:
         config: The machine (axis limits, drive data, bearing layout).
         trace: The program as read by :func:`~ncmeasure.program.reader.read_programs`.
         variations: Assembly variations by axis name (default: every axis nominal).
-        seed: Seed of the current and velocity noise.
+        seed: Seed of the current and velocity noise, and of the run's drift (with
+            ``realism``).
         dt_s: Time step of the simulation grid.
         lead_in_s: Standstill before the program starts.
         lead_out_s: Standstill after the program ends.
         servo_frequency_hz: Natural frequency of the position loop.
         servo_damping: Its damping ratio.
-        velocity_noise_mm_min: Standard deviation of the reported velocity's noise.
+        velocity_noise_mm_min: Standard deviation of the reported velocity's noise
+            (without ``realism``; with it the velocity is the encoder's).
         start_mm: Where axes stand when the program starts (default: at their parks), e.g.
             a vertical axis left low by the operator.
         beyond_limits: ``stop``: a block beyond an axis' travel raises ProgramError, a
             feed above an axis' maximum velocity is driven at the maximum (a controller's
             soft limits and feed limit); ``follow``: the machine follows the program there,
             and :attr:`excursions` lists each such block (a dry run).
+        realism: Fingerprint, drift and the drives' noise (default: none, an ideal
+            machine; see :mod:`ncmeasure.sim.realism`).
+        machine_seed: Seed of the machine's fingerprint (with ``realism``): the same
+            machine seed is the same machine, whatever the run's ``seed``.
 
     Raises:
-        ConfigError: a variation names an axis the machine lacks, or is invalid for it.
+        ConfigError: a variation names an axis the machine lacks, or is invalid for it;
+            a negative seed with ``realism``.
         ProgramError: the program moves an axis the machine lacks, or (``stop``) outside
             its travel.
     """
@@ -318,6 +335,8 @@ class VirtualMachine:
         velocity_noise_mm_min: float = 0.2,
         start_mm: Mapping[str, float] | None = None,
         beyond_limits: BeyondLimits = "stop",
+        realism: Realism | None = None,
+        machine_seed: int = 0,
     ) -> None:
         if not dt_s > 0:
             raise ValueError("dt_s must be > 0")
@@ -340,6 +359,12 @@ class VirtualMachine:
             axis.name: AxisModel(axis, variation=self.variations.get(axis.name))
             for axis in config.axes
         }
+        self.realism = realism
+        self.machine_seed = machine_seed
+        self.realised: dict[str, AxisRealism] = {}
+        """Per axis: the fingerprint, drift and noise figures drawn (empty without realism)."""
+        if realism is not None:
+            self._realise(realism, seed, machine_seed, dt_s)
         self.seed = seed
         self.dt_s = dt_s
         self.lead_in_s = lead_in_s
@@ -353,6 +378,23 @@ class VirtualMachine:
         """``file:line: what``, per block that takes an axis beyond its travel or above its
         maximum velocity (only with ``beyond_limits="follow"``; ``stop`` raises instead)."""
         self._segments = self._plan()
+
+    def _realise(self, realism: Realism, seed: int, machine_seed: int, dt_s: float) -> None:
+        """Draw each axis' fingerprint (machine seed) and drift (run seed)."""
+        if seed < 0 or machine_seed < 0:
+            raise ConfigError(
+                "invalid realism", [f"seed {seed}, machine_seed {machine_seed}: must be >= 0"]
+            )
+        for i, axis in enumerate(self.config.axes):
+            fingerprint = realism.fingerprint(np.random.default_rng([machine_seed, i, 0]))
+            drift = realism.drift(np.random.default_rng([seed, i, 1]))
+            fault = self.variations.get(axis.name, Variation())
+            nominal = AxisModel(axis, variation=with_tolerance(fault, fingerprint.variation))
+            realised = realism.for_axis(nominal, fingerprint, drift, dt_s)
+            self.realised[axis.name] = realised
+            self.models[axis.name] = AxisModel(
+                axis, variation=nominal.variation, condition=realised.condition()
+            )
 
     @classmethod
     def from_programs(
@@ -564,10 +606,21 @@ class VirtualMachine:
             actual_position[i] = follow(b, a_coef, position[i])
             followed = follow(b, a_coef, velocity[i])
             actual_acceleration[i] = follow(b, a_coef, acceleration[i])
-            current[i] = self.models[axis.name].motor_current_a(
-                actual_position[i], followed, actual_acceleration[i], rng=rng
+            realised = self.realised.get(axis.name)
+            if realised is None:
+                current[i] = self.models[axis.name].motor_current_a(
+                    actual_position[i], followed, actual_acceleration[i], rng=rng
+                )
+                actual_velocity[i] = followed + rng.normal(0.0, self.velocity_noise_mm_min, n)
+                continue
+            current[i], actual_velocity[i] = self._as_the_drive_reports(
+                self.models[axis.name],
+                realised,
+                actual_position[i],
+                followed,
+                actual_acceleration[i],
+                rng,
             )
-            actual_velocity[i] = followed + rng.normal(0.0, self.velocity_noise_mm_min, n)
         return MachineRun(
             axes=names,
             dt_s=dt,
@@ -583,6 +636,40 @@ class VirtualMachine:
             program_start_s=self.lead_in_s,
             program_end_s=self.lead_in_s + self.program_duration_s,
         )
+
+    def _as_the_drive_reports(
+        self,
+        model: AxisModel,
+        realised: AxisRealism,
+        position_mm: FloatArray,
+        velocity_mm_min: FloatArray,
+        acceleration_m_s2: FloatArray,
+        rng: np.random.Generator,
+    ) -> tuple[FloatArray, FloatArray]:
+        """Current and velocity as a real drive reports them (with realism).
+
+        The velocity is the encoder's position difference over
+        ``velocity_average_samples`` grid steps, in whole increments. The speed
+        loop answers its quantisation error with torque (``−K_p · error``), which
+        the motor really draws; the drive measures the current with its gain error,
+        its ADC's noise and steps, and rare outliers.
+        """
+        ax = model.axis
+        increment = realised.position_increment_mm
+        steps = realised.velocity_average_samples
+        counts = np.floor(position_mm / increment)
+        earlier = np.concatenate([np.full(steps, counts[0]), counts[:-steps]])
+        reported = (counts - earlier) * increment / (steps * self.dt_s) * 60.0
+        error_rad_s = 2.0 * math.pi * (reported - velocity_mm_min) / (60.0 * ax.screw_lead_mm)
+        loop_a = -realised.speed_loop_gain_nms_rad * error_rad_s / ax.torque_constant_nm_per_a
+        clean = model.motor_current_a(position_mm, velocity_mm_min, acceleration_m_s2)
+        current = realised.drift.gain * (clean + loop_a)
+        current = current + rng.normal(0.0, realised.current_noise_a, current.shape)
+        hit = rng.random(current.shape) < ax.outlier_rate
+        signs = rng.choice(np.array([-1.0, 1.0]), size=current.shape)
+        current = current + np.where(hit, signs * ax.outlier_a, 0.0)
+        lsb = realised.current_lsb_a
+        return np.round(current / lsb) * lsb, reported
 
     @staticmethod
     def _time_at(curve: SCurve, distance_mm: float) -> float:
