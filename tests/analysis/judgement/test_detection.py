@@ -16,6 +16,7 @@ from ncmeasure.analysis.judgement.summary import axis_comparison, axis_headline
 from ncmeasure.formats.comparison import Comparison
 from ncmeasure.formats.results import Results
 from ncmeasure.sim.axis import Variation
+from ncmeasure.sim.realism import Realism
 from ncmeasure.virtual_run import DemoBench
 
 
@@ -77,3 +78,27 @@ def test_a_shifted_nut_on_the_vertical_axis_is_no_preload_change(
     for change in comparison.changes:
         assert change.signature == "high_at_both_ends", change
         assert change.causes[0].cause == "screw_nut", change.causes
+
+
+def test_no_false_alarm_in_20_healthy_runs_with_a_realistic_machine(bench: DemoBench) -> None:
+    """Five machines with their own healthy fingerprint along the travel (assembly within
+    tolerance, the nut's and carriages' preload varying along the screw), each measured
+    for reference and then four times more, with drift of level and profile between the
+    runs and the drives' real noise: no comparison raises anything. Several of these axes
+    show a pattern along the travel of their own ('check' from the single run): against
+    the reference it is their fingerprint, unchanged."""
+    lifted = 0
+    for machine in range(5):
+        realistic = {"realism": Realism(), "machine_seed": machine}
+        reference = bench.measure(seed=1000 + 100 * machine, **realistic)
+        for run in range(4):
+            later = bench.measure(seed=1001 + 100 * machine + run, **realistic)
+            comparison = compare_results(reference, [later])
+            where = f"machine {machine}, run {run}"
+            assert comparison.runs[0].status == "ok", (where, comparison.runs[0].reasons)
+            assert _verdicts(later, comparison) == {"X": "ok", "Z": "ok"}, where
+            for change in comparison.changes:
+                assert change.signature == "flat", (where, change.axis, change.spread_percent)
+                assert change.causes[0].cause in ("none", "preload_or_carriage"), where
+            lifted += sum(axis.verdict.level != "ok" for axis in later.axes.values())
+    assert lifted > 0  # the fingerprint alone would have raised a 'check'
