@@ -195,3 +195,6 @@ def test_every_surface_shows_the_one_status(
     assert check.axis_status == per_axis
     assert mqtt == per_axis
     assert comparison.runs[0].axis_status == per_axis
+    # the MQTT message's change_status is the change's part of the same rule
+    changes = {s.axis.axis: s.message()["change_status"] for s in summaries}
+    assert changes == comparison.runs[0].change_status

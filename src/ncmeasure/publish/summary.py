@@ -112,9 +112,15 @@ class AxisSummary:
 
     @property
     def change_status(self) -> Status | None:
-        """The worst change against the limits; None when nothing was compared."""
-        changes = self.axis.changes
-        return worst_status(c.status for c in changes) if changes else None
+        """The change since the baseline as the one rule judges it (the characteristics
+        against the limits, and a local change along the travel); None when nothing was
+        compared."""
+        if not self.axis.changes:
+            return None
+        judged = self.axis.judged
+        if judged is not None:
+            return judged.change_status
+        return worst_status(c.status for c in self.axis.changes)
 
     def message(self) -> dict[str, Any]:
         """The MQTT message: JSON-ready, field by field in docs/shop-floor.md."""
