@@ -50,6 +50,7 @@ from ncmeasure.program import generate_programs, load_dialect
 from ncmeasure.recording import read_recording
 from ncmeasure.sim.axis import Variation
 from ncmeasure.sim.machine import MachineRun, VirtualMachine
+from ncmeasure.sim.realism import Realism
 from ncmeasure.virtual_run import (
     Progress,
     SimulatedLink,
@@ -183,7 +184,14 @@ class DemoResult:
         return self.directory / "comparison.json" if self.comparison is not None else None
 
 
-def _truth(vm: VirtualMachine, schedule: Schedule) -> dict[str, Any]:
+def _realism_key(realistic: bool, seed: int) -> dict[str, Any] | None:
+    """How the demo's virtual machine was built, as truth.json keeps it."""
+    return {"machine_seed": seed} if realistic else None
+
+
+def _truth(
+    vm: VirtualMachine, schedule: Schedule, realism: dict[str, Any] | None
+) -> dict[str, Any]:
     """The model's friction torque at every scheduled position and velocity."""
     axes: dict[str, Any] = {}
     for summary in schedule.axes:
@@ -198,7 +206,7 @@ def _truth(vm: VirtualMachine, schedule: Schedule) -> dict[str, Any]:
             "friction_nm": [[float(abs(x)) for x in row] for row in table],
             "gravity_nm": model.axis.gravity_torque_nm,
         }
-    return {"unit": "Nm", "axes": axes}
+    return {"unit": "Nm", "realism": realism, "axes": axes}
 
 
 def _measure(
@@ -212,10 +220,14 @@ def _measure(
     link: SimulatedLink,
     seed: int,
     progress: Progress,
+    realistic: bool = False,
+    machine_seed: int = 0,
 ) -> DemoRun:
+    realism = _realism_key(realistic, machine_seed)
+
     def write_truth(vm: VirtualMachine, _run: MachineRun) -> None:
         (out / "truth.json").write_text(
-            json.dumps(_truth(vm, schedule), indent=2) + "\n", encoding="utf-8"
+            json.dumps(_truth(vm, schedule, realism), indent=2) + "\n", encoding="utf-8"
         )
 
     done = run_programs(
@@ -230,6 +242,8 @@ def _measure(
         seed=seed,
         progress=progress,
         on_simulated=write_truth,
+        realism=Realism() if realistic else None,
+        machine_seed=machine_seed,
     )
     # nothing stops the demo but Ctrl-C, which ends it: a run that returns is whole
     assert done.results is not None and done.acquisition is not None
@@ -245,14 +259,35 @@ def _measure(
     )
 
 
-def _reuse_reference(folder: Path, schedule: Schedule) -> DemoRun:
-    """The nominal run of an earlier demo folder, checked against this program."""
+def _reuse_reference(
+    folder: Path, schedule: Schedule, realism: dict[str, Any] | None = None
+) -> DemoRun:
+    """The nominal run of an earlier demo folder, checked against this program and machine."""
     results_file = folder / "results.json"
     if not (folder / _MARKER_FILE).is_file() or not results_file.is_file():
         raise ConfigError(f"{folder}: not the folder of an earlier ncmeasure demo")
     if (folder / "reference").exists():
         raise ConfigError(
             f"{folder}: that demo ran with a variation; a reference must be a demo without one"
+        )
+    truth_file = folder / "truth.json"
+    try:
+        earlier = json.loads(truth_file.read_text(encoding="utf-8")).get("realism")
+    except (OSError, ValueError, AttributeError):
+        earlier = None
+    if earlier != realism:
+
+        def said(key: dict[str, Any] | None) -> str:
+            return (
+                "an ideal machine"
+                if key is None
+                else (f"a realistic machine (fingerprint seed {key.get('machine_seed')})")
+            )
+
+        raise ConfigError(
+            f"{folder}: that demo measured {said(earlier)}, this one {said(realism)}: "
+            "a reference must be the same machine (run the reference again, or use the same "
+            "--realistic and --seed)"
         )
     results = load_results(results_file)
     if results.recording.config_hash not in (None, schedule.config_hash):
@@ -282,6 +317,7 @@ def run_demo(
     force: bool = False,
     report: bool = True,
     progress: Progress | None = None,
+    realistic: bool = False,
 ) -> DemoResult:
     """Run the demo into ``directory`` (see the module docstring).
 
@@ -298,6 +334,10 @@ def run_demo(
         force: Replace an earlier demo in ``directory``.
         report: Write report.html.
         progress: ``progress(stage, fraction)`` for a progress display.
+        realistic: A virtual machine as real ones are (:class:`~ncmeasure.sim.realism.Realism`):
+            a healthy fingerprint along the travel (from ``seed``, the same for the
+            reference and the machine with the variation), drift between runs and the
+            drives' real noise.
 
     Raises:
         ConfigError: unknown link, unusable reference.
@@ -328,7 +368,9 @@ def run_demo(
     varied = variation != Variation()
     if varied:
         if reference_dir is not None:
-            result.runs.append(_reuse_reference(reference_dir, schedule))
+            result.runs.append(
+                _reuse_reference(reference_dir, schedule, _realism_key(realistic, seed))
+            )
         else:
             result.runs.append(
                 _measure(
@@ -341,6 +383,8 @@ def run_demo(
                     link=drives,
                     seed=seed,
                     progress=report_progress,
+                    realistic=realistic,
+                    machine_seed=seed,
                 )
             )
     result.runs.append(
@@ -354,6 +398,8 @@ def run_demo(
             link=drives,
             seed=seed + 1 if varied else seed,  # its own noise, not the reference's
             progress=report_progress,
+            realistic=realistic,
+            machine_seed=seed,
         )
     )
     if varied:

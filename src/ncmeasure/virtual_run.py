@@ -52,6 +52,7 @@ from ncmeasure.sim.axis import Variation
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrives
 from ncmeasure.sim.machine import BeyondLimits, MachineRun, VirtualMachine
 from ncmeasure.sim.modbus_drive import ModbusDriveScaling, SimulatedUnit, running_server
+from ncmeasure.sim.realism import Realism
 from ncmeasure.sim.rig import rig_mechanics
 
 __all__ = [
@@ -504,6 +505,8 @@ def run_programs(
     progress: Progress | None = None,
     stop: threading.Event | None = None,
     on_simulated: Callable[[VirtualMachine, MachineRun], None] | None = None,
+    realism: Realism | None = None,
+    machine_seed: int = 0,
 ) -> VirtualRun:
     """Run the programs in ``programs`` on the virtual machine, record and analyse them.
 
@@ -523,6 +526,9 @@ def run_programs(
         progress: ``progress(stage, fraction)`` for a progress display.
         stop: Set it to stop (Ctrl-C): what was recorded is kept, nothing is analysed.
         on_simulated: Called with the machine and its whole run before recording.
+        realism: The virtual machine's fingerprint, drift and drive noise (None: an
+            ideal machine).
+        machine_seed: The fingerprint's seed (with ``realism``).
 
     Raises:
         ProgramError: a program that cannot be read, or that leaves the travel (``stop``).
@@ -539,6 +545,8 @@ def run_programs(
         variations=variations,
         seed=seed,
         beyond_limits=beyond_limits,
+        realism=realism,
+        machine_seed=machine_seed,
     )
     run = vm.run()
     machine_time_s = run.duration_s

@@ -63,7 +63,19 @@ def demo_command(
             "measuring the correctly assembled machine again."
         ),
     ] = None,
-    seed: Annotated[int, typer.Option(help="Seed of the simulated noise.")] = 0,
+    seed: Annotated[
+        int,
+        typer.Option(help="Seed of the simulated noise (and, with --realistic, of the machine)."),
+    ] = 0,
+    realistic: Annotated[
+        bool,
+        typer.Option(
+            help="A virtual machine as real ones are: a healthy fingerprint along the travel "
+            "(assembly within tolerance, preload varying along the screw), drift of friction "
+            "between runs (temperature, lubricant) and the drives' real current and velocity "
+            "noise. docs/virtual-machine.md, Realism."
+        ),
+    ] = False,
     force: Annotated[bool, typer.Option(help="Replace an earlier demo in OUTDIR.")] = False,
     quiet: Annotated[
         bool, typer.Option("--quiet", "-q", help="Print only the report path.")
@@ -81,6 +93,7 @@ def demo_command(
 
     Examples: ncmeasure demo  ·  ncmeasure demo --variation loose_bearing_shift_um=500
     ·  ncmeasure demo demo-modbus --link modbus
+    ·  ncmeasure demo --realistic --variation loose_bearing_shift_um=100
     """
     from ncmeasure.demo import run_demo
 
@@ -98,6 +111,7 @@ def demo_command(
             seed=seed,
             force=force,
             progress=progress,
+            realistic=realistic,
         )
         if progress is not None:
             progress("done", None)
@@ -217,7 +231,19 @@ def dryrun_command(
             show_default=False,
         ),
     ] = None,
-    seed: Annotated[int, typer.Option(help="Seed of the simulated noise.")] = 0,
+    seed: Annotated[
+        int,
+        typer.Option(help="Seed of the simulated noise (and, with --realistic, of the machine)."),
+    ] = 0,
+    realistic: Annotated[
+        bool,
+        typer.Option(
+            help="A virtual machine as real ones are: a healthy fingerprint along the travel "
+            "(assembly within tolerance, preload varying along the screw), drift of friction "
+            "between runs (temperature, lubricant) and the drives' real current and velocity "
+            "noise. docs/virtual-machine.md, Realism."
+        ),
+    ] = False,
     report: Annotated[bool, typer.Option("--report/--no-report", help="Write report.html.")] = True,
     controllers_dir: ControllersDir = None,
     quiet: Annotated[
