@@ -535,3 +535,30 @@ def test_leave_one_out_z_names_the_outlier_of_a_fleet() -> None:
     assert medians[5] == pytest.approx(1.0)
     with pytest.raises(ValueError, match="at least two"):
         modified_z_leave_one_out([1.0])
+
+
+@pytest.mark.parametrize(
+    ("ends", "middle", "lead"),
+    [
+        # the whole level moved far more than its shape varies: a preload change that
+        # follows the part's own friction along the screw
+        (1.166, 1.116, "preload_or_carriage"),
+        # more at the ends than a preload change explains: the nut, the level second
+        (1.33, 1.21, "screw_nut"),
+    ],
+)
+def test_a_level_change_with_a_shape_is_led_by_what_dominates(
+    ends: float, middle: float, lead: str
+) -> None:
+    def shaped(axis: str, i: int, direction: str, v: float) -> float:
+        return middle if i == 1 else ends
+
+    comparison = compare_results(results(), [results(factor=shaped)])
+    for change in comparison.changes:
+        assert change.signature == "high_at_both_ends"
+        ranked = [c.cause for c in change.causes]
+        assert ranked[0] == lead, ranked
+        assert {"preload_or_carriage", "screw_nut"} <= set(ranked[:2])
+        assert [c.score for c in change.causes] == sorted(
+            (c.score for c in change.causes), reverse=True
+        )
