@@ -59,32 +59,46 @@ KINDS: dict[str, tuple[str, str, str, tuple[float, ...]]] = {
 SHORT = {kind: (spec[0], spec[1], spec[2], spec[3][-2:-1]) for kind, spec in KINDS.items()}
 
 
-def _single(results: Results, cause: str) -> bool:
-    for axis in results.axes.values():
+def _single(results: Results, cause: str) -> dict[str, bool]:
+    """Per axis: its own verdict is check or fault and names ``cause`` first."""
+    found = {}
+    for name, axis in results.axes.items():
         dependency = axis.position_dependency
-        if axis.verdict.level == "ok" or dependency is None or not dependency.causes:
-            return False
-        if dependency.causes[0].cause != cause:
-            return False
-    return True
+        found[name] = (
+            axis.verdict.level != "ok"
+            and dependency is not None
+            and bool(dependency.causes)
+            and dependency.causes[0].cause == cause
+        )
+    return found
 
 
-def _against(reference: Results, later: Results, cause: str) -> tuple[bool, float]:
+def _against(reference: Results, later: Results, cause: str) -> dict[str, tuple[bool, float]]:
+    """Per axis: the change names ``cause`` first, the status is not ok, the verdict not ok;
+    and the size of the change (its spread along the travel, or its mean for preload)."""
     comparison = compare_results(reference, [later])
     (run,) = comparison.runs
-    found = True
-    sizes = []
+    found = {}
     for change in comparison.changes:
         local = cause != "preload_or_carriage"
-        sizes.append(change.spread_percent if local else change.mean_change_percent)
-        if not change.causes or change.causes[0].cause != cause:
-            found = False
-        if run.axis_status.get(change.axis, "ok") == "ok":
-            found = False
+        size = change.spread_percent if local else change.mean_change_percent
         verdict = axis_headline(later.axes[change.axis], axis_comparison(comparison, change.axis))
-        if verdict.verdict.level == "ok":
-            found = False
-    return found, statistics.fmean(sizes) if sizes else float("nan")
+        hit = (
+            bool(change.causes)
+            and change.causes[0].cause == cause
+            and run.axis_status.get(change.axis, "ok") != "ok"
+            and verdict.verdict.level != "ok"
+        )
+        found[change.axis] = (hit, size)
+    return found
+
+
+def _limit(rows: list[tuple[float, int, float]], seeds: int, unit: str) -> str:
+    """The smallest size found in every run, with its change in %."""
+    for size, hits, change in rows:
+        if hits == seeds:
+            return f"{size:g} {unit} ({change:+.1f} %)"
+    return "not found"
 
 
 def main() -> None:
@@ -109,39 +123,42 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         bench = DemoBench.create(Path(tmp))
         reference = bench.measure(seed=1000, **options)
-        print(f"{'fault':24} {'size':>8}  {'single run':>10}  {'vs reference':>12}  change %")
+        axes = sorted(reference.axes)
+        head = "  ".join(f"{a + ' alone':>8} {a + ' vs ref':>9} {a + ' %':>7}" for a in axes)
+        print(f"{'fault':24} {'size':>6}  {head}")
         limits = []
         for kind, (field, cause, unit, sizes) in kinds.items():
-            found_single = found_against = None
+            alone: dict[str, list[tuple[float, int, float]]] = {a: [] for a in axes}
+            versus: dict[str, list[tuple[float, int, float]]] = {a: [] for a in axes}
             for size in sizes:
                 variation = Variation(**{field: float(size)})
-                single = against = 0
-                changes = []
+                single = dict.fromkeys(axes, 0)
+                against = dict.fromkeys(axes, 0)
+                changes: dict[str, list[float]] = {a: [] for a in axes}
                 for seed in range(seeds):
                     later = bench.measure(seed=seed + 1, variation=variation, **options)
-                    single += _single(later, cause)
-                    hit, change = _against(reference, later, cause)
-                    against += hit
-                    changes.append(change)
-                mean_change = statistics.fmean(changes)
+                    for a, hit in _single(later, cause).items():
+                        single[a] += hit
+                    for a, (hit, change) in _against(reference, later, cause).items():
+                        against[a] += hit
+                        changes[a].append(change)
+                cells = []
+                for a in axes:
+                    mean = statistics.fmean(changes[a]) if changes[a] else float("nan")
+                    alone[a].append((size, single[a], mean))
+                    versus[a].append((size, against[a], mean))
+                    cells.append(
+                        f"{single[a]:>4}/{seeds:<3} {against[a]:>5}/{seeds:<3} {mean:+7.2f}"
+                    )
+                print(f"{kind:24} {size:>6g}  " + "  ".join(cells))
+            limits.append((kind, unit, alone, versus))
+        print("\ndetection limit (the smallest size found in every run; its change in %):")
+        for kind, unit, alone, versus in limits:
+            for a in axes:
                 print(
-                    f"{kind:24} {size:>8g}  {single:>5}/{seeds:<4}  {against:>7}/{seeds:<4}  "
-                    f"{mean_change:+7.2f}"
+                    f"  {kind:24} axis {a}: single run {_limit(alone[a], seeds, unit):24} "
+                    f"against a reference {_limit(versus[a], seeds, unit)}"
                 )
-                if found_single is None and single == seeds:
-                    found_single = size
-                if found_against is None and against == seeds:
-                    found_against = (size, mean_change)
-            limits.append((kind, unit, found_single, found_against))
-        print("\ndetection limit (every run found):")
-        for kind, unit, single_size, against_size in limits:
-            single_text = "not found" if single_size is None else f"{single_size:g} {unit}"
-            against_text = (
-                "not found"
-                if against_size is None
-                else f"{against_size[0]:g} {unit} ({against_size[1]:+.1f} %)"
-            )
-            print(f"  {kind:24} single run: {single_text:16} against a reference: {against_text}")
 
 
 if __name__ == "__main__":
