@@ -231,19 +231,7 @@ def dryrun_command(
             show_default=False,
         ),
     ] = None,
-    seed: Annotated[
-        int,
-        typer.Option(help="Seed of the simulated noise (and, with --realistic, of the machine)."),
-    ] = 0,
-    realistic: Annotated[
-        bool,
-        typer.Option(
-            help="A virtual machine as real ones are: a healthy fingerprint along the travel "
-            "(assembly within tolerance, preload varying along the screw), drift of friction "
-            "between runs (temperature, lubricant) and the drives' real current and velocity "
-            "noise. docs/virtual-machine.md, Realism."
-        ),
-    ] = False,
+    seed: Annotated[int, typer.Option(help="Seed of the simulated noise.")] = 0,
     report: Annotated[bool, typer.Option("--report/--no-report", help="Write report.html.")] = True,
     controllers_dir: ControllersDir = None,
     quiet: Annotated[
