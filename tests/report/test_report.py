@@ -597,9 +597,10 @@ def test_comparison_comes_first_and_combines_the_verdict(example: Example, tmp_p
         rows["Z"],
     ), rows["Z"]
     assert '<span class="status-warning">warning</span>' in rows["Z"]
-    # X's own fault is its pattern along the travel, which did not change: its fingerprint
-    assert '<span class="badge level-ok">ok</span>' in rows["X"]
-    assert "this machine&#39;s own fingerprint, not a change" in rows["X"]
+    # X's own fault is its pattern along the travel, which did not change: no change, but a
+    # fault-sized pattern to confirm against the reference (check, not fault)
+    assert '<span class="badge level-check">check</span>' in rows["X"]
+    assert "not a change, but as strong as a fault on its own" in rows["X"]
     assert '<span class="status-ok">ok</span>' in rows["X"]
     # the axis section says the same as the verdict table
     z_section = page.split('id="axis-2"', 1)[1]

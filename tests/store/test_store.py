@@ -147,8 +147,8 @@ def test_check_against_delivery_and_fleet(store_url: str, make_results: Make) ->
 
 def test_a_fault_verdict_makes_the_check_critical(store_url: str, make_results: Make) -> None:
     """The fixture's axis X has the verdict fault, from its pattern along the travel:
-    critical on its own; against a baseline with the same pattern, the change is judged
-    (none), not the machine's own fingerprint."""
+    critical on its own; against a baseline with the same pattern no change shows, and the
+    pattern is a warning to confirm, not a fault."""
     results = make_results("2026-01-10T08:00:00+00:00")
     assert results.axes["X"].verdict.level == "fault"
     with open_store(store_url, write=True) as store:
@@ -163,8 +163,10 @@ def test_a_fault_verdict_makes_the_check_critical(store_url: str, make_results: 
     assert alone.axis_status["X"] == "critical"
     assert "axis X: verdict fault" in alone.findings
     assert unchanged.baseline is not None and alone.baseline is None
-    assert unchanged.status == "ok" and unchanged.axis_status["X"] == "ok"
+    # no change since the baseline: not critical, but a fault-sized pattern to confirm
+    assert unchanged.status == "warning" and unchanged.axis_status["X"] == "warning"
     assert "axis X: verdict fault" not in unchanged.findings
+    assert any("unchanged since the baseline: confirm" in f for f in unchanged.findings)
 
 
 def test_comparability_is_stated(store_url: str, make_results: Make) -> None:

@@ -77,11 +77,12 @@ def print_verdict(
 
 def append_change(line: "Text", headline: "Headline", against: "AxisComparison") -> None:
     """The change against the base and its likely cause, unless the verdict says them already."""
+    from ncmeasure.analysis.judgement.verdict import names_change_cause
     from ncmeasure.report.words import CAUSE_TITLES
 
     if against.change not in headline.verdict.reason:
         line.append(f" Against {against.base!r}: {against.status}, {against.change}.")
-    named = "likely" in headline.verdict.reason.split("Against the reference:", 1)[-1]
+    named = names_change_cause(against.limit_status or against.status, against.diagnosis)
     if against.cause is not None and against.cause.cause != "none" and not named:
         title = CAUSE_TITLES.get(against.cause.cause, against.cause.cause)
         line.append(f" Likely cause of the change: {title} (score {against.cause.score:.2f}).")

@@ -151,6 +151,11 @@ class RunSummary(_Model):
         description="Per axis: the status of its change since the base alone, without its own "
         "verdict (what the comparison adds to the verdict).",
     )
+    limit_status: dict[str, Status] = Field(
+        default_factory=dict,
+        description="Per axis: its characteristics' changes against the warning and critical "
+        "limits alone (change_status without a local change along the travel).",
+    )
 
 
 class FleetAxis(_Model):

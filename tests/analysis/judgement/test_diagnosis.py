@@ -291,3 +291,31 @@ def test_the_fastest_cells_do_not_decide_the_profile() -> None:
         noise=np.full_like(table, 0.004),
     )
     assert dependency.spread_percent == pytest.approx(100 * per_speed.mean(), abs=1.0)
+
+
+@pytest.mark.parametrize(
+    ("positions", "values", "signature"),
+    [
+        # a shifted loose bearing: every jump rises, the last three times the others
+        ([5.0, 190.0, 375.0, 560.0, 745.0], [1.003, 1.004, 1.008, 1.013, 1.031], "rising"),
+        # a cover step at the end with a small rise beside it: three points fit any power
+        ([5.0, 375.0, 745.0], [1.00, 1.01, 1.20], "step"),
+    ],
+)
+def test_a_convex_rise_to_a_bearing_is_no_step(
+    positions: list[float], values: list[float], signature: str
+) -> None:
+    speeds = np.geomspace(20.0, 12000.0, 6)
+    noise = 0.0002 if signature == "rising" else 0.005
+    for seed in range(30):
+        rng = np.random.default_rng(seed)
+        table = np.array(values)[None, :] * (1.0 + noise * rng.standard_normal((6, len(values))))
+        dependency = position_dependency(
+            positions,
+            speeds,
+            table,
+            travel_mm=(0.0, 750.0),
+            fixed_bearing_end="min",
+            flat_threshold_percent=2.0,
+        )
+        assert dependency.signature.startswith(signature), (seed, dependency.signature)

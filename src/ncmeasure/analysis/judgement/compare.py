@@ -524,7 +524,8 @@ def _change_causes(
                 1,
                 Cause(
                     cause="preload_or_carriage",
-                    score=round(min(level, causes[0].score), 3),
+                    # below the local lead: the rule above decides, never the list order
+                    score=round(max(0.0, min(level, causes[0].score - 0.001)), 3),
                     evidence=f"Besides the local pattern, friction changed by at least "
                     f"{least:+.1f} % at every position, beyond ±{GLOBAL_CHANGE_PERCENT:g} % "
                     "(run-to-run repeatability): the whole level moved too "
@@ -719,6 +720,7 @@ def _run_summary(
         status=judged.status,
         axis_status={name: a.status for name, a in judged.axes.items()},
         change_status={name: a.change_status for name, a in judged.axes.items()},
+        limit_status={name: a.limit_status for name, a in judged.axes.items()},
         reasons=judged.reasons,
     )
 

@@ -728,9 +728,11 @@ def _bearing_rise(o: _Oriented, big: int, d: FloatArray) -> float:
     the step rule once the last jump is three times the others; it is a bearing
     when every jump rises towards it and a power of the distance (t, t², t³)
     explains it at least as well as a step. 0 where the jump is not at an end
-    rising towards its bearing.
+    rising towards its bearing, and with fewer than 4 positions.
     """
     n = o.n
+    if n < 4:
+        return 0.0  # three points fit a step as well as any power: a step stays a step
     if big == n - 2 and d[big] > 0 and np.all(d > 0):
         t = o.t
     elif big == 0 and d[big] < 0 and np.all(d < 0):

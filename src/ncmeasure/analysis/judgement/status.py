@@ -15,8 +15,9 @@ same figures of the baseline, and the axis' place in its type's fleet
 
 * its own verdict: ``check`` is a warning, ``fault`` critical; but where a
   baseline exists and the diagnosis of the change since it (:class:`ChangeFigures`)
-  is flat, a verdict from the axis' pattern along the travel does not count: that
-  pattern is the machine's own fingerprint, unchanged;
+  is flat, a verdict from the axis' pattern along the travel is the machine's own
+  fingerprint, unchanged: a ``check`` does not count, a ``fault`` is a warning
+  (not a change, but a pattern to confirm it was accepted at the baseline);
 * a local change since the baseline (the change's pattern along the travel names
   a bearing, the nut, a rail or a cover): a warning, critical from
   :data:`~ncmeasure.analysis.judgement.verdict.FAULT_SPREAD_PERCENT`;
@@ -182,7 +183,11 @@ class AxisStatus:
     reasons: tuple[str, ...] = ()
     """Every finding that is not ok, in words."""
     notes: tuple[str, ...] = ()
-    """Findings that lifted a verdict (a pattern unchanged since the baseline), in words."""
+    """Findings that lifted a verdict (a pattern unchanged since the baseline: a check does not
+    count, a fault is a warning), in words."""
+    limit_status: Status = "ok"
+    """The judged characteristics' changes against the limits alone (a warning where the change
+    cannot be judged); ok without a baseline."""
     change_status: Status = "ok"
     """The change since the baseline alone (without the axis' own verdict, its siblings and
     its fleet): the worst judged change, a warning where it cannot be judged; ok without a
@@ -328,10 +333,22 @@ def axis_status(
     reasons: list[str] = []
     notes: list[str] = []
     compared = baseline is not None and baseline.unit == axis.unit
-    if compared and fingerprint_unchanged(axis.verdict, axis.signature, change):
+    unchanged = compared and fingerprint_unchanged(axis.verdict, axis.signature, change)
+    if unchanged and axis.verdict == "check":
         notes.append(
-            f"axis {axis.axis}: verdict {axis.verdict} from its pattern along the travel, "
-            "unchanged since the baseline (the machine's own fingerprint)"
+            f"axis {axis.axis}: verdict check from its pattern along the travel, unchanged "
+            "since the baseline (the machine's own fingerprint)"
+        )
+    elif unchanged:
+        # a fault-sized pattern that the baseline had too: no change, but not a healthy axis
+        statuses.append("warning")
+        notes.append(
+            f"axis {axis.axis}: verdict fault from its pattern along the travel, unchanged "
+            "since the baseline: a warning, not a fault"
+        )
+        reasons.append(
+            f"axis {axis.axis}: verdict fault from its pattern along the travel, unchanged since "
+            "the baseline: confirm it was accepted there"
         )
     else:
         statuses.append(VERDICT_STATUS.get(axis.verdict, "ok"))
@@ -339,6 +356,7 @@ def axis_status(
             reasons.append(f"axis {axis.axis}: verdict {axis.verdict}")
     changes: list[Change] = []
     since_baseline: list[Status] = []
+    against_limits: list[Status] = []
     if baseline is not None and compared:
         if change is not None and change.local:
             local = VERDICT_STATUS[change.level]
@@ -346,13 +364,14 @@ def axis_status(
             reasons.append(f"axis {axis.axis}: since the baseline, {change.text()} ({local})")
         changes = _changes(axis, baseline, limits)
         for found in changes:
-            since_baseline.append(found.status)
+            against_limits.append(found.status)
             if found.status != "ok":
                 reasons.append(f"axis {axis.axis}: {_change_text(found)} ({found.status})")
         unjudged = _unjudged_reason(axis, baseline)
         if unjudged is not None:
-            since_baseline.append("warning")
+            against_limits.append("warning")
             reasons.append(f"axis {axis.axis}: {unjudged}")
+    since_baseline.extend(against_limits)
     statuses.extend(since_baseline)
     sibling = _sibling_reason(axis, siblings)
     if sibling is not None:
@@ -388,6 +407,7 @@ def axis_status(
         outliers=tuple(outliers),
         reasons=tuple(reasons),
         notes=tuple(notes),
+        limit_status=worst_status(against_limits),
         change_status=worst_status(since_baseline),
     )
 

@@ -99,6 +99,8 @@ class AxisComparison:
         cause: The likely cause of the change, best first (None without a
             change diagnosis).
         diagnosis: The change diagnosis in brief, as the judgement reads it.
+        limit_status: The characteristics' changes against the limits alone (None: not
+            known, the status stands for it).
     """
 
     axis: str
@@ -110,6 +112,7 @@ class AxisComparison:
     worst: GroupDeviation
     cause: Cause | None = None
     diagnosis: ChangeFigures | None = None
+    limit_status: Status | None = None
 
 
 def _where(group: GroupDeviation) -> str:
@@ -136,6 +139,9 @@ def axis_comparison(
         return None
     summary = next((r for r in comparison.runs if r.label == run), None)
     status: Status = worst_status(g.status for g in groups)
+    limit_status: Status | None = None
+    if summary is not None and axis in summary.limit_status:
+        limit_status = summary.limit_status[axis]
     if summary is not None and axis in summary.change_status:
         # the one rule's judgement of the change (judgement.status); the axis' own
         # verdict is combined with it by comparison_verdict, not counted twice
@@ -166,6 +172,7 @@ def axis_comparison(
         worst=worst,
         cause=change.causes[0] if change is not None and change.causes else None,
         diagnosis=ChangeFigures.of(change) if change is not None else None,
+        limit_status=limit_status,
     )
 
 
@@ -303,6 +310,7 @@ def axis_headline(result: AxisResult, against: AxisComparison | None = None) -> 
             against.change,
             signature=dependency.signature if dependency is not None else None,
             diagnosis=against.diagnosis,
+            limit_status=against.limit_status,
         )
     return Headline(
         verdict=verdict,

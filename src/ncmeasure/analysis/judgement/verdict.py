@@ -48,6 +48,7 @@ __all__ = [
     "cause_words",
     "comparison_verdict",
     "fingerprint_unchanged",
+    "names_change_cause",
     "percent_text",
 ]
 
@@ -123,6 +124,14 @@ class ChangeFigures:
             return "ok"
         return "fault" if self.spread_percent >= FAULT_SPREAD_PERCENT else "check"
 
+    def cause_text(self) -> str:
+        """The local change without its shape (for a sentence that has the shape already):
+        ``a change of 2.8 % along the travel: likely a shifted or tilted loose bearing``."""
+        return (
+            f"a change of {percent_text(self.spread_percent)} along the travel: likely "
+            f"{cause_words(self.cause, self.mean_percent)}"
+        )
+
     def text(self) -> str:
         """The local change in words: ``friction changed along the travel by 2.8 % (rising
         towards the loose bearing): likely a shifted or tilted loose bearing``."""
@@ -160,6 +169,14 @@ def fingerprint_unchanged(level: str, signature: str | None, change: ChangeFigur
         and change.signature == "flat"
         and level in ("check", "fault")
         and signature in LOCAL_SIGNATURES
+    )
+
+
+def names_change_cause(limit_status: str, diagnosis: ChangeFigures | None) -> bool:
+    """Whether :func:`comparison_verdict` names the change's cause: a local change, or a
+    cause of a change beyond a limit (preload, for a level that moved)."""
+    return diagnosis is not None and (
+        diagnosis.local or (diagnosis.cause != "none" and limit_status != "ok")
     )
 
 
@@ -264,6 +281,10 @@ def _measurement_concerns(
     return concerns
 
 
+_LEVELS: Final = ("ok", "check", "fault")
+_STATUS_LEVEL: Final = {"ok": "ok", "warning": "check", "critical": "fault"}
+
+
 def comparison_verdict(
     verdict: Verdict,
     status: Literal["ok", "warning", "critical"],
@@ -271,69 +292,104 @@ def comparison_verdict(
     *,
     signature: str | None = None,
     diagnosis: ChangeFigures | None = None,
+    limit_status: Literal["ok", "warning", "critical"] | None = None,
 ) -> Verdict:
     """The verdict with a comparison against a reference: the change is judged, not the
     machine's own fingerprint.
 
+    The level is the worse of the axis' own verdict and the change's status. An own
+    verdict from a pattern along the travel that did not change (the change is flat) is
+    the machine's fingerprint: a ``check`` becomes ``ok``, a ``fault`` a ``check`` (no
+    change, but a pattern to confirm). The reason leads with what decides the level and
+    names the change's cause where it has one; the other part follows.
+
     Args:
         verdict: The axis' own verdict.
-        status: The comparison's status for the axis (the one rule,
-            :func:`~ncmeasure.analysis.judgement.status.axis_status`: the change's
-            limits and a local change's cause).
-        change: The change against the reference, in words (for the reason).
+        status: The change's status for the axis (the one rule,
+            :func:`~ncmeasure.analysis.judgement.status.axis_status`: the limits and a local
+            change along the travel).
+        change: The change against the reference, in words.
         signature: The axis' own pattern along the travel.
-        diagnosis: The diagnosis of the change, when there is one: its cause is named,
-            and an own verdict from a pattern that did not change is lifted.
+        diagnosis: The diagnosis of the change, when there is one.
+        limit_status: The characteristics against the limits alone (default: ``status``);
+            a status from a local change alone says no limit was crossed.
     """
+    limits = status if limit_status is None else limit_status
     unchanged = fingerprint_unchanged(verdict.level, signature, diagnosis)
-    own = "ok" if unchanged else verdict.level
-    named = diagnosis is not None and (
-        diagnosis.local or (diagnosis.cause != "none" and status != "ok")
-    )
-    why = ""
-    if diagnosis is not None and diagnosis.local:
-        why = f"; {diagnosis.text()}"
-    elif named and diagnosis is not None:
-        why = f"; likely {cause_words(diagnosis.cause, diagnosis.mean_percent)}"
-    action = (
-        _CAUSE_ACTION.get(diagnosis.cause, "look for the cause of the change")
-        if named and diagnosis is not None
-        else None
-    )
-    if status == "critical":
-        return Verdict(
-            level="fault",
-            reason=f"Against the reference: {change}, beyond the critical limit{why}.",
-            action=_sentence(action)
-            if action
-            else verdict.action
-            if own == "fault"
-            else "Find the cause of the change before the machine is shipped or used again.",
+    own = verdict.level
+    if unchanged:
+        own = "check" if verdict.level == "fault" else "ok"
+    by_change = _STATUS_LEVEL[status]
+    level = max(own, by_change, key=_LEVELS.index)
+    limit_words = {
+        "critical": ", beyond the critical limit",
+        "warning": ", beyond the warning limit",
+        "ok": ", within the limits",
+    }[limits]
+    # an ok verdict names no cause (a local change is at least a warning by the one rule)
+    named = level != "ok" and names_change_cause(limits, diagnosis)
+    cause = ""
+    action: str | None = None
+    if named and diagnosis is not None:
+        cause = (
+            f"; {diagnosis.cause_text()}"
+            if diagnosis.local
+            else f"; likely {cause_words(diagnosis.cause, diagnosis.mean_percent)}"
         )
-    if status == "warning" and own == "ok":
-        return Verdict(
-            level="check",
-            reason=f"Against the reference: {change}, beyond the warning limit{why}.",
-            action=f"Measure again to confirm the change; if it repeats, {action}."
-            if action
-            else "Measure again to confirm the change; if it repeats, look for its cause.",
+        action = _CAUSE_ACTION.get(diagnosis.cause, "look for the cause of the change")
+    against = f"Against the reference: {change}{limit_words}{cause}."
+    own_text = verdict.reason[0].lower() + verdict.reason[1:].rstrip(".") if verdict.reason else ""
+    if unchanged:
+        fingerprint = (
+            "The pattern along the travel was there in the reference as well: "
+            + (
+                "it is this machine's own fingerprint, not a change"
+                if own == "ok"
+                else "not a change, but as strong as a fault on its own; confirm it was "
+                "accepted when the reference was measured"
+            )
+            + f" (on its own: {own_text})."
         )
-    if status == "ok" and unchanged:
-        return Verdict(
-            level="ok",
-            reason=f"Against the reference: {change}, within the limits. The pattern along "
-            "the travel was there in the reference as well: it is this machine's own "
-            f"fingerprint, not a change (on its own: {verdict.reason[0].lower()}"
-            f"{verdict.reason[1:].rstrip('.')}).",
-            action="None. Keep comparing with the same reference.",
-        )
-    if status == "ok" and own == "ok":
-        return Verdict(
-            level="ok",
-            reason=f"Against the reference: {change}, within the limits{why}. {verdict.reason}",
-            action=verdict.action,
-        )
-    return verdict
+        if level == "ok":
+            return Verdict(
+                level="ok",
+                reason=f"{against} {fingerprint}",
+                action="None. Keep comparing with the same reference.",
+            )
+        if _LEVELS.index(by_change) < _LEVELS.index(level):  # the pattern decides
+            return Verdict(
+                level=level,
+                reason=f"{against} {fingerprint}",
+                action="Compare the pattern with the reference's report; if it was not "
+                "accepted then, " + verdict.action[0].lower() + verdict.action[1:]
+                if verdict.action
+                else "Compare the pattern with the reference's report.",
+            )
+    if level == "ok":
+        return Verdict(level="ok", reason=f"{against} {verdict.reason}", action=verdict.action)
+    if by_change == level:
+        # the change decides: it leads, with its cause; the axis' own finding follows
+        if level == "fault":
+            what = (
+                _sentence(action)
+                if action
+                else verdict.action
+                if own == "fault"
+                else "Find the cause of the change before the machine is shipped or used again."
+            )
+        else:
+            what = (
+                f"Measure again to confirm the change; if it repeats, {action}."
+                if action
+                else "Measure again to confirm the change; if it repeats, look for its cause."
+            )
+        if unchanged:
+            tail = f" {fingerprint}"
+        else:
+            tail = "" if own == "ok" else f" On its own: {own_text}."
+        return Verdict(level=level, reason=against + tail, action=what)
+    # the axis' own finding decides; the change follows
+    return Verdict(level=level, reason=f"{verdict.reason} {against}", action=verdict.action)
 
 
 def _sentence(text: str) -> str:
