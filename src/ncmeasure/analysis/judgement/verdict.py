@@ -217,7 +217,9 @@ def axis_verdict(
         return Verdict(
             level="check",
             reason=f"A moderate pattern: {text}.",
-            action=f"Measure again to confirm; if it repeats, {action}.",
+            action="Compare it with this machine's reference measurement, if there is one "
+            "(`ncmeasure compare`): the same pattern there is the machine's own fingerprint, "
+            f"not a fault. Without one, measure again; if it repeats, {action}.",
         )
     concerns = _measurement_concerns(result, planned_windows, gap_share, empty_positions)
     if concerns:
