@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import logging
 from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 from sqlalchemy import delete, select, update
@@ -14,7 +15,7 @@ from ncmeasure.formats.comparison import Limits
 from ncmeasure.formats.results import AxisResult, Results
 from ncmeasure.store import MeasurementInfo, Store, open_store
 from ncmeasure.store import schema as t
-from ncmeasure.store.changes import StoredChange, stored_changes
+from ncmeasure.store.changes import DIAGNOSIS_VERSION, StoredChange, stored_changes
 from ncmeasure.store.check import check_machine
 from ncmeasure.store.overview import fleet_overview
 from ncmeasure.store.transfer import export_lines, import_lines
@@ -114,32 +115,89 @@ def test_a_refused_comparison_is_stored_as_such(store_url: str, make_results: Ma
         _agree(store, "M5")
 
 
+def _two_machines_left_by_an_older_diagnosis(store: Store, make_results: Make) -> None:
+    """M1 and M2, each with a local change since delivery; M1's change not stored, M2's of
+    an older :data:`DIAGNOSIS_VERSION`."""
+    for day, serial in ((1, "M1"), (2, "M2")):
+        store.add(make_results(f"2026-01-0{day}T08:00:00+00:00"), MeasurementInfo(serial=serial))
+        store.add(
+            _raised_at_the_end(make_results(f"2027-01-0{day}T08:00:00+00:00"), "Z", 1.08),
+            MeasurementInfo(serial=serial),
+        )
+    with store.engine.begin() as db:
+        (pair,) = db.execute(
+            select(t.machines.c.latest_measurement_id).where(t.machines.c.serial == "M1")
+        ).all()
+        db.execute(delete(t.baseline_changes).where(t.baseline_changes.c.measurement_id == pair[0]))
+        db.execute(update(t.baseline_changes).values(diagnosis_version=DIAGNOSIS_VERSION - 1))
+
+
 def test_a_store_without_the_change_compares_when_read(
     store_url: str, make_results: Make, caplog: pytest.LogCaptureFixture
 ) -> None:
     with open_store(store_url, write=True) as store:
-        for day, serial in ((1, "M1"), (2, "M2")):
-            store.add(
-                make_results(f"2026-01-0{day}T08:00:00+00:00"), MeasurementInfo(serial=serial)
-            )
-            store.add(
-                _raised_at_the_end(make_results(f"2027-01-0{day}T08:00:00+00:00"), "Z", 1.08),
-                MeasurementInfo(serial=serial),
-            )
-        with store.engine.begin() as db:  # as an older ncmeasure left them: M1 none, M2 stale
-            (pair,) = db.execute(
-                select(t.machines.c.latest_measurement_id).where(t.machines.c.serial == "M1")
-            ).all()
-            db.execute(
-                delete(t.baseline_changes).where(t.baseline_changes.c.measurement_id == pair[0])
-            )
-            db.execute(update(t.baseline_changes).values(ncmeasure_version="0.0.1"))
+        _two_machines_left_by_an_older_diagnosis(store, make_results)
         assert _pairs(store) == {}
+    with open_store(store_url) as store:  # a reader: compares on every reading, says how to stop
+        for _ in range(2):
+            caplog.clear()
+            with caplog.at_level(logging.WARNING, logger="ncmeasure.store.overview"):
+                overview = fleet_overview(store)
+            assert "2 machine(s) without a current stored change" in caplog.text
+            assert "`ncmeasure store refresh` stores them" in caplog.text
+            for machine in overview.machines:
+                assert machine.status == check_machine(store, machine.serial).status == "warning"
+        assert _pairs(store) == {}
+    with open_store(store_url, write=True) as store:  # a writer keeps what it compared
+        caplog.clear()
         with caplog.at_level(logging.WARNING, logger="ncmeasure.store.overview"):
-            overview = fleet_overview(store)
-        assert "2 machine(s) without a stored change since their baseline" in caplog.text
-        for machine in overview.machines:
-            assert machine.status == check_machine(store, machine.serial).status == "warning"
-        # the next measurement of a machine stores its change again
-        store.add(make_results("2028-01-01T08:00:00+00:00"), MeasurementInfo(serial="M1"))
-        assert len(_pairs(store)) == 1
+            statuses = [m.status for m in fleet_overview(store).machines]
+        assert "compared now and stored" in caplog.text
+        assert statuses == ["warning", "warning"]
+        assert len(_pairs(store)) == 2
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="ncmeasure.store.overview"):
+            assert [m.status for m in fleet_overview(store).machines] == statuses
+        assert caplog.text == ""
+
+
+def test_refresh_stores_what_is_missing_or_of_another_diagnosis_version(
+    store_url: str, make_results: Make
+) -> None:
+    with open_store(store_url, write=True) as store:
+        _two_machines_left_by_an_older_diagnosis(store, make_results)
+        store.add(make_results("2026-01-03T08:00:00+00:00"), MeasurementInfo(serial="M3"))
+        store.add(make_results("2027-01-03T08:00:00+00:00", 1.3), MeasurementInfo(serial="M3"))
+        store.add(make_results("2026-01-04T08:00:00+00:00"), MeasurementInfo(serial="M4"))
+        assert len(_pairs(store)) == 1  # M3's, current; M4 has only its baseline
+    with open_store(store_url) as store:
+        before = {m.serial: m.status for m in fleet_overview(store).machines}
+    with open_store(store_url, write=True) as store:
+        seen: list[tuple[int, int]] = []
+        assert store.refresh_changes(progress=lambda d, n: seen.append((d, n))) == 2
+        assert seen == [(2, 2)]
+        assert len(_pairs(store)) == 3
+        assert store.refresh_changes() == 0  # nothing left
+        assert store.refresh_changes(every=True) == 3  # M4 has no pair
+        assert {m.serial: m.status for m in fleet_overview(store).machines} == before
+        assert before == {"M1": "warning", "M2": "warning", "M3": "critical", "M4": "critical"}
+
+
+def test_refresh_goes_in_batches(
+    tmp_path: Path, make_results: Make, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr("ncmeasure.store.store.REFRESH_BATCH", 2)
+    with open_store(f"sqlite:///{tmp_path / 'fleet.db'}", write=True) as store:
+        for n in range(5):
+            store.add(
+                make_results(f"2026-01-0{n + 1}T08:00:00+00:00"), MeasurementInfo(serial=f"M{n}")
+            )
+            store.add(
+                make_results(f"2027-01-0{n + 1}T08:00:00+00:00"), MeasurementInfo(serial=f"M{n}")
+            )
+        with store.engine.begin() as db:
+            db.execute(delete(t.baseline_changes))
+        seen: list[tuple[int, int]] = []
+        assert store.refresh_changes(progress=lambda d, n: seen.append((d, n))) == 5
+        assert seen == [(2, 5), (4, 5), (5, 5)]
+        assert len(_pairs(store)) == 5

@@ -216,3 +216,27 @@ def test_analyze_adds_to_the_store(tmp_path: Path) -> None:
     code, out, _ = run("store", "show", "M17", "--store", store)
     assert code == 0 and "delivery" in out and str(folder.name) in run("store", "export",
         "--store", store)[1]  # fmt: skip
+
+
+def test_refresh_stores_the_changes_of_an_older_store(
+    tmp_path: Path, files: dict[str, Path]
+) -> None:
+    from sqlalchemy import create_engine, delete
+
+    from ncmeasure.store import schema as t
+
+    store = f"sqlite:///{tmp_path / 'fleet.db'}"
+    for name in ("delivery", "service"):
+        code, _, _ = run("store", "add", files[name], "--serial", "M17", "--store", store)
+        assert code == 0
+    engine = create_engine(store)
+    with engine.begin() as db:  # as a store filled before the changes were kept
+        db.execute(delete(t.baseline_changes))
+    engine.dispose()
+    code, out, _ = run("store", "refresh", "--quiet", "--store", store)
+    assert code == 0, out
+    assert "stored the change since the baseline of 1 machine(s)" in out
+    code, out, _ = run("store", "refresh", "--quiet", "--store", store)
+    assert code == 0 and "of 0 machine(s)" in out
+    code, out, _ = run("store", "refresh", "--help")
+    assert code == 0 and "--all" in out and "missing or out of date" in " ".join(out.split())

@@ -16,6 +16,7 @@ in which they used to disagree:
 
 from __future__ import annotations
 
+import html as html_lib
 import re
 import statistics
 from collections.abc import Callable
@@ -99,6 +100,14 @@ def _measured(base: Results, when: str, change: Callable[[str, AxisResult], Axis
     return base.model_copy(update={"axes": axes, "recording": recording, "created_utc": when})
 
 
+EXPLAINED: dict[str, tuple[str, str]] = {
+    "coulomb rise": ("X", "Coulomb friction +21"),
+    "fingerprint unchanged": ("X", "the machine's own fingerprint"),
+    "local change": ("Z", "likely a "),
+}
+"""Per case: the axis whose finding makes the status, and words of the finding that every
+surface's explanation of that axis names."""
+
 DELIVERED = "2026-01-10T08:00:00+00:00"
 NOW = "2027-01-10T08:00:00+00:00"
 CASES: dict[str, tuple[Callable[[Results], tuple[Results, Results]], Status]] = {
@@ -136,10 +145,15 @@ CASES: dict[str, tuple[Callable[[Results], tuple[Results, Results]], Status]] = 
 
 
 @pytest.fixture(params=list(CASES))
+def case(request: pytest.FixtureRequest) -> str:
+    return str(request.param)
+
+
+@pytest.fixture
 def one_machine(
-    request: pytest.FixtureRequest, tmp_path: Path, base_results: Results
+    case: str, tmp_path: Path, base_results: Results
 ) -> tuple[str, Results, Results, Status]:
-    build, expected = CASES[request.param]
+    build, expected = CASES[case]
     delivered, now = build(base_results)
     url = f"sqlite:///{tmp_path / 'fleet.db'}"
     with open_store(url, write=True) as store:
@@ -199,3 +213,51 @@ def test_every_surface_shows_the_one_status(
     # the MQTT message's change_status is the change's part of the same rule
     changes = {s.axis.axis: s.message()["change_status"] for s in summaries}
     assert changes == comparison.runs[0].change_status
+
+
+_CELL = re.compile(
+    r'<td class="light (?:axis check-)?(\w+)" title="(status: [^"]*)">(?:<a [^>]*>)?([^<]*)<'
+)
+
+
+def _cells(html: str) -> list[tuple[str, str, str]]:
+    """The grid's axis cells in order: (colour, tooltip, text)."""
+    return [(c, html_lib.unescape(t), html_lib.unescape(x)) for c, t, x in _CELL.findall(html)]
+
+
+def test_every_surface_explains_the_status_by_its_reason(
+    case: str, one_machine: tuple[str, Results, Results, Status], tmp_path: Path
+) -> None:
+    url, _, _, expected = one_machine
+    name, words = EXPLAINED[case]
+    with open_store(url) as store:
+        overview = fleet_overview(store)
+        page = write_fleet_report(store, overview, tmp_path / "fleet.html", trends=2)
+    (machine,) = overview.machines
+    axis = machine.axes[name]
+    assert axis.status == expected
+    assert any(words in r for r in (*axis.reasons, *axis.notes))
+    report_html = page.read_text(encoding="utf-8")
+    with TestClient(create_app(url), base_url="http://127.0.0.1") as client:
+        fleet_html = client.get("/").text
+
+    for surface, html in (("store report", report_html), ("fleet page", fleet_html)):
+        cells = dict(zip(overview.axes, _cells(html), strict=True))
+        colour, tooltip, text = cells[name]
+        # coloured by the axis' status, never by its verdict; the tooltip names the reason
+        assert colour == expected, surface
+        assert words in tooltip, (surface, tooltip)
+        assert text.startswith(axis.verdict), surface
+        if case == "fingerprint unchanged":
+            assert text.startswith(f"{axis.verdict} · fingerprint since delivery"), surface
+    # the machine's tooltip in the grid names it too, and so does the report's trend
+    (findings,) = re.findall(r'class="light check-\w+" title="([^"]*)"', fleet_html)
+    assert words in html_lib.unescape(findings)
+    if expected != "ok":
+        trends = html_lib.unescape(report_html.split("<h2>Trends</h2>")[1])
+        assert words in trends
+    # the fleet page's badges count the axes' statuses
+    counts = {s: int(n) for n, s in re.findall(r'class="badge check-\w+">(\d+) (\w+)<', fleet_html)}
+    assert counts == {
+        s: sum(a.status == s for a in machine.axes.values()) for s in ("ok", "warning", "critical")
+    }

@@ -37,17 +37,25 @@ def test_the_grid_shows_every_machine_and_axis(browser: httpx.Client) -> None:
     assert found.headers["content-type"].startswith("text/html")
     page = found.text
     assert re.search(r"<th>X</th>\s*<th>Y</th>", page)
+    # a light: the axis' status, reading its verdict; its tooltip says why
     lights = {
-        serial: re.findall(r'class="light verdict-(\w+)"', _row(page, serial))
+        serial: re.findall(
+            r'class="light axis check-(\w+)"[^>]*>(?:<a [^>]*>)?([^<]*)<', _row(page, serial)
+        )
         for serial in ("M-100", "M-101", "M-102", "M-103")
     }
     assert lights == {
-        "M-100": ["ok", "ok"],
-        "M-101": ["ok", "fault"],
-        "M-102": ["ok", "check"],
-        "M-103": ["ok", "none"],  # no axis Y
+        "M-100": [("ok", "ok"), ("ok", "ok")],
+        "M-101": [("ok", "ok"), ("critical", "fault")],
+        "M-102": [("ok", "ok"), ("warning", "check")],
+        "M-103": [("ok", "ok"), ("none", "–")],  # no axis Y
     }
     assert '<a href="/machines/M-101/axes/Y">fault</a>' in page
+    (tooltip,) = re.findall(r'title="(status: critical[^"]*)"', _row(page, "M-101"))
+    assert tooltip.startswith("status: critical\nverdict fault\n")
+    assert "likely a shifted or tilted loose bearing" in tooltip
+    counts = re.findall(r'class="badge check-(\w+)">(\d+) ', page)
+    assert counts == [("ok", "5"), ("warning", "1"), ("critical", "1")]
     assert re.search(r'<td class="light check-(ok|warning|critical)"', _row(page, "M-100"))
     assert "<script" not in page.lower()
     assert str(escape(SCRIPT_SITE)) in page

@@ -172,8 +172,13 @@ def _axis_changes(comparison: Comparison, axes: Sequence[str]) -> ComparisonPart
     return ComparisonPart(
         heading="Change per axis and likely cause",
         table=make_table(["Run", "Axis", "Status", "Change", "Likely cause of the change"], rows),
-        note="The status is the worst of the axis' positions and directions. The "
-        "cause comes from the ratio against the base per velocity and position, so the "
+        note="The status is that of the change in the one rule of the status (the one "
+        "store check applies): Coulomb friction and the spread along the travel against "
+        "the limits (viscous friction is shown, not judged), and a local change along the "
+        "travel, which names its likely cause (a warning, critical when large); the axis' "
+        "own verdict is not part of it. The change is the mean and, where several points "
+        "were compared, the largest at one position and direction. The cause comes from "
+        "the ratio against the base per velocity and position, so the "
         "machine's own position dependency cancels; a change alike at every position "
         "beyond the warning limit is a global offset (preload, guide carriage, "
         "lubricant).",

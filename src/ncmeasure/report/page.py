@@ -118,8 +118,11 @@ def _verdict_rows(
     )
     if compared:
         note += (
-            " With a comparison the verdict is the worse of the axis' own and its change "
-            "against the reference."
+            " With a comparison the verdict judges the change against the reference: a "
+            "change beyond the warning or critical limit, or a local change along the "
+            "travel (its likely cause named), makes it check or fault; the axis' own verdict "
+            "counts too, except one from its pattern along the travel that did not change "
+            "since the reference: that is the machine's own fingerprint, and is lifted."
         )
     return make_table(headers, rows, css="verdicts"), note
 

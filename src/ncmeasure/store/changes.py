@@ -11,9 +11,12 @@ is added, for the machine's pair (latest, baseline), and :func:`stored_changes`
 reads it back for many machines in a few queries.
 
 The baseline is the first measurement labelled ``delivery``, else the first
-(:func:`baseline_of`). A stored diagnosis is that of one ncmeasure version: a
-row of another version (or none, in a store filled before these rows existed)
-is computed again when read (:func:`current_change`), which is right but slower.
+(:func:`baseline_of`). A stored diagnosis is that of one
+:data:`DIAGNOSIS_VERSION`: a row of another (or none, in a store filled before
+these rows existed) is not trusted. The fleet overview computes it again when it
+reads it (:func:`current_change`), which is right but slower, and keeps it when
+the store is open for writing; ``ncmeasure store refresh`` recomputes every such
+row at once (:func:`stale_machines`, :func:`refresh_machine`).
 """
 
 from __future__ import annotations
@@ -26,7 +29,6 @@ from typing import Any, Literal, Protocol, TypeVar
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import Connection, and_, delete, insert, select, tuple_
 
-from ncmeasure._version import __version__
 from ncmeasure.analysis.judgement.compare import POSITION_MATCH_TOLERANCE_MM, compare_results
 from ncmeasure.analysis.judgement.status import ChangeFigures
 from ncmeasure.errors import ComparisonError
@@ -38,6 +40,7 @@ from ncmeasure.store.rows import decompress
 from ncmeasure.store.writing import insert_ignore
 
 __all__ = [
+    "DIAGNOSIS_VERSION",
     "TEMPERATURE_WARNING_K",
     "BaselineChange",
     "Comparability",
@@ -49,9 +52,20 @@ __all__ = [
     "current_change",
     "measurement_summaries",
     "record_changes",
+    "refresh_machine",
+    "stale_machines",
+    "store_change",
     "stored_changes",
     "verdicts_of",
 ]
+
+DIAGNOSIS_VERSION = 1
+"""The version of the stored diagnoses of the change since the baseline: a row of another
+is computed again. Bump it whenever the change diagnosis (``judgement.compare``,
+``judgement.diagnosis``, :func:`compare_with_baseline`, the comparability rules) or the
+status rules (``judgement.status``, ``judgement.verdict``) change what a stored row means;
+not tied to ``__version__``, which stays the same while such code changes in development
+and changes for releases that leave the rows valid."""
 
 Outcome = Literal["compared", "refused", "failed"]
 """How the latest measurement met its baseline: compared; refused by the comparability
@@ -332,7 +346,9 @@ def _finite(value: float) -> float | None:
     return value if math.isfinite(value) else None
 
 
-def _store(db: Connection, latest_id: int, baseline_id: int, found: BaselineChange) -> None:
+def store_change(db: Connection, latest_id: int, baseline_id: int, found: BaselineChange) -> None:
+    """Store the comparison of a (latest, baseline) pair as of :data:`DIAGNOSIS_VERSION`,
+    replacing a row of another version (in the caller's transaction)."""
     pair = and_(
         t.baseline_changes.c.measurement_id == latest_id,
         t.baseline_changes.c.baseline_id == baseline_id,
@@ -350,7 +366,7 @@ def _store(db: Connection, latest_id: int, baseline_id: int, found: BaselineChan
             measurement_id=latest_id,
             baseline_id=baseline_id,
             outcome=found.outcome,
-            ncmeasure_version=__version__,
+            diagnosis_version=DIAGNOSIS_VERSION,
         )
         .returning(t.baseline_changes.c.measurement_id)
     ).first()
@@ -376,7 +392,7 @@ def _store(db: Connection, latest_id: int, baseline_id: int, found: BaselineChan
 
 def record_changes(db: Connection, serials: Iterable[str]) -> int:
     """Store the change since the baseline of these machines' current (latest, baseline)
-    pair where this version has not stored it yet (in the caller's transaction).
+    pair where it is not stored as of :data:`DIAGNOSIS_VERSION` (in the caller's transaction).
 
     Returns:
         The pairs compared.
@@ -395,9 +411,48 @@ def record_changes(db: Connection, serials: Iterable[str]) -> int:
         if found is None:
             continue
         latest_id, baseline_id, change = found
-        _store(db, latest_id, baseline_id, change)
+        store_change(db, latest_id, baseline_id, change)
         done += 1
     return done
+
+
+def refresh_machine(db: Connection, machine_id: int) -> bool:
+    """Compare the machine's current (latest, baseline) pair again and store it (in the
+    caller's transaction), whatever is stored; False when it has no such pair."""
+    found = current_change(db, machine_id)
+    if found is None:
+        return False
+    store_change(db, *found)
+    return True
+
+
+def stale_machines(db: Connection) -> list[int]:
+    """The ids of the machines whose current (latest, baseline) pair has no stored change of
+    :data:`DIAGNOSIS_VERSION` (none yet, or of another version), by id; in a few queries."""
+    m, ms = t.machines, t.measurements
+    latest = {
+        int(row.id): int(row.latest_measurement_id)
+        for row in db.execute(
+            select(m.c.id, m.c.latest_measurement_id).where(m.c.latest_measurement_id.is_not(None))
+        )
+    }
+    history: dict[int, list[Any]] = {}
+    for row in db.execute(
+        select(ms.c.id, ms.c.machine_id, ms.c.label).order_by(
+            ms.c.machine_id, ms.c.measured_utc, ms.c.id
+        )
+    ):
+        history.setdefault(int(row.machine_id), []).append(row)
+    pairs: dict[tuple[int, int], int] = {}
+    for machine_id, latest_id in latest.items():
+        measured = history.get(machine_id)
+        if not measured:
+            continue
+        baseline = int(baseline_of(measured).id)
+        if baseline != latest_id:
+            pairs[(latest_id, baseline)] = machine_id
+    current = _versioned(db, sorted(pairs))
+    return sorted(machine_id for pair, machine_id in pairs.items() if pair not in current)
 
 
 def _current_pair(db: Connection, machine_id: int) -> tuple[int, int] | None:
@@ -422,14 +477,14 @@ def _chunks(pairs: Sequence[tuple[int, int]]) -> Iterable[list[tuple[int, int]]]
 
 
 def _versioned(db: Connection, pairs: Sequence[tuple[int, int]]) -> set[tuple[int, int]]:
-    """The pairs whose change this version of ncmeasure stored."""
+    """The pairs whose change is stored as of :data:`DIAGNOSIS_VERSION`."""
     b = t.baseline_changes
     found: set[tuple[int, int]] = set()
     for chunk in _chunks(pairs):
         for row in db.execute(
             select(b.c.measurement_id, b.c.baseline_id).where(
                 tuple_(b.c.measurement_id, b.c.baseline_id).in_(chunk),
-                b.c.ncmeasure_version == __version__,
+                b.c.diagnosis_version == DIAGNOSIS_VERSION,
             )
         ):
             found.add((row.measurement_id, row.baseline_id))
@@ -448,8 +503,8 @@ def _figures(row: Any) -> ChangeFigures:
 def stored_changes(
     db: Connection, pairs: Collection[tuple[int, int]]
 ) -> dict[tuple[int, int], StoredChange]:
-    """The stored change of each (latest, baseline) pair that this version of ncmeasure
-    stored; the others are missing."""
+    """The stored change of each (latest, baseline) pair, as of :data:`DIAGNOSIS_VERSION`;
+    the others (none stored, or of another version) are missing."""
     wanted = sorted(set(pairs))
     b, a = t.baseline_changes, t.axis_changes
     outcomes: dict[tuple[int, int], str] = {}
@@ -458,7 +513,7 @@ def stored_changes(
         for row in db.execute(
             select(b.c.measurement_id, b.c.baseline_id, b.c.outcome).where(
                 tuple_(b.c.measurement_id, b.c.baseline_id).in_(chunk),
-                b.c.ncmeasure_version == __version__,
+                b.c.diagnosis_version == DIAGNOSIS_VERSION,
             )
         ):
             outcomes[(row.measurement_id, row.baseline_id)] = row.outcome

@@ -15,8 +15,11 @@ change of the friction levels, a change in percentage points of the spread
 along the travel) against the warning and critical limits, and the diagnosis
 of the change along the travel that ``store check`` makes: stored when a
 measurement is added (:mod:`ncmeasure.store.changes`), read here for every
-machine in a few queries, compared on reading (and logged) where a store lacks
-it. ``store check SERIAL`` shows the comparison point by point.
+machine in a few queries. Where a store lacks it (or holds it of another
+:data:`~ncmeasure.store.changes.DIAGNOSIS_VERSION`) it is compared on reading,
+logged, and kept when the store is open for writing; ``ncmeasure store refresh``
+stores it for the whole fleet. ``store check SERIAL`` shows the comparison point
+by point.
 """
 
 from __future__ import annotations
@@ -44,7 +47,13 @@ from ncmeasure.analysis.judgement.status import (
 )
 from ncmeasure.formats.comparison import Limits, Status, worst_status
 from ncmeasure.store import schema as t
-from ncmeasure.store.changes import StoredChange, current_change, stored_changes
+from ncmeasure.store.changes import (
+    BaselineChange,
+    StoredChange,
+    current_change,
+    store_change,
+    stored_changes,
+)
 from ncmeasure.store.store import Store
 
 __all__ = [
@@ -106,6 +115,25 @@ class AxisOverview:
     def reasons(self) -> tuple[str, ...]:
         """Why the status is not ok, in words."""
         return self.judged.reasons if self.judged is not None else ()
+
+    @property
+    def notes(self) -> tuple[str, ...]:
+        """Findings that lifted the verdict (its pattern unchanged since the baseline), in
+        words."""
+        return self.judged.notes if self.judged is not None else ()
+
+    def explained(self) -> list[str]:
+        """Why the status is what it is, in words without the ``axis X:`` each begins with:
+        the reasons, then the notes."""
+        prefix = f"axis {self.axis}: "
+        return [t.removeprefix(prefix) for t in (*self.reasons, *self.notes)]
+
+    def verdict_shown(self, baseline_label: str | None) -> str:
+        """The verdict as a surface shows it: ``check``, or ``check · fingerprint since
+        delivery`` where it does not count (its pattern unchanged since the baseline)."""
+        if self.verdict_counts or self.verdict == "ok":
+            return self.verdict
+        return f"{self.verdict} · fingerprint since {baseline_label or 'the baseline'}"
 
     @property
     def verdict_counts(self) -> bool:
@@ -289,11 +317,13 @@ def _changes(
     store: Store, machines: Sequence[Any], overviews: Sequence[MachineOverview]
 ) -> dict[str, StoredChange]:
     """Per serial (with a baseline): the stored change since the baseline; where none is
-    stored (a store filled by an older ncmeasure), compared now."""
+    stored (a store filled by an older ncmeasure, or of another diagnosis version),
+    compared now, and kept when the store is open for writing."""
     ids = {found.serial: found.id for found in machines}
     pairs = {
         m.serial: (m.latest_id, m.baseline_id) for m in overviews if m.latest_id != m.baseline_id
     }
+    computed: list[tuple[int, int, BaselineChange]] = []
     with store.reading("read the changes since the baselines") as db:
         stored = stored_changes(db, pairs.values())
         missing = [serial for serial, pair in pairs.items() if pair not in stored]
@@ -302,11 +332,23 @@ def _changes(
             now = current_change(db, ids[serial])
             if now is not None:
                 found[serial] = StoredChange.of(now[2])
-    if missing:
+                computed.append(now)
+    if not missing:
+        return found
+    if store.write:
+        with store.writing("store the changes since the baselines") as db:
+            for latest_id, baseline_id, change in computed:
+                store_change(db, latest_id, baseline_id, change)
         _log.warning(
-            "%d machine(s) without a stored change since their baseline (stored by another "
-            "ncmeasure version, or before it kept them): compared now, which is slower; "
-            "adding a measurement to a machine stores its change",
+            "%d machine(s) without a current stored change since their baseline (none "
+            "stored, or of another diagnosis version): compared now and stored",
+            len(missing),
+        )
+    else:
+        _log.warning(
+            "%d machine(s) without a current stored change since their baseline (none "
+            "stored, or of another diagnosis version): compared now on every reading, which "
+            "is slower; `ncmeasure store refresh` stores them",
             len(missing),
         )
     return found

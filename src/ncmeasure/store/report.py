@@ -30,7 +30,12 @@ from ncmeasure.store.records import TrendPoint
 from ncmeasure.store.rows import CHARACTERISTICS
 from ncmeasure.store.store import Store
 
-__all__ = ["DEFAULT_TRENDS", "MAX_OUTLIER_ROWS", "trend_figure", "write_fleet_report"]
+__all__ = [
+    "DEFAULT_TRENDS",
+    "MAX_OUTLIER_ROWS",
+    "trend_figure",
+    "write_fleet_report",
+]
 
 DEFAULT_TRENDS = 12
 """Trend plots in a report: the axes that moved most."""
@@ -100,10 +105,11 @@ def _change_text(change: Change) -> str:
     return f"{change.change:+.1f} pt"
 
 
-def _cell(axis: AxisOverview | None) -> _Cell:
+def _cell(axis: AxisOverview | None, baseline_label: str | None) -> _Cell:
     if axis is None:
         return _Cell("none", "–", "not measured")
-    lines = [f"latest verdict: {axis.verdict}"]
+    lines = [f"status: {axis.status}", *axis.explained()]
+    lines.append(f"latest verdict: {axis.verdict_shown(baseline_label)}")
     for change in axis.changes:
         lines.append(
             f"{_TITLES[change.characteristic]}: {format_number(change.baseline)} → "
@@ -116,7 +122,7 @@ def _cell(axis: AxisOverview | None) -> _Cell:
             f"(z {outlier.modified_z:+.1f})"
         )
     coulomb = next((c for c in axis.changes if c.characteristic == "coulomb"), None)
-    text = axis.verdict
+    text = axis.verdict_shown(baseline_label)
     if coulomb is not None:
         text += f" {_change_text(coulomb)}"
     if axis.outliers:
@@ -135,7 +141,7 @@ def _rows(overview: FleetOverview) -> list[_Row]:
                 site=machine.site or "–",
                 measured=f"{format_date(machine.latest_utc)}{label} ({machine.measurements})",
                 status=machine.status,
-                cells=[_cell(machine.axes.get(a)) for a in overview.axes],
+                cells=[_cell(machine.axes.get(a), machine.baseline_label) for a in overview.axes],
             )
         )
     return rows
@@ -159,12 +165,8 @@ def _moved(overview: FleetOverview, count: int) -> list[tuple[MachineOverview, A
 
 
 def _why(axis: AxisOverview) -> str:
-    parts = [f"verdict {axis.verdict}"] if axis.verdict != "ok" else []
-    parts += [
-        f"{_TITLES[c.characteristic]} {_change_text(c)}" for c in axis.changes if c.status != "ok"
-    ]
-    parts += [f"{_TITLES[o.characteristic]} an outlier of its type" for o in axis.outliers]
-    return "; ".join(parts)
+    """Why the axis' status is what it is: the judgement's reasons and notes."""
+    return "; ".join(axis.explained())
 
 
 @functools.cache

@@ -15,8 +15,8 @@
     fit_parameters  the parameters of a fit with standard error or 95 % interval
     causes          the likely assembly causes of the position signature, ranked
     baseline_changes per machine's (latest, baseline) pair: how they met (compared,
-                    refused by the comparability rules, no point matched) and which
-                    ncmeasure version compared them
+                    refused by the comparability rules, no point matched) and the
+                    version of the diagnosis that compared them
     axis_changes    per pair and axis: the diagnosis of the change since the baseline
                     (its pattern along the travel, its cause, its spread and mean)
 
@@ -234,7 +234,12 @@ baseline_changes = Table(
         doc="Its baseline: the first labelled delivery, else the first.",
     ),
     Column("outcome", String(16), nullable=False, doc="compared, refused or failed."),
-    Column("ncmeasure_version", String(32), nullable=False, doc="Who compared them."),
+    Column(
+        "diagnosis_version",
+        Integer,
+        nullable=False,
+        doc="The DIAGNOSIS_VERSION that compared them (ncmeasure.store.changes).",
+    ),
 )
 
 axis_changes = Table(

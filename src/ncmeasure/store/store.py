@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
@@ -12,7 +12,13 @@ from sqlalchemy.exc import SQLAlchemyError
 from ncmeasure.errors import ConfigError
 from ncmeasure.formats.results import Results
 from ncmeasure.store import schema as t
-from ncmeasure.store.changes import measurement_summaries, record_changes, verdicts_of
+from ncmeasure.store.changes import (
+    measurement_summaries,
+    record_changes,
+    refresh_machine,
+    stale_machines,
+    verdicts_of,
+)
 from ncmeasure.store.database import connect, display_url, translate, write_begin
 from ncmeasure.store.records import (
     Added,
@@ -29,15 +35,20 @@ from ncmeasure.store.rows import (
 )
 from ncmeasure.store.writing import add_measurement, find_machine
 
-__all__ = ["Store", "open_store"]
+__all__ = ["REFRESH_BATCH", "Store", "open_store"]
+
+REFRESH_BATCH = 50
+"""Machines per transaction of :meth:`Store.refresh_changes`."""
 
 
 class Store:
     """A fleet store opened on a URL; use :func:`open_store`."""
 
-    def __init__(self, engine: Engine, url: str) -> None:
+    def __init__(self, engine: Engine, url: str, *, write: bool = False) -> None:
         self.engine = engine
         self.url = url
+        self.write = write
+        """Opened for writing: reading may keep what it computed (the overview's changes)."""
 
     @property
     def where(self) -> str:
@@ -55,7 +66,9 @@ class Store:
             raise translate(exc, self.url, doing) from exc
 
     @contextmanager
-    def _writing(self, doing: str) -> Iterator[Connection]:
+    def writing(self, doing: str) -> Iterator[Connection]:
+        """A transaction under the store's write lock; database errors become
+        :class:`StoreError` saying what was being done. Only on a store opened for writing."""
         try:
             with write_begin(self.engine) as connection:
                 yield connection
@@ -95,12 +108,52 @@ class Store:
                 raise ConfigError("these results hold no analysed axis; there is nothing to store")
             canonical = canonical_json(results)
             prepared.append((results, info, canonical, results_digest(canonical)))
-        with self._writing(
+        with self.writing(
             "add the measurement" if len(prepared) == 1 else "add measurements"
         ) as db:
             added = [add_measurement(db, *one) for one in prepared]
             record_changes(db, [a.serial for a in added])
             return added
+
+    def refresh_changes(
+        self, *, every: bool = False, progress: Callable[[int, int], None] | None = None
+    ) -> int:
+        """Compare each machine's latest measurement with its baseline again and store the
+        change, where it is not stored as of
+        :data:`~ncmeasure.store.changes.DIAGNOSIS_VERSION` (``every``: for every machine).
+
+        One transaction per :data:`REFRESH_BATCH` machines: an interrupted refresh keeps
+        what it did, and the next one goes on from there.
+
+        Args:
+            every: Recompute every machine's pair, stored or not.
+            progress: Called with (done, total) after each batch.
+
+        Returns:
+            The machines whose change was stored.
+
+        Raises:
+            StoreError: The database failed (the batches before are kept).
+        """
+        with self.reading("find the machines to refresh") as db:
+            if every:
+                wanted = list(
+                    db.execute(
+                        select(t.machines.c.id)
+                        .where(t.machines.c.latest_measurement_id.is_not(None))
+                        .order_by(t.machines.c.id)
+                    ).scalars()
+                )
+            else:
+                wanted = stale_machines(db)
+        done = 0
+        for start in range(0, len(wanted), REFRESH_BATCH):
+            with self.writing("store the changes since the baselines") as db:
+                for machine_id in wanted[start : start + REFRESH_BATCH]:
+                    done += refresh_machine(db, machine_id)
+            if progress is not None:
+                progress(min(start + REFRESH_BATCH, len(wanted)), len(wanted))
+        return done
 
     # ----------------------------------------------------------------------- reading
 
@@ -253,4 +306,4 @@ def open_store(url: str, *, write: bool = False) -> Iterator[Store]:
         StoreError: Cannot be reached, opened or written; of a newer schema.
     """
     with connect(url, write=write) as engine:
-        yield Store(engine, url)
+        yield Store(engine, url, write=write)

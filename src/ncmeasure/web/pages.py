@@ -2,8 +2,9 @@
 
 ::
 
-    /                                  machines × axes: the latest verdict of each axis
-                                       (ok / check / fault) and the store check's status
+    /                                  machines × axes: each axis' status (the store
+                                       check's rule) with its latest verdict, and the
+                                       machine's status
     /machines/{serial}                 the check, the measurements, a trend plot per axis
     /machines/{serial}/axes/{axis}     the trend, its numbers, the latest friction curves
 
@@ -101,9 +102,12 @@ def _axis_href(root: str, serial: str, axis: str) -> str:
 
 @dataclass(frozen=True)
 class Cell:
-    """One traffic light of the grid: an axis' latest verdict (level ``none``: no such axis)."""
+    """One traffic light of the grid: an axis' status (``none``: no such axis), showing its
+    latest verdict (marked where its pattern is the machine's unchanged fingerprint)."""
 
-    level: str
+    status: str
+    text: str
+    title: str
     href: str | None
 
 
@@ -123,18 +127,23 @@ class GridRow:
 
 
 def _findings(machine: MachineOverview) -> str:
-    """What makes a machine's status: the changes beyond the limits, the outliers."""
-    found = []
-    for axis in machine.axes.values():
-        found += [
-            f"{axis.axis}: {_TITLES[c.characteristic]} {c.change:+.0f}"
-            + (" %" if c.characteristic != "spread_percent" else " pt")
-            for c in axis.changes
-            if c.status != "ok"
-        ]
-        found += [f"{axis.axis}: {_TITLES[o.characteristic]} an outlier" for o in axis.outliers]
-        found += [r for r in axis.reasons if " × " in r]  # far from its siblings or its fleet
-    return " · ".join(found[:4])
+    """What makes a machine's status: every axis' reasons, then the lifted verdicts."""
+    found = [r for axis in machine.axes.values() for r in axis.reasons]
+    found += [n for axis in machine.axes.values() for n in axis.notes]
+    return " · ".join(found)
+
+
+def _cell(root: str, machine: MachineOverview, name: str) -> Cell:
+    axis = machine.axes.get(name)
+    if axis is None:
+        return Cell("none", "–", "not measured", None)
+    title = "\n".join([f"status: {axis.status}", *axis.explained()])
+    return Cell(
+        axis.status,
+        axis.verdict_shown(machine.baseline_label),
+        title,
+        _axis_href(root, machine.serial, name),
+    )
 
 
 @router.get("/", response_class=HTMLResponse)
@@ -146,13 +155,6 @@ def fleet_page(request: Request, ctx: Ctx) -> HTMLResponse:
     axes = overview.axes
     rows = []
     for m in overview.machines:
-        cells = [
-            Cell(
-                _level(m.axes[a].verdict if a in m.axes else None),
-                _axis_href(root, m.serial, a) if a in m.axes else None,
-            )
-            for a in axes
-        ]
         latest = format_date(m.latest_utc) + (f" · {m.latest_label}" if m.latest_label else "")
         rows.append(
             GridRow(
@@ -162,12 +164,12 @@ def fleet_page(request: Request, ctx: Ctx) -> HTMLResponse:
                 site=m.site or "–",
                 measurements=m.measurements,
                 latest=latest,
-                cells=cells,
+                cells=[_cell(root, m, a) for a in axes],
                 status=m.status,
                 findings=_findings(m),
             )
         )
-    counts = {level: sum(c.level == level for r in rows for c in r.cells) for level in LEVELS}
+    counts = {s: sum(c.status == s for r in rows for c in r.cells) for s in STATUSES}
     return html_page(request, "fleet.html.j2", title="Fleet", axes=axes, rows=rows, counts=counts)
 
 

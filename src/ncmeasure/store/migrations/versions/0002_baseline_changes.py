@@ -2,11 +2,11 @@
 
 Revision ID: 0002
 Revises: 0001
-Create Date: 2027-02-02 10:00:00.000000
+Create Date: 2026-11-28 10:00:00.000000
 
 The tables start empty: a store filled before them gets its rows as measurements
-are added, and until then the fleet overview compares a machine's pair when it
-reads it (ncmeasure.store.changes).
+are added, or all at once with ``ncmeasure store refresh``; until then the fleet
+overview compares a machine's pair when it reads it (ncmeasure.store.changes).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ def upgrade() -> None:
         sa.Column("measurement_id", sa.Integer(), nullable=False),
         sa.Column("baseline_id", sa.Integer(), nullable=False),
         sa.Column("outcome", sa.String(length=16), nullable=False),
-        sa.Column("ncmeasure_version", sa.String(length=32), nullable=False),
+        sa.Column("diagnosis_version", sa.Integer(), nullable=False),
         sa.ForeignKeyConstraint(
             ["baseline_id"],
             ["measurements.id"],
