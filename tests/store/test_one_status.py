@@ -102,7 +102,7 @@ def _measured(base: Results, when: str, change: Callable[[str, AxisResult], Axis
 
 EXPLAINED: dict[str, tuple[str, str]] = {
     "coulomb rise": ("X", "Coulomb friction +21"),
-    "fingerprint unchanged": ("X", "the machine's own fingerprint"),
+    "fingerprint unchanged": ("X", "unchanged since the baseline"),
     "local change": ("Z", "likely a "),
 }
 """Per case: the axis whose finding makes the status, and words of the finding that every
