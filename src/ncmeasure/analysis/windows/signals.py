@@ -77,8 +77,8 @@ class HoleCounter:
     divided by the sampling period (a step against the step before it saw 0.2 s
     after 0.204 s at 4 ms as none). A step that ends at one of ``starts_s`` (the
     start of another file of an import) is no hole. A step is judged once the
-    steps after it are in (:meth:`finish`
-    judges the last ones): the counts are the same in chunks of any size.
+    steps after it are in (:meth:`finish` judges the last ones): the counts are
+    the same in chunks of any size.
     """
 
     def __init__(self, period_s: float, starts_s: FloatArray) -> None:
