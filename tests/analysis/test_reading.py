@@ -1,4 +1,4 @@
-"""The hole counter of a recording read in passes: the window finder's rule of a hole."""
+"""The hole counter of a recording read in passes: a step against the regular period around it."""
 
 from __future__ import annotations
 
@@ -11,7 +11,9 @@ import pytest
 
 from ncmeasure.analysis.analyze import analyze
 from ncmeasure.analysis.reading import recording_gaps
-from ncmeasure.recording import Recording
+from ncmeasure.analysis.windows.signals import HoleCounter
+from ncmeasure.recording import Recording, RecordingWriter
+from ncmeasure.samples import Channel, SampleBlock
 from ncmeasure.traces import import_traces
 from tests.traces.test_files import write_epos, write_map
 
@@ -51,3 +53,70 @@ def test_a_hole_in_the_slower_file_counts_its_own_samples(tmp_path: Path) -> Non
     keep[slow[100:104]] = False  # 4 samples of 40 ms lost: one hole of 200 ms
     cut = replace(rec, time_s=rec.time_s[keep], values=rec.values[keep])
     assert recording_gaps(cut) == (1, 4, 0)
+
+
+def outage_times(*times_s: float, period_s: float = 0.004, end_s: float = 3.0) -> np.ndarray:
+    """Times at ``period_s`` up to ``times_s[0]``, then ``times_s``, then on at the period."""
+    before = np.arange(0.0, times_s[0] - period_s / 2, period_s)
+    after = times_s[-1] + period_s * np.arange(1, round((end_s - times_s[-1]) / period_s) + 1)
+    return np.concatenate((before, times_s, after))
+
+
+def outage(directory: Path, *times_s: float) -> Recording:
+    """A recording of one channel at 4 ms per sample with ``times_s`` in it (outage_times)."""
+    time_s = outage_times(*times_s)
+    channels = [Channel("X", "velocity_mm_min", "mm/min")]
+    with RecordingWriter.create(directory, channels, nominal_period_s=0.004) as writer:
+        writer.append(SampleBlock(time_s, np.zeros((len(time_s), 1))))
+    return Recording.open(directory)
+
+
+@pytest.mark.parametrize(
+    ("times_s", "found"),
+    [
+        # an outage broken by one sample: two holes, about 99 samples lost in all (the
+        # step before a step took the second for none, or divided it by the first)
+        ((0.996, 1.2, 1.4), (2, 50 + 49)),
+        ((0.996, 1.1, 1.4), (2, 25 + 74)),
+        # broken by two samples, and by two next to each other
+        ((0.996, 1.2, 1.4, 1.6), (3, 50 + 49 + 49)),
+        ((0.996, 1.2, 1.204, 1.4), (2, 50 + 48)),
+        # one hole
+        ((0.996, 1.2), (1, 50)),
+    ],
+)
+def test_an_outage_broken_by_a_few_samples_counts_every_sample_lost(
+    tmp_path: Path, times_s: tuple[float, ...], found: tuple[int, int]
+) -> None:
+    rec = outage(tmp_path / "rec", *times_s)
+    assert recording_gaps(rec)[:2] == found
+
+
+@pytest.mark.parametrize("rows", [1, 2, 3, 7, 100])
+def test_the_holes_counted_chunk_by_chunk_are_those_of_the_whole(rows: int) -> None:
+    time_s = outage_times(0.996, 1.2, 1.4, 1.6, end_s=1.64)
+    time_s = np.concatenate((time_s, 1.64 + 0.04 * np.arange(1, 20)))  # slower at the end
+    counter = HoleCounter(0.004, np.empty(0))
+    for first in range(0, len(time_s), rows):
+        counter.feed(time_s[first : first + rows])
+    whole = HoleCounter(0.004, np.empty(0))
+    whole.feed(time_s)
+    assert counter.finish() == whole.finish() == (3, 50 + 49 + 49)
+
+
+@pytest.mark.parametrize("rows", [64, 1 << 16])
+def test_an_outage_read_in_passes_counts_as_in_memory(tmp_path: Path, rows: int) -> None:
+    # In the first 10 ms file: 0.2 s lost, one sample, 0.2 s lost; a 40 ms file follows.
+    rec = Recording.open(two_periods(tmp_path))
+    keep = np.ones(len(rec), dtype=bool)
+    keep[200:219] = keep[220:239] = False
+    cut = replace(rec, time_s=rec.time_s[keep], values=rec.values[keep])
+    assert recording_gaps(cut) == (2, 38, 0)
+    channels = [c.to_channel() for c in rec.meta.channels]
+    period = rec.meta.nominal_period_s
+    with RecordingWriter.create(tmp_path / "cut", channels, nominal_period_s=period) as writer:
+        writer.append(SampleBlock(cut.time_s, cut.values))
+        for event in rec.events:
+            writer.add_event(event)
+    results = analyze(tmp_path / "cut", rows=rows)
+    assert (results.recording.gaps, results.recording.gap_samples) == (2, 38)

@@ -46,7 +46,7 @@ from ncmeasure.analysis.windows.chunked import ChunkedFinder
 from ncmeasure.analysis.windows.find import recording_chunks
 from ncmeasure.analysis.windows.scan import Rows, axes_statistics
 from ncmeasure.analysis.windows.settings import SegmentSettings
-from ncmeasure.analysis.windows.signals import hole_rows
+from ncmeasure.analysis.windows.signals import HoleCounter
 from ncmeasure.analysis.windows.streaming import run_tasks
 from ncmeasure.analysis.windows.watch import Watchers
 from ncmeasure.config import MachineConfig
@@ -63,42 +63,20 @@ __all__ = ["RecordingPasses", "recording_gaps"]
 def recording_gaps(recording: Recording) -> tuple[int, int, int]:
     """Gaps of a recording: holes in its time axis, samples lost in them, gap events.
 
-    A hole is what the window finder takes as one
-    (:func:`~ncmeasure.analysis.windows.signals.hole_rows`): a time step longer than
-    1.5 nominal periods and than 1.5 times the step before it (the files of an import
-    may differ in sample period, and a file sampled more slowly is no run of holes).
-    It lost round(step / period) − 1 samples, the period being the larger of the
-    nominal one and the step before. The step into a segment (the start of another
-    file of an import of several, an ``info`` event with ``details["segment"]``) is no
-    hole. Where the link reported more lost samples in its gap events than the time
-    axis shows (a gap at the very end), the larger count is taken.
+    A hole is a time step longer than 1.5 times the regular period around it, the
+    median of the steps on either side
+    (:class:`~ncmeasure.analysis.windows.signals.HoleCounter`): the files of an import
+    may differ in sample period, and a file sampled more slowly is no run of holes,
+    while an outage broken by a sample is two holes. It lost round(step / regular
+    period) − 1 samples. The step into a segment (the start of another file of an
+    import of several, an ``info`` event with ``details["segment"]``) is no hole. Where
+    the link reported more lost samples in its gap events than the time axis shows (a
+    gap at the very end), the larger count is taken.
     """
-    holes, lost = _holes(
-        recording.time_s, recording.meta.nominal_period_s, [], segment_starts(recording.events)
-    )
+    counter = HoleCounter(recording.meta.nominal_period_s, segment_starts(recording.events))
+    counter.feed(recording.time_s)
+    holes, lost = counter.finish()
     return _with_events(holes, lost, recording.events)
-
-
-def _holes(
-    times: NDArray[np.float64],
-    period: float,
-    before: Sequence[float],
-    starts: NDArray[np.float64],
-) -> tuple[int, int]:
-    """Holes among ``times`` (``before``: up to two times before them) and the samples lost."""
-    rows = hole_rows(times, period, before)
-    rows = rows[~np.isin(times[rows], starts)]
-    if len(rows) == 0:
-        return 0, 0
-    earlier = [float(t) for t in before][-2:]
-    ends = np.concatenate((earlier, times))
-    at = rows + len(earlier)  # index into ends of the row after each hole
-    steps = ends[at] - ends[at - 1]
-    previous = np.full(len(at), period)
-    inside = at >= 2
-    previous[inside] = ends[at[inside] - 1] - ends[at[inside] - 2]
-    local = np.maximum(period, previous)
-    return len(rows), int(np.sum(np.round(steps / local) - 1))
 
 
 def segment_starts(events: Sequence[LinkEvent]) -> NDArray[np.float64]:
@@ -119,20 +97,9 @@ def _holes_task(
 ) -> Generator[Callable[[RowChunk], None], None, tuple[int, int]]:
     """Holes of the time axis and the samples lost in them, chunk by chunk (as recording_gaps;
     the step into a segment at ``starts`` is none)."""
-    found = {"holes": 0, "lost": 0}
-    last: list[float] = []
-
-    def feed(chunk: RowChunk) -> None:
-        times = chunk.time_s
-        if len(times) == 0:
-            return
-        holes, lost = _holes(times, period, last, starts)
-        found["holes"] += holes
-        found["lost"] += lost
-        last[:] = [*last, *times[-2:].tolist()][-2:]
-
-    yield feed
-    return found["holes"], found["lost"]
+    counter = HoleCounter(period, starts)
+    yield lambda chunk: counter.feed(chunk.time_s)
+    return counter.finish()
 
 
 def _row_span(read: Callable[[], Iterator[RowChunk]]) -> tuple[int, float, float]:

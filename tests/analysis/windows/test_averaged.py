@@ -131,5 +131,25 @@ def test_an_overshoot_of_a_few_samples_is_no_step_above_the_top_speed() -> None:
     velocity[first : first + 6] = 216.0
     seg = find_windows("X", data.time_s, velocity)
     assert [s.centre for s in seg.steps] == pytest.approx([50.0, 100.0, 200.0], rel=0.02)
-    assert any("at 216 mm/min dropped" in w for w in seg.warnings)
+    assert any(
+        "at 216 mm/min dropped" in w and "fewer than an eighth of" in w for w in seg.warnings
+    )
     assert max(abs(w.velocity_mm_min) for w in seg.windows) < 205.0
+
+
+def test_a_fastest_speed_ten_times_the_next_is_a_step_of_its_own() -> None:
+    # Runs over one travel: the time at a speed falls as 1/speed, so at 1000 mm/min, ten
+    # times the next speed, the windows hold a tenth of the samples of those at 100.
+    rng = np.random.default_rng(4)
+    dt_s, travel_mm = 0.01, 50.0
+    pieces: list[np.ndarray] = []
+    for speed in (50.0, 100.0, 1000.0):
+        for sign in (1.0, -1.0):
+            n = int(travel_mm / speed * 60.0 / dt_s)
+            ramp = sign * speed * np.arange(1, 11) / 10
+            run = sign * speed * (1.0 + 0.005 * rng.normal(size=n))
+            pieces += [np.zeros(20), ramp, run, ramp[::-1], np.zeros(20)]
+    velocity = np.concatenate(pieces)
+    seg = find_windows("X", dt_s * np.arange(len(velocity)), velocity)
+    assert [s.centre for s in seg.steps] == pytest.approx([50.0, 100.0, 1000.0], rel=0.01)
+    assert not any("dropped" in w for w in seg.warnings)

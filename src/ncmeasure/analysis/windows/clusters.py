@@ -152,6 +152,11 @@ def drop_rapids(candidates: list[Candidate], detection: Detection) -> list[Candi
 THIN_STEP_NEAR = 0.05
 """A thin step within this share of a neighbour's level can be a piece of that neighbour's run."""
 
+THIN_STEP_OVERSHOOT = 0.25
+"""The fastest thin step can be an overshoot of the next one only within this share above it:
+the time at a speed falls as 1/speed, so a real fastest speed far above the next holds few
+samples (ten times the next speed, a tenth of its samples)."""
+
 
 def drop_thin_steps(candidates: list[Candidate], detection: Detection) -> list[Candidate]:
     """Without a command or a schedule: drop the steps that only a fragment of a run backs.
@@ -161,9 +166,10 @@ def drop_thin_steps(candidates: list[Candidate], detection: Detection) -> list[C
     piece of a run where the readings happened to hold another level (a "215 mm/min"
     step of 4 samples where nothing ran above 200, a 492 beside 500 samples at 499):
     its windows are dropped, and counted in ``detection``'s warnings. Only a step within
-    :data:`THIN_STEP_NEAR` of a neighbour's level, or the fastest one, can be such a
-    piece: a short step far from the others (the slowest speed of a short program) is a
-    speed of its own.
+    :data:`THIN_STEP_NEAR` of a neighbour's level, or the fastest one within
+    :data:`THIN_STEP_OVERSHOOT` above the next (an overshoot), can be such a piece: a
+    short step far from the others (the slowest speed of a short program, a fastest
+    speed ten times the next) is a speed of its own.
     """
     if len(candidates) < 2:
         return candidates
@@ -178,9 +184,11 @@ def drop_thin_steps(candidates: list[Candidate], detection: Detection) -> list[C
     for k in range(count):
         nearby = [j for j in (k - 1, k + 1) if 0 <= j < count]
         # a fragment lies next to the run it broke from (within THIN_STEP_NEAR of its
-        # level), or above the fastest run (an overshoot); a short slow step is a step
+        # level), or just above the fastest run (an overshoot); a short step far from
+        # the others is a step (the time at a speed falls as 1/speed)
         close = any(abs(level[k] - level[j]) <= THIN_STEP_NEAR * level[j] for j in nearby)
-        thin[k] = (close or k == count - 1) and samples[k] < THIN_STEP_SHARE * min(
+        overshoot = k == count - 1 and level[k] <= (1.0 + THIN_STEP_OVERSHOOT) * level[k - 1]
+        thin[k] = (close or overshoot) and samples[k] < THIN_STEP_SHARE * min(
             samples[j] for j in nearby
         )
     if not thin.any():
@@ -189,7 +197,7 @@ def drop_thin_steps(candidates: list[Candidate], detection: Detection) -> list[C
     speeds = sorted({round(abs(c.level_mm_min), 3) for c in dropped})
     detection.warnings.append(
         f"{len(dropped)} windows at {', '.join(f'{s:g}' for s in speeds)} mm/min dropped: "
-        f"together they hold fewer than {THIN_STEP_SHARE:g} of the samples of the velocity "
+        "together they hold fewer than an eighth of the samples of the velocity "
         "steps next to them (a piece of a run where the readings held another level, "
         "no speed of its own)"
     )

@@ -13,6 +13,7 @@ __all__ = [
     "CORRELATED_RHO",
     "DISPLACEMENT_QUANTA",
     "FILTER_PLATEAU_SHARE",
+    "HOLE_NEIGHBOURS",
     "HOLE_PERIODS",
     "JOIN_GAP_SAMPLES",
     "JOIN_SPREAD",
@@ -51,10 +52,16 @@ COARSE_WINDOW_SAMPLES: Final = 20
 their medians are uncertain and the Stribeck curve at low speed is not resolved."""
 
 HOLE_PERIODS: Final = 1.5
-"""A time step longer than this many sample periods (the rule of the hole counter,
-:func:`ncmeasure.analysis.reading.recording_gaps`), and than this many times the step
-before it, is a hole (a link outage, the step between two files of an import): no
-window spans it, no position is carried across it."""
+"""A time step longer than this many sample periods, and than this many times the step
+before it, is a hole for the window finder (a link outage, the step between two files of
+an import): no window spans it, no position is carried across it. The hole counter
+(:class:`~ncmeasure.analysis.windows.signals.HoleCounter`) takes a step longer than this
+many times the regular period around it for a hole."""
+
+HOLE_NEIGHBOURS: Final = 7
+"""The hole counter's regular period around a step is the median of this many steps
+before it, or of as many after it: up to half of them may be holes (an outage broken by
+a sample or a few) and the median stays the sampling period."""
 
 DISPLACEMENT_QUANTA: Final = 2.0
 """A window's displacement is known to this many position counts (one at each end)."""

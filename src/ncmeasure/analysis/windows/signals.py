@@ -14,9 +14,10 @@ from numpy.typing import NDArray
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
 from ncmeasure.analysis.windows.model import Cluster
-from ncmeasure.analysis.windows.settings import HOLE_PERIODS
+from ncmeasure.analysis.windows.settings import HOLE_NEIGHBOURS, HOLE_PERIODS
 
 __all__ = [
+    "HoleCounter",
     "align",
     "cluster_gaps",
     "clusters_of",
@@ -60,6 +61,84 @@ def hole_rows(time_s: FloatArray, period_s: float, before_s: Sequence[float] = (
         previous[0] = earlier[1] - earlier[0]
     hole = steps > HOLE_PERIODS * np.maximum(period_s, previous)
     found: IntArray = np.flatnonzero(hole) + 1 - len(earlier)
+    return found
+
+
+class HoleCounter:
+    """Holes of a time axis given chunk by chunk, and the samples lost in them.
+
+    A hole is a time step longer than :data:`HOLE_PERIODS` times the regular
+    period around it: the median of the :data:`HOLE_NEIGHBOURS` steps before it
+    or of those after it, the larger (those there are at the ends of the axis;
+    the nominal period where the axis has one step). It lost round(step /
+    regular period) − 1 samples. So a file sampled more slowly than the one
+    before it in an import is no run of holes, nor is the step into it, and
+    each step of an outage broken by a sample or a few is a hole of its own,
+    divided by the sampling period (a step against the step before it saw 0.2 s
+    after 0.204 s at 4 ms as none). A step that ends at one of ``starts_s`` (the
+    start of another file of an import) is no hole. A step is judged once the
+    steps after it are in (:meth:`finish` judges the last ones): the counts are
+    the same in chunks of any size.
+    """
+
+    def __init__(self, period_s: float, starts_s: FloatArray) -> None:
+        self.period_s = period_s
+        self.starts_s = np.asarray(starts_s, dtype=np.float64)
+        self.holes = 0
+        self.lost = 0
+        # The times of the steps not yet judged, after those of the steps before them.
+        self._times = np.empty(0, dtype=np.float64)
+        self._judged = 0  # steps at the start of _times already judged (their neighbours)
+
+    def feed(self, time_s: FloatArray) -> None:
+        """Count the holes among the steps that have their neighbours after them now."""
+        self._times = np.concatenate((self._times, np.asarray(time_s, dtype=np.float64)))
+        self._judge(final=False)
+
+    def finish(self) -> tuple[int, int]:
+        """Judge the last steps; the holes and the samples lost in them."""
+        self._judge(final=True)
+        return self.holes, self.lost
+
+    def _judge(self, *, final: bool) -> None:
+        k = HOLE_NEIGHBOURS
+        steps = np.diff(self._times)
+        end = len(steps) if final else len(steps) - k
+        if end <= self._judged:
+            return
+        # A step can only be a hole if longer than HOLE_PERIODS times the shortest
+        # step about it (no longer than their median): only those need the median.
+        padded = np.concatenate((np.full(k, np.inf), steps, np.full(k, np.inf)))
+        shortest = minimum_filter1d(padded, 2 * k + 1)[k : k + len(steps)]
+        rows = np.arange(self._judged, end)
+        rows = rows[steps[rows] > HOLE_PERIODS * shortest[rows]]
+        if len(rows):
+            self._count(steps, rows)
+        keep = max(0, end - k)  # the times of the k steps before the next to judge
+        self._times = self._times[keep:]
+        self._judged = end - keep
+
+    def _count(self, steps: FloatArray, rows: IntArray) -> None:
+        k = HOLE_NEIGHBOURS
+        padded = np.concatenate((np.full(k, np.nan), steps, np.full(k, np.nan)))
+        for block in np.array_split(rows, max(1, len(rows) // 65536)):
+            regular = np.fmax(
+                _median_of(padded[block[:, None] + np.arange(k)[None, :]]),
+                _median_of(padded[block[:, None] + k + np.arange(1, k + 1)[None, :]]),
+            )
+            regular[np.isnan(regular)] = self.period_s
+            hole = steps[block] > HOLE_PERIODS * regular
+            hole &= ~np.isin(self._times[block + 1], self.starts_s)
+            self.holes += int(hole.sum())
+            self.lost += int(np.sum(np.round(steps[block][hole] / regular[hole]) - 1))
+
+
+def _median_of(rows: FloatArray) -> FloatArray:
+    """The median of every row's numbers (NaN where it has none)."""
+    found = np.full(len(rows), np.nan)
+    some = ~np.isnan(rows).all(axis=1)
+    if some.any():
+        found[some] = np.nanmedian(rows[some], axis=1)
     return found
 
 
