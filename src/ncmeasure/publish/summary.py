@@ -152,6 +152,8 @@ class AxisSummary:
             "warning_percent": self.limits.warning_percent,
             "critical_percent": self.limits.critical_percent,
             "outliers": sorted(o.characteristic for o in axis.outliers),
+            "verdict_counts": axis.verdict_counts,
+            "explanation": axis.explained(),
         }
 
 
