@@ -189,6 +189,7 @@ def test_every_surface_shows_the_one_status(
         fleet_html = client.get("/").text
         machine_html = client.get("/machines/M7").text
         api_check = client.get("/api/v1/machines/M7/check").json()
+        axis_pages = {name: client.get(f"/machines/M7/axes/{name}").text for name in now.axes}
     (fleet_page,) = re.findall(r'class="light check-(\w+)"', fleet_html)
     machine_page = re.search(r'<h1>Machine M7 <span class="badge status-(\w+)"', machine_html)
     assert machine_page is not None
@@ -210,6 +211,11 @@ def test_every_surface_shows_the_one_status(
     assert check.axis_status == per_axis
     assert mqtt == per_axis
     assert comparison.runs[0].axis_status == per_axis
+    # the axis page: its status, and the verdict judged against the baseline, as compare says
+    level = {"ok": "ok", "warning": "check", "critical": "fault"}
+    for name, html in axis_pages.items():
+        badges = re.findall(r'<span class="badge (verdict|status)-(\w+)"', html)
+        assert badges == [("verdict", level[per_axis[name]]), ("status", per_axis[name])], name
     # the MQTT message's change_status is the change's part of the same rule
     changes = {s.axis.axis: s.message()["change_status"] for s in summaries}
     assert changes == comparison.runs[0].change_status

@@ -28,6 +28,7 @@ from fastapi.responses import HTMLResponse
 from markupsafe import Markup
 
 from ncmeasure._version import __version__
+from ncmeasure.analysis.judgement.summary import axis_comparison, axis_headline
 from ncmeasure.report.words import format_date, format_number
 from ncmeasure.store import MeasurementSummary, TrendPoint
 from ncmeasure.store.check import StoreCheck
@@ -345,6 +346,16 @@ def axis_page(request: Request, ctx: Ctx, serial: str, axis: str) -> HTMLRespons
     latest = points[-1]
     results = ctx.store.results(latest.measurement_id)
     result = results.axes[axis]
+    # the verdict as every surface judges it: against the baseline where the store check
+    # compared them (the change is judged, not the machine's fingerprint), with its status
+    check = ctx.check(version, serial)
+    against = (
+        axis_comparison(check.comparison, axis)
+        if check.comparison is not None and latest.measurement_id == check.latest.id
+        else None
+    )
+    verdict = axis_headline(result, against).verdict if against is not None else result.verdict
+    status = check.axis_status.get(axis, "ok")
     salt = f"{serial}/{latest.measurement_id}"
     curves = ctx.cached(version, ("curves", salt, axis), lambda: curves_svg(salt, axis, result))
     travel = ctx.cached(version, ("travel", salt, axis), lambda: travel_svg(salt, axis, result))
@@ -356,8 +367,9 @@ def axis_page(request: Request, ctx: Ctx, serial: str, axis: str) -> HTMLRespons
         machine_href=_machine_href(root, serial),
         axis=axis,
         unit=latest.unit,
-        verdict=result.verdict,
-        level=_level(result.verdict.level),
+        verdict=verdict,
+        level=_level(verdict.level),
+        status=status,
         latest=f"{format_date(latest.measured_utc)}"
         + (f" · {latest.label}" if latest.label else ""),
         results_href=f"{root}/api/v1/measurements/{latest.measurement_id}/results",
