@@ -385,10 +385,15 @@ def comparison_verdict(
                 if action
                 else "Measure again to confirm the change; if it repeats, look for its cause."
             )
+        same_cause = (
+            diagnosis is not None
+            and named
+            and cause_words(diagnosis.cause, diagnosis.mean_percent) in verdict.reason
+        )
         if unchanged:
             tail = f" {fingerprint}"
         else:
-            tail = "" if own == "ok" else f" On its own: {own_text}."
+            tail = "" if own == "ok" or same_cause else f" On its own: {own_text}."
         return Verdict(level=level, reason=against + tail, action=what)
     # the axis' own finding decides; the change follows
     return Verdict(level=level, reason=f"{verdict.reason} {against}", action=verdict.action)
