@@ -243,8 +243,7 @@ def test_demo_command(nominals: Callable[[str], DemoResult], tmp_path: Path) -> 
     for axis in ("X", "Z"):
         assert f"axis {axis}: fault · Coulomb friction " in result.output
     # the change's cause once, in the verdict's reason
-    assert "changed along the travel by" in result.output
-    assert "likely a shifted or tilted loose bearing" in result.output
+    assert "along the travel: likely a shifted or tilted loose bearing" in result.output
     assert "Likely cause of the change" not in result.output
     assert (out / "comparison.json").is_file() and (out / "report.html").is_file()
     # a second run into the same folder needs --force; nothing is replaced without it
