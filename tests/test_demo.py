@@ -284,6 +284,17 @@ def test_a_realistic_demo_judges_the_change_not_the_fingerprint(tmp_path: Path) 
             reference=healthy.directory,
             report=False,
         )
+    (healthy.directory / "truth.json").unlink()
+    with pytest.raises(ConfigError, match="cannot tell which machine that demo measured"):
+        run_demo(
+            tmp_path / "unknown",
+            link="modbus",
+            variation=Variation(loose_bearing_shift_um=150.0),
+            reference=healthy.directory,
+            realistic=True,
+            seed=3,
+            report=False,
+        )
 
 
 @pytest.mark.parametrize(

@@ -272,9 +272,13 @@ def _reuse_reference(
         )
     truth_file = folder / "truth.json"
     try:
-        earlier = json.loads(truth_file.read_text(encoding="utf-8")).get("realism")
-    except (OSError, ValueError, AttributeError):
-        earlier = None
+        truth = json.loads(truth_file.read_text(encoding="utf-8"))
+        earlier = truth.get("realism")  # absent in a demo of an ideal machine
+    except (OSError, ValueError, AttributeError) as exc:
+        raise ConfigError(
+            f"{truth_file}: cannot tell which machine that demo measured ({exc}); "
+            "run the reference again"
+        ) from None
     if earlier != realism:
 
         def said(key: dict[str, Any] | None) -> str:
