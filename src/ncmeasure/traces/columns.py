@@ -62,6 +62,7 @@ from ncmeasure.traces.job import (
     TraceImport,
     check_source,
     check_target,
+    order_channels,
     run_import,
 )
 from ncmeasure.traces.matlab import import_matlab_meta, is_matlab
@@ -951,9 +952,4 @@ def _detect_separator(line: str, wanted: Sequence[str], decimal: str | None) -> 
 def _ordered_channels(mapping: ColumnMap, machine: MachineConfig | None) -> list[Channel]:
     """The channels in the order the other importers use: by axis, then by signal."""
     channels = [c for c in map(channel_from_name, mapping.channels) if c is not None]
-    axes = list(dict.fromkeys(c.axis for c in channels))
-    if machine is not None:
-        names = [a.name for a in machine.axes]
-        axes.sort(key=lambda a: names.index(a) if a in names else len(names))
-    signals = list(SIGNAL_UNITS)
-    return sorted(channels, key=lambda c: (axes.index(c.axis), signals.index(c.signal)))
+    return order_channels(channels, machine)

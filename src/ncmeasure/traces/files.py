@@ -42,8 +42,8 @@ from ncmeasure.errors import RecordingError
 from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.recording import ImportSink
 from ncmeasure.recording.reader import rows_of
-from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent
-from ncmeasure.traces.job import ProgressFn, TraceImport, check_target
+from ncmeasure.samples import Channel, LinkEvent
+from ncmeasure.traces.job import ProgressFn, TraceImport, check_target, order_channels
 
 __all__ = [
     "GAP_S",
@@ -154,15 +154,6 @@ def join_imports(
         shutil.rmtree(work, ignore_errors=True)
 
 
-def _ordered(channels: Sequence[Channel], machine: MachineConfig | None) -> list[Channel]:
-    axes = list(dict.fromkeys(c.axis for c in channels))
-    if machine is not None:
-        names = [a.name for a in machine.axes]
-        axes.sort(key=lambda a: names.index(a) if a in names else len(names))
-    signals = list(SIGNAL_UNITS)
-    return sorted(channels, key=lambda c: (axes.index(c.axis), signals.index(c.signal)))
-
-
 def _start(meta: RecordingMeta) -> dt.datetime | None:
     return dt.datetime.fromisoformat(meta.start_utc) if meta.start_utc else None
 
@@ -181,7 +172,7 @@ def _join(
         parts, starts = [parts[k] for k in order], [starts[k] for k in order]
     per_part = [[m.to_channel() for m in part.meta.channels] for _, part in parts]
     union: list[Channel] = list(dict.fromkeys(c for cs in per_part for c in cs))
-    channels = _ordered(union, machine)
+    channels = order_channels(union, machine)
     column = {c.name: i for i, c in enumerate(channels)}
     periods = [part.meta.nominal_period_s for _, part in parts]
     gap_s = max(GAP_S, _GAP_PERIODS * max(periods))

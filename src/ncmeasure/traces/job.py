@@ -22,7 +22,7 @@ from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.recording import ImportSink, Recording
-from ncmeasure.samples import Channel
+from ncmeasure.samples import SIGNAL_UNITS, Channel
 from ncmeasure.traces.derive import DerivingSink, derived_line, needs_velocity
 
 __all__ = [
@@ -31,12 +31,24 @@ __all__ = [
     "TraceImport",
     "check_source",
     "check_target",
+    "order_channels",
     "run_import",
 ]
 
 log = logging.getLogger(__name__)
 
 ProgressFn = Callable[[int, int], None]
+
+
+def order_channels(channels: Sequence[Channel], machine: MachineConfig | None) -> list[Channel]:
+    """The channels in the order every importer writes them: by axis (the machine file's
+    order where it names them, else as found), then by signal."""
+    axes = list(dict.fromkeys(c.axis for c in channels))
+    if machine is not None:
+        names = [a.name for a in machine.axes]
+        axes.sort(key=lambda a: names.index(a) if a in names else len(names))
+    signals = list(SIGNAL_UNITS)
+    return sorted(channels, key=lambda c: (axes.index(c.axis), signals.index(c.signal)))
 
 
 @dataclass(frozen=True)
