@@ -2,7 +2,7 @@
 
 The demo machine (axes X and vertical Z, 5 positions, 8 velocity steps per
 direction) runs its LinuxCNC programs on the virtual machine
-(:class:`ncmeasure.virtual_run.DemoBench`), each axis with one assembly fault
+(:class:`ncmeasure.demo.DemoBench`), each axis with one assembly fault
 of a given size, and is analysed as ``ncmeasure analyze`` would. For every
 fault kind and size and ``--seeds`` noise seeds this prints:
 
@@ -36,10 +36,10 @@ from typing import Any
 
 from ncmeasure.analysis.judgement.compare import compare_results
 from ncmeasure.analysis.judgement.summary import axis_comparison, axis_headline
+from ncmeasure.demo import DemoBench
 from ncmeasure.formats.results import Results
 from ncmeasure.sim.axis import Variation
 from ncmeasure.sim.realism import Realism
-from ncmeasure.virtual_run import DemoBench
 
 KINDS: dict[str, tuple[str, str, str, tuple[float, ...]]] = {
     # kind: (variation field, expected cause, unit, sizes)

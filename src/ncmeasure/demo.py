@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from ncmeasure.acquire import AcquisitionResult
+from ncmeasure.analysis.analyze import analyze
 from ncmeasure.analysis.judgement.compare import compare_results
 from ncmeasure.config import MachineConfig, parse_machine
 from ncmeasure.errors import ConfigError
@@ -55,11 +56,12 @@ from ncmeasure.virtual_run import (
     Progress,
     SimulatedLink,
     prepare_folder,
+    record_directly,
     run_programs,
     simulated_link,
 )
 
-__all__ = ["AxisAccuracy", "DemoResult", "DemoRun", "accuracy", "run_demo"]
+__all__ = ["AxisAccuracy", "DemoBench", "DemoResult", "DemoRun", "accuracy", "run_demo"]
 
 _MARKER_FILE = ".ncmeasure-demo"
 _OWN = (
@@ -436,6 +438,47 @@ def _write_machine_and_programs(
     schedule = generated.schedule
     assert (programs / SCHEDULE_FILE).is_file()
     return config, machine_file, programs, schedule
+
+
+@dataclass
+class DemoBench:
+    """The demo machine and its LinuxCNC programs, measured again and again without a link.
+
+    The fast path of detection and false-alarm studies (``tests/analysis/judgement/
+    test_detection.py``, ``benchmarks/detection.py``): every :meth:`measure` runs the
+    programs on a :class:`~ncmeasure.sim.machine.VirtualMachine`, writes its signals
+    with :func:`~ncmeasure.virtual_run.record_directly` into a new folder and analyses
+    them as ``ncmeasure analyze`` would (about a second per measurement).
+    """
+
+    config: MachineConfig
+    programs: Path
+    schedule: Schedule
+    folder: Path
+    runs: int = 0
+
+    @classmethod
+    def create(cls, folder: Path) -> DemoBench:
+        """Write the demo machine's file and programs into ``folder``, as the demo does."""
+        config, _, programs, schedule = _write_machine_and_programs(folder, "linuxcnc", "canopen")
+        return cls(config, programs, schedule, folder)
+
+    def measure(self, seed: int, variation: Variation | None = None, **options: Any) -> Results:
+        """One measurement, every axis with ``variation``, its noise from ``seed``.
+
+        ``options`` go to the :class:`~ncmeasure.sim.machine.VirtualMachine`.
+        """
+        vm = VirtualMachine.from_programs(
+            self.config,
+            self.programs,
+            seed=seed,
+            variations={a.name: variation or Variation() for a in self.config.axes},
+            **options,
+        )
+        self.runs += 1
+        out = self.folder / f"run-{self.runs:03d}"
+        record_directly(self.config, vm.run(), self.schedule, out)
+        return analyze(out, schedule=self.schedule, machine=self.config)
 
 
 def _write_report(result: DemoResult) -> Path:

@@ -39,7 +39,7 @@ from ncmeasure.acquire import AcquisitionResult, record
 from ncmeasure.analysis.analyze import analyze
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, LinkError, OutputError
-from ncmeasure.examples import DEMO_LINKS, demo_link_tables, demo_machine
+from ncmeasure.examples import DEMO_LINKS, demo_link_tables
 from ncmeasure.formats.results import Results, write_results
 from ncmeasure.formats.schedule import Schedule
 from ncmeasure.inputs import format_validation_error
@@ -57,7 +57,6 @@ from ncmeasure.sim.rig import rig_mechanics
 
 __all__ = [
     "ANSWER_TIMEOUT_S",
-    "DemoBench",
     "Progress",
     "SimulatedLink",
     "VirtualRun",
@@ -408,55 +407,6 @@ def record_directly(
     ) as writer:
         writer.append(block)
     return out
-
-
-@dataclass
-class DemoBench:
-    """The demo machine and its LinuxCNC programs, measured again and again without a link.
-
-    The fast path of detection and false-alarm studies (``tests/analysis/judgement/
-    test_detection.py``, ``benchmarks/detection.py``): every :meth:`measure` runs the
-    programs on a :class:`~ncmeasure.sim.machine.VirtualMachine`, writes its signals
-    with :func:`record_directly` into a new folder and analyses them as ``ncmeasure
-    analyze`` would (about a second per measurement).
-    """
-
-    config: MachineConfig
-    programs: Path
-    schedule: Schedule
-    folder: Path
-    runs: int = 0
-
-    @classmethod
-    def create(cls, folder: Path) -> DemoBench:
-        """Write the demo machine's programs into ``folder``/programs."""
-        import tomllib
-
-        from ncmeasure.config import parse_machine
-        from ncmeasure.program import generate_programs
-
-        config = parse_machine(tomllib.loads(demo_machine()))
-        generated = generate_programs(config)
-        programs = folder / "programs"
-        generated.write(programs)
-        return cls(config, programs, generated.schedule, folder)
-
-    def measure(self, seed: int, variation: Variation | None = None, **options: Any) -> Results:
-        """One measurement, every axis with ``variation``, its noise from ``seed``.
-
-        ``options`` go to the :class:`~ncmeasure.sim.machine.VirtualMachine`.
-        """
-        vm = VirtualMachine.from_programs(
-            self.config,
-            self.programs,
-            seed=seed,
-            variations={a.name: variation or Variation() for a in self.config.axes},
-            **options,
-        )
-        self.runs += 1
-        out = self.folder / f"run-{self.runs:03d}"
-        record_directly(self.config, vm.run(), self.schedule, out)
-        return analyze(out, schedule=self.schedule, machine=self.config)
 
 
 @dataclass

@@ -13,11 +13,11 @@ import pytest
 
 from ncmeasure.analysis.judgement.compare import compare_results
 from ncmeasure.analysis.judgement.summary import axis_comparison, axis_headline
+from ncmeasure.demo import DemoBench
 from ncmeasure.formats.comparison import Comparison
 from ncmeasure.formats.results import Results
 from ncmeasure.sim.axis import Variation
 from ncmeasure.sim.realism import Realism
-from ncmeasure.virtual_run import DemoBench
 
 
 @pytest.fixture(scope="module")
