@@ -22,6 +22,7 @@ import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -258,15 +259,19 @@ def test_a_realistic_demo_judges_the_change_not_the_fingerprint(tmp_path: Path) 
     machine is measured assembled correctly, then with its loose bearing shifted by 150 µm;
     the change names the bearing. Such a reference does not serve an ideal machine."""
     healthy = run_demo(tmp_path / "healthy", link="modbus", realistic=True, seed=3, report=False)
-    result = run_demo(
-        tmp_path / "real",
-        link="modbus",
-        variation=Variation(loose_bearing_shift_um=150.0),
-        reference=healthy.directory,
-        realistic=True,
-        seed=3,
-        report=False,
-    )
+
+    def shifted(name: str, **machine: Any) -> DemoResult:
+        """The loose bearing shifted by 150 µm, against the healthy demo as reference."""
+        return run_demo(
+            tmp_path / name,
+            link="modbus",
+            variation=Variation(loose_bearing_shift_um=150.0),
+            reference=healthy.directory,
+            report=False,
+            **machine,
+        )
+
+    result = shifted("real", realistic=True, seed=3)
     truth = json.loads((result.directory / "truth.json").read_text(encoding="utf-8"))
     before = json.loads((healthy.directory / "truth.json").read_text(encoding="utf-8"))
     # the same machine twice: the same fingerprint, another day's drift (and the bearing)
@@ -277,24 +282,10 @@ def test_a_realistic_demo_judges_the_change_not_the_fingerprint(tmp_path: Path) 
         assert change.causes[0].cause == "loose_bearing", (change.axis, change.causes)
     assert set(result.comparison.runs[0].axis_status.values()) <= {"warning", "critical"}
     with pytest.raises(ConfigError, match="a reference must be the same machine"):
-        run_demo(
-            tmp_path / "mixed",
-            link="modbus",
-            variation=Variation(loose_bearing_shift_um=150.0),
-            reference=healthy.directory,
-            report=False,
-        )
+        shifted("mixed")
     (healthy.directory / "truth.json").unlink()
     with pytest.raises(ConfigError, match="cannot tell which machine that demo measured"):
-        run_demo(
-            tmp_path / "unknown",
-            link="modbus",
-            variation=Variation(loose_bearing_shift_um=150.0),
-            reference=healthy.directory,
-            realistic=True,
-            seed=3,
-            report=False,
-        )
+        shifted("unknown", realistic=True, seed=3)
 
 
 @pytest.mark.parametrize(
