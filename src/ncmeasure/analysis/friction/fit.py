@@ -250,6 +250,9 @@ def fit_direction(
         offset_removed=offset.value if offset is not None else None,
         model=model,
         model_reason=reason,
+        coulomb_measured=(
+            None if linear is None or linear.coulomb is None else linear.coulomb + direction * shift
+        ),
     )
 
 

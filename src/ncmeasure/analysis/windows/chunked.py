@@ -53,6 +53,7 @@ from ncmeasure.analysis.windows.sweep import (
     as_array,
     cleaned_rows,
     merged,
+    moving_runs,
 )
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.schedule import Schedule
@@ -223,6 +224,7 @@ class ChunkedFinder(WindowFinder):
             for a, b in zip(state.plateau_runs.starts, state.plateau_runs.stops, strict=True)
             if b - a >= self.plateau_n
         ]
+        self.found.moving = moving_runs(state.forward, state.backward, self.plateau_n)
         self.found.longest_moving = state.moving_best
         self.found.plateaus_swept = True
 
@@ -293,6 +295,9 @@ class ChunkedFinder(WindowFinder):
             smooth = median_filter(finite, size=self.filter_n, mode="nearest")
             mask = plateau_mask(smooth, self.band, self.standstill, self.plateau_n, self.n, offset)
             state.plateau_runs.add(mask[lo - offset : hi - offset], lo, hi == self.n)
+            part = smooth[lo - offset : hi - offset]
+            state.forward.add(part >= self.standstill, lo, hi == self.n)
+            state.backward.add(part <= -self.standstill, lo, hi == self.n)
         if state.want_still:
             moving = np.abs(finite)
             if self.filter_n > 1:
@@ -375,10 +380,12 @@ class ChunkedFinder(WindowFinder):
             return []
         self._sweep_plateaus()
         runs = self.split_at_holes(self.found.plateaus, self.plateau_n)
+        moving = self.split_at_holes(self.found.moving, self.plateau_n)
         levels = []
-        if runs:
-            # Joining neighbouring plateaus reads the readings between them too.
-            self._gather(self.bridged(runs))
+        if runs or moving:
+            # Joining neighbouring plateaus reads the readings between them too, and a
+            # steady run all of its readings.
+            self._gather([*self.bridged(runs), *moving])
             for start, stop in runs:
                 low = max(0, start - self.settle_n - self.filter_n)
                 high = min(self.n, stop + self.filter_n)
@@ -386,7 +393,7 @@ class ChunkedFinder(WindowFinder):
                 finite = np.where(np.isfinite(detect), detect, 0.0)
                 smooth = median_filter(finite, size=self.filter_n, mode="nearest")
                 levels.append((start, stop, float(np.median(smooth[start - low : stop - low]))))
-        return self.plateau_found(levels)
+        return self.plateau_found(levels, moving)
 
     def still(self) -> str | None:
         """:meth:`WindowFinder.still` from the first pass's ranges and the sweep's longest run."""

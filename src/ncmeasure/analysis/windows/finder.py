@@ -103,7 +103,9 @@ from ncmeasure.analysis.windows.settings import (
     DISPLACEMENT_QUANTA,
     JOIN_GAP_SAMPLES,
     JOIN_SPREAD,
+    STEADY_MEAN_SHARE,
     STEADY_SCATTER,
+    STEADY_SHARE,
     Method,
     WindowSource,
 )
@@ -381,9 +383,15 @@ class WindowFinder(Detection):
             return False
         return bool(np.max(np.abs(span - level)) <= max(band, JOIN_SPREAD * sigma))
 
-    def plateau_found(self, runs: Sequence[tuple[int, int, float]]) -> list[Candidate]:
+    def plateau_found(
+        self,
+        runs: Sequence[tuple[int, int, float]],
+        moving: Sequence[tuple[int, int]] = (),
+    ) -> list[Candidate]:
         settings = self.settings
         result = self.joined([Candidate(start, stop, level) for start, stop, level in runs])
+        if moving:
+            result = self.steady_runs(result, moving)
         if not result:
             self.tried.append(
                 f"plateaus: no stretch of {settings.plateau_min_s:g} s where the actual velocity "
@@ -392,6 +400,86 @@ class WindowFinder(Detection):
                 f"{self.standstill:.3g} mm/min"
             )
         return result
+
+    def steady_runs(
+        self, plateaus: Sequence[Candidate], moving: Sequence[tuple[int, int]]
+    ) -> list[Candidate]:
+        """Every run of one speed as one window, however noisy its velocity.
+
+        A run is a stretch where the smoothed velocity keeps its sign above
+        standstill (``moving``, cut at holes). Where the velocity is noisy
+        compared with the tolerance (a robot joint's encoder-derived velocity at
+        a slow speed scatters by 10 to 50 %, with a correlated wobble of the
+        speed loop on top), no stretch of it stays within the band and a run at
+        one speed gives no plateau, or fragments. A run is steady when the two
+        halves of its middle half agree (:meth:`_steady_core`): then its core
+        (the run without its ramps) is one window where the run gave no
+        plateau, or several, all at the core's level (fragments). A run of several
+        speeds (stairs without a stop) is not steady, or its plateaus lie at
+        other levels: they stay as they are.
+        """
+        result = list(plateaus)
+        for start, stop in moving:
+            core = self._steady_core(start, stop)
+            if core is None:
+                continue
+            inside = [c for c in result if c.start < core.stop and c.stop > core.start]
+            spread = max(float(self.band(core.level_mm_min)), JOIN_SPREAD * core.noise_mm_min)
+            if any(abs(c.level_mm_min - core.level_mm_min) > spread for c in inside):
+                continue
+            if len(inside) == 1:
+                continue  # a plateau of the run's own: joined and grown as before
+            kept = [c for c in result if not any(c is d for d in inside)]
+            result = sorted([*kept, core], key=lambda c: c.start)
+        return result
+
+    def _steady_core(self, start: int, stop: int) -> Candidate | None:
+        """The core of a run at one speed (None when the run is not steady).
+
+        The level is the median of the run's middle half and σ, ρ its noise
+        (:func:`~ncmeasure.analysis.windows.signals.correlated_noise`); a
+        sample of correlated noise counts as 1/m independent ones, m =
+        (1 + ρ)/(1 − ρ). A rolling mean over w samples has the standard error
+        σ √(m/w); w makes it a third of the band, within a quarter of the run,
+        and three such errors must stay within ``STEADY_MEAN_SHARE`` of the
+        level (ramps between speeds make σ as large as the speeds' difference).
+        The run is steady when the rolling means over its middle half lie
+        within the band (or 3 such errors) of the level, at least
+        ``STEADY_SHARE`` of them (a ramp, a triangle of a short move, stairs do
+        not). The core reaches from the middle to where the rolling mean is
+        twice as far off (the ramps), and must hold a plateau (``plateau_min_s``).
+        """
+        values = self.v_detect[start:stop]
+        length = len(values)
+        if length < self.plateau_n or not np.isfinite(values).all():
+            return None
+        middle = values[length // 4 : length - length // 4]
+        level = float(np.median(middle))
+        if abs(level) < self.standstill:
+            return None
+        sigma, rho = correlated_noise(middle)
+        band = float(self.band(level))
+        m = (1.0 + rho) / (1.0 - rho)
+        wanted = math.ceil(m * (3.0 * sigma / band) ** 2) if sigma > 0 else 1
+        width = int(min(max(wanted, self.filter_n, 1), max(1, length // 4)))
+        accept = max(band, 3.0 * sigma * math.sqrt(m / width))
+        if accept > STEADY_MEAN_SHARE * abs(level):
+            return None  # too short for its noise, or no noise: a move of several speeds
+        sums = np.concatenate(([0.0], np.cumsum(values - level)))
+        off = np.abs(sums[width:] - sums[:-width]) / width  # at row k + width // 2
+        centre = width // 2
+        inner = off[max(0, length // 4 - centre) : max(1, length - length // 4 - centre)]
+        if np.count_nonzero(inner <= accept) < STEADY_SHARE * len(inner):
+            return None
+        far = off > 2.0 * accept
+        mid = min(max(0, length // 2 - centre), len(off) - 1)
+        before = np.flatnonzero(far[:mid])
+        after = np.flatnonzero(far[mid:])
+        first = start + (int(before[-1]) + 1 if len(before) else 0) + centre
+        last = start + (mid + int(after[0]) if len(after) else len(off)) + centre
+        if last - first < self.plateau_n:
+            return None
+        return Candidate(first, last, level, noise_mm_min=sigma)
 
     # -- trimming ----------------------------------------------------------------------
 

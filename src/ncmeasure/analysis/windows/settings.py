@@ -20,7 +20,9 @@ __all__ = [
     "MIN_FILTER_SAMPLES",
     "MIN_WINDOW_SAMPLES",
     "NOISE_BAND_FACTOR",
+    "STEADY_MEAN_SHARE",
     "STEADY_SCATTER",
+    "STEADY_SHARE",
     "STEP_QUANTA",
     "THIN_STEP_SHARE",
     "Method",
@@ -87,6 +89,15 @@ length by the speeds' ratio, a few times at most."""
 STEADY_SCATTER: Final = 0.25
 """Plateaus are joined only where JOIN_SPREAD standard deviations of the noise stay within
 this fraction of the speed (a drive's averaged velocity: 6–12 %)."""
+
+STEADY_MEAN_SHARE: Final = 0.35
+"""A run is judged at one speed only where three standard errors of its rolling mean stay
+within this fraction of its level: a robot joint's slow run (velocity scatter 10 to 40 %)
+averages down to 8 to 21 %; the ramps of a move through several speeds do not."""
+
+STEADY_SHARE: Final = 0.9
+"""A run is one speed when at least this share of the rolling means over its middle half
+lie within the band of its level (the others: noise beyond three standard errors)."""
 
 CORRELATED_RHO: Final = 0.5
 """A velocity whose noise has at least this lag-1 autocorrelation is an averaged one."""

@@ -8,6 +8,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable, Sequence
+from typing import Final
 
 import numpy as np
 from numpy.typing import NDArray
@@ -185,6 +186,11 @@ def align(ok: BoolArray) -> list[int | None]:
     return result
 
 
+VARIOGRAM_SHARE: Final = 8
+"""The noise's variogram is read up to this share of a stretch's length: longer lags hold
+few independent differences, and a step between two levels weighs in more."""
+
+
 def correlated_noise(values: FloatArray) -> tuple[float, float]:
     """Standard deviation and lag-1 autocorrelation of a stretch's noise.
 
@@ -211,6 +217,18 @@ def correlated_noise(values: FloatArray) -> tuple[float, float]:
         return 0.0, 0.0
     rho = min(max(3.0 - var2 / var1, 0.0), 0.95)
     sigma = math.sqrt(var1 / (2.0 * (1.0 - rho)))
+    # White readings (counts, an encoder's differences) on top of a correlated wobble (a
+    # speed loop's ripple) make the differences look white and hide the wobble: the
+    # differences over longer lags (the variogram) grow until the lag exceeds the noise's
+    # correlation, and level off at 2σ². Their largest mean square, trimmed like the
+    # others, holds σ whatever the mixture.
+    lag = 2
+    while lag <= len(data) // VARIOGRAM_SHARE:
+        wide = math.sqrt(_trimmed_square(data[lag:] - data[:-lag]) / 2.0)
+        if wide > sigma:
+            sigma = wide
+            rho = min(max(1.0 - var1 / (2.0 * sigma * sigma), 0.0), 0.95)
+        lag *= 2
     # Where 1 − ρ is small its estimate is uncertain: the scatter around the median
     # (the level of a steady stretch) bounds σ; a step between levels does not count
     # there, the differences hold σ down.

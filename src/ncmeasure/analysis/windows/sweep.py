@@ -36,6 +36,7 @@ __all__ = [
     "as_array",
     "cleaned_rows",
     "merged",
+    "moving_runs",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -186,6 +187,12 @@ class Keeper:
         return Sparse(rows, self.starts, parts)
 
 
+def moving_runs(forward: Runs, backward: Runs, least: int) -> list[tuple[int, int]]:
+    """The runs of both directions that hold ``least`` rows, in order."""
+    both = zip(forward.starts + backward.starts, forward.stops + backward.stops, strict=True)
+    return sorted((a, b) for a, b in both if b - a >= least)
+
+
 @dataclass
 class Found:
     """What the pass over the rows found for one axis."""
@@ -195,6 +202,8 @@ class Found:
     marker_values: list[float] = field(default_factory=list)
     command: list[tuple[int, int, float]] = field(default_factory=list)
     plateaus: list[tuple[int, int]] = field(default_factory=list)
+    moving: list[tuple[int, int]] = field(default_factory=list)
+    """Runs of one direction above standstill, of a plateau's length at least, in order."""
     longest_moving: int = 0
     plateaus_swept: bool = False
 
@@ -207,6 +216,10 @@ class SweepState:
     want_plateaus: bool
     want_still: bool
     plateau_runs: Runs = field(default_factory=Runs)
+    forward: Runs = field(default_factory=Runs)
+    """Runs of the smoothed velocity above standstill, positive."""
+    backward: Runs = field(default_factory=Runs)
+    """Runs of the smoothed velocity below minus standstill."""
     marker_on: bool = False
     marker_value: float = math.nan
     command_last: float | None = None
