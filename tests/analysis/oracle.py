@@ -232,6 +232,11 @@ class WholeFinder(WindowFinder):
         self.setup_schedule(schedule)
         self.v = velocity
         self.t = time_s
+        finite = np.abs(velocity[np.isfinite(velocity)])
+        self.scale_floors(
+            float(finite.max()) if len(finite) else math.nan,
+            max(noise_sigma(velocity), quantum(velocity)),
+        )
         self.setup_counts()
         self.setup_resolution(
             quantum(velocity),

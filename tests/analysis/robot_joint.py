@@ -133,18 +133,19 @@ def write_runs(joint: Joint, folder: Path, *, seed: int = 0) -> list[float]:
     return signed
 
 
-def column_map(path: Path, *, command: bool) -> Path:
-    """The column map of the runs: radians as degrees (the analysis' unit of a rotary axis)."""
+def column_map(path: Path, *, command: bool, degrees: bool = True) -> Path:
+    """The column map of the runs: radians as degrees (the analysis' unit of a rotary
+    axis), or as they are (``degrees=False``: rad/s read where mm/min are expected)."""
+    position = f", scale = {DEG_PER_RAD!r}" if degrees else ""
+    velocity = f", scale = {DEG_MIN_PER_RAD_S!r}" if degrees else ""
     lines = [
         'time = { column = "time" }',
         "[channels]",
-        f'J_position_mm = {{ column = "q", scale = {DEG_PER_RAD!r} }}',
-        f'J_velocity_mm_min = {{ column = "dq", scale = {DEG_MIN_PER_RAD_S!r} }}',
+        f'J_position_mm = {{ column = "q"{position} }}',
+        f'J_velocity_mm_min = {{ column = "dq"{velocity} }}',
         'J_current_a = { column = "tau" }',
     ]
     if command:
-        lines.append(
-            f'J_velocity_cmd_mm_min = {{ column = "dq_cmd", scale = {DEG_MIN_PER_RAD_S!r} }}'
-        )
+        lines.append(f'J_velocity_cmd_mm_min = {{ column = "dq_cmd"{velocity} }}')
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path

@@ -45,24 +45,25 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> Runs:
 
 
 @pytest.fixture(scope="module")
-def imported(runs: Runs, tmp_path_factory: pytest.TempPathFactory) -> Callable[[str, bool], Path]:
+def imported(runs: Runs, tmp_path_factory: pytest.TempPathFactory) -> Callable[..., Path]:
     """The recording of a joint's runs, with or without the command (imported once)."""
-    done: dict[tuple[str, bool], Path] = {}
+    done: dict[tuple[str, bool, bool], Path] = {}
 
-    def recording(name: str, command: bool) -> Path:
-        if (name, command) not in done:
-            folder = tmp_path_factory.mktemp(f"{name}-{command}")
-            mapping = column_map(folder / "map.toml", command=command)
+    def recording(name: str, command: bool, degrees: bool = True) -> Path:
+        key = (name, command, degrees)
+        if key not in done:
+            folder = tmp_path_factory.mktemp(f"{name}-{command}-{degrees}")
+            mapping = column_map(folder / "map.toml", command=command, degrees=degrees)
             import_traces([runs[name][0]], folder / "rec", columns=mapping)
-            done[name, command] = folder / "rec"
-        return done[name, command]
+            done[key] = folder / "rec"
+        return done[key]
 
     return recording
 
 
 @pytest.mark.parametrize("name", sorted(JOINTS))
 def test_without_the_command_every_run_is_found_at_its_speed(
-    runs: Runs, imported: Callable[[str, bool], Path], name: str
+    runs: Runs, imported: Callable[..., Path], name: str
 ) -> None:
     _, signed = runs[name]
     seg = windows_of(read_recording(imported(name, False)), "J")
@@ -83,7 +84,7 @@ def test_without_the_command_every_run_is_found_at_its_speed(
 @pytest.mark.parametrize("command", [True, False], ids=["command", "no-command"])
 @pytest.mark.parametrize("name", sorted(JOINTS))
 def test_each_directions_coulomb_within_5_percent(
-    imported: Callable[[str, bool], Path], name: str, command: bool
+    imported: Callable[..., Path], name: str, command: bool
 ) -> None:
     joint: Joint = JOINTS[name]
     result = analyze(imported(name, command)).axes["J"]
@@ -99,3 +100,29 @@ def test_each_directions_coulomb_within_5_percent(
             mean = 0.5 * (joint.coulomb_positive_nm + joint.coulomb_negative_nm)
             assert found.fit.coulomb == pytest.approx(mean, rel=0.05)
     assert np.isfinite(result.offset.value)
+
+
+@pytest.mark.parametrize("name", sorted(JOINTS))
+def test_radians_read_as_they_are_still_find_every_run(
+    runs: Runs, imported: Callable[..., Path], name: str
+) -> None:
+    # A map without the degrees' scale: 0.005 to 1 rad/s where mm/min are expected all lay
+    # below the standstill floor of 1 mm/min, and nothing was found.
+    joint = JOINTS[name]
+    _, signed = runs[name]
+    path = imported(name, False, False)
+    seg = windows_of(read_recording(path), "J")
+    found = [any(abs(w.velocity_mm_min - v) <= 0.03 * abs(v) for w in seg.windows) for v in signed]
+    assert sum(found) >= 38
+    assert any("rad/s or deg/s" in w for w in seg.warnings)
+    # Position in rad and velocity in rad/s: the position moves 60 times as far as a
+    # velocity "per minute" says, and the readings alone measure the windows.
+    assert any("60 times as far" in w for w in seg.warnings)
+    result = analyze(path).axes["J"]
+    for position in result.positions:
+        for key, direction in (("positive", 1), ("negative", -1)):
+            found_direction = position.directions[key]
+            assert found_direction is not None
+            assert found_direction.coulomb_measured == pytest.approx(
+                joint.coulomb_nm(direction), rel=0.05
+            )

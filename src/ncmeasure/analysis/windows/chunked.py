@@ -121,6 +121,12 @@ class ChunkedFinder(WindowFinder):
             )
         self.setup_schedule(schedule)
         self.t = self.v = self.x = self.v_detect = self.current = empty
+        low = statistics.low.get("velocity_mm_min", math.nan)
+        high = statistics.high.get("velocity_mm_min", math.nan)
+        self.scale_floors(
+            max(abs(low), abs(high)),
+            max(statistics.velocity_sigma_mm_min, statistics.velocity_quantum_mm_min),
+        )
         self.setup_counts()
         self.setup_resolution(
             statistics.velocity_quantum_mm_min,

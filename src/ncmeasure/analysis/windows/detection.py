@@ -16,6 +16,8 @@ from numpy.typing import NDArray
 
 from ncmeasure.analysis.windows.settings import (
     FILTER_PLATEAU_SHARE,
+    FLOOR_REFERENCE_MM_MIN,
+    FLOOR_SIGNAL_TO_NOISE,
     MIN_FILTER_SAMPLES,
     MIN_WINDOW_SAMPLES,
     NOISE_BAND_FACTOR,
@@ -42,6 +44,37 @@ class Detection:
     dt: float
     positions_known: bool
     warnings: list[str]
+
+    def scale_floors(self, top: float, noise: float) -> None:
+        """The settings' absolute floors scaled down where every speed is small.
+
+        The floors (``velocity_floor_mm_min``, ``standstill_mm_min``,
+        ``step_floor_mm_min``) are set for a feed axis in mm/min. A recording
+        whose velocity never reaches :data:`FLOOR_REFERENCE_MM_MIN` in magnitude
+        counts in another unit (a rotary joint in rad/s or deg/s: 0.01 to 1
+        rad/s would all lie below standstill): the floors are scaled by ``top``
+        over that reference, and a warning says so. The velocity's own count
+        and noise still widen the bands. An axis holding its position is no
+        other unit: its top speed (its noise, or one count) is not
+        :data:`FLOOR_SIGNAL_TO_NOISE` times its noise, ``noise`` (σ or one count).
+        """
+        if not math.isfinite(top) or not 0 < top < FLOOR_REFERENCE_MM_MIN:
+            return
+        if not top >= FLOOR_SIGNAL_TO_NOISE * noise:
+            return
+        factor = top / FLOOR_REFERENCE_MM_MIN
+        settings = self.settings
+        self.settings = settings.model_copy(
+            update={
+                name: getattr(settings, name) * factor
+                for name in ("velocity_floor_mm_min", "standstill_mm_min", "step_floor_mm_min")
+            }
+        )
+        self.warnings.append(
+            f"the velocity never exceeds {top:.3g} in magnitude (in mm/min: a rotary axis in "
+            "rad/s or deg/s?): the absolute floors of the tolerance, standstill and steps are "
+            f"scaled by {factor:.3g} (standstill {self.settings.standstill_mm_min:.3g})"
+        )
 
     def setup_counts(self) -> None:
         """Sample counts of the settings' durations at the sample period ``dt``."""

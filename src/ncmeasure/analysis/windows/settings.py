@@ -13,6 +13,8 @@ __all__ = [
     "CORRELATED_RHO",
     "DISPLACEMENT_QUANTA",
     "FILTER_PLATEAU_SHARE",
+    "FLOOR_REFERENCE_MM_MIN",
+    "FLOOR_SIGNAL_TO_NOISE",
     "HOLE_NEIGHBOURS",
     "HOLE_PERIODS",
     "JOIN_GAP_SAMPLES",
@@ -48,6 +50,15 @@ FILTER_PLATEAU_SHARE: Final = 4
 """The rolling median spans at most a plateau (``plateau_min_s``) over this many samples
 where ``plateau_filter_s`` asks for less: the shortest plateau, and a step between two
 speeds, stay resolved (the median keeps an edge, and cuts half its width off each end)."""
+
+FLOOR_REFERENCE_MM_MIN: Final = 1000.0
+"""A feed axis' recording reaches this velocity in mm/min (its rapids, its faster steps);
+one that never does counts in another unit, and the absolute floors scale with its top
+speed (:meth:`~ncmeasure.analysis.windows.detection.Detection.scale_floors`)."""
+
+FLOOR_SIGNAL_TO_NOISE: Final = 100.0
+"""The floors scale only where the top speed is this many times the velocity's noise (σ)
+and count: an axis holding its position reads its noise, not a speed in another unit."""
 
 COARSE_WINDOW_SAMPLES: Final = 20
 """Windows holding fewer samples than this (median over the axis) make the data coarse:
