@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from ncmeasure.acquire import acquire
 from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
 from ncmeasure.links import REAL_TIME, make_link
@@ -38,6 +39,7 @@ from ncmeasure.links.canopen.objects import (
 )
 from ncmeasure.links.canopen.settings import CanOpenAxis
 from ncmeasure.links.canopen.sync import CycleAssembler, run_sync_schedule
+from ncmeasure.recording import RecordingWriter, read_recording
 from ncmeasure.samples import LinkClock, LinkEvent, SimulatedClock
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrive, SimulatedDrives
 from ncmeasure.sim.rig import rig_mechanics
@@ -1167,6 +1169,52 @@ def test_a_stalled_sync_producer_reports_the_cycles_it_skipped(channel: str) -> 
     assert reported <= stats["lost_no_sync"] <= stats["sync_skipped"]  # seen: counted as lost
     assert np.all(np.diff(rec.cycles) > 0)  # rows in order, none repeated
     assert_gaps_cover_missing_rows(rec)
+
+
+class StallOnceClock(StallClock):
+    """Real time that jumps ``stall_s`` ahead once ``after_s`` have passed: a host stall at a
+    set point, whatever the load."""
+
+    __slots__ = ("after_s", "stall_s", "start_s")
+
+    def __init__(self, after_s: float, stall_s: float) -> None:
+        super().__init__()
+        self.after_s, self.stall_s = after_s, stall_s
+        self.start_s: float | None = None
+
+    def now(self) -> float:
+        real = time.perf_counter()
+        if self.start_s is None:
+            self.start_s = real
+        elif not self.jumped.is_set() and real - self.start_s > self.after_s:
+            self.stall(self.stall_s)
+        return real + self.offset_s
+
+
+def test_skipped_sync_cycles_are_a_share_of_the_recording(channel: str, tmp_path: Path) -> None:
+    """The cycles a stalled producer skipped are counted in the gap events and in the
+    recording's metadata as a share of the recording, apart from other losses."""
+    clock = StallOnceClock(after_s=0.3, stall_s=0.2)  # 50 cycles at 250 Hz
+    with SimulatedDrives.start(channel, {0: 1}, SOURCE, scaling=SCALING):
+        link = make(channel, n_axes=1)
+        link.use_clock(clock)
+        with link:
+            writer = RecordingWriter.create(
+                tmp_path / "run", link.channels, nominal_period_s=link.nominal_period_s
+            )
+            result = acquire(link, writer, duration_s=1.0)
+            stats = link.statistics()
+    assert clock.jumped.is_set()
+    gaps = [e for e in result.events if e.kind == "gap"]
+    skipped = sum(e.details["skipped_cycles"] for e in gaps)
+    # a busy host may skip more; every one seen on the bus is counted, the stall's 49 at least
+    assert 49 <= skipped <= stats["lost_no_sync"] <= stats["sync_skipped"]
+    assert result.skipped_cycles == skipped
+    assert result.skipped_share == pytest.approx(skipped / (result.rows + result.lost_samples))
+    meta = read_recording(tmp_path / "run").meta
+    assert meta.skipped_cycles == skipped
+    assert meta.skipped_share == pytest.approx(result.skipped_share)
+    assert meta.lost_samples is not None and meta.lost_samples >= skipped  # within the lost
 
 
 def test_block_reads_deliver_every_row_in_order(channel: str) -> None:

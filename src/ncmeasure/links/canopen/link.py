@@ -912,6 +912,7 @@ class _Cycles:
                     "axes": [a.name for a in axes],
                     "nodes": [a.node_id for a in axes],
                     "missing_sync": gap.no_sync,
+                    "skipped_cycles": gap.no_sync if self._produces_sync else 0,
                     "doubled": gap.doubled,
                 },
             )
