@@ -143,9 +143,7 @@ class AcquisitionResult:
         """Of the lost samples, the cycles the link skipped because the host fell behind
         (SYNC cycles its producer could not send in time; the gap events'
         ``skipped_cycles``)."""
-        return sum(
-            int(e.details.get("skipped_cycles", 0)) for e in self.events if e.kind == "gap"
-        )
+        return sum(int(e.details.get("skipped_cycles", 0)) for e in self.events if e.kind == "gap")
 
     @property
     def skipped_share(self) -> float:

@@ -11,6 +11,8 @@ tests run in real time and assert only what holds however late the host is.
 
 from __future__ import annotations
 
+import os
+import sys
 import threading
 import time
 import uuid
@@ -38,7 +40,7 @@ from ncmeasure.links.canopen.objects import (
     sdo_error_text,
 )
 from ncmeasure.links.canopen.settings import CanOpenAxis
-from ncmeasure.links.canopen.sync import CycleAssembler, run_sync_schedule
+from ncmeasure.links.canopen.sync import CycleAssembler, raise_priority, run_sync_schedule
 from ncmeasure.recording import RecordingWriter, read_recording
 from ncmeasure.samples import LinkClock, LinkEvent, SimulatedClock
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrive, SimulatedDrives
@@ -1113,6 +1115,54 @@ def test_sync_schedule_keeps_the_period_on_average_through_late_wake_ups() -> No
     times = np.array([t for _, t in sent])
     assert np.array_equal(cycles, np.arange(len(sent)))
     assert np.all(times - cycles * period < period)  # late, never drifting
+
+
+def test_the_sync_thread_asks_for_real_time_priority_and_a_short_switch_interval(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Granted: SCHED_FIFO for the calling thread and the GIL handed over within half a
+    period, the interval restored after; 0 asks for nothing."""
+    asked: list[tuple[int, int, int]] = []
+
+    def setscheduler(pid: int, policy: int, param: os.sched_param) -> None:
+        asked.append((pid, policy, param.sched_priority))
+
+    monkeypatch.setattr(os, "sched_setscheduler", setscheduler)
+    before = sys.getswitchinterval()
+    assert before > 0.0005
+    refused, restore = raise_priority(20, 0.001)
+    try:
+        assert refused is None and asked == [(0, os.SCHED_FIFO, 20)]
+        assert sys.getswitchinterval() == pytest.approx(0.0005)
+    finally:
+        restore()
+    assert sys.getswitchinterval() == before
+    assert raise_priority(0, 0.001)[0] is None and len(asked) == 1
+
+
+def test_a_refused_priority_is_an_info_event_and_the_link_records_on(
+    channel: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Without the right to real-time priority the link says so once and goes on."""
+
+    def refuse(pid: int, policy: int, param: os.sched_param) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    before = sys.getswitchinterval()
+    with SimulatedDrives.start(channel, {0: 1}, SOURCE, scaling=SCALING):
+        link = make(channel, n_axes=1)
+        with link:
+            rec = Recorder(link)
+            rec.rows_at_least(10)
+        rec.events += link.events()
+    notes = [e.message for e in rec.kinds("info") if "normal priority" in e.message]
+    assert notes == [
+        "the SYNC thread runs at normal priority: real-time priority 20 refused (Operation "
+        "not permitted); allow it with an rtprio limit (limits.conf) or CAP_SYS_NICE, or set "
+        "link.sync_priority = 0; on a busy host it skips cycles (counted as gaps)"
+    ]
+    assert sys.getswitchinterval() == before  # left alone when refused
 
 
 def assert_gaps_cover_missing_rows(rec: Recorder) -> None:

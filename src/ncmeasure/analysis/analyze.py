@@ -271,12 +271,12 @@ def results_of(
             f"{gap_samples} samples lost in {gaps} gap(s) ({gap_share * 100:.2g} % of the "
             "recording): windows in them are shorter or missing"
         )
-    skipped = skipped_cycles(head.events)
-    if skipped:
+    not_served = skipped_cycles(head.events)
+    if not_served:
         common.append(
-            f"{skipped} of them cycles the link skipped because the host fell behind "
-            f"({skipped / total * 100:.2g} % of the recording): it sampled at "
-            f"{(1 - skipped / total) / head.meta.nominal_period_s:.0f} Hz instead of "
+            f"{not_served} of them cycles the link skipped because the host fell behind "
+            f"({not_served / total * 100:.2g} % of the recording): it sampled at "
+            f"{(1 - not_served / total) / head.meta.nominal_period_s:.0f} Hz instead of "
             f"{1 / head.meta.nominal_period_s:.0f} Hz"
         )
     results: dict[str, AxisResult] = {}
