@@ -409,12 +409,13 @@ def raise_priority(priority: int, period_s: float) -> tuple[str | None, Callable
     """Give the calling thread (the SYNC producer) the host's attention for its period.
 
     On a busy host an ordinary thread wakes late and SYNC cycles are skipped: two
-    busy loops on a 2-core PC made a 1 kHz producer skip a quarter to two thirds of
-    its cycles. Two things keep it on time, and neither helps alone: the thread runs
-    under the real-time policy ``SCHED_FIFO`` at ``priority`` (Linux; it wakes before
-    any ordinary process), and the interpreter hands the GIL over within half a
-    period (``sys.setswitchinterval``; 5 ms by default, five 1 kHz cycles), so the
-    woken thread does not wait for a Python thread that holds it.
+    busy loops on a 2-core PC made a 1 kHz producer skip 40 to 75 % of its cycles
+    (``benchmarks/acquisition_canopen.py --busy``). Two things keep it on time, and
+    neither helps alone: the thread runs under the real-time policy ``SCHED_FIFO``
+    at ``priority`` (Linux; it wakes before any ordinary process), and the
+    interpreter hands the GIL over within half a period (``sys.setswitchinterval``;
+    5 ms by default, five 1 kHz cycles), so the woken thread does not wait for a
+    Python thread that holds it.
 
     The switch interval is only ever lowered, and the returned function restores it
     unless something else changed it meanwhile.
