@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from ncmeasure.acquire import Progress
 from ncmeasure.cli import app
+from ncmeasure.cli.record import _progress_table
 from ncmeasure.config import parse_machine
 from ncmeasure.examples import example_machine
 from ncmeasure.recording import RecordingWriter, read_recording
@@ -605,3 +607,9 @@ def test_record_says_the_share_of_cycles_the_link_skipped(tmp_path: Path) -> Non
     )
     meta = read_recording(tmp_path / "run2").meta
     assert (meta.lost_samples, meta.skipped_cycles, meta.skipped_share) == (100, 100, 0.1)
+    progress = Progress(1.0, 1.0, 900, 900.0, {}, gaps=1, lost_samples=100, faults=0)
+    assert _progress_table(progress).caption == "gaps 1 (100 samples lost) · faults 0"
+    progress.skipped_cycles = 100  # the live display says them too
+    assert _progress_table(progress).caption == (
+        "gaps 1 (100 samples lost, 100 cycles skipped) · faults 0"
+    )

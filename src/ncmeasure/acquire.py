@@ -76,6 +76,8 @@ class Progress:
     lost_samples: int
     faults: int
     last_event: str | None = None
+    skipped_cycles: int = 0
+    """Of ``lost_samples``, the cycles the link skipped because the host fell behind."""
 
 
 EndedBy = Literal["duration", "schedule", "source", "stop", "link", "program", "no_start"]
@@ -346,6 +348,9 @@ class _ProgressMeter:
                 lost_samples=sum(e.lost_samples for e in events),
                 faults=sum(1 for e in events if e.kind in ("fault", "emcy")),
                 last_event=f"{events[-1].kind}: {events[-1].message}" if events else None,
+                skipped_cycles=sum(
+                    int(e.details.get("skipped_cycles", 0)) for e in events if e.kind == "gap"
+                ),
             )
         )
         self._next = now + self._interval_s

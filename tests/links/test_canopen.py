@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from ncmeasure.acquire import acquire
+from ncmeasure.acquire import Progress, acquire
 from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
 from ncmeasure.links import REAL_TIME, make_link
@@ -1252,7 +1252,10 @@ def test_skipped_sync_cycles_are_a_share_of_the_recording(channel: str, tmp_path
             writer = RecordingWriter.create(
                 tmp_path / "run", link.channels, nominal_period_s=link.nominal_period_s
             )
-            result = acquire(link, writer, duration_s=1.0)
+            seen: list[Progress] = []
+            result = acquire(
+                link, writer, duration_s=1.0, on_progress=seen.append, progress_interval_s=0.0
+            )
             stats = link.statistics()
     assert clock.jumped.is_set()
     gaps = [e for e in result.events if e.kind == "gap"]
@@ -1265,6 +1268,7 @@ def test_skipped_sync_cycles_are_a_share_of_the_recording(channel: str, tmp_path
     assert meta.skipped_cycles == skipped
     assert meta.skipped_share == pytest.approx(result.skipped_share)
     assert meta.lost_samples is not None and meta.lost_samples >= skipped  # within the lost
+    assert seen[-1].skipped_cycles == skipped  # the live display shows them too
 
 
 def test_block_reads_deliver_every_row_in_order(channel: str) -> None:

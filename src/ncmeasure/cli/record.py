@@ -269,8 +269,9 @@ def _progress_table(progress: "Progress") -> "Table":
         ]
         table.add_row(axis, *("—" if v is None else f"{v:.3f}" for v in values))
     table.caption = (
-        f"gaps {progress.gaps} ({progress.lost_samples} samples lost) · "
-        f"faults {progress.faults}"
+        f"gaps {progress.gaps} ({progress.lost_samples} samples lost"
+        + (f", {progress.skipped_cycles} cycles skipped" if progress.skipped_cycles else "")
+        + f") · faults {progress.faults}"
         + (f" · last: {progress.last_event}" if progress.last_event else "")
     )
     return table
