@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from ncmeasure.acquire import Progress
 from ncmeasure.cli import app
+from ncmeasure.cli.record import _progress_table
 from ncmeasure.config import parse_machine
 from ncmeasure.examples import example_machine
 from ncmeasure.recording import RecordingWriter, read_recording
@@ -575,3 +577,39 @@ def test_record_says_which_limit_ended_it(tmp_path: Path) -> None:
     assert len(read_recording(tmp_path / "run2").time_s) == 500
     assert "ended by --duration 2 s; the schedule's end with its margin (" in text
     assert "--duration 2 s ended the recording before the schedule's end" in text
+
+
+def test_record_says_the_share_of_cycles_the_link_skipped(tmp_path: Path) -> None:
+    """SYNC cycles the producer skipped are lost samples and, apart, a share of the
+    recording: in the summary and in meta.json, never behind "0 rows lost"."""
+    source = tmp_path / "run1"
+    config = parse_machine(example_data())
+    channels = channels_for(["X", "Y", "Z"])
+    with RecordingWriter.create(source, channels, nominal_period_s=0.001, machine=config) as w:
+        w.append(SampleBlock(np.arange(900) * 0.001, np.zeros((900, len(channels)))))
+        w.add_event(
+            LinkEvent(
+                0.5, "gap", "100 samples dropped: 100 SYNC cycles not sent (the host fell "
+                "behind)", lost_samples=100, details={"missing_sync": 100, "skipped_cycles": 100},
+            )
+        )  # fmt: skip
+    assert read_recording(source).meta.skipped_cycles == 100
+    code, _, err = run(
+        "record", _machine(tmp_path), "--link", "replay", "--source", source, "--set", "speed=0",
+        "-o", tmp_path / "run2",
+    )  # fmt: skip
+    assert code == 0, err
+    text = " ".join(err.split())
+    assert "100 samples lost in 1 gap(s), 10 % of the recording" in text
+    assert (
+        "100 cycles skipped by the link (the host fell behind): 10 % of the recording, "
+        "900 Hz instead of 1000 Hz" in text
+    )
+    meta = read_recording(tmp_path / "run2").meta
+    assert (meta.lost_samples, meta.skipped_cycles, meta.skipped_share) == (100, 100, 0.1)
+    progress = Progress(1.0, 1.0, 900, 900.0, {}, gaps=1, lost_samples=100, faults=0)
+    assert _progress_table(progress).caption == "gaps 1 (100 samples lost) · faults 0"
+    progress.skipped_cycles = 100  # the live display says them too
+    assert _progress_table(progress).caption == (
+        "gaps 1 (100 samples lost, 100 cycles skipped) · faults 0"
+    )

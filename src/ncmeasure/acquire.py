@@ -76,6 +76,8 @@ class Progress:
     lost_samples: int
     faults: int
     last_event: str | None = None
+    skipped_cycles: int = 0
+    """Of ``lost_samples``, the cycles the link skipped because the host fell behind."""
 
 
 EndedBy = Literal["duration", "schedule", "source", "stop", "link", "program", "no_start"]
@@ -119,6 +121,8 @@ class AcquisitionResult:
     """The user's duration, if one was given."""
     schedule_end_s: float | None = None
     """The schedule's estimated end plus its margin, if a schedule was given."""
+    nominal_period_s: float | None = None
+    """The link's sample period (the SYNC period of a CANopen link)."""
 
     @property
     def gaps(self) -> int:
@@ -135,6 +139,26 @@ class AcquisitionResult:
         """Lost samples as a share of the samples there should have been (0 … 1)."""
         total = self.rows + self.lost_samples
         return self.lost_samples / total if total else 0.0
+
+    @property
+    def skipped_cycles(self) -> int:
+        """Of the lost samples, the cycles the link skipped because the host fell behind
+        (SYNC cycles its producer could not send in time; the gap events'
+        ``skipped_cycles``)."""
+        return sum(int(e.details.get("skipped_cycles", 0)) for e in self.events if e.kind == "gap")
+
+    @property
+    def skipped_share(self) -> float:
+        """Skipped cycles as a share of the samples there should have been (0 … 1)."""
+        total = self.rows + self.lost_samples
+        return self.skipped_cycles / total if total else 0.0
+
+    @property
+    def achieved_rate_hz(self) -> float | None:
+        """The rate the link sampled at, skipped cycles left out (None: no period known)."""
+        if not self.nominal_period_s:
+            return None
+        return (1.0 - self.skipped_share) / self.nominal_period_s
 
 
 def check_duration(duration_s: float | None, what: str = "duration") -> None:
@@ -268,6 +292,7 @@ def acquire(
         moved_aside=writer.moved_aside,
         ended_by=ended_by,
         duration_s=duration_s,
+        nominal_period_s=link.nominal_period_s,
     )
 
 
@@ -323,6 +348,9 @@ class _ProgressMeter:
                 lost_samples=sum(e.lost_samples for e in events),
                 faults=sum(1 for e in events if e.kind in ("fault", "emcy")),
                 last_event=f"{events[-1].kind}: {events[-1].message}" if events else None,
+                skipped_cycles=sum(
+                    int(e.details.get("skipped_cycles", 0)) for e in events if e.kind == "gap"
+                ),
             )
         )
         self._next = now + self._interval_s

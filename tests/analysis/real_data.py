@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ncmeasure.recording import Recording, RecordingWriter
-from ncmeasure.samples import SampleBlock
+from ncmeasure.samples import LinkEvent, SampleBlock
 from ncmeasure.sim.synthetic import SyntheticAxis, SyntheticData, machine_config, simulate
 
 FloatArray = NDArray[np.float64]
@@ -72,8 +72,10 @@ def write(
     axes: Sequence[SyntheticAxis] | None = None,
     *,
     period_s: float | None = None,
+    events: Sequence[LinkEvent] = (),
 ) -> Recording:
-    """Store ``data`` as a recording (with the axes' machine data when given)."""
+    """Store ``data`` as a recording (with the axes' machine data when given, and
+    ``events``)."""
     period = period_s if period_s is not None else float(np.median(np.diff(data.time_s)))
     with RecordingWriter.create(
         directory,
@@ -87,6 +89,8 @@ def write(
         for begin in range(0, len(data.time_s), 100_000):
             end = begin + 100_000
             writer.append(SampleBlock(data.time_s[begin:end], data.values[begin:end]))
+        for event in events:
+            writer.add_event(event)
     return Recording.open(directory)
 
 

@@ -18,7 +18,7 @@ import pytest
 
 from ncmeasure.analysis.analyze import analyze
 from ncmeasure.errors import RecordingError
-from ncmeasure.samples import Channel
+from ncmeasure.samples import Channel, LinkEvent
 from ncmeasure.sim.rig import rig_mechanics
 from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities
 from tests.analysis.real_data import Data, decimate, measure, window_rows, write
@@ -302,6 +302,27 @@ def test_lost_samples_are_counted_and_said(tmp_path: Path) -> None:
     assert 30 <= info.gaps <= 40
     assert info.gap_share == pytest.approx(lost / len(keep))
     assert any(f"{lost} samples lost" in w for w in results.axes["X"].warnings)
+
+
+def test_skipped_cycles_are_said_apart_as_a_share(tmp_path: Path) -> None:
+    """Cycles the link skipped (the host fell behind) are lost samples, and said apart."""
+    data = measure([TWO[0]])
+    keep = np.ones(len(data.time_s), dtype=bool)
+    keep[1000:1100] = False
+    gap = LinkEvent(
+        float(data.time_s[1000]), "gap", "100 samples dropped: 100 SYNC cycles not sent",
+        lost_samples=100, details={"missing_sync": 100, "skipped_cycles": 100},
+    )  # fmt: skip
+    rows = data.rows(keep)
+    results = analyze(write(tmp_path / "rec", rows, [TWO[0]], period_s=0.004, events=[gap]))
+    info = results.recording
+    assert (info.gap_samples, info.skipped_cycles) == (100, 100)
+    share = 100 / len(keep) * 100
+    assert any(
+        f"100 of them cycles the link skipped because the host fell behind ({share:.2g} % of "
+        "the recording): it sampled at " in w
+        for w in results.axes["X"].warnings
+    ), results.axes["X"].warnings
 
 
 # --- 12. "no value" codes ------------------------------------------------------------------

@@ -11,6 +11,8 @@ tests run in real time and assert only what holds however late the host is.
 
 from __future__ import annotations
 
+import os
+import sys
 import threading
 import time
 import uuid
@@ -25,6 +27,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from ncmeasure.acquire import Progress, acquire
 from ncmeasure.config import AxisConfig
 from ncmeasure.errors import ConfigError, LinkError, LinkTimeoutError
 from ncmeasure.links import REAL_TIME, make_link
@@ -37,7 +40,8 @@ from ncmeasure.links.canopen.objects import (
     sdo_error_text,
 )
 from ncmeasure.links.canopen.settings import CanOpenAxis
-from ncmeasure.links.canopen.sync import CycleAssembler, run_sync_schedule
+from ncmeasure.links.canopen.sync import CycleAssembler, raise_priority, run_sync_schedule
+from ncmeasure.recording import RecordingWriter, read_recording
 from ncmeasure.samples import LinkClock, LinkEvent, SimulatedClock
 from ncmeasure.sim.cia402 import DriveScaling, SimulatedDrive, SimulatedDrives
 from ncmeasure.sim.rig import rig_mechanics
@@ -1113,6 +1117,54 @@ def test_sync_schedule_keeps_the_period_on_average_through_late_wake_ups() -> No
     assert np.all(times - cycles * period < period)  # late, never drifting
 
 
+def test_the_sync_thread_asks_for_real_time_priority_and_a_short_switch_interval(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Granted: SCHED_FIFO for the calling thread and the GIL handed over within half a
+    period, the interval restored after; 0 asks for nothing."""
+    asked: list[tuple[int, int, int]] = []
+
+    def setscheduler(pid: int, policy: int, param: os.sched_param) -> None:
+        asked.append((pid, policy, param.sched_priority))
+
+    monkeypatch.setattr(os, "sched_setscheduler", setscheduler)
+    before = sys.getswitchinterval()
+    assert before > 0.0005
+    refused, restore = raise_priority(20, 0.001)
+    try:
+        assert refused is None and asked == [(0, os.SCHED_FIFO, 20)]
+        assert sys.getswitchinterval() == pytest.approx(0.0005)
+    finally:
+        restore()
+    assert sys.getswitchinterval() == before
+    assert raise_priority(0, 0.001)[0] is None and len(asked) == 1
+
+
+def test_a_refused_priority_is_an_info_event_and_the_link_records_on(
+    channel: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Without the right to real-time priority the link says so once and goes on."""
+
+    def refuse(pid: int, policy: int, param: os.sched_param) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    before = sys.getswitchinterval()
+    with SimulatedDrives.start(channel, {0: 1}, SOURCE, scaling=SCALING):
+        link = make(channel, n_axes=1)
+        with link:
+            rec = Recorder(link)
+            rec.rows_at_least(10)
+        rec.events += link.events()
+    notes = [e.message for e in rec.kinds("info") if "normal priority" in e.message]
+    assert notes == [
+        "the SYNC thread runs at normal priority: real-time priority 20 refused (Operation "
+        "not permitted); allow it with an rtprio limit (limits.conf) or CAP_SYS_NICE, or set "
+        "link.sync_priority = 0; on a busy host it skips cycles (counted as gaps)"
+    ]
+    assert sys.getswitchinterval() == before  # left alone when refused
+
+
 def assert_gaps_cover_missing_rows(rec: Recorder) -> None:
     """From the first row on, the gap events cover exactly the cycles without a row.
 
@@ -1167,6 +1219,56 @@ def test_a_stalled_sync_producer_reports_the_cycles_it_skipped(channel: str) -> 
     assert reported <= stats["lost_no_sync"] <= stats["sync_skipped"]  # seen: counted as lost
     assert np.all(np.diff(rec.cycles) > 0)  # rows in order, none repeated
     assert_gaps_cover_missing_rows(rec)
+
+
+class StallOnceClock(StallClock):
+    """Real time that jumps ``stall_s`` ahead once ``after_s`` have passed: a host stall at a
+    set point, whatever the load."""
+
+    __slots__ = ("after_s", "stall_s", "start_s")
+
+    def __init__(self, after_s: float, stall_s: float) -> None:
+        super().__init__()
+        self.after_s, self.stall_s = after_s, stall_s
+        self.start_s: float | None = None
+
+    def now(self) -> float:
+        real = time.perf_counter()
+        if self.start_s is None:
+            self.start_s = real
+        elif not self.jumped.is_set() and real - self.start_s > self.after_s:
+            self.stall(self.stall_s)
+        return real + self.offset_s
+
+
+def test_skipped_sync_cycles_are_a_share_of_the_recording(channel: str, tmp_path: Path) -> None:
+    """The cycles a stalled producer skipped are counted in the gap events and in the
+    recording's metadata as a share of the recording, apart from other losses."""
+    clock = StallOnceClock(after_s=0.3, stall_s=0.2)  # 50 cycles at 250 Hz
+    with SimulatedDrives.start(channel, {0: 1}, SOURCE, scaling=SCALING):
+        link = make(channel, n_axes=1)
+        link.use_clock(clock)
+        with link:
+            writer = RecordingWriter.create(
+                tmp_path / "run", link.channels, nominal_period_s=link.nominal_period_s
+            )
+            seen: list[Progress] = []
+            result = acquire(
+                link, writer, duration_s=1.0, on_progress=seen.append, progress_interval_s=0.0
+            )
+            stats = link.statistics()
+    assert clock.jumped.is_set()
+    gaps = [e for e in result.events if e.kind == "gap"]
+    skipped = sum(e.details["skipped_cycles"] for e in gaps)
+    # a busy host may skip more; every one seen on the bus is counted, the stall's 49 at least
+    assert 49 <= skipped <= stats["lost_no_sync"] <= stats["sync_skipped"]
+    assert result.skipped_cycles == skipped
+    assert result.skipped_share == pytest.approx(skipped / (result.rows + result.lost_samples))
+    meta = read_recording(tmp_path / "run").meta
+    assert meta.skipped_cycles == skipped
+    assert meta.skipped_share == pytest.approx(result.skipped_share)
+    assert meta.lost_samples is not None and meta.lost_samples >= skipped  # within the lost
+    assert seen[-1].skipped_cycles == skipped  # the live display shows them too
 
 
 def test_block_reads_deliver_every_row_in_order(channel: str) -> None:

@@ -635,6 +635,22 @@ def test_gaps_are_visible_in_the_header(healthy: Results, tmp_path: Path) -> Non
     )
     page = _text(write_report(many, tmp_path / "r.html"))
     assert '<span class="lost-many">complete, 300 gaps: 5000 samples, 18.0 % lost</span>' in page
+    skipping = healthy.model_copy(
+        update={
+            "recording": info.model_copy(
+                update={
+                    "gaps": 2, "gap_samples": 324, "gap_share": 324 / (samples + 324),
+                    "skipped_cycles": 300,
+                }
+            )
+        }
+    )  # fmt: skip
+    page = _text(write_report(skipping, tmp_path / "r.html"))
+    skipped = 300 / (samples + 324) * 100
+    assert (
+        f"<dd>complete, 2 gaps: 324 samples, {share:.1f} % lost; 300 cycles of them skipped "
+        f"by the link (the host fell behind), {skipped:.1f} % of the recording</dd>"
+    ) in _without_details(_before_first_axis(page))
 
 
 def test_notes_are_folded_away_with_their_count(report: Path, example: Example) -> None:

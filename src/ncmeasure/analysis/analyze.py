@@ -27,7 +27,7 @@ from collections.abc import Iterable, Sequence
 from typing import Protocol
 
 from ncmeasure.analysis.axis import Progress
-from ncmeasure.analysis.reading import RecordingPasses
+from ncmeasure.analysis.reading import RecordingPasses, skipped_cycles
 from ncmeasure.analysis.windows.settings import SegmentSettings
 from ncmeasure.analysis.windows.watch import AxisWindows, OnWindows, Watchers
 from ncmeasure.config import MachineConfig
@@ -271,6 +271,14 @@ def results_of(
             f"{gap_samples} samples lost in {gaps} gap(s) ({gap_share * 100:.2g} % of the "
             "recording): windows in them are shorter or missing"
         )
+    not_served = skipped_cycles(head.events)
+    if not_served:
+        common.append(
+            f"{not_served} of them cycles the link skipped because the host fell behind "
+            f"({not_served / total * 100:.2g} % of the recording): it sampled at "
+            f"{(1 - not_served / total) / head.meta.nominal_period_s:.0f} Hz instead of "
+            f"{1 / head.meta.nominal_period_s:.0f} Hz"
+        )
     results: dict[str, AxisResult] = {}
     skipped: dict[str, str] = {}
     details: list[str] = []
@@ -342,6 +350,7 @@ def _results(
             gap_samples=gap_samples,
             gap_share=gap_samples / total if total else 0.0,
             gap_events=gap_events,
+            skipped_cycles=skipped_cycles(head.events),
         ),
         settings=settings.model_dump(),
         axes=axes,

@@ -57,7 +57,7 @@ from ncmeasure.recording import SAMPLES_FILE, Recording, RecordingHead, RowChunk
 from ncmeasure.samples import LinkEvent
 from ncmeasure.validity import Implausible
 
-__all__ = ["RecordingPasses", "recording_gaps"]
+__all__ = ["RecordingPasses", "recording_gaps", "skipped_cycles"]
 
 
 def recording_gaps(recording: Recording) -> tuple[int, int, int]:
@@ -77,6 +77,12 @@ def recording_gaps(recording: Recording) -> tuple[int, int, int]:
     counter.feed(recording.time_s)
     holes, lost = counter.finish()
     return _with_events(holes, lost, recording.events)
+
+
+def skipped_cycles(events: Sequence[LinkEvent]) -> int:
+    """Of the samples the gap events lost, the cycles the link skipped because the host
+    fell behind (their ``skipped_cycles``: SYNC cycles a CANopen producer could not send)."""
+    return sum(int(e.details.get("skipped_cycles", 0)) for e in events if e.kind == "gap")
 
 
 def segment_starts(events: Sequence[LinkEvent]) -> NDArray[np.float64]:

@@ -47,6 +47,7 @@ from ncmeasure.cli.record import (
     SetOption,
     SyncHz,
     Units,
+    skipped_message,
 )
 from ncmeasure.errors import ConfigError, LinkError, NcMeasureError, OutputError, RecordingError
 
@@ -327,6 +328,8 @@ def _measure_once(job: _Job, out: Path, stop: threading.Event) -> _RunEnd:
         )
     if acquisition.gaps:
         warn(f"{acquisition.lost_samples} samples lost in {acquisition.gaps} gap(s)")
+    if acquisition.skipped_cycles:
+        warn(skipped_message(acquisition))
     status, measurement = _evaluate(job, out, recording, watch)
     return _RunEnd("stored", status, rows, True, measurement, windows)
 

@@ -269,8 +269,9 @@ def _progress_table(progress: "Progress") -> "Table":
         ]
         table.add_row(axis, *("—" if v is None else f"{v:.3f}" for v in values))
     table.caption = (
-        f"gaps {progress.gaps} ({progress.lost_samples} samples lost) · "
-        f"faults {progress.faults}"
+        f"gaps {progress.gaps} ({progress.lost_samples} samples lost"
+        + (f", {progress.skipped_cycles} cycles skipped" if progress.skipped_cycles else "")
+        + f") · faults {progress.faults}"
         + (f" · last: {progress.last_event}" if progress.last_event else "")
     )
     return table
@@ -309,6 +310,24 @@ def _print_recorded(result: "AcquisitionResult", quiet: bool) -> None:
             f"{100 * result.lost_share:.2g} % of the recording; the gap events in "
             f"{result.directory} say when and why, and the analysis reports them"
         )
+    skipped = skipped_message(result)
+    if skipped:
+        warn(skipped)
+
+
+def skipped_message(result: "AcquisitionResult") -> str:
+    """The cycles the link skipped as a share of the recording and the rate it reached
+    ("" when none were skipped): never hidden among the lost samples."""
+    if not result.skipped_cycles:
+        return ""
+    text = (
+        f"{result.skipped_cycles} cycles skipped by the link (the host fell behind): "
+        f"{100 * result.skipped_share:.2g} % of the recording"
+    )
+    achieved = result.achieved_rate_hz
+    if achieved is not None and result.nominal_period_s:
+        text += f", {achieved:.0f} Hz instead of {1 / result.nominal_period_s:.0f} Hz"
+    return text
 
 
 def ended_message(result: "AcquisitionResult") -> str:

@@ -358,6 +358,11 @@ class RecordingInfo(_Model):
     gap_samples: int = Field(default=0, description="Samples lost in them.")
     gap_share: float = Field(default=0.0, description="gap_samples / (samples + gap_samples).")
     gap_events: int = Field(default=0, description="Gap events the link reported.")
+    skipped_cycles: int = Field(
+        default=0,
+        description="Of gap_samples, the cycles the link skipped because the host fell behind "
+        "(SYNC cycles a CANopen producer could not send in time).",
+    )
 
 
 class Results(FileHeader):

@@ -69,9 +69,16 @@ _FIXED_FIELDS = frozenset(
         "samples",
         "gaps",
         "lost_samples",
+        "skipped_cycles",
+        "skipped_share",
         "ncmeasure_version",
     }
 )
+
+
+def _share(part: int, whole: int) -> float:
+    """``part`` of ``whole`` (0 … 1), 0 when there is nothing."""
+    return part / whole if whole else 0.0
 
 
 def _write_all(file: IO[bytes], data: bytes | memoryview) -> None:
@@ -412,6 +419,7 @@ class RecordingWriter:
         self._rows_appended = 0
         self._gaps = 0
         self._lost_samples = 0
+        self._skipped_cycles = 0
         self._closed = False
         self._error: RecordingError | None = None
         self.moved_aside: Path | None = None
@@ -606,6 +614,7 @@ class RecordingWriter:
             if event.kind == "gap":
                 self._gaps += 1
                 self._lost_samples += int(event.lost_samples)
+                self._skipped_cycles += int(event.details.get("skipped_cycles", 0))
 
     def flush(self) -> None:
         """Write the buffered rows as one frame and the buffered events, then fsync.
@@ -670,6 +679,10 @@ class RecordingWriter:
                     "samples": self._files.rows_written,
                     "gaps": self._gaps,
                     "lost_samples": self._lost_samples,
+                    "skipped_cycles": self._skipped_cycles,
+                    "skipped_share": _share(
+                        self._skipped_cycles, self._files.rows_written + self._lost_samples
+                    ),
                 }
             )
             meta_error: RecordingError | None = None

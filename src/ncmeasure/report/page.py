@@ -36,7 +36,7 @@ from ncmeasure.analysis.judgement.summary import (
     axis_comparison,
     axis_headline,
 )
-from ncmeasure.analysis.reading import recording_gaps
+from ncmeasure.analysis.reading import recording_gaps, skipped_cycles
 from ncmeasure.formats.comparison import Comparison
 from ncmeasure.formats.results import AxisResult, ModelName, Results
 from ncmeasure.recording import Recording, RecordingHead
@@ -138,6 +138,7 @@ def _recording_facts(results: Results, recording: Recording | RecordingHead | No
     info = results.recording
     samples, duration_s, status = info.samples, info.duration_s, info.status
     gaps, lost, share, events = info.gaps, info.gap_samples, info.gap_share, info.gap_events
+    skipped = info.skipped_cycles
     if samples is None and isinstance(recording, Recording):
         samples = len(recording)
         duration_s = float(recording.time_s[-1] - recording.time_s[0]) if samples else 0.0
@@ -145,6 +146,7 @@ def _recording_facts(results: Results, recording: Recording | RecordingHead | No
         gaps, lost, events = recording_gaps(recording)
         total = samples + lost
         share = lost / total if total else 0.0
+        skipped = skipped_cycles(recording.events)
     facts = []
     if samples is not None:
         text = f"{samples}"
@@ -163,6 +165,11 @@ def _recording_facts(results: Results, recording: Recording | RecordingHead | No
         text = f"{status or 'status unknown'}, {loss}"
         if events and events != gaps:
             text += f" (the link reported {plural(events, 'gap event')})"
+        if skipped and samples is not None:
+            text += (
+                f"; {plural(skipped, 'cycle')} of them skipped by the link (the host fell "
+                f"behind), {share_percent(skipped / max(1, samples + lost))} of the recording"
+            )
         facts.append(Fact("Status", text, css="lost-many" if share > GAP_SHARE_HIGHLIGHT else ""))
     return facts
 

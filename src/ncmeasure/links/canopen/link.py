@@ -348,6 +348,8 @@ class CanOpenLink(DriveLink):
                 started=self._started,
                 failed=self._fail,
                 step_timeout_s=self.STEP_TIMEOUT_S,
+                priority=self.settings.sync_priority,
+                noted=lambda text: self._event(LinkEvent(self._cycles.time(), "info", text)),
             )
             if echo is False:
                 self._use_send_times()
@@ -912,6 +914,7 @@ class _Cycles:
                     "axes": [a.name for a in axes],
                     "nodes": [a.node_id for a in axes],
                     "missing_sync": gap.no_sync,
+                    "skipped_cycles": gap.no_sync if self._produces_sync else 0,
                     "doubled": gap.doubled,
                 },
             )

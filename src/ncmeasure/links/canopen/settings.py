@@ -68,6 +68,15 @@ class CanOpenSettings(LinkSettings):
         default=True,
         description="Produce SYNC; false when the controller or another master produces it.",
     )
+    sync_priority: int = Field(
+        default=20,
+        ge=0,
+        le=99,
+        description="Real-time priority of the link's SYNC thread (Linux SCHED_FIFO, 1-99), "
+        "so that a busy host does not make it skip cycles; 0: normal scheduling. Needs root, "
+        "CAP_SYS_NICE or an rtprio limit; where refused, an info event says so and the thread "
+        "runs at normal priority.",
+    )
     sync_echo: bool | None = Field(
         default=None,
         description="Whether the interface returns the link's own SYNC frames (python-can "
