@@ -33,7 +33,7 @@ from ncmeasure.store.rows import (
     decompress,
     results_digest,
 )
-from ncmeasure.store.writing import add_measurement, find_machine
+from ncmeasure.store.writing import add_measurements, find_machine
 
 __all__ = ["REFRESH_BATCH", "Store", "open_store"]
 
@@ -49,6 +49,8 @@ class Store:
         self.url = url
         self.write = write
         """Opened for writing: reading may keep what it computed (the overview's changes)."""
+        self._kept_results: dict[int, Results] = {}
+        """Stored results read back while adding (baselines), for the next batch."""
 
     @property
     def where(self) -> str:
@@ -94,9 +96,10 @@ class Store:
     def add_many(self, measurements: Iterable[tuple[Results, MeasurementInfo]]) -> list[Added]:
         """Store several measurements in one transaction: all of them or none.
 
-        For loading many at once (a script filling a store): one commit instead of one
-        per measurement. Each is stored as :meth:`add` stores it; then each machine's
-        change since its baseline (:func:`~ncmeasure.store.changes.record_changes`).
+        For loading many at once (a script filling a store, ``store import``): one commit
+        instead of one per measurement, a few statements per table for the whole batch.
+        Each is stored as :meth:`add` stores it; then, once per machine, its change since
+        its baseline (:func:`~ncmeasure.store.changes.record_changes`).
 
         Raises:
             ConfigError: Invalid info, or results of another machine (nothing stored).
@@ -111,8 +114,8 @@ class Store:
         with self.writing(
             "add the measurement" if len(prepared) == 1 else "add measurements"
         ) as db:
-            added = [add_measurement(db, *one) for one in prepared]
-            record_changes(db, [a.serial for a in added])
+            added, fresh = add_measurements(db, prepared)
+            record_changes(db, sorted({a.serial for a in added}), fresh, self._kept_results)
             return added
 
     def refresh_changes(
