@@ -433,18 +433,18 @@ def record_changes(
     latest: dict[int, int] = {}
     history: dict[int, list[Any]] = {}
     for chunk in _chunks_of(ids):
-        for row in db.execute(
+        for found in db.execute(
             select(t.machines.c.id, t.machines.c.latest_measurement_id).where(
                 t.machines.c.id.in_(chunk), t.machines.c.latest_measurement_id.is_not(None)
             )
         ):
-            latest[int(row.id)] = int(row.latest_measurement_id)
-        for measured in db.execute(
+            latest[int(found.id)] = int(found.latest_measurement_id)
+        for row in db.execute(
             select(*_SUMMARY_COLUMNS, m.c.machine_id)
             .where(m.c.machine_id.in_(chunk))
             .order_by(m.c.machine_id, m.c.measured_utc, m.c.id)
         ):
-            history.setdefault(int(measured.machine_id), []).append(measured)
+            history.setdefault(int(row.machine_id), []).append(row)
     pairs: dict[tuple[int, int], tuple[Any, Any]] = {}
     for machine_id, latest_id in latest.items():
         measured = history.get(machine_id)
@@ -472,13 +472,13 @@ def record_changes(
 
     for latest_id, baseline_id in todo:
         newest, baseline = pairs[(latest_id, baseline_id)]
-        found = compare_with_baseline(
+        change = compare_with_baseline(
             _summary(baseline, verdicts),
             results(baseline_id),
             _summary(newest, verdicts),
             results(latest_id),
         )
-        store_change(db, latest_id, baseline_id, found)
+        store_change(db, latest_id, baseline_id, change)
     return len(todo)
 
 
