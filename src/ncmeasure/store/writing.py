@@ -22,7 +22,7 @@ from ncmeasure.store import schema as t
 from ncmeasure.store.records import Added, MeasurementInfo, utc_text
 from ncmeasure.store.rows import compress, rows_of_axis
 
-__all__ = ["add_measurements", "find_machine", "insert_ignore"]
+__all__ = ["add_measurements", "find_machine", "insert_ignore", "machine_ids"]
 
 _CHUNK = 500  # values per IN (...) query: far below every database's parameter limit
 
@@ -60,6 +60,15 @@ class _Machine:
     id: int
     type_name: str
     site: str | None
+
+
+def machine_ids(db: Connection, serials: Sequence[str]) -> list[int]:
+    """The ids of the machines of these serials (those in the store), sorted."""
+    return sorted(
+        int(i)
+        for chunk in _chunks(sorted(set(serials)))
+        for i in db.execute(select(t.machines.c.id).where(t.machines.c.serial.in_(chunk))).scalars()
+    )
 
 
 def _stored(db: Connection, digests: Sequence[str]) -> dict[str, tuple[int, str]]:
