@@ -74,7 +74,7 @@ there is no diagnosis of the change)."""
 
 _CHUNK = 500  # pairs per query: far below every database's parameter limit
 
-_KEPT = 256
+_KEPT = 64
 """Results read back that :func:`record_changes` keeps for the next batch (baselines)."""
 
 TEMPERATURE_WARNING_K = 5.0
