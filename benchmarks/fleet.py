@@ -12,8 +12,10 @@ directions, ``--measurements`` per machine, default 2) is added through the stor
 - per CLI command (run as ``python -m ncmeasure``, as a user runs it): wall and CPU time
   of the process, its peak memory and the output's size; beside them ``python -c pass``;
 - per REST endpoint and dashboard page (the application in this process, through
-  FastAPI's test client): wall and CPU of the first request and the median of the
-  following ones, the peak of Python's allocations, and the response's size;
+  FastAPI's test client): wall and CPU of the median of the requests after the first
+  (the application caches per store version), and of the first, which the goal and
+  the growth judge (it is the one after every change of the store), the peak of
+  Python's allocations, and the response's size;
 - the growth of each from the second-largest fleet to the largest.
 
 The goals (docs/performance.md): at 10,000 machines every CLI command ≤ 2 s, every page
@@ -230,13 +232,14 @@ def _web(label: str, url: str, serial: str, rounds: int, figures: Figures) -> No
             peak = tracemalloc.get_traced_memory()[1] / 2**20
             tracemalloc.stop()
             size = first[2] / 1e3
-            met = "met" if cpu <= PAGE_GOAL_S and size <= PAGE_GOAL_KB else "NOT met"
+            # judged on the first request: the one after every change of the store
+            met = "met" if first[0] <= PAGE_GOAL_S and size <= PAGE_GOAL_KB else "NOT met"
             print(
                 f"    web  {name:<32} {cpu:7.3f} s CPU {wall:7.3f} s wall (first {first[0]:.3f} "
                 f"s CPU) {peak:6.1f} MiB {size:8.1f} kB (goal ≤ {PAGE_GOAL_S} s, ≤ "
                 f"{PAGE_GOAL_KB:.0f} kB: {met})"
             )
-            figures[(label, f"web  {name}")] = cpu, wall
+            figures[(label, f"web  {name}")] = first[0], first[1]
 
 
 def _request(client: object, path: str) -> tuple[float, float, int]:
