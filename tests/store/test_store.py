@@ -194,8 +194,8 @@ def test_a_failed_add_leaves_nothing(
 
     original = writing._add_axes
 
-    def failing(db, machine_id, measurement_id, results):  # type: ignore[no-untyped-def]
-        original(db, machine_id, measurement_id, results)  # every row is written ...
+    def failing(db, *rest):  # type: ignore[no-untyped-def]
+        original(db, *rest)  # every row is written ...
         assert db.execute(select(func.count()).select_from(t.points)).scalar_one() > 0
         raise ConfigError("injected failure after the rows")  # ... and then it fails
 

@@ -56,6 +56,29 @@ def test_lists_every_machine_with_its_latest_verdicts(api: httpx.Client) -> None
     assert machines["M-100"]["machine_type"] == "synthetic"
 
 
+def test_lists_go_in_pages(api: httpx.Client) -> None:
+    first = api.get("/api/v1/machines", params={"limit": 3})
+    assert [m["serial"] for m in first.json()] == ["M-100", "M-101", "M-102"]
+    assert first.headers["x-total-count"] == "4"
+    assert first.headers["x-next-cursor"] == "M-102"
+    assert first.headers["link"].endswith('?limit=3&cursor=M-102>; rel="next"')
+    last = api.get("/api/v1/machines", params={"limit": 3, "cursor": "M-102"})
+    assert [m["serial"] for m in last.json()] == ["M-103"]
+    assert "x-next-cursor" not in last.headers and "link" not in last.headers
+    found = api.get("/api/v1/machines", params={"search": "HALL 1"})
+    assert [m["serial"] for m in found.json()] == ["M-100", "M-101"]
+    assert found.headers["x-total-count"] == "2"
+    assert api.get("/api/v1/machines", params={"search": "%"}).json() == []  # not a pattern
+    measured = api.get("/api/v1/machines/M-100/measurements", params={"limit": 1})
+    (one,) = measured.json()
+    assert measured.headers["x-total-count"] == "2"
+    assert measured.headers["x-next-cursor"] == str(one["id"])
+    rest = api.get("/api/v1/machines/M-100/measurements", params={"limit": 1, "cursor": one["id"]})
+    assert [m["label"] for m in rest.json()] == ["service"] and "link" not in rest.headers
+    for bad in ({"limit": 0}, {"limit": 1001}):
+        assert "limit" in _one_line_error(api.get("/api/v1/machines", params=bad), 422)
+
+
 def test_shows_a_machine_with_its_measurements(api: httpx.Client, fleet: Fleet) -> None:
     found = api.get("/api/v1/machines/M-100")
     assert found.status_code == 200

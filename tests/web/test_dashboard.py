@@ -61,6 +61,30 @@ def test_the_grid_shows_every_machine_and_axis(browser: httpx.Client) -> None:
     assert str(escape(SCRIPT_SITE)) in page
 
 
+def _serials(page: str) -> list[str]:
+    return re.findall(r'<tr>\s*<td><a href="/machines/([^"]+)"><strong>', page)
+
+
+def test_the_grid_goes_in_pages_and_finds_machines(browser: httpx.Client) -> None:
+    first = browser.get("/", params={"limit": 2}).text
+    assert _serials(first) == ["M-100", "M-101"]
+    assert "2 of 4 machines, status per axis" in first
+    (following,) = re.findall(r'<a href="([^"]+)" rel="next">', first)
+    assert following == "/?limit=2&amp;after=M-101"
+    second = browser.get("/", params={"limit": 2, "after": "M-101"}).text
+    assert _serials(second) == ["M-102", "M-103"]
+    assert 'rel="next"' not in second and '<a href="/?limit=2">first page</a>' in second
+    # the search: serial, type or site, any case; the status: the machine's
+    assert _serials(browser.get("/", params={"q": "hall 1"}).text) == ["M-100", "M-101"]
+    found = browser.get("/", params={"status": "critical"}).text
+    assert _serials(found) == ["M-101"] and "1 machine that match" in found
+    assert 'value="hall 1"' in browser.get("/", params={"q": "hall 1"}).text
+    none = browser.get("/", params={"q": "nowhere"}).text
+    assert _serials(none) == [] and "No machine matches" in none
+    assert browser.get("/", params={"limit": 0}).status_code == 422
+    assert browser.get("/", params={"status": "bad"}).status_code == 422
+
+
 def test_pages_forbid_scripts_and_keep_the_token_out_of_referrers(browser: httpx.Client) -> None:
     headers = browser.get("/").headers
     assert "default-src 'none'" in headers["content-security-policy"]

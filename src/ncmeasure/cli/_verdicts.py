@@ -1,5 +1,6 @@
 """Verdicts, changes and warnings on the console: what analyze, compare and demo print."""
 
+from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 from ncmeasure.cli._app import console
@@ -33,7 +34,7 @@ def verdict_line(name: str, headline: "Headline") -> "Text":
     return line
 
 
-def verdict_text(verdicts: dict[str, str]) -> "Text":
+def verdict_text(verdicts: Mapping[str, str]) -> "Text":
     """``X ok Z fault``, each level in its colour (the store's tables)."""
     from rich.text import Text
 

@@ -3,7 +3,7 @@
 import contextlib
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -20,6 +20,10 @@ from ncmeasure.cli._options import (
 )
 from ncmeasure.cli._verdicts import LEVEL_STYLE, verdict_text
 from ncmeasure.errors import ConfigError
+
+if TYPE_CHECKING:
+    from ncmeasure.store import Store
+    from ncmeasure.store.summaries import MachinePage
 
 SerialArgument = Annotated[str, typer.Argument(help="The machine's serial number.")]
 
@@ -92,20 +96,92 @@ def store_add_command(
 
 @store_app.command("list")
 @handle_errors
-def store_list_command(store: StoreOption = None) -> None:
-    """The machines in the store: type, site, measurements, the latest verdicts."""
+def store_list_command(
+    store: StoreOption = None,
+    limit: Annotated[
+        int,
+        typer.Option(help="Machines per page (1 to 1000); the rest are counted.", min=1),
+    ] = 100,
+    after: Annotated[
+        str | None,
+        typer.Option(
+            metavar="SERIAL", help="Start after this serial (the next page: the line below)."
+        ),
+    ] = None,
+    search: Annotated[
+        str | None,
+        typer.Option(metavar="TEXT", help="Only machines whose serial, type or site holds TEXT."),
+    ] = None,
+    status: Annotated[
+        str | None,
+        typer.Option(metavar="STATUS", help="Only machines of this status: ok, warning, critical."),
+    ] = None,
+    as_json: Annotated[
+        bool,
+        typer.Option("--json", help="Print the page as JSON: machines, total, next_cursor."),
+    ] = False,
+) -> None:
+    """The machines in the store by serial, a page at a time: type, site, measurements, the
+    latest verdicts.
+
+    Example: ncmeasure store list --search HMX --status critical --limit 20
+    """
+    import json
+
+    from ncmeasure.store.summaries import MAX_PAGE
+
+    if limit > MAX_PAGE:
+        raise ConfigError(f"--limit {limit}: a page holds 1 to {MAX_PAGE} machines")
+    if status is not None and status not in _STATUS_STYLE:
+        raise ConfigError(f"--status {status}: one of {', '.join(_STATUS_STYLE)}")
+    with open_store(store, write=False) as fleet:
+        statuses = None if status is None else _statuses(fleet)
+        page = fleet.machine_page(
+            limit=limit, after=after, search=search, status=status, statuses=statuses
+        )
+        where = fleet.where
+    if as_json:
+        found = {
+            "machines": [m.model_dump(mode="json") for m in page.machines],
+            "total": page.total,
+            "next_cursor": page.next_cursor,
+        }
+        sys.stdout.write(json.dumps(found, indent=2) + "\n")
+        return
+    _print_page(page, where, limit, filtered=bool(search or status))
+
+
+def _statuses(fleet: "Store") -> dict[str, str] | None:
+    """The machines' statuses where the stored ones are not current (None: they are)."""
+    from ncmeasure.store.overview import fleet_overview
+    from ncmeasure.store.summaries import statuses_current
+
+    with fleet.reading("read the statuses") as db:
+        if statuses_current(db):
+            return None
+    warn(
+        "the stored statuses are older than the fleet's latest measurements: judged the "
+        "whole fleet now (`ncmeasure store refresh` stores them, for fast lists)"
+    )
+    return {m.serial: m.status for m in fleet_overview(fleet).machines}
+
+
+def _print_page(page: "MachinePage", where: str, limit: int, *, filtered: bool) -> None:
     from rich.table import Table
 
-    with open_store(store, write=False) as fleet:
-        machines = fleet.machines()
-        where = fleet.where
-    if not machines:
-        console().print(f"no machines in {where}")
+    if not page.machines:
+        console().print(f"no machines{' that match' if filtered else ''} in {where}")
         return
-    table = Table(title=f"{len(machines)} machine(s) in {where}", title_justify="left")
+    shown = len(page.machines)
+    title = (
+        f"{page.total} machine(s) in {where}"
+        if shown == page.total
+        else f"{shown} of {page.total} machine(s){' that match' if filtered else ''} in {where}"
+    )
+    table = Table(title=title, title_justify="left")
     for column in ("serial", "type", "site", "measurements", "latest", "label", "verdicts"):
         table.add_column(column)
-    for m in machines:
+    for m in page.machines:
         table.add_row(
             m.serial,
             m.machine_type,
@@ -116,6 +192,10 @@ def store_list_command(store: StoreOption = None) -> None:
             verdict_text(m.latest_verdicts),
         )
     console().print(table)
+    if page.next_cursor is not None:
+        console().print(
+            f"more after {page.next_cursor}: --after {page.next_cursor} (--limit {limit})"
+        )
 
 
 @store_app.command("show")
@@ -266,6 +346,15 @@ def store_report_command(
         int,
         typer.Option(min=0, max=200, help="Trend plots of the axes that moved most."),
     ] = 12,
+    machines: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            max=10_000,
+            help="The most machines in the grid; a larger fleet lists those that need "
+            "attention, the most severe first.",
+        ),
+    ] = 500,
     warning: WarningOption = None,
     critical: CriticalOption = None,
     store: StoreOption = None,
@@ -300,6 +389,7 @@ def store_report_command(
             overview,
             output,
             trends=trends,
+            grid=machines,
             progress=None if update is None else lambda d, n: update("trend plots", d / n),
         )
     counts = ", ".join(f"{overview.count(s)} {s}" for s in ("ok", "warning", "critical"))
@@ -331,7 +421,9 @@ def store_refresh_command(
     lacks them: every reading of the fleet then compares those machines again, which is
     slow for a large fleet, and logs how many. This command compares them once and
     stores the result, 50 machines per transaction (an interrupted run keeps what it
-    did; run it again to go on). The status does not change, only how fast it is read.
+    did; run it again to go on). Then it rebuilds each machine's summary row and judges
+    every machine's status in the fleet as it is now, which `store list --status` and
+    the counts read. The status does not change, only how fast it is read.
 
     Example: ncmeasure store refresh --store postgresql://ncm@db/fleet
     """
@@ -344,8 +436,12 @@ def store_refresh_command(
             every=every,
             progress=None if update is None else lambda d, n: update("comparing", d / n),
         )
+        if update is not None:
+            update("judging the fleet", None)
+        summarised = fleet.refresh_summaries()
         where = fleet.where
     console().print(f"stored the change since the baseline of {done} machine(s) in {where}")
+    console().print(f"summarised {summarised} machine(s) and their status")
 
 
 @store_app.command("export")

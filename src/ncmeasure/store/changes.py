@@ -22,7 +22,7 @@ row at once (:func:`stale_machines`, :func:`refresh_machine`).
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Iterable, Mapping, Sequence
+from collections.abc import Collection, Iterable, Mapping, MutableMapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol, TypeVar
 
@@ -73,6 +73,9 @@ rules (the baseline does not count); or no point matched (the baseline's figures
 there is no diagnosis of the change)."""
 
 _CHUNK = 500  # pairs per query: far below every database's parameter limit
+
+_KEPT = 64
+"""Results read back that :func:`record_changes` keeps for the next batch (baselines)."""
 
 TEMPERATURE_WARNING_K = 5.0
 """Temperatures further apart than this make a comparison doubtful: the lubricant's
@@ -278,42 +281,46 @@ def verdicts_of(db: Connection, measurement_ids: Sequence[int]) -> dict[int, dic
     return found
 
 
+_SUMMARY_COLUMNS = (
+    t.measurements.c.id,
+    t.measurements.c.measured_utc,
+    t.measurements.c.label,
+    t.measurements.c.operator,
+    t.measurements.c.temperature_c,
+    t.measurements.c.operating_hours,
+    t.measurements.c.link,
+    t.measurements.c.config_hash,
+    t.measurements.c.ncmeasure_version,
+    t.measurements.c.recording_location,
+)
+
+
+def _summary(row: Any, verdicts: Mapping[int, dict[str, str]]) -> MeasurementSummary:
+    return MeasurementSummary(
+        id=row.id,
+        measured_utc=row.measured_utc,
+        label=row.label,
+        operator=row.operator,
+        temperature_c=row.temperature_c,
+        operating_hours=row.operating_hours,
+        link=row.link,
+        config_hash=row.config_hash,
+        ncmeasure_version=row.ncmeasure_version,
+        recording_location=row.recording_location,
+        verdicts=verdicts[row.id],
+    )
+
+
 def measurement_summaries(db: Connection, machine_id: int) -> list[MeasurementSummary]:
     """A machine's measurements, oldest first (by time, then id)."""
     m = t.measurements
     rows = db.execute(
-        select(
-            m.c.id,
-            m.c.measured_utc,
-            m.c.label,
-            m.c.operator,
-            m.c.temperature_c,
-            m.c.operating_hours,
-            m.c.link,
-            m.c.config_hash,
-            m.c.ncmeasure_version,
-            m.c.recording_location,
-        )
+        select(*_SUMMARY_COLUMNS)
         .where(m.c.machine_id == machine_id)
         .order_by(m.c.measured_utc, m.c.id)
     ).all()
     verdicts = verdicts_of(db, [r.id for r in rows])
-    return [
-        MeasurementSummary(
-            id=r.id,
-            measured_utc=r.measured_utc,
-            label=r.label,
-            operator=r.operator,
-            temperature_c=r.temperature_c,
-            operating_hours=r.operating_hours,
-            link=r.link,
-            config_hash=r.config_hash,
-            ncmeasure_version=r.ncmeasure_version,
-            recording_location=r.recording_location,
-            verdicts=verdicts[r.id],
-        )
-        for r in rows
-    ]
+    return [_summary(r, verdicts) for r in rows]
 
 
 def _results(db: Connection, measurement_id: int) -> Results:
@@ -390,30 +397,89 @@ def store_change(db: Connection, latest_id: int, baseline_id: int, found: Baseli
     )
 
 
-def record_changes(db: Connection, serials: Iterable[str]) -> int:
+def record_changes(
+    db: Connection,
+    serials: Iterable[str],
+    known: Mapping[int, Results] | None = None,
+    kept: MutableMapping[int, Results] | None = None,
+) -> int:
     """Store the change since the baseline of these machines' current (latest, baseline)
     pair where it is not stored as of :data:`DIAGNOSIS_VERSION` (in the caller's transaction).
+
+    One pass for the batch: the machines' histories, the stored pairs and the verdicts in a
+    few queries, then one comparison per machine whose pair is new (a batch of a machine's
+    ten measurements compares once, its latest with its baseline).
+
+    Args:
+        db: The transaction.
+        serials: The machines.
+        known: Results at hand by measurement id (those just added): not read back.
+        kept: Results read back by measurement id (committed ones: the baselines),
+            filled and reused across batches.
 
     Returns:
         The pairs compared.
     """
-    ids = (
-        db.execute(select(t.machines.c.id).where(t.machines.c.serial.in_(sorted(set(serials)))))
+    ids = sorted(
+        int(i)
+        for chunk in _chunks_of(sorted(set(serials)))
+        for i in db.execute(select(t.machines.c.id).where(t.machines.c.serial.in_(chunk)))
         .scalars()
         .all()
     )
-    done = 0
-    for machine_id in ids:
-        pair = _current_pair(db, machine_id)
-        if pair is None or pair in _versioned(db, [pair]):
+    if not ids:
+        return 0
+    m = t.measurements
+    latest: dict[int, int] = {}
+    history: dict[int, list[Any]] = {}
+    for chunk in _chunks_of(ids):
+        for found in db.execute(
+            select(t.machines.c.id, t.machines.c.latest_measurement_id).where(
+                t.machines.c.id.in_(chunk), t.machines.c.latest_measurement_id.is_not(None)
+            )
+        ):
+            latest[int(found.id)] = int(found.latest_measurement_id)
+        for row in db.execute(
+            select(*_SUMMARY_COLUMNS, m.c.machine_id)
+            .where(m.c.machine_id.in_(chunk))
+            .order_by(m.c.machine_id, m.c.measured_utc, m.c.id)
+        ):
+            history.setdefault(int(row.machine_id), []).append(row)
+    pairs: dict[tuple[int, int], tuple[Any, Any]] = {}
+    for machine_id, latest_id in latest.items():
+        measured = history.get(machine_id)
+        if not measured:
             continue
-        found = current_change(db, machine_id)
-        if found is None:
-            continue
-        latest_id, baseline_id, change = found
+        baseline = baseline_of(measured)
+        if baseline.id != latest_id:
+            newest = next(r for r in measured if r.id == latest_id)
+            pairs[(latest_id, int(baseline.id))] = (newest, baseline)
+    todo = sorted(set(pairs) - _versioned(db, sorted(pairs)))
+    if not todo:
+        return 0
+    verdicts = verdicts_of(db, sorted({i for pair in todo for i in pair}))
+    known = known or {}
+    kept = kept if kept is not None else {}
+
+    def results(measurement_id: int) -> Results:
+        if measurement_id in known:
+            return known[measurement_id]
+        if measurement_id not in kept:
+            if len(kept) >= _KEPT:
+                del kept[next(iter(kept))]
+            kept[measurement_id] = _results(db, measurement_id)
+        return kept[measurement_id]
+
+    for latest_id, baseline_id in todo:
+        newest, baseline = pairs[(latest_id, baseline_id)]
+        change = compare_with_baseline(
+            _summary(baseline, verdicts),
+            results(baseline_id),
+            _summary(newest, verdicts),
+            results(latest_id),
+        )
         store_change(db, latest_id, baseline_id, change)
-        done += 1
-    return done
+    return len(todo)
 
 
 def refresh_machine(db: Connection, machine_id: int) -> bool:
@@ -455,20 +521,9 @@ def stale_machines(db: Connection) -> list[int]:
     return sorted(machine_id for pair, machine_id in pairs.items() if pair not in current)
 
 
-def _current_pair(db: Connection, machine_id: int) -> tuple[int, int] | None:
-    latest_id = db.execute(
-        select(t.machines.c.latest_measurement_id).where(t.machines.c.id == machine_id)
-    ).scalar_one_or_none()
-    if latest_id is None:
-        return None
-    m = t.measurements
-    history = db.execute(
-        select(m.c.id, m.c.label)
-        .where(m.c.machine_id == machine_id)
-        .order_by(m.c.measured_utc, m.c.id)
-    ).all()
-    baseline = baseline_of(history)
-    return None if baseline.id == latest_id else (int(latest_id), int(baseline.id))
+def _chunks_of(values: Sequence[Any]) -> Iterable[list[Any]]:
+    for start in range(0, len(values), _CHUNK):
+        yield list(values[start : start + _CHUNK])
 
 
 def _chunks(pairs: Sequence[tuple[int, int]]) -> Iterable[list[tuple[int, int]]]:

@@ -55,6 +55,7 @@ from ncmeasure.store.changes import (
     stored_changes,
 )
 from ncmeasure.store.store import Store
+from ncmeasure.store.summaries import fleet_version, keep_statuses
 
 __all__ = [
     "AxisOverview",
@@ -215,40 +216,28 @@ def fleet_overview(store: Store, limits: Limits | None = None) -> FleetOverview:
         StoreError: The database failed.
     """
     limits = limits or Limits()
-    m, mt, ms = t.machines, t.machine_types, t.measurements
+    s = t.machine_summaries
     with store.reading("read the fleet") as db:
+        version = fleet_version(db)
         machines = db.execute(
-            select(m.c.id, m.c.serial, m.c.site, m.c.latest_measurement_id, mt.c.name)
-            .join(mt, mt.c.id == m.c.type_id)
-            .where(m.c.latest_measurement_id.is_not(None))
-            .order_by(m.c.serial)
+            select(s).where(s.c.latest_id.is_not(None)).order_by(s.c.serial)
         ).all()
-        history: dict[int, list[Any]] = defaultdict(list)
-        for row in db.execute(
-            select(ms.c.id, ms.c.machine_id, ms.c.measured_utc, ms.c.label).order_by(
-                ms.c.machine_id, ms.c.measured_utc, ms.c.id
-            )
-        ):
-            history[row.machine_id].append(row)
     overviews: list[MachineOverview] = []
     wanted: list[int] = []
     for found in machines:
-        measured = history[found.id]
-        latest = next(r for r in measured if r.id == found.latest_measurement_id)
-        base = next((r for r in measured if r.label == "delivery"), measured[0])
-        wanted += [latest.id, base.id]
+        wanted += [found.latest_id, found.baseline_id]
         overviews.append(
             MachineOverview(
                 serial=found.serial,
-                machine_type=found.name,
+                machine_type=found.machine_type,
                 site=found.site,
-                measurements=len(measured),
-                latest_id=latest.id,
-                latest_utc=latest.measured_utc,
-                latest_label=latest.label,
-                baseline_id=base.id,
-                baseline_utc=base.measured_utc,
-                baseline_label=base.label,
+                measurements=int(found.measurements),
+                latest_id=int(found.latest_id),
+                latest_utc=found.latest_utc,
+                latest_label=found.latest_label,
+                baseline_id=int(found.baseline_id),
+                baseline_utc=found.baseline_utc,
+                baseline_label=found.baseline_label,
             )
         )
     rows = _axis_rows(store, wanted)
@@ -294,6 +283,9 @@ def fleet_overview(store: Store, limits: Limits | None = None) -> FleetOverview:
     types: dict[str, int] = defaultdict(int)
     for machine in overviews:
         types[machine.machine_type] += 1
+    if store.write and limits == Limits():
+        with store.writing("keep the statuses") as db:
+            keep_statuses(db, {m.serial: m.status for m in overviews}, version)
     return FleetOverview(
         machines=overviews,
         axes=sorted({a for machine in overviews for a in machine.axes}),
@@ -319,7 +311,7 @@ def _changes(
     """Per serial (with a baseline): the stored change since the baseline; where none is
     stored (a store filled by an older ncmeasure, or of another diagnosis version),
     compared now, and kept when the store is open for writing."""
-    ids = {found.serial: found.id for found in machines}
+    ids = {found.serial: found.machine_id for found in machines}
     pairs = {
         m.serial: (m.latest_id, m.baseline_id) for m in overviews if m.latest_id != m.baseline_id
     }

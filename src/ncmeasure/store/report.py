@@ -31,6 +31,7 @@ from ncmeasure.store.rows import CHARACTERISTICS
 from ncmeasure.store.store import Store
 
 __all__ = [
+    "DEFAULT_GRID_ROWS",
     "DEFAULT_TRENDS",
     "MAX_OUTLIER_ROWS",
     "trend_figure",
@@ -41,6 +42,9 @@ DEFAULT_TRENDS = 12
 """Trend plots in a report: the axes that moved most."""
 MAX_OUTLIER_ROWS = 500
 """Outliers listed in the report (the largest first; the count says how many more)."""
+DEFAULT_GRID_ROWS = 500
+"""Machines in the report's grid: a fleet of more lists those that need attention, the
+most severe first (the counts cover every machine; ``store list --status`` pages the rest)."""
 
 _TITLES = {c.name: c.title for c in CHARACTERISTICS}
 _RELATIVE = {c.name: c.relative for c in CHARACTERISTICS}
@@ -130,9 +134,19 @@ def _cell(axis: AxisOverview | None, baseline_label: str | None) -> _Cell:
     return _Cell(axis.status, text, "\n".join(lines))
 
 
-def _rows(overview: FleetOverview) -> list[_Row]:
+def _listed(overview: FleetOverview, count: int) -> list[MachineOverview]:
+    """The machines of the grid: every one, by serial, when there are at most ``count``;
+    else those not ok, the most severe first, at most ``count``."""
+    if len(overview.machines) <= count:
+        return overview.machines
+    flagged = [m for m in overview.machines if m.status != "ok"]
+    flagged.sort(key=lambda m: (-_SEVERITY[m.status], m.serial))
+    return flagged[:count]
+
+
+def _rows(overview: FleetOverview, machines: Sequence[MachineOverview]) -> list[_Row]:
     rows = []
-    for machine in overview.machines:
+    for machine in machines:
         label = f" · {machine.latest_label}" if machine.latest_label else ""
         rows.append(
             _Row(
@@ -187,6 +201,7 @@ def write_fleet_report(
     path: str | os.PathLike[str],
     *,
     trends: int = DEFAULT_TRENDS,
+    grid: int = DEFAULT_GRID_ROWS,
     progress: Callable[[int, int], None] | None = None,
 ) -> Path:
     """Write the fleet report of ``overview`` to ``path`` (replaced whole, never half written).
@@ -196,6 +211,8 @@ def write_fleet_report(
         overview: :func:`~ncmeasure.store.overview.fleet_overview`.
         path: The HTML file.
         trends: How many trend plots (the axes that moved most).
+        grid: The most machines in the grid; a larger fleet lists those that need
+            attention, the most severe first (:data:`DEFAULT_GRID_ROWS`).
         progress: Called with (done, total) after each trend plot.
 
     Raises:
@@ -221,6 +238,8 @@ def write_fleet_report(
         if progress is not None:
             progress(done, len(moved))
     outliers = overview.outliers[:MAX_OUTLIER_ROWS]
+    listed = _listed(overview, grid)
+    attention = sum(m.status != "ok" for m in overview.machines)
     text = _template().render(
         version=__version__,
         where=store.where,
@@ -228,7 +247,11 @@ def write_fleet_report(
         limits=overview.limits,
         types=overview.types,
         axes=overview.axes,
-        rows=_rows(overview),
+        rows=_rows(overview, listed),
+        machines=len(overview.machines),
+        unlisted_attention=attention - sum(m.status != "ok" for m in listed),
+        unlisted_ok=sum(m.status == "ok" for m in overview.machines)
+        - sum(m.status == "ok" for m in listed),
         counts={s: overview.count(s) for s in ("ok", "warning", "critical")},
         outliers=outliers,
         more_outliers=len(overview.outliers) - len(outliers),

@@ -19,6 +19,9 @@
                     version of the diagnosis that compared them
     axis_changes    per pair and axis: the diagnosis of the change since the baseline
                     (its pattern along the travel, its cause, its spread and mean)
+    machine_summaries per machine, what the lists show, kept current on adding: serial,
+                    type, site, measurements, the latest and the baseline measurement, and
+                    the status as of the fleet it was judged in (``fleet_version``)
 
 The schema changes only through an Alembic revision (``migrations/versions``);
 ``tests/store/test_migrations.py`` proves the revisions build exactly these tables.
@@ -50,6 +53,7 @@ __all__ = [
     "causes",
     "fit_parameters",
     "fits",
+    "machine_summaries",
     "machine_types",
     "machines",
     "measurements",
@@ -257,4 +261,30 @@ axis_changes = Table(
         ["baseline_changes.measurement_id", "baseline_changes.baseline_id"],
         ondelete="CASCADE",
     ),
+)
+
+machine_summaries = Table(
+    "machine_summaries",
+    metadata,
+    Column("machine_id", ForeignKey("machines.id", ondelete="CASCADE"), primary_key=True),
+    Column("serial", String(64), nullable=False, unique=True),
+    Column("machine_type", String(200), nullable=False),
+    Column("config_hash", String(64), nullable=False),
+    Column("site", String(200)),
+    Column("measurements", Integer, nullable=False),
+    Column("latest_id", Integer),
+    Column("latest_utc", String(32)),
+    Column("latest_label", String(64)),
+    Column("baseline_id", Integer, doc="The first labelled delivery, else the first."),
+    Column("baseline_utc", String(32)),
+    Column("baseline_label", String(64)),
+    Column("status", String(16), doc="ok, warning or critical, with the default limits."),
+    Column(
+        "fleet_version",
+        String(64),
+        doc="The fleet the status was judged in (ncmeasure.store.summaries.fleet_version); "
+        "a status of another is not current.",
+    ),
+    Index("ix_machine_summaries_status_serial", "status", "serial"),
+    Index("ix_machine_summaries_type_serial", "machine_type", "serial"),
 )

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from typing import Any
 
-from sqlalchemy import Connection, Engine, func, select
+from sqlalchemy import Connection, Engine, select
 from sqlalchemy.exc import SQLAlchemyError
 
 from ncmeasure.errors import ConfigError
@@ -17,7 +17,6 @@ from ncmeasure.store.changes import (
     record_changes,
     refresh_machine,
     stale_machines,
-    verdicts_of,
 )
 from ncmeasure.store.database import connect, display_url, translate, write_begin
 from ncmeasure.store.records import (
@@ -33,7 +32,13 @@ from ncmeasure.store.rows import (
     decompress,
     results_digest,
 )
-from ncmeasure.store.writing import add_measurement, find_machine
+from ncmeasure.store.summaries import (
+    DEFAULT_PAGE,
+    MachinePage,
+    machine_page,
+    update_summaries,
+)
+from ncmeasure.store.writing import add_measurements, find_machine, machine_ids
 
 __all__ = ["REFRESH_BATCH", "Store", "open_store"]
 
@@ -49,6 +54,8 @@ class Store:
         self.url = url
         self.write = write
         """Opened for writing: reading may keep what it computed (the overview's changes)."""
+        self._kept_results: dict[int, Results] = {}
+        """Stored results read back while adding (baselines), for the next batch."""
 
     @property
     def where(self) -> str:
@@ -94,9 +101,10 @@ class Store:
     def add_many(self, measurements: Iterable[tuple[Results, MeasurementInfo]]) -> list[Added]:
         """Store several measurements in one transaction: all of them or none.
 
-        For loading many at once (a script filling a store): one commit instead of one
-        per measurement. Each is stored as :meth:`add` stores it; then each machine's
-        change since its baseline (:func:`~ncmeasure.store.changes.record_changes`).
+        For loading many at once (a script filling a store, ``store import``): one commit
+        instead of one per measurement, a few statements per table for the whole batch.
+        Each is stored as :meth:`add` stores it; then, once per machine, its change since
+        its baseline (:func:`~ncmeasure.store.changes.record_changes`).
 
         Raises:
             ConfigError: Invalid info, or results of another machine (nothing stored).
@@ -111,8 +119,11 @@ class Store:
         with self.writing(
             "add the measurement" if len(prepared) == 1 else "add measurements"
         ) as db:
-            added = [add_measurement(db, *one) for one in prepared]
-            record_changes(db, [a.serial for a in added])
+            added, fresh = add_measurements(db, prepared)
+            serials = sorted({a.serial for a in added})
+            record_changes(db, serials, fresh, self._kept_results)
+            if fresh:
+                update_summaries(db, machine_ids(db, serials))
             return added
 
     def refresh_changes(
@@ -155,6 +166,22 @@ class Store:
                 progress(min(start + REFRESH_BATCH, len(wanted)), len(wanted))
         return done
 
+    def refresh_summaries(self) -> int:
+        """Rebuild every machine's summary row and judge every machine's status in the fleet
+        as it is now (:mod:`ncmeasure.store.summaries`), for the lists to read.
+
+        Returns:
+            The machines summarised.
+
+        Raises:
+            StoreError: The database failed (the rows before stay).
+        """
+        from ncmeasure.store.overview import fleet_overview
+
+        with self.writing("rebuild the machines' summaries") as db:
+            update_summaries(db)
+        return len(fleet_overview(self).machines)  # keeps the statuses: open for writing
+
     # ----------------------------------------------------------------------- reading
 
     def machine_row(self, db: Connection, serial: str) -> Any:
@@ -169,44 +196,36 @@ class Store:
         return row
 
     def machines(self) -> list[MachineSummary]:
-        """Every machine, by serial."""
-        counts = (
-            select(t.measurements.c.machine_id, func.count().label("n"))
-            .group_by(t.measurements.c.machine_id)
-            .subquery()
-        )
-        latest = t.measurements.alias("latest")
+        """Every machine, by serial (a page at a time: :meth:`machine_page`)."""
+        found: list[MachineSummary] = []
+        after: str | None = None
+        while True:
+            page = self.machine_page(limit=1000, after=after)
+            found += page.machines
+            if page.next_cursor is None:
+                return found
+            after = page.next_cursor
+
+    def machine_page(
+        self,
+        *,
+        limit: int = DEFAULT_PAGE,
+        after: str | None = None,
+        search: str | None = None,
+        status: str | None = None,
+        statuses: Mapping[str, str] | None = None,
+    ) -> MachinePage:
+        """A page of machines by serial, filtered and cut in the database
+        (:func:`~ncmeasure.store.summaries.machine_page`: the arguments).
+
+        Raises:
+            ConfigError: A limit out of range.
+            StoreError: The database failed.
+        """
         with self.reading("list the machines") as db:
-            rows = db.execute(
-                select(
-                    t.machines.c.serial,
-                    t.machines.c.site,
-                    t.machine_types.c.name,
-                    t.machine_types.c.config_hash,
-                    func.coalesce(counts.c.n, 0).label("n"),
-                    latest.c.id.label("latest_id"),
-                    latest.c.measured_utc,
-                    latest.c.label,
-                )
-                .join(t.machine_types, t.machine_types.c.id == t.machines.c.type_id)
-                .outerjoin(counts, counts.c.machine_id == t.machines.c.id)
-                .outerjoin(latest, latest.c.id == t.machines.c.latest_measurement_id)
-                .order_by(t.machines.c.serial)
-            ).all()
-            verdicts = verdicts_of(db, [r.latest_id for r in rows if r.latest_id is not None])
-        return [
-            MachineSummary(
-                serial=r.serial,
-                machine_type=r.name,
-                config_hash=r.config_hash,
-                site=r.site,
-                measurements=int(r.n),
-                latest_utc=r.measured_utc,
-                latest_label=r.label,
-                latest_verdicts=verdicts.get(r.latest_id, {}) if r.latest_id else {},
+            return machine_page(
+                db, limit=limit, after=after, search=search, status=status, statuses=statuses
             )
-            for r in rows
-        ]
 
     def machine(self, serial: str) -> tuple[MachineSummary, list[MeasurementSummary]]:
         """One machine and its measurements, oldest first."""

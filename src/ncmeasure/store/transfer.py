@@ -23,10 +23,18 @@ from ncmeasure.store.records import MeasurementInfo, measurement_info
 from ncmeasure.store.rows import decompress
 from ncmeasure.store.store import Store
 
-__all__ = ["EXPORT_FORMAT", "EXPORT_FORMAT_VERSION", "export_lines", "import_lines"]
+__all__ = [
+    "EXPORT_FORMAT",
+    "EXPORT_FORMAT_VERSION",
+    "IMPORT_BATCH",
+    "export_lines",
+    "import_lines",
+]
 
 EXPORT_FORMAT = "ncmeasure-store-export"
 EXPORT_FORMAT_VERSION = 1
+IMPORT_BATCH = 50
+"""Measurements per transaction of an import."""
 MAX_LINE_BYTES = 64 * 1024 * 1024
 """One measurement's line; a longer line is not an export of ncmeasure's."""
 
@@ -95,8 +103,9 @@ def import_lines(
 ) -> tuple[int, int]:
     """Add every measurement of an export to ``store``.
 
-    Lines are read, checked and added one by one (memory stays bounded); each
-    measurement is added whole or not at all. A bad line stops the import: the
+    Lines are read and checked one by one and added :data:`IMPORT_BATCH` at a time, in
+    one transaction each (memory stays bounded by a batch); each measurement is added
+    whole or not at all. A bad line stops the import: the
     error names it and how many were added before it; importing the fixed file
     again skips those. Measurements already in the store are skipped.
 
@@ -124,13 +133,43 @@ def import_lines(
             f"ncmeasure reads {EXPORT_FORMAT_VERSION}"
         )
     added = existing = 0
-    try:
-        for results, info in _checked(records, where):
-            outcome = store.add(results, info)
+
+    def add(batch: list[tuple[Results, MeasurementInfo]]) -> None:
+        nonlocal added, existing
+        try:
+            outcomes = store.add_many(batch)
+        except ConfigError:
+            if len(batch) == 1:
+                raise
+            # the batch is stored whole or not at all: one by one, the measurements
+            # before the bad one are stored and the error counts them
+            for one in batch:
+                add([one])
+            return
+        for outcome in outcomes:
             added += outcome.new
             existing += not outcome.new
             if progress is not None:
                 progress(added + existing, outcome.new)
+
+    batch: list[tuple[Results, MeasurementInfo]] = []
+    checked = _checked(records, where)
+    try:
+        while True:
+            try:
+                one = next(checked, None)
+            except ConfigError:
+                if batch:  # the measurements before the bad line are stored
+                    add(batch)
+                raise
+            if one is None:
+                break
+            batch.append(one)
+            if len(batch) == IMPORT_BATCH:
+                add(batch)
+                batch = []
+        if batch:
+            add(batch)
     except ConfigError as exc:
         if added or existing:
             exc.message += f" (the {added + existing} measurements before it are in the store)"

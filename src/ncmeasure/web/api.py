@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends, Path, Response, status
+from fastapi import APIRouter, Depends, Path, Query, Request, Response, status
 from fastapi.security import HTTPBearer
 from pydantic import BaseModel, Field
 
@@ -28,6 +28,7 @@ from ncmeasure.store.records import (
     TrendPoint,
 )
 from ncmeasure.store.rows import canonical_json
+from ncmeasure.store.summaries import DEFAULT_PAGE, MAX_PAGE
 from ncmeasure.web.context import Context, context
 
 __all__ = ["ErrorOut", "NewMeasurement", "router"]
@@ -69,10 +70,49 @@ Serial = Annotated[str, Path(description="The machine's serial number.")]
 MeasurementId = Annotated[int, Path(ge=1, le=MEASUREMENT_ID_MAX)]
 
 
-@router.get("/machines", summary="Every machine, by serial")
-def list_machines(ctx: Ctx) -> list[MachineSummary]:
-    """Every machine in the store with its latest measurement's verdicts."""
-    return ctx.store.machines()
+Limit = Annotated[
+    int,
+    Query(
+        ge=1,
+        le=MAX_PAGE,
+        description=f"Items per page (default {DEFAULT_PAGE}, at most {MAX_PAGE}).",
+    ),
+]
+Cursor = Annotated[
+    str | None,
+    Query(
+        max_length=200,
+        description="Where the page starts: the X-Next-Cursor of the page before.",
+    ),
+]
+
+
+def _paged(request: Request, response: Response, total: int, following: str | None) -> None:
+    response.headers["X-Total-Count"] = str(total)
+    if following is not None:
+        response.headers["X-Next-Cursor"] = following
+        url = request.url.include_query_params(cursor=following)
+        response.headers["Link"] = f'<{url}>; rel="next"'
+
+
+@router.get("/machines", summary="The machines, by serial, a page at a time")
+def list_machines(
+    ctx: Ctx,
+    request: Request,
+    response: Response,
+    limit: Limit = DEFAULT_PAGE,
+    cursor: Cursor = None,
+    search: Annotated[
+        str | None,
+        Query(max_length=200, description="Only machines whose serial, type or site holds it."),
+    ] = None,
+) -> list[MachineSummary]:
+    """The machines with their latest measurement's verdicts, sorted by serial, a page at a
+    time: the headers X-Total-Count (how many match), X-Next-Cursor and Link rel="next"
+    (absent on the last page) say what follows."""
+    page = ctx.store.machine_page(limit=limit, after=cursor, search=search)
+    _paged(request, response, page.total, page.next_cursor)
+    return page.machines
 
 
 @router.get("/machines/{serial}", summary="One machine and its measurements", responses=_NOT_FOUND)
@@ -87,10 +127,28 @@ def show_machine(ctx: Ctx, serial: Serial) -> MachineDetail:
     summary="A machine's measurements, oldest first",
     responses=_NOT_FOUND,
 )
-def list_measurements(ctx: Ctx, serial: Serial) -> list[MeasurementSummary]:
-    """The machine's measurements, oldest first."""
+def list_measurements(
+    ctx: Ctx,
+    serial: Serial,
+    request: Request,
+    response: Response,
+    limit: Limit = DEFAULT_PAGE,
+    cursor: Cursor = None,
+) -> list[MeasurementSummary]:
+    """The machine's measurements, oldest first, a page at a time: the headers
+    X-Total-Count, X-Next-Cursor (the last measurement id of the page) and Link rel="next"
+    (absent on the last page) say what follows."""
     _, measurements = ctx.store.machine(serial)
-    return measurements
+    start = 0
+    if cursor is not None:
+        ids = [str(m.id) for m in measurements]
+        if cursor not in ids:
+            raise ConfigError(f"cursor {cursor!r}: no measurement of {serial} with that id")
+        start = ids.index(cursor) + 1
+    page = measurements[start : start + limit]
+    more = start + limit < len(measurements)
+    _paged(request, response, len(measurements), str(page[-1].id) if more and page else None)
+    return page
 
 
 @router.get(

@@ -3,9 +3,10 @@
 The store's engine lives as long as the application (opened on startup,
 disposed on shutdown). Checks and plots are derived from the store's content
 and cost tens of milliseconds each; they are cached under the store's
-*version* (the number of measurements and the highest id: every change adds a
-measurement), so a measurement added by ``ncmeasure store add`` elsewhere
-shows on the next request.
+*version* (the highest measurement and machine ids: every change adds a
+measurement, and nothing is deleted), so a measurement added by ``ncmeasure store
+add`` elsewhere shows on the next request. Reading it costs two index look-ups, not
+a count of the measurements.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ _T = TypeVar("_T")
 _CACHE_LIMIT = 512
 
 Version = tuple[int, int]
-"""The store's version: (measurements, highest measurement id)."""
+"""The store's version: (highest measurement id, highest machine id)."""
 
 
 @dataclass
@@ -42,8 +43,13 @@ class Context:
     def version(self) -> Version:
         """The store's version now; read it once per request, before reading the store."""
         with self.store.reading("read the store's version") as db:
-            count, highest = db.execute(select(func.count(), func.max(t.measurements.c.id))).one()
-        return int(count), int(highest or 0)
+            highest, machine = db.execute(
+                select(
+                    select(func.max(t.measurements.c.id)).scalar_subquery(),
+                    select(func.max(t.machines.c.id)).scalar_subquery(),
+                )
+            ).one()
+        return int(highest or 0), int(machine or 0)
 
     def cached(self, version: Version, key: Hashable, compute: Callable[[], _T]) -> _T:
         """``compute()``, remembered under ``key`` for this version of the store.

@@ -16,14 +16,15 @@ from the store (a site, an operator, a serial) is always escaped.
 
 from __future__ import annotations
 
+import bisect
 import functools
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Annotated, Any
-from urllib.parse import quote
+from typing import Annotated, Any, Literal
+from urllib.parse import quote, urlencode
 
 import jinja2
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import HTMLResponse
 from markupsafe import Markup
 
@@ -34,6 +35,7 @@ from ncmeasure.store import MeasurementSummary, TrendPoint
 from ncmeasure.store.check import StoreCheck
 from ncmeasure.store.overview import MachineOverview, fleet_overview
 from ncmeasure.store.rows import CHARACTERISTICS
+from ncmeasure.store.summaries import DEFAULT_PAGE, MAX_PAGE
 from ncmeasure.web.context import Context, Version, context
 from ncmeasure.web.plots import curves_svg, travel_svg, trend_svg
 
@@ -147,15 +149,48 @@ def _cell(root: str, machine: MachineOverview, name: str) -> Cell:
     )
 
 
+@dataclass(frozen=True)
+class Pager:
+    """Where the grid's page stands among the machines that match."""
+
+    shown: int
+    total: int
+    first_href: str | None
+    """The first page, when this is not it."""
+    next_href: str | None
+    """The next page, when there is one."""
+
+
+def _matches(m: MachineOverview, search: str | None, status: str | None) -> bool:
+    if status is not None and m.status != status:
+        return False
+    if not search:
+        return True
+    wanted = search.casefold()
+    return any(wanted in (text or "").casefold() for text in (m.serial, m.machine_type, m.site))
+
+
 @router.get("/", response_class=HTMLResponse)
-def fleet_page(request: Request, ctx: Ctx) -> HTMLResponse:
-    """The fleet grid: every machine (rows) × every axis (columns)."""
+def fleet_page(
+    request: Request,
+    ctx: Ctx,
+    q: Annotated[str | None, Query(max_length=200)] = None,
+    status: Annotated[Literal["ok", "warning", "critical"] | None, Query()] = None,
+    after: Annotated[str | None, Query(max_length=200)] = None,
+    limit: Annotated[int, Query(ge=1, le=MAX_PAGE)] = DEFAULT_PAGE,
+) -> HTMLResponse:
+    """The fleet grid: the machines (rows, by serial, a page at a time, those that match
+    the search) × every axis (columns)."""
     version = ctx.version()
     root = _root(request)
     overview = ctx.cached(version, "overview", lambda: fleet_overview(ctx.store))
     axes = overview.axes
+    search = (q or "").strip() or None
+    matching = [m for m in overview.machines if _matches(m, search, status)]
+    start = bisect.bisect_right([m.serial for m in matching], after) if after else 0
+    shown = matching[start : start + limit]
     rows = []
-    for m in overview.machines:
+    for m in shown:
         latest = format_date(m.latest_utc) + (f" · {m.latest_label}" if m.latest_label else "")
         rows.append(
             GridRow(
@@ -170,8 +205,38 @@ def fleet_page(request: Request, ctx: Ctx) -> HTMLResponse:
                 findings=_findings(m),
             )
         )
-    counts = {s: sum(c.status == s for r in rows for c in r.cells) for s in STATUSES}
-    return html_page(request, "fleet.html.j2", title="Fleet", axes=axes, rows=rows, counts=counts)
+    counts = {s: sum(a.status == s for m in matching for a in m.axes.values()) for s in STATUSES}
+    kept: dict[str, object] = {
+        "q": search,
+        "status": status,
+        "limit": None if limit == DEFAULT_PAGE else limit,
+    }
+    more = start + limit < len(matching)
+    pager = Pager(
+        shown=len(rows),
+        total=len(matching),
+        first_href=_query_href(root, kept) if after else None,
+        next_href=_query_href(root, {**kept, "after": shown[-1].serial}) if more else None,
+    )
+    return html_page(
+        request,
+        "fleet.html.j2",
+        title="Fleet",
+        axes=axes,
+        rows=rows,
+        counts=counts,
+        pager=pager,
+        search=search or "",
+        status=status or "",
+        statuses=STATUSES,
+        machines=len(overview.machines),
+        home=f"{root}/",
+    )
+
+
+def _query_href(root: str, params: dict[str, object]) -> str:
+    chosen = {k: str(v) for k, v in params.items() if v is not None}
+    return f"{root}/?{urlencode(chosen)}" if chosen else f"{root}/"
 
 
 # --------------------------------------------------------------------------- machine
