@@ -42,6 +42,24 @@ MAX_EVENTS_BYTES = 256 * 1024 * 1024
 """Largest events.jsonl read (a million events)."""
 
 
+@dataclass
+class ReadCount:
+    """Rows of ``samples.bin`` files given out in this process, and the readings that gave them.
+
+    :func:`iter_chunks` and :meth:`Recording.open` add to :data:`READ_COUNT`
+    once per chunk and once per reading (never per row): a benchmark or a test
+    takes the difference around an analysis to see how often it read the
+    recording.
+    """
+
+    rows: int = 0
+    readings: int = 0
+
+
+READ_COUNT = ReadCount()
+"""What every reading of a recording's samples in this process added up to."""
+
+
 def _read_exactly(file: io.FileIO, target: memoryview) -> int:
     got = 0
     while got < len(target):
@@ -141,6 +159,8 @@ def _read_frames(path: Path, columns: int) -> tuple[NDArray[np.float64], list[st
                 if _read_exactly(file, target.data) < len(target):
                     where = f"after frame {number - 1}" if number else "at the start of samples.bin"
                     problems[:] = [f"torn tail: {rest} bytes {where} ignored (file shrank)"]
+                    READ_COUNT.readings += 1
+                    READ_COUNT.rows += rows
                     return data[:rows], problems
                 crc = zlib.crc32(target.data, crc)
                 at = rows + first
@@ -152,6 +172,8 @@ def _read_frames(path: Path, columns: int) -> tuple[NDArray[np.float64], list[st
                 ]
                 break
             rows += frame.rows
+    READ_COUNT.readings += 1
+    READ_COUNT.rows += rows
     return data[:rows], problems
 
 
@@ -216,6 +238,7 @@ def iter_chunks(
         file = samples_path.open("rb", buffering=0)
     except FileNotFoundError as exc:
         raise RecordingError(f"{path}: not a recording ({SAMPLES_FILE} is missing)") from exc
+    READ_COUNT.readings += 1
     with file:
         size = os.fstat(file.fileno()).st_size
         frames = _walk_headers(file, size, row_bytes, found)
@@ -335,6 +358,7 @@ class _Chunker:
         for begin in range(0, whole, rows):
             part = table[begin : begin + rows]
             yield RowChunk(self.first, part[:, 0].copy(), part[:, columns])
+            READ_COUNT.rows += rows
             self.first += rows
         self._pending = [joined[whole * row_bytes :]] if self.held > whole else []
         self.held -= whole
@@ -346,6 +370,7 @@ class _Chunker:
         pending = self._pending
         joined = np.concatenate(pending) if len(pending) > 1 else pending[0]
         table = joined.view(ROW_DTYPE).reshape(self.held, self._width)
+        READ_COUNT.rows += self.held
         return RowChunk(self.first, table[:, 0].copy(), table[:, self._columns])
 
 
