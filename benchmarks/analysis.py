@@ -327,9 +327,8 @@ def check_script(run: Path, schedule: Path) -> str:
     for axis, table in theirs.items():
         windows = [
             VelocityWindow(axis, int(a), int(b), 1.0, 1.0, int(d), 0.0, int(p), int(s), "marker")  # type: ignore[arg-type]
-            for a, b, p, d, s in zip(
-                table["starts"], table["stops"], table["position_index"], table["direction"],
-                table["step"], strict=True,
+            for a, b, (p, d, s) in zip(
+                table["starts"], table["stops"], table["labels"].tolist(), strict=True
             )
         ]  # fmt: skip
         mine.append(friction_table(axis, recording.axis_signal(axis, "current_a"), windows))

@@ -152,8 +152,9 @@ def axis_table(
         "std": std,
         "n": n,
         "stderr": stderr,
-        "starts": starts,
+        "starts": starts,  # the windows, in table order, and their labels
         "stops": stops,
+        "labels": labels,
     }
 
 

@@ -288,7 +288,8 @@ class RecordingPasses:
                 reader.seen(chunk)
                 yield chunk
 
-        source = Rows(read, reader.column, reader.chunk_rows, bounds)
+        kept = isinstance(reader, _FileReader) and reader.holding
+        source = Rows(read, reader.column, reader.chunk_rows, bounds, kept=kept)
         self.statistics = axes_statistics(source, ready) if ready else {}
         for axis in ready:
             try:
@@ -312,7 +313,15 @@ class RecordingPasses:
         reader.done(self.rows)
         # The chunks held for the passes go once every axis' slices are read.
         self._unread = set(self.finders)
-        self._release = reader.release if isinstance(reader, _FileReader) else None
+        self._release: Callable[[], None] | None = None
+        if isinstance(reader, _FileReader):
+            file_reader = reader
+
+            def release() -> None:
+                file_reader.release()
+                source.forget()
+
+            self._release = release
 
     def _ready(
         self, axes: Sequence[str], schedule: Schedule | None, machine: MachineConfig | None

@@ -347,8 +347,16 @@ class _Chunker:
         self.first = 0  # the row of the whole recording the next chunk begins with
 
     def _chunk(self, table: NDArray[np.float64]) -> RowChunk:
-        """The chunk of these rows (copies: ``table`` may be read into again)."""
-        chunk = RowChunk(self.first, table[:, 0].copy(), table[:, self._columns])
+        """The chunk of these rows (copies: ``table`` may be read into again).
+
+        Its values are held column by column (Fortran order), as
+        :meth:`Recording.open` holds a recording: a channel of a chunk is one
+        contiguous run of memory, which every pass reads without a copy.
+        """
+        values = np.empty((len(table), len(self._columns)), dtype=np.float64, order="F")
+        for k, column in enumerate(self._columns):
+            values[:, k] = table[:, column]
+        chunk = RowChunk(self.first, table[:, 0].copy(), values)
         READ_COUNT.rows += len(table)
         self.first += len(table)
         return chunk
