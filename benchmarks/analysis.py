@@ -47,6 +47,8 @@ recording, 2 rounds: checks that it runs, the figures mean nothing.)
 from __future__ import annotations
 
 import argparse
+import functools
+import math
 import os
 import statistics
 import subprocess
@@ -170,20 +172,11 @@ def pandas_table_prebuilt(
     )
 
 
-def pandas_table_same_work(
+def same_work_samples(
     recording: Recording, segmentations: dict[str, Segmentation]
-) -> pd.DataFrame:
-    """The whole table ncmeasure builds, standard error included, with pandas groupbys.
-
-    Labels per sample built with numpy (group, window, batch: each window cut into
-    up to 5 batches of at least 5 samples, edges rounded as
-    ``np.linspace(start, stop, batches + 1)`` over the samples in table order);
-    pandas does every grouping: the median, mean, std and count per group, the
-    median per batch and per window, and their scatter over the root of their
-    count. The standard error is ncmeasure's: the larger of the batch medians'
-    scatter and √(π/2)·std/√n, and of the window medians' scatter where a group
-    has more than one window.
-    """
+) -> dict[str, np.ndarray]:
+    """Every window sample with integer labels: axis number, position, direction, step,
+    window and batch (as :func:`pandas_table_same_work` describes them), and its current."""
     parts: dict[str, list[np.ndarray]] = {
         k: [] for k in ("axis", "position", "direction", "step", "window", "batch", "current")
     }
@@ -217,7 +210,24 @@ def pandas_table_same_work(
         window_count += len(windows)
         batch_count += int(count.sum())
         parts["current"].append(current[index])
-    data = {k: np.concatenate(v) for k, v in parts.items()}
+    return {k: np.concatenate(v) for k, v in parts.items()}
+
+
+def pandas_table_same_work(
+    recording: Recording, segmentations: dict[str, Segmentation]
+) -> pd.DataFrame:
+    """The whole table ncmeasure builds, standard error included, with pandas groupbys.
+
+    Labels per sample built with numpy (group, window, batch: each window cut into
+    up to 5 batches of at least 5 samples, edges rounded as
+    ``np.linspace(start, stop, batches + 1)`` over the samples in table order);
+    pandas does every grouping: the median, mean, std and count per group, the
+    median per batch and per window, and their scatter over the root of their
+    count. The standard error is ncmeasure's: the larger of the batch medians'
+    scatter and √(π/2)·std/√n, and of the window medians' scatter where a group
+    has more than one window.
+    """
+    data = same_work_samples(recording, segmentations)
     keys = ["axis", "position", "direction", "step"]
     samples = pd.DataFrame(
         {**data, "axis": pd.Categorical.from_codes(data["axis"], categories=list(segmentations))}
@@ -234,6 +244,90 @@ def pandas_table_same_work(
     stderr = np.fmax(scatter[0].reindex(table.index), independent)
     table["stderr"] = np.fmax(scatter[1].reindex(table.index), stderr)
     return table.sort_index()
+
+
+def polars_table_same_work(
+    recording: Recording, segmentations: dict[str, Segmentation]
+) -> pd.DataFrame:
+    """The same table with polars (integer keys): group_by for the cells, batches and windows."""
+    import polars as pl
+
+    keys = ["axis", "position", "direction", "step"]
+    samples = pl.DataFrame(same_work_samples(recording, segmentations))
+    current = pl.col("current")
+    table = samples.group_by(keys).agg(
+        current.median().alias("median"),
+        current.mean().alias("mean"),
+        current.std().alias("std"),
+        pl.len().alias("count"),
+    )
+    for unit in ("batch", "window"):
+        medians = samples.group_by(unit).agg(current.median(), *(pl.col(k).first() for k in keys))
+        spread = medians.group_by(keys).agg(
+            (current.std() / pl.len().cast(pl.Float64).sqrt()).alias(f"scatter_{unit}"),
+            pl.len().alias(f"count_{unit}"),
+        )
+        table = table.join(spread, on=keys, how="left")
+    independent = math.sqrt(math.pi / 2) * pl.col("std") / pl.col("count").cast(pl.Float64).sqrt()
+    several = pl.when(pl.col("count_window") > 1).then(pl.col("scatter_window"))
+    table = table.with_columns(
+        pl.max_horizontal(pl.col("scatter_batch"), independent, several).alias("stderr")
+    ).sort(keys)
+    names = list(segmentations)
+    return (
+        table.select(*keys, "median", "mean", "std", "count", "stderr")
+        .to_pandas()
+        .assign(axis=lambda f: [names[a] for a in f["axis"]])
+        .set_index(keys)
+    )
+
+
+def duckdb_table_same_work(
+    recording: Recording, segmentations: dict[str, Segmentation]
+) -> pd.DataFrame:
+    """The same table in SQL with duckdb (integer keys), on the same numpy arrays."""
+    import duckdb
+
+    samples = pd.DataFrame(same_work_samples(recording, segmentations))  # noqa: F841 (in SQL)
+    table = duckdb.sql(
+        """
+        WITH cells AS (SELECT axis, position, direction, step, median(current) AS median,
+                avg(current) AS mean, stddev_samp(current) AS std, count(*) AS count
+            FROM samples GROUP BY ALL),
+        batches AS (SELECT axis, position, direction, step, batch, median(current) AS m
+            FROM samples GROUP BY ALL),
+        windows AS (SELECT axis, position, direction, step, "window", median(current) AS m
+            FROM samples GROUP BY ALL),
+        batch_scatter AS (SELECT axis, position, direction, step,
+                stddev_samp(m) / sqrt(count(*)) AS s FROM batches GROUP BY ALL),
+        window_scatter AS (SELECT axis, position, direction, step,
+                stddev_samp(m) / sqrt(count(*)) AS s, count(*) AS n FROM windows GROUP BY ALL)
+        SELECT c.*, greatest(b.s, sqrt(pi() / 2) * c.std / sqrt(c.count),
+                CASE WHEN w.n > 1 THEN w.s END) AS stderr
+        FROM cells c JOIN batch_scatter b USING (axis, position, direction, step)
+            JOIN window_scatter w USING (axis, position, direction, step)
+        ORDER BY axis, position, direction, step
+        """
+    ).df()
+    names = list(segmentations)
+    table["axis"] = [names[a] for a in table["axis"]]
+    return table.set_index(["axis", "position", "direction", "step"])
+
+
+def _optional_baselines() -> dict[str, str]:
+    """polars and duckdb where installed (the dev extra): name -> label."""
+    found = {}
+    for module, name, label in (
+        ("polars", "polars", "polars, same work (+ standard error)"),
+        ("duckdb", "duckdb", "duckdb SQL, same work (+ standard error)"),
+    ):
+        try:
+            __import__(module)
+        except ImportError:
+            print(f"({module} not installed: its baseline is left out; pip install {module})")
+            continue
+        found[name] = label
+    return found
 
 
 def _as_frame(tables: Sequence[FrictionTable]) -> pd.DataFrame:
@@ -446,6 +540,7 @@ def main() -> None:
             f"(found in {time.perf_counter() - start:.2f} s, not part of the timing below)"
         )
 
+        optional = _optional_baselines()
         seconds, results = _interleaved(
             {
                 "ncmeasure": lambda: ncmeasure_tables(recording, segmentations),
@@ -453,6 +548,14 @@ def main() -> None:
                 "prebuilt": lambda: pandas_table_prebuilt(recording, segmentations),
                 "same": lambda: pandas_table_same_work(recording, segmentations),
                 "numpy": lambda: numpy_tables(recording, segmentations),
+                **{
+                    name: functools.partial(function, recording, segmentations)
+                    for name, function in (
+                        ("polars", polars_table_same_work),
+                        ("duckdb", duckdb_table_same_work),
+                    )
+                    if name in optional
+                },
             },
             rounds,
         )
@@ -467,6 +570,7 @@ def main() -> None:
         ("prebuilt", "pandas groupby, labels built with numpy"),
         ("same", "pandas, same work (+ standard error)"),
         ("numpy", "numpy script's table, same work"),
+        *optional.items(),
     ):
         low, high = min(seconds[name]), max(seconds[name])
         print(
@@ -485,7 +589,7 @@ def main() -> None:
         f"(goal >= {GOAL_VS_PANDAS:g} x: {'met' if versus >= GOAL_VS_PANDAS else 'NOT met'})"
     )
 
-    best = min(("same", "numpy"), key=lambda name: median[name])
+    best = min(("same", "numpy", *optional), key=lambda name: median[name])
     print(
         f"against the best baseline doing the same work ({best}): "
         f"{median[best] / median['ncmeasure']:.2f} x"
@@ -497,6 +601,7 @@ def main() -> None:
         ("plain pandas", "pandas"),
         ("prebuilt pandas", "prebuilt"),
         ("pandas, same work", "same"),
+        *((name, name) for name in optional),
     ):
         theirs = results[key]
         theirs = theirs.set_axis(theirs.index.set_levels(  # categorical axis level -> str
