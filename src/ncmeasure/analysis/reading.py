@@ -196,13 +196,24 @@ class _FileReader:
         if between_s is not None:
             begun = [row for row, t in self.chunk_times.items() if t < between_s[0]]
             first_row = max(begun, default=0)
-        for chunk in iter_chunks(
-            self.head.directory,
-            self.chunk_rows,
-            wanted,
-            verified=self.verified,
-            first_row=first_row,
-        ):
+        chunks: Iterable[RowChunk]
+        if self.held is not None:
+            # The chunks are still held: those from first_row on, not the file again.
+            index = [self.column[name] for name in wanted]
+            chunks = (
+                RowChunk(c.first, c.time_s, c.values[:, index])
+                for c in self.held
+                if c.first >= first_row
+            )
+        else:
+            chunks = iter_chunks(
+                self.head.directory,
+                self.chunk_rows,
+                wanted,
+                verified=self.verified,
+                first_row=first_row,
+            )
+        for chunk in chunks:
             if between_s is not None and len(chunk.time_s) and chunk.time_s[0] > between_s[1]:
                 return
             done = (chunk.first + len(chunk.time_s)) / self.expected
@@ -313,6 +324,10 @@ class RecordingPasses:
         reader.done(self.rows)
         # The chunks held for the passes go once every axis' slices are read.
         self._unread = set(self.finders)
+        # True: the chunks held stay until the passes are dropped, for the tasks of
+        # on_windows that need one more reading (read_channels); else they go once
+        # every axis' slices are read.
+        self.keep_held = False
         self._release: Callable[[], None] | None = None
         if isinstance(reader, _FileReader):
             file_reader = reader
@@ -380,7 +395,7 @@ class RecordingPasses:
             raise
         finally:
             self._unread.discard(axis)
-            if not self._unread and self._release is not None:
+            if not self._unread and self._release is not None and not self.keep_held:
                 self._release()
         checker = self.checker[axis]
         scanned = stats.implausible
