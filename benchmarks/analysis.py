@@ -47,6 +47,12 @@ recording, 2 rounds: checks that it runs, the figures mean nothing.)
 from __future__ import annotations
 
 import argparse
+import functools
+import math
+import os
+import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -55,13 +61,18 @@ from typing import TypeVar
 
 import numpy as np
 import pandas as pd  # type: ignore[import-untyped]
+from analysis_memory import _write as write_copies
+from baseline_script import axis_table, friction_tables
 from measurement import measurement_axes
 
+from ncmeasure.analysis.analyze import analyze
 from ncmeasure.analysis.friction.table import FrictionTable, friction_table
 from ncmeasure.analysis.windows.find import windows_of
-from ncmeasure.analysis.windows.model import Segmentation
+from ncmeasure.analysis.windows.model import Segmentation, VelocityWindow
 from ncmeasure.analysis.windows.settings import SegmentSettings
-from ncmeasure.recording import Recording
+from ncmeasure.formats.schedule import load_schedule
+from ncmeasure.recording import Recording, RecordingHead
+from ncmeasure.recording.reader import READ_COUNT
 from ncmeasure.sim.synthetic import synthetic_recording
 
 T = TypeVar("T")
@@ -71,6 +82,9 @@ SETTINGS = SegmentSettings()
 
 GOAL_SAMPLES_PER_S = 40e6
 GOAL_VS_PANDAS = 5.0
+GOAL_VS_SCRIPT = 2.0  # ncmeasure analyze at most this many times the plain script's CPU
+GOAL_REAL_TIME = 1000.0  # without a marker: recorded seconds per second of CPU
+BENCHMARKS = Path(__file__).resolve().parent
 
 
 def _interleaved(
@@ -158,20 +172,11 @@ def pandas_table_prebuilt(
     )
 
 
-def pandas_table_same_work(
+def same_work_samples(
     recording: Recording, segmentations: dict[str, Segmentation]
-) -> pd.DataFrame:
-    """The whole table ncmeasure builds, standard error included, with pandas groupbys.
-
-    Labels per sample built with numpy (group, window, batch: each window cut into
-    up to 5 batches of at least 5 samples, edges rounded as
-    ``np.linspace(start, stop, batches + 1)`` over the samples in table order);
-    pandas does every grouping: the median, mean, std and count per group, the
-    median per batch and per window, and their scatter over the root of their
-    count. The standard error is ncmeasure's: the larger of the batch medians'
-    scatter and √(π/2)·std/√n, and of the window medians' scatter where a group
-    has more than one window.
-    """
+) -> dict[str, np.ndarray]:
+    """Every window sample with integer labels: axis number, position, direction, step,
+    window and batch (as :func:`pandas_table_same_work` describes them), and its current."""
     parts: dict[str, list[np.ndarray]] = {
         k: [] for k in ("axis", "position", "direction", "step", "window", "batch", "current")
     }
@@ -205,7 +210,24 @@ def pandas_table_same_work(
         window_count += len(windows)
         batch_count += int(count.sum())
         parts["current"].append(current[index])
-    data = {k: np.concatenate(v) for k, v in parts.items()}
+    return {k: np.concatenate(v) for k, v in parts.items()}
+
+
+def pandas_table_same_work(
+    recording: Recording, segmentations: dict[str, Segmentation]
+) -> pd.DataFrame:
+    """The whole table ncmeasure builds, standard error included, with pandas groupbys.
+
+    Labels per sample built with numpy (group, window, batch: each window cut into
+    up to 5 batches of at least 5 samples, edges rounded as
+    ``np.linspace(start, stop, batches + 1)`` over the samples in table order);
+    pandas does every grouping: the median, mean, std and count per group, the
+    median per batch and per window, and their scatter over the root of their
+    count. The standard error is ncmeasure's: the larger of the batch medians'
+    scatter and √(π/2)·std/√n, and of the window medians' scatter where a group
+    has more than one window.
+    """
+    data = same_work_samples(recording, segmentations)
     keys = ["axis", "position", "direction", "step"]
     samples = pd.DataFrame(
         {**data, "axis": pd.Categorical.from_codes(data["axis"], categories=list(segmentations))}
@@ -222,6 +244,90 @@ def pandas_table_same_work(
     stderr = np.fmax(scatter[0].reindex(table.index), independent)
     table["stderr"] = np.fmax(scatter[1].reindex(table.index), stderr)
     return table.sort_index()
+
+
+def polars_table_same_work(
+    recording: Recording, segmentations: dict[str, Segmentation]
+) -> pd.DataFrame:
+    """The same table with polars (integer keys): group_by for the cells, batches and windows."""
+    import polars as pl
+
+    keys = ["axis", "position", "direction", "step"]
+    samples = pl.DataFrame(same_work_samples(recording, segmentations))
+    current = pl.col("current")
+    table = samples.group_by(keys).agg(
+        current.median().alias("median"),
+        current.mean().alias("mean"),
+        current.std().alias("std"),
+        pl.len().alias("count"),
+    )
+    for unit in ("batch", "window"):
+        medians = samples.group_by(unit).agg(current.median(), *(pl.col(k).first() for k in keys))
+        spread = medians.group_by(keys).agg(
+            (current.std() / pl.len().cast(pl.Float64).sqrt()).alias(f"scatter_{unit}"),
+            pl.len().alias(f"count_{unit}"),
+        )
+        table = table.join(spread, on=keys, how="left")
+    independent = math.sqrt(math.pi / 2) * pl.col("std") / pl.col("count").cast(pl.Float64).sqrt()
+    several = pl.when(pl.col("count_window") > 1).then(pl.col("scatter_window"))
+    table = table.with_columns(
+        pl.max_horizontal(pl.col("scatter_batch"), independent, several).alias("stderr")
+    ).sort(keys)
+    names = list(segmentations)
+    return (
+        table.select(*keys, "median", "mean", "std", "count", "stderr")
+        .to_pandas()
+        .assign(axis=lambda f: [names[a] for a in f["axis"]])
+        .set_index(keys)
+    )
+
+
+def duckdb_table_same_work(
+    recording: Recording, segmentations: dict[str, Segmentation]
+) -> pd.DataFrame:
+    """The same table in SQL with duckdb (integer keys), on the same numpy arrays."""
+    import duckdb
+
+    samples = pd.DataFrame(same_work_samples(recording, segmentations))  # noqa: F841 (in SQL)
+    table = duckdb.sql(
+        """
+        WITH cells AS (SELECT axis, position, direction, step, median(current) AS median,
+                avg(current) AS mean, stddev_samp(current) AS std, count(*) AS count
+            FROM samples GROUP BY ALL),
+        batches AS (SELECT axis, position, direction, step, batch, median(current) AS m
+            FROM samples GROUP BY ALL),
+        windows AS (SELECT axis, position, direction, step, "window", median(current) AS m
+            FROM samples GROUP BY ALL),
+        batch_scatter AS (SELECT axis, position, direction, step,
+                stddev_samp(m) / sqrt(count(*)) AS s FROM batches GROUP BY ALL),
+        window_scatter AS (SELECT axis, position, direction, step,
+                stddev_samp(m) / sqrt(count(*)) AS s, count(*) AS n FROM windows GROUP BY ALL)
+        SELECT c.*, greatest(b.s, sqrt(pi() / 2) * c.std / sqrt(c.count),
+                CASE WHEN w.n > 1 THEN w.s END) AS stderr
+        FROM cells c JOIN batch_scatter b USING (axis, position, direction, step)
+            JOIN window_scatter w USING (axis, position, direction, step)
+        ORDER BY axis, position, direction, step
+        """
+    ).df()
+    names = list(segmentations)
+    table["axis"] = [names[a] for a in table["axis"]]
+    return table.set_index(["axis", "position", "direction", "step"])
+
+
+def _optional_baselines() -> dict[str, str]:
+    """polars and duckdb where installed (the dev extra): name -> label."""
+    found = {}
+    for module, name, label in (
+        ("polars", "polars", "polars, same work (+ standard error)"),
+        ("duckdb", "duckdb", "duckdb SQL, same work (+ standard error)"),
+    ):
+        try:
+            __import__(module)
+        except ImportError:
+            print(f"({module} not installed: its baseline is left out; pip install {module})")
+            continue
+        found[name] = label
+    return found
 
 
 def _as_frame(tables: Sequence[FrictionTable]) -> pd.DataFrame:
@@ -244,6 +350,149 @@ def _as_frame(tables: Sequence[FrictionTable]) -> pd.DataFrame:
     return pd.concat(parts).set_index(["axis", "position", "direction", "step"]).sort_index()
 
 
+def numpy_tables(
+    recording: Recording, segmentations: dict[str, Segmentation]
+) -> dict[str, dict[str, np.ndarray]]:
+    """The plain numpy script's table (``baseline_script.axis_table``) on the same windows."""
+    tables = {}
+    for axis, seg in segmentations.items():
+        windows = seg.windows
+        tables[axis] = axis_table(
+            recording.axis_signal(axis, "current_a"),
+            np.array([w.start for w in windows]),
+            np.array([w.stop for w in windows]),
+            np.array([(w.position_index, w.direction, w.step) for w in windows]),
+        )
+    return tables
+
+
+def _numpy_frame(tables: dict[str, dict[str, np.ndarray]]) -> pd.DataFrame:
+    keys = ("position_index", "direction", "step", "median", "mean", "std", "n", "stderr")
+    parts = [
+        pd.DataFrame({"axis": axis, **{k: t[k] for k in keys}}).rename(
+            columns={"position_index": "position", "n": "count"}
+        )
+        for axis, t in tables.items()
+    ]
+    return pd.concat(parts).set_index(["axis", "position", "direction", "step"]).sort_index()
+
+
+def _differences(mine: pd.DataFrame, theirs: pd.DataFrame) -> str:
+    joined = mine.join(theirs.add_suffix("_other"), how="outer")
+    found = ", ".join(
+        f"{column} {(joined[column] - joined[f'{column}_other']).abs().max():.3g}"
+        for column in ("median", "mean", "std", "count", "stderr")
+        if f"{column}_other" in joined
+    )
+    return f"rows {len(mine)} / {len(theirs)} / joined {len(joined)}; max |difference|: {found}"
+
+
+def child_cpu(command: list[str]) -> float:
+    """CPU seconds (user + system) of ``command`` run in a fresh process; it must succeed."""
+    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    assert child.stderr is not None
+    error = child.stderr.read()
+    _, status, usage = os.wait4(child.pid, 0)
+    if os.waitstatus_to_exitcode(status):
+        raise SystemExit(f"{' '.join(command)} failed:\n{error.decode(errors='replace')}")
+    return usage.ru_utime + usage.ru_stime
+
+
+def _analyze_command(run: Path, schedule: Path, out: Path) -> list[str]:
+    return [sys.executable, "-m", "ncmeasure", "analyze", str(run), "--schedule", str(schedule),
+            "-o", str(out), "-q"]  # fmt: skip
+
+
+def rows_read(run: Path, schedule: Path) -> tuple[int, int, int, float]:
+    """Rows and readings of samples.bin of one analysis (in this process), its rows, its CPU."""
+    rows, readings = READ_COUNT.rows, READ_COUNT.readings
+    head = RecordingHead.open(run)
+    cpu = time.process_time()
+    analyze(head, schedule=load_schedule(schedule))
+    cpu = time.process_time() - cpu
+    return READ_COUNT.rows - rows, READ_COUNT.readings - readings, head.rows or 0, cpu
+
+
+def check_script(run: Path, schedule: Path) -> str:
+    """The script's tables against ncmeasure's friction_table on the script's own windows."""
+    recording = Recording.open(run)
+    theirs = friction_tables(run, schedule)
+    mine = []
+    for axis, table in theirs.items():
+        windows = [
+            VelocityWindow(axis, int(a), int(b), 1.0, 1.0, int(d), 0.0, int(p), int(s), "marker")  # type: ignore[arg-type]
+            for a, b, (p, d, s) in zip(
+                table["starts"], table["stops"], table["labels"].tolist(), strict=True
+            )
+        ]  # fmt: skip
+        mine.append(friction_table(axis, recording.axis_signal(axis, "current_a"), windows))
+    del recording
+    return _differences(_as_frame(mine), _numpy_frame(theirs))
+
+
+def whole_analysis(run: Path, schedule: Path, hours: float, rounds: int, marker: bool) -> None:
+    """ncmeasure analyze of a recording against the plain script (with a marker), as CPU."""
+    out = run.with_name(run.name + ".results.json")
+    read, readings, rows, cpu = rows_read(run, schedule)
+    print(
+        f"  rows read: {read:,} in {readings} reading(s) of a {rows:,}-row recording "
+        f"({read / max(rows, 1):.2f} x; analyze in this process: {cpu:.2f} s CPU)"
+    )
+    commands = {"ncmeasure": _analyze_command(run, schedule, out)}
+    if marker:
+        script = [sys.executable, str(BENCHMARKS / "baseline_script.py"), str(run), str(schedule)]
+        commands["script"] = script
+    cpu_s: dict[str, list[float]] = {name: [] for name in commands}
+    for _ in range(rounds):
+        for name, command in commands.items():
+            cpu_s[name].append(child_cpu(command))
+    median = {name: statistics.median(times) for name, times in cpu_s.items()}
+    for name, label in (
+        ("ncmeasure", "ncmeasure analyze (fresh process)"),
+        ("script", "plain numpy script (fresh process)"),
+    ):
+        if name in cpu_s:
+            low, high = min(cpu_s[name]), max(cpu_s[name])
+            print(
+                f"  {label:40} CPU {median[name]:6.2f} s ({low:.2f} .. {high:.2f}, {rounds} runs)"
+            )
+    factor = hours * 3600 / median["ncmeasure"]
+    if marker:
+        ratio = median["ncmeasure"] / median["script"]
+        print(
+            f"  ncmeasure / script CPU: {ratio:.2f} x (goal <= {GOAL_VS_SCRIPT:g} x: "
+            f"{'met' if ratio <= GOAL_VS_SCRIPT else 'NOT met'}); {factor:,.0f} x real time"
+        )
+    else:
+        print(
+            f"  {factor:,.0f} x real time (goal >= {GOAL_REAL_TIME:,.0f} x: "
+            f"{'met' if factor >= GOAL_REAL_TIME else 'NOT met'})"
+        )
+
+
+def analyses(hours: list[int], rounds: int, cache: Path, short: bool) -> None:
+    """The whole analysis of 1 h and 4 h recordings, with and without a marker."""
+    steps, repetitions = (10, 1) if short else (50, 2)
+    cache.mkdir(parents=True, exist_ok=True)
+    for copies in hours:
+        for marker in (True, False):
+            tag = f"{'short' if short else ''}{copies}h-{'marker' if marker else 'command'}"
+            run = cache / f"analysis-{tag}"
+            start = time.perf_counter()
+            schedule = write_copies(run, copies, steps, repetitions, with_marker=marker)
+            length = RecordingHead.open(run).meta.samples or 0
+            print(
+                f"\n{length / RATE_HZ / 3600:.2f} h, {length:,} rows, "
+                f"{'with a marker' if marker else 'without a marker (windows by the command)'} "
+                f"(written or found in {time.perf_counter() - start:.0f} s)"
+            )
+            whole_analysis(run, schedule, length / RATE_HZ / 3600, rounds, marker)
+            if marker:
+                print(
+                    f"  script's table vs ncmeasure's friction_table: {check_script(run, schedule)}"
+                )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=9, help="interleaved timed rounds")
@@ -251,6 +500,16 @@ def main() -> None:
         "--repetitions", type=int, default=2, help="program repetitions per axis (2: ~1 h)"
     )
     parser.add_argument("--short", action="store_true", help="a few minutes, 2 rounds")
+    parser.add_argument(
+        "--hours", type=int, nargs="*", default=[1, 4], help="whole analyses of these lengths"
+    )
+    parser.add_argument(
+        "--analysis-rounds", type=int, default=3, help="interleaved runs of each whole analysis"
+    )
+    parser.add_argument(
+        "--cache", type=Path, default=Path("/tmp/ncmeasure-bench-analysis"),
+        help="where the recordings of the whole analyses are kept and reused",
+    )  # fmt: skip
     args = parser.parse_args()
     steps_count, rounds = (10, 2) if args.short else (50, args.rounds)
     repetitions = 1 if args.short else args.repetitions
@@ -281,12 +540,22 @@ def main() -> None:
             f"(found in {time.perf_counter() - start:.2f} s, not part of the timing below)"
         )
 
+        optional = _optional_baselines()
         seconds, results = _interleaved(
             {
                 "ncmeasure": lambda: ncmeasure_tables(recording, segmentations),
                 "pandas": lambda: pandas_table(recording, segmentations),
                 "prebuilt": lambda: pandas_table_prebuilt(recording, segmentations),
                 "same": lambda: pandas_table_same_work(recording, segmentations),
+                "numpy": lambda: numpy_tables(recording, segmentations),
+                **{
+                    name: functools.partial(function, recording, segmentations)
+                    for name, function in (
+                        ("polars", polars_table_same_work),
+                        ("duckdb", duckdb_table_same_work),
+                    )
+                    if name in optional
+                },
             },
             rounds,
         )
@@ -300,6 +569,8 @@ def main() -> None:
         ("pandas", "pandas groupby, a frame per window"),
         ("prebuilt", "pandas groupby, labels built with numpy"),
         ("same", "pandas, same work (+ standard error)"),
+        ("numpy", "numpy script's table, same work"),
+        *optional.items(),
     ):
         low, high = min(seconds[name]), max(seconds[name])
         print(
@@ -318,12 +589,19 @@ def main() -> None:
         f"(goal >= {GOAL_VS_PANDAS:g} x: {'met' if versus >= GOAL_VS_PANDAS else 'NOT met'})"
     )
 
+    best = min(("same", "numpy", *optional), key=lambda name: median[name])
+    print(
+        f"against the best baseline doing the same work ({best}): "
+        f"{median[best] / median['ncmeasure']:.2f} x"
+    )
     ours = results["ncmeasure"]
     mine = _as_frame(ours)  # type: ignore[arg-type]
+    print(f"vs numpy script's table: {_differences(mine, _numpy_frame(results['numpy']))}")  # type: ignore[arg-type]
     for label, key in (
         ("plain pandas", "pandas"),
         ("prebuilt pandas", "prebuilt"),
         ("pandas, same work", "same"),
+        *((name, name) for name in optional),
     ):
         theirs = results[key]
         theirs = theirs.set_axis(theirs.index.set_levels(  # categorical axis level -> str
@@ -338,6 +616,14 @@ def main() -> None:
             f"vs {label}: rows {len(mine)} / {len(theirs)} / joined {len(joined)}; "
             f"max |difference|: {differences}"
         )
+
+    print("\nthe whole analysis: ncmeasure analyze against the plain numpy script, CPU")
+    if args.short:
+        with tempfile.TemporaryDirectory(prefix="ncmeasure-bench-") as tmp:
+            analyses([1], 1, Path(tmp), short=True)
+        print("(--short: a few minutes of recording, one run: the figures mean nothing)")
+    else:
+        analyses(sorted(set(args.hours)), args.analysis_rounds, args.cache, short=False)
 
 
 if __name__ == "__main__":

@@ -58,8 +58,14 @@ IMPORTS = (
 )
 
 
-def _write(directory: Path, copies: int, steps: int, repetitions: int) -> Path:
-    """The recording of ``copies`` programs one after the other, and its schedule file."""
+def _write(
+    directory: Path, copies: int, steps: int, repetitions: int, with_marker: bool = True
+) -> Path:
+    """The recording of ``copies`` programs one after the other, and its schedule file.
+
+    ``with_marker=False``: without the marker channels (the analysis finds the
+    windows by the commanded velocity). ``benchmarks/analysis.py`` writes its 4 h
+    recordings with it."""
     schedule_path = directory.with_name(directory.name + ".schedule.json")
     if directory.exists() and schedule_path.exists():
         try:
@@ -67,7 +73,11 @@ def _write(directory: Path, copies: int, steps: int, repetitions: int) -> Path:
                 return schedule_path
         except Exception:
             pass
-    data = simulate(measurement_axes(steps, repetitions), sample_period_s=1.0 / RATE_HZ)
+    data = simulate(
+        measurement_axes(steps, repetitions),
+        sample_period_s=1.0 / RATE_HZ,
+        with_marker=with_marker,
+    )
     period = len(data.time_s) / RATE_HZ
     if directory.exists():
         for item in directory.iterdir():

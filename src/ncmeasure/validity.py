@@ -72,6 +72,8 @@ CURRENT_PEAK_FACTOR: Final = 10.0
 VELOCITY_OVERSHOOT_FACTOR: Final = 2.0
 """A velocity beyond this many times the axis' maximum velocity is not real."""
 
+_LEAST_SENTINEL: Final = min(SENTINELS)
+
 _ABSURD: Final = 1e15
 """Any magnitude at or beyond this is not a measurement of any signal (Sinumerik's
 invalid-value marker, 9.2e18, is one)."""
@@ -108,7 +110,12 @@ def implausible(values: FloatArray, limit: float | None = None) -> NDArray[np.bo
     """
     data = np.asarray(values, dtype=np.float64)
     magnitude = np.abs(data)
-    bad = np.isin(magnitude, SENTINELS) | (magnitude >= _ABSURD) | np.isinf(data)
+    # inf, and every code, is at least the least code: only those few are looked up.
+    bad = magnitude >= _LEAST_SENTINEL
+    if bad.any():
+        large = np.flatnonzero(bad)
+        high = magnitude[large]
+        bad[large] = np.isin(high, SENTINELS) | (high >= _ABSURD)
     if limit is not None:
         bad |= magnitude > limit
     return bad

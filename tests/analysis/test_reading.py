@@ -3,18 +3,24 @@
 from __future__ import annotations
 
 import datetime as dt
+import json
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from ncmeasure.analysis import reading
 from ncmeasure.analysis.analyze import analyze
 from ncmeasure.analysis.reading import recording_gaps
 from ncmeasure.analysis.windows.signals import HoleCounter
-from ncmeasure.recording import Recording, RecordingWriter
+from ncmeasure.formats.schedule import Schedule
+from ncmeasure.recording import Recording, RecordingHead, RecordingWriter
+from ncmeasure.recording.reader import READ_COUNT
 from ncmeasure.samples import Channel, SampleBlock
+from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
 from ncmeasure.traces import import_traces
+from tests.analysis.test_oracle import _damaged
 from tests.traces.test_files import write_epos, write_map
 
 
@@ -120,3 +126,38 @@ def test_an_outage_read_in_passes_counts_as_in_memory(tmp_path: Path, rows: int)
             writer.add_event(event)
     results = analyze(tmp_path / "cut", rows=rows)
     assert (results.recording.gaps, results.recording.gap_samples) == (2, 38)
+
+
+def _results(head: RecordingHead, schedule: Schedule | None) -> dict[str, object]:
+    """results.json of the analysis of ``head`` in chunks of 1000 rows, without its time."""
+    data = json.loads(analyze(head, schedule=schedule, rows=1000).model_dump_json())
+    data.pop("created_utc")
+    return data
+
+
+@pytest.mark.parametrize("damaged", [False, True], ids=["whole", "damaged"])
+def test_a_recording_that_fits_is_read_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, damaged: bool
+) -> None:
+    velocities = geometric_velocities(10.0, 15000.0, 6)
+    axes = [
+        SyntheticAxis(name="X", velocities_mm_min=velocities),
+        SyntheticAxis(name="Y", velocities_mm_min=velocities, velocity_quantum_mm_min=8.5),
+    ]
+    recording, schedule = synthetic_recording(tmp_path / "rec", axes)
+    directory = (
+        _damaged(recording, tmp_path / "damaged").directory if damaged else recording.directory
+    )
+    rows, readings = READ_COUNT.rows, READ_COUNT.readings
+    head = RecordingHead.open(directory)
+    once = _results(head, schedule)
+    assert READ_COUNT.readings - readings == 1
+    assert READ_COUNT.rows - rows == head.rows
+    assert (head.problems != []) == damaged
+    # Beyond the budget, every pass reads the file again: the same results.
+    monkeypatch.setattr(reading, "HOLD_BYTES", 0)
+    rows, readings = READ_COUNT.rows, READ_COUNT.readings
+    again = _results(RecordingHead.open(directory), schedule)
+    assert READ_COUNT.readings - readings > 5
+    assert READ_COUNT.rows - rows > 5 * (head.rows or 0)
+    assert again == once

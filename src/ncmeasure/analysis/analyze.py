@@ -189,6 +189,7 @@ def analyze(
     chosen = chosen_axes(head, axes)
     report: Progress = progress or _quiet
     passes = RecordingPasses(head, chosen, schedule, machine, settings, rows, report)
+    passes.keep_held = on_windows is not None  # their last reading from the chunks held
     results = results_of(
         head,
         chosen,

@@ -120,8 +120,22 @@ def _row_span(read: Callable[[], Iterator[RowChunk]]) -> tuple[int, float, float
     return rows, start, end
 
 
+HOLD_BYTES = 512 << 20
+"""Largest recording (the channels the passes read, as float64) whose chunks are held.
+
+An analysis reads its rows in several passes (statistics, sweep, each axis'
+slices). A recording whose chunks fit this is read from ``samples.bin`` once:
+the first reading keeps its chunks and the later ones go over them (an hour
+of three axes at 1 kHz, 16 columns, is 454 MB). A longer one is read again
+for every pass, so that memory stays bounded whatever the length."""
+
+
 class _FileReader:
-    """The rows of a recording's file, chunk by chunk, with the progress of every pass."""
+    """The rows of a recording's file, chunk by chunk, with the progress of every pass.
+
+    A recording of at most :data:`HOLD_BYTES` is read once: the chunks of the
+    first whole reading are kept and given again to every later pass.
+    """
 
     def __init__(
         self, head: RecordingHead, channels: tuple[str, ...], rows: int, progress: Progress
@@ -138,17 +152,35 @@ class _FileReader:
         self.expected = max(1, samples_bytes // (8 * (1 + len(head.channels))))
         self.passes = 0
         self.chunk_times: dict[int, float] = {}  # first row -> its time, of every chunk read
+        self.holding = self.expected * 8 * (1 + len(channels)) <= HOLD_BYTES
+        self.held: list[RowChunk] | None = None  # the chunks of a whole reading, kept
 
     def chunks(self) -> Iterator[RowChunk]:
         """One reading of every row of the channels the passes need."""
+        if self.held is not None:
+            return iter(self.held)
         self.problems = []
-        return iter_chunks(
+        chunks = iter_chunks(
             self.head.directory,
             self.chunk_rows,
             self.channels,
             problems=self.problems,
             verified=self.verified,
         )
+        return self._kept(chunks) if self.holding else chunks
+
+    def _kept(self, chunks: Iterator[RowChunk]) -> Iterator[RowChunk]:
+        """The chunks, kept for the passes that follow once the reading went through."""
+        kept: list[RowChunk] = []
+        for chunk in chunks:
+            kept.append(chunk)
+            yield chunk
+        self.held = kept
+
+    def release(self) -> None:
+        """Let go of the chunks held: the passes are done."""
+        self.held = None
+        self.holding = False
 
     def seen(self, chunk: RowChunk) -> None:
         """Note a chunk read: the progress of the pass, the time of its first row."""
@@ -170,13 +202,24 @@ class _FileReader:
         if between_s is not None:
             begun = [row for row, t in self.chunk_times.items() if t < between_s[0]]
             first_row = max(begun, default=0)
-        for chunk in iter_chunks(
-            self.head.directory,
-            self.chunk_rows,
-            wanted,
-            verified=self.verified,
-            first_row=first_row,
-        ):
+        chunks: Iterable[RowChunk]
+        if self.held is not None:
+            # The chunks are still held: those from first_row on, not the file again.
+            index = [self.column[name] for name in wanted]
+            chunks = (
+                RowChunk(c.first, c.time_s, c.values[:, index])
+                for c in self.held
+                if c.first >= first_row
+            )
+        else:
+            chunks = iter_chunks(
+                self.head.directory,
+                self.chunk_rows,
+                wanted,
+                verified=self.verified,
+                first_row=first_row,
+            )
+        for chunk in chunks:
             if between_s is not None and len(chunk.time_s) and chunk.time_s[0] > between_s[1]:
                 return
             done = (chunk.first + len(chunk.time_s)) / self.expected
@@ -262,7 +305,8 @@ class RecordingPasses:
                 reader.seen(chunk)
                 yield chunk
 
-        source = Rows(read, reader.column, reader.chunk_rows, bounds)
+        kept = isinstance(reader, _FileReader) and reader.holding
+        source = Rows(read, reader.column, reader.chunk_rows, bounds, kept=kept)
         self.statistics = axes_statistics(source, ready) if ready else {}
         for axis in ready:
             try:
@@ -284,6 +328,21 @@ class RecordingPasses:
             self.rows, self.start_s, self.end_s = _row_span(read)
         self.gaps = _with_events(holes, lost, head.events)
         reader.done(self.rows)
+        # The chunks held for the passes go once every axis' slices are read.
+        self._unread = set(self.finders)
+        # True: the chunks held stay until the passes are dropped, for the tasks of
+        # on_windows that need one more reading (read_channels); else they go once
+        # every axis' slices are read.
+        self.keep_held = False
+        self._release: Callable[[], None] | None = None
+        if isinstance(reader, _FileReader):
+            file_reader = reader
+
+            def release() -> None:
+                file_reader.release()
+                source.forget()
+
+            self._release = release
 
     def _ready(
         self, axes: Sequence[str], schedule: Schedule | None, machine: MachineConfig | None
@@ -340,6 +399,10 @@ class RecordingPasses:
         except RecordingError:
             finder.release()
             raise
+        finally:
+            self._unread.discard(axis)
+            if not self._unread and self._release is not None and not self.keep_held:
+                self._release()
         checker = self.checker[axis]
         scanned = stats.implausible
         if scanned is not None:

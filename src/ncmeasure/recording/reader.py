@@ -42,6 +42,24 @@ MAX_EVENTS_BYTES = 256 * 1024 * 1024
 """Largest events.jsonl read (a million events)."""
 
 
+@dataclass
+class ReadCount:
+    """Rows of ``samples.bin`` files given out in this process, and the readings that gave them.
+
+    :func:`iter_chunks` and :meth:`Recording.open` add to :data:`READ_COUNT`
+    once per chunk and once per reading (never per row): a benchmark or a test
+    takes the difference around an analysis to see how often it read the
+    recording.
+    """
+
+    rows: int = 0
+    readings: int = 0
+
+
+READ_COUNT = ReadCount()
+"""What every reading of a recording's samples in this process added up to."""
+
+
 def _read_exactly(file: io.FileIO, target: memoryview) -> int:
     got = 0
     while got < len(target):
@@ -141,6 +159,8 @@ def _read_frames(path: Path, columns: int) -> tuple[NDArray[np.float64], list[st
                 if _read_exactly(file, target.data) < len(target):
                     where = f"after frame {number - 1}" if number else "at the start of samples.bin"
                     problems[:] = [f"torn tail: {rest} bytes {where} ignored (file shrank)"]
+                    READ_COUNT.readings += 1
+                    READ_COUNT.rows += rows
                     return data[:rows], problems
                 crc = zlib.crc32(target.data, crc)
                 at = rows + first
@@ -152,6 +172,8 @@ def _read_frames(path: Path, columns: int) -> tuple[NDArray[np.float64], list[st
                 ]
                 break
             rows += frame.rows
+    READ_COUNT.readings += 1
+    READ_COUNT.rows += rows
     return data[:rows], problems
 
 
@@ -216,6 +238,7 @@ def iter_chunks(
         file = samples_path.open("rb", buffering=0)
     except FileNotFoundError as exc:
         raise RecordingError(f"{path}: not a recording ({SAMPLES_FILE} is missing)") from exc
+    READ_COUNT.readings += 1
     with file:
         size = os.fstat(file.fileno()).st_size
         frames = _walk_headers(file, size, row_bytes, found)
@@ -317,36 +340,61 @@ class _Chunker:
         self._width = width
         self._row_bytes = 8 * width
         self._columns = columns
-        self._pending: list[NDArray[np.uint8]] = []  # rows read, not yet yielded
-        self.held = 0  # rows in pending
+        # Rows read, not yet given: the start of a chunk, in a buffer used again for
+        # every chunk (a chunk's arrays are copies), grown as far as a chunk needs.
+        self._buffer = np.empty(0, dtype=np.uint8)
+        self.held = 0  # rows in the buffer
         self.first = 0  # the row of the whole recording the next chunk begins with
+
+    def _chunk(self, table: NDArray[np.float64]) -> RowChunk:
+        """The chunk of these rows (copies: ``table`` may be read into again).
+
+        Its values are held column by column (Fortran order), as
+        :meth:`Recording.open` holds a recording: a channel of a chunk is one
+        contiguous run of memory, which every pass reads without a copy.
+        """
+        values = np.empty((len(table), len(self._columns)), dtype=np.float64, order="F")
+        for k, column in enumerate(self._columns):
+            values[:, k] = table[:, column]
+        chunk = RowChunk(self.first, table[:, 0].copy(), values)
+        READ_COUNT.rows += len(table)
+        self.first += len(table)
+        return chunk
 
     def add(self, piece: NDArray[np.uint8]) -> Iterator[RowChunk]:
         """Take the rows of ``piece``; the chunks that are now whole."""
-        rows, width, row_bytes, columns = self._rows, self._width, self._row_bytes, self._columns
-        self._pending.append(piece)
-        self.held += len(piece) // row_bytes
-        if self.held < rows:
-            return
-        pending = self._pending
-        joined = np.concatenate(pending) if len(pending) > 1 else pending[0]
-        whole = self.held // rows * rows
-        table = joined[: whole * row_bytes].view(ROW_DTYPE).reshape(whole, width)
-        for begin in range(0, whole, rows):
-            part = table[begin : begin + rows]
-            yield RowChunk(self.first, part[:, 0].copy(), part[:, columns])
-            self.first += rows
-        self._pending = [joined[whole * row_bytes :]] if self.held > whole else []
-        self.held -= whole
+        rows, width, row_bytes = self._rows, self._width, self._row_bytes
+        chunk_bytes = rows * row_bytes
+        at, size = 0, len(piece)
+        while at < size:
+            if not self.held and size - at >= chunk_bytes:
+                # A whole chunk in the piece: taken from it as it is.
+                table = piece[at : at + chunk_bytes].view(ROW_DTYPE).reshape(rows, width)
+                yield self._chunk(table)
+                at += chunk_bytes
+                continue
+            held_bytes = self.held * row_bytes
+            take = min(size - at, chunk_bytes - held_bytes)
+            if len(self._buffer) < held_bytes + take:
+                grown = np.empty(
+                    min(chunk_bytes, max(held_bytes + take, 2 * len(self._buffer))), np.uint8
+                )
+                grown[:held_bytes] = self._buffer[:held_bytes]
+                self._buffer = grown
+            self._buffer[held_bytes : held_bytes + take] = piece[at : at + take]
+            self.held += take // row_bytes
+            at += take
+            if self.held == rows:
+                self.held = 0
+                yield self._chunk(self._buffer[:chunk_bytes].view(ROW_DTYPE).reshape(rows, width))
 
     def rest(self) -> RowChunk | None:
         """The rows left over at the end, fewer than a chunk."""
         if not self.held:
             return None
-        pending = self._pending
-        joined = np.concatenate(pending) if len(pending) > 1 else pending[0]
-        table = joined.view(ROW_DTYPE).reshape(self.held, self._width)
-        return RowChunk(self.first, table[:, 0].copy(), table[:, self._columns])
+        held, self.held = self.held, 0
+        table = self._buffer[: held * self._row_bytes].view(ROW_DTYPE).reshape(held, self._width)
+        return self._chunk(table)
 
 
 def _frame_crc(file: io.FileIO, start: int, size: int) -> int | None:

@@ -35,7 +35,6 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
 
 from ncmeasure.analysis.friction.linear import fit_linear
 from ncmeasure.analysis.friction.stribeck import (
@@ -162,7 +161,9 @@ def _better_extended(stribeck: NonlinearFit, extended: NonlinearFit, points: int
     if rss_e <= 0:
         return rss_s > 0
     statistic = (rss_s - rss_e) / extra / (rss_e / dof)
-    return bool(stats.f.sf(statistic, extra, dof) < 0.01)
+    from scipy.special import fdtrc  # the F distribution's sf, without scipy.stats' import
+
+    return bool(fdtrc(extra, dof, max(statistic, 0.0)) < 0.01)
 
 
 def fit_direction(

@@ -22,7 +22,7 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import optimize, stats
+from scipy import optimize, special
 
 from ncmeasure.analysis.friction.linear import clean_points, covariance
 from ncmeasure.formats.results import NonlinearFit
@@ -538,7 +538,7 @@ def _judged(
         return None
     cov = scale2 * covariance(jac.T @ jac)
     stderr = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    t = float(stats.t.ppf(_T95, dof))
+    t = float(special.stdtrit(dof, _T95))  # stats.t.ppf(_T95, dof)
     ci = {
         name: (params[name] - t * float(stderr[i]), params[name] + t * float(stderr[i]))
         for i, name in enumerate(names)

@@ -42,7 +42,6 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import stats
 
 from ncmeasure.formats.results import (
     Cause,
@@ -199,6 +198,11 @@ def _permuted_spreads(
     return np.asarray((shape.max(axis=0) - shape.min(axis=0)) / shape.mean(axis=0))
 
 
+def _at_least_zero(statistic: float) -> float:
+    """A test statistic below 0 (rounding) as 0: its sf is 1 there, as scipy.stats gives it."""
+    return 0.0 if statistic < 0 else statistic
+
+
 def _fit_profile(
     positions: FloatArray, numbers: Sequence[int], table: FloatArray, noise: FloatArray | None
 ) -> _Profile | None:
@@ -256,13 +260,16 @@ def _fit_profile(
     observed = rss1 / dof if dof > 0 else None
     scale2: float | None
     p_value: float | None
+    # The χ² and F distributions' sf (scipy.stats' chi2.sf and f.sf, without its import).
+    from scipy.special import chdtrc, fdtrc
+
     if noise is not None:
         # The stated noise, inflated when the cells scatter more than it says.
         scale2 = max(1.0, observed or 0.0)
-        p_value = float(stats.chi2.sf(delta / scale2, q))
+        p_value = float(chdtrc(q, _at_least_zero(delta / scale2)))
     elif observed is not None and observed > 0:
         scale2 = observed
-        p_value = float(stats.f.sf(delta / q / observed, q, dof))
+        p_value = float(fdtrc(q, dof, _at_least_zero(delta / q / observed)))
     elif observed is not None:  # an exact fit: any position effect is real
         scale2 = 0.0
         p_value = 0.0 if delta > 0 else 1.0

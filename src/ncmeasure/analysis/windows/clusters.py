@@ -22,7 +22,6 @@ from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import theilslopes
 
 from ncmeasure.analysis.windows.detection import Detection
 from ncmeasure.analysis.windows.model import Candidate, Cluster, VelocityWindow, labelled_window
@@ -130,6 +129,8 @@ def drop_rapids(candidates: list[Candidate], detection: Detection) -> list[Candi
     level_v = np.array([np.median(np.log(speeds[labels == k])) for k in range(count)])
     level_d = np.array([np.median(log_d[labels == k]) for k in range(count)])
     if count >= 3:
+        from scipy.stats import theilslopes  # only here: scipy.stats takes a second to import
+
         slope, intercept, _, _ = theilslopes(level_d, level_v)
         expected = intercept + slope * np.log(speeds)
     else:

@@ -70,7 +70,11 @@ class Rows:
     chunk_rows: int
     limits: Mapping[str, float | None] = field(default_factory=dict)
     checked: bool = True
+    kept: bool = False
     _cleaned: dict[str, tuple[RowChunk, FloatArray]] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
+    _every: dict[tuple[str, int], tuple[RowChunk, FloatArray]] = field(
         default_factory=dict, init=False, repr=False, compare=False
     )
 
@@ -79,11 +83,18 @@ class Rows:
 
         Every task of a pass looks at the same chunk, and a recording in memory
         is the same chunk on every pass: a channel's last chunk is cleaned
-        once (the arrays returned are never written to).
+        once (the arrays returned are never written to). Where the reading's
+        chunks are ``kept`` (the same chunks on every pass), every chunk's
+        channel is cleaned once for all passes: a view of the chunk's column
+        where nothing was left out, so that costs no memory.
         """
         held = self._cleaned.get(name)
         if held is not None and held[0] is chunk:
             return held[1]
+        if self.kept:
+            known = self._every.get((name, chunk.first))
+            if known is not None and known[0] is chunk:
+                return known[1]
         values = chunk.values[:, self.column[name]]
         if self.checked:
             bad = implausible(values, self.limits.get(name))
@@ -92,7 +103,14 @@ class Rows:
                 values[bad] = np.nan
         cleaned = np.ascontiguousarray(values, dtype=np.float64)
         self._cleaned[name] = (chunk, cleaned)
+        if self.kept:
+            self._every[name, chunk.first] = (chunk, cleaned)
         return cleaned
+
+    def forget(self) -> None:
+        """Let go of the channels cleaned for every chunk (the passes are done)."""
+        self._every.clear()
+        self._cleaned.clear()
 
 
 @dataclass
@@ -244,6 +262,12 @@ def _scan_task(
     yield add
 
 
+def _finite(values: FloatArray) -> FloatArray:
+    """The finite values (the array itself where all are: no copy)."""
+    finite = np.isfinite(values)
+    return values if finite.all() else values[finite]
+
+
 def _bridged(scan: _Scan, source: Rows, name: str) -> View:
     """The channel's finite values after bridging its gaps (then the finite ones)."""
     before, after = scan.neighbours(name)
@@ -253,7 +277,7 @@ def _bridged(scan: _Scan, source: Rows, name: str) -> View:
             index = chunk.first // source.chunk_rows
             values = source.clean(chunk, name)
             values = bridge_chunk(values, chunk.time_s, before[index], after[index])
-            return values[np.isfinite(values)]
+            return _finite(values)
 
         return apply
 
@@ -266,7 +290,7 @@ def _cleaned(source: Rows, name: str) -> View:
     def make() -> Callable[[RowChunk], FloatArray]:
         def apply(chunk: RowChunk) -> FloatArray:
             values = source.clean(chunk, name)
-            return values[np.isfinite(values)]
+            return _finite(values)
 
         return apply
 
