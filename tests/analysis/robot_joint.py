@@ -75,7 +75,7 @@ WRIST = Joint(
     dt_s=0.002,
 )
 
-HOLD_S = 5.0
+HOLD_S = 3.0
 """Longest time at speed in a run (a slow run covers only part of the range)."""
 RANGE_RAD = 2.0
 ACCELERATION_RAD_S2 = 2.0
