@@ -59,6 +59,11 @@ Status = Literal["complete", "incomplete", "interrupted", "link_lost"]
 #: After the duration, rows already on their way are waited for this long (link time).
 IN_FLIGHT_S = 1.0
 
+#: In lockstep, the pause after each block read: the rows gather into blocks of many
+#: (written at once) instead of one by one, and the simulator's threads keep the CPU
+#: (wall-clock seconds; the link holds its rows meanwhile, nothing is lost).
+LOCKSTEP_READ_PAUSE_S = 0.02
+
 
 @dataclass
 class Progress:
@@ -242,6 +247,7 @@ def acquire(
 
     reached_end = False
     ended_by: EndedBy = "stop"
+    lockstep = link.clock.lockstep
     try:
         while not stop.is_set() and not reached_end:
             block = link.read(timeout_s=read_timeout_s)
@@ -264,6 +270,8 @@ def acquire(
                 link_time_s = float(block.time_s[-1])
                 latest = dict(zip(names, block.values[-1].tolist(), strict=True))
             meter.tick(rows, link_time_s, latest, events)
+            if lockstep and len(block):
+                stop.wait(LOCKSTEP_READ_PAUSE_S)
         status = "complete" if reached_end else "interrupted"
     except RecordingError:
         # The disk refused the rows. close() raises in its turn while it still does,

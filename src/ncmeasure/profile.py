@@ -29,12 +29,13 @@ the velocity limit peaks at the highest velocity whose two ramps fit.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["Ramp", "SCurve", "move_time_s", "ramp", "s_curve"]
+__all__ = ["Ramp", "SCurve", "move_time_s", "ramp", "s_curve", "times_at"]
 
 _MM_MIN_PER_M_S = 60_000.0
 
@@ -110,29 +111,6 @@ class SCurve:
         """Time from start to standstill at the target."""
         return 2.0 * self.ramp_time_s + self.cruise_time_s
 
-    def _ramp(self, tau: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
-        """Distance (m), velocity (m/s), acceleration (m/s²) at ``tau`` into the ramp."""
-        v_p = self.peak_velocity_mm_min / _MM_MIN_PER_M_S
-        a_p, j, t_r = self.acceleration_m_s2, self.jerk_m_s3, self.ramp_time_s
-        t_1 = a_p / j if j > 0 else 0.0
-        tau = np.clip(tau, 0.0, t_r)
-        r = t_r - tau
-        v_1, s_1 = j * t_1**2 / 2.0, j * t_1**3 / 6.0
-        first, last = tau < t_1, r < t_1
-        u = tau - t_1
-        acc = np.where(first, j * tau, np.where(last, j * r, a_p))
-        vel = np.where(first, j * tau**2 / 2.0, np.where(last, v_p - j * r**2 / 2.0, v_1 + a_p * u))
-        dist = np.where(
-            first,
-            j * tau**3 / 6.0,
-            np.where(
-                last,
-                v_p * t_r / 2.0 - (v_p * r - j * r**3 / 6.0),
-                s_1 + v_1 * u + a_p * u**2 / 2.0,
-            ),
-        )
-        return dist, vel, acc
-
     def at(
         self, time_s: ArrayLike
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
@@ -140,21 +118,104 @@ class SCurve:
 
         Times before the start give the start at rest, after the end the target at rest.
         """
-        t = np.clip(np.asarray(time_s, dtype=np.float64), 0.0, self.duration_s)
-        t_r, total = self.ramp_time_s, self.duration_s
-        up = self._ramp(t)
-        down = self._ramp(total - t)
-        v_p = self.peak_velocity_mm_min / _MM_MIN_PER_M_S
-        length = self.distance_mm / 1000.0
-        accelerating, braking = t < t_r, t > total - t_r
-        dist = np.where(
-            accelerating,
-            up[0],
-            np.where(braking, length - down[0], v_p * t_r / 2.0 + v_p * (t - t_r)),
+        return _travel(
+            np.asarray(time_s, dtype=np.float64),
+            self.distance_mm,
+            self.peak_velocity_mm_min,
+            self.acceleration_m_s2,
+            self.jerk_m_s3,
+            self.ramp_time_s,
+            self.duration_s,
         )
-        vel = np.where(accelerating, up[1], np.where(braking, down[1], v_p))
-        acc = np.where(accelerating, up[2], np.where(braking, -down[2], 0.0))
-        return dist * 1000.0, vel * _MM_MIN_PER_M_S, acc
+
+
+_Values = NDArray[np.float64] | float
+
+
+def _ramp(
+    tau: NDArray[np.float64], v_p_mm_min: _Values, a_p: _Values, j: _Values, t_r: _Values
+) -> tuple[NDArray[np.float64], ...]:
+    """Distance (m), velocity (m/s), acceleration (m/s²) at ``tau`` into the ramp.
+
+    Every argument an array of one shape, or a number: many moves at once.
+    """
+    v_p = v_p_mm_min / _MM_MIN_PER_M_S
+    t_1: _Values
+    if np.ndim(a_p) == 0 and np.ndim(j) == 0:
+        t_1 = a_p / j if j > 0 else 0.0  # one move: in Python floats, as it always was
+    else:
+        t_1 = np.divide(a_p, j, out=np.zeros(np.shape(j)), where=np.greater(j, 0.0))
+    tau = np.clip(tau, 0.0, t_r)
+    r = t_r - tau
+    v_1, s_1 = j * t_1**2 / 2.0, j * t_1**3 / 6.0
+    first, last = tau < t_1, r < t_1
+    u = tau - t_1
+    acc = np.where(first, j * tau, np.where(last, j * r, a_p))
+    vel = np.where(first, j * tau**2 / 2.0, np.where(last, v_p - j * r**2 / 2.0, v_1 + a_p * u))
+    dist = np.where(
+        first,
+        j * tau**3 / 6.0,
+        np.where(
+            last,
+            v_p * t_r / 2.0 - (v_p * r - j * r**3 / 6.0),
+            s_1 + v_1 * u + a_p * u**2 / 2.0,
+        ),
+    )
+    return dist, vel, acc
+
+
+def _travel(
+    time_s: NDArray[np.float64],
+    distance_mm: _Values,
+    v_p_mm_min: _Values,
+    a_p: _Values,
+    j: _Values,
+    t_r: _Values,
+    total: _Values,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """:meth:`SCurve.at` of one move, or of many (each argument an array of one shape)."""
+    t = np.clip(time_s, 0.0, total)
+    up = _ramp(t, v_p_mm_min, a_p, j, t_r)
+    down = _ramp(total - t, v_p_mm_min, a_p, j, t_r)
+    v_p = v_p_mm_min / _MM_MIN_PER_M_S
+    length = distance_mm / 1000.0
+    accelerating, braking = t < t_r, t > total - t_r
+    dist = np.where(
+        accelerating,
+        up[0],
+        np.where(braking, length - down[0], v_p * t_r / 2.0 + v_p * (t - t_r)),
+    )
+    vel = np.where(accelerating, up[1], np.where(braking, down[1], v_p))
+    acc = np.where(accelerating, up[2], np.where(braking, -down[2], 0.0))
+    return dist * 1000.0, vel * _MM_MIN_PER_M_S, acc
+
+
+def times_at(curves: Sequence[SCurve], distances_mm: ArrayLike) -> NDArray[np.float64]:
+    """When each move of ``curves`` has covered its distance of ``distances_mm``.
+
+    Bisection (the distance only grows) of every move at once, 50 halvings of
+    its duration.
+    """
+
+    def field(name: str) -> NDArray[np.float64]:
+        return np.array([getattr(c, name) for c in curves], dtype=np.float64)
+
+    wanted = np.asarray(distances_mm, dtype=np.float64)
+    params = (
+        field("distance_mm"),
+        field("peak_velocity_mm_min"),
+        field("acceleration_m_s2"),
+        field("jerk_m_s3"),
+        field("ramp_time_s"),
+    )
+    total = np.array([c.duration_s for c in curves], dtype=np.float64)
+    low, high = np.zeros(total.shape), total.copy()
+    for _ in range(50):
+        middle = 0.5 * (low + high)
+        short = _travel(middle, *params, total)[0] < wanted
+        low = np.where(short, middle, low)
+        high = np.where(short, high, middle)
+    return high
 
 
 def s_curve(

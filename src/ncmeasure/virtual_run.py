@@ -306,6 +306,7 @@ def serving(
             eds=eds or None,  # None: the built-in CiA 402 dictionary
             object_map=object_map,
             clock=clock,
+            answer="on_send",
         ):
             yield {"channel": channel}
         return

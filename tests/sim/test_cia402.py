@@ -21,6 +21,7 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 from ncmeasure.errors import ConfigError
 from ncmeasure.links.canopen.objects import load_object_map
 from ncmeasure.links.canopen.settings import CanOpenSettings
+from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.cia402 import (
     OPERATION_ENABLED,
     DriveScaling,
@@ -254,6 +255,41 @@ def test_drives_answering_on_the_bus_put_every_answer_between_its_sync_and_the_n
     assert sim.sync_count == 200
     assert sim.late_answers == 0
     assert sim.answer_cpu_s > 0
+
+
+def test_drives_in_lockstep_answering_on_the_bus_answer_every_frame_in_the_order_sent(
+    channel: str,
+) -> None:
+    """In lockstep with ``answer="on_send"`` the NMT command and the SDO requests are
+    answered within their send too: a SYNC sent right after the start command finds the
+    drive operational, whatever the drives' thread is doing (the demo sends them so)."""
+    clock = SimulatedClock()
+    with SimulatedDrives.start(
+        channel,
+        {0: 1},
+        SOURCE,
+        scaling=SCALING,
+        period_s=PERIOD_S,
+        answer="on_send",
+        clock=clock,
+    ) as sim:
+        net = canopen.Network()
+        net.connect(interface="virtual", channel=channel)
+        probe = can.Bus(interface="virtual", channel=channel)
+        try:
+            remote = node(net)
+            configure_tpdo(remote, 1, [0x60640020])
+            while probe.recv(0) is not None:  # the set-up's frames
+                pass
+            remote.nmt.state = "OPERATIONAL"
+            net.sync.transmit()  # at once: no waiting for the drive
+            seen = [probe.recv(0) for _ in range(3)]
+            assert probe.recv(0) is None
+        finally:
+            probe.shutdown()
+            net.disconnect()
+    assert [m.arbitration_id if m else None for m in seen] == [0x000, 0x080, 0x181]
+    assert clock.wait_step(0, 0.0) == sim.frames_sent  # SYNC 0 reported answered
 
 
 def test_drives_answer_on_the_bus_only_when_first_on_a_virtual_channel(channel: str) -> None:

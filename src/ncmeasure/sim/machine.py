@@ -67,7 +67,7 @@ from numpy.typing import NDArray
 
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, ProgramError
-from ncmeasure.profile import SCurve, s_curve
+from ncmeasure.profile import SCurve, s_curve, times_at
 from ncmeasure.program.check import read_generated
 from ncmeasure.program.reader import Dwell, Motion, ProgramTrace, ReadyWait, Stop
 from ncmeasure.samples import Channel, SampleBlock, channels_for
@@ -556,6 +556,8 @@ class VirtualMachine:
         acceleration = np.zeros((len(axes), n))
         marker = np.zeros(n)
         spans: list[MarkedSpan] = []
+        bisect: list[tuple[SCurve, float]] = []  # (move, distance) of a span's edges
+        bisected: list[int] = []  # the spans whose edges those are
         initial = self._initial()
         position[:, :] = initial[:, None]
         t = self.lead_in_s
@@ -584,18 +586,28 @@ class VirtualMachine:
                 begin = 0.0
                 for edge, value in part.marks:
                     if value:
-                        t0, t1 = self._time_at(part.curve, begin), self._time_at(part.curve, edge)
+                        # its start and end are found below, every span's at once
+                        bisect += [(part.curve, begin), (part.curve, edge)]
+                        bisected.append(len(spans))
                         spans.append(
                             MarkedSpan(
                                 value,
-                                float(t + t0),
-                                float(t + t1),
+                                t,
+                                t,
                                 names[moving],
                                 float(part.unit[moving] * part.curve.peak_velocity_mm_min),
                             )
                         )
                     begin = edge
             t += duration
+        if bisect:
+            curves, distances = zip(*bisect, strict=True)
+            edges_s = times_at(curves, distances).reshape(-1, 2)
+            for i, (t0, t1) in zip(bisected, edges_s, strict=True):
+                span = spans[i]
+                spans[i] = dataclasses.replace(
+                    span, start_s=float(span.start_s + t0), end_s=float(span.end_s + t1)
+                )
         rng = np.random.default_rng(self.seed)
         b, a_coef = servo(dt, self.servo_frequency_hz, self.servo_damping)
         actual_position = np.empty_like(position)
@@ -670,15 +682,3 @@ class VirtualMachine:
         current = current + np.where(hit, signs * ax.outlier_a, 0.0)
         lsb = realised.current_lsb_a
         return np.round(current / lsb) * lsb, reported
-
-    @staticmethod
-    def _time_at(curve: SCurve, distance_mm: float) -> float:
-        """When the move has covered ``distance_mm`` (bisection; the distance only grows)."""
-        low, high = 0.0, curve.duration_s
-        for _ in range(50):
-            middle = 0.5 * (low + high)
-            if float(curve.at(middle)[0]) < distance_mm:
-                low = middle
-            else:
-                high = middle
-        return high

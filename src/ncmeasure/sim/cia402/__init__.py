@@ -37,7 +37,11 @@ says how much, for a benchmark that must not count it.
 In lockstep with a link on a :class:`~ncmeasure.samples.SimulatedClock`
 (``clock``), the drives report every SYNC answered, with the number of frames
 they have sent, and the link sends the next SYNC only when it has received
-them: the recording is the same on an idle and on a loaded computer.
+them: the recording is the same on an idle and on a loaded computer. With
+``answer="on_send"`` in lockstep the drives answer every frame (NMT and SDO
+too) within its send, so a SYNC never overtakes the command sent before it,
+and no thread of theirs stands between two cycles (the demo's way: a third
+less time per cycle).
 
 Fault switches for tests, all thread-safe: :meth:`SimulatedDrive.stop_answering`,
 :meth:`~SimulatedDrive.resume`, :meth:`~SimulatedDrive.abort_sdo`,

@@ -11,6 +11,7 @@ exist, are mappable and fit 64 bits. A broken rule is an
 
 from __future__ import annotations
 
+import functools
 import math
 import struct
 from dataclasses import dataclass
@@ -119,15 +120,20 @@ def _entries_of(od: ObjectDictionary) -> dict[tuple[int, int], Entry]:
     return entries
 
 
-def clamp(value: float, fmt: str) -> int:
-    """``value`` rounded and clamped to the integer type of struct code ``fmt``."""
+@functools.cache
+def _bounds(fmt: str) -> tuple[int, int]:
+    """The least and the greatest value of the integer type of struct code ``fmt``."""
     bits = 8 * struct.calcsize("<" + fmt)
     if fmt.islower():
-        low, high = -(1 << (bits - 1)), (1 << (bits - 1)) - 1
-    else:
-        low, high = 0, (1 << bits) - 1
+        return -(1 << (bits - 1)), (1 << (bits - 1)) - 1
+    return 0, (1 << bits) - 1
+
+
+def clamp(value: float, fmt: str) -> int:
+    """``value`` rounded and clamped to the integer type of struct code ``fmt``."""
     if not math.isfinite(value):
         return 0
+    low, high = _bounds(fmt)
     return int(min(max(round(value), low), high))
 
 

@@ -122,8 +122,21 @@ class _Plan:
 
     cob_id: int
     every: int
-    parts: list[tuple[tuple[int, int], str | None, int]]  # key, struct code or None, bytes
+    parts: list[_Part]
     counter: int = 0
+
+
+@dataclass(frozen=True)
+class _Part:
+    """One mapped object of a TPDO: a value of the signal source, or the object's bytes."""
+
+    key: tuple[int, int]
+    size: int
+    """Bytes in the TPDO."""
+    code: str | None = None
+    """The struct code of a value of the signal source (None: the object's bytes)."""
+    encode: Callable[[AxisState], float] | None = None
+    packer: struct.Struct | None = None
 
 
 def _digital_outputs() -> ODRecord:
@@ -423,14 +436,14 @@ class SimulatedDrive:
             state = source.state(self.axis, index * self._period_s())
             frames = [self._held] if self._held is not None else []
             self._held = None
+            entries = self._od.entries
             for plan in due:
                 parts = []
-                for key, code, size in plan.parts:
-                    dyn = self._dynamic.get(key)
-                    if dyn is not None and code is not None:
-                        parts.append(struct.pack("<" + code, clamp(dyn.encode(state), code)))
+                for part in plan.parts:
+                    if part.encode is not None and part.packer is not None and part.code:
+                        parts.append(part.packer.pack(clamp(part.encode(state), part.code)))
                     else:
-                        parts.append(self._od.entries[key].data[:size].ljust(size, b"\0"))
+                        parts.append(entries[part.key].data[: part.size].ljust(part.size, b"\0"))
                 frame = (plan.cob_id, b"".join(parts))
                 if plan.cob_id == self._late_cob_id:
                     self._held = frame
@@ -443,14 +456,19 @@ class SimulatedDrive:
         for config in self.tpdos():
             if not config.valid or not 1 <= config.transmission_type <= 240:
                 continue
-            parts: list[tuple[tuple[int, int], str | None, int]] = []
+            parts: list[_Part] = []
             for index, sub, bits in config.mapping:
                 entry = self._od.entries.get((index, sub))
                 code = INT_FORMATS.get(entry.data_type) if entry else None
                 size = bits // 8
                 if code is not None and struct.calcsize("<" + code) != size:
                     code = None
-                parts.append(((index, sub), code, size))
+                dyn = self._dynamic.get((index, sub))
+                if dyn is not None and code is not None:
+                    packer = struct.Struct("<" + code)
+                    parts.append(_Part((index, sub), size, code, dyn.encode, packer))
+                else:
+                    parts.append(_Part((index, sub), size))
             if parts:
                 plans.append(_Plan(config.cob_id, config.transmission_type, parts))
         return plans
