@@ -32,7 +32,6 @@ an axis' position and velocity come, is decided as for the XML
 from __future__ import annotations
 
 import csv
-import itertools
 import logging
 import re
 from collections.abc import Callable, Iterator
@@ -159,7 +158,7 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     assembler = CarryForward(sink, [m.channel.name for m in mapped], [m.factor for m in mapped])
     decimal: str | None = "." if separator == "," else None
     width = len(header)
-    while block := list(itertools.islice(rows, _BLOCK_LINES)):
+    while block := lines.take(_BLOCK_LINES):
         first_line = lines.line_number - len(block) + 1
         place = _Where(job, first_line)
         mark = decimal if decimal is not None else _block_decimal(block, separator)

@@ -8,6 +8,7 @@ What every text importer needs to read such a file into numbers lives here.
 from __future__ import annotations
 
 import datetime as dt
+import itertools
 import math
 import re
 from collections.abc import Generator, Iterator, Mapping, Sequence
@@ -187,6 +188,11 @@ class TextLines:
                 self.encoding = "cp1252"
                 job.note(f"{path.name} is not UTF-8 text; read as Windows-1252")
         self.line_number = 0
+        self._file: BinaryIO | None = None
+        self._raw: Iterator[bytes] | None = None
+        self._bytes_read = 0
+        self._reported = 0
+        self._finished = False
         self._lines: Generator[str, None, None] = self._read()
 
     def __iter__(self) -> Iterator[str]:
@@ -200,6 +206,8 @@ class TextLines:
 
     def __exit__(self, *exc_info: object) -> None:
         self._lines.close()
+        if self._file is not None:
+            self._file.close()
 
     def _raw_lines(self, file: BinaryIO) -> Iterator[bytes]:
         """The lines of ``file`` with their endings; bytes.splitlines knows LF, CRLF and CR."""
@@ -212,27 +220,73 @@ class TextLines:
         if rest:
             yield rest
 
+    def _source(self) -> Iterator[bytes]:
+        """The raw lines not read yet, shared by iteration and :meth:`take`."""
+        if self._raw is None:
+            self._file = self.path.open("rb")
+            self._raw = self._raw_lines(self._file)
+        return self._raw
+
+    def _progress(self, count: int) -> None:
+        self._bytes_read += count
+        if self._bytes_read - self._reported >= PROGRESS_STEP_BYTES:
+            self.job.tick(self._bytes_read)
+            self._reported = self._bytes_read
+
+    def _finish(self) -> None:
+        if not self._finished:
+            self._finished = True
+            self.job.tick(self._bytes_read)
+
+    def _decode(self, raw: bytes, line_number: int) -> str:
+        try:
+            return raw.decode(self.encoding)
+        except UnicodeDecodeError as exc:
+            raise RecordingError(
+                f"{self.path}:{line_number}: not valid {self.encoding} text "
+                f"(byte {exc.start + 1} of the line)"
+            ) from exc
+
     def _read(self) -> Generator[str, None, None]:
-        bytes_read = 0
-        reported = 0
-        with self.path.open("rb") as file:
-            for raw in self._raw_lines(file):
-                self.line_number += 1
-                bytes_read += len(raw)
-                if bytes_read - reported >= PROGRESS_STEP_BYTES:
-                    self.job.tick(bytes_read)
-                    reported = bytes_read
-                try:
-                    text = raw.decode(self.encoding)
-                except UnicodeDecodeError as exc:
-                    raise RecordingError(
-                        f"{self.path}:{self.line_number}: not valid {self.encoding} text "
-                        f"(byte {exc.start + 1} of the line)"
-                    ) from exc
-                if self.line_number == 1:
-                    text = text.lstrip("\ufeff")
-                yield text.rstrip("\r\n")
-        self.job.tick(bytes_read)
+        for raw in self._source():
+            self.line_number += 1
+            self._progress(len(raw))
+            text = self._decode(raw, self.line_number)
+            if self.line_number == 1:
+                text = text.lstrip("\ufeff")
+            yield text.rstrip("\r\n")
+        self._finish()
+
+    def take(self, count: int) -> list[str]:
+        """The next ``count`` lines (fewer at the end, none after it) as iteration gives
+        them, decoded at once: the way to read the many lines of the data.
+
+        After it, :attr:`line_number` is the number of the last line taken.
+        """
+        raw = list(itertools.islice(self._source(), count))
+        if not raw:
+            self._finish()
+            return []
+        first = self.line_number + 1
+        data = b"".join(raw)
+        self._progress(len(data))
+        try:
+            text = data.decode(self.encoding)
+        except UnicodeDecodeError:
+            for offset, line in enumerate(raw):  # the line and byte, as line by line
+                self._decode(line, first + offset)
+            raise
+        # a raw line holds CR or LF only at its end: one LF per line, then split
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+        lines = text.split("\n")
+        if text.endswith("\n"):
+            lines.pop()
+        if len(lines) != len(raw):  # not expected; line by line then
+            lines = [self._decode(line, first + i).rstrip("\r\n") for i, line in enumerate(raw)]
+        if first == 1:
+            lines[0] = lines[0].lstrip("\ufeff")
+        self.line_number += len(raw)
+        return lines
 
     def where(self) -> str:
         """``file:line`` of the line last read."""
