@@ -169,8 +169,9 @@ def import_csv(
     """Make a recording from a CSV file in the layout of :func:`export_csv`.
 
     The header names ``time_s`` and the channels (``<AXIS>_<signal>``, e.g.
-    ``X_current_a``; units follow from the signal). The file is read in chunks
-    with numpy's parser, which reads the shortest float reprs back bit-exact.
+    ``X_current_a``; units follow from the signal). The file is read in chunks;
+    a chunk of plain numbers is parsed at once (:func:`~ncmeasure.traces.text.number_rows`),
+    any other with numpy's parser; both read every float back bit-exact.
 
     Args:
         path: The CSV file.

@@ -132,7 +132,8 @@ class CarryForward:
 
         Raises:
             RecordingError: A time is not a finite number or not later than the
-                record before (the records before it are not kept then).
+                record before (raised as :meth:`commit` raises it, after the records
+                before it were taken).
         """
         count = len(time_s)
         if count == 0:
