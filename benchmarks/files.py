@@ -254,9 +254,23 @@ def _compare(task: str, ours: Path, theirs: Path) -> str:
     return done.stdout.strip()
 
 
+def _make(kind: str, path: Path, size: int) -> None:
+    """Write an input in a child, for the same reason as :func:`_compare`."""
+    subprocess.run([sys.executable, __file__, "--make", kind, str(path), str(size)], check=True)
+
+
 def main() -> None:
     if sys.argv[1:2] == ["--compare"]:
         print(_same(sys.argv[2], Path(sys.argv[3]), Path(sys.argv[4])))
+        return
+    if sys.argv[1:2] == ["--make"]:
+        writers = {
+            "recording": write_recording,
+            "sinumerik-csv": write_sinumerik_csv,
+            "twincat-csv": write_twincat,
+            "tncscope": write_tncscope,
+        }
+        writers[sys.argv[2]](Path(sys.argv[3]), int(sys.argv[4]))
         return
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--rows", type=int, default=3_600_000, help="rows of the recording")
@@ -287,7 +301,7 @@ def main() -> None:
         recording = work / f"recording-{rows}"
         if not (recording / "meta.json").exists():
             shutil.rmtree(recording, ignore_errors=True)
-            write_recording(recording, rows)
+            _make("recording", recording, rows)
         exported = work / f"export-{rows}.csv"
         inputs = {
             "export": recording,
@@ -296,17 +310,12 @@ def main() -> None:
             "twincat-csv": work / f"twincat-{size_bytes}.csv",
             "tncscope": work / f"tncscope-{size_bytes}.sco",
         }
-        writers = {
-            "sinumerik-csv": write_sinumerik_csv,
-            "twincat-csv": write_twincat,
-            "tncscope": write_tncscope,
-        }
         for task in args.tasks:
             source = inputs[task]
             if task == "import" and not exported.exists():
                 _run("ncmeasure", "export", recording, exported)
-            if task in writers and not source.exists():
-                writers[task](source, size_bytes)
+            if task not in ("export", "import") and not source.exists():
+                _make(task, source, size_bytes)
             ending = ".csv" if task == "export" else ""
             ours = work / f"out-ncmeasure-{task}{ending}"
             theirs = work / f"out-polars-{task}{ending}"

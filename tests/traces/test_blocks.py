@@ -98,7 +98,8 @@ def _job(source: Path, target: Path) -> ImportJob:
 def _tiny_blocks(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(merging, "CHUNK_ROWS", 2)
     monkeypatch.setattr(merging, "MERGE_ROWS", 2)
-    monkeypatch.setattr(csv_module, "IMPORT_CHUNK_ROWS", 3)
+    monkeypatch.setattr(csv_module, "IMPORT_CHUNK_ROWS", 5)
+    monkeypatch.setattr(csv_module, "_PARSE_LINES", 2)
     for module in (sinumerik_csv, tncscope, twincat_csv):
         monkeypatch.setattr(module, "_BLOCK_LINES", 3)
 

@@ -104,6 +104,22 @@ def csv_rows(rows: NDArray[np.float64]) -> bytes:
     return body + b"\n"
 
 
+#: Lines parsed at a time by :func:`_plain_rows`: the text, its JSON and the floats of
+#: a whole chunk at once would cost several times the chunk's size in memory.
+_PARSE_LINES: Final = 10_000
+
+
+def _plain_rows(lines: Sequence[str], width: int) -> NDArray[np.float64] | None:
+    """The rows of a chunk if every part of it is plain (:func:`number_rows`), else None."""
+    parts = []
+    for start in range(0, len(lines), _PARSE_LINES):
+        part = number_rows("".join(lines[start : start + _PARSE_LINES]).encode(), width)
+        if part is None:
+            return None
+        parts.append(part)
+    return np.concatenate(parts) if parts else None
+
+
 def _parse_csv_header(path: Path, line: str) -> list[Channel]:
     if not line:
         raise RecordingError(f"{path}:1: the file is empty; expected a header row")
@@ -228,7 +244,7 @@ def import_csv_meta(
             while lines := list(itertools.islice(file, IMPORT_CHUNK_ROWS)):
                 first_line = line_number + 1
                 line_number += len(lines)
-                data = number_rows("".join(lines).encode(), len(names))
+                data = _plain_rows(lines, len(names))
                 if data is None:  # a spelling JSON does not know, or an error: numpy's parser
                     try:
                         data = np.loadtxt(
