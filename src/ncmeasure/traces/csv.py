@@ -12,17 +12,21 @@ import itertools
 import logging
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Final
 
 import numpy as np
+import pydantic_core
+from numpy.typing import NDArray
 
 from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
-from ncmeasure.files import replace_text
+from ncmeasure.files import replace_binary
 from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.recording.format import IMPORT_CHUNK_ROWS, PathArg, channel_from_name
 from ncmeasure.recording.reader import Recording, RecordingHead, rows_of
 from ncmeasure.recording.sink import ImportSink, check_times
 from ncmeasure.samples import SIGNAL_UNITS, Channel
+from ncmeasure.traces.text import number_rows
 
 log = logging.getLogger(__name__)
 
@@ -54,19 +58,66 @@ def export_csv(recording: Recording | RecordingHead | PathArg, path: PathArg) ->
     target = Path(path)
     count = 0
     try:
-        with replace_text(target, newline="\n") as file:
-            file.write(",".join(["time_s", *rec.channel_names]) + "\n")
+        with replace_binary(target) as file:
+            file.write((",".join(["time_s", *rec.channel_names]) + "\n").encode())
             for chunk in chunks:
                 rows = np.empty((len(chunk.time_s), 1 + chunk.values.shape[1]))
                 rows[:, 0] = chunk.time_s
                 rows[:, 1:] = chunk.values
                 count += len(rows)
-                # float.__repr__ is the shortest text that round-trips exactly.
-                file.write("".join([",".join(map(repr, row)) + "\n" for row in rows.tolist()]))
+                file.write(csv_rows(rows))
     except OSError as exc:
         raise RecordingError(f"{target}: cannot be written ({exc.strerror or exc})") from exc
     log.info("exported %d samples of %s to %s", count, rec.directory, target)
     return target
+
+
+#: Below this magnitude (not zero) Python's repr writes an exponent (``1e-05``) where
+#: the JSON encoder writes digits (``0.00001``); such rows are written with repr itself.
+_REPR_EXPONENT_BELOW: Final = 1e-4
+
+
+def csv_rows(rows: NDArray[np.float64]) -> bytes:
+    """Rows of float64 as CSV lines of Python's shortest reprs, ``,``-separated, ``\n``-ended.
+
+    ``float.__repr__`` is the shortest text that reads back to the same float64, and
+    the one nearest to it among those (``0.1``, ``1e+16``, ``-0.0``, ``nan``). pydantic's
+    JSON encoder writes the same digits (shortest and nearest) about ten times faster,
+    with the same text for every finite value from 1e-4 on; its ``NaN`` and
+    ``Infinity`` are renamed, and a row with a smaller value is written with repr.
+    The result is byte for byte ``",".join(map(repr, row)) + "\n"`` for every row.
+    """
+    if len(rows) == 0:
+        return b""
+    text = pydantic_core.to_json(rows.tolist(), inf_nan_mode="constants")
+    # b"[[a,b],[c,d]]" -> b"a,b\nc,d"; the names of NaN and inf as repr writes them
+    body = text[2:-2].replace(b"],[", b"\n")
+    if b"N" in body:
+        body = body.replace(b"NaN", b"nan").replace(b"Infinity", b"inf")
+    with np.errstate(invalid="ignore"):
+        tiny = np.flatnonzero(((np.abs(rows) < _REPR_EXPONENT_BELOW) & (rows != 0)).any(axis=1))
+    if len(tiny):
+        lines = body.split(b"\n")
+        for index in tiny.tolist():
+            lines[index] = ",".join(map(repr, rows[index].tolist())).encode()
+        body = b"\n".join(lines)
+    return body + b"\n"
+
+
+#: Lines parsed at a time by :func:`_plain_rows`: the text, its JSON and the floats of
+#: a whole chunk at once would cost several times the chunk's size in memory.
+_PARSE_LINES: Final = 10_000
+
+
+def _plain_rows(lines: Sequence[str], width: int) -> NDArray[np.float64] | None:
+    """The rows of a chunk if every part of it is plain (:func:`number_rows`), else None."""
+    parts = []
+    for start in range(0, len(lines), _PARSE_LINES):
+        part = number_rows("".join(lines[start : start + _PARSE_LINES]).encode(), width)
+        if part is None:
+            return None
+        parts.append(part)
+    return np.concatenate(parts) if parts else None
 
 
 def _parse_csv_header(path: Path, line: str) -> list[Channel]:
@@ -134,8 +185,9 @@ def import_csv(
     """Make a recording from a CSV file in the layout of :func:`export_csv`.
 
     The header names ``time_s`` and the channels (``<AXIS>_<signal>``, e.g.
-    ``X_current_a``; units follow from the signal). The file is read in chunks
-    with numpy's parser, which reads the shortest float reprs back bit-exact.
+    ``X_current_a``; units follow from the signal). The file is read in chunks;
+    a chunk of plain numbers is parsed at once (:func:`~ncmeasure.traces.text.number_rows`),
+    any other with numpy's parser; both read every float back bit-exact.
 
     Args:
         path: The CSV file.
@@ -192,12 +244,15 @@ def import_csv_meta(
             while lines := list(itertools.islice(file, IMPORT_CHUNK_ROWS)):
                 first_line = line_number + 1
                 line_number += len(lines)
-                try:
-                    data = np.loadtxt(
-                        lines, delimiter=",", comments=None, dtype=np.float64, ndmin=2
-                    )
-                except ValueError as exc:
-                    raise RecordingError(_csv_line_error(source, lines, first_line, names)) from exc
+                data = _plain_rows(lines, len(names))
+                if data is None:  # a spelling JSON does not know, or an error: numpy's parser
+                    try:
+                        data = np.loadtxt(
+                            lines, delimiter=",", comments=None, dtype=np.float64, ndmin=2
+                        )
+                    except ValueError as exc:
+                        error = _csv_line_error(source, lines, first_line, names)
+                        raise RecordingError(error) from exc
                 if data.shape[0] == 0:
                     continue
                 if data.shape[1] != len(names):

@@ -118,6 +118,88 @@ class CarryForward:
         if len(self._times) >= self._chunk_rows:
             self.flush()
 
+    def commit_block(
+        self, time_s: NDArray[np.float64], raw: NDArray[np.float64], where: Callable[[int], str]
+    ) -> None:
+        """:meth:`set` and :meth:`commit` for many records at once, with the same outcome.
+
+        Args:
+            time_s: The records' times.
+            raw: One row per record, one column per channel, as the trace writes
+                them; NaN where the record holds no new sample of the channel (an
+                invalid sample must be given as a number, e.g. the marker, or inf).
+            where: ``where(index)`` names the place of record ``index``, for messages.
+
+        Raises:
+            RecordingError: A time is not a finite number or not later than the
+                record before (raised as :meth:`commit` raises it, after the records
+                before it were taken).
+        """
+        count = len(time_s)
+        if count == 0:
+            return
+        steps = np.diff(time_s, prepend=self._last_time)
+        bad = ~np.isfinite(time_s) | ~(steps > 0)
+        if bad.any():
+            first = int(np.flatnonzero(bad)[0])
+            self.commit_block(time_s[:first], raw[:first], where)
+            for column in np.flatnonzero(~np.isnan(raw[first])).tolist():
+                self.set(column, float(raw[first, column]), lambda: where(first))
+            self.commit(float(time_s[first]), lambda: where(first))  # raises
+        self._last_time = float(time_s[-1])
+        self.records += count
+        rows = np.arange(count)
+        present = ~np.isnan(raw)
+        with np.errstate(invalid="ignore"):
+            invalid = present & ~(np.abs(raw) < INVALID_ABOVE)
+            values = raw * np.asarray(self._factors, dtype=np.float64)
+        values[invalid] = np.nan
+        # the last sample at or before each record, or the one from before the block
+        latest = np.maximum.accumulate(np.where(present, rows[:, None], -1), axis=0)
+        held = np.vstack([np.asarray(self._current, dtype=np.float64)[None, :], values])
+        filled = np.take_along_axis(held, latest + 1, axis=0)
+        # a record is kept once every channel has had a value
+        seen = np.asarray(self._seen)[None, :] | (latest >= 0)
+        complete = seen.all(axis=1)
+        for column in range(len(self.names)):
+            hits = int(np.count_nonzero(invalid[:, column]))
+            if hits:
+                self.invalid[column] += hits
+                if self.first_invalid[column] is None:
+                    self.first_invalid[column] = where(int(np.flatnonzero(invalid[:, column])[0]))
+        self._current = filled[-1].tolist()
+        self._seen = seen[-1].tolist()
+        self._unseen = len(self._seen) - sum(self._seen)
+        kept = int(np.count_nonzero(complete))
+        self.dropped_leading += count - kept
+        if not kept:
+            return
+        start = count - kept  # complete from there on: the channels stay seen
+        if self.first_complete_s is None:
+            self.first_complete_s = float(time_s[start])
+        self._append_rows(time_s[start:], filled[start:])
+
+    def _append_rows(self, time_s: NDArray[np.float64], rows: NDArray[np.float64]) -> None:
+        """Collect rows and hand them over in chunks of the same size as :meth:`commit` does."""
+        at = 0
+        while len(time_s) - at >= self._chunk_rows - len(self._times):
+            take = self._chunk_rows - len(self._times)
+            if self._times:
+                times = np.concatenate([np.array(self._times), time_s[at : at + take]])
+                block = np.vstack(
+                    [
+                        np.array(self._rows, dtype=np.float64).reshape(-1, len(self.names)),
+                        rows[at : at + take],
+                    ]
+                )
+                self._times, self._rows = [], []
+            else:
+                times, block = time_s[at : at + take], rows[at : at + take]
+            self._sink.append(np.ascontiguousarray(times), np.ascontiguousarray(block))
+            at += take
+        self._times.extend(time_s[at:].tolist())
+        self._rows.extend(rows[at:].tolist())
+
     def flush(self) -> None:
         """Hand the collected rows to the recording."""
         if not self._times:

@@ -37,19 +37,29 @@ import re
 from collections.abc import Callable, Iterator
 from typing import Final
 
+import numpy as np
+
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.traces.axes import plan_channels
 from ncmeasure.traces.job import ImportJob
 from ncmeasure.traces.merge import CarryForward
 from ncmeasure.traces.sinumerik_xml import parse_signal_name, sinumerik_candidates
-from ncmeasure.traces.text import TextLines, decimal_mark, parse_number, preamble_date
+from ncmeasure.traces.text import (
+    TextLines,
+    decimal_mark,
+    number_rows,
+    parse_number,
+    preamble_date,
+)
 
 __all__ = ["import_sinumerik_csv"]
 
 log = logging.getLogger(__name__)
 
 _HEADER_SEARCH_LINES: Final = 200
+#: Lines read and parsed at a time (a block of plain rows is parsed as a whole).
+_BLOCK_LINES: Final = 20_000
 _SEPARATORS: Final = (",", ";", "\t")
 _TIME_LABEL = re.compile(
     r"^(?:time|zeit|t)\s*(?:[\[(]\s*(?P<unit>s|ms|us|µs)\s*[\])])?$",
@@ -148,36 +158,43 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     assembler = CarryForward(sink, [m.channel.name for m in mapped], [m.factor for m in mapped])
     decimal: str | None = "." if separator == "," else None
     width = len(header)
-    reader = csv.reader(rows, delimiter=separator, quotechar='"')
-    for cells in reader:
-        where = lines.where()
-        if not any(c.strip() for c in cells):
+    while block := lines.take(_BLOCK_LINES):
+        first_line = lines.line_number - len(block) + 1
+        place = _Where(job, first_line)
+        mark = decimal if decimal is not None else _block_decimal(block, separator)
+        if _fast_block(block, place, separator, mark, width, time_factor, columns, assembler):
+            decimal = mark
             continue
-        if len(cells) > width:
-            hint = " (a decimal comma in a comma-separated file?)" if separator == "," else ""
-            raise RecordingError(
-                f"{where}: {len(cells)} cells, the header (line {header_line}) has {width}{hint}"
-            )
-        if decimal is None:
-            decimal = decimal_mark(cells)
-        try:
-            time_s = parse_number(cells[0], decimal or ".") * time_factor
-        except ValueError as exc:
-            raise RecordingError(
-                f"{where}: time {cells[0].strip()!r} is not a number ({exc})"
-            ) from exc
-        for index, column in columns:
-            cell = cells[index] if index < len(cells) else ""
-            if not cell.strip():
+        reader = csv.reader(block, delimiter=separator, quotechar='"')
+        for cells in reader:
+            at = place(reader.line_num - 1)
+            if not any(c.strip() for c in cells):
                 continue
+            if len(cells) > width:
+                hint = " (a decimal comma in a comma-separated file?)" if separator == "," else ""
+                raise RecordingError(
+                    f"{at}: {len(cells)} cells, the header (line {header_line}) has {width}{hint}"
+                )
+            if decimal is None:
+                decimal = decimal_mark(cells)
             try:
-                value = parse_number(cell, decimal or ".")
+                time_s = parse_number(cells[0], decimal or ".") * time_factor
             except ValueError as exc:
                 raise RecordingError(
-                    f"{where}: column {header[index]!r}: {cell.strip()!r} is not a number ({exc})"
+                    f"{at}: time {cells[0].strip()!r} is not a number ({exc})"
                 ) from exc
-            assembler.set(column, value, _at(where))
-        assembler.commit(time_s, _at(where))
+            for index, column in columns:
+                cell = cells[index] if index < len(cells) else ""
+                if not cell.strip():
+                    continue
+                try:
+                    value = parse_number(cell, decimal or ".")
+                except ValueError as exc:
+                    raise RecordingError(
+                        f"{at}: column {header[index]!r}: {cell.strip()!r} is not a number ({exc})"
+                    ) from exc
+                assembler.set(column, value, _at(at))
+            assembler.commit(time_s, _at(at))
     if assembler.records == 0:
         raise RecordingError(f"{job.path}: no data rows after the header (line {header_line})")
     assembler.flush()
@@ -194,3 +211,59 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
 
 def _at(where: str) -> Callable[[], str]:
     return lambda: where
+
+
+def _block_decimal(block: list[str], separator: str) -> str | None:
+    """The decimal mark of a block, as the row-by-row reading fixes it (first row showing one)."""
+    for line in block:
+        found = decimal_mark(line.split(separator))
+        if found is not None:
+            return found
+    return None
+
+
+class _Where:
+    """``file:line`` of the line at an index of a block."""
+
+    def __init__(self, job: ImportJob, first_line: int) -> None:
+        self.path = job.path
+        self.first_line = first_line
+
+    def __call__(self, index: int) -> str:
+        return f"{self.path}:{self.first_line + index}"
+
+
+def _fast_block(
+    block: list[str],
+    where: _Where,
+    separator: str,
+    decimal: str | None,
+    width: int,
+    time_factor: float,
+    columns: list[tuple[int, int]],
+    assembler: CarryForward,
+) -> bool:
+    """Read a block of plain rows at once (:func:`number_rows`); False: not plain, nothing read.
+
+    Plain: numbers in the notation of the file, the separator between them and no
+    other character (no quotes, spaces or blank lines), every row as wide as the
+    header, a time in every row. Anything else is read row by row
+    (:func:`_slow_block`), which says what is wrong where.
+    """
+    text = "\n".join(block)
+    if separator != ",":
+        if "," in text and decimal != ",":
+            return False
+        if decimal == ",":
+            if "." in text:
+                return False
+            text = text.replace(",", ".")
+        text = text.replace(separator, ",")
+    cells = number_rows(text.encode(), width, empty=True)
+    if cells is None or np.isnan(cells[:, 0]).any():
+        return False
+    raw = np.full((len(cells), len(assembler.names)), np.nan)
+    for index, column in columns:
+        raw[:, column] = cells[:, index]
+    assembler.commit_block(cells[:, 0] * time_factor, raw, where)
+    return True

@@ -51,6 +51,7 @@ from dataclasses import dataclass, field
 from typing import Final
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.recording import RecordingMeta
@@ -59,7 +60,13 @@ from ncmeasure.traces import merge as merging
 from ncmeasure.traces.axes import Candidate, Needs, plan_sources
 from ncmeasure.traces.job import ImportJob
 from ncmeasure.traces.merge import SeriesMerge
-from ncmeasure.traces.text import TextLines, decimal_mark, parse_number, unit_factor
+from ncmeasure.traces.text import (
+    TextLines,
+    decimal_mark,
+    number_rows,
+    parse_number,
+    unit_factor,
+)
 
 __all__ = ["import_tncscope"]
 
@@ -94,6 +101,8 @@ _CHANNEL_TYPES: Final[dict[str, tuple[str, str, int, Needs]]] = {
     "m actual": ("current_a", "Nm", 5, "torque_constant"),
 }
 _DSP_DEBUG_CURRENT: Final = "id(10)"
+#: Lines read and parsed at a time (a block of plain rows is parsed as a whole).
+_BLOCK_LINES: Final = 20_000
 
 
 @dataclass
@@ -281,44 +290,58 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     last_time = -math.inf
     rows = 0
     try:
-        for line in lines:
-            if not line.strip():
-                continue
-            where = lines.where()
-            cells = line.strip().split(";")
-            if cells and not cells[-1].strip():
-                cells.pop()  # rows end with ';'
-            if len(cells) < 1 + len(curves):
-                shown = line.strip()[:40]
-                raise RecordingError(
-                    f"{where}: {len(cells)} cells, expected a time and {len(curves)} "
-                    f"curve(s): {shown!r}"
-                )
-            if decimal is None:
-                decimal = decimal_mark(cells)
-            try:
-                time_value = parse_number(cells[0], decimal or ".")
-            except ValueError as exc:
-                raise RecordingError(f"{where}: time {cells[0].strip()!r}: {exc}") from exc
-            if not time_value > last_time:
-                raise RecordingError(
-                    f"{where}: time {cells[0].strip()} is not later than the row before; "
-                    "times must increase"
-                )
-            last_time = time_value
-            for k, (index, _) in enumerate(used):
-                if rows >= timing[index][0]:
-                    continue
-                cell = cells[1 + index]
-                try:
-                    values[k].append(parse_number(cell, decimal or "."))
-                except ValueError as exc:
-                    raise RecordingError(
-                        f"{where}: {curves[index].label}: {cell.strip()!r} is not a number ({exc})"
-                    ) from exc
-            rows += 1
-            if rows % chunk_rows == 0:
+        while block := lines.take(_BLOCK_LINES):
+            first_line = lines.line_number - len(block) + 1
+            mark = decimal if decimal is not None else _block_decimal(block)
+            data = _plain_block(block, mark, 1 + len(curves), last_time)
+            if data is not None:
+                decimal = mark
+                for k, (index, _) in enumerate(used):
+                    take = max(0, min(len(data), timing[index][0] - rows))
+                    values[k].frombytes(np.ascontiguousarray(data[:take, 1 + index]).tobytes())
+                rows += len(data)
+                last_time = float(data[-1, 0])
                 samples.hand_over()
+                continue
+            for offset, line in enumerate(block):
+                if not line.strip():
+                    continue
+                where = f"{job.path}:{first_line + offset}"
+                cells = line.strip().split(";")
+                if cells and not cells[-1].strip():
+                    cells.pop()  # rows end with ';'
+                if len(cells) < 1 + len(curves):
+                    shown = line.strip()[:40]
+                    raise RecordingError(
+                        f"{where}: {len(cells)} cells, expected a time and {len(curves)} "
+                        f"curve(s): {shown!r}"
+                    )
+                if decimal is None:
+                    decimal = decimal_mark(cells)
+                try:
+                    time_value = parse_number(cells[0], decimal or ".")
+                except ValueError as exc:
+                    raise RecordingError(f"{where}: time {cells[0].strip()!r}: {exc}") from exc
+                if not time_value > last_time:
+                    raise RecordingError(
+                        f"{where}: time {cells[0].strip()} is not later than the row before; "
+                        "times must increase"
+                    )
+                last_time = time_value
+                for k, (index, _) in enumerate(used):
+                    if rows >= timing[index][0]:
+                        continue
+                    cell = cells[1 + index]
+                    try:
+                        values[k].append(parse_number(cell, decimal or "."))
+                    except ValueError as exc:
+                        raise RecordingError(
+                            f"{where}: {curves[index].label}: {cell.strip()!r} is not a number "
+                            f"({exc})"
+                        ) from exc
+                rows += 1
+                if rows % chunk_rows == 0:
+                    samples.hand_over()
         if rows < longest:
             short = [c.label for c, (count, _) in zip(curves, timing, strict=True) if count > rows]
             raise RecordingError(
@@ -336,6 +359,40 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     job.note("time of sample k of a curve = k x CYCLETIME of that curve")
     merge.finish(job)
     return job.finish()
+
+
+def _block_decimal(block: list[str]) -> str | None:
+    """The decimal mark of a block, as the row-by-row reading fixes it (first row showing one)."""
+    for line in block:
+        found = decimal_mark(line.strip().split(";"))
+        if found is not None:
+            return found
+    return None
+
+
+def _plain_block(
+    block: list[str], decimal: str | None, width: int, last_time: float
+) -> NDArray[np.float64] | None:
+    """The rows of a block of plain rows, read at once (:func:`number_rows`); None: not plain.
+
+    Plain: ``;``-ended rows of exactly a time and one number per curve in the
+    notation of the file, nothing else (no spaces, no blank lines), times increasing.
+    Anything else is read row by row, which says what is wrong where.
+    """
+    text = "\n".join(block)
+    if decimal == ",":
+        if "." in text:
+            return None
+        text = text.replace(",", ".")
+    elif "," in text:
+        return None
+    text = text.replace(";\n", "\n")
+    if text.endswith(";"):
+        text = text[:-1]
+    data = number_rows(text.replace(";", ",").encode(), width)
+    if data is None or not (np.diff(data[:, 0], prepend=last_time) > 0).all():
+        return None
+    return data
 
 
 class _CurveSamples:

@@ -45,7 +45,6 @@ m/s; A, mA).
 
 from __future__ import annotations
 
-import itertools
 import logging
 import math
 import re
@@ -67,6 +66,7 @@ from ncmeasure.traces.text import (
     TextLines,
     decimal_mark,
     filetime_to_datetime,
+    number_rows,
     parse_number,
     unit_factor,
 )
@@ -84,6 +84,10 @@ _NC_FIELDS: Final = {
     "ActVelo": ("velocity_mm_min", "mm/s"),
     "SetVelo": ("velocity_cmd_mm_min", "mm/s"),
 }
+#: Lines read and parsed at a time (a block of plain rows is parsed as a whole).
+_BLOCK_LINES: Final = 20_000
+#: A cell of a single space between separators (commas by then) or line ends.
+_LONE_SPACE: Final = re.compile(r"(?:(?<=,)|(?<=\n)|^) (?=,|\n|$)")
 #: A time cell with this many digits is a FILETIME ("Full Timestamp"), not milliseconds.
 _FILETIME_DIGITS: Final = 15
 
@@ -265,61 +269,81 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
 
     chunk_rows = merging.CHUNK_ROWS
     rows_parsed = 0
-    first_data = [header.first_data] if header.first_data is not None else []
+    pending = [header.first_data] if header.first_data is not None else []
     try:
-        for line in itertools.chain(first_data, header.rows):
-            if not line.strip():
-                continue
-            where = lines.where()
-            if line.strip() == "EOF":
-                break
-            cells = line.split(separator)
-            if len(cells) > header.width and any(c.strip() for c in cells[header.width :]):
-                raise _too_many_cells(where, len(cells), header)
-            if first_row:
-                first_row = False
-                full_timestamp = samples.full_timestamp = _full_timestamp(
-                    where, cells, needed, used[0][0]
-                )
-            if decimal is None:
-                decimal = decimal_mark(cells)
-            for k, (channel, _) in enumerate(used):
-                t_cell = cells[channel.time_col].strip() if channel.time_col < len(cells) else ""
-                v_cell = cells[channel.value_col].strip() if channel.value_col < len(cells) else ""
-                if not t_cell and not v_cell:
-                    ended[k] = True
+        while block := pending or lines.take(_BLOCK_LINES):
+            pending = []
+            first_line = lines.line_number - len(block) + 1
+            if first_row:  # the first row tells whether the times are FILETIME stamps
+                pending, block = block[1:], block[:1]
+            elif not full_timestamp:
+                mark = decimal if decimal is not None else _block_decimal(block, separator)
+                if _fast_block(block, header, used, mark, samples, last, ended):
+                    decimal = mark
+                    rows_parsed += len(block)
+                    samples.hand_over()
                     continue
-                if not t_cell or not v_cell:
-                    raise _half_sample(where, channel, separator)
-                if ended[k]:
-                    raise RecordingError(
-                        f"{where}: channel {channel.name} has samples again after empty cells"
+            eof = False
+            for offset, line in enumerate(block):
+                if not line.strip():
+                    continue
+                where = f"{job.path}:{first_line + offset}"
+                if line.strip() == "EOF":
+                    eof = True
+                    break
+                cells = line.split(separator)
+                if len(cells) > header.width and any(c.strip() for c in cells[header.width :]):
+                    raise _too_many_cells(where, len(cells), header)
+                if first_row:
+                    first_row = False
+                    full_timestamp = samples.full_timestamp = _full_timestamp(
+                        where, cells, needed, used[0][0]
                     )
-                try:
+                if decimal is None:
+                    decimal = decimal_mark(cells)
+                for k, (channel, _) in enumerate(used):
+                    t_cell = (
+                        cells[channel.time_col].strip() if channel.time_col < len(cells) else ""
+                    )
+                    v_cell = (
+                        cells[channel.value_col].strip() if channel.value_col < len(cells) else ""
+                    )
+                    if not t_cell and not v_cell:
+                        ended[k] = True
+                        continue
+                    if not t_cell or not v_cell:
+                        raise _half_sample(where, channel, separator)
+                    if ended[k]:
+                        raise RecordingError(
+                            f"{where}: channel {channel.name} has samples again after empty cells"
+                        )
+                    try:
+                        if full_timestamp:
+                            tick = int(t_cell)
+                            t = float(tick)
+                        else:
+                            t = parse_number(t_cell, decimal or ".")
+                        value = parse_number(v_cell, decimal or ".")
+                    except ValueError as exc:
+                        raise RecordingError(
+                            f"{where}: channel {channel.name}: not a number ({exc})"
+                        ) from exc
+                    if not t > last[k]:
+                        raise RecordingError(
+                            f"{where}: channel {channel.name}: time {t_cell} is not later than "
+                            "the sample before; times must increase"
+                        )
+                    last[k] = t
                     if full_timestamp:
-                        tick = int(t_cell)
-                        t = float(tick)
+                        ticks[k].append(tick)
                     else:
-                        t = parse_number(t_cell, decimal or ".")
-                    value = parse_number(v_cell, decimal or ".")
-                except ValueError as exc:
-                    raise RecordingError(
-                        f"{where}: channel {channel.name}: not a number ({exc})"
-                    ) from exc
-                if not t > last[k]:
-                    raise RecordingError(
-                        f"{where}: channel {channel.name}: time {t_cell} is not later than the "
-                        "sample before; times must increase"
-                    )
-                last[k] = t
-                if full_timestamp:
-                    ticks[k].append(tick)
-                else:
-                    times[k].append(t)
-                values[k].append(value)
-            rows_parsed += 1
-            if rows_parsed % chunk_rows == 0:
-                samples.hand_over()
+                        times[k].append(t)
+                    values[k].append(value)
+                rows_parsed += 1
+                if rows_parsed % chunk_rows == 0:
+                    samples.hand_over()
+            if eof:
+                break
 
         if first_row:
             raise RecordingError(f"{job.path}: no data rows after the header")
@@ -333,6 +357,70 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
         job.note("numbers use a decimal comma")
     merge.finish(job)
     return job.finish()
+
+
+def _block_decimal(block: list[str], separator: str) -> str | None:
+    """The decimal mark of a block, as the row-by-row reading fixes it (first row showing one)."""
+    for line in block:
+        found = decimal_mark(line.split(separator))
+        if found is not None:
+            return found
+    return None
+
+
+def _fast_block(
+    block: list[str],
+    header: _Header,
+    used: list[tuple[_ScopeChannel, Mapped]],
+    decimal: str | None,
+    samples: _ChannelSamples,
+    last: list[float],
+    ended: list[bool],
+) -> bool:
+    """Read a block of plain rows at once (:func:`number_rows`); False: not plain, nothing read.
+
+    Plain: rows exactly as wide as the header of numbers in the notation of the
+    file (times in ms), a channel that ended holding a single space in both of
+    its cells from there on, times increasing per channel; nothing else (no
+    blank lines, no ``EOF``). Anything else is read row by row, which says what
+    is wrong where.
+    """
+    separator = header.separator
+    text = "\n".join(block)
+    if separator != ",":
+        if "," in text and decimal != ",":
+            return False
+        if decimal == ",":
+            if "." in text:
+                return False
+            text = text.replace(",", ".")
+        text = text.replace(separator, ",")
+    if " " in text:  # a single space is the cell of a channel that ended: an empty cell
+        if _LONE_SPACE.sub("", text).count(" "):
+            return False
+        text = text.replace(" ", "")
+    cells = number_rows(text.encode(), header.width, empty=True)
+    if cells is None:
+        return False
+    portions = []
+    for k, (channel, _) in enumerate(used):
+        t, v = cells[:, channel.time_col], cells[:, channel.value_col]
+        gone = np.isnan(t)
+        if not np.array_equal(gone, np.isnan(v)):
+            return False  # a time without a value or a value without a time
+        count = int(np.argmax(gone)) if gone.any() else len(t)
+        if gone[count:].size and not gone[count:].all():
+            return False  # samples again after empty cells
+        if count and (ended[k] or not (np.diff(t[:count], prepend=last[k]) > 0).all()):
+            return False
+        portions.append((k, t[:count], v[:count], count < len(t)))
+    for k, t, v, stops in portions:
+        if len(t):
+            samples.times[k].frombytes(np.ascontiguousarray(t).tobytes())
+            samples.values[k].frombytes(np.ascontiguousarray(v).tobytes())
+            last[k] = float(t[-1])
+        ended[k] = ended[k] or stops
+    return True
 
 
 def _note_scaling(used: list[tuple[_ScopeChannel, Mapped]], job: ImportJob) -> None:
