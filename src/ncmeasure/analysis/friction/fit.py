@@ -35,7 +35,6 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
 
 from ncmeasure.analysis.friction.linear import fit_linear
 from ncmeasure.analysis.friction.stribeck import (
@@ -153,6 +152,8 @@ def _linear_region(
 
 def _better_extended(stribeck: NonlinearFit, extended: NonlinearFit, points: int) -> bool:
     """True when the rolling term lowers χ² significantly (F-test at 1 %)."""
+    from scipy import stats  # here: importing the fits costs nothing until one runs
+
     extra = len(EXTENDED_PARAMETERS) - len(STRIBECK_PARAMETERS)
     dof = points - len(EXTENDED_PARAMETERS)
     if dof <= 0:

@@ -42,7 +42,6 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import stats
 
 from ncmeasure.formats.results import (
     Cause,
@@ -203,6 +202,8 @@ def _fit_profile(
     positions: FloatArray, numbers: Sequence[int], table: FloatArray, noise: FloatArray | None
 ) -> _Profile | None:
     """Fit ln T = α_j + β_k over the compared cells; None with fewer than 2 compared positions."""
+    from scipy import stats  # here: a command that runs no fit starts without scipy
+
     usable = np.isfinite(table) & (table > 0)
     # Rows need 2 positions to say anything about position; a column dropped
     # here has no value in those rows, so the row counts stay as they are.
