@@ -46,6 +46,7 @@ GOAL_RATIO = 10.0
 """Every command: CPU time ≤ 10 × that of ``python -c pass``."""
 GOAL_WALL_S = 0.15
 """``--version`` and ``--help``: wall time ≤ 0.15 s."""
+SERVE = "serve (until ready)"
 WAIT_S = 120.0
 """The longest wait for one process (or for ``serve`` to be ready): a loaded machine."""
 
@@ -172,7 +173,7 @@ def _real(store: str) -> dict[str, tuple[list[str], tuple[int, ...]]]:
         "store check M1": (["store", "check", "M1", *at], (0, 1, 3)),
         "store export": (["store", "export", "-o", "x.jsonl", *at], (0,)),
         "store report": (["store", "report", "-o", "fleet.html", *at], (0, 1, 3)),
-        "serve (until ready)": (["serve", *at, "--port", "0"], (0,)),
+        SERVE: (["serve", *at, "--port", "0"], (0,)),
     }
 
 
@@ -212,7 +213,7 @@ def main() -> None:
 
         def once(name: str) -> Took:
             command, codes = commands[name]
-            if name.startswith("serve"):
+            if name == SERVE:
                 return _serve(command, env, folder)
             return _run(command, env, folder, codes)
 
