@@ -10,9 +10,38 @@ templates, and holds it against the soft limits, the maximum feeds, the
 schedule and the dialect's allowed codes.
 """
 
-from ncmeasure.program.check import CheckReport, check_programs
-from ncmeasure.program.dialect import Dialect, available_dialects, load_dialect
-from ncmeasure.program.render import GeneratedPrograms, generate_programs
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from ncmeasure.program.check import CheckReport, check_programs
+    from ncmeasure.program.dialect import Dialect, available_dialects, load_dialect
+    from ncmeasure.program.render import GeneratedPrograms, generate_programs
+
+_LAZY = {
+    "CheckReport": "ncmeasure.program.check",
+    "check_programs": "ncmeasure.program.check",
+    "Dialect": "ncmeasure.program.dialect",
+    "available_dialects": "ncmeasure.program.dialect",
+    "load_dialect": "ncmeasure.program.dialect",
+    "GeneratedPrograms": "ncmeasure.program.render",
+    "generate_programs": "ncmeasure.program.render",
+}
+"""The public names and their modules, imported on first use: ``ncmeasure controllers``
+needs the dialects, not the planner and Jinja that rendering imports."""
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'ncmeasure.program' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "CheckReport",

@@ -16,13 +16,47 @@ figures on their own Agg canvas, for use elsewhere; :func:`save_png` writes one.
 
 from __future__ import annotations
 
-from ncmeasure.report.bearings import BearingLayout, bearing_layout
-from ncmeasure.report.friction_plots import plot_stribeck, plot_travel
-from ncmeasure.report.plots import PALETTE, figure_png, plot_comparison, save_png
-from ncmeasure.report.raw_plots import plot_raw_data
-from ncmeasure.report.traces import RawTraces
-from ncmeasure.report.windows import find_window_times, window_times
-from ncmeasure.report.write import ReportProgress, write_report
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from ncmeasure.report.bearings import BearingLayout, bearing_layout
+    from ncmeasure.report.friction_plots import plot_stribeck, plot_travel
+    from ncmeasure.report.plots import PALETTE, figure_png, plot_comparison, save_png
+    from ncmeasure.report.raw_plots import plot_raw_data
+    from ncmeasure.report.traces import RawTraces
+    from ncmeasure.report.windows import find_window_times, window_times
+    from ncmeasure.report.write import ReportProgress, write_report
+
+_LAZY = {
+    "BearingLayout": "ncmeasure.report.bearings",
+    "bearing_layout": "ncmeasure.report.bearings",
+    "plot_stribeck": "ncmeasure.report.friction_plots",
+    "plot_travel": "ncmeasure.report.friction_plots",
+    "PALETTE": "ncmeasure.report.plots",
+    "figure_png": "ncmeasure.report.plots",
+    "plot_comparison": "ncmeasure.report.plots",
+    "save_png": "ncmeasure.report.plots",
+    "plot_raw_data": "ncmeasure.report.raw_plots",
+    "RawTraces": "ncmeasure.report.traces",
+    "find_window_times": "ncmeasure.report.windows",
+    "window_times": "ncmeasure.report.windows",
+    "ReportProgress": "ncmeasure.report.write",
+    "write_report": "ncmeasure.report.write",
+}
+"""The public names and their modules, imported on first use: a command that formats
+a number with :mod:`ncmeasure.report.words` imports no matplotlib."""
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'ncmeasure.report' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "PALETTE",

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from matplotlib.figure import Figure
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict
 
@@ -128,6 +127,8 @@ def study(
 
 def plot_study(result: Study, path: str | Path) -> Path:
     """Contour plots side by side: the nominal friction, then each variation's change in %."""
+    from matplotlib.figure import Figure  # here: a study without --plot draws nothing
+
     path = Path(path)
     count = len(result.scenarios)
     figure = Figure(figsize=(4.2 * count, 3.6), dpi=100, layout="constrained")

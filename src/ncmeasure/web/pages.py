@@ -37,7 +37,6 @@ from ncmeasure.store.overview import MachineOverview, fleet_overview
 from ncmeasure.store.rows import CHARACTERISTICS
 from ncmeasure.store.summaries import DEFAULT_PAGE, MAX_PAGE
 from ncmeasure.web.context import Context, Version, context
-from ncmeasure.web.plots import curves_svg, travel_svg, trend_svg
 
 __all__ = ["html_page", "router"]
 
@@ -329,6 +328,8 @@ def _trend_svg(
     """The axis' trend plot (cached); ``points``: the trend if already read."""
 
     def draw() -> str:
+        from ncmeasure.web.plots import trend_svg  # matplotlib: at the first plot, not at start
+
         found = points if points is not None else ctx.store.trend(serial, axis)
         return trend_svg(serial, axis, found)
 
@@ -421,6 +422,8 @@ def axis_page(request: Request, ctx: Ctx, serial: str, axis: str) -> HTMLRespons
     )
     verdict = axis_headline(result, against).verdict if against is not None else result.verdict
     status = check.axis_status.get(axis, "ok")
+    from ncmeasure.web.plots import curves_svg, travel_svg
+
     salt = f"{serial}/{latest.measurement_id}"
     curves = ctx.cached(version, ("curves", salt, axis), lambda: curves_svg(salt, axis, result))
     travel = ctx.cached(version, ("travel", salt, axis), lambda: travel_svg(salt, axis, result))

@@ -161,7 +161,9 @@ def _better_extended(stribeck: NonlinearFit, extended: NonlinearFit, points: int
     if rss_e <= 0:
         return rss_s > 0
     statistic = (rss_s - rss_e) / extra / (rss_e / dof)
-    from scipy.special import fdtrc  # the F distribution's sf, without scipy.stats' import
+    # The F distribution's sf, without scipy.stats' import; here: importing the fits
+    # costs nothing until one runs.
+    from scipy.special import fdtrc
 
     return bool(fdtrc(extra, dof, max(statistic, 0.0)) < 0.01)
 

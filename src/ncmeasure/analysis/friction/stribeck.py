@@ -18,14 +18,16 @@ import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import optimize, special
 
 from ncmeasure.analysis.friction.linear import clean_points, covariance
 from ncmeasure.formats.results import NonlinearFit
+
+if TYPE_CHECKING:
+    from scipy import optimize
 
 __all__ = [
     "DELTA_BOUNDS",
@@ -294,6 +296,8 @@ def _least_squares(
 
     A run that stops at ``max_nfev`` is returned (status 0): the caller decides.
     """
+    from scipy import optimize  # here: drawing a fitted curve needs no scipy
+
     x0 = np.clip(x0, np.add(lower, 1e-9), np.subtract(upper, 1e-9))
     try:
         with np.errstate(all="ignore"):
@@ -518,6 +522,8 @@ def _judged(
     s: FloatArray | None,
 ) -> NonlinearFit | None:
     """The fit at the solution ``best``: χ², covariance, 95 % intervals, identifiability."""
+    from scipy import special  # here: drawing a fitted curve needs no scipy
+
     names = EXTENDED_PARAMETERS if problem.extended else STRIBECK_PARAMETERS
     m = len(names)
     n = v.size
