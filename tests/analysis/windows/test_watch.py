@@ -75,7 +75,12 @@ class Seen:
 def _counting(
     monkeypatch: pytest.MonkeyPatch,
 ) -> list[tuple[tuple[str, ...] | None, list[int]]]:
-    """Every reading of the analysis: its channels and the first row of each chunk."""
+    """Every reading of the analysis: its channels and the first row of each chunk.
+
+    The recording is read pass by pass, as one too large to hold is (one that fits
+    is read once and its passes go over the chunks held).
+    """
+    monkeypatch.setattr(reading_module, "HOLD_BYTES", 0)
     readings: list[tuple[tuple[str, ...] | None, list[int]]] = []
     original = reading_module.iter_chunks
 
