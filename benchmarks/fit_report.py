@@ -37,11 +37,15 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import statistics
 import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+
+# As the ncmeasure command runs (ncmeasure.__main__): OpenBLAS with one thread.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 from measurement import measurement_axes

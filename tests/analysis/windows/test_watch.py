@@ -73,14 +73,13 @@ class Seen:
 
 
 def _counting(
-    monkeypatch: pytest.MonkeyPatch,
+    monkeypatch: pytest.MonkeyPatch, hold: bool = False
 ) -> list[tuple[tuple[str, ...] | None, list[int]]]:
     """Every reading of the analysis: its channels and the first row of each chunk.
 
-    The recording is read pass by pass, as one too large to hold is (one that fits
-    is read once and its passes go over the chunks held).
-    """
-    monkeypatch.setattr(reading_module, "HOLD_BYTES", 0)
+    The file is read pass by pass, as a recording longer than ``HOLD_BYTES`` is, or
+    (``hold``) once, its chunks held for the passes that follow, as one that fits."""
+    monkeypatch.setattr(reading_module, "HOLD_BYTES", 1 << 40 if hold else 0)
     readings: list[tuple[tuple[str, ...] | None, list[int]]] = []
     original = reading_module.iter_chunks
 
@@ -96,13 +95,14 @@ def _counting(
     return readings
 
 
+@pytest.mark.parametrize("hold", [False, True])
 @pytest.mark.parametrize("passes", [1, 2])
 def test_tasks_get_every_row_of_each_pass_on_the_readings_of_the_analysis(
-    measured: tuple[Recording, Schedule], monkeypatch: pytest.MonkeyPatch, passes: int
+    measured: tuple[Recording, Schedule], monkeypatch: pytest.MonkeyPatch, passes: int, hold: bool
 ) -> None:
     recording, schedule = measured
     head = RecordingHead.open(recording.directory)
-    alone = _counting(monkeypatch)
+    alone = _counting(monkeypatch, hold)
     analyze(head, schedule=schedule, rows=1000)
     readings = len(alone)
     alone.clear()
@@ -126,6 +126,9 @@ def test_tasks_get_every_row_of_each_pass_on_the_readings_of_the_analysis(
     # X's first pass rides along Z's readings; the rest reads once more per pass, only the
     # channels of the tasks still waiting (the last reading Z's alone)
     extra = alone[readings:]
+    if hold:  # the file read once, every pass of the tasks over the chunks held
+        assert readings == 1 and not extra
+        return
     assert len(extra) == passes
     assert extra[-1][0] == ("Z_velocity_mm_min",)
     assert all(set(c or ()) <= {"X_velocity_mm_min", "Z_velocity_mm_min"} for c, _ in extra)

@@ -24,7 +24,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ncmeasure.analysis.windows.detection import Detection
-from ncmeasure.analysis.windows.model import Candidate, Cluster, VelocityWindow, labelled_window
+from ncmeasure.analysis.windows.model import (
+    Candidate,
+    Cluster,
+    VelocityWindow,
+    labelled_window,
+    nan_mean,
+)
 from ncmeasure.analysis.windows.settings import (
     STEP_QUANTA,
     THIN_STEP_SHARE,
@@ -223,7 +229,7 @@ def label_by_clusters(
     speeds = np.abs(np.array([c.level_mm_min for c in candidates]))
     step_of = levels(candidates, settings, _quantum(detection))
     steps = clusters_of(speeds, step_of)
-    centres = np.array([float(np.nanmean(x[c.start : c.stop])) for c in candidates])
+    centres = np.array([nan_mean(x[c.start : c.stop]) for c in candidates])
     # Anchor the positions on the slower half of the steps: planners shift the
     # windows of fast steps inward where the run-up would not fit.
     slow = step_of <= (len(steps) - 1) // 2

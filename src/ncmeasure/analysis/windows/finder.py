@@ -109,7 +109,7 @@ from ncmeasure.analysis.windows.settings import (
     Method,
     WindowSource,
 )
-from ncmeasure.analysis.windows.signals import correlated_noise, unit_factor
+from ncmeasure.analysis.windows.signals import correlated_noise, nan_median, unit_factor
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.schedule import AxisSummary, Schedule
 
@@ -241,7 +241,7 @@ class WindowFinder(Detection):
         result = []
         for run_start, run_stop, value in zip(starts, stops, values, strict=True):
             for start, stop in self.split_at_holes([(run_start, run_stop)]):
-                level = float(np.nanmedian(reference[start:stop]))
+                level = nan_median(reference[start:stop])
                 if not abs(level) >= standstill:
                     continue
                 result.append(Candidate(start, stop, level, marker_value=float(value)))
@@ -340,7 +340,7 @@ class WindowFinder(Detection):
                 last = result[-1]
                 span = self.v_detect[last.start : candidate.stop]
                 sigma, _ = correlated_noise(span)
-                level = float(np.nanmedian(span))
+                level = nan_median(span)
                 result[-1] = replace(
                     last, stop=candidate.stop, level_mm_min=level, noise_mm_min=sigma
                 )
@@ -646,7 +646,7 @@ class WindowFinder(Detection):
                 reference = candidate.level_mm_min
             else:
                 readings = self.v[candidate.start : candidate.stop]
-                reference = float(np.nanmedian(readings))
+                reference = nan_median(readings)
             allowed = max(float(self.band(reference)), self.v_quantum, resolution)
             if abs(slope - reference) > allowed:
                 failed.append(slope / reference if reference else math.nan)

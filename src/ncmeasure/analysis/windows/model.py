@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 from ncmeasure.analysis.windows.settings import WindowSource
 from ncmeasure.formats.schedule import Window as ScheduledWindow
 
-__all__ = ["Candidate", "Cluster", "Segmentation", "VelocityWindow", "labelled_window"]
+__all__ = ["Candidate", "Cluster", "Segmentation", "VelocityWindow", "labelled_window", "nan_mean"]
 
 FloatArray = NDArray[np.float64]
 
@@ -124,6 +124,17 @@ class Candidate:
     """The scatter of the velocity around the level where plateaus were joined (0: none)."""
 
 
+def nan_mean(values: FloatArray) -> float:
+    """``np.nanmean`` of a 1-D array, without its cost where no value is NaN.
+
+    Where none is NaN, ``np.nanmean`` is the sum over the count, as ``np.mean``
+    takes it (the same float), after a copy with the NaN set to 0.
+    """
+    if len(values) and not np.isnan(values).any():
+        return float(np.mean(values))
+    return float(np.nanmean(values))
+
+
 def labelled_window(
     axis: str,
     candidate: Candidate,
@@ -134,7 +145,7 @@ def labelled_window(
     """The window of a candidate, with its labels; its position the mean of ``x`` over it."""
     direction: Literal[1, -1] = 1 if candidate.level_mm_min > 0 else -1
     inside = x[candidate.start : candidate.stop]
-    position = float(np.nanmean(inside)) if np.isfinite(inside).any() else float("nan")
+    position = nan_mean(inside) if np.isfinite(inside).any() else float("nan")
     return VelocityWindow(
         axis=axis,
         start=candidate.start,

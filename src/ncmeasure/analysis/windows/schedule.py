@@ -17,7 +17,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ncmeasure.analysis.windows.detection import Detection
-from ncmeasure.analysis.windows.model import Candidate, Cluster, VelocityWindow, labelled_window
+from ncmeasure.analysis.windows.model import (
+    Candidate,
+    Cluster,
+    VelocityWindow,
+    labelled_window,
+    nan_mean,
+)
 from ncmeasure.analysis.windows.settings import WindowSource
 from ncmeasure.analysis.windows.signals import align
 from ncmeasure.formats.schedule import AxisSummary
@@ -55,7 +61,7 @@ class ScheduleMatch:
         span = self.summary.travel_mm[1] - self.summary.travel_mm[0]
         margin = max(5.0, 0.02 * abs(span))
         cand_v = np.array([c.level_mm_min for c in candidates])
-        cand_x = np.array([float(np.nanmean(x[c.start : c.stop])) for c in candidates])
+        cand_x = np.array([nan_mean(x[c.start : c.stop]) for c in candidates])
         cand_s = np.array([(c.stop - c.start) * self.detection.dt for c in candidates])
         ok = np.sign(cand_v)[:, None] == np.sign(sched_v)[None, :]
         ok &= np.abs(cand_v[:, None] - sched_v[None, :]) <= 2 * self.detection.band(sched_v)

@@ -25,6 +25,7 @@ __all__ = [
     "command_repeats",
     "correlated_noise",
     "hole_rows",
+    "nan_median",
     "odd",
     "plateau_mask",
     "position_velocity",
@@ -36,6 +37,17 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
 BoolArray = NDArray[np.bool_]
+
+
+def nan_median(values: FloatArray) -> float:
+    """``np.nanmedian`` of a 1-D array, without its cost where no value is NaN.
+
+    ``np.nanmedian`` of an array without NaN is ``np.median`` of it (the same
+    float); the check for NaN first is a third of its time on a window's samples.
+    """
+    if len(values) and not np.isnan(values).any():
+        return float(np.median(values))
+    return float(np.nanmedian(values))
 
 
 def runs(mask: BoolArray) -> tuple[IntArray, IntArray]:
