@@ -220,6 +220,7 @@ def _web(label: str, url: str, serial: str, rounds: int, figures: Figures) -> No
         "GET /?q= (a search)": f"/?q={serial}",
         "GET /?status=warning": "/?status=warning",
         "GET /machines/{serial}": f"/machines/{serial}",
+        "GET /machines/{serial}/axes/X/trend.svg": f"/machines/{serial}/axes/X/trend.svg",
     }
     with TestClient(create_app(url), base_url="http://127.0.0.1") as client:
         for name, path in paths.items():
@@ -235,7 +236,7 @@ def _web(label: str, url: str, serial: str, rounds: int, figures: Figures) -> No
             # judged on the first request: the one after every change of the store
             met = "met" if first[0] <= PAGE_GOAL_S and size <= PAGE_GOAL_KB else "NOT met"
             print(
-                f"    web  {name:<32} {cpu:7.3f} s CPU {wall:7.3f} s wall (first {first[0]:.3f} "
+                f"    web  {name:<40} {cpu:7.3f} s CPU {wall:7.3f} s wall (first {first[0]:.3f} "
                 f"s CPU) {peak:6.1f} MiB {size:8.1f} kB (goal ≤ {PAGE_GOAL_S} s, ≤ "
                 f"{PAGE_GOAL_KB:.0f} kB: {met})"
             )

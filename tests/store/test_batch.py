@@ -75,13 +75,13 @@ def test_a_batch_costs_statements_per_table_not_per_row(
     compared: list[int] = []
     from ncmeasure.store import changes
 
-    real = changes.compare_with_baseline
+    real = changes.diagnose_with_baseline
 
     def counted(*args: Any, **kwargs: Any) -> Any:
         compared.append(1)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(changes, "compare_with_baseline", counted)
+    monkeypatch.setattr(changes, "diagnose_with_baseline", counted)
     small = _fleet(make_results, 2, 2)
     large = [one for n, one in enumerate(_fleet(make_results, 2, 6)) if n % 6 >= 2]
     with open_store(store_url, write=True) as store:

@@ -15,9 +15,16 @@ from ncmeasure.formats.comparison import Limits
 from ncmeasure.formats.results import AxisResult, Results
 from ncmeasure.store import MeasurementInfo, Store, open_store
 from ncmeasure.store import schema as t
-from ncmeasure.store.changes import DIAGNOSIS_VERSION, StoredChange, stored_changes
+from ncmeasure.store.changes import (
+    DIAGNOSIS_VERSION,
+    StoredChange,
+    compare_with_baseline,
+    diagnose_with_baseline,
+    stored_changes,
+)
 from ncmeasure.store.check import check_machine
 from ncmeasure.store.overview import fleet_overview
+from ncmeasure.store.records import MeasurementSummary
 from ncmeasure.store.transfer import export_lines, import_lines
 from tests.report.example import scaled_axis
 
@@ -201,3 +208,59 @@ def test_refresh_goes_in_batches(
         assert store.refresh_changes(progress=lambda d, n: seen.append((d, n))) == 5
         assert seen == [(2, 5), (4, 5), (5, 5)]
         assert len(_pairs(store)) == 5
+
+
+def _summary(measurement_id: int, label: str, when: str) -> MeasurementSummary:
+    return MeasurementSummary(
+        id=measurement_id,
+        measured_utc=when,
+        label=label,
+        operator=None,
+        temperature_c=None,
+        operating_hours=None,
+        link="canopen",
+        config_hash="",
+        ncmeasure_version="1",
+        recording_location=None,
+        verdicts={},
+    )
+
+
+def _other_velocities(results: Results) -> Results:
+    """``results`` measured at three times every velocity: no point matches it."""
+    data = results.model_dump(mode="json")
+    for axis in data["axes"].values():
+        for position in axis["positions"]:
+            for found in position["directions"].values():
+                for point in found["points"] if found else ():
+                    point["velocity_mm_min"] *= 3.0
+    return Results.model_validate(data)
+
+
+def test_the_stored_diagnosis_is_that_of_the_full_comparison(make_results: Make) -> None:
+    """What adding stores (the outcome and each axis' change, without the rest of the
+    comparison) is what the full comparison with the baseline holds: compared (a local
+    change among them), refused and failed alike."""
+    base = make_results("2026-01-01T08:00:00+00:00")
+    renamed = make_results("2027-01-01T08:00:00+00:00")
+    renamed = renamed.model_copy(update={"axes": {f"{n}2": a for n, a in renamed.axes.items()}})
+    cases = {
+        "compared": _raised_at_the_end(make_results("2027-01-01T08:00:00+00:00", 1.03), "Z", 1.2),
+        "unchanged": make_results("2027-01-01T08:00:00+00:00"),
+        "refused": renamed,
+        "failed": _other_velocities(make_results("2027-01-01T08:00:00+00:00")),
+    }
+    first = _summary(1, "delivery", "2026-01-01T08:00:00+00:00")
+    latest = _summary(2, "service", "2027-01-01T08:00:00+00:00")
+    outcomes = {}
+    for name, later in cases.items():
+        full = compare_with_baseline(first, base, latest, later)
+        outcome, changes = diagnose_with_baseline(first, base, latest, later)
+        assert (outcome, changes) == (full.outcome, full.changes), name
+        outcomes[name] = outcome
+    assert outcomes == {
+        "compared": "compared",
+        "unchanged": "compared",
+        "refused": "refused",
+        "failed": "failed",
+    }

@@ -101,7 +101,16 @@ def test_a_machine_page_has_measurements_check_and_trends(browser: httpx.Client)
     assert "A. Technician" in page and "B. Service" in page
     assert "21.5 °C" in page and "2012 h" in page
     assert "2025-01-10 09:00 UTC" in page and "2025-07-10 09:00 UTC" in page
-    assert page.count("<svg") == 2  # one trend per axis, inline
+    # one trend per axis, an image the browser fetches after the page (no plot drawn for it)
+    assert "<svg" not in page
+    trends = re.findall(r'<img src="(/machines/M-100/axes/\w+/trend\.svg)"', page)
+    assert trends == ["/machines/M-100/axes/X/trend.svg", "/machines/M-100/axes/Y/trend.svg"]
+    for trend in trends:
+        image = browser.get(trend)
+        assert image.status_code == 200
+        assert image.headers["content-type"].startswith("image/svg+xml")
+        assert image.text.startswith("<svg") and 'xmlns="http://www.w3.org/2000/svg"' in image.text
+        assert "over the machine" in image.text  # the trend's title
     assert '<a href="/machines/M-100/axes/X">' in page
     assert re.search(r'href="/api/v1/measurements/\d+/results"', page)
     escaped = browser.get("/machines/M-103").text
@@ -119,7 +128,13 @@ def test_an_axis_page_has_the_trend_and_the_latest_curves(browser: httpx.Client)
 
 
 def test_unknown_pages_are_404_pages(browser: httpx.Client) -> None:
-    for path in ("/machines/NO-SUCH", "/machines/M-103/axes/Y", "/machines/M-100/axes/Q"):
+    for path in (
+        "/machines/NO-SUCH",
+        "/machines/M-103/axes/Y",
+        "/machines/M-100/axes/Q",
+        "/machines/M-100/axes/Q/trend.svg",
+        "/machines/NO-SUCH/axes/X/trend.svg",
+    ):
         found = browser.get(path)
         assert found.status_code == 404, path
         assert found.headers["content-type"].startswith("text/html")

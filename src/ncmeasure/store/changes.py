@@ -29,7 +29,11 @@ from typing import Any, Literal, Protocol, TypeVar
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import Connection, and_, delete, insert, select, tuple_
 
-from ncmeasure.analysis.judgement.compare import POSITION_MATCH_TOLERANCE_MM, compare_results
+from ncmeasure.analysis.judgement.compare import (
+    POSITION_MATCH_TOLERANCE_MM,
+    change_diagnosis,
+    compare_results,
+)
 from ncmeasure.analysis.judgement.status import ChangeFigures
 from ncmeasure.errors import ComparisonError
 from ncmeasure.formats.comparison import Comparison, Limits
@@ -50,6 +54,7 @@ __all__ = [
     "comparability",
     "compare_with_baseline",
     "current_change",
+    "diagnose_with_baseline",
     "measurement_summaries",
     "record_changes",
     "refresh_machine",
@@ -356,6 +361,35 @@ def _finite(value: float) -> float | None:
 def store_change(db: Connection, latest_id: int, baseline_id: int, found: BaselineChange) -> None:
     """Store the comparison of a (latest, baseline) pair as of :data:`DIAGNOSIS_VERSION`,
     replacing a row of another version (in the caller's transaction)."""
+    _store_diagnosis(db, latest_id, baseline_id, found.outcome, found.changes)
+
+
+def diagnose_with_baseline(
+    baseline: MeasurementSummary,
+    base_results: Results,
+    latest: MeasurementSummary,
+    latest_results: Results,
+) -> tuple[Outcome, dict[str, ChangeFigures] | None]:
+    """What :func:`store_change` keeps of :func:`compare_with_baseline`'s answer (the
+    outcome and the diagnosis of each axis' change), without the rest of the comparison
+    (its statuses, groups and findings, which only ``store check`` shows)."""
+    rules = comparability(baseline, base_results, latest, latest_results)
+    if rules.refused is not None:
+        return "refused", None
+    try:
+        found = change_diagnosis(base_results, latest_results)
+    except ComparisonError:
+        return "failed", None
+    return "compared", {c.axis: ChangeFigures.of(c) for c in found}
+
+
+def _store_diagnosis(
+    db: Connection,
+    latest_id: int,
+    baseline_id: int,
+    outcome: Outcome,
+    changes: Mapping[str, ChangeFigures] | None,
+) -> None:
     pair = and_(
         t.baseline_changes.c.measurement_id == latest_id,
         t.baseline_changes.c.baseline_id == baseline_id,
@@ -372,12 +406,11 @@ def store_change(db: Connection, latest_id: int, baseline_id: int, found: Baseli
         .values(
             measurement_id=latest_id,
             baseline_id=baseline_id,
-            outcome=found.outcome,
+            outcome=outcome,
             diagnosis_version=DIAGNOSIS_VERSION,
         )
         .returning(t.baseline_changes.c.measurement_id)
     ).first()
-    changes = found.changes
     if stored is None or not changes:  # another writer stored the pair meanwhile
         return
     db.execute(
@@ -472,13 +505,13 @@ def record_changes(
 
     for latest_id, baseline_id in todo:
         newest, baseline = pairs[(latest_id, baseline_id)]
-        change = compare_with_baseline(
+        outcome, changes = diagnose_with_baseline(
             _summary(baseline, verdicts),
             results(baseline_id),
             _summary(newest, verdicts),
             results(latest_id),
         )
-        store_change(db, latest_id, baseline_id, change)
+        _store_diagnosis(db, latest_id, baseline_id, outcome, changes)
     return len(todo)
 
 

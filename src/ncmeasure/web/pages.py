@@ -7,9 +7,12 @@
                                        machine's status
     /machines/{serial}                 the check, the measurements, a trend plot per axis
     /machines/{serial}/axes/{axis}     the trend, its numbers, the latest friction curves
+    /machines/{serial}/axes/{axis}/trend.svg   the axis' trend plot alone
 
 The pages need no JavaScript and load nothing from elsewhere; the plots are
-inline SVG. The view models here hold text; the templates
+inline SVG, except on a machine's page: there each axis' trend is an image of this
+server (``trend.svg``), which the browser fetches after the page, so the page costs
+its table and check, not a plot per axis. The view models here hold text; the templates
 (``templates/*.html.j2``, Jinja with autoescape) only lay them out, so text
 from the store (a site, an operator, a serial) is always escaped.
 """
@@ -25,7 +28,7 @@ from urllib.parse import quote, urlencode
 
 import jinja2
 from fastapi import APIRouter, Depends, Query, Request
-from fastapi.responses import HTMLResponse
+from fastapi.responses import HTMLResponse, Response
 from markupsafe import Markup
 
 from ncmeasure._version import __version__
@@ -276,7 +279,8 @@ class AxisPlot:
 
     axis: str
     href: str
-    svg: Markup
+    src: str
+    """The trend plot's address (an SVG image)."""
 
 
 def _or_dash(value: object) -> str:
@@ -349,7 +353,11 @@ def machine_page(request: Request, ctx: Ctx, serial: str) -> HTMLResponse:
     axes = _axes_of(measurements)
     check = ctx.check(version, serial)
     plots = [
-        AxisPlot(axis=a, href=_axis_href(root, serial, a), svg=_trend_svg(ctx, version, serial, a))
+        AxisPlot(
+            axis=a,
+            href=_axis_href(root, serial, a),
+            src=_axis_href(root, serial, a) + "/trend.svg",
+        )
         for a in axes
     ]
     baseline = check.baseline
@@ -401,6 +409,13 @@ def _trend_rows(points: Sequence[TrendPoint]) -> list[TrendRow]:
         )
         for p in points
     ]
+
+
+@router.get("/machines/{serial}/axes/{axis}/trend.svg")
+def trend_image(ctx: Ctx, serial: str, axis: str) -> Response:
+    """The axis' trend plot as an SVG image (the machine's page shows it)."""
+    svg = _trend_svg(ctx, ctx.version(), serial, axis)
+    return Response(str(svg), media_type="image/svg+xml", headers=SECURITY_HEADERS)
 
 
 @router.get("/machines/{serial}/axes/{axis}", response_class=HTMLResponse)

@@ -68,6 +68,7 @@ __all__ = [
     "GLOBAL_SCORE_AT_CRITICAL",
     "GLOBAL_SCORE_AT_WARNING",
     "ComparisonError",
+    "change_diagnosis",
     "compare_results",
 ]
 
@@ -684,6 +685,27 @@ def compare_results(
         findings=findings,
         changes=changes,
     )
+
+
+def change_diagnosis(
+    base: Results, other: Results, limits: Limits | None = None
+) -> list[AxisChange]:
+    """The diagnosis of each axis' change of ``other`` since ``base``: the ``changes`` of
+    :func:`compare_results` (``base`` against ``[other]``), without the rest of the
+    comparison (groups, run summaries, findings), for a caller that needs no more (the
+    store's change since the baseline). The labels name only texts, not figures.
+
+    Raises:
+        ComparisonError: No point of ``other`` matches the base.
+    """
+    limits = limits or Limits()
+    points, _, _ = _deviations("other", base, other, [])
+    if not points:
+        raise ComparisonError(
+            "no point matches the base (axis, position, direction, velocity within "
+            f"{VELOCITY_MATCH_TOLERANCE * 100:g} %)"
+        )
+    return _axis_changes("other", "base", base, points, limits)
 
 
 def _run_summary(
