@@ -34,7 +34,7 @@ The public API is re-exported here::
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from ncmeasure._version import __version__
 from ncmeasure.errors import (
@@ -46,6 +46,7 @@ from ncmeasure.errors import (
     ProgramCheckError,
     ProgramError,
 )
+from ncmeasure.lazy import lazy_names
 
 if TYPE_CHECKING:
     from ncmeasure.acquire import record
@@ -72,15 +73,7 @@ _LAZY = {
 (and so ``ncmeasure --version``) stays instant."""
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'ncmeasure' has no attribute {name!r}")
-    import importlib
-
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, _LAZY, globals())
 
 
 def __dir__() -> list[str]:

@@ -12,7 +12,9 @@ schedule and the dialect's allowed codes.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from ncmeasure.lazy import lazy_names
 
 if TYPE_CHECKING:
     from ncmeasure.program.check import CheckReport, check_programs
@@ -32,15 +34,7 @@ _LAZY = {
 needs the dialects, not the planner and Jinja that rendering imports."""
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'ncmeasure.program' has no attribute {name!r}")
-    import importlib
-
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, _LAZY, globals())
 
 
 __all__ = [

@@ -16,7 +16,9 @@ figures on their own Agg canvas, for use elsewhere; :func:`save_png` writes one.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from ncmeasure.lazy import lazy_names
 
 if TYPE_CHECKING:
     from ncmeasure.report.bearings import BearingLayout, bearing_layout
@@ -47,15 +49,7 @@ _LAZY = {
 a number with :mod:`ncmeasure.report.words` imports no matplotlib."""
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'ncmeasure.report' has no attribute {name!r}")
-    import importlib
-
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_names(__name__, _LAZY, globals())
 
 
 __all__ = [
