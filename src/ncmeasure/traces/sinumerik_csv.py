@@ -47,6 +47,7 @@ from ncmeasure.traces.merge import CarryForward
 from ncmeasure.traces.sinumerik_xml import parse_signal_name, sinumerik_candidates
 from ncmeasure.traces.text import (
     TextLines,
+    comma_separated,
     decimal_mark,
     number_rows,
     parse_number,
@@ -250,15 +251,9 @@ def _fast_block(
     header, a time in every row. Anything else is read row by row
     (:func:`_slow_block`), which says what is wrong where.
     """
-    text = "\n".join(block)
-    if separator != ",":
-        if "," in text and decimal != ",":
-            return False
-        if decimal == ",":
-            if "." in text:
-                return False
-            text = text.replace(",", ".")
-        text = text.replace(separator, ",")
+    text = comma_separated(block, separator, decimal)
+    if text is None:
+        return False
     cells = number_rows(text.encode(), width, empty=True)
     if cells is None or np.isnan(cells[:, 0]).any():
         return False

@@ -26,6 +26,7 @@ __all__ = [
     "INVALID_ABOVE",
     "PROGRESS_STEP_BYTES",
     "TextLines",
+    "comma_separated",
     "decimal_mark",
     "filetime_to_datetime",
     "is_invalid",
@@ -91,6 +92,22 @@ _ROW_BYTES: Final = b"0123456789.-+eE,\n"
 _ROW_BYTES_NAN: Final = _ROW_BYTES + b"NaIfinty"
 #: ... or of ``null``, an empty cell.
 _ROW_BYTES_NULL: Final = _ROW_BYTES + b"nul"
+
+
+def comma_separated(lines: Sequence[str], separator: str, decimal: str | None) -> str | None:
+    """Lines of a file's notation as :func:`number_rows` reads them: ``,`` between cells and
+    ``.`` in numbers; None where that cannot be told (a comma that is neither the separator
+    nor the decimal mark, a point beside a decimal comma)."""
+    text = "\n".join(lines)
+    if separator != ",":
+        if "," in text and decimal != ",":
+            return None
+        if decimal == ",":
+            if "." in text:
+                return None
+            text = text.replace(",", ".")
+        text = text.replace(separator, ",")
+    return text
 
 
 def number_rows(block: bytes, width: int, *, empty: bool = False) -> NDArray[np.float64] | None:

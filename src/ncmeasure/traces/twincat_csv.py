@@ -64,6 +64,7 @@ from ncmeasure.traces.job import ImportJob
 from ncmeasure.traces.merge import SeriesMerge
 from ncmeasure.traces.text import (
     TextLines,
+    comma_separated,
     decimal_mark,
     filetime_to_datetime,
     number_rows,
@@ -386,15 +387,9 @@ def _fast_block(
     is wrong where.
     """
     separator = header.separator
-    text = "\n".join(block)
-    if separator != ",":
-        if "," in text and decimal != ",":
-            return False
-        if decimal == ",":
-            if "." in text:
-                return False
-            text = text.replace(",", ".")
-        text = text.replace(separator, ",")
+    text = comma_separated(block, separator, decimal)
+    if text is None:
+        return False
     if " " in text:  # a single space is the cell of a channel that ended: an empty cell
         if _LONE_SPACE.sub("", text).count(" "):
             return False
