@@ -414,6 +414,7 @@ def test_silent_drive_that_comes_back_leaves_a_gap(
     gaps = [e for e in events if e.kind == "gap"]
     assert [(g.time_s, g.lost_samples) for g in gaps] == [(pytest.approx(0.1), 5)]
     assert "no valid answer" in gaps[0].message and "axis Y" in gaps[0].message
+    assert gaps[0].details["skipped_cycles"] == 0  # lost to the drive, not skipped
     times = [t for t, _ in rows]
     assert times == pytest.approx([k * 0.01 for k in range(31) if not 10 <= k < 15])
     for index in range(3):  # exact and in order, before and after the gap
@@ -450,6 +451,7 @@ def test_dropped_connection_reconnects_and_data_continues(
     assert f"127.0.0.1:{server.port}" in reconnects[0].message
     # the cycle at 0.1 s fails; reconnect_delay_s = 0.1 s of link time is 10 poll periods
     assert [(g.time_s, g.lost_samples) for g in gaps] == [(pytest.approx(0.1), 10)]
+    assert gaps[0].details["skipped_cycles"] == 0  # an outage: nothing skipped
     assert reconnects[0].time_s == pytest.approx(0.2)
     for index in range(3):
         lockstep_rows(rows, index)
@@ -536,6 +538,8 @@ def test_slow_answers_are_late_cycles_not_errors(server: ServerHandle) -> None:
         assert generic_numbers(rows, index) == list(range(1, len(rows) + 1))
     assert gaps and all("slow answers" in e.message for e in gaps)
     assert sum(e.lost_samples for e in gaps) > len(slow)
+    # cycles the link skipped because it fell behind: counted as skipped, not hidden
+    assert [e.details["skipped_cycles"] for e in gaps] == [e.lost_samples for e in gaps]
     assert not [e for e in events if e.kind in ("fault", "reconnect")]
 
 

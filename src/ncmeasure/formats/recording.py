@@ -115,7 +115,8 @@ class RecordingMeta(FileHeader):
     """Samples the gap events say were lost (written at close)."""
     skipped_cycles: int | None = Field(default=None, ge=0)
     """Of ``lost_samples``, the cycles the link skipped because the host fell behind (a
-    CANopen SYNC producer that woke too late; the gap events' ``skipped_cycles``)."""
+    CANopen SYNC producer that woke too late, a Modbus link behind its schedule; the gap
+    events' ``skipped_cycles``)."""
     skipped_share: float | None = Field(default=None, ge=0, le=1, allow_inf_nan=False)
     """``skipped_cycles`` as a share of the cycles due (``samples + lost_samples``): the
     link recorded at ``(1 - skipped_share) / nominal_period_s`` instead of its rate."""

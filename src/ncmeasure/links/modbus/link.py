@@ -16,7 +16,9 @@ A cycle whose requests all succeed becomes one row; its ``time_s`` is the
 midpoint between sending the cycle's first request and receiving its last
 answer, in seconds since the link started polling. Cycles
 that fail or are skipped because answers were late are missing rows, reported
-as ``gap`` events with their number. A dropped TCP connection is re-opened
+as ``gap`` events with their number; the cycles skipped because the link fell
+behind its schedule are the event's ``skipped_cycles`` (counted in the
+recording's ``skipped_share``, as a CANopen producer's). A dropped TCP connection is re-opened
 (``reconnect`` event); Modbus exception responses come back as ``fault`` events
 with their meaning; after ``max_outage_s`` without a complete cycle the link
 gives up with :class:`~ncmeasure.errors.LinkError`. See ``docs/modbus.md``.
@@ -76,6 +78,9 @@ class _PendingGap:
     time_s: float
     lost: int
     causes: list[str]
+    #: Of ``lost``, the cycles the link skipped because it fell behind its schedule (slow
+    #: answers or a stalled computer), as against cycles lost to an outage.
+    skipped: int = 0
 
 
 #: How far behind its schedule a paced link still polls every cycle (catching up back
@@ -274,16 +279,21 @@ class ModbusLink(DriveLink):
                 "gap",
                 f"{gap.lost} poll cycles without data: {causes}",
                 lost_samples=gap.lost,
-                details={"causes": list(dict.fromkeys(gap.causes))},
+                details={
+                    "causes": list(dict.fromkeys(gap.causes)),
+                    "skipped_cycles": gap.skipped,
+                },
             )
         )
 
-    def _note_missing(self, first_slot: int, lost: int, cause: str) -> None:
+    def _note_missing(self, first_slot: int, lost: int, cause: str, skipped: bool) -> None:
         if lost <= 0:
             return
         if self._pending_gap is None:
             self._pending_gap = _PendingGap(first_slot * self._period_s, 0, [])
         self._pending_gap.lost += lost
+        if skipped:
+            self._pending_gap.skipped += lost
         if not self._pending_gap.causes or self._pending_gap.causes[-1] != cause:
             self._pending_gap.causes.append(cause)
 
@@ -343,7 +353,7 @@ class ModbusLink(DriveLink):
                 time_s = 0.5 * (t_start + now) - self._t0
                 missed = slot - last_row_slot - 1
                 cause = outage.failure.message if outage is not None else late
-                self._note_missing(last_row_slot + 1, missed, cause)
+                self._note_missing(last_row_slot + 1, missed, cause, skipped=outage is None)
                 gap = self._pending_gap
                 if gap is not None and (
                     outage is not None or missed == 0 or time_s - gap.time_s >= 1.0
@@ -369,7 +379,9 @@ class ModbusLink(DriveLink):
                     )
                 if now - outage.start >= s.max_outage_s:
                     current = max(slot, math.ceil((now - self._t0) / period))
-                    self._note_missing(last_row_slot + 1, current - last_row_slot, failure.message)
+                    self._note_missing(
+                        last_row_slot + 1, current - last_row_slot, failure.message, skipped=False
+                    )
                     self._flush_gap()
                     error_type = LinkTimeoutError if failure.kind == "timeout" else LinkError
                     self._fatal = error_type(
