@@ -13,7 +13,7 @@ import re
 import string
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import (
     AfterValidator,
@@ -27,10 +27,18 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
-from ncmeasure.config import MachineConfig, format_validation_error
 from ncmeasure.errors import ConfigError, DialectError
-from ncmeasure.inputs import MAX_TOML_BYTES, parse_toml, plain_file_name, read_text
+from ncmeasure.inputs import (
+    MAX_TOML_BYTES,
+    format_validation_error,
+    parse_toml,
+    plain_file_name,
+    read_text,
+)
 from ncmeasure.resources import builtin_dir
+
+if TYPE_CHECKING:  # the machine-file models: `init` and `controllers` read no machine file
+    from ncmeasure.config import MachineConfig
 
 __all__ = [
     "Dialect",
