@@ -158,7 +158,7 @@ def coerce_common_values_without_pydantic() -> None:
         return
     if not hasattr(core, "build_runtime_param"):
         return
-    typers = core.build_runtime_param
+    typers: Callable[[_coercion.TypeDescriptor], _coercion.RuntimeParam] = core.build_runtime_param
     coerce_path = _param_types.coerce_cli_path
 
     @dataclass(frozen=True)
@@ -169,7 +169,8 @@ def coerce_common_values_without_pydantic() -> None:
         built: list[_coercion.RuntimeParam]
 
         def _coerce_value(self, value: Any, param: Any, ctx: Any) -> Any:
-            if get_origin(self.annotation) is list and len(get_args(self.annotation)) == 1:
+            origin: Any = get_origin(self.annotation)
+            if origin is list and len(get_args(self.annotation)) == 1:
                 (item_type,) = get_args(self.annotation)
                 items = value if isinstance(value, list | tuple) else [value]
                 done = [self._one(item_type, item, param, ctx) for item in items]
