@@ -226,6 +226,18 @@ def test_the_list_of_commands_registers_every_module(args: tuple[str, ...]) -> N
     assert loaded >= COMMAND_MODULES, sorted(COMMAND_MODULES - loaded)
 
 
+def test_every_command_is_found_in_the_module_that_registers_it() -> None:
+    import typer.main
+
+    from ncmeasure.cli import _MODULES, app
+
+    found = {}
+    for name, command in typer.main.get_command(app).commands.items():  # type: ignore[attr-defined]
+        for each in getattr(command, "commands", {}).values() or [command]:
+            found[name] = each.callback.__module__
+    assert {name: f"ncmeasure.cli.{module}" for name, module in _MODULES.items()} == found
+
+
 def test_the_command_word_is_the_first_word_that_is_not_an_option() -> None:
     from ncmeasure.cli import _invoked
 
