@@ -6,7 +6,7 @@ same rounds):
 
 - ``ncmeasure --version`` and ``ncmeasure --help``;
 - the help of every command and subcommand (``ncmeasure store show --help``: the
-  command's options built, what typer needs to convert them imported);
+  module of the command imported, its options built);
 - cheap real invocations on small inputs made before the rounds (a machine file,
   generated programs, a short synthetic recording, two results files, a SQLite store
   with one machine measured twice): ``init``, ``plan``, ``store show`` and the like,

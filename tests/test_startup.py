@@ -57,7 +57,8 @@ def imported(*args: str, cwd: Path | None = None, codes: tuple[int, ...] = (0,))
     [
         (("--version",), set()),
         (("--help",), set()),
-        (("generate", "--help"), {"pydantic"}),  # typer's own coercion of the arguments
+        (("generate", "--help"), set()),  # typer converts no value there: no pydantic
+        (("store", "show", "--help"), set()),
     ],
 )
 def test_version_and_help_import_no_heavy_package(args: tuple[str, ...], allowed: set[str]) -> None:
@@ -169,9 +170,154 @@ def test_every_command_help_imports_no_heavy_package() -> None:
     commands = {line[0] for line in lines}
     assert {"init", "store show", "serve", "publish opcua", "schema machine"} <= commands
     assert len(commands) >= 30, sorted(commands)
-    # pydantic: typer's own coercion of the arguments
-    heavy = {line[0]: set(line[1:]) - {"pydantic"} for line in lines}
+    # pydantic too: typer's TypeAdapters are built only for a value that is there
+    heavy = {line[0]: set(line[1:]) for line in lines}
     assert not any(heavy.values()), {name: found for name, found in heavy.items() if found}
+
+
+COMMAND_MODULES = {
+    f"ncmeasure.cli.{name}"
+    for name in ("analysis", "compensation", "demo", "measure", "program", "publish", "record",
+                 "serve", "store", "traces")
+}  # fmt: skip
+
+
+MODULES_SCRIPT = """
+import sys
+from ncmeasure.__main__ import main
+
+sys.argv = ["ncmeasure", *sys.argv[1:]]
+try:
+    main()
+finally:
+    print(*sorted(sys.modules), file=sys.stderr)
+"""
+
+
+def modules_of(*args: str) -> set[str]:
+    """The full names of the modules ``ncmeasure ARGS`` has imported when it ends (those
+    ``importlib.import_module`` imports too, which ``-X importtime`` does not name)."""
+    done = subprocess.run(
+        [sys.executable, "-c", MODULES_SCRIPT, *args],
+        capture_output=True, text=True, timeout=WAIT_S,
+    )  # fmt: skip
+    assert done.returncode in (0, 2), done.stderr
+    return set(done.stderr.splitlines()[-1].split())
+
+
+@pytest.mark.parametrize(
+    ("args", "module"),
+    [
+        (("init", "--help"), "program"),
+        (("--debug", "store", "show", "--help"), "store"),
+        (("schema", "machine"), "program"),
+        (("publish", "--help"), "publish"),
+    ],
+)
+def test_a_command_registers_its_own_module_only(args: tuple[str, ...], module: str) -> None:
+    loaded = modules_of(*args) & COMMAND_MODULES
+    assert loaded == {f"ncmeasure.cli.{module}"}
+
+
+@pytest.mark.parametrize("args", [("--help",), ("nosuch",), ()])
+def test_the_list_of_commands_registers_every_module(args: tuple[str, ...]) -> None:
+    # no command, or not one of ours: the full list (click's "No such command" suggests)
+    loaded = modules_of(*args)
+    assert loaded >= COMMAND_MODULES, sorted(COMMAND_MODULES - loaded)
+
+
+def test_every_command_is_found_in_the_module_that_registers_it() -> None:
+    import typer.main
+
+    from ncmeasure.cli import _MODULES, app
+
+    found = {}
+    for name, command in typer.main.get_command(app).commands.items():  # type: ignore[attr-defined]
+        for each in getattr(command, "commands", {}).values() or [command]:
+            found[name] = each.callback.__module__
+    assert {name: f"ncmeasure.cli.{module}" for name, module in _MODULES.items()} == found
+
+
+def test_the_command_word_is_the_first_word_that_is_not_an_option() -> None:
+    from ncmeasure.cli import _invoked
+
+    assert _invoked(["--debug", "store", "show", "M1"]) == "store"
+    assert _invoked(["simulate-drive", "--help"]) == "record"
+    assert _invoked(["--help"]) is None
+    assert _invoked(["nosuch", "init"]) is None
+    assert _invoked(["--", "init"]) is None
+
+
+VALUES: dict[str, list[object]] = {
+    "str": ["M17", "", "ä b", "a\udcff"],
+    "Path": ["x.toml", "", ".", "/", "a//b/", "~/x", "nothere/y.csv"],
+    "int": [0, 1, 5, 10_000, 65_535],
+    "float": [0.0, 1.5, -2.0],
+    "bool": [True, False],
+}
+"""Values an option may get, from the command line (text) or as a default (a number)."""
+
+
+def test_option_values_convert_as_typer_converts_them(tmp_path: Path) -> None:
+    """Every option and argument of every command, every value of its type in
+    :data:`VALUES` (one at a time and as a list): the same result as typer's own
+    TypeAdapter, or the same error."""
+    import typer
+    import typer.main
+    from typer import _coercion
+
+    from ncmeasure.cli import app
+
+    (tmp_path / "x.toml").write_text("")
+    ctx = typer.Context(typer.main.get_command(app))
+    root = typer.main.get_command(app)
+    checked = 0
+    for command in _every_command(root):
+        for param in command.params:
+            descriptor = getattr(param, "type_descriptor", None)
+            if descriptor is None:
+                continue
+            ours = param.get_runtime_param()
+            theirs = _coercion.build_runtime_param(descriptor)
+            assert type(ours).__name__ == "Common"
+            item = descriptor.annotation
+            if descriptor.is_list:
+                (item,) = typer_args(descriptor.annotation)
+            for value in VALUES.get(getattr(item, "__name__", ""), []):
+                tries = [[value], (value, value)] if descriptor.is_list else [value]
+                for given in tries:
+                    assert _outcome(ours, given, param, ctx, tmp_path) == _outcome(
+                        theirs, given, param, ctx, tmp_path
+                    ), (command.name, param.name, given)
+                    checked += 1
+    assert checked > 500
+
+
+def typer_args(annotation: object) -> tuple[object, ...]:
+    from typing import get_args
+
+    return get_args(annotation)
+
+
+def _every_command(group: object) -> list[object]:
+    found = []
+    for sub in getattr(group, "commands", {}).values():
+        found.append(sub)
+        found.extend(_every_command(sub))
+    return found
+
+
+def _outcome(runtime: object, value: object, param: object, ctx: object, cwd: Path) -> object:
+    """What converting ``value`` gives (its type and value) or raises (type and message)."""
+    here = Path.cwd()
+    os.chdir(cwd)
+    try:
+        result = runtime.coerce(value, param=param, ctx=ctx)  # type: ignore[attr-defined]
+    except Exception as exc:  # the error itself is what is compared
+        return ("error", type(exc).__name__, str(exc))
+    finally:
+        os.chdir(here)
+    return (type(result).__name__, result)
 
 
 @dataclass(frozen=True)
@@ -221,7 +367,11 @@ STORE = {"sqlalchemy", "alembic"}
 
 CASES: list[tuple[tuple[str, ...], tuple[int, ...], set[str]]] = [
     # programs: the dialects and the machine file; Jinja and the planner where rendered
-    (("init",), (0,), {"numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
+    # (init names a built-in dialect without loading its pydantic models)
+    (("init",), (0,),
+     {"pydantic", "numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
+    (("init", "--controller", "linuxcnc"), (0,),
+     {"pydantic", "numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
     (("controllers",), (0,), {"numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
     (("schema", "machine"), (0,), {"numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB}),
     (("check", "programs"), (0,), {"jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
@@ -287,3 +437,38 @@ def test_serve_starts_without_scipy_or_matplotlib(files: Files) -> None:
     assert first.startswith("serving "), first
     assert {"fastapi", "sqlalchemy"} <= loaded
     assert not loaded & {"scipy", "matplotlib", *LINKS}, sorted(loaded & {"scipy", "matplotlib"})
+
+
+def test_init_takes_a_builtin_dialect_as_read_because_each_one_loads() -> None:
+    """``init`` names a built-in controller without loading it: each one must load."""
+    from ncmeasure.program import load_dialect
+    from ncmeasure.resources import available_dialects, builtin_dir
+
+    builtins = sorted(builtin_dir("controllers").glob("*.toml"))
+    assert len(builtins) >= 5
+    for path in builtins:
+        assert available_dialects()[path.stem] == path
+        assert load_dialect(path.stem).name == path.stem
+
+
+def test_init_still_reads_and_checks_a_dialect_of_the_users_own(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from ncmeasure.cli import app
+    from ncmeasure.resources import builtin_dir
+
+    # a user's file of a built-in's name hides the built-in, and is checked
+    (tmp_path / "fanuc.toml").write_text('name = "fanuc"\n', encoding="utf-8")
+    done = CliRunner().invoke(app, ["init", "--controller", "fanuc", "--controllers-dir",
+                                    str(tmp_path)])  # fmt: skip
+    assert done.exit_code == 2
+    assert "is not a valid controller definition" in done.output
+    # a user's valid file under its own name: the example names it
+    text = (builtin_dir("controllers") / "linuxcnc.toml").read_text(encoding="utf-8")
+    (tmp_path / "mine.toml").write_text(
+        text.replace('name = "linuxcnc"', 'name = "mine"'), encoding="utf-8"
+    )
+    done = CliRunner().invoke(app, ["init", "--controller", "mine", "--controllers-dir",
+                                    str(tmp_path)])  # fmt: skip
+    assert done.exit_code == 0, done.output
+    assert 'controller = "mine"' in done.output

@@ -1,7 +1,11 @@
 """The command line's start-up tricks, in one place: why each exists is said where it is.
 
-Two things the command line does besides its commands:
+Three things the command line does besides its commands:
 
+- :func:`coerce_common_values_without_pydantic` converts the values of the options
+  ncmeasure declares (text, paths, numbers given as defaults, lists of them) as typer
+  would, without the pydantic TypeAdapter typer builds for each: pydantic's schema
+  machinery is a tenth of a second, more than all the rest of ``init``'s start-up.
 - :class:`CanWithoutMdf` keeps python-can from importing asammdf (and pandas) when a
   command needs python-can: half a second of every CANopen command's start-up, for
   MF4 CAN logs ncmeasure never reads.
@@ -11,12 +15,15 @@ Two things the command line does besides its commands:
   imports rich and markdown-it, half of ``--help``'s start-up time.
 """
 
+import functools
 import importlib.util
 import inspect
 import sys
 import types
-from collections.abc import Iterable, Sequence
-from typing import TYPE_CHECKING, get_args
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, get_args, get_origin
 
 import typer
 
@@ -104,3 +111,93 @@ def polish_help(apps: Iterable[typer.Typer]) -> None:
     for each in apps:
         for info in each.registered_commands:
             _polish_command(info, done)
+
+
+_NOT_COMMON = object()
+"""What :func:`_common_value` returns for a value it leaves to typer."""
+
+
+def _common_value(
+    annotation: Any, info: typer.models.ParameterInfo, value: Any, coerce_path: Callable[..., Any]
+) -> Any:
+    """``value`` as typer's TypeAdapter for ``annotation`` returns it, or :data:`_NOT_COMMON`.
+
+    Only where the result is plainly the same: text as it is; a path through typer's own
+    checks (:func:`coerce_path`), made a :class:`~pathlib.Path` as pydantic makes it; a
+    number that is already one (a default) within its bounds. Anything else (a number
+    typed on the command line, a choice, a bad value whose message pydantic words) is
+    typer's.
+    """
+    if info.parser is not None:
+        return _NOT_COMMON
+    if annotation is str and isinstance(value, str):
+        return value
+    if isinstance(annotation, type) and issubclass(annotation, Path):
+        if info.path_type is not None or info.allow_dash or not isinstance(value, str | Path):
+            return _NOT_COMMON
+        checked = coerce_path(value, info, path_type=None)
+        return checked if isinstance(checked, annotation) else annotation(checked)
+    if annotation in (int, float) and type(value) is annotation and not info.clamp:
+        low, high = info.min, info.max
+        if (low is None or value >= low) and (high is None or value <= high):
+            return value
+    return _NOT_COMMON
+
+
+@functools.cache  # once: typer's own conversion is wrapped, never a wrapper
+def coerce_common_values_without_pydantic() -> None:
+    """Typer (0.2x) converts every option's value through a pydantic TypeAdapter it builds
+    on first use; this converts the common values (:func:`_common_value`) without one, and
+    builds none for a value that is not there (typer returns None or an empty tuple for it
+    before the adapter is used). Other values, and older typers without adapters, are
+    left as they are.
+    """
+    try:
+        from typer import _coercion, _param_types, core
+    except ImportError:  # a typer without pydantic adapters
+        return
+    if not hasattr(core, "build_runtime_param"):
+        return
+    typers: Callable[[_coercion.TypeDescriptor], _coercion.RuntimeParam] = core.build_runtime_param
+    coerce_path = _param_types.coerce_cli_path
+
+    @dataclass(frozen=True)
+    class Common(_coercion.RuntimeParam):
+        """Typer's conversion of one parameter, built when a value is not a common one."""
+
+        descriptor: _coercion.TypeDescriptor
+        built: list[_coercion.RuntimeParam]
+
+        def _coerce_value(self, value: Any, param: Any, ctx: Any) -> Any:
+            origin: Any = get_origin(self.annotation)
+            if origin is list and len(get_args(self.annotation)) == 1:
+                (item_type,) = get_args(self.annotation)
+                items = value if isinstance(value, list | tuple) else [value]
+                done = [self._one(item_type, item, param, ctx) for item in items]
+                if not any(item is _NOT_COMMON for item in done):
+                    return done
+            else:
+                done_one = self._one(self.annotation, value, param, ctx)
+                if done_one is not _NOT_COMMON:
+                    return done_one
+            if not self.built:
+                self.built.append(typers(self.descriptor))
+            return self.built[0]._coerce_value(value, param=param, ctx=ctx)
+
+        def _one(self, annotation: Any, value: Any, param: Any, ctx: Any) -> Any:
+            def path(value: Any, info: Any, *, path_type: Any) -> Any:
+                return coerce_path(value, info, path_type=path_type, param=param, ctx=ctx)
+
+            return _common_value(annotation, self.parameter_info, value, path)
+
+    def build(descriptor: _coercion.TypeDescriptor) -> _coercion.RuntimeParam:
+        if descriptor.file_annotation is not None:
+            return typers(descriptor)
+        return Common(
+            parameter_info=descriptor.parameter_info,
+            annotation=descriptor.annotation,
+            descriptor=descriptor,
+            built=[],
+        )
+
+    core.build_runtime_param = build

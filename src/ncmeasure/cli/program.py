@@ -30,10 +30,17 @@ def init(
     Example: ncmeasure init --controller linuxcnc > machine.toml
     """
     from ncmeasure.examples import example_machine
-    from ncmeasure.program import load_dialect
+    from ncmeasure.resources import available_dialects, builtin_dir
 
-    dialect = load_dialect(controller, controllers_dir or ())
-    sys.stdout.write(example_machine(dialect.name))
+    found = available_dialects(controllers_dir or ())
+    if found.get(controller) != builtin_dir("controllers") / f"{controller}.toml":
+        # An unknown name, or a definition of the user's own: read and check it (its
+        # errors). A built-in one is known valid (tests/test_startup.py loads each) and
+        # needs no loading: its pydantic models are most of init's start-up.
+        from ncmeasure.program import load_dialect
+
+        controller = load_dialect(controller, controllers_dir or ()).name
+    sys.stdout.write(example_machine(controller))
 
 
 @schema_app.command("machine")

@@ -13,7 +13,7 @@ import re
 import string
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 from pydantic import (
     AfterValidator,
@@ -27,10 +27,18 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
-from ncmeasure.config import MachineConfig, format_validation_error
 from ncmeasure.errors import ConfigError, DialectError
-from ncmeasure.inputs import MAX_TOML_BYTES, parse_toml, plain_file_name, read_text
-from ncmeasure.resources import builtin_dir
+from ncmeasure.inputs import (
+    MAX_TOML_BYTES,
+    format_validation_error,
+    parse_toml,
+    plain_file_name,
+    read_text,
+)
+from ncmeasure.resources import available_dialects
+
+if TYPE_CHECKING:  # the machine-file models: `init` and `controllers` read no machine file
+    from ncmeasure.config import MachineConfig
 
 __all__ = [
     "Dialect",
@@ -544,20 +552,6 @@ class Dialect(_Strict):
             Path(self.names.main_file).suffix.lower(),
             Path(self.names.sub_file).suffix.lower(),
         }
-
-
-def _search_path(user_dirs: Iterable[Path]) -> list[Path]:
-    return [*user_dirs, builtin_dir("controllers")]
-
-
-def available_dialects(user_dirs: Iterable[Path] = ()) -> dict[str, Path]:
-    """Dialect names and their files; user folders hide built-ins of the same name."""
-    found: dict[str, Path] = {}
-    for folder in reversed(_search_path(user_dirs)):
-        if folder.is_dir():
-            for path in sorted(folder.glob("*.toml")):
-                found[path.stem] = path
-    return dict(sorted(found.items()))
 
 
 def load_dialect(name: str, user_dirs: Iterable[Path] = ()) -> Dialect:
