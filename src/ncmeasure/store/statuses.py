@@ -67,7 +67,7 @@ class _Places:
 
 
 _LEVELS: tuple[Status, ...] = ("ok", "warning", "critical")
-_LEVEL = {name: level for level, name in enumerate(_LEVELS)}
+_LEVEL: dict[str, int] = {name: level for level, name in enumerate(_LEVELS)}
 
 
 @dataclass
@@ -100,9 +100,10 @@ class FleetStatuses:
     def matching(self, search: str | None = None, status: str | None = None) -> list[int]:
         """The machines (indexes, by serial) whose serial, type or site contains ``search``
         (any case) and whose status is ``status``."""
-        chosen = range(len(self.serials))
+        chosen: list[int] = list(range(len(self.serials)))
         if status is not None:
-            chosen = np.flatnonzero(self.levels == _LEVEL[status]).tolist()  # type: ignore[assignment]
+            level = _LEVEL.get(status, -1)
+            chosen = [int(i) for i in np.flatnonzero(self.levels == level)]
         if not search:
             return list(chosen)
         wanted = search.casefold()
