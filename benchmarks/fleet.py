@@ -224,6 +224,25 @@ def _replicate(url: str, block: int, machines: int) -> None:
                 top = highest[table.name if "id" in table.c else "measurements"]
                 copied = select(*columns).where(own <= top)  # the block's rows alone
                 db.execute(insert(table).from_select(list(table.c.keys()), copied))
+        _advance_sequences(db)
+
+
+def _advance_sequences(db: object) -> None:
+    """On PostgreSQL, each table's id sequence past the ids the copies were given."""
+    from sqlalchemy import text
+
+    from ncmeasure.store import schema as t
+
+    if db.dialect.name != "postgresql":  # type: ignore[attr-defined]
+        return
+    for table in t.metadata.sorted_tables:
+        if "id" in table.c and table.c.id.autoincrement in (True, "auto"):
+            db.execute(  # type: ignore[attr-defined]
+                text(
+                    f"SELECT setval(pg_get_serial_sequence('{table.name}', 'id'), "
+                    f"(SELECT COALESCE(MAX(id), 1) FROM {table.name}))"
+                )
+            )
 
 
 def _shifted(row: dict[str, object], table: str, shift: dict[str, int]) -> dict[str, object]:
