@@ -3,6 +3,10 @@ they build exactly the tables of :mod:`ncmeasure.store.schema`; a newer schema i
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
 import pytest
 from alembic import command
 from alembic.autogenerate import compare_metadata
@@ -12,7 +16,7 @@ from sqlalchemy import create_engine, text
 
 from ncmeasure.errors import StoreError
 from ncmeasure.store import open_store
-from ncmeasure.store.database import _alembic_config, _parse, head_revision
+from ncmeasure.store.database import HEAD_REVISION, _alembic_config, _parse, head_revision
 from ncmeasure.store.schema import metadata
 
 
@@ -77,3 +81,29 @@ def test_a_foreign_database_is_not_taken_over(store_url: str) -> None:
         open_store(store_url, write=True),
     ):
         pass
+
+
+def test_the_head_revision_named_in_the_code_is_alembics() -> None:
+    assert head_revision() == HEAD_REVISION
+
+
+def test_a_current_store_opens_without_alembic(store_url: str) -> None:
+    with open_store(store_url, write=True):
+        pass
+    probe = (
+        "import sys\n"
+        "from ncmeasure.store import open_store\n"
+        f"with open_store({store_url!r}) as store:\n"
+        "    store.machine_page(limit=1)\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'alembic'))\n"
+    )
+    src = Path(__file__).resolve().parents[2] / "src"
+    done = subprocess.run(
+        [sys.executable, "-c", probe],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+        env={"PYTHONPATH": str(src), "PATH": "/usr/bin:/bin"},
+    )
+    assert done.stdout.strip() == "[]"

@@ -5,8 +5,9 @@ The statements are those the store really runs (recorded while the commands work
 asked for its plan with the parameters it ran with: ``EXPLAIN QUERY PLAN`` on SQLite,
 ``EXPLAIN`` on PostgreSQL (with sequential scans made a last resort, so that a table of
 a few rows, which PostgreSQL rightly reads whole, still shows whether an index serves).
-Reading the whole fleet (the overview's summary rows) and rebuilding (``store refresh``,
-export) read everything by design and are left out.
+Reading the whole fleet (the overview's and the statuses' summary rows) and rebuilding
+(``store refresh``, export) read everything by design: the summary rows are not among the
+growing tables checked, and the statements that go on from them must use an index.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from sqlalchemy import Engine, event
 from ncmeasure.formats.results import Results
 from ncmeasure.store import MeasurementInfo, Store, open_store
 from ncmeasure.store.check import check_machine
+from ncmeasure.store.statuses import fleet_statuses
 from ncmeasure.web import create_app
 
 Make = Callable[..., Results]
@@ -37,6 +39,7 @@ GROWING = (
     "axis_changes",
     "axes",
     "machines",
+    "axis_statuses",
 )
 """Tables with a row (or hundreds) per measurement or machine."""
 
@@ -105,8 +108,14 @@ def test_lists_pages_checks_and_adds_use_indexes(store_url: str, make_results: M
             store.trend("M1", "X")
             store.results(measurements[-1].id)
             check_machine(store, "M1")
-            # the web: the REST lists and a machine's page (the grid is the overview)
+            # the lists' statuses (the fleet's figures: every summary row, by design, and
+            # through them the latest axes and their kept statuses), as `store list --status`
+            # and the grid read them
+            fleet_statuses(store)
+            # the web: the grid, the REST lists and a machine's page
             with TestClient(create_app(store_url), base_url="http://127.0.0.1") as web:
+                assert web.get("/", params={"q": "M1"}).status_code == 200
+                assert web.get("/", params={"status": "warning"}).status_code == 200
                 assert web.get("/api/v1/machines", params={"limit": 2}).status_code == 200
                 assert web.get("/api/v1/machines/M1/measurements").status_code == 200
                 assert web.get("/machines/M1").status_code == 200

@@ -152,18 +152,15 @@ def store_list_command(
 
 
 def _statuses(fleet: "Store") -> dict[str, str] | None:
-    """The machines' statuses where the stored ones are not current (None: they are)."""
-    from ncmeasure.store.overview import fleet_overview
+    """The machines' statuses where the stored ones are not current (None: they are): each
+    machine's own status as kept, and the fleet's part for all at once."""
+    from ncmeasure.store.statuses import fleet_statuses
     from ncmeasure.store.summaries import statuses_current
 
     with fleet.reading("read the statuses") as db:
         if statuses_current(db):
             return None
-    warn(
-        "the stored statuses are older than the fleet's latest measurements: judged the "
-        "whole fleet now (`ncmeasure store refresh` stores them, for fast lists)"
-    )
-    return {m.serial: m.status for m in fleet_overview(fleet).machines}
+    return dict(fleet_statuses(fleet).by_serial())
 
 
 def _print_page(page: "MachinePage", where: str, limit: int, *, filtered: bool) -> None:

@@ -598,15 +598,20 @@ def stored_changes(
     outcomes: dict[tuple[int, int], str] = {}
     axes: dict[tuple[int, int], dict[str, ChangeFigures]] = {}
     for chunk in _chunks(wanted):
+        latest = sorted({pair[0] for pair in chunk})  # lets SQLite use the primary key
         for row in db.execute(
             select(b.c.measurement_id, b.c.baseline_id, b.c.outcome).where(
+                b.c.measurement_id.in_(latest),
                 tuple_(b.c.measurement_id, b.c.baseline_id).in_(chunk),
                 b.c.diagnosis_version == DIAGNOSIS_VERSION,
             )
         ):
             outcomes[(row.measurement_id, row.baseline_id)] = row.outcome
         for row in db.execute(
-            select(a).where(tuple_(a.c.measurement_id, a.c.baseline_id).in_(chunk))
+            select(a).where(
+                a.c.measurement_id.in_(latest),
+                tuple_(a.c.measurement_id, a.c.baseline_id).in_(chunk),
+            )
         ):
             axes.setdefault((row.measurement_id, row.baseline_id), {})[row.axis] = _figures(row)
     return {

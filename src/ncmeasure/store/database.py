@@ -5,7 +5,9 @@ A store is named by a URL: ``sqlite:///fleet.db`` (a file, nothing to install),
 file path, which means SQLite. :func:`store_url` adds ``--store`` /
 ``NCMEASURE_STORE`` / the default. :func:`connect` brings the schema to the
 newest Alembic revision this ncmeasure knows (creating the tables in an empty
-database) and refuses a database of a newer schema.
+database) and refuses a database of a newer schema. A store already at that
+revision is recognised by one plain query of its ``alembic_version`` table:
+Alembic itself is imported only when there is something to create or upgrade.
 
 On SQLite every write transaction starts with ``BEGIN IMMEDIATE`` (a second
 writer waits for the first instead of failing half-way) and the schema's DDL
@@ -28,10 +30,22 @@ from sqlalchemy.exc import ArgumentError, DBAPIError, NoSuchModuleError, SQLAlch
 
 from ncmeasure.errors import ConfigError, StoreError
 
-__all__ = ["STORE_ENV", "connect", "default_store", "display_url", "store_url", "write_begin"]
+__all__ = [
+    "HEAD_REVISION",
+    "STORE_ENV",
+    "connect",
+    "default_store",
+    "display_url",
+    "store_url",
+    "write_begin",
+]
 
 STORE_ENV = "NCMEASURE_STORE"
 """The environment variable that names the store when ``--store`` is not given."""
+
+HEAD_REVISION = "0004"
+"""The newest schema revision (the last file in ``migrations/versions``): a store at it is
+opened without Alembic. A test holds it equal to Alembic's head."""
 
 _MIGRATIONS = Path(__file__).parent / "migrations"
 _PG_LOCK_KEY = 0x6E636D73  # "ncms": serialises schema upgrades of one PostgreSQL database
@@ -194,6 +208,15 @@ def _current(connection: Connection) -> str | None:
     return MigrationContext.configure(connection).get_current_revision()
 
 
+def _stored_revision(connection: Connection) -> str | None:
+    """The store's schema revision by a plain query (None: no ``alembic_version`` table, no
+    row, or more than one row, which Alembic itself then reads)."""
+    if not inspect(connection).has_table("alembic_version"):
+        return None
+    rows = connection.execute(text("SELECT version_num FROM alembic_version")).all()
+    return str(rows[0][0]) if len(rows) == 1 else None
+
+
 def _migrate(connection: Connection, url: str, write: bool) -> None:
     from alembic import command
 
@@ -241,8 +264,8 @@ def connect(url: str, *, write: bool) -> Iterator[Engine]:
     try:
         try:
             with engine.connect() as connection:
-                current = _current(connection)
-            if current != head_revision():  # create, upgrade or refuse, under a write lock
+                current = _stored_revision(connection)
+            if current != HEAD_REVISION:  # create, upgrade or refuse, under a write lock
                 with write_begin(engine) as connection:
                     _migrate(connection, url, write)
         except SQLAlchemyError as exc:

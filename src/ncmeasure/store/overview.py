@@ -64,8 +64,12 @@ __all__ = [
     "MachineOverview",
     "Outlier",
     "change_status",
+    "changes_of",
     "fleet_overview",
     "is_outlier",
+    "judge",
+    "overviews_of",
+    "read_axes",
 ]
 # change_status, is_outlier and Change are the judgement's (judgement.status), named
 # here too for the overview's readers.
@@ -222,45 +226,17 @@ def fleet_overview(store: Store, limits: Limits | None = None) -> FleetOverview:
         machines = db.execute(
             select(s).where(s.c.latest_id.is_not(None)).order_by(s.c.serial)
         ).all()
-    overviews: list[MachineOverview] = []
-    wanted: list[int] = []
-    for found in machines:
-        wanted += [found.latest_id, found.baseline_id]
-        overviews.append(
-            MachineOverview(
-                serial=found.serial,
-                machine_type=found.machine_type,
-                site=found.site,
-                measurements=int(found.measurements),
-                latest_id=int(found.latest_id),
-                latest_utc=found.latest_utc,
-                latest_label=found.latest_label,
-                baseline_id=int(found.baseline_id),
-                baseline_utc=found.baseline_utc,
-                baseline_label=found.baseline_label,
-            )
-        )
-    rows = _axis_rows(store, wanted)
+    overviews = overviews_of(machines)
+    baselines = read_axes(store, overviews)
     # per (type, axis, unit, characteristic): the machines' latest values
     fleet: dict[tuple[str, str, str, str], list[tuple[AxisOverview, MachineOverview, float]]]
     fleet = defaultdict(list)
-    baselines: dict[str, dict[str, AxisFigures]] = {}
     for machine in overviews:
-        if machine.baseline_id != machine.latest_id:
-            baselines[machine.serial] = {r.axis: _figures(r) for r in rows[machine.baseline_id]}
-        for row in sorted(rows[machine.latest_id], key=lambda r: r.axis):
-            axis = AxisOverview(
-                axis=row.axis,
-                unit=row.unit,
-                verdict=row.verdict,
-                latest={c.name: _finite(getattr(row, c.name)) for c in CHARACTERISTICS},
-                signature=row.signature,
-            )
-            machine.axes[row.axis] = axis
+        for axis in machine.axes.values():
             for c in CHARACTERISTICS:
                 value = axis.latest[c.name]
                 if value is not None:
-                    fleet[(machine.machine_type, row.axis, row.unit, c.name)].append(
+                    fleet[(machine.machine_type, axis.axis, axis.unit, c.name)].append(
                         (axis, machine, value)
                     )
     places: dict[tuple[str, str], dict[str, list[FleetPlace]]] = defaultdict(
@@ -269,17 +245,7 @@ def fleet_overview(store: Store, limits: Limits | None = None) -> FleetOverview:
     outliers = _outliers(fleet, limits, places)
     changes = _changes(store, machines, overviews)
     for machine in overviews:
-        met = changes.get(machine.serial)
-        judged = machine_status(
-            {name: axis.figures() for name, axis in machine.axes.items()},
-            baseline=baselines.get(machine.serial) if met is None or met.baseline_counts else None,
-            fleet=places[(machine.serial, machine.machine_type)],
-            limits=limits,
-            changes=None if met is None else met.changes,
-        )
-        for name, axis in machine.axes.items():
-            axis.judged = judged.axes[name]
-            axis.changes = list(judged.axes[name].changes)
+        judge(machine, baselines, places[(machine.serial, machine.machine_type)], changes, limits)
     types: dict[str, int] = defaultdict(int)
     for machine in overviews:
         types[machine.machine_type] += 1
@@ -293,6 +259,77 @@ def fleet_overview(store: Store, limits: Limits | None = None) -> FleetOverview:
         types=dict(sorted(types.items())),
         limits=limits,
     )
+
+
+def overviews_of(machines: Sequence[Any]) -> list[MachineOverview]:
+    """The machines of these summary rows (:data:`~ncmeasure.store.schema.machine_summaries`,
+    with a latest measurement), their axes not yet read (:func:`read_axes`)."""
+    return [
+        MachineOverview(
+            serial=found.serial,
+            machine_type=found.machine_type,
+            site=found.site,
+            measurements=int(found.measurements),
+            latest_id=int(found.latest_id),
+            latest_utc=found.latest_utc,
+            latest_label=found.latest_label,
+            baseline_id=int(found.baseline_id),
+            baseline_utc=found.baseline_utc,
+            baseline_label=found.baseline_label,
+        )
+        for found in machines
+    ]
+
+
+def read_axes(
+    store: Store, overviews: Sequence[MachineOverview]
+) -> dict[str, dict[str, AxisFigures]]:
+    """Fill in each machine's axes (its latest measurement's); returns the baselines'
+    figures per serial, of the machines whose baseline is not their latest."""
+    wanted = [i for m in overviews for i in (m.latest_id, m.baseline_id)]
+    rows = _axis_rows(store, wanted)
+    baselines: dict[str, dict[str, AxisFigures]] = {}
+    for machine in overviews:
+        if machine.baseline_id != machine.latest_id:
+            baselines[machine.serial] = {r.axis: _figures(r) for r in rows[machine.baseline_id]}
+        for row in sorted(rows[machine.latest_id], key=lambda r: r.axis):
+            machine.axes[row.axis] = AxisOverview(
+                axis=row.axis,
+                unit=row.unit,
+                verdict=row.verdict,
+                latest={c.name: _finite(getattr(row, c.name)) for c in CHARACTERISTICS},
+                signature=row.signature,
+            )
+    return baselines
+
+
+def judge(
+    machine: MachineOverview,
+    baselines: dict[str, dict[str, AxisFigures]],
+    places: dict[str, list[FleetPlace]] | None,
+    changes: dict[str, StoredChange],
+    limits: Limits,
+) -> None:
+    """Judge the machine (:func:`~ncmeasure.analysis.judgement.status.machine_status`):
+    each axis' status, reasons and changes; ``places`` None judges it without its fleet."""
+    met = changes.get(machine.serial)
+    judged = machine_status(
+        {name: axis.figures() for name, axis in machine.axes.items()},
+        baseline=baselines.get(machine.serial) if met is None or met.baseline_counts else None,
+        fleet=places,
+        limits=limits,
+        changes=None if met is None else met.changes,
+    )
+    for name, axis in machine.axes.items():
+        axis.judged = judged.axes[name]
+        axis.changes = list(judged.axes[name].changes)
+
+
+def changes_of(
+    store: Store, machines: Sequence[Any], overviews: Sequence[MachineOverview]
+) -> dict[str, StoredChange]:
+    """Per serial: the stored change since the baseline (:func:`_changes`)."""
+    return _changes(store, machines, overviews)
 
 
 def _figures(row: Any) -> AxisFigures:

@@ -22,6 +22,9 @@
     machine_summaries per machine, what the lists show, kept current on adding: serial,
                     type, site, measurements, the latest and the baseline measurement, and
                     the status as of the fleet it was judged in (``fleet_version``)
+    axis_statuses   per machine and axis: its status without the fleet (the verdict, the
+                    change since the baseline, the sibling axes; default limits), for the
+                    (latest, baseline) pair and diagnosis version it was judged for
 
 The schema changes only through an Alembic revision (``migrations/versions``);
 ``tests/store/test_migrations.py`` proves the revisions build exactly these tables.
@@ -49,6 +52,7 @@ __all__ = [
     "axes",
     "axis_changes",
     "axis_results",
+    "axis_statuses",
     "baseline_changes",
     "causes",
     "fit_parameters",
@@ -287,4 +291,20 @@ machine_summaries = Table(
     ),
     Index("ix_machine_summaries_status_serial", "status", "serial"),
     Index("ix_machine_summaries_type_serial", "machine_type", "serial"),
+)
+
+axis_statuses = Table(
+    "axis_statuses",
+    metadata,
+    Column("machine_id", ForeignKey("machines.id", ondelete="CASCADE"), primary_key=True),
+    Column("axis", String(32), primary_key=True),
+    Column("latest_id", Integer, nullable=False),
+    Column("baseline_id", Integer, nullable=False),
+    Column("diagnosis_version", Integer, nullable=False),
+    Column(
+        "status",
+        String(16),
+        nullable=False,
+        doc="ok, warning or critical: the axis' status without its fleet, default limits.",
+    ),
 )

@@ -177,9 +177,11 @@ class Store:
             StoreError: The database failed (the rows before stay).
         """
         from ncmeasure.store.overview import fleet_overview
+        from ncmeasure.store.statuses import fleet_statuses
 
         with self.writing("rebuild the machines' summaries") as db:
             update_summaries(db)
+        fleet_statuses(self)  # judges and keeps each machine's status without the fleet
         return len(fleet_overview(self).machines)  # keeps the statuses: open for writing
 
     # ----------------------------------------------------------------------- reading

@@ -36,8 +36,9 @@ from ncmeasure.analysis.judgement.summary import axis_comparison, axis_headline
 from ncmeasure.report.words import format_date, format_number
 from ncmeasure.store import MeasurementSummary, TrendPoint
 from ncmeasure.store.check import StoreCheck
-from ncmeasure.store.overview import MachineOverview, fleet_overview
+from ncmeasure.store.overview import MachineOverview
 from ncmeasure.store.rows import CHARACTERISTICS
+from ncmeasure.store.statuses import fleet_statuses, judged_page
 from ncmeasure.store.summaries import DEFAULT_PAGE, MAX_PAGE
 from ncmeasure.web.context import Context, Version, context
 
@@ -163,15 +164,6 @@ class Pager:
     """The next page, when there is one."""
 
 
-def _matches(m: MachineOverview, search: str | None, status: str | None) -> bool:
-    if status is not None and m.status != status:
-        return False
-    if not search:
-        return True
-    wanted = search.casefold()
-    return any(wanted in (text or "").casefold() for text in (m.serial, m.machine_type, m.site))
-
-
 @router.get("/", response_class=HTMLResponse)
 def fleet_page(
     request: Request,
@@ -185,12 +177,14 @@ def fleet_page(
     the search) × every axis (columns)."""
     version = ctx.version()
     root = _root(request)
-    overview = ctx.cached(version, "overview", lambda: fleet_overview(ctx.store))
-    axes = overview.axes
+    fleet = ctx.cached(version, "statuses", lambda: fleet_statuses(ctx.store))
+    axes = fleet.axis_names
     search = (q or "").strip() or None
-    matching = [m for m in overview.machines if _matches(m, search, status)]
-    start = bisect.bisect_right([m.serial for m in matching], after) if after else 0
-    shown = matching[start : start + limit]
+    matching = fleet.matching(search, status)
+    serials = [fleet.serials[i] for i in matching]
+    start = bisect.bisect_right(serials, after) if after else 0
+    chosen = [int(fleet.machine_ids[i]) for i in matching[start : start + limit]]
+    shown = judged_page(ctx.store, fleet, chosen)
     rows = []
     for m in shown:
         latest = format_date(m.latest_utc) + (f" · {m.latest_label}" if m.latest_label else "")
@@ -207,7 +201,7 @@ def fleet_page(
                 findings=_findings(m),
             )
         )
-    counts = {s: sum(a.status == s for m in matching for a in m.axes.values()) for s in STATUSES}
+    counts = fleet.axis_counts(matching)
     kept: dict[str, object] = {
         "q": search,
         "status": status,
@@ -231,7 +225,7 @@ def fleet_page(
         search=search or "",
         status=status or "",
         statuses=STATUSES,
-        machines=len(overview.machines),
+        machines=len(fleet.serials),
         home=f"{root}/",
     )
 

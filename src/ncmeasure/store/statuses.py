@@ -1,0 +1,332 @@
+"""Every machine's status for the lists, without judging the fleet machine by machine.
+
+A status is the worst of two parts (:mod:`ncmeasure.analysis.judgement.status`):
+what an axis shows by itself (its verdict, its change since the baseline, its
+sibling axes) and its place in its type's fleet (an outlier, or a level
+:data:`~ncmeasure.analysis.judgement.status.FLEET_FACTOR` from the median: a
+warning). The first changes only when the machine gets a measurement: it is kept
+per axis (:data:`~ncmeasure.store.schema.axis_statuses`, for the latest and
+baseline pair and the diagnosis version it was judged for), judged where missing
+by the first reader (and kept by a store open for writing; ``ncmeasure store
+refresh`` judges every machine). The second moves with every measurement of the
+type: it is computed for the whole fleet at once from one read of the latest
+figures, as arrays (:func:`~ncmeasure.analysis.judgement.fleet.modified_z_leave_one_out`
+per type, axis and characteristic), never as an object per machine.
+
+The grid then judges in full (reasons, changes, places) only the machines of the
+page it shows (:func:`judged_page`); the statuses equal those of
+:func:`~ncmeasure.store.overview.fleet_overview` (``tests/store/test_statuses.py``).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import defaultdict
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from sqlalchemy import Connection, Select, and_, delete, insert, select
+
+from ncmeasure.analysis.judgement.diagnosis import FLAT_THRESHOLD_PERCENT
+from ncmeasure.analysis.judgement.fleet import modified_z_leave_one_out
+from ncmeasure.analysis.judgement.status import CHARACTERISTICS, FLEET_FACTOR, FleetPlace
+from ncmeasure.formats.comparison import Limits, Status
+from ncmeasure.store import schema as t
+from ncmeasure.store.changes import DIAGNOSIS_VERSION
+from ncmeasure.store.overview import (
+    MachineOverview,
+    changes_of,
+    judge,
+    overviews_of,
+    read_axes,
+)
+from ncmeasure.store.store import Store
+from ncmeasure.store.summaries import fleet_version
+
+__all__ = ["FleetStatuses", "fleet_statuses", "judged_page"]
+
+_CHUNK = 500
+_BATCH = 200  # machines judged per transaction where the statuses are missing
+_log = logging.getLogger(__name__)
+
+Group = tuple[str, str, str, str]
+"""machine type, axis, unit, characteristic."""
+
+
+@dataclass(frozen=True)
+class _Places:
+    """One group's places: by machine id (sorted), the others' median and the z-score."""
+
+    ids: NDArray[np.int64]
+    medians: NDArray[np.float64]
+    z: NDArray[np.float64]
+    enough: bool
+
+
+_LEVELS: tuple[Status, ...] = ("ok", "warning", "critical")
+_LEVEL: dict[str, int] = {name: level for level, name in enumerate(_LEVELS)}
+
+
+@dataclass
+class FleetStatuses:
+    """Every machine's status (default limits) in the fleet as it was read, as arrays: one
+    entry per machine (by serial) and one per axis of each machine's latest measurement."""
+
+    version: str
+    """The fleet these statuses were judged in
+    (:func:`~ncmeasure.store.summaries.fleet_version`)."""
+    machine_ids: NDArray[np.int64]
+    """Per machine, by serial."""
+    serials: list[str]
+    types: list[str]
+    sites: list[str | None]
+    levels: NDArray[np.int8]
+    """Per machine: its status, 0 ok, 1 warning, 2 critical."""
+    axis_machine: NDArray[np.intp]
+    """Per axis: its machine (an index of the machine arrays)."""
+    axis_levels: NDArray[np.int8]
+    """Per axis: its status."""
+    axis_names: list[str]
+    """Every axis name in the fleet, sorted."""
+    places: dict[Group, _Places] = field(default_factory=dict)
+
+    def by_serial(self) -> dict[str, Status]:
+        """Every machine's status by serial."""
+        return {s: _LEVELS[int(v)] for s, v in zip(self.serials, self.levels, strict=True)}
+
+    def matching(self, search: str | None = None, status: str | None = None) -> list[int]:
+        """The machines (indexes, by serial) whose serial, type or site contains ``search``
+        (any case) and whose status is ``status``."""
+        chosen: list[int] = list(range(len(self.serials)))
+        if status is not None:
+            level = _LEVEL.get(status, -1)
+            chosen = [int(i) for i in np.flatnonzero(self.levels == level)]
+        if not search:
+            return list(chosen)
+        wanted = search.casefold()
+        return [
+            i
+            for i in chosen
+            if any(
+                wanted in (text or "").casefold()
+                for text in (self.serials[i], self.types[i], self.sites[i])
+            )
+        ]
+
+    def axis_counts(self, machines: Sequence[int]) -> dict[Status, int]:
+        """The axes of these machines per status."""
+        chosen = np.zeros(len(self.serials), dtype=bool)
+        chosen[list(machines)] = True
+        levels = self.axis_levels[chosen[self.axis_machine]]
+        counts = np.bincount(levels, minlength=len(_LEVELS))
+        return {name: int(counts[level]) for level, name in enumerate(_LEVELS)}
+
+    def places_of(self, machine_id: int, machine_type: str) -> dict[str, list[FleetPlace]]:
+        """The machine's place in its type's fleet, per axis, as
+        :func:`~ncmeasure.analysis.judgement.status.machine_status` reads it."""
+        found: dict[str, list[FleetPlace]] = defaultdict(list)
+        for (kind, axis, _unit, name), group in self.places.items():
+            if kind != machine_type:
+                continue
+            at = int(np.searchsorted(group.ids, machine_id))
+            if at < group.ids.size and group.ids[at] == machine_id:
+                z = float(group.z[at]) if group.enough else None
+                found[axis].append(
+                    FleetPlace(name, float(group.medians[at]), z, group.ids.size - 1)
+                )
+        return found
+
+
+def fleet_statuses(store: Store) -> FleetStatuses:
+    """Every machine's status with the default limits: the kept statuses without the fleet
+    (judged now where missing) and the fleet's part for all at once.
+
+    Raises:
+        StoreError: The database failed.
+    """
+    limits = Limits()
+    s, a, st = t.machine_summaries, t.axis_results, t.axis_statuses
+    kept = and_(
+        st.c.machine_id == s.c.machine_id,
+        st.c.axis == a.c.axis,
+        st.c.latest_id == s.c.latest_id,
+        st.c.baseline_id == s.c.baseline_id,
+        st.c.diagnosis_version == DIAGNOSIS_VERSION,
+    )
+    query = (
+        select(
+            s.c.machine_id,
+            s.c.serial,
+            s.c.machine_type,
+            s.c.site,
+            a.c.axis,
+            a.c.unit,
+            *(a.c[c.name] for c in CHARACTERISTICS),
+            st.c.status,
+        )
+        .join_from(s, a, a.c.measurement_id == s.c.latest_id)
+        .outerjoin(st, kept)
+    )
+    with store.reading("read the fleet's statuses") as db:
+        version = fleet_version(db)
+        rows = _raw(db, query)
+    count = len(rows)
+    machine_of_row = np.fromiter((r[0] for r in rows), dtype=np.int64, count=count)
+    ids, first, inverse = np.unique(machine_of_row, return_index=True, return_inverse=True)
+    serials = [rows[i][1] for i in first]
+    by_serial = np.array(sorted(range(ids.size), key=serials.__getitem__), dtype=np.intp)
+    place = np.empty(ids.size, dtype=np.intp)
+    place[by_serial] = np.arange(ids.size)
+    axis_machine = place[inverse] if count else np.zeros(0, dtype=np.intp)
+    local = np.array([_LEVEL.get(r[9], -1) for r in rows], dtype=np.int8)
+    missing = np.flatnonzero(local < 0)
+    if missing.size:
+        judged = _judge_missing(store, sorted({int(machine_of_row[i]) for i in missing}))
+        for i in missing:
+            local[i] = _LEVEL[judged[int(machine_of_row[i])][rows[i][4]]]
+    places, flagged = _fleet(rows, machine_of_row, limits)
+    axis_levels = np.where(flagged, np.maximum(local, 1), local).astype(np.int8)
+    levels = np.zeros(ids.size, dtype=np.int8)
+    np.maximum.at(levels, axis_machine, axis_levels)
+    return FleetStatuses(
+        version=version,
+        machine_ids=ids[by_serial],
+        serials=[serials[i] for i in by_serial],
+        types=[rows[first[i]][2] for i in by_serial],
+        sites=[rows[first[i]][3] for i in by_serial],
+        levels=levels,
+        axis_machine=axis_machine,
+        axis_levels=axis_levels,
+        axis_names=sorted({r[4] for r in rows}),
+        places=places,
+    )
+
+
+def _raw(db: Connection, query: Select[Any]) -> list[tuple[Any, ...]]:
+    """The rows of ``query`` as the database driver's tuples, without a row object each (the
+    fleet's figures are many; their columns need no conversion)."""
+    result = db.execute(query)
+    try:
+        return list(result.cursor.fetchall())
+    finally:
+        result.close()
+
+
+def _fleet(
+    rows: Sequence[tuple[Any, ...]], machine_of_row: NDArray[np.int64], limits: Limits
+) -> tuple[dict[Group, _Places], NDArray[np.bool_]]:
+    """Per group: every member's modified z-score against the others and their median; and
+    per row, whether its fleet makes the axis a warning: an outlier
+    (:func:`~ncmeasure.analysis.judgement.status.is_outlier`), or a level
+    :data:`FLEET_FACTOR` from the median. The tests of the judgement, on arrays."""
+    places: dict[Group, _Places] = {}
+    flagged = np.zeros(len(rows), dtype=bool)
+    index: dict[tuple[str, str, str], int] = {}
+    codes = np.array([index.setdefault((r[2], r[4], r[5]), len(index)) for r in rows])
+    for j, c in enumerate(CHARACTERISTICS):
+        column = np.array([r[6 + j] for r in rows], dtype=np.float64)  # None: nan
+        for (machine_type, axis, unit), code in index.items():
+            members = np.flatnonzero((codes == code) & np.isfinite(column))
+            if members.size < 2:
+                continue
+            x = column[members]
+            ids = machine_of_row[members]
+            enough = x.size - 1 >= limits.outlier_min_runs
+            z, median = modified_z_leave_one_out(x)
+            hit = np.zeros(x.size, dtype=bool)
+            if enough:
+                floor = (
+                    np.abs(median) * limits.warning_percent / 100.0
+                    if c.relative
+                    else FLAT_THRESHOLD_PERCENT
+                )
+                hit |= (np.abs(z) > limits.outlier_z) & (np.abs(x - median) > floor)
+            if c.relative:
+                with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                    ratio = x / median
+                far = (ratio > FLEET_FACTOR) | (ratio < 1.0 / FLEET_FACTOR)
+                hit |= (median > 0) & (x > 0) & far
+            flagged[members[hit]] = True
+            order = np.argsort(ids, kind="stable")
+            places[(machine_type, axis, unit, c.name)] = _Places(
+                ids=ids[order], medians=median[order], z=z[order], enough=enough
+            )
+    return places, flagged
+
+
+def _judge_missing(store: Store, machine_ids: Sequence[int]) -> dict[int, dict[str, Status]]:
+    """The statuses without the fleet of these machines, judged now; kept when the store
+    is open for writing."""
+    s = t.machine_summaries
+    found: dict[int, dict[str, Status]] = {}
+    for start in range(0, len(machine_ids), _BATCH):
+        chunk = list(machine_ids[start : start + _BATCH])
+        with store.reading("read the machines to judge") as db:
+            machines = db.execute(select(s).where(s.c.machine_id.in_(chunk))).all()
+        overviews = overviews_of(machines)
+        baselines = read_axes(store, overviews)
+        changes = changes_of(store, machines, overviews)
+        judged: list[tuple[Any, MachineOverview]] = []
+        for row, machine in zip(machines, overviews, strict=True):
+            judge(machine, baselines, None, changes, Limits())
+            found[int(row.machine_id)] = {n: a.status for n, a in machine.axes.items()}
+            judged.append((row, machine))
+        if store.write:
+            with store.writing("keep the statuses without the fleet") as db:
+                _keep(db, judged)
+    if not store.write:
+        _log.warning(
+            "%d machine(s) without a current stored status: judged now on every reading; "
+            "`ncmeasure store refresh` stores them",
+            len(machine_ids),
+        )
+    return found
+
+
+def _keep(db: Connection, judged: Sequence[tuple[Any, MachineOverview]]) -> None:
+    st = t.axis_statuses
+    ids = [int(row.machine_id) for row, _ in judged]
+    for start in range(0, len(ids), _CHUNK):
+        db.execute(delete(st).where(st.c.machine_id.in_(ids[start : start + _CHUNK])))
+    values = [
+        {
+            "machine_id": int(row.machine_id),
+            "axis": name,
+            "latest_id": int(row.latest_id),
+            "baseline_id": int(row.baseline_id),
+            "diagnosis_version": DIAGNOSIS_VERSION,
+            "status": axis.status,
+        }
+        for row, machine in judged
+        for name, axis in machine.axes.items()
+    ]
+    if values:
+        db.execute(insert(st), values)
+
+
+def judged_page(
+    store: Store, statuses: FleetStatuses, machine_ids: Sequence[int]
+) -> list[MachineOverview]:
+    """These machines (by serial), judged in full as the fleet overview judges them: their
+    axes, changes, reasons and places in the fleet (default limits).
+
+    Raises:
+        StoreError: The database failed.
+    """
+    s = t.machine_summaries
+    if not machine_ids:
+        return []
+    with store.reading("read the machines") as db:
+        machines = db.execute(
+            select(s).where(s.c.machine_id.in_(list(machine_ids))).order_by(s.c.serial)
+        ).all()
+    overviews = overviews_of(machines)
+    baselines = read_axes(store, overviews)
+    changes = changes_of(store, machines, overviews)
+    for row, machine in zip(machines, overviews, strict=True):
+        places = statuses.places_of(int(row.machine_id), machine.machine_type)
+        judge(machine, baselines, places, changes, Limits())
+    return overviews

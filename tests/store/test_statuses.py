@@ -1,0 +1,119 @@
+"""The lists' statuses (each machine's own status as kept, the fleet's part on arrays) are
+those of the fleet overview, which judges every machine in full."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+import pytest
+from sqlalchemy import func, select
+
+from ncmeasure.formats.results import Results
+from ncmeasure.store import MeasurementInfo, open_store
+from ncmeasure.store import schema as t
+from ncmeasure.store.overview import fleet_overview
+from ncmeasure.store.statuses import fleet_statuses, judged_page
+
+Make = Callable[..., Results]
+
+# machine → friction factors of its measurements (delivery first): a fleet with an outlier
+# below (M17) and above (M30: beyond the fleet factor), twins (ties in the medians), a
+# machine with only its delivery, one worn past the critical limit, one at the warning limit,
+# and two that only the fleet tells apart (no change since their delivery)
+FLEET = {
+    "M17": (1.0, 0.5),
+    "M20": (0.96, 0.97),
+    "M21": (1.0, 1.12),
+    "M22": (1.03, 1.0),
+    "M23": (0.98, 1.27),
+    "M24": (1.02, 1.02),
+    "M25": (1.01,),
+    "M26": (1.0, 1.0),
+    "M27": (1.0, 1.0),
+    "M28": (0.99, 0.99, 1.01),
+    "M29": (1.04, 0.9),
+    "M30": (1.0, 3.5),
+    "M31": (0.55, 0.55),  # an outlier since its delivery: unchanged, the fleet tells
+    "M32": (3.5,),  # beyond the fleet factor at delivery
+}
+
+
+def _fill(url: str, make_results: Make) -> None:
+    with open_store(url, write=True) as store:
+        for index, (serial, factors) in enumerate(FLEET.items()):
+            for k, factor in enumerate(factors):
+                store.add(
+                    make_results(f"20{26 + k}-01-{10 + index}T08:00:00+00:00", factor),
+                    MeasurementInfo(
+                        serial=serial,
+                        label="delivery" if k == 0 else "service",
+                        site="Hall 3" if index % 2 else None,
+                    ),
+                )
+
+
+def _same_as_the_overview(url: str) -> None:
+    with open_store(url) as store:
+        overview = fleet_overview(store)
+        fleet = fleet_statuses(store)
+        ids = [int(fleet.machine_ids[i]) for i in fleet.matching()]
+        page = judged_page(store, fleet, ids)
+    expected = {m.serial: m.status for m in overview.machines}
+    assert fleet.by_serial() == expected
+    assert set(expected.values()) == {"warning", "critical"}  # the base has a loose bearing
+    assert fleet.serials == sorted(FLEET)
+    axes = {
+        s: sum(a.status == s for m in overview.machines for a in m.axes.values())
+        for s in ("ok", "warning", "critical")
+    }
+    assert fleet.axis_counts(fleet.matching()) == axes
+    assert fleet.axis_names == overview.axes
+    assert any(  # the fleet alone makes an axis a warning
+        a.status == "warning" and a.outliers and a.change_status == "ok"
+        for m in overview.machines
+        for a in (x.judged for x in m.axes.values())
+        if a is not None
+    )
+    for machine, judged in zip(overview.machines, page, strict=True):
+        assert judged.serial == machine.serial
+        assert [(n, a.status, a.reasons, a.notes) for n, a in judged.axes.items()] == [
+            (n, a.status, a.reasons, a.notes) for n, a in machine.axes.items()
+        ]
+    for status in ("ok", "warning", "critical"):
+        chosen = [fleet.serials[i] for i in fleet.matching(status=status)]
+        assert chosen == sorted(s for s, found in expected.items() if found == status)
+    assert [fleet.serials[i] for i in fleet.matching("hall 3")] == [
+        s for i, s in enumerate(FLEET) if i % 2
+    ]
+
+
+def test_the_statuses_are_the_overviews(store_url: str, make_results: Make) -> None:
+    _fill(store_url, make_results)
+    _same_as_the_overview(store_url)  # judged now: none kept by a reader
+    with open_store(store_url, write=True) as store:
+        fleet_statuses(store)  # a writer keeps them
+    _same_as_the_overview(store_url)  # read as kept
+
+
+def test_each_machines_own_status_is_kept_until_it_gets_a_measurement(
+    store_url: str, make_results: Make, caplog: pytest.LogCaptureFixture
+) -> None:
+    _fill(store_url, make_results)
+    with open_store(store_url, write=True) as store:
+        fleet_statuses(store)
+        store.add(
+            make_results("2031-06-01T08:00:00+00:00", 1.3),
+            MeasurementInfo(serial="M20", label="service"),
+        )
+    with caplog.at_level(logging.WARNING), open_store(store_url) as store:
+        fleet = fleet_statuses(store)
+    assert "1 machine(s) without a current stored status" in caplog.text
+    assert fleet.by_serial()["M20"] == "critical"  # +30 % since its delivery
+    with open_store(store_url, write=True) as store:
+        fleet_statuses(store)
+        with store.reading("count") as db:
+            kept = db.execute(select(func.count()).select_from(t.axis_statuses)).scalar_one()
+    axes = len(make_results("2026-01-01T08:00:00+00:00").axes)
+    assert kept == axes * len(FLEET)
+    _same_as_the_overview(store_url)
