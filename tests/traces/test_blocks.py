@@ -218,6 +218,20 @@ def test_rows_are_formatted_as_repr_writes_them() -> None:
     assert csv_rows(rows[:0]) == b""
 
 
+@pytest.mark.parametrize("width", [1, 2, 5])
+def test_rows_with_small_values_and_infinities_are_formatted_as_repr(width: int) -> None:
+    """Rows written with repr between the others (the first, the last, neighbours), and
+    infinities in rows without a NaN."""
+    rng = np.random.default_rng(width)
+    rows = rng.normal(0, 100, (40, width))
+    rows[[0, 7, 8, 20, 39], rng.integers(0, width, 5)] = [1e-5, -3e-7, 5e-324, 9.9e-5, 1e-300]
+    rows[[3, 8, 30], -1] = [np.inf, -np.inf, np.inf]
+    expected = "".join(",".join(map(repr, row)) + "\n" for row in rows.tolist()).encode()
+    assert csv_rows(rows) == expected
+    lines = expected.splitlines(keepends=True)
+    assert csv_rows(rows[1:7]) == b"".join(lines[1:7])  # infinities, no NaN, no small value
+
+
 @pytest.mark.parametrize(
     "block",
     [

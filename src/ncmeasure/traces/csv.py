@@ -76,32 +76,59 @@ def export_csv(recording: Recording | RecordingHead | PathArg, path: PathArg) ->
 #: the JSON encoder writes digits (``0.00001``); such rows are written with repr itself.
 _REPR_EXPONENT_BELOW: Final = 1e-4
 
+#: The JSON encoder for a list of floats: told the type, it skips inferring each item's;
+#: NaN and infinities as ``NaN``, ``Infinity`` and ``-Infinity``.
+_FLOATS_JSON: Final = pydantic_core.SchemaSerializer(
+    pydantic_core.core_schema.list_schema(pydantic_core.core_schema.float_schema()),
+    pydantic_core.core_schema.CoreConfig(ser_json_inf_nan="constants"),
+)
+_COMMA: Final = ord(",")
+_NEWLINE: Final = ord("\n")
+
 
 def csv_rows(rows: NDArray[np.float64]) -> bytes:
     """Rows of float64 as CSV lines of Python's shortest reprs, ``,``-separated, ``\n``-ended.
 
     ``float.__repr__`` is the shortest text that reads back to the same float64, and
     the one nearest to it among those (``0.1``, ``1e+16``, ``-0.0``, ``nan``). pydantic's
-    JSON encoder writes the same digits (shortest and nearest) about ten times faster,
-    with the same text for every finite value from 1e-4 on; its ``NaN`` and
-    ``Infinity`` are renamed, and a row with a smaller value is written with repr.
-    The result is byte for byte ``",".join(map(repr, row)) + "\n"`` for every row.
+    JSON encoder writes the same digits (shortest and nearest) several times faster,
+    with the same text for every finite value from 1e-4 on. The rows go to it as one
+    flat list (no list per row), and every row's last ``,`` becomes a line end; its
+    ``NaN`` and ``Infinity`` are renamed, and a row with a smaller value is written
+    with repr. The result is byte for byte ``",".join(map(repr, row)) + "\n"`` for
+    every row.
     """
     if len(rows) == 0:
         return b""
-    text = pydantic_core.to_json(rows.tolist(), inf_nan_mode="constants")
-    # b"[[a,b],[c,d]]" -> b"a,b\nc,d"; the names of NaN and inf as repr writes them
-    body = text[2:-2].replace(b"],[", b"\n")
-    if b"N" in body:
-        body = body.replace(b"NaN", b"nan").replace(b"Infinity", b"inf")
+    width = rows.shape[1]
+    text = _FLOATS_JSON.to_json(rows.ravel().tolist())
+    # b"[a,b,c,d]" -> b"a,b\nc,d\n": every width-th comma ends a row (a number holds none)
+    body = bytearray(text)
+    body[-1] = _NEWLINE
+    cells = np.frombuffer(body, np.uint8)
+    ends = np.flatnonzero(cells == _COMMA)[width - 1 :: width]
+    cells[ends] = _NEWLINE
     with np.errstate(invalid="ignore"):
         tiny = np.flatnonzero(((np.abs(rows) < _REPR_EXPONENT_BELOW) & (rows != 0)).any(axis=1))
-    if len(tiny):
-        lines = body.split(b"\n")
+    if len(tiny):  # those rows as repr writes them, between the others' bytes
+        view = memoryview(body)
+        parts: list[bytes | memoryview] = []
+        done = 1
         for index in tiny.tolist():
-            lines[index] = ",".join(map(repr, rows[index].tolist())).encode()
-        body = b"\n".join(lines)
-    return body + b"\n"
+            start = int(ends[index - 1]) + 1 if index else 1
+            parts += [view[done:start], _repr_line(rows[index])]
+            done = int(ends[index]) + 1 if index < len(ends) else len(body)
+        parts.append(view[done:])
+        lines = b"".join(parts)
+    else:
+        lines = bytes(memoryview(body)[1:])
+    if b"N" in lines or b"I" in lines:
+        lines = lines.replace(b"NaN", b"nan").replace(b"Infinity", b"inf")
+    return lines
+
+
+def _repr_line(row: NDArray[np.float64]) -> bytes:
+    return (",".join(map(repr, row.tolist())) + "\n").encode()
 
 
 #: Lines parsed at a time by :func:`_plain_rows`: the text, its JSON and the floats of
