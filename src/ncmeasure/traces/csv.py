@@ -8,11 +8,10 @@ repr that reads back to the same float64; :func:`import_csv` reads such a file
 from __future__ import annotations
 
 import datetime as dt
-import itertools
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Final
+from typing import Final, TextIO
 
 import numpy as np
 import pydantic_core
@@ -22,7 +21,7 @@ from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
 from ncmeasure.files import replace_binary
 from ncmeasure.formats.recording import RecordingMeta
-from ncmeasure.recording.format import IMPORT_CHUNK_ROWS, PathArg, channel_from_name
+from ncmeasure.recording.format import PathArg, channel_from_name
 from ncmeasure.recording.reader import Recording, RecordingHead, rows_of
 from ncmeasure.recording.sink import ImportSink, check_times
 from ncmeasure.samples import SIGNAL_UNITS, Channel
@@ -131,20 +130,24 @@ def _repr_line(row: NDArray[np.float64]) -> bytes:
     return (",".join(map(repr, row.tolist())) + "\n").encode()
 
 
-#: Lines parsed at a time by :func:`_plain_rows`: the text, its JSON and the floats of
-#: a whole chunk at once would cost several times the chunk's size in memory.
-_PARSE_LINES: Final = 10_000
+#: Characters of the file read and parsed at a time (whole lines: up to the next line end).
+#: The text, its numbers and its rows are a few times this in memory.
+_BLOCK_CHARS: Final = 1 << 20
 
 
-def _plain_rows(lines: Sequence[str], width: int) -> NDArray[np.float64] | None:
-    """The rows of a chunk if every part of it is plain (:func:`number_rows`), else None."""
-    parts = []
-    for start in range(0, len(lines), _PARSE_LINES):
-        part = number_rows("".join(lines[start : start + _PARSE_LINES]).encode(), width)
-        if part is None:
-            return None
-        parts.append(part)
-    return np.concatenate(parts) if parts else None
+def _text_blocks(file: TextIO) -> Iterator[str]:
+    """The rest of a text file in blocks of whole lines (only the last may lack its ``\n``)."""
+    while text := file.read(_BLOCK_CHARS):
+        if not text.endswith("\n"):
+            text += file.readline()
+        yield text
+
+
+def _lines(text: str) -> list[str]:
+    """The lines of a block as iterating over the file gives them (with their ``\n``)."""
+    lines = [line + "\n" for line in text.split("\n")]
+    last = lines.pop()[:-1]
+    return [*lines, last] if last else lines
 
 
 def _parse_csv_header(path: Path, line: str) -> list[Channel]:
@@ -192,11 +195,11 @@ def _line_numbers(lines: Sequence[str], first_line: int) -> list[int]:
     return [first_line + i for i, line in enumerate(lines) if line.strip()]
 
 
-def _csv_where(path: Path, lines: Sequence[str], first_line: int) -> Callable[[int], str]:
-    """``file:line`` of the data row at an index of a chunk (blank lines hold no row)."""
+def _csv_where(path: Path, text: str, first_line: int) -> Callable[[int], str]:
+    """``file:line`` of the data row at an index of a block (blank lines hold no row)."""
 
     def where(index: int) -> str:
-        return f"{path}:{_line_numbers(lines, first_line)[index]}"
+        return f"{path}:{_line_numbers(_lines(text), first_line)[index]}"
 
     return where
 
@@ -213,7 +216,7 @@ def import_csv(
 
     The header names ``time_s`` and the channels (``<AXIS>_<signal>``, e.g.
     ``X_current_a``; units follow from the signal). The file is read in chunks;
-    a chunk of plain numbers is parsed at once (:func:`~ncmeasure.traces.text.number_rows`),
+    a block of plain numbers is parsed at once (:func:`~ncmeasure.traces.text.number_rows`),
     any other with numpy's parser; both read every float back bit-exact.
 
     Args:
@@ -268,11 +271,13 @@ def import_csv_meta(
             )
             line_number = 1
             previous_s = -np.inf
-            while lines := list(itertools.islice(file, IMPORT_CHUNK_ROWS)):
+            width = len(names)
+            for text in _text_blocks(file):
                 first_line = line_number + 1
-                line_number += len(lines)
-                data = _plain_rows(lines, len(names))
+                line_number += text.count("\n") + (not text.endswith("\n"))
+                data = number_rows(text.encode(), width)
                 if data is None:  # a spelling JSON does not know, or an error: numpy's parser
+                    lines = _lines(text)
                     try:
                         data = np.loadtxt(
                             lines, delimiter=",", comments=None, dtype=np.float64, ndmin=2
@@ -280,11 +285,11 @@ def import_csv_meta(
                     except ValueError as exc:
                         error = _csv_line_error(source, lines, first_line, names)
                         raise RecordingError(error) from exc
-                if data.shape[0] == 0:
-                    continue
-                if data.shape[1] != len(names):
-                    raise RecordingError(_csv_line_error(source, lines, first_line, names))
-                check_times(data[:, 0], previous_s, _csv_where(source, lines, first_line))
+                    if data.shape[0] == 0:
+                        continue
+                    if data.shape[1] != width:
+                        raise RecordingError(_csv_line_error(source, lines, first_line, names))
+                check_times(data[:, 0], previous_s, _csv_where(source, text, first_line))
                 previous_s = float(data[-1, 0])
                 target.append(data[:, 0], data[:, 1:])
         return target.close()

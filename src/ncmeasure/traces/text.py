@@ -86,12 +86,13 @@ def decimal_mark(cells: Sequence[str]) -> str | None:
     return None
 
 
-#: The bytes of rows that :func:`number_rows` reads: JSON numbers, ``,`` and ``\n``.
-_ROW_BYTES: Final = b"0123456789.-+eE,\n"
+#: The bytes of the numbers that :func:`number_rows` reads (JSON numbers), between ``,``
+#: and ``\n``.
+_NUMBER_BYTES: Final = b"0123456789.-+eE"
 #: ... and the letters of ``NaN`` and ``Infinity``, once ``nan`` and ``inf`` are renamed.
-_ROW_BYTES_NAN: Final = _ROW_BYTES + b"NaIfinty"
-#: ... or of ``null``, an empty cell.
-_ROW_BYTES_NULL: Final = _ROW_BYTES + b"nul"
+_NUMBER_BYTES_NAN: Final = _NUMBER_BYTES + b"NaIfinty"
+#: ... or of ``NaN``, an empty cell (where a NaN in the file is not read).
+_NUMBER_BYTES_EMPTY: Final = _NUMBER_BYTES + b"Na"
 
 
 def comma_separated(lines: Sequence[str], separator: str, decimal: str | None) -> str | None:
@@ -129,31 +130,40 @@ def number_rows(block: bytes, width: int, *, empty: bool = False) -> NDArray[np.
     body = block.rstrip(b"\n")
     if not body:
         return None
-    allowed = _ROW_BYTES
+    number_bytes = _NUMBER_BYTES
     if empty:
-        if b"n" in body or body[:1] == b"," or b"\n," in body:
+        if b"n" in body or b"N" in body or b"a" in body or body[:1] == b"," or b"\n," in body:
             return None
-        # ",,," needs two passes: each replacement consumes the comma after the empty cell
-        body = body.replace(b",,", b",null,").replace(b",,", b",null,")
-        body = body.replace(b",\n", b",null\n")
+        # an empty cell is NaN (no None for numpy to convert); ",,," needs two passes: each
+        # replacement consumes the comma after the empty cell
+        body = body.replace(b",,", b",NaN,").replace(b",,", b",NaN,")
+        body = body.replace(b",\n", b",NaN\n")
         if body[-1:] == b",":
-            body += b"null"
-        allowed = _ROW_BYTES_NULL
+            body += b"NaN"
+        number_bytes = _NUMBER_BYTES_EMPTY
     elif b"n" in body:
         body = body.replace(b"nan", b"NaN").replace(b"inf", b"Infinity")
-        allowed = _ROW_BYTES_NAN
-    if body.translate(None, allowed) or b"-0," in body or b"-0\n" in body or body[-2:] == b"-0":
+        number_bytes = _NUMBER_BYTES_NAN
+    # without the numbers' bytes, a block of rows is its separators: every line width - 1
+    # commas and a line end; anything else is left over
+    separators = body.translate(None, number_bytes) + b"\n"
+    if separators != (b"," * (width - 1) + b"\n") * (len(separators) // width):
         return None
-    try:
-        parsed = pydantic_core.from_json(
-            b"[[" + body.replace(b"\n", b"],[") + b"]]", allow_inf_nan=True
-        )
-        rows = np.array(parsed, dtype=np.float64)
+    try:  # one flat array: no list per row for the parser to make and the collector to visit
+        flat = b"[" + body.replace(b"\n", b",") + b"]"
+        parsed = pydantic_core.from_json(flat, allow_inf_nan=True)
+        values = np.array(parsed, dtype=np.float64)
     except (ValueError, TypeError, OverflowError):
         return None
-    if rows.ndim != 2 or rows.shape[1] != width:
+    if values.shape != (len(separators) // width * width,):
         return None
-    return rows
+    if (values == 0).any() and _MINUS_ZERO.search(body):
+        return None
+    return values.reshape(-1, width)
+
+
+#: A cell ``-0``: an integer zero to JSON, -0.0 to ``float``.
+_MINUS_ZERO: Final = re.compile(rb"-0(?:[,\n]|\Z)")
 
 
 # --- units -----------------------------------------------------------------------------
