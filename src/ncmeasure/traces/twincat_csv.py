@@ -389,7 +389,7 @@ def _fast_block(
     text = comma_separated(block, separator, decimal)
     if text is None:
         return False
-    data = text.encode()
+    data = text
     if b" " in data:  # a single space is the cell of a channel that ended: an empty cell
         if not _lone_spaces(data):
             return False
