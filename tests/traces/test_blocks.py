@@ -279,7 +279,16 @@ def test_number_rows_reads_what_float_reads() -> None:
 
 @pytest.mark.parametrize(
     "data",
-    [b"\xef\xbb\xbfa\r\nb\r\n\r\nc", b"a\rb\r\rc\r", b"a\nb\n", b"caf\xe9\nxxxxxx\n", b"a\r\r\nb"],
+    [
+        *(
+            b"\xef\xbb\xbfa\r\nb\r\n\r\nc",
+            b"a\rb\r\rc\r",
+            b"a\nb\n",
+            b"caf\xe9\nxxxxxx\n",
+            b"a\r\r\nb",
+        ),
+        b"a\x0cb\r\nc\xe2\x80\xa8d\x1ce\nf\x0b",  # characters str.splitlines splits at
+    ],
 )
 def test_lines_taken_at_once_are_the_lines_of_iteration(data: bytes, tmp_path: Path) -> None:
     source = tmp_path / "t.txt"

@@ -334,12 +334,10 @@ class TextLines:
             for offset, line in enumerate(raw):  # the line and byte, as line by line
                 self._decode(line, first + offset)
             raise
-        # a raw line holds CR or LF only at its end: one LF per line, then split
-        text = text.replace("\r\n", "\n").replace("\r", "\n")
-        lines = text.split("\n")
-        if text.endswith("\n"):
-            lines.pop()
-        if len(lines) != len(raw):  # not expected; line by line then
+        # a raw line holds CR or LF only at its end; str.splitlines also splits at other
+        # characters (form feed, U+2028 ...), which gives more lines than were read
+        lines = text.splitlines()
+        if len(lines) != len(raw):  # line by line then
             lines = [self._decode(line, first + i).rstrip("\r\n") for i, line in enumerate(raw)]
         if first == 1:
             lines[0] = lines[0].lstrip("\ufeff")
