@@ -98,8 +98,7 @@ def _job(source: Path, target: Path) -> ImportJob:
 def _tiny_blocks(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(merging, "CHUNK_ROWS", 2)
     monkeypatch.setattr(merging, "MERGE_ROWS", 2)
-    monkeypatch.setattr(csv_module, "IMPORT_CHUNK_ROWS", 5)
-    monkeypatch.setattr(csv_module, "_PARSE_LINES", 2)
+    monkeypatch.setattr(csv_module, "_BLOCK_CHARS", 40)
     for module in (sinumerik_csv, tncscope, twincat_csv):
         monkeypatch.setattr(module, "_BLOCK_LINES", 3)
 
@@ -180,6 +179,9 @@ def test_fixtures_read_in_blocks_as_row_by_row(
         (TWINCAT_EDGES, "twincat-csv", ".csv"),
         (TWINCAT_EDGES.replace("7\t7,5\t \t ", "7\t7,5\t \t3"), "twincat-csv", ".csv"),
         (TWINCAT_EDGES.replace("3\t3,5\t6", "3\t3,5\t4"), "twincat-csv", ".csv"),
+        (TWINCAT_EDGES.replace("8\t8,5\t \t ", "8\t8,5\t  \t "), "twincat-csv", ".csv"),
+        (TWINCAT_EDGES.replace("2\t2,5\t4", "2\t 2,5\t4"), "twincat-csv", ".csv"),
+        (TWINCAT_EDGES.replace("9\t9,5\t \t \r", "9\t9,5\t \t 1\r"), "twincat-csv", ".csv"),
         (GENERIC_EDGES, "csv", ".csv"),
         (GENERIC_EDGES.replace("0.008,0.1", "0.008,0,1"), "csv", ".csv"),
         (GENERIC_EDGES.replace("0.007,", "0.0065,"), "csv", ".csv"),
@@ -218,11 +220,26 @@ def test_rows_are_formatted_as_repr_writes_them() -> None:
     assert csv_rows(rows[:0]) == b""
 
 
+@pytest.mark.parametrize("width", [1, 2, 5])
+def test_rows_with_small_values_and_infinities_are_formatted_as_repr(width: int) -> None:
+    """Rows written with repr between the others (the first, the last, neighbours), and
+    infinities in rows without a NaN."""
+    rng = np.random.default_rng(width)
+    rows = rng.normal(0, 100, (40, width))
+    rows[[0, 7, 8, 20, 39], rng.integers(0, width, 5)] = [1e-5, -3e-7, 5e-324, 9.9e-5, 1e-300]
+    rows[[3, 8, 30], -1] = [np.inf, -np.inf, np.inf]
+    expected = "".join(",".join(map(repr, row)) + "\n" for row in rows.tolist()).encode()
+    assert csv_rows(rows) == expected
+    lines = expected.splitlines(keepends=True)
+    assert csv_rows(rows[1:7]) == b"".join(lines[1:7])  # infinities, no NaN, no small value
+
+
 @pytest.mark.parametrize(
     "block",
     [
         *(b"+1.5,2\n", b".5,2\n", b"5.,2\n", b"01,2\n", b"1, 2\n", b'"1",2\n', b"1,2\n\n3,4\n"),
         *(b"1,2,3\n", b"-0,2\n", b"2,-0\n", b"1e5e,2\n", b"1,null\n", b"-nan,1\n", b"NAN,1\n"),
+        *(b"1,2,3\n4\n", b"1\n2,3,4\n", b"1,2\n3,-0", b"1,2\n,3\n", b"1,2\n3,4,\n", b"[1,2]\n"),
     ],
 )
 def test_number_rows_leaves_other_spellings_to_the_caller(block: bytes) -> None:
@@ -256,11 +273,22 @@ def test_number_rows_reads_what_float_reads() -> None:
     assert np.isnan(empty).tolist() == [[False, True, False, True], [False, False, True, True]]
     assert number_rows(b",1\n", 2, empty=True) is None  # an empty first cell: the caller's
     assert number_rows(b"nan,1\n", 2, empty=True) is None  # NaN must mean an empty cell
+    assert number_rows(b"1,NaN\n", 2, empty=True) is None
+    assert number_rows(b"1,2\n3,Na\n", 2, empty=True) is None
 
 
 @pytest.mark.parametrize(
     "data",
-    [b"\xef\xbb\xbfa\r\nb\r\n\r\nc", b"a\rb\r\rc\r", b"a\nb\n", b"caf\xe9\nxxxxxx\n", b"a\r\r\nb"],
+    [
+        *(
+            b"\xef\xbb\xbfa\r\nb\r\n\r\nc",
+            b"a\rb\r\rc\r",
+            b"a\nb\n",
+            b"caf\xe9\nxxxxxx\n",
+            b"a\r\r\nb",
+        ),
+        b"a\x0cb\r\nc\xe2\x80\xa8d\x1ce\nf\x0b",  # characters str.splitlines splits at
+    ],
 )
 def test_lines_taken_at_once_are_the_lines_of_iteration(data: bytes, tmp_path: Path) -> None:
     source = tmp_path / "t.txt"

@@ -117,7 +117,7 @@ def test_csv_round_trip_is_bit_exact(tmp_path: Path, make_config: Make) -> None:
 def test_csv_import_in_chunks_with_a_given_period(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(csv_module, "IMPORT_CHUNK_ROWS", 7)
+    monkeypatch.setattr(csv_module, "_BLOCK_CHARS", 500)
     original = awkward_recording(tmp_path / "original", rows=100)
     csv_path = export_csv(tmp_path / "original", tmp_path / "out.csv")  # a directory works too
     copy = import_csv(csv_path, tmp_path / "copy", nominal_period_s=0.001)
@@ -161,7 +161,7 @@ def test_csv_with_crlf_bom_and_blank_lines(tmp_path: Path) -> None:
 def test_csv_import_errors_name_file_and_line(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, text: str, where: int, message: str
 ) -> None:
-    monkeypatch.setattr(csv_module, "IMPORT_CHUNK_ROWS", 2)  # errors across chunks too
+    monkeypatch.setattr(csv_module, "_BLOCK_CHARS", 8)  # errors across blocks too
     path = tmp_path / "bad.csv"
     path.write_text(text, encoding="utf-8")
     with pytest.raises(RecordingError) as info:

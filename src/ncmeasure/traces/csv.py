@@ -8,11 +8,10 @@ repr that reads back to the same float64; :func:`import_csv` reads such a file
 from __future__ import annotations
 
 import datetime as dt
-import itertools
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Final
+from typing import Final, TextIO
 
 import numpy as np
 import pydantic_core
@@ -22,7 +21,7 @@ from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
 from ncmeasure.files import replace_binary
 from ncmeasure.formats.recording import RecordingMeta
-from ncmeasure.recording.format import IMPORT_CHUNK_ROWS, PathArg, channel_from_name
+from ncmeasure.recording.format import PathArg, channel_from_name
 from ncmeasure.recording.reader import Recording, RecordingHead, rows_of
 from ncmeasure.recording.sink import ImportSink, check_times
 from ncmeasure.samples import SIGNAL_UNITS, Channel
@@ -76,48 +75,79 @@ def export_csv(recording: Recording | RecordingHead | PathArg, path: PathArg) ->
 #: the JSON encoder writes digits (``0.00001``); such rows are written with repr itself.
 _REPR_EXPONENT_BELOW: Final = 1e-4
 
+#: The JSON encoder for a list of floats: told the type, it skips inferring each item's;
+#: NaN and infinities as ``NaN``, ``Infinity`` and ``-Infinity``.
+_FLOATS_JSON: Final = pydantic_core.SchemaSerializer(
+    pydantic_core.core_schema.list_schema(pydantic_core.core_schema.float_schema()),
+    pydantic_core.core_schema.CoreConfig(ser_json_inf_nan="constants"),
+)
+_COMMA: Final = ord(",")
+_NEWLINE: Final = ord("\n")
+
 
 def csv_rows(rows: NDArray[np.float64]) -> bytes:
     """Rows of float64 as CSV lines of Python's shortest reprs, ``,``-separated, ``\n``-ended.
 
     ``float.__repr__`` is the shortest text that reads back to the same float64, and
     the one nearest to it among those (``0.1``, ``1e+16``, ``-0.0``, ``nan``). pydantic's
-    JSON encoder writes the same digits (shortest and nearest) about ten times faster,
-    with the same text for every finite value from 1e-4 on; its ``NaN`` and
-    ``Infinity`` are renamed, and a row with a smaller value is written with repr.
-    The result is byte for byte ``",".join(map(repr, row)) + "\n"`` for every row.
+    JSON encoder writes the same digits (shortest and nearest) several times faster,
+    with the same text for every finite value from 1e-4 on. The rows go to it as one
+    flat list (no list per row), and every row's last ``,`` becomes a line end; its
+    ``NaN`` and ``Infinity`` are renamed, and a row with a smaller value is written
+    with repr. The result is byte for byte ``",".join(map(repr, row)) + "\n"`` for
+    every row.
     """
     if len(rows) == 0:
         return b""
-    text = pydantic_core.to_json(rows.tolist(), inf_nan_mode="constants")
-    # b"[[a,b],[c,d]]" -> b"a,b\nc,d"; the names of NaN and inf as repr writes them
-    body = text[2:-2].replace(b"],[", b"\n")
-    if b"N" in body:
-        body = body.replace(b"NaN", b"nan").replace(b"Infinity", b"inf")
+    width = rows.shape[1]
+    text = _FLOATS_JSON.to_json(rows.ravel().tolist())
+    # b"[a,b,c,d]" -> b"a,b\nc,d\n": every width-th comma ends a row (a number holds none)
+    body = bytearray(text)
+    body[-1] = _NEWLINE
+    cells = np.frombuffer(body, np.uint8)
+    ends = np.flatnonzero(cells == _COMMA)[width - 1 :: width]
+    cells[ends] = _NEWLINE
     with np.errstate(invalid="ignore"):
         tiny = np.flatnonzero(((np.abs(rows) < _REPR_EXPONENT_BELOW) & (rows != 0)).any(axis=1))
-    if len(tiny):
-        lines = body.split(b"\n")
+    if len(tiny):  # those rows as repr writes them, between the others' bytes
+        view = memoryview(body)
+        parts: list[bytes | memoryview] = []
+        done = 1
         for index in tiny.tolist():
-            lines[index] = ",".join(map(repr, rows[index].tolist())).encode()
-        body = b"\n".join(lines)
-    return body + b"\n"
+            start = int(ends[index - 1]) + 1 if index else 1
+            parts += [view[done:start], _repr_line(rows[index])]
+            done = int(ends[index]) + 1 if index < len(ends) else len(body)
+        parts.append(view[done:])
+        lines = b"".join(parts)
+    else:
+        lines = bytes(memoryview(body)[1:])
+    if b"N" in lines or b"I" in lines:
+        lines = lines.replace(b"NaN", b"nan").replace(b"Infinity", b"inf")
+    return lines
 
 
-#: Lines parsed at a time by :func:`_plain_rows`: the text, its JSON and the floats of
-#: a whole chunk at once would cost several times the chunk's size in memory.
-_PARSE_LINES: Final = 10_000
+def _repr_line(row: NDArray[np.float64]) -> bytes:
+    return (",".join(map(repr, row.tolist())) + "\n").encode()
 
 
-def _plain_rows(lines: Sequence[str], width: int) -> NDArray[np.float64] | None:
-    """The rows of a chunk if every part of it is plain (:func:`number_rows`), else None."""
-    parts = []
-    for start in range(0, len(lines), _PARSE_LINES):
-        part = number_rows("".join(lines[start : start + _PARSE_LINES]).encode(), width)
-        if part is None:
-            return None
-        parts.append(part)
-    return np.concatenate(parts) if parts else None
+#: Characters of the file read and parsed at a time (whole lines: up to the next line end).
+#: The text, its numbers and its rows are a few times this in memory.
+_BLOCK_CHARS: Final = 1 << 20
+
+
+def _text_blocks(file: TextIO) -> Iterator[str]:
+    """The rest of a text file in blocks of whole lines (only the last may lack its ``\n``)."""
+    while text := file.read(_BLOCK_CHARS):
+        if not text.endswith("\n"):
+            text += file.readline()
+        yield text
+
+
+def _lines(text: str) -> list[str]:
+    """The lines of a block as iterating over the file gives them (with their ``\n``)."""
+    lines = [line + "\n" for line in text.split("\n")]
+    last = lines.pop()[:-1]
+    return [*lines, last] if last else lines
 
 
 def _parse_csv_header(path: Path, line: str) -> list[Channel]:
@@ -165,11 +195,11 @@ def _line_numbers(lines: Sequence[str], first_line: int) -> list[int]:
     return [first_line + i for i, line in enumerate(lines) if line.strip()]
 
 
-def _csv_where(path: Path, lines: Sequence[str], first_line: int) -> Callable[[int], str]:
-    """``file:line`` of the data row at an index of a chunk (blank lines hold no row)."""
+def _csv_where(path: Path, text: str, first_line: int) -> Callable[[int], str]:
+    """``file:line`` of the data row at an index of a block (blank lines hold no row)."""
 
     def where(index: int) -> str:
-        return f"{path}:{_line_numbers(lines, first_line)[index]}"
+        return f"{path}:{_line_numbers(_lines(text), first_line)[index]}"
 
     return where
 
@@ -186,7 +216,7 @@ def import_csv(
 
     The header names ``time_s`` and the channels (``<AXIS>_<signal>``, e.g.
     ``X_current_a``; units follow from the signal). The file is read in chunks;
-    a chunk of plain numbers is parsed at once (:func:`~ncmeasure.traces.text.number_rows`),
+    a block of plain numbers is parsed at once (:func:`~ncmeasure.traces.text.number_rows`),
     any other with numpy's parser; both read every float back bit-exact.
 
     Args:
@@ -241,11 +271,13 @@ def import_csv_meta(
             )
             line_number = 1
             previous_s = -np.inf
-            while lines := list(itertools.islice(file, IMPORT_CHUNK_ROWS)):
+            width = len(names)
+            for text in _text_blocks(file):
                 first_line = line_number + 1
-                line_number += len(lines)
-                data = _plain_rows(lines, len(names))
+                line_number += text.count("\n") + (not text.endswith("\n"))
+                data = number_rows(text.encode(), width)
                 if data is None:  # a spelling JSON does not know, or an error: numpy's parser
+                    lines = _lines(text)
                     try:
                         data = np.loadtxt(
                             lines, delimiter=",", comments=None, dtype=np.float64, ndmin=2
@@ -253,11 +285,11 @@ def import_csv_meta(
                     except ValueError as exc:
                         error = _csv_line_error(source, lines, first_line, names)
                         raise RecordingError(error) from exc
-                if data.shape[0] == 0:
-                    continue
-                if data.shape[1] != len(names):
-                    raise RecordingError(_csv_line_error(source, lines, first_line, names))
-                check_times(data[:, 0], previous_s, _csv_where(source, lines, first_line))
+                    if data.shape[0] == 0:
+                        continue
+                    if data.shape[1] != width:
+                        raise RecordingError(_csv_line_error(source, lines, first_line, names))
+                check_times(data[:, 0], previous_s, _csv_where(source, text, first_line))
                 previous_s = float(data[-1, 0])
                 target.append(data[:, 0], data[:, 1:])
         return target.close()

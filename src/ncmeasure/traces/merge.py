@@ -70,8 +70,11 @@ class CarryForward:
         self._current = [math.nan] * len(names)
         self._seen = [False] * len(names)
         self._unseen = len(names)
-        self._times: list[float] = []
+        self._times: list[float] = []  # the records of commit() not handed over
         self._rows: list[list[float]] = []
+        # the records of commit_block() not handed over (before those of commit())
+        self._parts: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
+        self._part_rows = 0
         self._last_time = -math.inf
         self.records = 0
         self.dropped_leading = 0
@@ -115,7 +118,7 @@ class CarryForward:
             self.first_complete_s = time_s
         self._times.append(time_s)
         self._rows.append(self._current.copy())
-        if len(self._times) >= self._chunk_rows:
+        if self._part_rows + len(self._times) >= self._chunk_rows:
             self.flush()
 
     def commit_block(
@@ -180,34 +183,37 @@ class CarryForward:
         self._append_rows(time_s[start:], filled[start:])
 
     def _append_rows(self, time_s: NDArray[np.float64], rows: NDArray[np.float64]) -> None:
-        """Collect rows and hand them over in chunks of the same size as :meth:`commit` does."""
+        """Collect rows and hand them over in chunks of the same size as :meth:`commit` does;
+        what is left waits as arrays, not as Python floats."""
+        self._python_rows_to_parts()
         at = 0
-        while len(time_s) - at >= self._chunk_rows - len(self._times):
-            take = self._chunk_rows - len(self._times)
-            if self._times:
-                times = np.concatenate([np.array(self._times), time_s[at : at + take]])
-                block = np.vstack(
-                    [
-                        np.array(self._rows, dtype=np.float64).reshape(-1, len(self.names)),
-                        rows[at : at + take],
-                    ]
-                )
-                self._times, self._rows = [], []
-            else:
-                times, block = time_s[at : at + take], rows[at : at + take]
-            self._sink.append(np.ascontiguousarray(times), np.ascontiguousarray(block))
+        while self._part_rows + len(time_s) - at >= self._chunk_rows:
+            take = self._chunk_rows - self._part_rows
+            self._parts.append((time_s[at : at + take], rows[at : at + take]))
+            self._hand_over()
             at += take
-        self._times.extend(time_s[at:].tolist())
-        self._rows.extend(rows[at:].tolist())
+        if at < len(time_s):
+            self._parts.append((time_s[at:], rows[at:]))
+            self._part_rows += len(time_s) - at
+
+    def _python_rows_to_parts(self) -> None:
+        if self._times:
+            rows = np.array(self._rows, dtype=np.float64).reshape(len(self._times), len(self.names))
+            self._parts.append((np.array(self._times, dtype=np.float64), rows))
+            self._part_rows += len(self._times)
+            self._times, self._rows = [], []
+
+    def _hand_over(self) -> None:
+        times = np.concatenate([t for t, _ in self._parts])
+        values = np.concatenate([v for _, v in self._parts])
+        self._parts, self._part_rows = [], 0
+        self._sink.append(times, values)
 
     def flush(self) -> None:
         """Hand the collected rows to the recording."""
-        if not self._times:
-            return
-        time_s = np.array(self._times, dtype=np.float64)
-        values = np.array(self._rows, dtype=np.float64).reshape(len(self._times), len(self.names))
-        self._times, self._rows = [], []
-        self._sink.append(time_s, values)
+        self._python_rows_to_parts()
+        if self._parts:
+            self._hand_over()
 
     def missing(self) -> list[str]:
         """The channels that never had a value."""

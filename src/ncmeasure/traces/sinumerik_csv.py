@@ -254,7 +254,7 @@ def _fast_block(
     text = comma_separated(block, separator, decimal)
     if text is None:
         return False
-    cells = number_rows(text.encode(), width, empty=True)
+    cells = number_rows(text, width, empty=True)
     if cells is None or np.isnan(cells[:, 0]).any():
         return False
     raw = np.full((len(cells), len(assembler.names)), np.nan)

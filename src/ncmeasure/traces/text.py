@@ -8,7 +8,6 @@ What every text importer needs to read such a file into numbers lives here.
 from __future__ import annotations
 
 import datetime as dt
-import itertools
 import math
 import re
 from collections.abc import Generator, Iterator, Mapping, Sequence
@@ -86,28 +85,31 @@ def decimal_mark(cells: Sequence[str]) -> str | None:
     return None
 
 
-#: The bytes of rows that :func:`number_rows` reads: JSON numbers, ``,`` and ``\n``.
-_ROW_BYTES: Final = b"0123456789.-+eE,\n"
+#: The bytes of the numbers that :func:`number_rows` reads (JSON numbers), between ``,``
+#: and ``\n``.
+_NUMBER_BYTES: Final = b"0123456789.-+eE"
 #: ... and the letters of ``NaN`` and ``Infinity``, once ``nan`` and ``inf`` are renamed.
-_ROW_BYTES_NAN: Final = _ROW_BYTES + b"NaIfinty"
-#: ... or of ``null``, an empty cell.
-_ROW_BYTES_NULL: Final = _ROW_BYTES + b"nul"
+_NUMBER_BYTES_NAN: Final = _NUMBER_BYTES + b"NaIfinty"
 
 
-def comma_separated(lines: Sequence[str], separator: str, decimal: str | None) -> str | None:
+def comma_separated(lines: Sequence[str], separator: str, decimal: str | None) -> bytes | None:
     """Lines of a file's notation as :func:`number_rows` reads them: ``,`` between cells and
-    ``.`` in numbers; None where that cannot be told (a comma that is neither the separator
-    nor the decimal mark, a point beside a decimal comma)."""
+    ``.`` in numbers, UTF-8; None where that cannot be told (a comma that is neither the
+    separator nor the decimal mark, a point beside a decimal comma)."""
     text = "\n".join(lines)
-    if separator != ",":
-        if "," in text and decimal != ",":
-            return None
-        if decimal == ",":
-            if "." in text:
-                return None
-            text = text.replace(",", ".")
-        text = text.replace(separator, ",")
-    return text
+    if separator == ",":
+        return text.encode()
+    if "," in text and decimal != ",":
+        return None
+    if decimal == "," and "." in text:
+        return None
+    data = text.encode()
+    mark = separator.encode()
+    if len(mark) != 1:
+        return (data.replace(b",", b".") if decimal == "," else data).replace(mark, b",")
+    # one pass: the decimal comma becomes a point as the separator becomes a comma
+    table = bytes.maketrans(mark + b",", b",.") if decimal == "," else bytes.maketrans(mark, b",")
+    return data.translate(table)
 
 
 def number_rows(block: bytes, width: int, *, empty: bool = False) -> NDArray[np.float64] | None:
@@ -129,31 +131,51 @@ def number_rows(block: bytes, width: int, *, empty: bool = False) -> NDArray[np.
     body = block.rstrip(b"\n")
     if not body:
         return None
-    allowed = _ROW_BYTES
+    number_bytes = _NUMBER_BYTES
+    blanks = None
     if empty:
-        if b"n" in body or body[:1] == b"," or b"\n," in body:
+        if b"n" in body or b"N" in body or b"a" in body or body[:1] == b"," or b"\n," in body:
             return None
-        # ",,," needs two passes: each replacement consumes the comma after the empty cell
-        body = body.replace(b",,", b",null,").replace(b",,", b",null,")
-        body = body.replace(b",\n", b",null\n")
-        if body[-1:] == b",":
-            body += b"null"
-        allowed = _ROW_BYTES_NULL
+        body, blanks = _fill_blanks(body)
     elif b"n" in body:
         body = body.replace(b"nan", b"NaN").replace(b"inf", b"Infinity")
-        allowed = _ROW_BYTES_NAN
-    if body.translate(None, allowed) or b"-0," in body or b"-0\n" in body or body[-2:] == b"-0":
+        number_bytes = _NUMBER_BYTES_NAN
+    # without the numbers' bytes, a block of rows is its separators: every line width - 1
+    # commas and a line end; anything else is left over
+    separators = body.translate(None, number_bytes) + b"\n"
+    if separators != (b"," * (width - 1) + b"\n") * (len(separators) // width):
         return None
-    try:
-        parsed = pydantic_core.from_json(
-            b"[[" + body.replace(b"\n", b"],[") + b"]]", allow_inf_nan=True
-        )
-        rows = np.array(parsed, dtype=np.float64)
+    try:  # one flat array: no list per row for the parser to make and the collector to visit
+        flat = b"[" + body.replace(b"\n", b",") + b"]"
+        parsed = pydantic_core.from_json(flat, allow_inf_nan=True)
+        values = np.array(parsed, dtype=np.float64)
     except (ValueError, TypeError, OverflowError):
         return None
-    if rows.ndim != 2 or rows.shape[1] != width:
+    if values.shape != (len(separators) // width * width,):
         return None
-    return rows
+    if blanks is not None:
+        values[blanks] = np.nan
+    if (values == 0).any() and _MINUS_ZERO.search(body):
+        return None
+    return values.reshape(-1, width)
+
+
+def _fill_blanks(body: bytes) -> tuple[bytes, NDArray[np.intp]]:
+    """``body`` with a ``0`` in every empty cell, and the indices of those cells (counted
+    over all rows)."""
+    text = np.frombuffer(body, np.uint8)
+    ends = np.append(np.flatnonzero((text == _COMMA) | (text == _NEWLINE)), len(text))
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    blanks = np.flatnonzero(starts == ends)
+    if len(blanks):
+        body = np.insert(text, starts[blanks], _ZERO).tobytes()
+    return body, blanks
+
+
+_ZERO, _COMMA, _NEWLINE = b"0,\n"
+
+#: A cell ``-0``: an integer zero to JSON, -0.0 to ``float``.
+_MINUS_ZERO: Final = re.compile(rb"-0(?:[,\n]|\Z)")
 
 
 # --- units -----------------------------------------------------------------------------
@@ -206,7 +228,9 @@ class TextLines:
                 job.note(f"{path.name} is not UTF-8 text; read as Windows-1252")
         self.line_number = 0
         self._file: BinaryIO | None = None
-        self._raw: Iterator[bytes] | None = None
+        self._blocks: Iterator[list[bytes]] | None = None
+        self._pending: list[bytes] = []  # raw lines read from the file, not given out yet
+        self._at = 0  # ... from this index on
         self._bytes_read = 0
         self._reported = 0
         self._finished = False
@@ -226,23 +250,38 @@ class TextLines:
         if self._file is not None:
             self._file.close()
 
-    def _raw_lines(self, file: BinaryIO) -> Iterator[bytes]:
-        """The lines of ``file`` with their endings; bytes.splitlines knows LF, CRLF and CR."""
+    def _raw_blocks(self, file: BinaryIO) -> Iterator[list[bytes]]:
+        """The lines of ``file`` with their endings, a list per block read; bytes.splitlines
+        knows LF, CRLF and CR."""
         rest = b""
         while block := file.read(_READ_BYTES):
             lines = (rest + block).splitlines(keepends=True)
             # the last line may continue in the next block (a CR may be half of a CRLF)
             rest = b"" if lines[-1].endswith(b"\n") else lines.pop()
-            yield from lines
+            if lines:
+                yield lines
         if rest:
-            yield rest
+            yield [rest]
 
-    def _source(self) -> Iterator[bytes]:
-        """The raw lines not read yet, shared by iteration and :meth:`take`."""
-        if self._raw is None:
+    def _refill(self) -> bool:
+        """Read the next block of raw lines when all are given out; False at the end."""
+        if self._at < len(self._pending):
+            return True
+        if self._blocks is None:
             self._file = self.path.open("rb")
-            self._raw = self._raw_lines(self._file)
-        return self._raw
+            self._blocks = self._raw_blocks(self._file)
+        self._pending = next(self._blocks, [])
+        self._at = 0
+        return bool(self._pending)
+
+    def _raw(self, count: int) -> list[bytes]:
+        """The next ``count`` raw lines (fewer at the end), shared by iteration and :meth:`take`."""
+        taken: list[bytes] = []
+        while len(taken) < count and self._refill():
+            end = self._at + count - len(taken)
+            taken += self._pending[self._at : end]
+            self._at = min(end, len(self._pending))
+        return taken
 
     def _progress(self, count: int) -> None:
         self._bytes_read += count
@@ -265,7 +304,9 @@ class TextLines:
             ) from exc
 
     def _read(self) -> Generator[str, None, None]:
-        for raw in self._source():
+        while self._refill():
+            raw = self._pending[self._at]
+            self._at += 1
             self.line_number += 1
             self._progress(len(raw))
             text = self._decode(raw, self.line_number)
@@ -280,7 +321,7 @@ class TextLines:
 
         After it, :attr:`line_number` is the number of the last line taken.
         """
-        raw = list(itertools.islice(self._source(), count))
+        raw = self._raw(count)
         if not raw:
             self._finish()
             return []
@@ -293,12 +334,10 @@ class TextLines:
             for offset, line in enumerate(raw):  # the line and byte, as line by line
                 self._decode(line, first + offset)
             raise
-        # a raw line holds CR or LF only at its end: one LF per line, then split
-        text = text.replace("\r\n", "\n").replace("\r", "\n")
-        lines = text.split("\n")
-        if text.endswith("\n"):
-            lines.pop()
-        if len(lines) != len(raw):  # not expected; line by line then
+        # a raw line holds CR or LF only at its end; str.splitlines also splits at other
+        # characters (form feed, U+2028 ...), which gives more lines than were read
+        lines = text.splitlines()
+        if len(lines) != len(raw):  # line by line then
             lines = [self._decode(line, first + i).rstrip("\r\n") for i, line in enumerate(raw)]
         if first == 1:
             lines[0] = lines[0].lstrip("\ufeff")

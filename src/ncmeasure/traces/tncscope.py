@@ -370,6 +370,10 @@ def _block_decimal(block: list[str]) -> str | None:
     return None
 
 
+_DECIMAL_COMMA: Final = bytes.maketrans(b";,", b",.")
+_DECIMAL_POINT: Final = bytes.maketrans(b";", b",")
+
+
 def _plain_block(
     block: list[str], decimal: str | None, width: int, last_time: float
 ) -> NDArray[np.float64] | None:
@@ -383,13 +387,16 @@ def _plain_block(
     if decimal == ",":
         if "." in text:
             return None
-        text = text.replace(",", ".")
+        table = _DECIMAL_COMMA
     elif "," in text:
         return None
-    text = text.replace(";\n", "\n")
-    if text.endswith(";"):
-        text = text[:-1]
-    data = number_rows(text.replace(";", ",").encode(), width)
+    else:
+        table = _DECIMAL_POINT
+    # the ";" that ends every row goes, the others separate cells
+    cells = text.encode().replace(b";\n", b"\n").translate(table)
+    if cells.endswith(b","):
+        cells = cells[:-1]
+    data = number_rows(cells, width)
     if data is None or not (np.diff(data[:, 0], prepend=last_time) > 0).all():
         return None
     return data

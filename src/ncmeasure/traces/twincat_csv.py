@@ -88,7 +88,6 @@ _NC_FIELDS: Final = {
 #: Lines read and parsed at a time (a block of plain rows is parsed as a whole).
 _BLOCK_LINES: Final = 20_000
 #: A cell of a single space between separators (commas by then) or line ends.
-_LONE_SPACE: Final = re.compile(r"(?:(?<=,)|(?<=\n)|^) (?=,|\n|$)")
 #: A time cell with this many digits is a FILETIME ("Full Timestamp"), not milliseconds.
 _FILETIME_DIGITS: Final = 15
 
@@ -390,11 +389,12 @@ def _fast_block(
     text = comma_separated(block, separator, decimal)
     if text is None:
         return False
-    if " " in text:  # a single space is the cell of a channel that ended: an empty cell
-        if _LONE_SPACE.sub("", text).count(" "):
+    data = text
+    if b" " in data:  # a single space is the cell of a channel that ended: an empty cell
+        if not _lone_spaces(data):
             return False
-        text = text.replace(" ", "")
-    cells = number_rows(text.encode(), header.width, empty=True)
+        data = data.translate(None, b" ")
+    cells = number_rows(data, header.width, empty=True)
     if cells is None:
         return False
     portions = []
@@ -416,6 +416,21 @@ def _fast_block(
             last[k] = float(t[-1])
         ended[k] = ended[k] or stops
     return True
+
+
+def _lone_spaces(data: bytes) -> bool:
+    """Whether every space of ``,``-separated rows is a cell of its own."""
+    text = np.frombuffer(b"\n" + data + b"\n", np.uint8)
+    spaces = np.flatnonzero(text == _SPACE)
+    before, after = text[spaces - 1], text[spaces + 1]
+    return bool(
+        (
+            ((before == _COMMA) | (before == _NEWLINE)) & ((after == _COMMA) | (after == _NEWLINE))
+        ).all()
+    )
+
+
+_SPACE, _COMMA, _NEWLINE = b" ,\n"
 
 
 def _note_scaling(used: list[tuple[_ScopeChannel, Mapped]], job: ImportJob) -> None:
