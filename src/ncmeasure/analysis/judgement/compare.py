@@ -183,22 +183,46 @@ def _match_positions(
     return pairs
 
 
+def _gap(other: float, speed: float) -> float:
+    """The relative gap of two speeds (not both zero)."""
+    return abs(other - speed) / max(other, speed)
+
+
+def _nearest(speeds: Sequence[float], used: Sequence[bool], speed: float) -> int:
+    """The index of the unused speed nearest to ``speed`` (the first of equal gaps, the first
+    NaN as numpy's argmin takes it); -1 when all are used."""
+    best, best_gap = -1, math.inf
+    for j, other in enumerate(speeds):
+        if used[j]:
+            continue
+        gap = _gap(other, speed)
+        if gap != gap:  # NaN
+            return j
+        if best < 0 or gap < best_gap:
+            best, best_gap = j, gap
+    return best
+
+
 def _match_points(
     where: str, b: DirectionResult, o: DirectionResult, problems: list[str]
 ) -> list[tuple[int, float, float, float]]:
-    """(base point index, signed base velocity, base median, other median) per match."""
-    speeds = np.array([abs(p.velocity_mm_min) for p in o.points], dtype=np.float64)
-    used = np.zeros(speeds.size, dtype=bool)
+    """(base point index, signed base velocity, base median, other median) per match.
+
+    Each base point takes the nearest unused velocity of the other run (relative gap; the
+    first of equal gaps). A dozen velocities: plain floats, not arrays (the same
+    arithmetic, far less overhead per point).
+    """
+    speeds = [abs(float(p.velocity_mm_min)) for p in o.points]
+    used = [False] * len(speeds)
     out = []
     missing = []
     for i, p in enumerate(b.points):
         speed = abs(p.velocity_mm_min)
-        if speed == 0 or speeds.size == 0:
+        if speed == 0 or not speeds:
             missing.append(speed)
             continue
-        gap = np.where(used, np.inf, np.abs(speeds - speed) / np.maximum(speeds, speed))
-        j = int(np.argmin(gap))
-        if gap[j] > VELOCITY_MATCH_TOLERANCE:
+        j = _nearest(speeds, used, speed)
+        if j < 0 or _gap(speeds[j], speed) > VELOCITY_MATCH_TOLERANCE:
             missing.append(speed)
             continue
         used[j] = True
@@ -209,7 +233,7 @@ def _match_points(
             f"{where}: {len(missing)} of {len(b.points)} base velocities have no match within "
             f"{VELOCITY_MATCH_TOLERANCE * 100:g} % ({shown} mm/min)"
         )
-    extra = int(np.count_nonzero(~used))
+    extra = used.count(False)
     if extra:
         noun = "velocity" if extra == 1 else "velocities"
         problems.append(f"{where}: {extra} {noun} of the other run not in the base")
@@ -430,6 +454,7 @@ def _axis_change(
         fixed_bearing_end=fixed_end,
         numbers=numbers,
         flat_threshold_percent=CHANGE_FLAT_PERCENT,
+        velocity_profiles=False,  # the change keeps the average profile alone
     )
     mean = float(np.mean([p.deviation_percent for p in points]))
     average = next((p for p in dependency.profiles if p.velocity_mm_min is None), None)

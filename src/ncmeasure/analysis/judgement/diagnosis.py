@@ -380,6 +380,7 @@ def position_dependency(
     noise: ArrayLike | None = None,
     numbers: Sequence[int] | None = None,
     flat_threshold_percent: float = FLAT_THRESHOLD_PERCENT,
+    velocity_profiles: bool = True,
 ) -> PositionDependency:
     """Describe how friction changes along the travel and rank the likely causes.
 
@@ -403,6 +404,8 @@ def position_dependency(
             profile), less for the change between two measurements of one axis
             (:data:`~ncmeasure.analysis.judgement.compare.CHANGE_FLAT_PERCENT`), where
             the machine's own profile divides out.
+        velocity_profiles: Also the profile of each velocity (False: the average alone, for
+            a caller that reads no more; the rest is the same).
 
     Returns:
         Profiles (the average first, ``velocity_mm_min`` None, then one per
@@ -430,7 +433,7 @@ def position_dependency(
             raise ValueError(f"numbers has {len(numbers)} entries for {positions.size} positions")
         labels = [int(numbers[i]) for i in order]
 
-    profiles = _profiles(positions, labels, velocities, table)
+    profiles = _profiles(positions, labels, velocities, table) if velocity_profiles else []
     fit = _fit_profile(positions, labels, table, noise_table)
     usable = np.isfinite(table) & (table > 0)
     if fit is None and np.count_nonzero(np.any(usable, axis=0)) >= 2:
