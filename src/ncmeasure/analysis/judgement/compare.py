@@ -195,7 +195,7 @@ def _nearest(speeds: Sequence[float], used: Sequence[bool], speed: float) -> int
     for j, other in enumerate(speeds):
         if used[j]:
             continue
-        gap = _gap(other, speed)
+        gap = abs(other - speed) / max(other, speed)
         if gap != gap:  # NaN
             return j
         if best < 0 or gap < best_gap:
