@@ -21,7 +21,7 @@ from ncmeasure.errors import ConfigError
 from ncmeasure.formats.results import Results
 from ncmeasure.store import schema as t
 from ncmeasure.store.records import Added, MeasurementInfo, utc_text
-from ncmeasure.store.rows import compress, rows_of_axis
+from ncmeasure.store.rows import POINT_COLUMNS, compress, rows_of_axis
 
 __all__ = ["add_measurements", "find_machine", "insert_ignore", "machine_ids"]
 
@@ -298,7 +298,12 @@ def _add_axes(db: Connection, owners: dict[int, int], fresh: dict[int, Results])
         ],
     )
     owned = [(rid, r) for rid, (_, _, r) in zip(result_ids, owned_rows, strict=True)]
-    _insert_rows(db, t.points, [{**p, "axis_result_id": rid} for rid, r in owned for p in r.points])
+    _insert_values(
+        db,
+        t.points,
+        ("axis_result_id", *POINT_COLUMNS),
+        [(rid, *p) for rid, r in owned for p in r.points],
+    )
     fits = [(rid, fit, params) for rid, r in owned for fit, params in r.fits]
     if fits:
         fit_ids = _new_ids(db, t.fits, len(fits))

@@ -34,6 +34,7 @@ written out in ``docs/analysis-models.md``.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 from collections.abc import Sequence
@@ -177,7 +178,7 @@ def _permuted_spreads(
     """The profile's spread with every group's residuals permuted among its positions.
 
     ``y`` are the residuals of the fit (what the group levels and the position
-    effects leave); a permutation within each group keeps the layout, the
+    effects leave), cell by cell with ``jj`` (each cell's group) ascending; a permutation within each group keeps the layout, the
     weights and the noise, and holds no position effect (residuals, not the
     values: permuted values would carry a strong position effect into the null
     and widen it). ``projector`` maps values to the coefficients. None where
@@ -188,10 +189,12 @@ def _permuted_spreads(
         return None
     rng = np.random.default_rng(_PERMUTATION_SEED)
     permuted = np.empty((y.size, PERMUTATIONS))
-    for j in range(n_v):
-        cells = np.flatnonzero(jj == j)
-        block = np.broadcast_to(y[cells][:, None], (cells.size, PERMUTATIONS))
-        permuted[cells] = rng.permuted(block, axis=0)
+    # jj ascends (np.nonzero's order): each group's cells are one slice, permuted in place
+    bounds = np.searchsorted(jj, np.arange(n_v + 1)).tolist()
+    for lo, hi in itertools.pairwise(bounds):
+        block = permuted[lo:hi]
+        block[:] = y[lo:hi, None]
+        rng.permuted(block, axis=0, out=block)
     beta = np.zeros((n_p, PERMUTATIONS))
     beta[1:] = (projector @ permuted)[n_v:]
     shape = np.exp(beta - beta.mean(axis=0))
