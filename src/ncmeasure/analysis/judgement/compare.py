@@ -26,9 +26,9 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import PurePath
-from typing import Literal
+from typing import Literal, NamedTuple, Protocol, TypeVar
 
 import numpy as np
 
@@ -249,11 +249,52 @@ def _offset(axis: AxisResult) -> float:
     return axis.offset.value if axis.offset is not None else 0.0
 
 
+class _Matched(Protocol):
+    """What the change's diagnosis reads of a matched point (a :class:`PointDeviation`, or
+    a :class:`_Deviation` where no comparison is built)."""
+
+    @property
+    def axis(self) -> str: ...
+    @property
+    def position_index(self) -> int: ...
+    @property
+    def position_mm(self) -> float: ...
+    @property
+    def direction(self) -> Direction: ...
+    @property
+    def velocity_mm_min(self) -> float: ...
+    @property
+    def base(self) -> float: ...
+    @property
+    def value(self) -> float: ...
+    @property
+    def deviation_percent(self) -> float: ...
+
+
+class _Deviation(NamedTuple):
+    """A :class:`PointDeviation`'s figures without the model (hundreds per comparison:
+    validating each costs more than the whole diagnosis of the change reads)."""
+
+    label: str
+    axis: str
+    position_index: int
+    position_mm: float
+    direction: Direction
+    velocity_mm_min: float
+    base: float
+    value: float
+    deviation_percent: float
+
+
+_D = TypeVar("_D", bound=_Matched)
+
+
 def _deviations(
-    label: str, base: Results, other: Results, problems: list[str]
-) -> tuple[list[PointDeviation], dict[Cell, float], dict[Cell, float]]:
-    """Point deviations of one run and the magnitudes of base and run per matched cell."""
-    points: list[PointDeviation] = []
+    label: str, base: Results, other: Results, problems: list[str], record: Callable[..., _D]
+) -> tuple[list[_D], dict[Cell, float], dict[Cell, float]]:
+    """Point deviations of one run (each a ``record``) and the magnitudes of base and run
+    per matched cell."""
+    points: list[_D] = []
     base_mag: dict[Cell, float] = {}
     other_mag: dict[Cell, float] = {}
     for axis in base.axes.keys() - other.axes.keys():
@@ -290,7 +331,7 @@ def _deviations(
                     cell: Cell = (axis, bp.position_index, direction, i)
                     base_mag[cell], other_mag[cell] = b_val, o_val
                     points.append(
-                        PointDeviation(
+                        record(
                             label=label,
                             axis=axis,
                             position_index=bp.position_index,
@@ -338,7 +379,7 @@ def _groups(points: Sequence[PointDeviation], limits: Limits) -> list[GroupDevia
 
 
 def _ratio_table(
-    points: Sequence[PointDeviation],
+    points: Sequence[_Matched],
 ) -> tuple[list[float], list[int], list[float], np.ndarray]:
     """Positions, their numbers, signed row velocities and the ratio table other/base of one axis.
 
@@ -430,7 +471,7 @@ def _axis_change(
     base_label: str,
     axis: str,
     base_axis: AxisResult,
-    points: Sequence[PointDeviation],
+    points: Sequence[_Matched],
     limits: Limits,
 ) -> AxisChange:
     positions, numbers, velocities, table = _ratio_table(points)
@@ -565,10 +606,10 @@ def _axis_changes(
     label: str,
     base_label: str,
     base: Results,
-    points: Sequence[PointDeviation],
+    points: Sequence[_Matched],
     limits: Limits,
 ) -> list[AxisChange]:
-    by_axis: dict[str, list[PointDeviation]] = {}
+    by_axis: dict[str, list[_Matched]] = {}
     for p in points:
         by_axis.setdefault(p.axis, []).append(p)
     return [
@@ -671,7 +712,7 @@ def compare_results(
     run_cells: list[dict[Cell, float]] = []
     empty = []
     for label, other in zip(other_labels, others, strict=True):
-        points, b_mag, o_mag = _deviations(label, base, other, problems)
+        points, b_mag, o_mag = _deviations(label, base, other, problems, PointDeviation)
         if not points:
             empty.append(label)
             continue
@@ -724,7 +765,7 @@ def change_diagnosis(
         ComparisonError: No point of ``other`` matches the base.
     """
     limits = limits or Limits()
-    points, _, _ = _deviations("other", base, other, [])
+    points, _, _ = _deviations("other", base, other, [], _Deviation)
     if not points:
         raise ComparisonError(
             "no point matches the base (axis, position, direction, velocity within "
