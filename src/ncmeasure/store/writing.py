@@ -9,6 +9,7 @@ every measurement go in with one ``executemany`` per table.
 
 from __future__ import annotations
 
+import itertools
 import sqlite3
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -368,9 +369,10 @@ def _insert_values(
     if db.dialect.name == "postgresql":
         driver = db.connection.driver_connection
         assert driver is not None
-        with driver.cursor() as cursor, cursor.copy(
-            f"COPY {table.name} ({columns}) FROM STDIN"
-        ) as copy:
+        with (
+            driver.cursor() as cursor,
+            cursor.copy(f"COPY {table.name} ({columns}) FROM STDIN") as copy,
+        ):
             for row in values:
                 copy.write_row(row)
         return
@@ -385,7 +387,7 @@ def _insert_values(
     for start in range(0, len(values), per):
         chunk = values[start : start + per]
         db.exec_driver_sql(
-            head + ", ".join([one] * len(chunk)), tuple(v for row in chunk for v in row)
+            head + ", ".join([one] * len(chunk)), tuple(itertools.chain.from_iterable(chunk))
         )
 
 

@@ -178,12 +178,12 @@ def _permuted_spreads(
     """The profile's spread with every group's residuals permuted among its positions.
 
     ``y`` are the residuals of the fit (what the group levels and the position
-    effects leave), cell by cell with ``jj`` (each cell's group) ascending; a permutation within each group keeps the layout, the
-    weights and the noise, and holds no position effect (residuals, not the
-    values: permuted values would carry a strong position effect into the null
-    and widen it). ``projector`` maps values to the coefficients. None where
-    no permutation changes the spread (a single group: permuting its positions
-    only reorders the profile).
+    effects leave), cell by cell with ``jj`` (each cell's group) ascending; a
+    permutation within each group keeps the layout, the weights and the noise,
+    and holds no position effect (residuals, not the values: permuted values
+    would carry a strong position effect into the null and widen it). ``projector``
+    maps values to the coefficients. None where no permutation changes the spread
+    (a single group: permuting its positions only reorders the profile).
     """
     if n_v < 2:
         return None
