@@ -37,6 +37,7 @@ Run:   python benchmarks/fleet.py                         (SQLite; the 10,000: l
        python benchmarks/fleet.py --machines 100,1000 --postgresql auto
        python benchmarks/fleet.py --short --postgresql auto    (a crash test: seconds; CI)
        python benchmarks/fleet.py --work DIR              (keep the stores; run again: reuse)
+       python benchmarks/fleet.py --machines 10000 --fill-only --postgresql auto   (the fill)
 """
 
 from __future__ import annotations
@@ -162,11 +163,14 @@ def _fill_block(url: str, base: Results, machines: int, args: argparse.Namespace
     goal_n, goal_s = FILL_GOAL
     projected = goal_n / (added / cpu)
     met = "met" if projected <= goal_s else "NOT met"
+    floor_rate = sampled / floor
     print(
         f"    fill: {added} measurements, {args.batch} per transaction: "
         f"{added / cpu:7.1f}/s CPU, {added / wall:7.1f}/s wall; {goal_n:,} would take "
         f"{projected:.0f} s CPU (goal ≤ {goal_s:.0f} s: {met}); "
-        f"floor (stored form alone): {sampled / floor:7.1f}/s CPU"
+        f"floor (stored form alone): {floor_rate:7.1f}/s CPU, the fill at "
+        f"{floor_rate / (added / cpu):.2f} × its time; {goal_n:,} stored forms alone take "
+        f"{goal_n / floor_rate:.0f} s CPU"
     )
 
 
@@ -410,6 +414,8 @@ def _one_size(
     _settle(url)
     _change(url, base, serial)
     figures: Figures = {}
+    if args.fill_only:
+        return figures
     if not args.short or machines == max(args.sizes):  # a crash test runs each command once
         _cli(label, url, serial, work, figures)
     _web(label, url, serial, args.rounds, figures)
@@ -436,6 +442,9 @@ def main() -> None:
     )
     parser.add_argument("--no-sqlite", action="store_true", help="PostgreSQL alone.")
     parser.add_argument("--short", action="store_true", help="A small fleet: a crash test.")
+    parser.add_argument(
+        "--fill-only", action="store_true", help="Fill the stores and print the rate alone."
+    )
     parser.add_argument("--work", metavar="DIR", help="Keep the stores here and reuse them.")
     args = parser.parse_args()
     sizes = [int(n) for n in args.machines.split(",")]

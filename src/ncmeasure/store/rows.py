@@ -21,6 +21,7 @@ from ncmeasure.formats.results import AxisResult, LinearFit, NonlinearFit, Resul
 
 __all__ = [
     "CHARACTERISTICS",
+    "POINT_COLUMNS",
     "AxisRows",
     "Characteristic",
     "canonical_json",
@@ -62,12 +63,28 @@ def _mean(values: list[float]) -> float | None:
     return sum(values) / len(values) if values else None
 
 
+POINT_COLUMNS = (
+    "position_index",
+    "position_mm",
+    "direction",
+    "velocity_mm_min",
+    "median",
+    "stderr",
+    "mean",
+    "std",
+    "n",
+)
+"""The columns of :attr:`AxisRows.points`' tuples, in their order."""
+
+
 @dataclass
 class AxisRows:
     """The rows of one axis of one measurement (ids are filled in by the store)."""
 
     axis: dict[str, Any]
-    points: list[dict[str, Any]] = field(default_factory=list)
+    points: list[tuple[Any, ...]] = field(default_factory=list)
+    """One tuple per point, values in the order of :data:`POINT_COLUMNS` (hundreds per axis:
+    tuples, not dicts)."""
     fits: list[tuple[dict[str, Any], list[dict[str, Any]]]] = field(default_factory=list)
     causes: list[dict[str, Any]] = field(default_factory=list)
 
@@ -128,18 +145,21 @@ def rows_of_axis(name: str, result: AxisResult) -> AxisRows:
                 "position_mm": position.position_mm,
                 "direction": direction,
             }
-            for point in found.points:
-                rows.points.append(
-                    {
-                        **where,
-                        "velocity_mm_min": point.velocity_mm_min,
-                        "median": point.median,
-                        "stderr": _finite(point.stderr),
-                        "mean": point.mean,
-                        "std": point.std,
-                        "n": point.n,
-                    }
+            index, mm = position.position_index, position.position_mm
+            rows.points += [
+                (
+                    index,
+                    mm,
+                    direction,
+                    point.velocity_mm_min,
+                    point.median,
+                    _finite(point.stderr),
+                    point.mean,
+                    point.std,
+                    point.n,
                 )
+                for point in found.points
+            ]
             if found.fit is not None:
                 rows.fits.append(_add(where, _linear_rows(found.fit, found.model == "linear")))
                 coulomb = _finite(found.fit.coulomb)

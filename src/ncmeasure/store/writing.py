@@ -9,6 +9,8 @@ every measurement go in with one ``executemany`` per table.
 
 from __future__ import annotations
 
+import itertools
+import sqlite3
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from operator import itemgetter
@@ -20,11 +22,12 @@ from ncmeasure.errors import ConfigError
 from ncmeasure.formats.results import Results
 from ncmeasure.store import schema as t
 from ncmeasure.store.records import Added, MeasurementInfo, utc_text
-from ncmeasure.store.rows import compress, rows_of_axis
+from ncmeasure.store.rows import POINT_COLUMNS, compress, rows_of_axis
 
 __all__ = ["add_measurements", "find_machine", "insert_ignore", "machine_ids"]
 
 _CHUNK = 500  # values per IN (...) query: far below every database's parameter limit
+_ROWS_PER_INSERT = 500  # rows per multi-row INSERT on SQLite
 
 
 def find_machine(db: Connection, serial: str) -> Any:
@@ -296,7 +299,12 @@ def _add_axes(db: Connection, owners: dict[int, int], fresh: dict[int, Results])
         ],
     )
     owned = [(rid, r) for rid, (_, _, r) in zip(result_ids, owned_rows, strict=True)]
-    _insert_rows(db, t.points, [{**p, "axis_result_id": rid} for rid, r in owned for p in r.points])
+    _insert_values(
+        db,
+        t.points,
+        ("axis_result_id", *POINT_COLUMNS),
+        [(rid, *p) for rid, r in owned for p in r.points],
+    )
     fits = [(rid, fit, params) for rid, r in owned for fit, params in r.fits]
     if fits:
         fit_ids = _new_ids(db, t.fits, len(fits))
@@ -338,17 +346,49 @@ def _new_ids(db: Connection, table: Any, count: int) -> list[int]:
 
 
 def _insert_rows(db: Connection, table: Any, rows: list[dict[str, Any]]) -> None:
-    """Many rows of the same keys in one executemany of the driver: SQLAlchemy's per-row
-    parameter processing costs more than the database's work for these plain values."""
+    """Many rows of the same keys in one statement of the driver: SQLAlchemy's per-row
+    parameter processing costs more than the database's work for these plain values.
+    SQLite: one executemany; PostgreSQL: COPY (an executemany there is a round trip of
+    the protocol per row, several times the database's work)."""
     if not rows:
         return
     names = list(rows[0])
-    mark = "?" if db.dialect.paramstyle == "qmark" else "%s"
-    columns = ", ".join(f'"{table.c[name].name}"' for name in names)
-    db.exec_driver_sql(
-        f"INSERT INTO {table.name} ({columns}) VALUES ({', '.join([mark] * len(names))})",
-        list(map(itemgetter(*names), rows)) if len(names) > 1 else [(r[names[0]],) for r in rows],
+    values = (
+        list(map(itemgetter(*names), rows)) if len(names) > 1 else [(r[names[0]],) for r in rows]
     )
+    _insert_values(db, table, names, values)
+
+
+def _insert_values(
+    db: Connection, table: Any, names: Sequence[str], values: Sequence[Sequence[Any]]
+) -> None:
+    """Rows as tuples in the order of ``names``: see :func:`_insert_rows`."""
+    if not values:
+        return
+    columns = ", ".join(f'"{table.c[name].name}"' for name in names)
+    if db.dialect.name == "postgresql":
+        driver = db.connection.driver_connection
+        assert driver is not None
+        with (
+            driver.cursor() as cursor,
+            cursor.copy(f"COPY {table.name} ({columns}) FROM STDIN") as copy,
+        ):
+            for row in values:
+                copy.write_row(row)
+        return
+    # SQLite: rows of up to _ROWS_PER_INSERT in one INSERT ... VALUES (...), (...): a third
+    # less time per row than an executemany of one row per step
+    mark = "?" if db.dialect.paramstyle == "qmark" else "%s"
+    one = f"({', '.join([mark] * len(names))})"
+    head = f"INSERT INTO {table.name} ({columns}) VALUES "
+    driver = db.connection.driver_connection
+    limit = driver.getlimit(sqlite3.SQLITE_LIMIT_VARIABLE_NUMBER) if driver is not None else 999
+    per = max(1, min(_ROWS_PER_INSERT, limit // len(names)))
+    for start in range(0, len(values), per):
+        chunk = values[start : start + per]
+        db.exec_driver_sql(
+            head + ", ".join([one] * len(chunk)), tuple(itertools.chain.from_iterable(chunk))
+        )
 
 
 def _axis_ids(db: Connection, wanted: dict[int, set[str]]) -> dict[tuple[int, str], int]:

@@ -26,9 +26,9 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import PurePath
-from typing import Literal
+from typing import Literal, NamedTuple, Protocol, TypeVar
 
 import numpy as np
 
@@ -183,22 +183,46 @@ def _match_positions(
     return pairs
 
 
+def _gap(other: float, speed: float) -> float:
+    """The relative gap of two speeds (not both zero)."""
+    return abs(other - speed) / max(other, speed)
+
+
+def _nearest(speeds: Sequence[float], used: Sequence[bool], speed: float) -> int:
+    """The index of the unused speed nearest to ``speed`` (the first of equal gaps, the first
+    NaN as numpy's argmin takes it); -1 when all are used."""
+    best, best_gap = -1, math.inf
+    for j, other in enumerate(speeds):
+        if used[j]:
+            continue
+        gap = abs(other - speed) / max(other, speed)
+        if gap != gap:  # NaN
+            return j
+        if best < 0 or gap < best_gap:
+            best, best_gap = j, gap
+    return best
+
+
 def _match_points(
     where: str, b: DirectionResult, o: DirectionResult, problems: list[str]
 ) -> list[tuple[int, float, float, float]]:
-    """(base point index, signed base velocity, base median, other median) per match."""
-    speeds = np.array([abs(p.velocity_mm_min) for p in o.points], dtype=np.float64)
-    used = np.zeros(speeds.size, dtype=bool)
+    """(base point index, signed base velocity, base median, other median) per match.
+
+    Each base point takes the nearest unused velocity of the other run (relative gap; the
+    first of equal gaps). A dozen velocities: plain floats, not arrays (the same
+    arithmetic, far less overhead per point).
+    """
+    speeds = [abs(float(p.velocity_mm_min)) for p in o.points]
+    used = [False] * len(speeds)
     out = []
     missing = []
     for i, p in enumerate(b.points):
         speed = abs(p.velocity_mm_min)
-        if speed == 0 or speeds.size == 0:
+        if speed == 0 or not speeds:
             missing.append(speed)
             continue
-        gap = np.where(used, np.inf, np.abs(speeds - speed) / np.maximum(speeds, speed))
-        j = int(np.argmin(gap))
-        if gap[j] > VELOCITY_MATCH_TOLERANCE:
+        j = _nearest(speeds, used, speed)
+        if j < 0 or _gap(speeds[j], speed) > VELOCITY_MATCH_TOLERANCE:
             missing.append(speed)
             continue
         used[j] = True
@@ -209,7 +233,7 @@ def _match_points(
             f"{where}: {len(missing)} of {len(b.points)} base velocities have no match within "
             f"{VELOCITY_MATCH_TOLERANCE * 100:g} % ({shown} mm/min)"
         )
-    extra = int(np.count_nonzero(~used))
+    extra = used.count(False)
     if extra:
         noun = "velocity" if extra == 1 else "velocities"
         problems.append(f"{where}: {extra} {noun} of the other run not in the base")
@@ -225,11 +249,52 @@ def _offset(axis: AxisResult) -> float:
     return axis.offset.value if axis.offset is not None else 0.0
 
 
+class _Matched(Protocol):
+    """What the change's diagnosis reads of a matched point (a :class:`PointDeviation`, or
+    a :class:`_Deviation` where no comparison is built)."""
+
+    @property
+    def axis(self) -> str: ...
+    @property
+    def position_index(self) -> int: ...
+    @property
+    def position_mm(self) -> float: ...
+    @property
+    def direction(self) -> Direction: ...
+    @property
+    def velocity_mm_min(self) -> float: ...
+    @property
+    def base(self) -> float: ...
+    @property
+    def value(self) -> float: ...
+    @property
+    def deviation_percent(self) -> float: ...
+
+
+class _Deviation(NamedTuple):
+    """A :class:`PointDeviation`'s figures without the model (hundreds per comparison:
+    validating each costs more than the whole diagnosis of the change reads)."""
+
+    label: str
+    axis: str
+    position_index: int
+    position_mm: float
+    direction: Direction
+    velocity_mm_min: float
+    base: float
+    value: float
+    deviation_percent: float
+
+
+_D = TypeVar("_D", bound=_Matched)
+
+
 def _deviations(
-    label: str, base: Results, other: Results, problems: list[str]
-) -> tuple[list[PointDeviation], dict[Cell, float], dict[Cell, float]]:
-    """Point deviations of one run and the magnitudes of base and run per matched cell."""
-    points: list[PointDeviation] = []
+    label: str, base: Results, other: Results, problems: list[str], record: Callable[..., _D]
+) -> tuple[list[_D], dict[Cell, float], dict[Cell, float]]:
+    """Point deviations of one run (each a ``record``) and the magnitudes of base and run
+    per matched cell."""
+    points: list[_D] = []
     base_mag: dict[Cell, float] = {}
     other_mag: dict[Cell, float] = {}
     for axis in base.axes.keys() - other.axes.keys():
@@ -266,7 +331,7 @@ def _deviations(
                     cell: Cell = (axis, bp.position_index, direction, i)
                     base_mag[cell], other_mag[cell] = b_val, o_val
                     points.append(
-                        PointDeviation(
+                        record(
                             label=label,
                             axis=axis,
                             position_index=bp.position_index,
@@ -314,7 +379,7 @@ def _groups(points: Sequence[PointDeviation], limits: Limits) -> list[GroupDevia
 
 
 def _ratio_table(
-    points: Sequence[PointDeviation],
+    points: Sequence[_Matched],
 ) -> tuple[list[float], list[int], list[float], np.ndarray]:
     """Positions, their numbers, signed row velocities and the ratio table other/base of one axis.
 
@@ -406,7 +471,7 @@ def _axis_change(
     base_label: str,
     axis: str,
     base_axis: AxisResult,
-    points: Sequence[PointDeviation],
+    points: Sequence[_Matched],
     limits: Limits,
 ) -> AxisChange:
     positions, numbers, velocities, table = _ratio_table(points)
@@ -430,6 +495,7 @@ def _axis_change(
         fixed_bearing_end=fixed_end,
         numbers=numbers,
         flat_threshold_percent=CHANGE_FLAT_PERCENT,
+        velocity_profiles=False,  # the change keeps the average profile alone
     )
     mean = float(np.mean([p.deviation_percent for p in points]))
     average = next((p for p in dependency.profiles if p.velocity_mm_min is None), None)
@@ -540,10 +606,10 @@ def _axis_changes(
     label: str,
     base_label: str,
     base: Results,
-    points: Sequence[PointDeviation],
+    points: Sequence[_Matched],
     limits: Limits,
 ) -> list[AxisChange]:
-    by_axis: dict[str, list[PointDeviation]] = {}
+    by_axis: dict[str, list[_Matched]] = {}
     for p in points:
         by_axis.setdefault(p.axis, []).append(p)
     return [
@@ -646,7 +712,7 @@ def compare_results(
     run_cells: list[dict[Cell, float]] = []
     empty = []
     for label, other in zip(other_labels, others, strict=True):
-        points, b_mag, o_mag = _deviations(label, base, other, problems)
+        points, b_mag, o_mag = _deviations(label, base, other, problems, PointDeviation)
         if not points:
             empty.append(label)
             continue
@@ -699,7 +765,7 @@ def change_diagnosis(
         ComparisonError: No point of ``other`` matches the base.
     """
     limits = limits or Limits()
-    points, _, _ = _deviations("other", base, other, [])
+    points, _, _ = _deviations("other", base, other, [], _Deviation)
     if not points:
         raise ComparisonError(
             "no point matches the base (axis, position, direction, velocity within "

@@ -34,6 +34,7 @@ written out in ``docs/analysis-models.md``.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 from collections.abc import Sequence
@@ -177,21 +178,23 @@ def _permuted_spreads(
     """The profile's spread with every group's residuals permuted among its positions.
 
     ``y`` are the residuals of the fit (what the group levels and the position
-    effects leave); a permutation within each group keeps the layout, the
-    weights and the noise, and holds no position effect (residuals, not the
-    values: permuted values would carry a strong position effect into the null
-    and widen it). ``projector`` maps values to the coefficients. None where
-    no permutation changes the spread (a single group: permuting its positions
-    only reorders the profile).
+    effects leave), cell by cell with ``jj`` (each cell's group) ascending; a
+    permutation within each group keeps the layout, the weights and the noise,
+    and holds no position effect (residuals, not the values: permuted values
+    would carry a strong position effect into the null and widen it). ``projector``
+    maps values to the coefficients. None where no permutation changes the spread
+    (a single group: permuting its positions only reorders the profile).
     """
     if n_v < 2:
         return None
     rng = np.random.default_rng(_PERMUTATION_SEED)
     permuted = np.empty((y.size, PERMUTATIONS))
-    for j in range(n_v):
-        cells = np.flatnonzero(jj == j)
-        block = np.broadcast_to(y[cells][:, None], (cells.size, PERMUTATIONS))
-        permuted[cells] = rng.permuted(block, axis=0)
+    # jj ascends (np.nonzero's order): each group's cells are one slice, permuted in place
+    bounds = np.searchsorted(jj, np.arange(n_v + 1)).tolist()
+    for lo, hi in itertools.pairwise(bounds):
+        block = permuted[lo:hi]
+        block[:] = y[lo:hi, None]
+        rng.permuted(block, axis=0, out=block)
     beta = np.zeros((n_p, PERMUTATIONS))
     beta[1:] = (projector @ permuted)[n_v:]
     shape = np.exp(beta - beta.mean(axis=0))
@@ -380,6 +383,7 @@ def position_dependency(
     noise: ArrayLike | None = None,
     numbers: Sequence[int] | None = None,
     flat_threshold_percent: float = FLAT_THRESHOLD_PERCENT,
+    velocity_profiles: bool = True,
 ) -> PositionDependency:
     """Describe how friction changes along the travel and rank the likely causes.
 
@@ -403,6 +407,8 @@ def position_dependency(
             profile), less for the change between two measurements of one axis
             (:data:`~ncmeasure.analysis.judgement.compare.CHANGE_FLAT_PERCENT`), where
             the machine's own profile divides out.
+        velocity_profiles: Also the profile of each velocity (False: the average alone, for
+            a caller that reads no more; the rest is the same).
 
     Returns:
         Profiles (the average first, ``velocity_mm_min`` None, then one per
@@ -430,7 +436,7 @@ def position_dependency(
             raise ValueError(f"numbers has {len(numbers)} entries for {positions.size} positions")
         labels = [int(numbers[i]) for i in order]
 
-    profiles = _profiles(positions, labels, velocities, table)
+    profiles = _profiles(positions, labels, velocities, table) if velocity_profiles else []
     fit = _fit_profile(positions, labels, table, noise_table)
     usable = np.isfinite(table) & (table > 0)
     if fit is None and np.count_nonzero(np.any(usable, axis=0)) >= 2:
