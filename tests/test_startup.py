@@ -382,6 +382,9 @@ CASES: list[tuple[tuple[str, ...], tuple[int, ...], set[str]]] = [
     # the analysis: scipy where a fit runs, matplotlib only for a report or a plot
     (("analyze", "delivery-run", "-o", "again.json"), (0,),
      {"matplotlib", "jinja2", *STORE, *WEB, *LINKS}),
+    # quiet: no progress bar, so no rich
+    (("analyze", "delivery-run", "-o", "quiet.json", "-q"), (0,),
+     {"rich", "matplotlib", "jinja2", *STORE, *WEB, *LINKS}),
     (("compare", "delivery.json", "service.json"), (0, 1, 3),
      {"matplotlib", "jinja2", *STORE, *WEB, *LINKS}),
     (("simulate", "machine.toml"), (0,), {"scipy", "matplotlib", *STORE, *WEB, *LINKS}),

@@ -161,3 +161,28 @@ def test_a_recording_that_fits_is_read_once(
     assert READ_COUNT.readings - readings > 5
     assert READ_COUNT.rows - rows > 5 * (head.rows or 0)
     assert again == once
+
+
+@pytest.mark.parametrize("marker", [True, False], ids=["marker", "command"])
+def test_a_recording_read_per_pass_gathers_every_axis_slices_on_one_reading(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, marker: bool
+) -> None:
+    velocities = geometric_velocities(10.0, 15000.0, 6)
+    axes = [
+        SyntheticAxis(name="X", velocities_mm_min=velocities),
+        SyntheticAxis(name="Y", velocities_mm_min=velocities),
+        SyntheticAxis(name="Z", velocities_mm_min=velocities),
+    ]
+    recording, schedule = synthetic_recording(tmp_path / "rec", axes, with_marker=marker)
+    monkeypatch.setattr(reading, "HOLD_BYTES", 0)  # read per pass, as a long recording
+
+    def analysed() -> tuple[dict[str, object], int]:
+        readings = READ_COUNT.readings
+        found = _results(RecordingHead.open(recording.directory), schedule)
+        return found, READ_COUNT.readings - readings
+
+    ahead, shared = analysed()
+    monkeypatch.setattr(reading, "GATHER_AHEAD_BYTES", 0)  # one axis' slices at a time
+    alone, each = analysed()
+    assert ahead == alone
+    assert shared == each - 2  # one reading for three axes' slices, not three

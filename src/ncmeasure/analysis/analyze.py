@@ -190,6 +190,7 @@ def analyze(
     report: Progress = progress or _quiet
     passes = RecordingPasses(head, chosen, schedule, machine, settings, rows, report)
     passes.keep_held = on_windows is not None  # their last reading from the chunks held
+    passes.gather_ahead &= on_windows is None  # its tasks ride each axis' own reading
     results = results_of(
         head,
         chosen,

@@ -120,6 +120,14 @@ def _row_span(read: Callable[[], Iterator[RowChunk]]) -> tuple[int, float, float
     return rows, start, end
 
 
+GATHER_AHEAD_BYTES = 256 << 20
+"""Most the slices of every axis' windows may take together to be gathered on one reading.
+
+A recording read per pass (longer than :data:`HOLD_BYTES`) reads each axis'
+slices once more; where the slices of all its axes take at most this, they are
+gathered on a single reading shared by the axes instead (4 h of three axes:
+about 60 MB an axis). Longer ones keep one axis' slices at a time."""
+
 HOLD_BYTES = 512 << 20
 """Largest recording (the channels the passes read, as float64) whose chunks are held.
 
@@ -334,6 +342,11 @@ class RecordingPasses:
         # on_windows that need one more reading (read_channels); else they go once
         # every axis' slices are read.
         self.keep_held = False
+        # A file read per pass: the slices of every axis gathered on one reading where
+        # they fit GATHER_AHEAD_BYTES (not with tasks of on_windows: they ride the
+        # readings that follow each axis' windows).
+        self.gather_ahead = isinstance(reader, _FileReader) and not reader.holding
+        self._read = read
         self._release: Callable[[], None] | None = None
         if isinstance(reader, _FileReader):
             file_reader = reader
@@ -387,10 +400,25 @@ class RecordingPasses:
             self.facts[axis].rapid_velocity_mm_min,
         )
 
+    def _gather_ahead(self) -> None:
+        """The slices of the first way of every axis, on one reading, where they fit."""
+        wanted = {a: f.first_stretches() for a, f in self.finders.items() if a not in self.errors}
+        ahead = {a: s for a, s in wanted.items() if s}
+        size = sum(self.finders[a].slice_bytes(s) for a, s in ahead.items())
+        if len(ahead) < 2 or size > GATHER_AHEAD_BYTES:
+            return
+        feeds = [self.finders[a].gather_ahead(s) for a, s in ahead.items()]
+        for chunk in self._read():
+            for feed in feeds:
+                feed(chunk)
+
     def found(self, axis: str, progress: Progress) -> AxisFound:
         """The axis' windows, the current of each, and what its whole signals said."""
         if axis in self.errors:
             raise self.errors[axis]
+        if self.gather_ahead:
+            self.gather_ahead = False
+            self._gather_ahead()
         stats = self.statistics[axis]
         finder = self.finders[axis]
         progress(f"axis {axis}: windows", 0.0)

@@ -367,11 +367,11 @@ def progress_bar(quiet: bool, *, stages: bool = False) -> tuple[Any, Any]:
     finished stage stays on the console as a line with its duration. The bar shows
     from the first call of the callback on.
     """
+    if quiet:
+        return None, None
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.text import Text
 
-    if quiet:
-        return None, None
     bar = Progress(
         TextColumn("{task.description}", markup=False),
         BarColumn(),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -131,3 +132,51 @@ def test_exact_sum_does_not_depend_on_order_or_chunks() -> None:
         forward.add(part)
     backward.add(values[::-1].copy())
     assert forward.value() == backward.value() == math.fsum(values.tolist())
+
+
+def _passes(values: FloatArray, rows: int, task: object) -> tuple[object, int]:
+    """A task's value and the readings of the data it took."""
+    readings = [0]
+    read = chunks_of(values, rows)
+
+    def counted() -> Iterator[FloatArray]:
+        readings[0] += 1
+        return read()
+
+    return run_task(counted, task), readings[0]  # type: ignore[arg-type]
+
+
+def test_noise_takes_its_deviations_subsample_from_the_first_pass() -> None:
+    # Median of the second differences (a subsample, a bracket), then of the deviations
+    # from it: their subsample is the first one's, shifted; no pass of its own.
+    values = np.random.default_rng(2).normal(size=50_000)
+    found, readings = _passes(values, 4096, noise_sigma_task(whole))
+    assert found == noise_sigma(values)
+    assert readings == 3
+
+
+def test_a_bracket_that_misses_moves_to_the_next_stretch_of_the_subsample() -> None:
+    # A position standing still most of the time: its second differences are a few tied
+    # values about zero, the rest spread. The subsample's bracket is the heaviest tie and
+    # the median lies just above it: the next bracket is the subsample's next stretch,
+    # not the whole range above (more values than a pass keeps, then histograms).
+    rng = np.random.default_rng(4)
+    n = 40_000
+    ties = np.full(n * 3 // 10, -5.7e-14)
+    near = rng.choice(np.array([-2.8e-14, 0.0, 2.8e-14]), size=n // 4)
+    spread = rng.normal(scale=1e-3, size=n - len(ties) - len(near))
+    values = rng.permutation(np.concatenate((ties, near, spread)))
+    task = median_task(whole, sample_budget=512, collect_budget=2_000)
+    found, readings = _passes(values, 1000, task)
+    assert found == float(np.median(values))
+    assert readings == 2
+
+
+def test_ties_about_the_median_are_counted_in_one_pass() -> None:
+    # More values in the bracket than a pass keeps, but few distinct ones: counted.
+    values = np.random.default_rng(5).choice(np.array([-1.0, 0.0, 1.0, 2.0]), size=20_000)
+    values[::7] = np.random.default_rng(6).normal(size=len(values[::7]))
+    task = median_task(whole, sample_budget=256, collect_budget=1_000)
+    found, readings = _passes(values, 1000, task)
+    assert found == float(np.median(values))
+    assert readings == 2

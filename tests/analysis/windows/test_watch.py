@@ -80,6 +80,8 @@ def _counting(
     The file is read pass by pass, as a recording longer than ``HOLD_BYTES`` is, or
     (``hold``) once, its chunks held for the passes that follow, as one that fits."""
     monkeypatch.setattr(reading_module, "HOLD_BYTES", 1 << 40 if hold else 0)
+    # One axis' slices per reading, as with on_windows (whose tasks ride those readings).
+    monkeypatch.setattr(reading_module, "GATHER_AHEAD_BYTES", 0)
     readings: list[tuple[tuple[str, ...] | None, list[int]]] = []
     original = reading_module.iter_chunks
 

@@ -139,6 +139,8 @@ class ChunkedFinder(WindowFinder):
             self.setup_detection(None)
         self.found = Found()
         self.holes = []
+        # Slices gathered on a reading shared with other axes: their stretches, the finish.
+        self.ahead: tuple[list[tuple[int, int]], Callable[[], None]] | None = None
 
     # -- the rows, cleaned and bridged -------------------------------------------------
 
@@ -329,8 +331,20 @@ class ChunkedFinder(WindowFinder):
         the filter width before a stretch and the filter width after it; every
         other signal is read inside the stretches only (matching, cutting runs,
         the position check and labelling look at a window's own samples, which
-        lie inside its stretch).
+        lie inside its stretch). Slices gathered beforehand on a shared reading
+        (:meth:`gathering`) of the same stretches are taken as they are.
         """
+        ahead, self.ahead = self.ahead, None
+        if ahead is not None and ahead[0] == list(stretches):
+            ahead[1]()
+            return
+        feed, finish = self.gathering(stretches)
+        for chunk in self.read():
+            feed(chunk)
+        finish()
+
+    def gathering(self, stretches: Sequence[tuple[int, int]]) -> tuple[Feed, Callable[[], None]]:
+        """The gathering of :meth:`_gather` as a feed of a reading's chunks and its finish."""
         margin_before = self.settle_n + self.filter_n
         margin_after = self.filter_n
         outer = merged(
@@ -343,20 +357,59 @@ class ChunkedFinder(WindowFinder):
         narrow = tuple(k for k in ("t", "v", "x", "cmd", "i") if k not in wide)
         kept = {k: Keeper(outer) for k in wide} | {k: Keeper(inner) for k in narrow}
         rows = self._rows(derived=True)
-        for chunk in self.read():
+
+        def feed(chunk: RowChunk) -> None:
             for lo, hi, part in rows(chunk):
                 for key, keeper in kept.items():
                     if key in part:
                         keeper.add(lo, hi, part[key])
 
-        def sparse(key: str) -> FloatArray:
-            return as_array(kept[key].sparse(self.n))
+        def finish() -> None:
+            def sparse(key: str) -> FloatArray:
+                return as_array(kept[key].sparse(self.n))
 
-        self.t, self.v, self.x = sparse("t"), sparse("v"), sparse("x")
-        self.v_detect = self.v if same_detect else sparse("vd")
-        if self.command is not None:
-            self.command = sparse("cmd")
-        self.current = sparse("i") if self.has["current_a"] else as_array(Sparse(self.n, [], []))
+            self.t, self.v, self.x = sparse("t"), sparse("v"), sparse("x")
+            self.v_detect = self.v if same_detect else sparse("vd")
+            if self.command is not None:
+                self.command = sparse("cmd")
+            self.current = (
+                sparse("i") if self.has["current_a"] else as_array(Sparse(self.n, [], []))
+            )
+
+        return feed, finish
+
+    def first_stretches(self) -> list[tuple[int, int]] | None:
+        """The stretches the first way of finding windows will read, as the sweep found them.
+
+        The marker's runs where a marker is wanted and was set, else the stretches of
+        constant command (where the method allows it); None where no way reads any.
+        """
+        method = self.settings.window_method
+        found = self.found
+        wanted = self.summary is None or self.scope != "none"
+        marker_set = self.marker is not None and bool(found.marker_starts) and wanted
+        if marker_set and method in ("auto", "marker"):
+            return list(zip(found.marker_starts, found.marker_stops, strict=True))
+        commanded = self.command is not None and self.n >= 2 and bool(found.command)
+        if commanded and method in ("auto", "command"):
+            return [(a, b) for a, b, _ in found.command]
+        return None
+
+    def gather_ahead(self, stretches: list[tuple[int, int]]) -> Feed:
+        """Gather the slices of ``stretches`` on a reading shared with other axes.
+
+        Returns the feed of that reading's chunks; :meth:`_gather` of the same
+        stretches then takes the slices without a reading of its own.
+        """
+        feed, finish = self.gathering(stretches)
+        self.ahead = (stretches, finish)
+        return feed
+
+    def slice_bytes(self, stretches: Sequence[tuple[int, int]]) -> int:
+        """About the memory the slices of ``stretches`` take (float64, every signal kept)."""
+        margin = self.settle_n + 2 * self.filter_n
+        inner = sum(b - a for a, b in merged(stretches))
+        return 8 * (6 * inner + margin * len(stretches))
 
     # -- the ways of finding windows, on slices ----------------------------------------
 
@@ -441,6 +494,7 @@ class ChunkedFinder(WindowFinder):
         self.t = self.v = self.x = self.v_detect = self.current = empty
         if self.command is not None:
             self.command = empty
+        self.ahead = None
 
     def window_current(self, start: int, stop: int) -> FloatArray:
         """The current of a window's samples: a copy, the slices may be released."""

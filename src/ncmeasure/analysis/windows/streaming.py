@@ -27,7 +27,11 @@ keeps a bounded, evenly spaced subsample; the subsample brackets the middle
 ranks; a second pass counts the values below the bracket and keeps those
 inside it, and the middle values are picked from those. Where the bracket
 misses or holds too many values (ties, data ordered against the subsample),
-a histogram of the bracket narrows it pass by pass until it holds few enough.
+a histogram of the bracket narrows it pass by pass until it holds few enough,
+unless the bracket holds few distinct values (ties: a signal standing still),
+which the pass counts and picks the middle values from. The noise's second
+median (of the deviations from the first) takes its subsample from the first's
+values, so it needs no pass of its own for it.
 """
 
 from __future__ import annotations
@@ -83,6 +87,10 @@ COLLECT_BUDGET: Final = 1 << 21
 
 HISTOGRAM_CELLS: Final = 4096
 """Cells of the histogram that narrows a bracket holding too many values."""
+
+DISTINCT_BUDGET: Final = 4096
+"""Distinct values a pass of a selection counts at most once its bracket holds more values
+than it keeps (ties): fewer, and the values at the ranks come from their counts."""
 
 
 def run_tasks(read: Callable[[], Iterable[C]], tasks: Mapping[K, Task[C, Any]]) -> dict[K, Any]:
@@ -199,17 +207,42 @@ class _Sampler:
     def sample(self) -> FloatArray:
         return np.sort(np.concatenate(self.kept)) if self.kept else np.empty(0)
 
+    def deviations(self, centre: float) -> _Sampler:
+        """The first pass of the values |v − centre| of the same values, without a pass.
+
+        The same indices are kept (the values at multiples of the stride), so the
+        subsample is as evenly spaced; the range is a bound: from 0 to the farther
+        end of this one's (|v − c| grows away from c, rounding too)."""
+        shifted = _Sampler(self.budget)
+        shifted.count = self.count
+        shifted.stride = self.stride
+        if self.kept:
+            shifted.kept = [np.abs(np.concatenate(self.kept) - centre)]
+            shifted.held = len(shifted.kept[0])
+            shifted.low = 0.0
+            shifted.high = max(abs(self.low - centre), abs(self.high - centre))
+        return shifted
+
 
 class _Bracket:
     """A pass over a bracket [low, high]: counts below and inside, a histogram, the values."""
 
-    def __init__(self, low: float, high: float, budget: int, cells: int) -> None:
+    def __init__(
+        self, low: float, high: float, budget: int, cells: int, distinct: int = DISTINCT_BUDGET
+    ) -> None:
         self.low, self.high = low, high
         self.budget = budget
         self.below = 0
         self.inside = 0
         self.values: list[FloatArray] | None = []
-        self.edges = np.linspace(low, high, cells + 1) if high > low else None
+        # Once more values than kept: the distinct values inside and their counts, sorted,
+        # while there are at most ``distinct`` of them (else None).
+        self.distinct_budget = distinct
+        self.distinct: tuple[FloatArray, NDArray[np.int64]] | None = (
+            np.empty(0, dtype=np.float64),
+            np.empty(0, dtype=np.int64),
+        )
+        self.edges = np.linspace(low, high, cells + 1) if high > low and cells else None
         self.histogram = np.zeros(cells + 1, dtype=np.int64)
         self.smallest = math.inf
         self.largest = -math.inf
@@ -225,11 +258,36 @@ class _Bracket:
             if self.inside <= self.budget:
                 self.values.append(inside)
             else:
+                for part in (*self.values, inside):
+                    self._count(part)
                 self.values = None
+        elif len(inside):
+            self._count(inside)
         if self.edges is not None and len(inside):
             # Cell k holds edges[k] <= v < edges[k + 1]; the last one v == high.
             cell = np.searchsorted(self.edges, inside, side="right") - 1
             self.histogram += np.bincount(cell, minlength=len(self.histogram))
+
+    def _count(self, values: FloatArray) -> None:
+        """Add values to the counts of the distinct values (given up beyond the budget)."""
+        if self.distinct is None or len(values) == 0:
+            return
+        keys, counts = self.distinct
+        if len(keys):
+            spot = np.minimum(np.searchsorted(keys, values), len(keys) - 1)
+            known = keys[spot] == values
+            counts = counts + np.bincount(spot[known], minlength=len(keys))
+            values = values[~known]
+        if len(values):
+            new, number = np.unique(values, return_counts=True)
+            if len(keys) + len(new) > self.distinct_budget:
+                self.distinct = None
+                return
+            keys = np.concatenate((keys, new))
+            counts = np.concatenate((counts, number))
+            order = np.argsort(keys, kind="stable")
+            keys, counts = keys[order], counts[order]
+        self.distinct = (keys, counts)
 
 
 def select_task(
@@ -238,6 +296,7 @@ def select_task(
     *,
     sample_budget: int = SAMPLE_BUDGET,
     collect_budget: int = COLLECT_BUDGET,
+    sampled: _Sampler | None = None,
 ) -> Generator[Callable[[C], None], None, tuple[int, list[float]]]:
     """The values at some ranks (0 = smallest) of all values of a view, exactly.
 
@@ -247,13 +306,16 @@ def select_task(
             first pass); each below that number.
         sample_budget: Values the first pass keeps at most.
         collect_budget: Values a later pass keeps at most.
+        sampled: The first pass already made (its subsample of the view's values).
 
     Returns:
         The number of values and the values at the ranks (an empty list
         without values).
     """
-    sampler = _Sampler(sample_budget)
-    yield _feeding(sampler.add, view())
+    sampler = sampled
+    if sampler is None:
+        sampler = _Sampler(sample_budget)
+        yield _feeding(sampler.add, view())
     count = sampler.count
     if count == 0:
         return 0, []
@@ -266,20 +328,42 @@ def select_task(
     above_index = last // stride + margin
     low = sampler.low if below_index <= 0 else float(sample[below_index])
     high = sampler.high if above_index >= len(sample) - 1 else float(sample[above_index])
+    ties = _ties(sample, stride, first, last, (low, high), collect_budget)
     while True:
         bracket = _Bracket(low, high, collect_budget, HISTOGRAM_CELLS)
-        yield _feeding(bracket.add, view())
+        # Beside it, the first time, a bracket about the ranks alone (ties: few distinct values).
+        tie = _Bracket(*ties, collect_budget, 0) if ties is not None else None
+        ties = None
+        feed = _feeding(bracket.add if tie is None else _both(bracket, tie), view())
+        yield feed
+        if tie is not None:
+            picked = _picked(tie, first, last, wanted)
+            if picked is not None:
+                return count, picked
         below, inside = bracket.below, bracket.inside
-        if below > first or below + inside <= last:
-            # The bracket missed a rank: widen it to the whole range on that side.
-            low = sampler.low if below > first else low
-            high = sampler.high if below + inside <= last else high
+        if below > first and below + inside <= last:
+            # The ranks on both sides of the bracket: the whole range.
+            low, high = sampler.low, sampler.high
             continue
-        if bracket.smallest == bracket.largest:
-            return count, [bracket.smallest] * len(wanted)
-        if bracket.values is not None:
-            values = np.sort(np.concatenate(bracket.values))
-            return count, [float(values[r - below]) for r in wanted]
+        if below > first:
+            # The ranks below the bracket: the next stretch of the subsample below it.
+            index = int(np.searchsorted(sample, low)) - 1 - margin
+            low, high = (
+                sampler.low if index <= 0 else float(sample[index]),
+                float(np.nextafter(low, -np.inf)),
+            )
+            continue
+        if below + inside <= last:
+            # The ranks above the bracket: the next stretch of the subsample above it.
+            index = int(np.searchsorted(sample, high, side="right")) + margin
+            low, high = (
+                float(np.nextafter(high, np.inf)),
+                sampler.high if index >= len(sample) - 1 else float(sample[index]),
+            )
+            continue
+        picked = _picked(bracket, first, last, wanted)
+        if picked is not None:
+            return count, picked
         assert bracket.edges is not None
         cumulative = np.cumsum(bracket.histogram)
         cell_first = int(np.searchsorted(cumulative, first - below, side="right"))
@@ -297,6 +381,60 @@ def select_task(
             picked = yield from _distinct(view, low, high, below, wanted)
             return count, picked
         low, high = new_low, new_high
+
+
+def _both(one: _Bracket, other: _Bracket) -> Callable[[FloatArray], None]:
+    def add(values: FloatArray) -> None:
+        one.add(values)
+        other.add(values)
+
+    return add
+
+
+def _ties(
+    sample: FloatArray,
+    stride: int,
+    first: int,
+    last: int,
+    bracket: tuple[float, float],
+    budget: int,
+) -> tuple[float, float] | None:
+    """A narrow bracket about the ranks where the subsample says the wide one holds too many.
+
+    The values of the subsample next to the ranks wanted: where the signal is mostly
+    ties (a position standing still), these are few distinct values, which a pass
+    counts (:class:`_Bracket`) while the wide bracket would overflow.
+    """
+    low, high = bracket
+    held = int(np.searchsorted(sample, high, side="right") - np.searchsorted(sample, low))
+    if held * stride <= budget or len(sample) == 0:
+        return None
+    narrow = (
+        float(sample[max(0, first // stride - 8)]),
+        float(sample[min(len(sample) - 1, last // stride + 8)]),
+    )
+    return narrow if narrow != bracket else None
+
+
+def _picked(
+    bracket: _Bracket, first: int, last: int, wanted: tuple[int, ...]
+) -> list[float] | None:
+    """The values at the ranks from a pass over a bracket, where it holds them and tells them."""
+    below, inside = bracket.below, bracket.inside
+    if below > first or below + inside <= last:
+        return None
+    if bracket.smallest == bracket.largest:
+        return [bracket.smallest] * len(wanted)
+    if bracket.values is not None:
+        values = np.sort(np.concatenate(bracket.values))
+        return [float(values[r - below]) for r in wanted]
+    if bracket.distinct is not None:
+        keys, counts = bracket.distinct
+        cumulative = np.cumsum(counts)
+        return [
+            float(keys[int(np.searchsorted(cumulative, r - below, side="right"))]) for r in wanted
+        ]
+    return None
 
 
 def _distinct(
@@ -329,8 +467,27 @@ def median_task(
 
     The values must be finite (``np.median`` of data with NaN is NaN).
     """
+    return (
+        yield from _median(view, None, sample_budget=sample_budget, collect_budget=collect_budget)
+    )
+
+
+def _median(
+    view: View[C],
+    sampled: _Sampler | None,
+    *,
+    sample_budget: int = SAMPLE_BUDGET,
+    collect_budget: int = COLLECT_BUDGET,
+) -> Generator[Callable[[C], None], None, float]:
+    """:func:`median_task`, its first pass already made where ``sampled`` is given."""
     count, (low, high) = yield from _pair(
-        select_task(view, _middle_ranks, sample_budget=sample_budget, collect_budget=collect_budget)
+        select_task(
+            view,
+            _middle_ranks,
+            sample_budget=sample_budget,
+            collect_budget=collect_budget,
+            sampled=sampled,
+        )
     )
     if count == 0:
         return math.nan
@@ -457,10 +614,15 @@ def noise_sigma_task(view: View[C]) -> Generator[Callable[[C], None], None, floa
     standard deviation √6·σ.
     """
     second = differences(view, 2)
-    centre = yield from median_task(second)
+    sampler = _Sampler(SAMPLE_BUDGET)
+    yield _feeding(sampler.add, second())
+    centre = yield from _median(second, sampler)
     if math.isnan(centre):
         return 0.0
-    mad = yield from median_task(_mapped(second, lambda d: np.abs(d - centre)))
+    # The deviations' subsample from the same pass: the same values, shifted.
+    mad = yield from _median(
+        _mapped(second, lambda d: np.abs(d - centre)), sampler.deviations(centre)
+    )
     if math.isnan(mad):
         return 0.0
     return 1.4826 * mad / math.sqrt(6.0)
