@@ -35,10 +35,10 @@ from collections.abc import Callable, Generator, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import median_filter
 
 from ncmeasure.analysis.windows.finder import WindowFinder
 from ncmeasure.analysis.windows.model import Candidate
+from ncmeasure.analysis.windows.rolling import rolling_median
 from ncmeasure.analysis.windows.scan import AxisStatistics, Rows
 from ncmeasure.analysis.windows.settings import MIN_WINDOW_SAMPLES, SegmentSettings
 from ncmeasure.analysis.windows.signals import command_repeats, plateau_mask, runs
@@ -300,7 +300,7 @@ class ChunkedFinder(WindowFinder):
         detect = ahead.columns["vd"]
         finite = np.where(np.isfinite(detect), detect, 0.0)
         if state.want_plateaus:
-            smooth = median_filter(finite, size=self.filter_n, mode="nearest")
+            smooth = rolling_median(finite, self.filter_n)
             mask = plateau_mask(smooth, self.band, self.standstill, self.plateau_n, self.n, offset)
             state.plateau_runs.add(mask[lo - offset : hi - offset], lo, hi == self.n)
             part = smooth[lo - offset : hi - offset]
@@ -309,7 +309,7 @@ class ChunkedFinder(WindowFinder):
         if state.want_still:
             moving = np.abs(finite)
             if self.filter_n > 1:
-                moving = median_filter(moving, size=self.filter_n, mode="nearest")
+                moving = rolling_median(moving, self.filter_n)
             above = moving[lo - offset : hi - offset] >= self.standstill
             starts, stops = runs(above)
             if len(starts):
@@ -450,7 +450,7 @@ class ChunkedFinder(WindowFinder):
                 high = min(self.n, stop + self.filter_n)
                 detect = self.v_detect[low:high]
                 finite = np.where(np.isfinite(detect), detect, 0.0)
-                smooth = median_filter(finite, size=self.filter_n, mode="nearest")
+                smooth = rolling_median(finite, self.filter_n)
                 levels.append((start, stop, float(np.median(smooth[start - low : stop - low]))))
         return self.plateau_found(levels, moving)
 

@@ -86,7 +86,6 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import median_filter
 
 from ncmeasure.analysis.windows.clusters import (
     drop_rapids,
@@ -96,6 +95,7 @@ from ncmeasure.analysis.windows.clusters import (
 )
 from ncmeasure.analysis.windows.detection import Detection
 from ncmeasure.analysis.windows.model import Candidate, Segmentation
+from ncmeasure.analysis.windows.rolling import rolling_median
 from ncmeasure.analysis.windows.schedule import ScheduleMatch
 from ncmeasure.analysis.windows.settings import (
     COARSE_WINDOW_SAMPLES,
@@ -504,7 +504,7 @@ class WindowFinder(Detection):
         high = min(self.n, stop + width)
         chunk = self.v_detect[low:high]
         chunk = np.where(np.isfinite(chunk), chunk, np.inf)
-        smooth = median_filter(chunk, size=width, mode="nearest") if width > 1 else chunk
+        smooth = rolling_median(chunk, width) if width > 1 else chunk
         band = np.maximum(self.band(level), JOIN_SPREAD * noise_mm_min)
         inside = np.abs(smooth - level) <= band
         a, b = start - low, stop - low

@@ -12,9 +12,9 @@ from typing import Final
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
 from ncmeasure.analysis.windows.model import Cluster
+from ncmeasure.analysis.windows.rolling import rolling_max, rolling_min
 from ncmeasure.analysis.windows.settings import HOLE_NEIGHBOURS, HOLE_PERIODS
 
 __all__ = [
@@ -122,7 +122,7 @@ class HoleCounter:
         # A step can only be a hole if longer than HOLE_PERIODS times the shortest
         # step about it (no longer than their median): only those need the median.
         padded = np.concatenate((np.full(k, np.inf), steps, np.full(k, np.inf)))
-        shortest = minimum_filter1d(padded, 2 * k + 1)[k : k + len(steps)]
+        shortest = rolling_min(padded, 2 * k + 1)[k : k + len(steps)]
         rows = np.arange(self._judged, end)
         rows = rows[steps[rows] > HOLE_PERIODS * shortest[rows]]
         if len(rows):
@@ -363,14 +363,14 @@ def plateau_mask(
     """
     count = len(smooth)
     # ok[j]: the smoothed velocity stays within the tolerance over [j, j + length).
-    low = minimum_filter1d(smooth, length, mode="nearest", origin=-(length // 2))
-    high = maximum_filter1d(smooth, length, mode="nearest", origin=-(length // 2))
-    slowest = minimum_filter1d(np.abs(smooth), length, mode="nearest", origin=-(length // 2))
+    low = rolling_min(smooth, length, mode="nearest", origin=-(length // 2))
+    high = rolling_max(smooth, length, mode="nearest", origin=-(length // 2))
+    slowest = rolling_min(np.abs(smooth), length, mode="nearest", origin=-(length // 2))
     ok = (high - low) <= band(smooth)
     ok &= slowest >= standstill
     ok[max(0, n - length + 1 - offset) :] = False
     # Samples covered by any good span of `length` samples.
-    covered = maximum_filter1d(ok.astype(np.int8), length, origin=(length - 1) // 2) > 0
+    covered = rolling_max(ok.astype(np.int8), length, origin=(length - 1) // 2) > 0
     # Two levels that touch without a ramp between them are two plateaus.
     jump = np.zeros(count, dtype=np.bool_)
     jump[1:] = np.abs(np.diff(smooth)) > 0.5 * band(smooth[1:])
