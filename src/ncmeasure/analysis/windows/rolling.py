@@ -11,7 +11,7 @@ callers replace them first), as the comparison order of NaN differs.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -20,13 +20,14 @@ from numpy.typing import NDArray
 __all__ = ["rolling_max", "rolling_median", "rolling_min"]
 
 Mode = Literal["nearest", "reflect"]
+S = TypeVar("S", bound=np.generic)
 
 # scipy.ndimage's boundary modes by numpy.pad's names: "reflect" repeats the edge sample
 # (d c b a | a b c d), numpy's "symmetric"; "nearest" is numpy's "edge".
 _PAD: dict[str, Literal["edge", "symmetric"]] = {"nearest": "edge", "reflect": "symmetric"}
 
 
-def _padded(values: NDArray[np.generic], size: int, origin: int, mode: Mode) -> NDArray[np.generic]:
+def _padded(values: NDArray[S], size: int, origin: int, mode: Mode) -> NDArray[S]:
     """``values`` extended so that output i is the window ``[i, i + size)`` of the result."""
     if size < 1:
         raise ValueError(f"window size must be at least 1, got {size}")
@@ -37,10 +38,9 @@ def _padded(values: NDArray[np.generic], size: int, origin: int, mode: Mode) -> 
 
 
 def _extreme(
-    values: NDArray[np.generic], size: int, origin: int, mode: Mode, *, largest: bool
-) -> NDArray[np.generic]:
+    values: NDArray[S], size: int, origin: int, mode: Mode, *, largest: bool
+) -> NDArray[S]:
     """Rolling minimum or maximum in O(n) whatever the size (van Herk / Gil-Werman)."""
-    values = np.asarray(values)
     count = len(values)
     if count == 0:
         return values.copy()
@@ -54,20 +54,20 @@ def _extreme(
     grid = filled.reshape(blocks, size)
     head = op.accumulate(grid, axis=1).ravel()
     tail = op.accumulate(grid[:, ::-1], axis=1)[:, ::-1].ravel()
-    result: NDArray[np.generic] = op(tail[:count], head[size - 1 : size - 1 + count])
+    result: NDArray[Any] = op(tail[:count], head[size - 1 : size - 1 + count])
     return result
 
 
 def rolling_min(
-    values: NDArray[np.generic], size: int, *, origin: int = 0, mode: Mode = "reflect"
-) -> NDArray[np.generic]:
+    values: NDArray[S], size: int, *, origin: int = 0, mode: Mode = "reflect"
+) -> NDArray[S]:
     """``scipy.ndimage.minimum_filter1d(values, size, mode=mode, origin=origin)``."""
     return _extreme(values, size, origin, mode, largest=False)
 
 
 def rolling_max(
-    values: NDArray[np.generic], size: int, *, origin: int = 0, mode: Mode = "reflect"
-) -> NDArray[np.generic]:
+    values: NDArray[S], size: int, *, origin: int = 0, mode: Mode = "reflect"
+) -> NDArray[S]:
     """``scipy.ndimage.maximum_filter1d(values, size, mode=mode, origin=origin)``."""
     return _extreme(values, size, origin, mode, largest=True)
 
