@@ -13,6 +13,7 @@ from ncmeasure.formats.results import Results
 from ncmeasure.store import MeasurementInfo, open_store
 from ncmeasure.store import schema as t
 from ncmeasure.store.overview import fleet_overview
+from ncmeasure.store.report import FleetReport, fleet_report, report_of
 from ncmeasure.store.statuses import fleet_statuses, judged_page
 
 Make = Callable[..., Results]
@@ -117,3 +118,48 @@ def test_each_machines_own_status_is_kept_until_it_gets_a_measurement(
     axes = len(make_results("2026-01-01T08:00:00+00:00").axes)
     assert kept == axes * len(FLEET)
     _same_as_the_overview(store_url)
+
+
+def _shown(report: FleetReport) -> object:
+    """What a report shows of its fleet, as plain values."""
+    return (
+        report.machines,
+        report.types,
+        report.counts,
+        report.axes,
+        report.unlisted_attention,
+        report.unlisted_ok,
+        report.outliers,
+        report.outlier_count,
+        [
+            (
+                m.serial,
+                m.status,
+                [
+                    (n, a.status, a.reasons, a.notes, a.changes, a.outliers)
+                    for n, a in m.axes.items()
+                ],
+            )
+            for m in report.listed
+        ],
+    )
+
+
+@pytest.mark.parametrize("grid", [100, 5])
+def test_the_report_shows_what_the_overview_shows(
+    store_url: str, make_results: Make, grid: int
+) -> None:
+    """The report reads the kept statuses and judges only its grid's machines in full; what
+    it shows is what judging every machine shows, the grid cut short (5) or not."""
+    _fill(store_url, make_results)
+    with open_store(store_url) as store:
+        quick = fleet_report(store, grid=grid)
+        full = report_of(fleet_overview(store), grid)
+    assert _shown(quick) == _shown(full)
+    assert quick.outliers  # the fleet names outliers, ◆ in the grid
+    assert any(a.outliers for m in quick.listed for a in m.axes.values())
+    assert quick.status == "critical"
+    if grid == 5:
+        assert len(quick.listed) == 5 and quick.unlisted_attention > 0
+    else:  # every machine judged: the same trends
+        assert [m.serial for m in quick.judged] == [m.serial for m in full.judged]

@@ -38,6 +38,7 @@ from ncmeasure.store import schema as t
 from ncmeasure.store.changes import DIAGNOSIS_VERSION
 from ncmeasure.store.overview import (
     MachineOverview,
+    Outlier,
     changes_of,
     judge,
     overviews_of,
@@ -58,9 +59,11 @@ Group = tuple[str, str, str, str]
 
 @dataclass(frozen=True)
 class _Places:
-    """One group's places: by machine id (sorted), the others' median and the z-score."""
+    """One group's places: by machine id (sorted), the latest value, the others' median and
+    the z-score."""
 
     ids: NDArray[np.int64]
+    values: NDArray[np.float64]
     medians: NDArray[np.float64]
     z: NDArray[np.float64]
     enough: bool
@@ -137,6 +140,44 @@ class FleetStatuses:
                 found[axis].append(
                     FleetPlace(name, float(group.medians[at]), z, group.ids.size - 1)
                 )
+        return found
+
+    def outliers(self, limits: Limits | None = None) -> list[Outlier]:
+        """Every outlier of the fleet (:func:`~ncmeasure.analysis.judgement.status.is_outlier`
+        on the arrays), largest |modified z| first: those of
+        :func:`~ncmeasure.store.overview.fleet_overview`."""
+        limits = limits or Limits()
+        by_name = {c.name: c for c in CHARACTERISTICS}
+        serial_of = dict(zip(self.machine_ids.tolist(), self.serials, strict=True))
+        found: list[Outlier] = []
+        for (machine_type, axis, unit, name), group in self.places.items():
+            if not group.enough:
+                continue
+            c = by_name[name]
+            floor = (
+                np.abs(group.medians) * limits.warning_percent / 100.0
+                if c.relative
+                else FLAT_THRESHOLD_PERCENT
+            )
+            hit = (np.abs(group.z) > limits.outlier_z) & (
+                np.abs(group.values - group.medians) > floor
+            )
+            shown = c.unit_of(unit)
+            for i in np.flatnonzero(hit):
+                found.append(
+                    Outlier(
+                        serial=serial_of[int(group.ids[i])],
+                        machine_type=machine_type,
+                        axis=axis,
+                        characteristic=name,
+                        unit=shown,
+                        value=float(group.values[i]),
+                        fleet_median=float(group.medians[i]),
+                        modified_z=float(group.z[i]),
+                        machines=int(group.ids.size) - 1,
+                    )
+                )
+        found.sort(key=lambda o: (-abs(o.modified_z), o.serial, o.axis, o.characteristic))
         return found
 
 
@@ -252,7 +293,11 @@ def _fleet(
             flagged[members[hit]] = True
             order = np.argsort(ids, kind="stable")
             places[(machine_type, axis, unit, c.name)] = _Places(
-                ids=ids[order], medians=median[order], z=z[order], enough=enough
+                ids=ids[order],
+                values=x[order],
+                medians=median[order],
+                z=z[order],
+                enough=enough,
             )
     return places, flagged
 
