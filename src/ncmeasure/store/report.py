@@ -28,9 +28,9 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import jinja2
-from matplotlib.figure import Figure
 
 from ncmeasure._version import __version__
 from ncmeasure.files import write_whole
@@ -46,6 +46,9 @@ from ncmeasure.store.overview import (
 from ncmeasure.store.records import TrendPoint
 from ncmeasure.store.rows import CHARACTERISTICS
 from ncmeasure.store.store import Store
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure  # imported by the plots, when a trend is drawn
 
 __all__ = [
     "DEFAULT_GRID_ROWS",
@@ -356,12 +359,12 @@ def write_fleet_report(
         OutputError: The file cannot be written.
         StoreError: The database failed.
     """
-    from ncmeasure.report.plots import figure_png
-
     shown = report_of(overview, grid) if isinstance(overview, FleetOverview) else overview
     moved = _moved(shown.judged, trends)
     drawn: list[_Trend] = []
     for done, (machine, axis) in enumerate(moved, start=1):
+        from ncmeasure.report.plots import figure_png  # matplotlib: only for a trend drawn
+
         points = store.trend(machine.serial, axis.axis)
         png = figure_png(trend_figure(axis.axis, points, shown.limits))
         drawn.append(
