@@ -224,8 +224,12 @@ def _replicate(url: str, block: int, machines: int) -> None:
                         columns.append(literal(f"{copy:04x}") + func.substr(column, 5))
                     else:
                         columns.append(column)
-                own = table.c.id if "id" in table.c else table.c.measurement_id
-                top = highest[table.name if "id" in table.c else "measurements"]
+                # the block's rows: by their own id, else by their measurement or machine
+                key = next(k for k in ("id", "measurement_id", "machine_id") if k in table.c)
+                own = table.c[key]
+                top = highest[
+                    {"id": table.name, "measurement_id": "measurements"}.get(key, "machines")
+                ]
                 copied = select(*columns).where(own <= top)  # the block's rows alone
                 db.execute(insert(table).from_select(list(table.c.keys()), copied))
         _advance_sequences(db)

@@ -398,6 +398,8 @@ CASES: list[tuple[tuple[str, ...], tuple[int, ...], set[str]]] = [
     (("store", "export", "-o", "x.jsonl"), (0,),
      {"scipy", "matplotlib", "jinja2", *WEB, *LINKS}),
     (("store", "report", "-o", "fleet.html"), (0, 1, 3), {"scipy", *WEB, *LINKS}),
+    (("store", "report", "-o", "fleet.html", "--trends", "0"), (0, 1, 3),
+     {"scipy", "matplotlib", *WEB, *LINKS}),
 ]  # fmt: skip
 """Per command: its arguments (run in the folder of :func:`files`), the exit codes it may
 end with, and the packages it must not import."""

@@ -13,6 +13,7 @@ from ncmeasure.formats.results import Results
 from ncmeasure.store import MeasurementInfo, open_store
 from ncmeasure.store import schema as t
 from ncmeasure.store.overview import fleet_overview
+from ncmeasure.store.report import FleetReport, fleet_report, report_of
 from ncmeasure.store.statuses import fleet_statuses, judged_page
 
 Make = Callable[..., Results]
@@ -96,7 +97,22 @@ def test_the_statuses_are_the_overviews(store_url: str, make_results: Make) -> N
     _same_as_the_overview(store_url)  # read as kept
 
 
-def test_each_machines_own_status_is_kept_until_it_gets_a_measurement(
+def _kept(url: str) -> dict[tuple[int, str], str]:
+    """The kept statuses of each machine's current (latest, baseline) pair."""
+    s, st = t.machine_summaries, t.axis_statuses
+    with open_store(url) as store, store.reading("read the kept statuses") as db:
+        rows = db.execute(
+            select(st.c.machine_id, st.c.axis, st.c.status).join(
+                s,
+                (s.c.machine_id == st.c.machine_id)
+                & (s.c.latest_id == st.c.latest_id)
+                & (s.c.baseline_id == st.c.baseline_id),
+            )
+        ).all()
+    return {(int(r.machine_id), r.axis): r.status for r in rows}
+
+
+def test_each_machines_own_status_is_kept_when_it_gets_a_measurement(
     store_url: str, make_results: Make, caplog: pytest.LogCaptureFixture
 ) -> None:
     _fill(store_url, make_results)
@@ -108,8 +124,14 @@ def test_each_machines_own_status_is_kept_until_it_gets_a_measurement(
         )
     with caplog.at_level(logging.WARNING), open_store(store_url) as store:
         fleet = fleet_statuses(store)
-    assert "1 machine(s) without a current stored status" in caplog.text
+    assert "without a current stored status" not in caplog.text  # kept by the add
     assert fleet.by_serial()["M20"] == "critical"  # +30 % since its delivery
+    with open_store(store_url, write=True) as store, store.writing("forget M20's") as db:
+        m20 = select(t.machines.c.id).where(t.machines.c.serial == "M20").scalar_subquery()
+        db.execute(t.axis_statuses.delete().where(t.axis_statuses.c.machine_id == m20))
+    with caplog.at_level(logging.WARNING), open_store(store_url) as store:
+        assert fleet_statuses(store).by_serial()["M20"] == "critical"
+    assert "1 machine(s) without a current stored status" in caplog.text  # judged on reading
     with open_store(store_url, write=True) as store:
         fleet_statuses(store)
         with store.reading("count") as db:
@@ -117,3 +139,83 @@ def test_each_machines_own_status_is_kept_until_it_gets_a_measurement(
     axes = len(make_results("2026-01-01T08:00:00+00:00").axes)
     assert kept == axes * len(FLEET)
     _same_as_the_overview(store_url)
+
+
+def test_a_batch_keeps_every_machines_own_status(
+    store_url: str, make_results: Make, caplog: pytest.LogCaptureFixture
+) -> None:
+    """``add_many`` (``store import``) leaves every machine's own status kept, as judging
+    it afresh gives it: no reader judges the fleet again."""
+    batch = [
+        (
+            make_results(f"20{26 + k}-01-{10 + index}T08:00:00+00:00", factor),
+            MeasurementInfo(
+                serial=serial,
+                label="delivery" if k == 0 else "service",
+                site="Hall 3" if index % 2 else None,
+            ),
+        )
+        for index, (serial, factors) in enumerate(FLEET.items())
+        for k, factor in enumerate(factors)
+    ]
+    with open_store(store_url, write=True) as store:
+        store.add_many(batch[:9])
+        store.add_many(batch[9:])  # machines of both batches: judged again in the second
+    kept = _kept(store_url)
+    axes = len(make_results("2026-01-01T08:00:00+00:00").axes)
+    assert len(kept) == axes * len(FLEET)
+    with caplog.at_level(logging.WARNING), open_store(store_url) as store:
+        fleet_statuses(store)
+    assert "without a current stored status" not in caplog.text
+    with open_store(store_url, write=True) as store:
+        with store.writing("forget them") as db:
+            db.execute(t.axis_statuses.delete())
+        fleet_statuses(store)  # judged afresh and kept
+    assert _kept(store_url) == kept
+    assert set(kept.values()) == {"ok", "warning", "critical"}
+    _same_as_the_overview(store_url)
+
+
+def _shown(report: FleetReport) -> object:
+    """What a report shows of its fleet, as plain values."""
+    return (
+        report.machines,
+        report.types,
+        report.counts,
+        report.axes,
+        report.unlisted_attention,
+        report.unlisted_ok,
+        report.outliers,
+        report.outlier_count,
+        [
+            (
+                m.serial,
+                m.status,
+                [
+                    (n, a.status, a.reasons, a.notes, a.changes, a.outliers)
+                    for n, a in m.axes.items()
+                ],
+            )
+            for m in report.listed
+        ],
+    )
+
+
+@pytest.mark.parametrize("grid", [100, 5])
+def test_the_report_shows_what_the_overview_shows(
+    store_url: str, make_results: Make, grid: int
+) -> None:
+    """The report reads the kept statuses and judges only its grid's machines in full; what
+    it shows is what judging every machine shows, the grid cut short (5) or not."""
+    _fill(store_url, make_results)
+    with open_store(store_url) as store:
+        quick = fleet_report(store, grid=grid)
+        full = report_of(fleet_overview(store), grid)
+    assert _shown(quick) == _shown(full)
+    assert quick.outliers  # the fleet names outliers, ◆ in the grid
+    assert any(a.outliers for m in quick.listed for a in m.axes.values())
+    assert quick.status == "critical"
+    if grid == 5:
+        assert len(quick.listed) == 5 and quick.unlisted_attention > 0
+    else:  # every machine judged: the same trends
+        assert [m.serial for m in quick.judged] == [m.serial for m in full.judged]

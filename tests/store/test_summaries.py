@@ -131,8 +131,16 @@ def test_store_list_pages_filters_and_prints_json(tmp_path: Path, make_results: 
     assert [m["serial"] for m in page["machines"]] == ["M4"]
     assert (page["total"], page["next_cursor"]) == (5, None)
     assert page["machines"][0]["latest_verdicts"]
-    # --status judges the fleet when the stored statuses are not current, and says so
-    found = runner.invoke(app, ["store", "list", "--store", url, "--status", "critical"])
+    # --status reads each machine's own status as its adds kept it
+    status = ["store", "list", "--store", url, "--status", "critical"]
+    found = runner.invoke(app, status)
+    assert found.exit_code == 0, found.output
+    assert "store refresh" not in found.stderr
+    assert "2 machine(s)" in found.stdout and "M4" in found.stdout and "M0" not in found.stdout
+    # a store without them (filled by an older ncmeasure) is judged on the spot, and says so
+    with open_store(url, write=True) as store, store.writing("forget the statuses") as db:
+        db.execute(t.axis_statuses.delete())
+    found = runner.invoke(app, status)
     assert found.exit_code == 0, found.output
     assert "store refresh" in found.stderr
     assert "2 machine(s)" in found.stdout and "M4" in found.stdout and "M0" not in found.stdout

@@ -371,30 +371,25 @@ def store_report_command(
 
     Example: ncmeasure store report -o fleet.html
     """
-    from ncmeasure.formats.comparison import worst_status
-    from ncmeasure.store.overview import fleet_overview
-    from ncmeasure.store.report import write_fleet_report
+    from ncmeasure.store.report import fleet_report, write_fleet_report
 
     chosen = limits(warning, critical)
     bar, update = progress_bar(quiet)
     with bar or contextlib.nullcontext(), open_store(store, write=False) as fleet:
         if update is not None:
             update("reading the fleet", None)
-        overview = fleet_overview(fleet, chosen)
+        shown = fleet_report(fleet, chosen, grid=machines)
         written = write_fleet_report(
             fleet,
-            overview,
+            shown,
             output,
             trends=trends,
-            grid=machines,
             progress=None if update is None else lambda d, n: update("trend plots", d / n),
         )
-    counts = ", ".join(f"{overview.count(s)} {s}" for s in ("ok", "warning", "critical"))
-    console().print(
-        f"{len(overview.machines)} machine(s): {counts}; {len(overview.outliers)} outlier(s)"
-    )
+    counts = ", ".join(f"{shown.counts[s]} {s}" for s in ("ok", "warning", "critical"))
+    console().print(f"{shown.machines} machine(s): {counts}; {shown.outlier_count} outlier(s)")
     console().print(f"wrote {written}")
-    return worst_status(m.status for m in overview.machines)
+    return shown.status
 
 
 @store_app.command("refresh")

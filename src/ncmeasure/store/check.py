@@ -104,17 +104,21 @@ def _fleet_values(
 ) -> dict[tuple[str, str], dict[str, list[float]]]:
     """Per (axis, unit) and characteristic: the finite values of the other machines' latest.
 
-    One query; the rows are plain tuples, sorted into arrays (ten thousand machines
-    are some 40,000 rows).
+    One query; the rows are the driver's plain tuples, sorted into arrays (ten thousand
+    machines are some 40,000 rows).
     """
     a = t.axis_results
     columns = [a.c[c.name] for c in CHARACTERISTICS]
     with store.reading("read the fleet") as db:
-        rows = db.execute(
+        result = db.execute(
             select(a.c.axis, a.c.unit, *columns)
             .join(t.machines, t.machines.c.latest_measurement_id == a.c.measurement_id)
             .where(t.machines.c.type_id == type_id, t.machines.c.id != machine_id)
-        ).all()
+        )
+        try:  # the driver's tuples: no row object each, the columns need no conversion
+            rows = result.cursor.fetchall()
+        finally:
+            result.close()
     grouped: dict[tuple[str, str], list[Any]] = defaultdict(list)
     for row in rows:
         grouped[(row[0], row[1])].append(row[2:])

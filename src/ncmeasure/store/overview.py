@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from sqlalchemy import select
+from sqlalchemy import Connection, select
 
 from ncmeasure.analysis.judgement.fleet import modified_z_leave_one_out
 from ncmeasure.analysis.judgement.status import (
@@ -63,8 +63,10 @@ __all__ = [
     "FleetOverview",
     "MachineOverview",
     "Outlier",
+    "axis_rows_in",
     "change_status",
     "changes_of",
+    "fill_axes",
     "fleet_overview",
     "is_outlier",
     "judge",
@@ -198,14 +200,19 @@ def _chunks(ids: Sequence[int]) -> Iterator[list[int]]:
 
 
 def _axis_rows(store: Store, measurement_ids: Sequence[int]) -> dict[int, list[Any]]:
+    with store.reading("read the fleet") as db:
+        return axis_rows_in(db, measurement_ids)
+
+
+def axis_rows_in(db: Connection, measurement_ids: Sequence[int]) -> dict[int, list[Any]]:
+    """The axis rows of these measurements by measurement id (in the caller's connection)."""
     a = t.axis_results
     found: dict[int, list[Any]] = defaultdict(list)
     columns = [a.c.measurement_id, a.c.axis, a.c.unit, a.c.verdict, a.c.signature]
     columns += [a.c[c.name] for c in CHARACTERISTICS]
-    with store.reading("read the fleet") as db:
-        for ids in _chunks(sorted(set(measurement_ids))):
-            for row in db.execute(select(*columns).where(a.c.measurement_id.in_(ids))):
-                found[row.measurement_id].append(row)
+    for ids in _chunks(sorted(set(measurement_ids))):
+        for row in db.execute(select(*columns).where(a.c.measurement_id.in_(ids))):
+            found[row.measurement_id].append(row)
     return found
 
 
@@ -287,7 +294,14 @@ def read_axes(
     """Fill in each machine's axes (its latest measurement's); returns the baselines'
     figures per serial, of the machines whose baseline is not their latest."""
     wanted = [i for m in overviews for i in (m.latest_id, m.baseline_id)]
-    rows = _axis_rows(store, wanted)
+    return fill_axes(overviews, _axis_rows(store, wanted))
+
+
+def fill_axes(
+    overviews: Sequence[MachineOverview], rows: dict[int, list[Any]]
+) -> dict[str, dict[str, AxisFigures]]:
+    """:func:`read_axes` of these axis rows (:func:`axis_rows_in` of the machines' latest
+    and baseline measurements)."""
     baselines: dict[str, dict[str, AxisFigures]] = {}
     for machine in overviews:
         if machine.baseline_id != machine.latest_id:

@@ -1,11 +1,21 @@
 """``store report``: the fleet at a glance as one HTML file.
 
 A traffic-light grid of machines × axes (the change since each machine's
-baseline and the outliers of its type, from
-:func:`~ncmeasure.store.overview.fleet_overview`), the outliers, and the
-trends of the axes that moved most, each with its limits. Like the
-measurement report, the page is one file: inline CSS, images as data URIs,
-no script, every text from the store escaped (Jinja autoescape).
+baseline and the outliers of its type), the outliers, and the trends of the
+axes that moved most, each with its limits. Like the measurement report, the
+page is one file: inline CSS, images as data URIs, no script, every text from
+the store escaped (Jinja autoescape).
+
+What it shows is bounded, not the fleet (:func:`fleet_report`): the counts per
+status and type cover every machine, from the statuses the lists read
+(:func:`~ncmeasure.store.statuses.fleet_statuses`); the grid lists at most
+``grid`` machines (all of a small fleet, else those that need attention, the
+most severe first), and only those are judged in full
+(:func:`~ncmeasure.store.statuses.judged_page`); the outliers come from the
+fleet's arrays, at most :data:`MAX_OUTLIER_ROWS` listed; the trends are drawn
+for the listed machines' axes that moved most. Other limits than the default
+ones judge every machine again (:func:`~ncmeasure.store.overview.fleet_overview`):
+the kept statuses are those of the default limits.
 """
 
 from __future__ import annotations
@@ -14,26 +24,39 @@ import base64
 import datetime as dt
 import functools
 import os
+from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import jinja2
-from matplotlib.figure import Figure
 
 from ncmeasure._version import __version__
 from ncmeasure.files import write_whole
-from ncmeasure.formats.comparison import Limits
+from ncmeasure.formats.comparison import Limits, Status, worst_status
 from ncmeasure.report.words import format_date, format_number
-from ncmeasure.store.overview import AxisOverview, Change, FleetOverview, MachineOverview
+from ncmeasure.store.overview import (
+    AxisOverview,
+    Change,
+    FleetOverview,
+    MachineOverview,
+    Outlier,
+)
 from ncmeasure.store.records import TrendPoint
 from ncmeasure.store.rows import CHARACTERISTICS
 from ncmeasure.store.store import Store
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure  # imported by the plots, when a trend is drawn
 
 __all__ = [
     "DEFAULT_GRID_ROWS",
     "DEFAULT_TRENDS",
     "MAX_OUTLIER_ROWS",
+    "FleetReport",
+    "fleet_report",
+    "report_of",
     "trend_figure",
     "write_fleet_report",
 ]
@@ -49,6 +72,7 @@ most severe first (the counts cover every machine; ``store list --status`` pages
 _TITLES = {c.name: c.title for c in CHARACTERISTICS}
 _RELATIVE = {c.name: c.relative for c in CHARACTERISTICS}
 _SEVERITY = {"critical": 2, "warning": 1, "ok": 0}
+_STATUSES: tuple[Status, ...] = ("ok", "warning", "critical")
 
 
 def trend_figure(axis: str, points: Sequence[TrendPoint], limits: Limits) -> Figure:
@@ -134,17 +158,130 @@ def _cell(axis: AxisOverview | None, baseline_label: str | None) -> _Cell:
     return _Cell(axis.status, text, "\n".join(lines))
 
 
-def _listed(overview: FleetOverview, count: int) -> list[MachineOverview]:
+@dataclass(frozen=True)
+class FleetReport:
+    """What the report shows of the fleet: counts of every machine, a bounded grid, the
+    outliers (:func:`fleet_report`)."""
+
+    machines: int
+    """Every machine with a measurement."""
+    types: dict[str, int]
+    """Machines per machine type."""
+    counts: dict[Status, int]
+    """Machines per status."""
+    axes: list[str]
+    """Every axis name in the fleet, sorted."""
+    listed: list[MachineOverview]
+    """The grid's machines, judged in full, in the grid's order."""
+    unlisted_attention: int
+    unlisted_ok: int
+    outliers: list[Outlier]
+    """The largest |modified z| first, at most :data:`MAX_OUTLIER_ROWS`."""
+    outlier_count: int
+    """Every outlier of the fleet."""
+    judged: list[MachineOverview]
+    """The machines whose axes the trends are chosen from."""
+    limits: Limits
+
+    @property
+    def status(self) -> Status:
+        """The worst machine's status (ok for an empty fleet)."""
+        return worst_status(s for s, n in self.counts.items() if n)
+
+
+def _listed(machines: Sequence[MachineOverview], count: int) -> list[MachineOverview]:
     """The machines of the grid: every one, by serial, when there are at most ``count``;
     else those not ok, the most severe first, at most ``count``."""
-    if len(overview.machines) <= count:
-        return overview.machines
-    flagged = [m for m in overview.machines if m.status != "ok"]
+    if len(machines) <= count:
+        return list(machines)
+    flagged = [m for m in machines if m.status != "ok"]
     flagged.sort(key=lambda m: (-_SEVERITY[m.status], m.serial))
     return flagged[:count]
 
 
-def _rows(overview: FleetOverview, machines: Sequence[MachineOverview]) -> list[_Row]:
+def report_of(overview: FleetOverview, grid: int = DEFAULT_GRID_ROWS) -> FleetReport:
+    """The report of a fleet judged machine by machine
+    (:func:`~ncmeasure.store.overview.fleet_overview`)."""
+    listed = _listed(overview.machines, grid)
+    counts: dict[Status, int] = {s: overview.count(s) for s in _STATUSES}
+    listed_attention = sum(m.status != "ok" for m in listed)
+    return FleetReport(
+        machines=len(overview.machines),
+        types=overview.types,
+        counts=counts,
+        axes=overview.axes,
+        listed=listed,
+        unlisted_attention=counts["warning"] + counts["critical"] - listed_attention,
+        unlisted_ok=counts["ok"] - (len(listed) - listed_attention),
+        outliers=overview.outliers[:MAX_OUTLIER_ROWS],
+        outlier_count=len(overview.outliers),
+        judged=overview.machines,
+        limits=overview.limits,
+    )
+
+
+def fleet_report(
+    store: Store, limits: Limits | None = None, *, grid: int = DEFAULT_GRID_ROWS
+) -> FleetReport:
+    """The fleet as the report shows it, read at the cost of what it shows: the statuses
+    as the lists read them, only the grid's machines judged in full (the module docstring).
+
+    Args:
+        store: The store.
+        limits: The warning and critical limits (None: the default ones); other limits
+            than the default judge every machine.
+        grid: The most machines in the grid (:data:`DEFAULT_GRID_ROWS`).
+
+    Raises:
+        StoreError: The database failed.
+    """
+    from ncmeasure.store.overview import fleet_overview
+    from ncmeasure.store.statuses import fleet_statuses, judged_page
+
+    limits = limits or Limits()
+    if limits != Limits():
+        return report_of(fleet_overview(store, limits), grid)
+    fleet = fleet_statuses(store)
+    count = len(fleet.serials)
+    everyone = range(count)  # by serial
+    if count <= grid:
+        chosen = list(everyone)
+    else:
+        flagged = [i for i in everyone if fleet.levels[i] > 0]
+        flagged.sort(key=lambda i: -int(fleet.levels[i]))  # stable: by serial within
+        chosen = flagged[:grid]
+    judged = {
+        m.serial: m for m in judged_page(store, fleet, [int(fleet.machine_ids[i]) for i in chosen])
+    }
+    listed = [judged[fleet.serials[i]] for i in chosen]
+    outliers = fleet.outliers(limits)
+    order = {c.name: k for k, c in enumerate(CHARACTERISTICS)}
+    for outlier in outliers:  # the grid's diamonds and tooltips
+        machine = judged.get(outlier.serial)
+        if machine is not None and outlier.axis in machine.axes:
+            machine.axes[outlier.axis].outliers.append(outlier)
+    for machine in listed:
+        for axis in machine.axes.values():
+            axis.outliers.sort(key=lambda o: order[o.characteristic])
+    levels = [int(fleet.levels[i]) for i in everyone]
+    counts: dict[Status, int] = {s: levels.count(level) for level, s in enumerate(_STATUSES)}
+    listed_attention = sum(int(fleet.levels[i]) > 0 for i in chosen)
+    return FleetReport(
+        machines=count,
+        types=dict(sorted(Counter(fleet.types).items())),
+        counts=counts,
+        axes=fleet.axis_names,
+        listed=listed,
+        unlisted_attention=counts["warning"] + counts["critical"] - listed_attention,
+        unlisted_ok=counts["ok"] - (len(chosen) - listed_attention),
+        outliers=outliers[:MAX_OUTLIER_ROWS],
+        outlier_count=len(outliers),
+        judged=listed,
+        limits=limits,
+    )
+
+
+def _rows(axes: Sequence[str], machines: Sequence[MachineOverview]) -> list[_Row]:
     rows = []
     for machine in machines:
         label = f" · {machine.latest_label}" if machine.latest_label else ""
@@ -155,17 +292,19 @@ def _rows(overview: FleetOverview, machines: Sequence[MachineOverview]) -> list[
                 site=machine.site or "–",
                 measured=f"{format_date(machine.latest_utc)}{label} ({machine.measurements})",
                 status=machine.status,
-                cells=[_cell(machine.axes.get(a), machine.baseline_label) for a in overview.axes],
+                cells=[_cell(machine.axes.get(a), machine.baseline_label) for a in axes],
             )
         )
     return rows
 
 
-def _moved(overview: FleetOverview, count: int) -> list[tuple[MachineOverview, AxisOverview]]:
+def _moved(
+    machines: Sequence[MachineOverview], count: int
+) -> list[tuple[MachineOverview, AxisOverview]]:
     """The axes to draw: not ok, the most severe and the largest change first."""
     flagged = [
         (machine, axis)
-        for machine in overview.machines
+        for machine in machines
         for axis in machine.axes.values()
         if axis.status != "ok"
     ]
@@ -197,35 +336,37 @@ def _template() -> jinja2.Template:
 
 def write_fleet_report(
     store: Store,
-    overview: FleetOverview,
+    overview: FleetReport | FleetOverview,
     path: str | os.PathLike[str],
     *,
     trends: int = DEFAULT_TRENDS,
     grid: int = DEFAULT_GRID_ROWS,
     progress: Callable[[int, int], None] | None = None,
 ) -> Path:
-    """Write the fleet report of ``overview`` to ``path`` (replaced whole, never half written).
+    """Write the fleet report to ``path`` (replaced whole, never half written).
 
     Args:
-        store: The store the overview was read from (for the trends).
-        overview: :func:`~ncmeasure.store.overview.fleet_overview`.
+        store: The store the fleet was read from (for the trends).
+        overview: :func:`fleet_report`, or a fleet judged machine by machine
+            (:func:`~ncmeasure.store.overview.fleet_overview`).
         path: The HTML file.
         trends: How many trend plots (the axes that moved most).
-        grid: The most machines in the grid; a larger fleet lists those that need
-            attention, the most severe first (:data:`DEFAULT_GRID_ROWS`).
+        grid: The most machines in the grid of a ``FleetOverview``; a larger fleet lists
+            those that need attention, the most severe first (:data:`DEFAULT_GRID_ROWS`).
         progress: Called with (done, total) after each trend plot.
 
     Raises:
         OutputError: The file cannot be written.
         StoreError: The database failed.
     """
-    from ncmeasure.report.plots import figure_png
-
-    moved = _moved(overview, trends)
+    shown = report_of(overview, grid) if isinstance(overview, FleetOverview) else overview
+    moved = _moved(shown.judged, trends)
     drawn: list[_Trend] = []
     for done, (machine, axis) in enumerate(moved, start=1):
+        from ncmeasure.report.plots import figure_png  # matplotlib: only for a trend drawn
+
         points = store.trend(machine.serial, axis.axis)
-        png = figure_png(trend_figure(axis.axis, points, overview.limits))
+        png = figure_png(trend_figure(axis.axis, points, shown.limits))
         drawn.append(
             _Trend(
                 serial=machine.serial,
@@ -237,24 +378,20 @@ def write_fleet_report(
         )
         if progress is not None:
             progress(done, len(moved))
-    outliers = overview.outliers[:MAX_OUTLIER_ROWS]
-    listed = _listed(overview, grid)
-    attention = sum(m.status != "ok" for m in overview.machines)
     text = _template().render(
         version=__version__,
         where=store.where,
         made=format_date(dt.datetime.now(dt.UTC).isoformat(timespec="seconds")),
-        limits=overview.limits,
-        types=overview.types,
-        axes=overview.axes,
-        rows=_rows(overview, listed),
-        machines=len(overview.machines),
-        unlisted_attention=attention - sum(m.status != "ok" for m in listed),
-        unlisted_ok=sum(m.status == "ok" for m in overview.machines)
-        - sum(m.status == "ok" for m in listed),
-        counts={s: overview.count(s) for s in ("ok", "warning", "critical")},
-        outliers=outliers,
-        more_outliers=len(overview.outliers) - len(outliers),
+        limits=shown.limits,
+        types=shown.types,
+        axes=shown.axes,
+        rows=_rows(shown.axes, shown.listed),
+        machines=shown.machines,
+        unlisted_attention=shown.unlisted_attention,
+        unlisted_ok=shown.unlisted_ok,
+        counts=shown.counts,
+        outliers=shown.outliers,
+        more_outliers=shown.outlier_count - len(shown.outliers),
         titles=_TITLES,
         trends=drawn,
         format_number=format_number,

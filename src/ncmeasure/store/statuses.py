@@ -35,10 +35,18 @@ from ncmeasure.analysis.judgement.fleet import modified_z_leave_one_out
 from ncmeasure.analysis.judgement.status import CHARACTERISTICS, FLEET_FACTOR, FleetPlace
 from ncmeasure.formats.comparison import Limits, Status
 from ncmeasure.store import schema as t
-from ncmeasure.store.changes import DIAGNOSIS_VERSION
+from ncmeasure.store.changes import (
+    DIAGNOSIS_VERSION,
+    StoredChange,
+    current_change,
+    stored_changes,
+)
 from ncmeasure.store.overview import (
     MachineOverview,
+    Outlier,
+    axis_rows_in,
     changes_of,
+    fill_axes,
     judge,
     overviews_of,
     read_axes,
@@ -46,7 +54,7 @@ from ncmeasure.store.overview import (
 from ncmeasure.store.store import Store
 from ncmeasure.store.summaries import fleet_version
 
-__all__ = ["FleetStatuses", "fleet_statuses", "judged_page"]
+__all__ = ["FleetStatuses", "fleet_statuses", "judged_page", "keep_own_statuses"]
 
 _CHUNK = 500
 _BATCH = 200  # machines judged per transaction where the statuses are missing
@@ -58,9 +66,11 @@ Group = tuple[str, str, str, str]
 
 @dataclass(frozen=True)
 class _Places:
-    """One group's places: by machine id (sorted), the others' median and the z-score."""
+    """One group's places: by machine id (sorted), the latest value, the others' median and
+    the z-score."""
 
     ids: NDArray[np.int64]
+    values: NDArray[np.float64]
     medians: NDArray[np.float64]
     z: NDArray[np.float64]
     enough: bool
@@ -137,6 +147,44 @@ class FleetStatuses:
                 found[axis].append(
                     FleetPlace(name, float(group.medians[at]), z, group.ids.size - 1)
                 )
+        return found
+
+    def outliers(self, limits: Limits | None = None) -> list[Outlier]:
+        """Every outlier of the fleet (:func:`~ncmeasure.analysis.judgement.status.is_outlier`
+        on the arrays), largest |modified z| first: those of
+        :func:`~ncmeasure.store.overview.fleet_overview`."""
+        limits = limits or Limits()
+        by_name = {c.name: c for c in CHARACTERISTICS}
+        serial_of = dict(zip(self.machine_ids.tolist(), self.serials, strict=True))
+        found: list[Outlier] = []
+        for (machine_type, axis, unit, name), group in self.places.items():
+            if not group.enough:
+                continue
+            c = by_name[name]
+            floor = (
+                np.abs(group.medians) * limits.warning_percent / 100.0
+                if c.relative
+                else FLAT_THRESHOLD_PERCENT
+            )
+            hit = (np.abs(group.z) > limits.outlier_z) & (
+                np.abs(group.values - group.medians) > floor
+            )
+            shown = c.unit_of(unit)
+            for i in np.flatnonzero(hit):
+                found.append(
+                    Outlier(
+                        serial=serial_of[int(group.ids[i])],
+                        machine_type=machine_type,
+                        axis=axis,
+                        characteristic=name,
+                        unit=shown,
+                        value=float(group.values[i]),
+                        fleet_median=float(group.medians[i]),
+                        modified_z=float(group.z[i]),
+                        machines=int(group.ids.size) - 1,
+                    )
+                )
+        found.sort(key=lambda o: (-abs(o.modified_z), o.serial, o.axis, o.characteristic))
         return found
 
 
@@ -252,7 +300,11 @@ def _fleet(
             flagged[members[hit]] = True
             order = np.argsort(ids, kind="stable")
             places[(machine_type, axis, unit, c.name)] = _Places(
-                ids=ids[order], medians=median[order], z=z[order], enough=enough
+                ids=ids[order],
+                values=x[order],
+                medians=median[order],
+                z=z[order],
+                enough=enough,
             )
     return places, flagged
 
@@ -284,6 +336,43 @@ def _judge_missing(store: Store, machine_ids: Sequence[int]) -> dict[int, dict[s
             len(machine_ids),
         )
     return found
+
+
+def keep_own_statuses(db: Connection, machine_ids: Sequence[int]) -> None:
+    """Judge these machines' own statuses (without the fleet, default limits) and keep them,
+    in the caller's transaction: what a writer adding their measurements leaves, so no reader
+    judges them again. Their summary rows and changes since the baseline are current
+    (:func:`~ncmeasure.store.summaries.update_summaries`,
+    :func:`~ncmeasure.store.changes.record_changes`)."""
+    s = t.machine_summaries
+    for start in range(0, len(machine_ids), _CHUNK):
+        chunk = list(machine_ids[start : start + _CHUNK])
+        machines = db.execute(
+            select(s).where(s.c.machine_id.in_(chunk), s.c.latest_id.is_not(None))
+        ).all()
+        overviews = overviews_of(machines)
+        wanted = [i for m in overviews for i in (m.latest_id, m.baseline_id)]
+        baselines = fill_axes(overviews, axis_rows_in(db, wanted))
+        pairs = {
+            int(row.machine_id): (int(row.latest_id), int(row.baseline_id))
+            for row in machines
+            if row.latest_id != row.baseline_id
+        }
+        stored = stored_changes(db, pairs.values())
+        changes: dict[str, StoredChange] = {}
+        for row in machines:
+            pair = pairs.get(int(row.machine_id))
+            if pair is None:
+                continue
+            if pair in stored:
+                changes[row.serial] = stored[pair]
+            elif (now := current_change(db, int(row.machine_id))) is not None:
+                changes[row.serial] = StoredChange.of(now[2])
+        judged: list[tuple[Any, MachineOverview]] = []
+        for row, machine in zip(machines, overviews, strict=True):
+            judge(machine, baselines, None, changes, Limits())
+            judged.append((row, machine))
+        _keep(db, judged)
 
 
 def _keep(db: Connection, judged: Sequence[tuple[Any, MachineOverview]]) -> None:

@@ -104,7 +104,8 @@ class Store:
         For loading many at once (a script filling a store, ``store import``): one commit
         instead of one per measurement, a few statements per table for the whole batch.
         Each is stored as :meth:`add` stores it; then, once per machine, its change since
-        its baseline (:func:`~ncmeasure.store.changes.record_changes`).
+        its baseline (:func:`~ncmeasure.store.changes.record_changes`), its summary and its
+        own status (:func:`~ncmeasure.store.statuses.keep_own_statuses`).
 
         Raises:
             ConfigError: Invalid info, or results of another machine (nothing stored).
@@ -123,7 +124,11 @@ class Store:
             serials = sorted({a.serial for a in added})
             record_changes(db, serials, fresh, self._kept_results)
             if fresh:
-                update_summaries(db, machine_ids(db, serials))
+                from ncmeasure.store.statuses import keep_own_statuses
+
+                ids = machine_ids(db, serials)
+                update_summaries(db, ids)
+                keep_own_statuses(db, ids)  # no reader judges them again
             return added
 
     def refresh_changes(
