@@ -306,7 +306,11 @@ class _InView(Locator):
     locator returns, and a linear or logarithmic locator returns one or more
     beyond each end of the view, which are then not drawn. Left out here
     (with a margin: every tick matplotlib draws is kept), they are not made.
-    Everything else (the limits of an autoscaled view) is the inner locator's.
+    The labels stay the same: a formatter's offset and exponent come from the
+    locations inside the view, and its number of decimals from their spread,
+    which two neighbouring ticks show as all of them do; with fewer than two
+    inside, the formatter sees every location, as before. Everything else
+    (the limits of an autoscaled view) is the inner locator's.
     """
 
     def __init__(self, inner: Locator) -> None:
@@ -327,7 +331,7 @@ class _InView(Locator):
             where = scale.transform(ticks)
         slack = 1e-6 * (high - low)
         keep = ~((where < low - slack) | (where > high + slack))  # NaN: as matplotlib decides
-        return ticks[keep]
+        return ticks[keep] if np.count_nonzero(keep) >= 2 else ticks
 
     def tick_values(self, vmin: float, vmax: float) -> Any:
         return self.inner.tick_values(vmin, vmax)
