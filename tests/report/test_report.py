@@ -462,6 +462,70 @@ def test_the_png_holds_the_pixels_savefig_draws(example: Example) -> None:
     assert np.array_equal(pixels(figure_png(other)), drawn)
 
 
+def test_every_figure_holds_the_pixels_savefig_draws(example: Example) -> None:
+    """Each kind of figure, autoscaled ones included, through figure_png: the pixels of
+    matplotlib's savefig, RGB at 110 dpi."""
+    import datetime as dt
+    import io
+
+    from PIL import Image
+
+    from ncmeasure.report.plots import DPI, figure_png, plot_comparison, plot_trend
+    from ncmeasure.report.raw_plots import plot_raw_data
+
+    x = example.results.axes["X"]
+    start = dt.datetime(2026, 1, 1, tzinfo=dt.UTC)
+    makers: list[Callable[[], Figure]] = [
+        lambda: plot_travel("X", x, bearing_layout("X")),
+        lambda: plot_raw_data(example.recording, "X", cut_windows(example.windows)["X"]),
+        lambda: plot_comparison(example.comparison),
+        lambda: plot_trend(
+            "X",
+            [start + dt.timedelta(days=90 * n) for n in range(4)],
+            [("Coulomb friction", "A", [1.0, 1.04, None, 1.2]), ("spread", "%", [3, 4, 6, 5])],
+            baseline_index=0,
+            warning_percent=10,
+            critical_percent=20,
+            labels=["delivery", None, None, "service"],
+        ),
+    ]
+    for make in makers:
+        reference = make()
+        raw = io.BytesIO()
+        reference.savefig(raw, format="rgba", dpi=DPI, facecolor="white")
+        width, height = reference.canvas.get_width_height(physical=True)
+        drawn = np.frombuffer(raw.getvalue(), np.uint8).reshape(height, width, 4)[:, :, :3]
+        image = Image.open(io.BytesIO(figure_png(make())))
+        assert image.mode == "RGB"
+        assert [round(d) for d in image.info["dpi"]] == [DPI, DPI]
+        assert np.array_equal(np.asarray(image), drawn)
+
+
+def test_only_the_ticks_inside_the_view_are_made(example: Example) -> None:
+    """A locator's ticks beyond the view, which are not drawn, are not made either."""
+    from ncmeasure.report.plots import figure_png, plot_comparison
+
+    figures = [
+        plot_stribeck("X", example.results.axes["X"]),
+        plot_travel("X", example.results.axes["X"], bearing_layout("X")),
+        plot_comparison(example.comparison),
+    ]
+    for figure in figures:
+        axes = list(figure.axes)
+        figure_png(figure)
+        for axis in [a for ax in axes for a in (ax.xaxis, ax.yaxis)]:
+            scale = axis.get_transform()
+            low, high = sorted(scale.transform(axis.get_view_interval()))
+            slack = 1e-6 * (high - low)
+            for locs, made in (
+                (axis.get_majorticklocs(), axis.majorTicks),
+                (axis.get_minorticklocs(), axis.minorTicks),
+            ):
+                where = scale.transform(np.asarray(locs, dtype=np.float64))
+                assert np.all((low - slack <= where) & (where <= high + slack))
+                assert len(made) <= max(1, len(locs))  # the first is made on its own
+
+
 def test_error_bars_are_drawn_as_errorbar_draws_them() -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 

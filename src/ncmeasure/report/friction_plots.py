@@ -112,13 +112,21 @@ def _error_bars(ax: Axes, x: FloatArray, y: FloatArray, error: FloatArray, colou
     draws the bars (one collection), then the lower and the upper caps (two
     lines of markers) at zorder 3 and the points above them at 3.1. Here both
     caps are one line of markers, lower ones first, so the same marks are
-    drawn in the same order, without errorbar's per-call work.
+    drawn in the same order, without errorbar's per-call work; the bars are
+    the collection ``vlines`` makes, from the array (``vlines`` goes through
+    masked arrays), and take part in the data limits as there.
     """
     low, high = y - error, y + error
     ax.add_line(
         Line2D(x, y, color=colour, marker="o", linestyle="none", markersize=4.5, zorder=3.1)
     )
-    ax.vlines(x, low, high, colors=colour, linewidth=1.0, zorder=3)
+    bars = np.empty((len(x), 2, 2))
+    bars[:, :, 0] = x[:, None]
+    bars[:, 0, 1], bars[:, 1, 1] = low, high
+    ax.add_collection(
+        LineCollection(bars, colors=colour, linewidths=1.0, zorder=3),  # type: ignore[arg-type]
+        autolim=True,
+    )
     ax.add_line(
         Line2D(
             np.concatenate([x, x]),
