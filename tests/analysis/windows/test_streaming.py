@@ -180,3 +180,39 @@ def test_ties_about_the_median_are_counted_in_one_pass() -> None:
     found, readings = _passes(values, 1000, task)
     assert found == float(np.median(values))
     assert readings == 2
+
+
+def _bounded_passes(values: FloatArray, rows: int, task: object, most: int) -> tuple[object, int]:
+    """:func:`_passes`, failing after ``most`` readings (a task that never ends)."""
+    readings = [0]
+    read = chunks_of(values, rows)
+
+    def counted() -> Iterator[FloatArray]:
+        readings[0] += 1
+        if readings[0] > most:
+            raise AssertionError(f"still reading after {most} passes")
+        return read()
+
+    return run_task(counted, task), readings[0]  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("mirror", [False, True])
+def test_a_bracket_with_one_middle_value_inside_widens_towards_the_other(mirror: bool) -> None:
+    # An even count: the two middle values, one inside the subsample's bracket at its edge
+    # and the other just outside. Moving the bracket to the other one's side loses the
+    # first; the bracket must grow to hold both, not swing between the two sides.
+    n, stride = 2000, 32
+    picks = np.arange(0, n, stride)
+    sampled = np.r_[np.arange(23.0), 1000.0 + np.arange(len(picks) - 23)]
+    rest = np.setdiff1d(np.arange(float(n)), sampled)
+    rng = np.random.default_rng(0)
+    values = np.empty(n)
+    chosen = np.zeros(n, dtype=bool)
+    chosen[picks] = True
+    values[picks] = rng.permutation(sampled)
+    values[~chosen] = rng.permutation(rest)
+    if mirror:
+        values = -values
+    found, readings = _bounded_passes(values, 1000, median_task(whole, sample_budget=100), 10)
+    assert found == float(np.median(values))
+    assert readings <= 4

@@ -346,20 +346,21 @@ def select_task(
             low, high = sampler.low, sampler.high
             continue
         if below > first:
-            # The ranks below the bracket: the next stretch of the subsample below it.
+            # A rank below the bracket: the next stretch of the subsample below it, the
+            # bracket kept where another rank lies in it (moving past that rank would lose
+            # it, and the next bracket would move back: the bracket only grows).
             index = int(np.searchsorted(sample, low)) - 1 - margin
-            low, high = (
-                sampler.low if index <= 0 else float(sample[index]),
-                float(np.nextafter(low, -np.inf)),
-            )
+            if below > last:
+                high = float(np.nextafter(low, -np.inf))
+            low = sampler.low if index <= 0 else float(sample[index])
             continue
         if below + inside <= last:
-            # The ranks above the bracket: the next stretch of the subsample above it.
+            # A rank above the bracket: the next stretch of the subsample above it, the
+            # bracket kept where another rank lies in it.
             index = int(np.searchsorted(sample, high, side="right")) + margin
-            low, high = (
-                float(np.nextafter(high, np.inf)),
-                sampler.high if index >= len(sample) - 1 else float(sample[index]),
-            )
+            if below + inside <= first:
+                low = float(np.nextafter(high, np.inf))
+            high = sampler.high if index >= len(sample) - 1 else float(sample[index])
             continue
         picked = _picked(bracket, first, last, wanted)
         if picked is not None:
