@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import tracemalloc
 
 import numpy as np
 import pytest
 from scipy import ndimage
 
+from ncmeasure.analysis.windows import rolling
 from ncmeasure.analysis.windows.rolling import rolling_max, rolling_median, rolling_min
 
 
@@ -48,6 +50,31 @@ def test_median_is_scipys(size: int) -> None:
     for x in _samples(size):
         expected = ndimage.median_filter(x, size=size, mode="nearest")
         np.testing.assert_array_equal(rolling_median(x, size), expected)
+
+
+@pytest.mark.parametrize("block", [7, 100, 1 << 18])
+def test_median_in_blocks_is_scipys_across_their_joins(
+    block: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    values = np.random.default_rng(3).normal(size=5_003)
+    values[::11] = 0.25
+    monkeypatch.setattr(rolling, "MEDIAN_BLOCK_VALUES", block)
+    for size in (1, 3, 21, 201):
+        expected = ndimage.median_filter(values, size=size, mode="nearest")
+        assert np.array_equal(rolling_median(values, size), expected)
+
+
+def test_a_long_median_takes_bounded_memory() -> None:
+    # The windows are partitioned in blocks: a wide window over a long array must not
+    # copy every window at once (200,000 × 201 values would be 320 MB).
+    values = np.random.default_rng(4).normal(size=200_000)
+    tracemalloc.start()
+    try:
+        rolling_median(values, 201)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 16 * 2**20
 
 
 def test_bad_sizes_are_refused() -> None:

@@ -17,13 +17,16 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
-__all__ = ["rolling_max", "rolling_median", "rolling_min"]
+__all__ = ["MEDIAN_BLOCK_VALUES", "rolling_max", "rolling_median", "rolling_min"]
 
 Mode = Literal["nearest", "reflect"]
 S = TypeVar("S", bound=np.generic)
 
 # scipy.ndimage's boundary modes by numpy.pad's names: "reflect" repeats the edge sample
 # (d c b a | a b c d), numpy's "symmetric"; "nearest" is numpy's "edge".
+#: Values of the windows :func:`rolling_median` partitions at a time (8 bytes each).
+MEDIAN_BLOCK_VALUES = 1 << 18
+
 _PAD: dict[str, Literal["edge", "symmetric"]] = {"nearest": "edge", "reflect": "symmetric"}
 
 
@@ -82,7 +85,14 @@ def rolling_median(values: NDArray[np.float64], size: int) -> NDArray[np.float64
     values = np.asarray(values, dtype=np.float64)
     if len(values) == 0 or size == 1:
         return values.copy()
-    windows = sliding_window_view(_padded(values, size, 0, "nearest"), size)
+    padded = _padded(values, size, 0, "nearest")
     middle = size // 2
-    result: NDArray[np.float64] = np.partition(windows, middle, axis=1)[:, middle]
+    result = np.empty(len(values), dtype=np.float64)
+    # Blocks of windows: the partition copies its windows (rows × size values), so a
+    # block holds about MEDIAN_BLOCK_VALUES of them, in the cache and bounded in memory.
+    rows = max(1, MEDIAN_BLOCK_VALUES // size)
+    for start in range(0, len(values), rows):
+        stop = min(start + rows, len(values))
+        windows = sliding_window_view(padded[start : stop + size - 1], size)
+        result[start:stop] = np.partition(windows, middle, axis=1)[:, middle]
     return result
