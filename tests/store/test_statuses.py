@@ -10,7 +10,7 @@ import pytest
 from sqlalchemy import func, select
 
 from ncmeasure.formats.results import Results
-from ncmeasure.store import MeasurementInfo, open_store
+from ncmeasure.store import MeasurementInfo, open_store, statuses
 from ncmeasure.store import schema as t
 from ncmeasure.store.overview import fleet_overview
 from ncmeasure.store.report import FleetReport, fleet_report, report_of
@@ -219,3 +219,23 @@ def test_the_report_shows_what_the_overview_shows(
         assert len(quick.listed) == 5 and quick.unlisted_attention > 0
     else:  # every machine judged: the same trends
         assert [m.serial for m in quick.judged] == [m.serial for m in full.judged]
+
+
+def test_a_machine_whose_axes_change_between_the_reads_gets_a_status(
+    store_url: str, make_results: Make, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The statuses missing from the first read are judged in a second one; a writer adding
+    # a measurement in between may leave the machine without an axis read the first time.
+    _fill(store_url, make_results)
+    with open_store(store_url, write=True) as store, store.writing("forget M23's") as db:
+        m23 = select(t.machines.c.id).where(t.machines.c.serial == "M23").scalar_subquery()
+        db.execute(t.axis_statuses.delete().where(t.axis_statuses.c.machine_id == m23))
+    judge = statuses._judge_missing
+
+    def axes_renamed(store: object, ids: list[int]) -> dict[int, dict[str, str]]:
+        found = judge(store, ids)  # type: ignore[arg-type]
+        return {m: {f"{a}2": s for a, s in axes.items()} for m, axes in found.items()}
+
+    monkeypatch.setattr(statuses, "_judge_missing", axes_renamed)
+    with open_store(store_url) as store:
+        assert fleet_statuses(store).by_serial()["M23"] == "critical"  # +27 % since delivery

@@ -234,7 +234,14 @@ def fleet_statuses(store: Store) -> FleetStatuses:
     if missing.size:
         judged = _judge_missing(store, sorted({int(machine_of_row[i]) for i in missing}))
         for i in missing:
-            local[i] = _LEVEL[judged[int(machine_of_row[i])][rows[i][4]]]
+            own = judged.get(int(machine_of_row[i]), {})
+            status = own.get(rows[i][4])
+            # A writer that added a measurement between the two reads may have changed the
+            # machine's axes: its newest judgement's worst stands for the axis read before.
+            if status is None:
+                local[i] = max((_LEVEL[other] for other in own.values()), default=0)
+            else:
+                local[i] = _LEVEL[status]
     places, flagged = _fleet(rows, machine_of_row, limits)
     axis_levels = np.where(flagged, np.maximum(local, 1), local).astype(np.int8)
     levels = np.zeros(ids.size, dtype=np.int8)
