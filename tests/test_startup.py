@@ -293,6 +293,43 @@ def test_option_values_convert_as_typer_converts_them(tmp_path: Path) -> None:
     assert checked > 500
 
 
+def test_a_typer_whose_private_parts_differ_converts_with_its_own_adapter(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Where the quick conversion meets something it does not know (typer's private parts
+    changed), typer's own adapter converts: the same results and errors, no traceback."""
+    import typer
+    import typer.main
+    from typer import _coercion
+
+    from ncmeasure.cli import _startup, app
+
+    def other_typer(*args: object, **kwargs: object) -> object:
+        raise RuntimeError("another typer")
+
+    monkeypatch.setattr(_startup, "_common_value", other_typer)
+    (tmp_path / "x.toml").write_text("")
+    root = typer.main.get_command(app)
+    ctx = typer.Context(root)
+    checked = 0
+    for command in _every_command(root):
+        for param in command.params:
+            descriptor = getattr(param, "type_descriptor", None)
+            if descriptor is None:
+                continue
+            theirs = _coercion.build_runtime_param(descriptor)
+            item = descriptor.annotation
+            if descriptor.is_list:
+                (item,) = typer_args(descriptor.annotation)
+            for value in VALUES.get(getattr(item, "__name__", ""), [])[:2]:
+                given = [value] if descriptor.is_list else value
+                assert _outcome(param.get_runtime_param(), given, param, ctx, tmp_path) == (
+                    _outcome(theirs, given, param, ctx, tmp_path)
+                ), (command.name, param.name, given)
+                checked += 1
+    assert checked > 100
+
+
 def typer_args(annotation: object) -> tuple[object, ...]:
     from typing import get_args
 

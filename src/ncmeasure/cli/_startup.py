@@ -154,35 +154,44 @@ def coerce_common_values_without_pydantic() -> None:
     """
     try:
         from typer import _coercion, _param_types, core
-    except ImportError:  # a typer without pydantic adapters
+
+        typers: Callable[[_coercion.TypeDescriptor], _coercion.RuntimeParam] = (
+            core.build_runtime_param  # type: ignore[attr-defined]
+        )
+        coerce_path = _param_types.coerce_cli_path
+        runtime_param = _coercion.RuntimeParam
+    except (ImportError, AttributeError):  # a typer without pydantic adapters, or other ones
         return
-    if not hasattr(core, "build_runtime_param"):
-        return
-    typers: Callable[[_coercion.TypeDescriptor], _coercion.RuntimeParam] = core.build_runtime_param
-    coerce_path = _param_types.coerce_cli_path
+    import click
 
     @dataclass(frozen=True)
-    class Common(_coercion.RuntimeParam):
+    class Common(runtime_param):  # type: ignore[valid-type,misc]
         """Typer's conversion of one parameter, built when a value is not a common one."""
 
         descriptor: _coercion.TypeDescriptor
         built: list[_coercion.RuntimeParam]
 
         def _coerce_value(self, value: Any, param: Any, ctx: Any) -> Any:
+            try:
+                done = self._common(value, param, ctx)
+            except click.ClickException:
+                raise  # the value is wrong: typer's own message (coerce_cli_path's checks)
+            except Exception:  # a typer whose private parts differ: its own conversion
+                done = _NOT_COMMON
+            if done is not _NOT_COMMON:
+                return done
+            if not self.built:
+                self.built.append(typers(self.descriptor))
+            return self.built[0]._coerce_value(value, param=param, ctx=ctx)
+
+        def _common(self, value: Any, param: Any, ctx: Any) -> Any:
             origin: Any = get_origin(self.annotation)
             if origin is list and len(get_args(self.annotation)) == 1:
                 (item_type,) = get_args(self.annotation)
                 items = value if isinstance(value, list | tuple) else [value]
                 done = [self._one(item_type, item, param, ctx) for item in items]
-                if not any(item is _NOT_COMMON for item in done):
-                    return done
-            else:
-                done_one = self._one(self.annotation, value, param, ctx)
-                if done_one is not _NOT_COMMON:
-                    return done_one
-            if not self.built:
-                self.built.append(typers(self.descriptor))
-            return self.built[0]._coerce_value(value, param=param, ctx=ctx)
+                return _NOT_COMMON if any(item is _NOT_COMMON for item in done) else done
+            return self._one(self.annotation, value, param, ctx)
 
         def _one(self, annotation: Any, value: Any, param: Any, ctx: Any) -> Any:
             def path(value: Any, info: Any, *, path_type: Any) -> Any:
@@ -191,13 +200,16 @@ def coerce_common_values_without_pydantic() -> None:
             return _common_value(annotation, self.parameter_info, value, path)
 
     def build(descriptor: _coercion.TypeDescriptor) -> _coercion.RuntimeParam:
-        if descriptor.file_annotation is not None:
+        try:
+            if descriptor.file_annotation is not None:
+                return typers(descriptor)
+            return Common(
+                parameter_info=descriptor.parameter_info,
+                annotation=descriptor.annotation,
+                descriptor=descriptor,
+                built=[],
+            )
+        except (AttributeError, TypeError):  # a descriptor or RuntimeParam of another typer
             return typers(descriptor)
-        return Common(
-            parameter_info=descriptor.parameter_info,
-            annotation=descriptor.annotation,
-            descriptor=descriptor,
-            built=[],
-        )
 
-    core.build_runtime_param = build
+    core.build_runtime_param = build  # type: ignore[attr-defined]
