@@ -275,6 +275,8 @@ def test_number_rows_reads_what_float_reads() -> None:
     assert number_rows(b"nan,1\n", 2, empty=True) is None  # NaN must mean an empty cell
     assert number_rows(b"1,NaN\n", 2, empty=True) is None
     assert number_rows(b"1,2\n3,Na\n", 2, empty=True) is None
+    assert number_rows(b"1\n\n2\n", 1, empty=True) is None  # a blank line is no empty cell
+    assert number_rows(b"\n1\n", 1, empty=True) is None
 
 
 @pytest.mark.parametrize(

@@ -134,7 +134,14 @@ def number_rows(block: bytes, width: int, *, empty: bool = False) -> NDArray[np.
     number_bytes = _NUMBER_BYTES
     blanks = None
     if empty:
-        if b"n" in body or b"N" in body or b"a" in body or body[:1] == b"," or b"\n," in body:
+        if (
+            b"n" in body
+            or b"N" in body
+            or b"a" in body
+            or body[:1] in (b",", b"\n")
+            or b"\n," in body
+            or b"\n\n" in body  # a blank line: not a row of empty cells
+        ):
             return None
         body, blanks = _fill_blanks(body)
     elif b"n" in body:

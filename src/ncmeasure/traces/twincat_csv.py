@@ -87,7 +87,6 @@ _NC_FIELDS: Final = {
 }
 #: Lines read and parsed at a time (a block of plain rows is parsed as a whole).
 _BLOCK_LINES: Final = 20_000
-#: A cell of a single space between separators (commas by then) or line ends.
 #: A time cell with this many digits is a FILETIME ("Full Timestamp"), not milliseconds.
 _FILETIME_DIGITS: Final = 15
 
@@ -419,7 +418,8 @@ def _fast_block(
 
 
 def _lone_spaces(data: bytes) -> bool:
-    """Whether every space of ``,``-separated rows is a cell of its own."""
+    """Whether every space of ``,``-separated rows is a cell of its own (a cell of a single
+    space between separators or line ends)."""
     text = np.frombuffer(b"\n" + data + b"\n", np.uint8)
     spaces = np.flatnonzero(text == _SPACE)
     before, after = text[spaces - 1], text[spaces + 1]
