@@ -30,9 +30,13 @@ import numpy as np
 from numpy.typing import NDArray
 from sqlalchemy import Connection, Select, and_, delete, insert, select
 
-from ncmeasure.analysis.judgement.diagnosis import FLAT_THRESHOLD_PERCENT
 from ncmeasure.analysis.judgement.fleet import modified_z_leave_one_out
-from ncmeasure.analysis.judgement.status import CHARACTERISTICS, FLEET_FACTOR, FleetPlace
+from ncmeasure.analysis.judgement.status import (
+    CHARACTERISTICS,
+    FLEET_FACTOR,
+    FleetPlace,
+    outliers_among,
+)
 from ncmeasure.formats.comparison import Limits, Status
 from ncmeasure.store import schema as t
 from ncmeasure.store.changes import (
@@ -161,14 +165,7 @@ class FleetStatuses:
             if not group.enough:
                 continue
             c = by_name[name]
-            floor = (
-                np.abs(group.medians) * limits.warning_percent / 100.0
-                if c.relative
-                else FLAT_THRESHOLD_PERCENT
-            )
-            hit = (np.abs(group.z) > limits.outlier_z) & (
-                np.abs(group.values - group.medians) > floor
-            )
+            hit = outliers_among(c, group.values, group.medians, group.z, limits)
             shown = c.unit_of(unit)
             for i in np.flatnonzero(hit):
                 found.append(
@@ -293,12 +290,7 @@ def _fleet(
             z, median = modified_z_leave_one_out(x)
             hit = np.zeros(x.size, dtype=bool)
             if enough:
-                floor = (
-                    np.abs(median) * limits.warning_percent / 100.0
-                    if c.relative
-                    else FLAT_THRESHOLD_PERCENT
-                )
-                hit |= (np.abs(z) > limits.outlier_z) & (np.abs(x - median) > floor)
+                hit |= outliers_among(c, x, median, z, limits)
             if c.relative:
                 with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
                     ratio = x / median

@@ -124,3 +124,30 @@ def test_without_the_velocity_profiles_the_rest_is_the_same() -> None:
     assert len(full.profiles) == 1 + len(velocities)
     assert lean.profiles == full.profiles[:1]  # the average alone
     assert lean.model_dump(exclude={"profiles"}) == full.model_dump(exclude={"profiles"})
+
+
+@pytest.mark.parametrize("relative", [True, False])
+def test_the_fleets_outliers_on_arrays_are_is_outlier_of_each(relative: bool) -> None:
+    from ncmeasure.analysis.judgement.status import (
+        CHARACTERISTICS,
+        is_outlier,
+        outliers_among,
+    )
+    from ncmeasure.formats.comparison import Limits
+
+    rng = np.random.default_rng(11)
+    characteristic = next(c for c in CHARACTERISTICS if c.relative is relative)
+    limits = Limits()
+    values = rng.normal(10.0, 3.0, size=400)
+    medians = values + rng.normal(0.0, 6.0, size=400)
+    medians[::17] = -medians[::17]
+    z = rng.normal(0.0, 5.0, size=400)
+    z[::13] = np.nan
+    z[::29] = limits.outlier_z  # on the limit: no outlier
+    found = outliers_among(characteristic, values, medians, z, limits)
+    each = [
+        is_outlier(characteristic, v, m, None if np.isnan(k) else float(k), limits)
+        for v, m, k in zip(values.tolist(), medians.tolist(), z.tolist(), strict=True)
+    ]
+    assert found.tolist() == each
+    assert 20 < sum(each) < 380

@@ -46,13 +46,17 @@ import math
 import statistics
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Final, Literal
+from typing import TYPE_CHECKING, Final, Literal
 
 from ncmeasure.analysis.judgement.diagnosis import FLAT_THRESHOLD_PERCENT
 from ncmeasure.analysis.judgement.summary import axis_headline
 from ncmeasure.analysis.judgement.verdict import ChangeFigures, fingerprint_unchanged
 from ncmeasure.formats.comparison import Limits, Status, worst_status
 from ncmeasure.formats.results import AxisResult, Results
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
 
 __all__ = [
     "CHARACTERISTICS",
@@ -71,6 +75,7 @@ __all__ = [
     "figures_of",
     "is_outlier",
     "machine_status",
+    "outliers_among",
 ]
 
 VERDICT_STATUS: Final[Mapping[str, Status]] = {"ok": "ok", "check": "warning", "fault": "critical"}
@@ -239,6 +244,23 @@ def is_outlier(
         else FLAT_THRESHOLD_PERCENT
     )
     return abs(value - median) > floor
+
+
+def outliers_among(
+    characteristic: Characteristic,
+    values: NDArray[np.float64],
+    medians: NDArray[np.float64],
+    z: NDArray[np.float64],
+    limits: Limits,
+) -> NDArray[np.bool_]:
+    """:func:`is_outlier` of every value of an array at once (a NaN z, as None, is none)."""
+    floor = (
+        abs(medians) * limits.warning_percent / 100.0
+        if characteristic.relative
+        else FLAT_THRESHOLD_PERCENT
+    )
+    found: NDArray[np.bool_] = (abs(z) > limits.outlier_z) & (abs(values - medians) > floor)
+    return found
 
 
 def _change(c: Characteristic, before: float, after: float, limits: Limits) -> Change | None:
