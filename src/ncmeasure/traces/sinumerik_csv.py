@@ -47,6 +47,7 @@ from ncmeasure.traces.merge import CarryForward
 from ncmeasure.traces.sinumerik_xml import parse_signal_name, sinumerik_candidates
 from ncmeasure.traces.text import (
     TextLines,
+    block_decimal_mark,
     comma_separated,
     decimal_mark,
     number_rows,
@@ -162,7 +163,7 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     while block := lines.take(_BLOCK_LINES):
         first_line = lines.line_number - len(block) + 1
         place = _Where(job, first_line)
-        mark = decimal if decimal is not None else _block_decimal(block, separator)
+        mark = decimal if decimal is not None else block_decimal_mark(block, separator)
         if _fast_block(block, place, separator, mark, width, time_factor, columns, assembler):
             decimal = mark
             continue
@@ -212,15 +213,6 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
 
 def _at(where: str) -> Callable[[], str]:
     return lambda: where
-
-
-def _block_decimal(block: list[str], separator: str) -> str | None:
-    """The decimal mark of a block, as the row-by-row reading fixes it (first row showing one)."""
-    for line in block:
-        found = decimal_mark(line.split(separator))
-        if found is not None:
-            return found
-    return None
 
 
 class _Where:

@@ -25,6 +25,7 @@ __all__ = [
     "INVALID_ABOVE",
     "PROGRESS_STEP_BYTES",
     "TextLines",
+    "block_decimal_mark",
     "comma_separated",
     "decimal_mark",
     "filetime_to_datetime",
@@ -82,6 +83,16 @@ def decimal_mark(cells: Sequence[str]) -> str | None:
             return ","
         if _POINT_NUMBER.fullmatch(text):
             return "."
+    return None
+
+
+def block_decimal_mark(lines: Sequence[str], separator: str) -> str | None:
+    """The decimal mark of a block of lines, as a row-by-row reading fixes it: that of the
+    first row showing one (:func:`decimal_mark` of its cells)."""
+    for line in lines:
+        found = decimal_mark(line.split(separator))
+        if found is not None:
+            return found
     return None
 
 

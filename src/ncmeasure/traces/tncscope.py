@@ -62,6 +62,7 @@ from ncmeasure.traces.job import ImportJob
 from ncmeasure.traces.merge import SeriesMerge
 from ncmeasure.traces.text import (
     TextLines,
+    block_decimal_mark,
     decimal_mark,
     number_rows,
     parse_number,
@@ -292,7 +293,7 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     try:
         while block := lines.take(_BLOCK_LINES):
             first_line = lines.line_number - len(block) + 1
-            mark = decimal if decimal is not None else _block_decimal(block)
+            mark = decimal if decimal is not None else block_decimal_mark(block, ";")
             data = _plain_block(block, mark, 1 + len(curves), last_time)
             if data is not None:
                 decimal = mark
@@ -359,15 +360,6 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     job.note("time of sample k of a curve = k x CYCLETIME of that curve")
     merge.finish(job)
     return job.finish()
-
-
-def _block_decimal(block: list[str]) -> str | None:
-    """The decimal mark of a block, as the row-by-row reading fixes it (first row showing one)."""
-    for line in block:
-        found = decimal_mark(line.strip().split(";"))
-        if found is not None:
-            return found
-    return None
 
 
 _DECIMAL_COMMA: Final = bytes.maketrans(b";,", b",.")

@@ -64,6 +64,7 @@ from ncmeasure.traces.job import ImportJob
 from ncmeasure.traces.merge import SeriesMerge
 from ncmeasure.traces.text import (
     TextLines,
+    block_decimal_mark,
     comma_separated,
     decimal_mark,
     filetime_to_datetime,
@@ -276,7 +277,7 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
             if first_row:  # the first row tells whether the times are FILETIME stamps
                 pending, block = block[1:], block[:1]
             elif not full_timestamp:
-                mark = decimal if decimal is not None else _block_decimal(block, separator)
+                mark = decimal if decimal is not None else block_decimal_mark(block, separator)
                 if _fast_block(block, header, used, mark, samples, last, ended):
                     decimal = mark
                     rows_parsed += len(block)
@@ -356,15 +357,6 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
         job.note("numbers use a decimal comma")
     merge.finish(job)
     return job.finish()
-
-
-def _block_decimal(block: list[str], separator: str) -> str | None:
-    """The decimal mark of a block, as the row-by-row reading fixes it (first row showing one)."""
-    for line in block:
-        found = decimal_mark(line.split(separator))
-        if found is not None:
-            return found
-    return None
 
 
 def _fast_block(
