@@ -17,8 +17,10 @@ import subprocess
 import sys
 import tempfile
 import threading
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -272,24 +274,17 @@ def test_option_values_convert_as_typer_converts_them(tmp_path: Path) -> None:
     ctx = typer.Context(typer.main.get_command(app))
     root = typer.main.get_command(app)
     checked = 0
-    for command in _every_command(root):
-        for param in command.params:
-            descriptor = getattr(param, "type_descriptor", None)
-            if descriptor is None:
-                continue
-            ours = param.get_runtime_param()
-            theirs = _coercion.build_runtime_param(descriptor)
-            assert type(ours).__name__ == "Common"
-            item = descriptor.annotation
-            if descriptor.is_list:
-                (item,) = typer_args(descriptor.annotation)
-            for value in VALUES.get(getattr(item, "__name__", ""), []):
-                tries = [[value], (value, value)] if descriptor.is_list else [value]
-                for given in tries:
-                    assert _outcome(ours, given, param, ctx, tmp_path) == _outcome(
-                        theirs, given, param, ctx, tmp_path
-                    ), (command.name, param.name, given)
-                    checked += 1
+    for command, param, descriptor, values in _typed_params(root):
+        ours = param.get_runtime_param()
+        theirs = _coercion.build_runtime_param(descriptor)
+        assert type(ours).__name__ == "Common"
+        for value in values:
+            tries = [[value], (value, value)] if descriptor.is_list else [value]
+            for given in tries:
+                assert _outcome(ours, given, param, ctx, tmp_path) == _outcome(
+                    theirs, given, param, ctx, tmp_path
+                ), (command.name, param.name, given)
+                checked += 1
     assert checked > 500
 
 
@@ -312,22 +307,29 @@ def test_a_typer_whose_private_parts_differ_converts_with_its_own_adapter(
     root = typer.main.get_command(app)
     ctx = typer.Context(root)
     checked = 0
+    for command, param, descriptor, values in _typed_params(root):
+        theirs = _coercion.build_runtime_param(descriptor)
+        for value in values[:2]:
+            given = [value] if descriptor.is_list else value
+            assert _outcome(param.get_runtime_param(), given, param, ctx, tmp_path) == (
+                _outcome(theirs, given, param, ctx, tmp_path)
+            ), (command.name, param.name, given)
+            checked += 1
+    assert checked > 100
+
+
+def _typed_params(root: object) -> Iterator[tuple[Any, Any, Any, list[Any]]]:
+    """Every option and argument of every command that typer converts by its type: the
+    command, the parameter, its type descriptor and the :data:`VALUES` of its (item) type."""
     for command in _every_command(root):
-        for param in command.params:
+        for param in command.params:  # type: ignore[attr-defined]
             descriptor = getattr(param, "type_descriptor", None)
             if descriptor is None:
                 continue
-            theirs = _coercion.build_runtime_param(descriptor)
             item = descriptor.annotation
             if descriptor.is_list:
                 (item,) = typer_args(descriptor.annotation)
-            for value in VALUES.get(getattr(item, "__name__", ""), [])[:2]:
-                given = [value] if descriptor.is_list else value
-                assert _outcome(param.get_runtime_param(), given, param, ctx, tmp_path) == (
-                    _outcome(theirs, given, param, ctx, tmp_path)
-                ), (command.name, param.name, given)
-                checked += 1
-    assert checked > 100
+            yield command, param, descriptor, VALUES.get(getattr(item, "__name__", ""), [])
 
 
 def typer_args(annotation: object) -> tuple[object, ...]:
