@@ -406,10 +406,14 @@ class ChunkedFinder(WindowFinder):
         return feed
 
     def slice_bytes(self, stretches: Sequence[tuple[int, int]]) -> int:
-        """About the memory the slices of ``stretches`` take (float64, every signal kept)."""
+        """About the memory the slices of ``stretches`` take (float64, the signals
+        :meth:`gathering` keeps: the velocity the windows are found by with its
+        margins, time, position, and the velocity, command and current where kept)."""
         margin = self.settle_n + 2 * self.filter_n
         inner = sum(b - a for a, b in merged(stretches))
-        return 8 * (6 * inner + margin * len(stretches))
+        narrow = 2 + int(self.from_position) + int(self.command is not None)
+        narrow += int(self.has["current_a"])
+        return 8 * ((1 + narrow) * inner + margin * len(stretches))
 
     # -- the ways of finding windows, on slices ----------------------------------------
 
