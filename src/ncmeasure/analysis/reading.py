@@ -13,7 +13,9 @@ in memory is one chunk of its own arrays. The passes:
    with the readings;
 3. the sweep for the marker runs and the stretches of constant command
    (:mod:`~ncmeasure.analysis.windows.chunked`), with the holes of the time
-   axis (:func:`recording_gaps`);
+   axis (:func:`recording_gaps`): both ride the readings of the statistics
+   once the sample period is known (:func:`~ncmeasure.analysis.windows.chunked.early_sweep_task`),
+   a reading of their own only where the statistics end first;
 4. per axis, the samples of its stretches (:meth:`RecordingPasses.axis`).
 
 Work that needs an axis' windows (``on_windows``) rides along the passes that
