@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+from collections.abc import Generator
 from dataclasses import replace
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import pytest
@@ -13,7 +15,13 @@ import pytest
 from ncmeasure.analysis import reading
 from ncmeasure.analysis.analyze import analyze
 from ncmeasure.analysis.reading import recording_gaps
+from ncmeasure.analysis.windows.chunked import ChunkedFinder
+from ncmeasure.analysis.windows.find import recording_chunks
+from ncmeasure.analysis.windows.scan import Rows, axes_statistics
+from ncmeasure.analysis.windows.settings import SegmentSettings
 from ncmeasure.analysis.windows.signals import HoleCounter
+from ncmeasure.analysis.windows.streaming import run_task
+from ncmeasure.analysis.windows.sweep import Sparse
 from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import Recording, RecordingHead, RecordingWriter
 from ncmeasure.recording.reader import READ_COUNT
@@ -186,3 +194,54 @@ def test_a_recording_read_per_pass_gathers_every_axis_slices_on_one_reading(
     alone, each = analysed()
     assert ahead == alone
     assert shared == each - 2  # one reading for three axes' slices, not three
+
+
+def _no_early_sweep(*args: object, **kwargs: object) -> Generator[None, None, None]:
+    """An early sweep that gives up at once: each finder sweeps on a reading of its own."""
+    return
+    yield
+
+
+@pytest.mark.parametrize("marker", [True, False], ids=["marker", "command"])
+def test_the_sweep_rides_the_statistics_readings(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, marker: bool
+) -> None:
+    velocities = geometric_velocities(10.0, 15000.0, 6)
+    axes = [
+        SyntheticAxis(name="X", velocities_mm_min=velocities),
+        SyntheticAxis(name="Y", velocities_mm_min=velocities, velocity_quantum_mm_min=8.5),
+    ]
+    recording, schedule = synthetic_recording(tmp_path / "rec", axes, with_marker=marker)
+    monkeypatch.setattr(reading, "HOLD_BYTES", 0)  # read per pass, as a long recording
+
+    def analysed() -> tuple[dict[str, object], int]:
+        readings = READ_COUNT.readings
+        found = _results(RecordingHead.open(recording.directory), schedule)
+        return found, READ_COUNT.readings - readings
+
+    riding, fewer = analysed()
+    monkeypatch.setattr(reading, "early_sweep_task", _no_early_sweep)
+    alone, more = analysed()
+    assert riding == alone
+    assert fewer == more - 1  # the marker runs, command stretches and holes: no reading
+
+
+@pytest.mark.parametrize("marker", [True, False], ids=["marker", "command"])
+def test_slice_bytes_is_about_the_slices_kept(tmp_path: Path, marker: bool) -> None:
+    velocities = geometric_velocities(10.0, 15000.0, 6)
+    axes = [SyntheticAxis(name="X", velocities_mm_min=velocities)]
+    recording, schedule = synthetic_recording(tmp_path / "rec", axes, with_marker=marker)
+    column = {name: k for k, name in enumerate(recording.channel_names)}
+    source = Rows(recording_chunks(recording), column, max(len(recording), 1))
+    statistics = axes_statistics(source, ("X",))["X"]
+    finder = ChunkedFinder("X", statistics, source, schedule, SegmentSettings())
+    run_task(source.read, finder.sweep_task())
+    stretches = finder.first_stretches()
+    assert stretches
+    finder.gather_ahead(stretches)(next(source.read()))
+    finder._gather(stretches)
+    kept = {id(a): a for a in (finder.t, finder.v, finder.x, finder.v_detect, finder.command)}
+    kept[id(finder.current)] = finder.current
+    held = sum(8 * cast("Sparse", a).samples for a in kept.values() if a is not None)
+    estimate = finder.slice_bytes(stretches)
+    assert held <= estimate <= 1.05 * held

@@ -13,7 +13,9 @@ in memory is one chunk of its own arrays. The passes:
    with the readings;
 3. the sweep for the marker runs and the stretches of constant command
    (:mod:`~ncmeasure.analysis.windows.chunked`), with the holes of the time
-   axis (:func:`recording_gaps`);
+   axis (:func:`recording_gaps`): both ride the readings of the statistics
+   once the sample period is known (:func:`~ncmeasure.analysis.windows.chunked.early_sweep_task`),
+   a reading of their own only where the statistics end first;
 4. per axis, the samples of its stretches (:meth:`RecordingPasses.axis`).
 
 Work that needs an axis' windows (``on_windows``) rides along the passes that
@@ -23,7 +25,7 @@ follow them (:mod:`~ncmeasure.analysis.windows.watch`).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterable, Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -42,9 +44,9 @@ from ncmeasure.analysis.axis import (
     implausible_checker,
     implausible_lines,
 )
-from ncmeasure.analysis.windows.chunked import ChunkedFinder
+from ncmeasure.analysis.windows.chunked import ChunkedFinder, early_sweep_task
 from ncmeasure.analysis.windows.find import recording_chunks
-from ncmeasure.analysis.windows.scan import Rows, axes_statistics
+from ncmeasure.analysis.windows.scan import AxisStatistics, Rows, axes_statistics_along
 from ncmeasure.analysis.windows.settings import SegmentSettings
 from ncmeasure.analysis.windows.signals import HoleCounter
 from ncmeasure.analysis.windows.streaming import run_tasks
@@ -315,7 +317,22 @@ class RecordingPasses:
 
         kept = isinstance(reader, _FileReader) and reader.holding
         source = Rows(read, reader.column, reader.chunk_rows, bounds, kept=kept)
-        self.statistics = axes_statistics(source, ready) if ready else {}
+        holes_task = _holes_task(head.meta.nominal_period_s, segment_starts(head.events))
+
+        def along(
+            first: Mapping[str, AxisStatistics], period: Callable[[], float | None]
+        ) -> dict[str, Generator[Callable[[RowChunk], None], None, Any]]:
+            # The sweep of every axis and the holes ride the statistics' readings.
+            riders: dict[str, Generator[Callable[[RowChunk], None], None, Any]] = {"": holes_task}
+            for axis in ready:
+                riders[axis] = early_sweep_task(axis, first[axis], source, settings, period)
+            return riders
+
+        swept: dict[str, Any] = {}
+        if ready:
+            self.statistics, swept = axes_statistics_along(source, ready, along)
+        else:
+            self.statistics = {}
         for axis in ready:
             try:
                 self.finders[axis] = self._finder(axis, source, schedule)
@@ -324,11 +341,16 @@ class RecordingPasses:
         agreeing = {a: f.agreement_task() for a, f in self.finders.items() if f.needs_agreement}
         if agreeing:
             run_tasks(read, agreeing)
-        tasks: dict[str, Generator[Callable[[RowChunk], None], None, Any]] = {
-            a: f.sweep_task() for a, f in self.finders.items()
-        }
-        tasks[""] = _holes_task(head.meta.nominal_period_s, segment_starts(head.events))
-        holes, lost = run_tasks(read, tasks)[""]
+        tasks: dict[str, Generator[Callable[[RowChunk], None], None, Any]] = {}
+        for axis, finder in self.finders.items():
+            if swept.get(axis) is not None:
+                finder.take_sweep(swept[axis])
+            else:
+                tasks[axis] = finder.sweep_task()
+        if "" not in swept:
+            tasks[""] = holes_task
+        found = run_tasks(read, tasks) if tasks else {}
+        holes, lost = swept[""] if "" in swept else found[""]
         first = next(iter(self.statistics.values()), None)
         if first is not None:
             self.rows, self.start_s, self.end_s = first.rows, first.start_s, first.end_s

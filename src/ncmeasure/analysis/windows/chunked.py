@@ -36,6 +36,7 @@ from collections.abc import Callable, Generator, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from ncmeasure.analysis.windows.detection import min_window_rows
 from ncmeasure.analysis.windows.finder import WindowFinder
 from ncmeasure.analysis.windows.model import Candidate
 from ncmeasure.analysis.windows.rolling import rolling_median
@@ -59,7 +60,7 @@ from ncmeasure.errors import RecordingError
 from ncmeasure.formats.schedule import Schedule
 from ncmeasure.recording import RowChunk
 
-__all__ = ["ChunkedFinder"]
+__all__ = ["ChunkedFinder", "Swept", "early_sweep_task"]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
@@ -194,19 +195,30 @@ class ChunkedFinder(WindowFinder):
     def sweep_task(self) -> Generator[Feed, None, None]:
         """Pass: marker runs, command stretches and the holes of the time axis."""
         assert not self.needs_agreement
-        self.found = Found()
+        sweep = _Sweep(self.n, self.min_n, self.settings.standstill_mm_min)
+        self.found = sweep.found
         self.holes = []
         rows = self._rows(derived=True, holes=self.holes)
-        state = SweepState(plateaus=Ahead(0, 0, self.n), want_plateaus=False, want_still=False)
 
         def feed(chunk: RowChunk) -> None:
             for lo, hi, part in rows(chunk):
-                if "marker" in part:
-                    self._marker_runs(state, part["marker"], lo, hi)
-                if "cmd" in part:
-                    self._command_stretches(state, part["cmd"], lo, hi)
+                sweep.add(lo, hi, part)
 
         yield feed
+
+    def take_sweep(self, swept: Swept) -> None:
+        """What an :func:`early_sweep_task` found, in place of :meth:`sweep_task`'s pass.
+
+        Its command stretches are those of any level; the ones below this finder's
+        standstill (known once every statistic is: the floors may be scaled) are left
+        out here, in order, as :meth:`sweep_task` leaves them out.
+        """
+        found, holes, dt = swept
+        assert dt == self.dt
+        standstill = self.settings.standstill_mm_min
+        found.command = [c for c in found.command if abs(c[2]) >= standstill]
+        self.found = found
+        self.holes = holes
 
     def _plateau_task(self) -> Generator[Feed, None, None]:
         """Pass: plateaus, and without a position the longest stretch above standstill.
@@ -239,55 +251,6 @@ class ChunkedFinder(WindowFinder):
     def _sweep_plateaus(self) -> None:
         if not self.found.plateaus_swept:
             run_task(self.read, self._plateau_task())
-
-    def _marker_runs(self, state: SweepState, marker: FloatArray, lo: int, hi: int) -> None:
-        """Runs of a set marker that break where its value changes as well."""
-        found = self.found
-        on = np.isfinite(marker) & (marker > 0)
-        ext_on = np.concatenate(([state.marker_on], on))
-        ext_value = np.concatenate(([state.marker_value], marker))
-        changed = ext_value[1:] != ext_value[:-1]
-        starts = np.flatnonzero(ext_on[1:] & (changed | ~ext_on[:-1]))
-        stops = np.flatnonzero(ext_on[:-1] & (changed | ~ext_on[1:]))
-        found.marker_starts.extend((starts + lo).tolist())
-        found.marker_values.extend(marker[starts].tolist())
-        found.marker_stops.extend((stops + lo).tolist())
-        if hi == self.n and on[-1]:
-            found.marker_stops.append(self.n)
-        state.marker_on = bool(on[-1])
-        state.marker_value = float(marker[-1])
-
-    def _command_stretches(self, state: SweepState, command: FloatArray, lo: int, hi: int) -> None:
-        """Stretches of constant commanded velocity (a change of the command begins one)."""
-        if state.command_last is None:
-            repeats = np.concatenate(([False], command_repeats(command)))
-        else:
-            repeats = command_repeats(np.concatenate(([state.command_last], command)))
-        begins = np.flatnonzero(~repeats)
-        if len(begins):
-            # The stretch left open by the block before ends where this block's first begins.
-            if state.command_begin is not None:
-                self._close_commands(
-                    np.array([state.command_begin]),
-                    begins[:1] + lo,
-                    np.array([state.command_level]),
-                )
-            # Every stretch that begins here and ends at the next begin here.
-            self._close_commands(begins[:-1] + lo, begins[1:] + lo, command[begins[:-1]])
-            state.command_begin = int(begins[-1]) + lo
-            state.command_level = float(command[begins[-1]])
-        state.command_last = float(command[-1])
-        if hi == self.n and state.command_begin is not None and self.n >= 2:
-            self._close_commands(
-                np.array([state.command_begin]), np.array([self.n]), np.array([state.command_level])
-            )
-
-    def _close_commands(self, begin: IntArray, end: IntArray, level: FloatArray) -> None:
-        """Keep the stretches above standstill that last ``min_window_s``, in order."""
-        keep = (np.abs(level) >= self.settings.standstill_mm_min) & (end - begin >= self.min_n)
-        self.found.command.extend(
-            zip(begin[keep].tolist(), end[keep].tolist(), level[keep].tolist(), strict=True)
-        )
 
     def _plateaus(self, state: SweepState, detect_part: FloatArray) -> None:
         """Plateau runs and the longest stretch above standstill, with the filters' reach."""
@@ -406,10 +369,14 @@ class ChunkedFinder(WindowFinder):
         return feed
 
     def slice_bytes(self, stretches: Sequence[tuple[int, int]]) -> int:
-        """About the memory the slices of ``stretches`` take (float64, every signal kept)."""
+        """About the memory the slices of ``stretches`` take (float64, the signals
+        :meth:`gathering` keeps: the velocity the windows are found by with its
+        margins, time, position, and the velocity, command and current where kept)."""
         margin = self.settle_n + 2 * self.filter_n
         inner = sum(b - a for a, b in merged(stretches))
-        return 8 * (6 * inner + margin * len(stretches))
+        narrow = 2 + int(self.from_position) + int(self.command is not None)
+        narrow += int(self.has["current_a"])
+        return 8 * ((1 + narrow) * inner + margin * len(stretches))
 
     # -- the ways of finding windows, on slices ----------------------------------------
 
@@ -499,3 +466,135 @@ class ChunkedFinder(WindowFinder):
     def window_current(self, start: int, stop: int) -> FloatArray:
         """The current of a window's samples: a copy, the slices may be released."""
         return self.current[start:stop].copy()
+
+
+Swept = tuple[Found, list[int], float]
+"""What a sweep found: the marker runs and command stretches, the rows after a hole of
+the time axis, and the sample period it took."""
+
+
+class _Sweep:
+    """The sweep's marker runs and command stretches of one axis, block by block of rows.
+
+    ``standstill``: the least level of a command stretch kept (None: every level).
+    """
+
+    def __init__(self, n: int, min_n: int, standstill: float | None) -> None:
+        self.n = n
+        self.min_n = min_n
+        self.standstill = standstill
+        self.found = Found()
+        self.state = SweepState(plateaus=Ahead(0, 0, n), want_plateaus=False, want_still=False)
+
+    def add(self, lo: int, hi: int, part: dict[str, FloatArray]) -> None:
+        """The rows lo..hi of a block (its columns, :func:`cleaned_rows`)."""
+        if "marker" in part:
+            self.marker_runs(part["marker"], lo, hi)
+        if "cmd" in part:
+            self.command_stretches(part["cmd"], lo, hi)
+
+    def marker_runs(self, marker: FloatArray, lo: int, hi: int) -> None:
+        """Runs of a set marker that break where its value changes as well."""
+        found, state = self.found, self.state
+        on = np.isfinite(marker) & (marker > 0)
+        ext_on = np.concatenate(([state.marker_on], on))
+        ext_value = np.concatenate(([state.marker_value], marker))
+        changed = ext_value[1:] != ext_value[:-1]
+        starts = np.flatnonzero(ext_on[1:] & (changed | ~ext_on[:-1]))
+        stops = np.flatnonzero(ext_on[:-1] & (changed | ~ext_on[1:]))
+        found.marker_starts.extend((starts + lo).tolist())
+        found.marker_values.extend(marker[starts].tolist())
+        found.marker_stops.extend((stops + lo).tolist())
+        if hi == self.n and on[-1]:
+            found.marker_stops.append(self.n)
+        state.marker_on = bool(on[-1])
+        state.marker_value = float(marker[-1])
+
+    def command_stretches(self, command: FloatArray, lo: int, hi: int) -> None:
+        """Stretches of constant commanded velocity (a change of the command begins one)."""
+        state = self.state
+        if state.command_last is None:
+            repeats = np.concatenate(([False], command_repeats(command)))
+        else:
+            repeats = command_repeats(np.concatenate(([state.command_last], command)))
+        begins = np.flatnonzero(~repeats)
+        if len(begins):
+            # The stretch left open by the block before ends where this block's first begins.
+            if state.command_begin is not None:
+                self.close_commands(
+                    np.array([state.command_begin]),
+                    begins[:1] + lo,
+                    np.array([state.command_level]),
+                )
+            # Every stretch that begins here and ends at the next begin here.
+            self.close_commands(begins[:-1] + lo, begins[1:] + lo, command[begins[:-1]])
+            state.command_begin = int(begins[-1]) + lo
+            state.command_level = float(command[begins[-1]])
+        state.command_last = float(command[-1])
+        if hi == self.n and state.command_begin is not None and self.n >= 2:
+            self.close_commands(
+                np.array([state.command_begin]), np.array([self.n]), np.array([state.command_level])
+            )
+
+    def close_commands(self, begin: IntArray, end: IntArray, level: FloatArray) -> None:
+        """Keep the stretches above standstill (any level: None) that last ``min_window_s``."""
+        keep = end - begin >= self.min_n
+        if self.standstill is not None:
+            keep &= np.abs(level) >= self.standstill
+        self.found.command.extend(
+            zip(begin[keep].tolist(), end[keep].tolist(), level[keep].tolist(), strict=True)
+        )
+
+
+def _nothing(chunk: RowChunk) -> None:
+    """A pass's feed that looks at nothing."""
+
+
+def early_sweep_task(
+    axis: str,
+    statistics: AxisStatistics,
+    source: Rows,
+    settings: SegmentSettings,
+    period: Callable[[], float | None],
+) -> Generator[Feed, None, Swept | None]:
+    """:meth:`ChunkedFinder.sweep_task` on the readings of the statistics (a rider of
+    :func:`~ncmeasure.analysis.windows.scan.axes_statistics_along`).
+
+    The sweep needs of the statistics only the first pass's (the neighbours that bridge
+    the gaps, the rows) and the sample period (the holes of the time axis, the shortest
+    window): it waits for the period, then sweeps on the next reading. It keeps the
+    command stretches of every level (the standstill a finder leaves out below is known
+    only at the end: :meth:`ChunkedFinder.take_sweep`). None where the period is none
+    a finder takes (it says why).
+    """
+    while (median := period()) is None:
+        yield _nothing
+    n = statistics.rows
+    dt = median if n > 1 else 1.0
+    if not dt > 0:
+        return None
+    present = set(source.column)
+    has = {
+        s: f"{axis}_{s}" in present
+        for s in ("position_mm", "velocity_cmd_mm_min", "marker", "current_a")
+    }
+    sweep = _Sweep(n, min_window_rows(settings, dt), None)
+    holes: list[int] = []
+    rows = cleaned_rows(
+        axis,
+        statistics,
+        source,
+        has,
+        positions_known=statistics.position_usable,
+        dt=dt,
+        h=0,
+        derived=False,
+        holes=holes,
+    )
+
+    def feed(chunk: RowChunk) -> None:
+        for lo, hi, part in rows(chunk):
+            sweep.add(lo, hi, part)
+
+    yield feed
+    return sweep.found, holes, dt

@@ -25,7 +25,7 @@ from ncmeasure.analysis.windows.settings import (
 )
 from ncmeasure.analysis.windows.signals import odd
 
-__all__ = ["Detection"]
+__all__ = ["Detection", "min_window_rows"]
 
 FloatArray = NDArray[np.float64]
 
@@ -81,7 +81,7 @@ class Detection:
         settings = self.settings
         self.detect_resolution = 0.0
         self.settle_n = round(settings.settle_s / self.dt)
-        self.min_n = max(MIN_WINDOW_SAMPLES, math.ceil(settings.min_window_s / self.dt - 1e-9))
+        self.min_n = min_window_rows(settings, self.dt)
         self.plateau_n = max(MIN_WINDOW_SAMPLES, round(settings.plateau_min_s / self.dt))
         # The smoothing: plateau_filter_s, and at least MIN_FILTER_SAMPLES where a plateau
         # holds FILTER_PLATEAU_SHARE such widths (an odd count: a median has a middle).
@@ -150,3 +150,8 @@ class Detection:
         """The accepted |velocity − level|: the settings' tolerance, at least the resolution."""
         resolution = self.detect_resolution if self.from_position else self.resolution
         return np.maximum(self.settings.tolerance_mm_min(level), resolution)
+
+
+def min_window_rows(settings: SegmentSettings, dt: float) -> int:
+    """Samples of the shortest window (``min_window_s``) at the sample period ``dt``."""
+    return max(MIN_WINDOW_SAMPLES, math.ceil(settings.min_window_s / dt - 1e-9))

@@ -24,7 +24,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -39,7 +40,14 @@ from ncmeasure.analysis.windows.streaming import (
 from ncmeasure.recording import RowChunk
 from ncmeasure.validity import Implausible, implausible
 
-__all__ = ["AxisStatistics", "Rows", "axes_statistics", "bridge_chunk"]
+__all__ = [
+    "Along",
+    "AxisStatistics",
+    "Rows",
+    "axes_statistics",
+    "axes_statistics_along",
+    "bridge_chunk",
+]
 
 FloatArray = NDArray[np.float64]
 Good = tuple[float, float]  # (time, value) of a finite sample
@@ -324,6 +332,15 @@ def _statistic_tasks(
     return tasks, usable
 
 
+Along = Callable[
+    [Mapping[str, "AxisStatistics"], Callable[[], float | None]],
+    Mapping[str, Generator[Callable[[RowChunk], None], None, Any]],
+]
+"""Tasks that ride the statistics' passes: made from what the first pass found (every
+statistic NaN or 0 but the rows, ranges, counts, neighbours and whether the position
+is usable) and a getter of the median sample period (None until it is known)."""
+
+
 def axes_statistics(source: Rows, axes: Sequence[str]) -> dict[str, AxisStatistics]:
     """The whole-signal statistics of every axis of ``axes``, read chunk by chunk.
 
@@ -335,6 +352,15 @@ def axes_statistics(source: Rows, axes: Sequence[str]) -> dict[str, AxisStatisti
             among its columns.
         axes: The axes.
     """
+    return axes_statistics_along(source, axes, None)[0]
+
+
+def axes_statistics_along(
+    source: Rows, axes: Sequence[str], along: Along | None
+) -> tuple[dict[str, AxisStatistics], dict[str, Any]]:
+    """:func:`axes_statistics`, and the values of the tasks ``along`` makes, which ride
+    the readings of the statistics after the first (more readings only where they need
+    them)."""
     signals = _signals(axes, set(source.column))
     channels = tuple(f"{axis}_{s}" for axis in axes for s in signals[axis])
     checkers = {
@@ -350,19 +376,18 @@ def axes_statistics(source: Rows, axes: Sequence[str]) -> dict[str, AxisStatisti
         scan.last_good[name] = []
     run_tasks(source.read, {"scan": _scan_task(scan, checkers, source)})
     tasks, usable = _statistic_tasks(scan, source, axes)
-    found = run_tasks(source.read, tasks)
-    result = {}
+    first: dict[str, AxisStatistics] = {}
     for axis in axes:
         missing = scan.rows - scan.finite[f"{axis}_velocity_mm_min"]
         mine = [f"{axis}_{s}" for s in signals[axis]]
-        result[axis] = AxisStatistics(
+        first[axis] = AxisStatistics(
             rows=scan.rows,
-            sample_period_s=found["", "dt"],
-            velocity_quantum_mm_min=found[axis, "v_quantum"],
-            position_quantum_mm=found.get((axis, "x_quantum"), 0.0),
-            current_quantum_a=found.get((axis, "i_quantum"), 0.0),
-            velocity_sigma_mm_min=found[axis, "v_sigma"],
-            position_sigma_mm=found.get((axis, "x_sigma"), 0.0),
+            sample_period_s=math.nan,
+            velocity_quantum_mm_min=0.0,
+            position_quantum_mm=0.0,
+            current_quantum_a=0.0,
+            velocity_sigma_mm_min=math.nan,
+            position_sigma_mm=0.0,
             position_usable=usable[axis],
             velocity_bridged=missing if missing < scan.rows else 0,
             finite={n.removeprefix(f"{axis}_"): scan.finite[n] for n in mine},
@@ -374,4 +399,33 @@ def axes_statistics(source: Rows, axes: Sequence[str]) -> dict[str, AxisStatisti
             start_s=scan.start_s,
             end_s=scan.end_s,
         )
-    return result
+    period: list[float] = []
+    tasks["", "dt"] = _noted(tasks["", "dt"], period)
+    riding: dict[str, Generator[Callable[[RowChunk], None], None, Any]] = {}
+    if along is not None:
+        # After the statistics' tasks: each pass advances them first, so a rider sees
+        # the sample period as soon as its median is known.
+        riding = dict(along(first, lambda: period[0] if period else None))
+    everything: dict[tuple[str, str], Task | Generator[Callable[[RowChunk], None], None, Any]]
+    everything = {**tasks, **{("along", key): task for key, task in riding.items()}}
+    found = run_tasks(source.read, everything)
+    result = {
+        axis: replace(
+            first[axis],
+            sample_period_s=found["", "dt"],
+            velocity_quantum_mm_min=found[axis, "v_quantum"],
+            position_quantum_mm=found.get((axis, "x_quantum"), 0.0),
+            current_quantum_a=found.get((axis, "i_quantum"), 0.0),
+            velocity_sigma_mm_min=found[axis, "v_sigma"],
+            position_sigma_mm=found.get((axis, "x_sigma"), 0.0),
+        )
+        for axis in axes
+    }
+    return result, {key: found["along", key] for key in riding}
+
+
+def _noted(task: Task, into: list[float]) -> Task:
+    """The task, its value also appended to ``into`` as soon as it is known."""
+    value = yield from task
+    into.append(value)
+    return value
