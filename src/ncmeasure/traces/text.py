@@ -10,7 +10,7 @@ from __future__ import annotations
 import datetime as dt
 import math
 import re
-from collections.abc import Generator, Iterator, Mapping, Sequence
+from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import BinaryIO, Final
 
@@ -24,6 +24,7 @@ from ncmeasure.traces.job import ImportJob
 __all__ = [
     "INVALID_ABOVE",
     "PROGRESS_STEP_BYTES",
+    "LineBlock",
     "TextLines",
     "block_decimal_mark",
     "comma_separated",
@@ -103,18 +104,20 @@ _NUMBER_BYTES: Final = b"0123456789.-+eE"
 _NUMBER_BYTES_NAN: Final = _NUMBER_BYTES + b"NaIfinty"
 
 
-def comma_separated(lines: Sequence[str], separator: str, decimal: str | None) -> bytes | None:
+def comma_separated(
+    lines: Sequence[str] | bytes, separator: str, decimal: str | None
+) -> bytes | None:
     """Lines of a file's notation as :func:`number_rows` reads them: ``,`` between cells and
     ``.`` in numbers, UTF-8; None where that cannot be told (a comma that is neither the
-    separator nor the decimal mark, a point beside a decimal comma)."""
-    text = "\n".join(lines)
+    separator nor the decimal mark, a point beside a decimal comma). The lines may be given
+    as UTF-8 bytes, each ended by LF (:attr:`LineBlock.plain`)."""
+    data = lines if isinstance(lines, bytes) else "\n".join(lines).encode()
     if separator == ",":
-        return text.encode()
-    if "," in text and decimal != ",":
+        return data
+    if b"," in data and decimal != ",":
         return None
-    if decimal == "," and "." in text:
+    if decimal == "," and b"." in data:
         return None
-    data = text.encode()
     mark = separator.encode()
     if len(mark) != 1:
         return (data.replace(b",", b".") if decimal == "," else data).replace(mark, b",")
@@ -145,15 +148,9 @@ def number_rows(block: bytes, width: int, *, empty: bool = False) -> NDArray[np.
     number_bytes = _NUMBER_BYTES
     blanks = None
     if empty:
-        if (
-            b"n" in body
-            or b"N" in body
-            or b"a" in body
-            or body[:1] in (b",", b"\n")
-            or b"\n," in body
-            or b"\n\n" in body  # a blank line: not a row of empty cells
-        ):
+        if b"n" in body or b"N" in body or b"a" in body:
             return None
+        # a blank line or an empty first cell is found below, among the empty cells
         body, blanks = _fill_blanks(body)
     elif b"n" in body:
         body = body.replace(b"nan", b"NaN").replace(b"inf", b"Infinity")
@@ -162,7 +159,9 @@ def number_rows(block: bytes, width: int, *, empty: bool = False) -> NDArray[np.
     # commas and a line end; anything else is left over
     separators = body.translate(None, number_bytes) + b"\n"
     if separators != (b"," * (width - 1) + b"\n") * (len(separators) // width):
-        return None
+        return None  # a blank line among them (one empty cell: a row of one)
+    if blanks is not None and (blanks % width == 0).any():
+        return None  # a row's first cell empty (a blank line in rows of one)
     try:  # one flat array: no list per row for the parser to make and the collector to visit
         flat = b"[" + body.replace(b"\n", b",") + b"]"
         parsed = pydantic_core.from_json(flat, allow_inf_nan=True)
@@ -220,6 +219,29 @@ def unit_factor(signal: str, unit: str) -> float | None:
 
 
 # --- reading text ----------------------------------------------------------------------
+
+
+class LineBlock:
+    """Lines taken at once (:meth:`TextLines.take_block`): :attr:`lines` as
+    :meth:`TextLines.take` gives them, decoded when first asked for, and :attr:`plain`,
+    their bytes with LF line ends where the block is plain ASCII (else None)."""
+
+    def __init__(
+        self, plain: bytes | None, lines: list[str] | Callable[[], list[str]], count: int
+    ) -> None:
+        self.plain = plain
+        self._lines = lines
+        self._count = count
+
+    def __len__(self) -> int:
+        return self._count
+
+    @property
+    def lines(self) -> list[str]:
+        """The lines, without their line ends."""
+        if callable(self._lines):
+            self._lines = self._lines()
+        return self._lines
 
 
 class TextLines:
@@ -339,13 +361,34 @@ class TextLines:
 
         After it, :attr:`line_number` is the number of the last line taken.
         """
+        return self.take_block(count).lines
+
+    def take_block(self, count: int) -> LineBlock:
+        """:meth:`take`, with the lines' bytes for a reader that parses bytes: where every
+        byte is ASCII and no line ends in a bare CR, :attr:`LineBlock.plain` holds the lines
+        each ended by LF (the last perhaps by nothing), and the lines are decoded only when
+        asked for."""
         raw = self._raw(count)
         if not raw:
             self._finish()
-            return []
+            return LineBlock(None, [], 0)
         first = self.line_number + 1
         data = b"".join(raw)
         self._progress(len(data))
+        plain: bytes | None = None
+        if first > 1 and data.isascii():  # no BOM, the same text in UTF-8 and Windows-1252
+            plain = data.replace(b"\r\n", b"\n") if b"\r" in data else data
+            if b"\r" in plain:  # a line ended by a bare CR
+                plain = None
+        if plain is None:
+            block = LineBlock(None, self._decoded(raw, data, first), len(raw))
+        else:
+            block = LineBlock(plain, lambda: self._decoded(raw, data, first), len(raw))
+        self.line_number += len(raw)
+        return block
+
+    def _decoded(self, raw: list[bytes], data: bytes, first: int) -> list[str]:
+        """The lines of ``raw`` (``data`` joined), the first line number ``first``, decoded."""
         try:
             text = data.decode(self.encoding)
         except UnicodeDecodeError:
@@ -359,7 +402,6 @@ class TextLines:
             lines = [self._decode(line, first + i).rstrip("\r\n") for i, line in enumerate(raw)]
         if first == 1:
             lines[0] = lines[0].lstrip("\ufeff")
-        self.line_number += len(raw)
         return lines
 
     def where(self) -> str:
