@@ -18,6 +18,7 @@ from typer.testing import CliRunner
 from ncmeasure.cli import app
 from ncmeasure.errors import RecordingError
 from ncmeasure.recording import Recording
+from ncmeasure.recording import sink as sink_module
 from ncmeasure.recording.sink import StepMedian
 from ncmeasure.traces import import_trace, sinumerik_xml
 from ncmeasure.traces import merge as merging
@@ -177,19 +178,31 @@ def test_series_merge_equals_merge_series_on_random_timelines(tmp_path: Path) ->
         assert job.report == whole.report
 
 
-def test_step_median_is_numpy_median_bit_for_bit() -> None:
+@pytest.mark.parametrize("distinct", [4096, 8])
+def test_step_median_is_numpy_median_bit_for_bit(
+    distinct: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Counted in memory (few distinct steps) or selected from the file (more: from the
+    first block on, or from a later one), the median is numpy's."""
+    monkeypatch.setattr(sink_module, "_DISTINCT_STEPS", distinct)
     rng = np.random.default_rng(3)
+    in_file = 0
     for n in (2, 3, 4, 11, 1000):
         for times in (
             np.cumsum(rng.random(n) * 1e-3),
             np.arange(n) / 1000,
             np.cumsum(rng.choice([0.001, 0.002, 1e-9, 5.0], n)),
+            np.concatenate([np.arange(n) * 0.5, n * 0.5 + np.cumsum(rng.random(n))]),
         ):
             steps = StepMedian()
-            for part in np.array_split(times, 4):
+            for number, part in enumerate(np.array_split(times, 4)):
                 steps.add(part)
+                if number == 0 and len(times) == 2000:  # one step so far: counted
+                    assert steps._counts is not None
+            in_file += steps._counts is None
             assert steps.median() == float(np.median(np.diff(times)))
             steps.close()
+    assert (in_file == 0) == (distinct == 4096)
 
 
 def _sinumerik_xml(records: int, bad: int) -> str:
