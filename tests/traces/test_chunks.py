@@ -178,6 +178,43 @@ def test_series_merge_equals_merge_series_on_random_timelines(tmp_path: Path) ->
         assert job.report == whole.report
 
 
+def test_carry_forward_in_blocks_equals_record_by_record(tmp_path: Path) -> None:
+    """Sparse records (channels missing at the start, in runs, in whole blocks), invalid
+    markers and factors: blocks of any size give the rows and counts of one record at a time."""
+    rng = np.random.default_rng(29)
+    for _ in range(60):
+        count, width = int(rng.integers(1, 80)), int(rng.integers(1, 5))
+        times = np.cumsum(rng.choice([0.001, 0.002], count))
+        raw = rng.normal(size=(count, width))
+        raw[rng.random((count, width)) < rng.random(width) * 0.9] = np.nan  # no new sample
+        raw[: int(rng.integers(0, count + 1)), int(rng.integers(0, width))] = np.nan
+        raw[rng.random((count, width)) < 0.05] = 9.3e18  # the invalid marker
+        factors = rng.choice([1.0, 0.5, 60.0], width).tolist()
+        names = [f"X{c}_current_a" for c in range(width)]
+        one, blocks = _ListSink(), _ListSink()
+        by_record = merging.CarryForward(one, names, factors, chunk_rows=7)  # type: ignore[arg-type]
+        by_block = merging.CarryForward(blocks, names, factors, chunk_rows=7)  # type: ignore[arg-type]
+        for row in range(count):
+            for column in np.flatnonzero(~np.isnan(raw[row])).tolist():
+                by_record.set(column, float(raw[row, column]), lambda row=row: f"line {row}")
+            by_record.commit(float(times[row]), lambda: "")
+        cuts = np.sort(rng.integers(0, count + 1, int(rng.integers(0, 6))))
+        for part in np.split(np.arange(count), cuts):
+            first = int(part[0]) if len(part) else 0
+            by_block.commit_block(
+                times[part], raw[part], lambda index, first=first: f"line {first + index}"
+            )
+        by_record.flush()
+        by_block.flush()
+        for carry in ("records", "dropped_leading", "first_complete_s", "invalid"):
+            assert getattr(by_block, carry) == getattr(by_record, carry), carry
+        assert by_block.first_invalid == by_record.first_invalid
+        assert by_block.missing() == by_record.missing()
+        for (t_a, v_a), (t_b, v_b) in zip(blocks.written, one.written, strict=True):
+            assert t_a.tobytes() == t_b.tobytes()
+            assert v_a.tobytes() == v_b.tobytes()
+
+
 @pytest.mark.parametrize("distinct", [4096, 8])
 def test_step_median_is_numpy_median_bit_for_bit(
     distinct: int, monkeypatch: pytest.MonkeyPatch
