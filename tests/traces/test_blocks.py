@@ -339,6 +339,43 @@ def test_a_plain_block_gives_its_bytes_beside_its_lines(
         assert not lines.take_block(5)
 
 
+@pytest.mark.parametrize(
+    "data",
+    [
+        b"h\n1,2\n3,4\n5,6\n7,8\n",
+        b"h\r\n1,2\r\n3,4\r\n\r\n7,8",  # CRLF, a blank line, no line end at the end
+        b"h\n1,2\r3,4\n5,6\r\n7,8\r",  # bare CRs between LFs and CRLFs, one at the end
+        b"h\r1,2\r3,4\r",  # CR only
+        b"\xef\xbb\xbfh\n1,\xc3\xa9\n3,4\n\n",  # BOM, not ASCII, a blank line at the end
+        b"h\n1,\xe9\n3,4\n5,6\n",  # not UTF-8: Windows-1252
+    ],
+)
+@pytest.mark.parametrize("read_bytes", [3, 1 << 16])
+def test_blocks_read_in_one_piece_are_the_lines_of_iteration(
+    data: bytes, read_bytes: int, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Lines taken with none pending come from the file in one piece (read a few bytes or
+    a block at a time): the same lines, numbers and plain bytes, from any line on."""
+    monkeypatch.setattr(trace_text, "_READ_BYTES", read_bytes)
+    source = tmp_path / "t.txt"
+    source.write_bytes(data)
+    with TextLines(source, _job(source, tmp_path / "a")) as lines:
+        expected = list(lines)
+    for skip in (0, 1):
+        for count in (1, 2, 3, 100):
+            with TextLines(source, _job(source, tmp_path / "b")) as lines:
+                taken = [next(iter(lines))] if skip else []
+                while block := lines.take_block(count):
+                    assert len(block) == len(block.lines) <= count
+                    if block.plain is not None:  # each line LF-ended, the file's last perhaps not
+                        ended = "".join(line + "\n" for line in block.lines).encode()
+                        assert block.plain in (ended, ended[:-1])
+                    taken += block.lines
+                    assert lines.line_number == len(taken)
+                assert not lines.take_block(count)
+            assert taken == expected, (skip, count)
+
+
 def test_the_first_lines_are_never_plain(tmp_path: Path) -> None:
     """A block from the first line on may begin with a byte order mark: decoded, stripped."""
     source = tmp_path / "t.txt"

@@ -48,6 +48,8 @@ INVALID_ABOVE: Final = 9.218868437227405e18
 PROGRESS_STEP_BYTES: Final = 1 << 20
 _SNIFF_BYTES: Final = 1 << 16
 _READ_BYTES: Final = 1 << 16
+#: At most this many bytes are read at a time for a block of lines (:meth:`TextLines.take_block`).
+_SPAN_BYTES: Final = 1 << 22
 
 
 def is_invalid(value: float) -> bool:
@@ -268,7 +270,7 @@ class TextLines:
                 job.note(f"{path.name} is not UTF-8 text; read as Windows-1252")
         self.line_number = 0
         self._file: BinaryIO | None = None
-        self._blocks: Iterator[list[bytes]] | None = None
+        self._rest = b""  # read from the file, not split into lines yet (a line's start)
         self._pending: list[bytes] = []  # raw lines read from the file, not given out yet
         self._at = 0  # ... from this index on
         self._bytes_read = 0
@@ -290,29 +292,61 @@ class TextLines:
         if self._file is not None:
             self._file.close()
 
-    def _raw_blocks(self, file: BinaryIO) -> Iterator[list[bytes]]:
-        """The lines of ``file`` with their endings, a list per block read; bytes.splitlines
-        knows LF, CRLF and CR."""
-        rest = b""
+    def _next_lines(self, file: BinaryIO) -> list[bytes]:
+        """The next lines of ``file`` with their endings, a list per block read ([] at the
+        end); bytes.splitlines knows LF, CRLF and CR."""
         while block := file.read(_READ_BYTES):
-            lines = (rest + block).splitlines(keepends=True)
+            lines = (self._rest + block).splitlines(keepends=True)
             # the last line may continue in the next block (a CR may be half of a CRLF)
-            rest = b"" if lines[-1].endswith(b"\n") else lines.pop()
+            self._rest = b"" if lines[-1].endswith(b"\n") else lines.pop()
             if lines:
-                yield lines
-        if rest:
-            yield [rest]
+                return lines
+        rest, self._rest = self._rest, b""
+        return [rest] if rest else []
+
+    def _open(self) -> BinaryIO:
+        if self._file is None:
+            self._file = self.path.open("rb")
+        return self._file
 
     def _refill(self) -> bool:
         """Read the next block of raw lines when all are given out; False at the end."""
         if self._at < len(self._pending):
             return True
-        if self._blocks is None:
-            self._file = self.path.open("rb")
-            self._blocks = self._raw_blocks(self._file)
-        self._pending = next(self._blocks, [])
+        self._pending = self._next_lines(self._open())
         self._at = 0
         return bool(self._pending)
+
+    def _span(self, count: int) -> tuple[bytes, int]:
+        """The next ``count`` lines (fewer at the end) as the file holds them, read in one
+        piece, and how many they are; no line pending. Where a line among them ends in a
+        bare CR, what was read is left pending as lines instead, and ``(b"", 0)`` returned."""
+        file = self._open()
+        line_bytes = self._bytes_read // max(self.line_number, 1) + 1
+        chunks = [self._rest]
+        newlines = self._rest.count(b"\n")
+        at_end = False
+        while newlines < count:
+            block = file.read(min(max((count - newlines) * line_bytes, _READ_BYTES), _SPAN_BYTES))
+            if not block:
+                at_end = True
+                break
+            chunks.append(block)
+            newlines += block.count(b"\n")
+        data = b"".join(chunks)
+        if at_end:  # the last line may end without LF
+            cut, count = len(data), newlines + (bool(data) and not data.endswith(b"\n"))
+        else:
+            cut = int(np.flatnonzero(np.frombuffer(data, np.uint8) == _NEWLINE)[count - 1]) + 1
+        span = data[:cut]
+        if b"\r" in span and span.count(b"\r") != span.count(b"\r\n"):
+            # lines as _next_lines splits them: the last may continue in the file
+            lines = data.splitlines(keepends=True)
+            self._rest = b"" if at_end or lines[-1].endswith(b"\n") else lines.pop()
+            self._pending, self._at = lines, 0
+            return b"", 0
+        self._rest = data[cut:]
+        return span, count
 
     def _raw(self, count: int) -> list[bytes]:
         """The next ``count`` raw lines (fewer at the end), shared by iteration and :meth:`take`."""
@@ -367,24 +401,33 @@ class TextLines:
         """:meth:`take`, with the lines' bytes for a reader that parses bytes: where every
         byte is ASCII and no line ends in a bare CR, :attr:`LineBlock.plain` holds the lines
         each ended by LF (the last perhaps by nothing), and the lines are decoded only when
-        asked for."""
-        raw = self._raw(count)
-        if not raw:
+        asked for. With no line pending, the lines are read from the file in one piece,
+        not line by line."""
+        first = self.line_number + 1
+        raw: list[bytes] | None = None
+        if self._at >= len(self._pending) and count > 0:
+            data, taken = self._span(count)
+        else:
+            data, taken = b"", 0
+        if not taken:  # lines pending (or ended by a bare CR)
+            raw = self._raw(count)
+            data, taken = b"".join(raw), len(raw)
+        if not taken:
             self._finish()
             return LineBlock(None, [], 0)
-        first = self.line_number + 1
-        data = b"".join(raw)
         self._progress(len(data))
         plain: bytes | None = None
         if first > 1 and data.isascii():  # no BOM, the same text in UTF-8 and Windows-1252
             plain = data.replace(b"\r\n", b"\n") if b"\r" in data else data
             if b"\r" in plain:  # a line ended by a bare CR
                 plain = None
-        if plain is None:
-            block = LineBlock(None, self._decoded(raw, data, first), len(raw))
-        else:
-            block = LineBlock(plain, lambda: self._decoded(raw, data, first), len(raw))
-        self.line_number += len(raw)
+
+        def decoded() -> list[str]:
+            lines = data.splitlines(keepends=True) if raw is None else raw
+            return self._decoded(lines, data, first)
+
+        block = LineBlock(plain, decoded if plain is not None else decoded(), taken)
+        self.line_number += taken
         return block
 
     def _decoded(self, raw: list[bytes], data: bytes, first: int) -> list[str]:
