@@ -401,20 +401,20 @@ class TextLines:
         """:meth:`take`, with the lines' bytes for a reader that parses bytes: where every
         byte is ASCII and no line ends in a bare CR, :attr:`LineBlock.plain` holds the lines
         each ended by LF (the last perhaps by nothing), and the lines are decoded only when
-        asked for. With no line pending, the lines are read from the file in one piece,
-        not line by line."""
+        asked for. The lines not read yet come from the file in one piece, not line by
+        line."""
         first = self.line_number + 1
-        raw: list[bytes] | None = None
-        if self._at >= len(self._pending) and count > 0:
-            data, taken = self._span(count)
-        else:
-            data, taken = b"", 0
-        if not taken:  # lines pending (or ended by a bare CR)
-            raw = self._raw(count)
-            data, taken = b"".join(raw), len(raw)
+        # the lines pending, then the rest from the file in one piece (line by line where a
+        # line ends in a bare CR: _span leaves them pending)
+        before = self._pending[self._at : self._at + count]
+        self._at += len(before)
+        span, in_span = self._span(count - len(before)) if count > len(before) else (b"", 0)
+        after = self._raw(count - len(before) - in_span) if not in_span else []
+        taken = len(before) + in_span + len(after)
         if not taken:
             self._finish()
             return LineBlock(None, [], 0)
+        data = b"".join([*before, span, *after])
         self._progress(len(data))
         plain: bytes | None = None
         if first > 1 and data.isascii():  # no BOM, the same text in UTF-8 and Windows-1252
@@ -423,8 +423,8 @@ class TextLines:
                 plain = None
 
         def decoded() -> list[str]:
-            lines = data.splitlines(keepends=True) if raw is None else raw
-            return self._decoded(lines, data, first)
+            raw = [*before, *span.splitlines(keepends=True), *after]
+            return self._decoded(raw, data, first)
 
         block = LineBlock(plain, decoded if plain is not None else decoded(), taken)
         self.line_number += taken
