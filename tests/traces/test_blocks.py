@@ -242,8 +242,9 @@ def test_rows_with_small_values_and_infinities_are_formatted_as_repr(width: int)
         *(b"1,2,3\n4\n", b"1\n2,3,4\n", b"1,2\n3,-0", b"1,2\n,3\n", b"1,2\n3,4,\n", b"[1,2]\n"),
     ],
 )
-def test_number_rows_leaves_other_spellings_to_the_caller(block: bytes) -> None:
-    assert number_rows(block, 2) is None
+@pytest.mark.parametrize("empty", [False, True])
+def test_number_rows_leaves_other_spellings_to_the_caller(block: bytes, empty: bool) -> None:
+    assert number_rows(block, 2, empty=empty) is None
 
 
 def test_number_rows_reads_what_float_reads() -> None:
@@ -277,6 +278,9 @@ def test_number_rows_reads_what_float_reads() -> None:
     assert number_rows(b"1,2\n3,Na\n", 2, empty=True) is None
     assert number_rows(b"1\n\n2\n", 1, empty=True) is None  # a blank line is no empty cell
     assert number_rows(b"\n1\n", 1, empty=True) is None
+    assert number_rows(b"\n1,2\n", 2, empty=True) is None
+    assert number_rows(b"1,2\n\n3,4\n", 2, empty=True) is None  # a blank line between rows
+    assert number_rows(b"1,2\n,\n", 2, empty=True) is None  # a row of empty cells
 
 
 @pytest.mark.parametrize(
@@ -304,6 +308,82 @@ def test_lines_taken_at_once_are_the_lines_of_iteration(data: bytes, tmp_path: P
         assert lines.take(5) == []
         assert lines.line_number == len(expected)
     assert taken == expected
+
+
+@pytest.mark.parametrize(
+    ("data", "plain"),
+    [
+        (b"h\n1,2\n3,4\n", b"1,2\n3,4\n"),
+        (b"h\r\n1,2\r\n\r\n3,4", b"1,2\n\n3,4"),  # CRLF; the last line without its end
+        (b"h\n1,2\r3,4\n", None),  # a bare CR
+        (b"h\n1,2\r\r\n3,4\n", None),
+        (b"h\n1,\xc3\xa9\n", None),  # not ASCII
+        (b"h\n1,\x0c2\n3,4\n", b"1,\x0c2\n3,4\n"),  # one line, though str.splitlines splits it
+    ],
+)
+def test_a_plain_block_gives_its_bytes_beside_its_lines(
+    data: bytes, plain: bytes | None, tmp_path: Path
+) -> None:
+    source = tmp_path / "t.txt"
+    source.write_bytes(data)
+    with TextLines(source, _job(source, tmp_path / "a")) as lines:
+        expected = list(lines)[1:]
+    with TextLines(source, _job(source, tmp_path / "b")) as lines:
+        next(iter(lines))
+        block = lines.take_block(100)
+        assert lines.line_number == 1 + len(expected) == 1 + len(block)
+        assert block.plain == plain
+        assert block.lines == expected
+        if plain is not None:  # the text the lines give, but the last line end
+            assert plain.rstrip(b"\n") == "\n".join(expected).encode()
+        assert not lines.take_block(5)
+
+
+@pytest.mark.parametrize(
+    "data",
+    [
+        b"h\n1,2\n3,4\n5,6\n7,8\n",
+        b"h\r\n1,2\r\n3,4\r\n\r\n7,8",  # CRLF, a blank line, no line end at the end
+        b"h\n1,2\r3,4\n5,6\r\n7,8\r",  # bare CRs between LFs and CRLFs, one at the end
+        b"h\r1,2\r3,4\r",  # CR only
+        b"\xef\xbb\xbfh\n1,\xc3\xa9\n3,4\n\n",  # BOM, not ASCII, a blank line at the end
+        b"h\n1,\xe9\n3,4\n5,6\n",  # not UTF-8: Windows-1252
+    ],
+)
+@pytest.mark.parametrize("read_bytes", [3, 1 << 16])
+def test_blocks_read_in_one_piece_are_the_lines_of_iteration(
+    data: bytes, read_bytes: int, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Lines taken with none pending come from the file in one piece (read a few bytes or
+    a block at a time): the same lines, numbers and plain bytes, from any line on."""
+    monkeypatch.setattr(trace_text, "_READ_BYTES", read_bytes)
+    source = tmp_path / "t.txt"
+    source.write_bytes(data)
+    with TextLines(source, _job(source, tmp_path / "a")) as lines:
+        expected = list(lines)
+    for skip in (0, 1):
+        for count in (1, 2, 3, 100):
+            with TextLines(source, _job(source, tmp_path / "b")) as lines:
+                taken = [next(iter(lines))] if skip else []
+                while block := lines.take_block(count):
+                    assert len(block) == len(block.lines) <= count
+                    if block.plain is not None:  # each line LF-ended, the file's last perhaps not
+                        ended = "".join(line + "\n" for line in block.lines).encode()
+                        assert block.plain in (ended, ended[:-1])
+                    taken += block.lines
+                    assert lines.line_number == len(taken)
+                assert not lines.take_block(count)
+            assert taken == expected, (skip, count)
+
+
+def test_the_first_lines_are_never_plain(tmp_path: Path) -> None:
+    """A block from the first line on may begin with a byte order mark: decoded, stripped."""
+    source = tmp_path / "t.txt"
+    source.write_bytes(b"1,2\n3,4\n")
+    with TextLines(source, _job(source, tmp_path / "a")) as lines:
+        block = lines.take_block(5)
+        assert block.plain is None
+        assert block.lines == ["1,2", "3,4"]
 
 
 def test_a_bad_byte_in_a_block_names_its_line(tmp_path: Path) -> None:

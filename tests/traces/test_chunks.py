@@ -18,6 +18,7 @@ from typer.testing import CliRunner
 from ncmeasure.cli import app
 from ncmeasure.errors import RecordingError
 from ncmeasure.recording import Recording
+from ncmeasure.recording import sink as sink_module
 from ncmeasure.recording.sink import StepMedian
 from ncmeasure.traces import import_trace, sinumerik_xml
 from ncmeasure.traces import merge as merging
@@ -177,19 +178,68 @@ def test_series_merge_equals_merge_series_on_random_timelines(tmp_path: Path) ->
         assert job.report == whole.report
 
 
-def test_step_median_is_numpy_median_bit_for_bit() -> None:
+def test_carry_forward_in_blocks_equals_record_by_record(tmp_path: Path) -> None:
+    """Sparse records (channels missing at the start, in runs, in whole blocks), invalid
+    markers and factors: blocks of any size give the rows and counts of one record at a time."""
+    rng = np.random.default_rng(29)
+    for _ in range(60):
+        count, width = int(rng.integers(1, 80)), int(rng.integers(1, 5))
+        times = np.cumsum(rng.choice([0.001, 0.002], count))
+        raw = rng.normal(size=(count, width))
+        raw[rng.random((count, width)) < rng.random(width) * 0.9] = np.nan  # no new sample
+        raw[: int(rng.integers(0, count + 1)), int(rng.integers(0, width))] = np.nan
+        raw[rng.random((count, width)) < 0.05] = 9.3e18  # the invalid marker
+        factors = rng.choice([1.0, 0.5, 60.0], width).tolist()
+        names = [f"X{c}_current_a" for c in range(width)]
+        one, blocks = _ListSink(), _ListSink()
+        by_record = merging.CarryForward(one, names, factors, chunk_rows=7)  # type: ignore[arg-type]
+        by_block = merging.CarryForward(blocks, names, factors, chunk_rows=7)  # type: ignore[arg-type]
+        for row in range(count):
+            for column in np.flatnonzero(~np.isnan(raw[row])).tolist():
+                by_record.set(column, float(raw[row, column]), lambda row=row: f"line {row}")
+            by_record.commit(float(times[row]), lambda: "")
+        cuts = np.sort(rng.integers(0, count + 1, int(rng.integers(0, 6))))
+        for part in np.split(np.arange(count), cuts):
+            first = int(part[0]) if len(part) else 0
+            by_block.commit_block(
+                times[part], raw[part], lambda index, first=first: f"line {first + index}"
+            )
+        by_record.flush()
+        by_block.flush()
+        for carry in ("records", "dropped_leading", "first_complete_s", "invalid"):
+            assert getattr(by_block, carry) == getattr(by_record, carry), carry
+        assert by_block.first_invalid == by_record.first_invalid
+        assert by_block.missing() == by_record.missing()
+        for (t_a, v_a), (t_b, v_b) in zip(blocks.written, one.written, strict=True):
+            assert t_a.tobytes() == t_b.tobytes()
+            assert v_a.tobytes() == v_b.tobytes()
+
+
+@pytest.mark.parametrize("distinct", [4096, 8])
+def test_step_median_is_numpy_median_bit_for_bit(
+    distinct: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Counted in memory (few distinct steps) or selected from the file (more: from the
+    first block on, or from a later one), the median is numpy's."""
+    monkeypatch.setattr(sink_module, "_DISTINCT_STEPS", distinct)
     rng = np.random.default_rng(3)
+    in_file = 0
     for n in (2, 3, 4, 11, 1000):
         for times in (
             np.cumsum(rng.random(n) * 1e-3),
             np.arange(n) / 1000,
             np.cumsum(rng.choice([0.001, 0.002, 1e-9, 5.0], n)),
+            np.concatenate([np.arange(n) * 0.5, n * 0.5 + np.cumsum(rng.random(n))]),
         ):
             steps = StepMedian()
-            for part in np.array_split(times, 4):
+            for number, part in enumerate(np.array_split(times, 4)):
                 steps.add(part)
+                if number == 0 and len(times) == 2000:  # one step so far: counted
+                    assert steps._counts is not None
+            in_file += steps._counts is None
             assert steps.median() == float(np.median(np.diff(times)))
             steps.close()
+    assert (in_file == 0) == (distinct == 4096)
 
 
 def _sinumerik_xml(records: int, bad: int) -> str:

@@ -366,9 +366,26 @@ def _never_whole(monkeypatch: pytest.MonkeyPatch) -> None:
 def test_export_from_a_directory_reads_chunk_by_chunk_and_writes_the_same_file(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Several chunks (> 20,000 rows for CSV, > 8,192 for MDF4): the same bytes as from memory."""
+    """Several chunks (20,500 rows read at a time for CSV, 8,192 for MDF4): the same bytes
+    as from memory, formatted in pieces of at most 1,000 rows (the last of a chunk shorter)."""
+    monkeypatch.setattr(csv_module, "_CSV_CHUNK_ROWS", 20_500)
     original = awkward_recording(tmp_path / "r", rows=45_000)
-    from_memory = export_csv(original, tmp_path / "memory.csv").read_bytes()
+    formatted: list[int] = []
+    format_rows = csv_module.csv_rows
+
+    def csv_rows(rows: np.ndarray[Any, np.dtype[np.float64]]) -> bytes:
+        formatted.append(len(rows))
+        return format_rows(rows)
+
+    with monkeypatch.context() as patched:
+        patched.setattr(csv_module, "csv_rows", csv_rows)
+        from_memory = export_csv(original, tmp_path / "memory.csv").read_bytes()
+    assert sum(formatted) == 45_000
+    assert max(formatted) == csv_module._FORMAT_ROWS == 1_000
+    assert 500 in formatted  # the last piece of a chunk of 20,500 rows
+    # the same bytes as the rows formatted at once
+    rows = np.column_stack([original.time_s, original.values])
+    assert from_memory.split(b"\n", 1)[1] == csv_module.csv_rows(rows)
     mdf_ok = True
     try:
         export_mdf4(original, tmp_path / "memory.mf4")

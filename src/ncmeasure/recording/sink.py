@@ -35,6 +35,8 @@ from ncmeasure.validity import Implausible
 
 log = logging.getLogger(__name__)
 
+#: Distinct time steps counted in memory; more go to a temporary file.
+_DISTINCT_STEPS: Final = 4096
 #: Time steps read back at a time when their median is selected.
 _STEP_READ: Final = 1 << 20
 #: Bits of the step's sort key per counting pass (4 passes cover 64 bits; a table of
@@ -45,7 +47,10 @@ _DIGIT_BITS: Final = (16, 16, 16, 16)
 class StepMedian:
     """The exact median of the time steps of all rows, in memory that does not grow with them.
 
-    The steps go to an unnamed temporary file as float64; :meth:`median` selects
+    While the steps take few distinct values (a trace sampled at a fixed period:
+    one, or a few that rounding makes), each value's count is kept, and the
+    median is read from the counts. Beyond :data:`_DISTINCT_STEPS` values the
+    steps go to an unnamed temporary file as float64; :meth:`median` selects
     the middle one (the mean of the two middle ones for an even count, as
     ``numpy.median``) by counting the bits of their sort keys, 16 bits a pass,
     so it reads the file a few times and holds one block and one table of
@@ -54,6 +59,7 @@ class StepMedian:
 
     def __init__(self) -> None:
         self._file: IO[bytes] | None = None
+        self._counts: dict[float, int] | None = {}  # None: the steps are in the file
         self._last: float | None = None
         self.count = 0
 
@@ -66,11 +72,21 @@ class StepMedian:
         self._last = float(times[-1])
         if len(steps) == 0:
             return
+        self.count += len(steps)
+        if self._counts is not None:
+            values, counts = np.unique(steps, return_counts=True)
+            if len(self._counts) + len(values) <= _DISTINCT_STEPS:
+                for value, count in zip(values.tolist(), counts.tolist(), strict=True):
+                    self._counts[value] = self._counts.get(value, 0) + count
+                return
+            # too many values: every step so far to the file
+            held = np.array(list(self._counts), dtype=np.float64)
+            steps = np.concatenate([np.repeat(held, list(self._counts.values())), steps])
+            self._counts = None
         if self._file is None:
             # closed in close(), which finish and discard call
             self._file = tempfile.TemporaryFile(prefix="ncmeasure-steps-")  # noqa: SIM115
         self._file.write(np.ascontiguousarray(steps, dtype="<f8").tobytes())
-        self.count += len(steps)
 
     def close(self) -> None:
         """Remove the temporary file."""
@@ -100,6 +116,12 @@ class StepMedian:
 
     def _select(self, rank: int) -> float:
         """The step of rank ``rank`` (0 = smallest)."""
+        if self._counts is not None:
+            for value in sorted(self._counts):
+                rank -= self._counts[value]
+                if rank < 0:
+                    return value
+            raise AssertionError("a rank beyond the steps counted")
         prefix = np.uint64(0)
         known_bits = 0
         for width in _DIGIT_BITS:

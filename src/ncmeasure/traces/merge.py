@@ -151,33 +151,37 @@ class CarryForward:
             self.commit(float(time_s[first]), lambda: where(first))  # raises
         self._last_time = float(time_s[-1])
         self.records += count
-        rows = np.arange(count)
         present = ~np.isnan(raw)
         with np.errstate(invalid="ignore"):
             invalid = present & ~(np.abs(raw) < INVALID_ABOVE)
-            values = raw * np.asarray(self._factors, dtype=np.float64)
-        values[invalid] = np.nan
-        # the last sample at or before each record, or the one from before the block
-        latest = np.maximum.accumulate(np.where(present, rows[:, None], -1), axis=0)
-        held = np.vstack([np.asarray(self._current, dtype=np.float64)[None, :], values])
-        filled = np.take_along_axis(held, latest + 1, axis=0)
-        # a record is kept once every channel has had a value
-        seen = np.asarray(self._seen)[None, :] | (latest >= 0)
-        complete = seen.all(axis=1)
-        for column in range(len(self.names)):
-            hits = int(np.count_nonzero(invalid[:, column]))
-            if hits:
-                self.invalid[column] += hits
+            filled = raw * np.asarray(self._factors, dtype=np.float64)
+        if invalid.any():
+            filled[invalid] = np.nan
+            for column in np.flatnonzero(invalid.any(axis=0)).tolist():
+                hits = invalid[:, column]
+                self.invalid[column] += int(np.count_nonzero(hits))
                 if self.first_invalid[column] is None:
-                    self.first_invalid[column] = where(int(np.flatnonzero(invalid[:, column])[0]))
+                    self.first_invalid[column] = where(int(np.argmax(hits)))
+        # a record without a sample of a channel holds its last one, or the one from
+        # before the block (a channel sampled in every record has nothing to fill)
+        has = present.any(axis=0)
+        first_sample = np.where(has, present.argmax(axis=0), count)
+        rows = np.arange(count)
+        for column in np.flatnonzero(~present.all(axis=0)).tolist():
+            latest = np.maximum.accumulate(np.where(present[:, column], rows, -1))
+            held = filled[np.maximum(latest, 0), column]
+            held[: first_sample[column]] = self._current[column]
+            filled[:, column] = held
+        # a record is kept once every channel has had a value
+        seen = np.asarray(self._seen)
+        start = int(np.where(seen, 0, first_sample).max())  # count: none complete
         self._current = filled[-1].tolist()
-        self._seen = seen[-1].tolist()
+        self._seen = (seen | has).tolist()
         self._unseen = len(self._seen) - sum(self._seen)
-        kept = int(np.count_nonzero(complete))
-        self.dropped_leading += count - kept
+        kept = count - start
+        self.dropped_leading += start
         if not kept:
             return
-        start = count - kept  # complete from there on: the channels stay seen
         if self.first_complete_s is None:
             self.first_complete_s = float(time_s[start])
         self._append_rows(time_s[start:], filled[start:])

@@ -46,6 +46,7 @@ from ncmeasure.traces.job import ImportJob
 from ncmeasure.traces.merge import CarryForward
 from ncmeasure.traces.sinumerik_xml import parse_signal_name, sinumerik_candidates
 from ncmeasure.traces.text import (
+    LineBlock,
     TextLines,
     block_decimal_mark,
     comma_separated,
@@ -160,14 +161,14 @@ def _read(job: ImportJob, lines: TextLines) -> RecordingMeta:
     assembler = CarryForward(sink, [m.channel.name for m in mapped], [m.factor for m in mapped])
     decimal: str | None = "." if separator == "," else None
     width = len(header)
-    while block := lines.take(_BLOCK_LINES):
-        first_line = lines.line_number - len(block) + 1
+    while taken := lines.take_block(_BLOCK_LINES):
+        first_line = lines.line_number - len(taken) + 1
         place = _Where(job, first_line)
-        mark = decimal if decimal is not None else block_decimal_mark(block, separator)
-        if _fast_block(block, place, separator, mark, width, time_factor, columns, assembler):
+        mark = decimal if decimal is not None else block_decimal_mark(taken.lines, separator)
+        if _fast_block(taken, place, separator, mark, width, time_factor, columns, assembler):
             decimal = mark
             continue
-        reader = csv.reader(block, delimiter=separator, quotechar='"')
+        reader = csv.reader(taken.lines, delimiter=separator, quotechar='"')
         for cells in reader:
             at = place(reader.line_num - 1)
             if not any(c.strip() for c in cells):
@@ -227,7 +228,7 @@ class _Where:
 
 
 def _fast_block(
-    block: list[str],
+    block: LineBlock,
     where: _Where,
     separator: str,
     decimal: str | None,
@@ -243,7 +244,7 @@ def _fast_block(
     header, a time in every row. Anything else is read row by row
     (:func:`_slow_block`), which says what is wrong where.
     """
-    text = comma_separated(block, separator, decimal)
+    text = comma_separated(block.lines if block.plain is None else block.plain, separator, decimal)
     if text is None:
         return False
     cells = number_rows(text, width, empty=True)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import datetime as dt
 import math
 import re
-from collections.abc import Generator, Iterator, Mapping, Sequence
+from collections.abc import Callable, Generator, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import BinaryIO, Final
 
@@ -24,6 +24,7 @@ from ncmeasure.traces.job import ImportJob
 __all__ = [
     "INVALID_ABOVE",
     "PROGRESS_STEP_BYTES",
+    "LineBlock",
     "TextLines",
     "block_decimal_mark",
     "comma_separated",
@@ -47,6 +48,8 @@ INVALID_ABOVE: Final = 9.218868437227405e18
 PROGRESS_STEP_BYTES: Final = 1 << 20
 _SNIFF_BYTES: Final = 1 << 16
 _READ_BYTES: Final = 1 << 16
+#: At most this many bytes are read at a time for a block of lines (:meth:`TextLines.take_block`).
+_SPAN_BYTES: Final = 1 << 22
 
 
 def is_invalid(value: float) -> bool:
@@ -103,18 +106,20 @@ _NUMBER_BYTES: Final = b"0123456789.-+eE"
 _NUMBER_BYTES_NAN: Final = _NUMBER_BYTES + b"NaIfinty"
 
 
-def comma_separated(lines: Sequence[str], separator: str, decimal: str | None) -> bytes | None:
+def comma_separated(
+    lines: Sequence[str] | bytes, separator: str, decimal: str | None
+) -> bytes | None:
     """Lines of a file's notation as :func:`number_rows` reads them: ``,`` between cells and
     ``.`` in numbers, UTF-8; None where that cannot be told (a comma that is neither the
-    separator nor the decimal mark, a point beside a decimal comma)."""
-    text = "\n".join(lines)
+    separator nor the decimal mark, a point beside a decimal comma). The lines may be given
+    as UTF-8 bytes, each ended by LF (:attr:`LineBlock.plain`)."""
+    data = lines if isinstance(lines, bytes) else "\n".join(lines).encode()
     if separator == ",":
-        return text.encode()
-    if "," in text and decimal != ",":
+        return data
+    if b"," in data and decimal != ",":
         return None
-    if decimal == "," and "." in text:
+    if decimal == "," and b"." in data:
         return None
-    data = text.encode()
     mark = separator.encode()
     if len(mark) != 1:
         return (data.replace(b",", b".") if decimal == "," else data).replace(mark, b",")
@@ -145,15 +150,9 @@ def number_rows(block: bytes, width: int, *, empty: bool = False) -> NDArray[np.
     number_bytes = _NUMBER_BYTES
     blanks = None
     if empty:
-        if (
-            b"n" in body
-            or b"N" in body
-            or b"a" in body
-            or body[:1] in (b",", b"\n")
-            or b"\n," in body
-            or b"\n\n" in body  # a blank line: not a row of empty cells
-        ):
+        if b"n" in body or b"N" in body or b"a" in body:
             return None
+        # a blank line or an empty first cell is found below, among the empty cells
         body, blanks = _fill_blanks(body)
     elif b"n" in body:
         body = body.replace(b"nan", b"NaN").replace(b"inf", b"Infinity")
@@ -162,7 +161,9 @@ def number_rows(block: bytes, width: int, *, empty: bool = False) -> NDArray[np.
     # commas and a line end; anything else is left over
     separators = body.translate(None, number_bytes) + b"\n"
     if separators != (b"," * (width - 1) + b"\n") * (len(separators) // width):
-        return None
+        return None  # a blank line among them (one empty cell: a row of one)
+    if blanks is not None and (blanks % width == 0).any():
+        return None  # a row's first cell empty (a blank line in rows of one)
     try:  # one flat array: no list per row for the parser to make and the collector to visit
         flat = b"[" + body.replace(b"\n", b",") + b"]"
         parsed = pydantic_core.from_json(flat, allow_inf_nan=True)
@@ -222,6 +223,29 @@ def unit_factor(signal: str, unit: str) -> float | None:
 # --- reading text ----------------------------------------------------------------------
 
 
+class LineBlock:
+    """Lines taken at once (:meth:`TextLines.take_block`): :attr:`lines` as
+    :meth:`TextLines.take` gives them, decoded when first asked for, and :attr:`plain`,
+    their bytes with LF line ends where the block is plain ASCII (else None)."""
+
+    def __init__(
+        self, plain: bytes | None, lines: list[str] | Callable[[], list[str]], count: int
+    ) -> None:
+        self.plain = plain
+        self._lines = lines
+        self._count = count
+
+    def __len__(self) -> int:
+        return self._count
+
+    @property
+    def lines(self) -> list[str]:
+        """The lines, without their line ends."""
+        if callable(self._lines):
+            self._lines = self._lines()
+        return self._lines
+
+
 class TextLines:
     """The lines of a text file, read once, with their numbers and a byte count for progress.
 
@@ -246,7 +270,7 @@ class TextLines:
                 job.note(f"{path.name} is not UTF-8 text; read as Windows-1252")
         self.line_number = 0
         self._file: BinaryIO | None = None
-        self._blocks: Iterator[list[bytes]] | None = None
+        self._rest = b""  # read from the file, not split into lines yet (a line's start)
         self._pending: list[bytes] = []  # raw lines read from the file, not given out yet
         self._at = 0  # ... from this index on
         self._bytes_read = 0
@@ -268,29 +292,61 @@ class TextLines:
         if self._file is not None:
             self._file.close()
 
-    def _raw_blocks(self, file: BinaryIO) -> Iterator[list[bytes]]:
-        """The lines of ``file`` with their endings, a list per block read; bytes.splitlines
-        knows LF, CRLF and CR."""
-        rest = b""
+    def _next_lines(self, file: BinaryIO) -> list[bytes]:
+        """The next lines of ``file`` with their endings, a list per block read ([] at the
+        end); bytes.splitlines knows LF, CRLF and CR."""
         while block := file.read(_READ_BYTES):
-            lines = (rest + block).splitlines(keepends=True)
+            lines = (self._rest + block).splitlines(keepends=True)
             # the last line may continue in the next block (a CR may be half of a CRLF)
-            rest = b"" if lines[-1].endswith(b"\n") else lines.pop()
+            self._rest = b"" if lines[-1].endswith(b"\n") else lines.pop()
             if lines:
-                yield lines
-        if rest:
-            yield [rest]
+                return lines
+        rest, self._rest = self._rest, b""
+        return [rest] if rest else []
+
+    def _open(self) -> BinaryIO:
+        if self._file is None:
+            self._file = self.path.open("rb")
+        return self._file
 
     def _refill(self) -> bool:
         """Read the next block of raw lines when all are given out; False at the end."""
         if self._at < len(self._pending):
             return True
-        if self._blocks is None:
-            self._file = self.path.open("rb")
-            self._blocks = self._raw_blocks(self._file)
-        self._pending = next(self._blocks, [])
+        self._pending = self._next_lines(self._open())
         self._at = 0
         return bool(self._pending)
+
+    def _span(self, count: int) -> tuple[bytes, int]:
+        """The next ``count`` lines (fewer at the end) as the file holds them, read in one
+        piece, and how many they are; no line pending. Where a line among them ends in a
+        bare CR, what was read is left pending as lines instead, and ``(b"", 0)`` returned."""
+        file = self._open()
+        line_bytes = self._bytes_read // max(self.line_number, 1) + 1
+        chunks = [self._rest]
+        newlines = self._rest.count(b"\n")
+        at_end = False
+        while newlines < count:
+            block = file.read(min(max((count - newlines) * line_bytes, _READ_BYTES), _SPAN_BYTES))
+            if not block:
+                at_end = True
+                break
+            chunks.append(block)
+            newlines += block.count(b"\n")
+        data = b"".join(chunks)
+        if at_end:  # the last line may end without LF
+            cut, count = len(data), newlines + (bool(data) and not data.endswith(b"\n"))
+        else:
+            cut = int(np.flatnonzero(np.frombuffer(data, np.uint8) == _NEWLINE)[count - 1]) + 1
+        span = data[:cut]
+        if b"\r" in span and span.count(b"\r") != span.count(b"\r\n"):
+            # lines as _next_lines splits them: the last may continue in the file
+            lines = data.splitlines(keepends=True)
+            self._rest = b"" if at_end or lines[-1].endswith(b"\n") else lines.pop()
+            self._pending, self._at = lines, 0
+            return b"", 0
+        self._rest = data[cut:]
+        return span, count
 
     def _raw(self, count: int) -> list[bytes]:
         """The next ``count`` raw lines (fewer at the end), shared by iteration and :meth:`take`."""
@@ -339,13 +395,43 @@ class TextLines:
 
         After it, :attr:`line_number` is the number of the last line taken.
         """
-        raw = self._raw(count)
-        if not raw:
-            self._finish()
-            return []
+        return self.take_block(count).lines
+
+    def take_block(self, count: int) -> LineBlock:
+        """:meth:`take`, with the lines' bytes for a reader that parses bytes: where every
+        byte is ASCII and no line ends in a bare CR, :attr:`LineBlock.plain` holds the lines
+        each ended by LF (the last perhaps by nothing), and the lines are decoded only when
+        asked for. The lines not read yet come from the file in one piece, not line by
+        line."""
         first = self.line_number + 1
-        data = b"".join(raw)
+        # the lines pending, then the rest from the file in one piece (line by line where a
+        # line ends in a bare CR: _span leaves them pending)
+        before = self._pending[self._at : self._at + count]
+        self._at += len(before)
+        span, in_span = self._span(count - len(before)) if count > len(before) else (b"", 0)
+        after = self._raw(count - len(before) - in_span) if not in_span else []
+        taken = len(before) + in_span + len(after)
+        if not taken:
+            self._finish()
+            return LineBlock(None, [], 0)
+        data = b"".join([*before, span, *after])
         self._progress(len(data))
+        plain: bytes | None = None
+        if first > 1 and data.isascii():  # no BOM, the same text in UTF-8 and Windows-1252
+            plain = data.replace(b"\r\n", b"\n") if b"\r" in data else data
+            if b"\r" in plain:  # a line ended by a bare CR
+                plain = None
+
+        def decoded() -> list[str]:
+            raw = [*before, *span.splitlines(keepends=True), *after]
+            return self._decoded(raw, data, first)
+
+        block = LineBlock(plain, decoded if plain is not None else decoded(), taken)
+        self.line_number += taken
+        return block
+
+    def _decoded(self, raw: list[bytes], data: bytes, first: int) -> list[str]:
+        """The lines of ``raw`` (``data`` joined), the first line number ``first``, decoded."""
         try:
             text = data.decode(self.encoding)
         except UnicodeDecodeError:
@@ -359,7 +445,6 @@ class TextLines:
             lines = [self._decode(line, first + i).rstrip("\r\n") for i, line in enumerate(raw)]
         if first == 1:
             lines[0] = lines[0].lstrip("\ufeff")
-        self.line_number += len(raw)
         return lines
 
     def where(self) -> str:
