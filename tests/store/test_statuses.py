@@ -306,3 +306,29 @@ def test_the_checks_fleet_figures_are_the_plain_ones(store_url: str, make_result
             ]  # fmt: skip
             assert got == expected, serial
             assert check.fleet_machines == len(FLEET) - 1
+
+
+def test_a_search_finds_what_each_text_holds() -> None:
+    """The search looks in each machine's serial, type and site (any case), held as one
+    text per machine: never across two of them."""
+    serials = ["AB-1", "cd-2", "EF-3", "GH-4"]
+    fleet = statuses.FleetStatuses(
+        version="v",
+        machine_ids=np.arange(4, dtype=np.int64),
+        serials=serials,
+        types=["Lathe", "MILL", "mill", "Lathe"],
+        sites=["Straße 1", None, "Hall 3", "hall 30"],
+        levels=np.zeros(4, dtype=np.int8),
+        axis_machine=np.zeros(0, dtype=np.intp),
+        axis_levels=np.zeros(0, dtype=np.int8),
+        axis_names=[],
+    )
+
+    def found(search: str) -> list[str]:
+        return [serials[i] for i in fleet.matching(search)]
+
+    assert found("mill") == ["cd-2", "EF-3"]
+    assert found("HALL 3") == ["EF-3", "GH-4"]
+    assert found("STRASSE") == ["AB-1"]  # case-folded
+    assert found("1lathe") == [] and found("1\x00lathe") == []  # never across two texts
+    assert found("ab-1") == ["AB-1"] and found("") == serials
