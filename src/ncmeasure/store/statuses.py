@@ -109,7 +109,7 @@ class FleetStatuses:
     """Every axis name in the fleet, sorted."""
     places: dict[Group, _Places] = field(default_factory=dict)
     searched: list[str] | None = field(default=None, repr=False, compare=False)
-    """Per machine, the text a search looks in (:meth:`search_texts`)."""
+    """Per machine, the text a search looks in (:meth:`search_texts`, made by the first)."""
 
     def by_serial(self) -> dict[str, Status]:
         """Every machine's status by serial."""
@@ -139,7 +139,8 @@ class FleetStatuses:
 
     def search_texts(self) -> list[str]:
         """Per machine: its serial, type and site, case-folded, joined by a character no
-        search holds (made once: the statuses are cached per fleet version)."""
+        search holds (made by the first search: the statuses are cached per fleet
+        version, the grid's first view needs none)."""
         if self.searched is None:
             self.searched = [
                 _APART.join((serial.casefold(), kind.casefold(), (site or "").casefold()))
@@ -260,7 +261,7 @@ def fleet_statuses(store: Store) -> FleetStatuses:
     axis_levels = np.where(flagged, np.maximum(local, 1), local).astype(np.int8)
     levels = np.zeros(ids.size, dtype=np.int8)
     np.maximum.at(levels, axis_machine, axis_levels)
-    found = FleetStatuses(
+    return FleetStatuses(
         version=version,
         machine_ids=ids[by_serial],
         serials=[serials[i] for i in by_serial],
@@ -272,8 +273,6 @@ def fleet_statuses(store: Store) -> FleetStatuses:
         axis_names=sorted({r[4] for r in rows}),
         places=places,
     )
-    found.searched = found.search_texts()  # a few ms at 10,000: every search after is a scan
-    return found
 
 
 def _raw(db: Connection, query: Select[Any]) -> list[tuple[Any, ...]]:
@@ -295,10 +294,13 @@ def _fleet(
     :data:`FLEET_FACTOR` from the median. The tests of the judgement, on arrays."""
     places: dict[Group, _Places] = {}
     flagged = np.zeros(len(rows), dtype=bool)
+    if not rows:
+        return places, flagged
     index: dict[tuple[str, str, str], int] = {}
     codes = np.array([index.setdefault((r[2], r[4], r[5]), len(index)) for r in rows])
+    figures = list(zip(*rows, strict=True))[6 : 6 + len(CHARACTERISTICS)]  # the columns
     for j, c in enumerate(CHARACTERISTICS):
-        column = np.array([r[6 + j] for r in rows], dtype=np.float64)  # None: nan
+        column = np.array(figures[j], dtype=np.float64)  # None: nan
         for (machine_type, axis, unit), code in index.items():
             members = np.flatnonzero((codes == code) & np.isfinite(column))
             if members.size < 2:
