@@ -48,6 +48,7 @@ from ncmeasure.store.changes import (
     baseline_of,
     compare_with_baseline,
 )
+from ncmeasure.store.database import plain_columns
 from ncmeasure.store.records import MeasurementSummary, check_serial
 from ncmeasure.store.store import Store
 
@@ -127,29 +128,27 @@ def _fleet_values(
     measurements.
 
     One query, answered from two indexes alone (``ix_machines_type_latest``,
-    ``ix_axis_results_figures``); the rows are the driver's plain tuples, turned into
-    columns at once (ten thousand machines are some 40,000 rows).
+    ``ix_axis_results_figures``), read as columns of the driver's plain values
+    (:func:`~ncmeasure.store.database.plain_columns`; ten thousand machines are some
+    40,000 rows).
     """
     a, m = t.axis_results, t.machines
     columns = [a.c[c.name] for c in CHARACTERISTICS]
     with store.reading("read the fleet") as db:
-        result = db.execute(
+        read = plain_columns(
+            db,
             select(a.c.axis, a.c.unit, *columns)
             .join(m, m.c.latest_measurement_id == a.c.measurement_id)
-            .where(m.c.type_id == type_id, m.c.id != machine_id)
+            .where(m.c.type_id == type_id, m.c.id != machine_id),
         )
-        try:  # the driver's tuples: no row object each, the columns need no conversion
-            rows = result.cursor.fetchall()
-        finally:
-            result.close()
-    if not rows:
+    if not read:
         return {}
-    names, units, *figures = zip(*rows, strict=True)
+    names, units, *figures = read
     groups: dict[tuple[str, str], int] = {}
     codes = np.fromiter(
         (groups.setdefault(key, len(groups)) for key in zip(names, units, strict=True)),
         dtype=np.intp,
-        count=len(rows),
+        count=len(names),
     )
     table = [np.array(f, dtype=np.float64) for f in figures]  # None becomes NaN
     values: dict[tuple[str, str], dict[str, _Reference]] = {}

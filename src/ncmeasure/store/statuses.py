@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import Connection, Select, and_, delete, insert, select
+from sqlalchemy import Connection, and_, delete, insert, select
 
 from ncmeasure.analysis.judgement.fleet import modified_z_leave_one_out
 from ncmeasure.analysis.judgement.status import (
@@ -45,6 +45,7 @@ from ncmeasure.store.changes import (
     current_change,
     stored_changes,
 )
+from ncmeasure.store.database import plain_rows
 from ncmeasure.store.overview import (
     MachineOverview,
     Outlier,
@@ -235,7 +236,7 @@ def fleet_statuses(store: Store) -> FleetStatuses:
     )
     with store.reading("read the fleet's statuses") as db:
         version = fleet_version(db)
-        rows = _raw(db, query)
+        rows = plain_rows(db, query)
     count = len(rows)
     machine_of_row = np.fromiter((r[0] for r in rows), dtype=np.int64, count=count)
     ids, first, inverse = np.unique(machine_of_row, return_index=True, return_inverse=True)
@@ -273,16 +274,6 @@ def fleet_statuses(store: Store) -> FleetStatuses:
         axis_names=sorted({r[4] for r in rows}),
         places=places,
     )
-
-
-def _raw(db: Connection, query: Select[Any]) -> list[tuple[Any, ...]]:
-    """The rows of ``query`` as the database driver's tuples, without a row object each (the
-    fleet's figures are many; their columns need no conversion)."""
-    result = db.execute(query)
-    try:
-        return list(result.cursor.fetchall())
-    finally:
-        result.close()
 
 
 def _fleet(
