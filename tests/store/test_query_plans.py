@@ -126,3 +126,63 @@ def test_lists_pages_checks_and_adds_use_indexes(store_url: str, make_results: M
             if (tables := _full_scans(store, statement, parameters))
         }
         assert scans == {}
+
+
+def _plan(store: Store, statement: str, parameters: Any) -> str:
+    raw = store.engine.raw_connection()
+    try:
+        cursor = raw.cursor()
+        if store.engine.dialect.name == "sqlite":
+            cursor.execute("EXPLAIN QUERY PLAN " + statement, parameters)
+            return "\n".join(str(row[-1]) for row in cursor.fetchall())
+        cursor.execute("SET enable_seqscan = off")
+        cursor.execute("EXPLAIN " + statement, parameters)
+        return "\n".join(str(row[0]) for row in cursor.fetchall())
+    finally:
+        raw.close()
+
+
+def test_the_checks_fleet_is_read_from_the_indexes(store_url: str, make_results: Make) -> None:
+    """``store check`` reads every latest figure of the machine's type: from the type's
+    machines by their latest measurement and the axes' figures, both indexes holding
+    every column read (SQLite reads no table row)."""
+    with open_store(store_url, write=True) as store:
+        for m in range(4):
+            store.add(
+                make_results(f"2026-0{m + 1}-01T08:00:00+00:00", 1.0 + m / 10),
+                MeasurementInfo(serial=f"M{m}", label="delivery"),
+            )
+        with _recorded() as statements:
+            check_machine(store, "M1")
+        fleet = [
+            (statement, parameters)
+            for statement, parameters in statements
+            if "FROM axis_results JOIN machines" in statement
+        ]
+        assert len(fleet) == 1
+        plan = _plan(store, *fleet[0])
+        assert "ix_axis_results_figures" in plan and "ix_machines_type_latest" in plan, plan
+        if store.engine.dialect.name == "sqlite":
+            assert "COVERING INDEX ix_axis_results_figures" in plan, plan
+            assert "COVERING INDEX ix_machines_type_latest" in plan, plan
+
+
+def test_a_search_finds_any_case_and_sqlite_folds_nothing_per_row(
+    store_url: str, make_results: Make
+) -> None:
+    """The lists' search matches serial, type or site in any case; on SQLite through ``LIKE``
+    alone (which ignores the case of ASCII letters, the only ones SQLite's ``lower()`` folds),
+    without a ``lower()`` per row."""
+    with open_store(store_url, write=True) as store:
+        for m, site in enumerate(("Hall 3", "hall 30", None)):
+            store.add(
+                make_results(f"2026-0{m + 1}-01T08:00:00+00:00"),
+                MeasurementInfo(serial=f"Mx-{m}", label="delivery", site=site),
+            )
+        with _recorded() as statements:
+            found = [m.serial for m in store.machine_page(search="HALL 3").machines]
+            assert [m.serial for m in store.machine_page(search="mX-2").machines] == ["Mx-2"]
+            assert store.machine_page(search="50%").machines == []  # a wildcard is a character
+        assert found == ["Mx-0", "Mx-1"]
+        if store.engine.dialect.name == "sqlite":
+            assert not [s for s, _ in statements if "lower(" in s]

@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 
+import numpy as np
 import pytest
 from sqlalchemy import func, select
 
@@ -239,3 +240,95 @@ def test_a_machine_whose_axes_change_between_the_reads_gets_a_status(
     monkeypatch.setattr(statuses, "_judge_missing", axes_renamed)
     with open_store(store_url) as store:
         assert fleet_statuses(store).by_serial()["M23"] == "critical"  # +27 % since delivery
+
+
+def test_the_checks_fleet_figures_are_the_plain_ones(store_url: str, make_results: Make) -> None:
+    """``store check`` against its fleet (read from the indexes, as columns) gives the
+    figures of the plain computation: every other machine's latest axis rows, read one
+    machine at a time, in order of value (the mean deviation, where the MAD is 0, is a sum:
+    its last digit follows the order)."""
+    from ncmeasure.analysis.judgement.fleet import modified_z_against
+    from ncmeasure.analysis.judgement.status import CHARACTERISTICS, is_outlier
+    from ncmeasure.formats.comparison import Limits
+    from ncmeasure.store.check import check_machine
+    from ncmeasure.store.rows import rows_of_axis
+
+    _fill(store_url, make_results)
+    limits = Limits()
+    with open_store(store_url) as store:
+        latest: dict[str, dict[tuple[str, str], dict[str, float | None]]] = {}
+        for serial in FLEET:  # each machine's latest axis rows, one machine at a time
+            with store.reading("the latest rows") as db:
+                machine = store.machine_row(db, serial)
+                rows = db.execute(
+                    select(t.axis_results).where(
+                        t.axis_results.c.measurement_id == machine.latest_measurement_id
+                    )
+                ).all()
+            latest[serial] = {
+                (row.axis, row.unit): {c.name: getattr(row, c.name) for c in CHARACTERISTICS}
+                for row in rows
+            }
+        own_values = {}
+        for serial in FLEET:
+            _, measurements = store.machine(serial)
+            newest = max(measurements, key=lambda m: m.measured_utc)
+            results = store.results(newest.id)
+            own_values[serial] = {
+                (name, axis.unit): rows_of_axis(name, axis).axis
+                for name, axis in results.axes.items()
+            }
+        for serial in FLEET:
+            check = check_machine(store, serial)
+            expected = []
+            for (name, unit), own in sorted(own_values[serial].items()):
+                for c in CHARACTERISTICS:
+                    value = own[c.name]
+                    others = sorted(
+                        figure
+                        for other, axes in latest.items()
+                        if other != serial
+                        and (figure := axes.get((name, unit), {}).get(c.name)) is not None
+                    )
+                    if value is None or not others:
+                        continue
+                    enough = len(others) >= limits.outlier_min_runs
+                    z = modified_z_against(value, others) if enough else None
+                    median = float(np.median(others))
+                    expected.append(
+                        (name, c.name, value, median, min(others), max(others), len(others), z,
+                         is_outlier(c, value, median, z, limits))
+                    )  # fmt: skip
+            got = [
+                (f.axis, f.characteristic, f.value, f.fleet_median, f.fleet_low, f.fleet_high,
+                 f.machines, f.modified_z, f.outlier)
+                for f in check.fleet
+            ]  # fmt: skip
+            assert got == expected, serial
+            assert check.fleet_machines == len(FLEET) - 1
+
+
+def test_a_search_finds_what_each_text_holds() -> None:
+    """The search looks in each machine's serial, type and site (any case), held as one
+    text per machine: never across two of them."""
+    serials = ["AB-1", "cd-2", "EF-3", "GH-4"]
+    fleet = statuses.FleetStatuses(
+        version="v",
+        machine_ids=np.arange(4, dtype=np.int64),
+        serials=serials,
+        types=["Lathe", "MILL", "mill", "Lathe"],
+        sites=["Straße 1", None, "Hall 3", "hall 30"],
+        levels=np.zeros(4, dtype=np.int8),
+        axis_machine=np.zeros(0, dtype=np.intp),
+        axis_levels=np.zeros(0, dtype=np.int8),
+        axis_names=[],
+    )
+
+    def found(search: str) -> list[str]:
+        return [serials[i] for i in fleet.matching(search)]
+
+    assert found("mill") == ["cd-2", "EF-3"]
+    assert found("HALL 3") == ["EF-3", "GH-4"]
+    assert found("STRASSE") == ["AB-1"]  # case-folded
+    assert found("1lathe") == [] and found("1\x00lathe") == []  # never across two texts
+    assert found("ab-1") == ["AB-1"] and found("") == serials

@@ -20,10 +20,12 @@ from __future__ import annotations
 import json
 import os
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import func, select
 
@@ -46,6 +48,7 @@ from ncmeasure.store.changes import (
     baseline_of,
     compare_with_baseline,
 )
+from ncmeasure.store.database import plain_columns
 from ncmeasure.store.records import MeasurementSummary, check_serial
 from ncmeasure.store.store import Store
 
@@ -99,36 +102,65 @@ class StoreCheck(BaseModel):
     )
 
 
+@dataclass(frozen=True)
+class _Reference:
+    """One characteristic of one axis over the other machines of the type: their finite
+    values, sorted (the figures do not hang on the order the database returns them in)."""
+
+    values: NDArray[np.float64]
+
+    def figures(self, value: float, enough: bool) -> tuple[float | None, float, float, float]:
+        """The value's modified z (None unless ``enough`` others), the others' median, low
+        and high."""
+        x = self.values
+        return (
+            modified_z_against(value, x) if enough else None,
+            float(np.median(x)),
+            float(x[0]),
+            float(x[-1]),
+        )
+
+
 def _fleet_values(
     store: Store, type_id: int, machine_id: int
-) -> dict[tuple[str, str], dict[str, list[float]]]:
-    """Per (axis, unit) and characteristic: the finite values of the other machines' latest.
+) -> dict[tuple[str, str], dict[str, _Reference]]:
+    """Per (axis, unit) and characteristic: the finite values of the other machines' latest
+    measurements.
 
-    One query; the rows are the driver's plain tuples, sorted into arrays (ten thousand
-    machines are some 40,000 rows).
+    One query, answered from two indexes alone (``ix_machines_type_latest``,
+    ``ix_axis_results_figures``), read as columns of the driver's plain values
+    (:func:`~ncmeasure.store.database.plain_columns`; ten thousand machines are some
+    40,000 rows).
     """
-    a = t.axis_results
+    a, m = t.axis_results, t.machines
     columns = [a.c[c.name] for c in CHARACTERISTICS]
     with store.reading("read the fleet") as db:
-        result = db.execute(
+        read = plain_columns(
+            db,
             select(a.c.axis, a.c.unit, *columns)
-            .join(t.machines, t.machines.c.latest_measurement_id == a.c.measurement_id)
-            .where(t.machines.c.type_id == type_id, t.machines.c.id != machine_id)
+            .join(m, m.c.latest_measurement_id == a.c.measurement_id)
+            .where(m.c.type_id == type_id, m.c.id != machine_id),
         )
-        try:  # the driver's tuples: no row object each, the columns need no conversion
-            rows = result.cursor.fetchall()
-        finally:
-            result.close()
-    grouped: dict[tuple[str, str], list[Any]] = defaultdict(list)
-    for row in rows:
-        grouped[(row[0], row[1])].append(row[2:])
-    values: dict[tuple[str, str], dict[str, list[float]]] = {}
-    for key, found in grouped.items():
-        table = np.array(found, dtype=np.float64)  # None becomes NaN
-        values[key] = {
-            c.name: table[:, i][np.isfinite(table[:, i])].tolist()
-            for i, c in enumerate(CHARACTERISTICS)
-        }
+    if not read:
+        return {}
+    names, units, *figures = read
+    groups: dict[tuple[str, str], int] = {}
+    codes = np.fromiter(
+        (groups.setdefault(key, len(groups)) for key in zip(names, units, strict=True)),
+        dtype=np.intp,
+        count=len(names),
+    )
+    table = [np.array(f, dtype=np.float64) for f in figures]  # None becomes NaN
+    values: dict[tuple[str, str], dict[str, _Reference]] = {}
+    for key, code in groups.items():
+        members = codes == code
+        found: dict[str, _Reference] = {}
+        for c, column in zip(CHARACTERISTICS, table, strict=True):
+            x = column[members]
+            x = x[np.isfinite(x)]
+            if x.size:
+                found[c.name] = _Reference(np.sort(x))
+        values[key] = found
     return values
 
 
@@ -151,12 +183,11 @@ def _fleet(
         own = rows_of_axis(name, axis).axis
         for c in CHARACTERISTICS:
             value = own[c.name]
-            reference = values.get((name, axis.unit), {}).get(c.name, [])
-            if value is None or not reference:
+            reference = values.get((name, axis.unit), {}).get(c.name)
+            if value is None or reference is None:
                 continue
-            enough = len(reference) >= limits.outlier_min_runs
-            z = modified_z_against(value, reference) if enough else None
-            median = float(np.median(reference))
+            count = int(reference.values.size)
+            z, median, low, high = reference.figures(value, count >= limits.outlier_min_runs)
             unit = c.unit_of(axis.unit)
             figures.append(
                 FleetFigure(
@@ -165,9 +196,9 @@ def _fleet(
                     unit=unit,
                     value=value,
                     fleet_median=median,
-                    fleet_low=float(min(reference)),
-                    fleet_high=float(max(reference)),
-                    machines=len(reference),
+                    fleet_low=low,
+                    fleet_high=high,
+                    machines=count,
                     modified_z=z,
                     outlier=is_outlier(c, value, median, z, limits),
                 )

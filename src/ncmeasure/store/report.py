@@ -3,7 +3,7 @@
 A traffic-light grid of machines × axes (the change since each machine's
 baseline and the outliers of its type), the outliers, and the trends of the
 axes that moved most, each with its limits. Like the measurement report, the
-page is one file: inline CSS, images as data URIs, no script, every text from
+page is one file: inline CSS, the trends as inline SVG, no script, every text from
 the store escaped (Jinja autoescape).
 
 What it shows is bounded, not the fleet (:func:`fleet_report`): the counts per
@@ -20,7 +20,6 @@ the kept statuses are those of the default limits.
 
 from __future__ import annotations
 
-import base64
 import datetime as dt
 import functools
 import os
@@ -28,7 +27,7 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import jinja2
 
@@ -58,6 +57,7 @@ __all__ = [
     "fleet_report",
     "report_of",
     "trend_figure",
+    "trend_svg",
     "write_fleet_report",
 ]
 
@@ -75,29 +75,49 @@ _SEVERITY = {"critical": 2, "warning": 1, "ok": 0}
 _STATUSES: tuple[Status, ...] = ("ok", "warning", "critical")
 
 
+def _trend_arguments(
+    points: Sequence[TrendPoint], limits: Limits
+) -> tuple[list[dt.datetime], list[tuple[str, str, list[float | None]]], dict[str, Any]]:
+    """What a trend figure draws: the times, the panels and the limits around the baseline
+    (the first ``delivery`` measurement, else the first)."""
+    unit = points[-1].unit
+    baseline = next((i for i, p in enumerate(points) if p.label == "delivery"), 0)
+    series: list[tuple[str, str, list[float | None]]] = [
+        ("Coulomb", unit, [p.coulomb for p in points]),
+        ("viscous", f"{unit} per m/min", [p.viscous_per_m_min for p in points]),
+        ("spread along the travel", "%", [p.spread_percent for p in points]),
+    ]
+    return (
+        [dt.datetime.fromisoformat(p.measured_utc) for p in points],
+        series,
+        {
+            "baseline_index": baseline,
+            "warning_percent": limits.warning_percent,
+            "critical_percent": limits.critical_percent,
+            "labels": [p.label for p in points],
+        },
+    )
+
+
 def trend_figure(axis: str, points: Sequence[TrendPoint], limits: Limits) -> Figure:
     """An axis' Coulomb, viscous friction and spread over a machine's life, with the limits.
 
     The limits are drawn around the baseline (the first ``delivery`` measurement,
-    else the first). Used by ``store trend --plot`` and ``store report``.
+    else the first). Used by ``store trend --plot``.
     """
     from ncmeasure.report.plots import plot_trend
 
-    unit = points[-1].unit
-    baseline = next((i for i, p in enumerate(points) if p.label == "delivery"), 0)
-    return plot_trend(
-        axis,
-        [dt.datetime.fromisoformat(p.measured_utc) for p in points],
-        [
-            ("Coulomb", unit, [p.coulomb for p in points]),
-            ("viscous", f"{unit} per m/min", [p.viscous_per_m_min for p in points]),
-            ("spread along the travel", "%", [p.spread_percent for p in points]),
-        ],
-        baseline_index=baseline,
-        warning_percent=limits.warning_percent,
-        critical_percent=limits.critical_percent,
-        labels=[p.label for p in points],
-    )
+    times, series, options = _trend_arguments(points, limits)
+    return plot_trend(axis, times, series, **options)
+
+
+def trend_svg(axis: str, points: Sequence[TrendPoint], limits: Limits) -> str:
+    """The figure of :func:`trend_figure` as an ``<svg>`` element, written directly (no
+    matplotlib): the trends of ``store report``."""
+    from ncmeasure.report.trend_svg import trend_svg as draw
+
+    times, series, options = _trend_arguments(points, limits)
+    return draw(axis, times, series, **options)
 
 
 @dataclass(frozen=True)
@@ -123,7 +143,7 @@ class _Trend:
     axis: str
     status: str
     why: str
-    image: str
+    svg: str
 
 
 def _change_text(change: Change) -> str:
@@ -363,17 +383,14 @@ def write_fleet_report(
     moved = _moved(shown.judged, trends)
     drawn: list[_Trend] = []
     for done, (machine, axis) in enumerate(moved, start=1):
-        from ncmeasure.report.plots import figure_png  # matplotlib: only for a trend drawn
-
         points = store.trend(machine.serial, axis.axis)
-        png = figure_png(trend_figure(axis.axis, points, shown.limits))
         drawn.append(
             _Trend(
                 serial=machine.serial,
                 axis=axis.axis,
                 status=axis.status,
                 why=_why(axis),
-                image="data:image/png;base64," + base64.b64encode(png).decode("ascii"),
+                svg=trend_svg(axis.axis, points, shown.limits),
             )
         )
         if progress is not None:

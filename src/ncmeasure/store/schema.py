@@ -93,6 +93,7 @@ machines = Table(
     Column("site", String(200)),
     Column("created_utc", String(32), nullable=False),
     Column("latest_measurement_id", Integer, doc="The measurement with the latest time."),
+    Index("ix_machines_type_latest", "type_id", "latest_measurement_id"),
 )
 
 axes = Table(
@@ -154,6 +155,17 @@ axis_results = Table(
     Column("offset", Float),
     Column("offset_stderr", Float),
     UniqueConstraint("measurement_id", "axis"),
+    # the fleet's latest figures (``store check``, the lists' statuses) read from the index
+    # alone: no table row each
+    Index(
+        "ix_axis_results_figures",
+        "measurement_id",
+        "axis",
+        "unit",
+        "coulomb",
+        "viscous_per_m_min",
+        "spread_percent",
+    ),
 )
 
 points = Table(

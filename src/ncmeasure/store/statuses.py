@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from sqlalchemy import Connection, Select, and_, delete, insert, select
+from sqlalchemy import Connection, and_, delete, insert, select
 
 from ncmeasure.analysis.judgement.fleet import modified_z_leave_one_out
 from ncmeasure.analysis.judgement.status import (
@@ -45,6 +45,7 @@ from ncmeasure.store.changes import (
     current_change,
     stored_changes,
 )
+from ncmeasure.store.database import plain_rows
 from ncmeasure.store.overview import (
     MachineOverview,
     Outlier,
@@ -80,6 +81,8 @@ class _Places:
     enough: bool
 
 
+_APART = "\x00"
+"""Between the texts of a machine that a search looks in."""
 _LEVELS: tuple[Status, ...] = ("ok", "warning", "critical")
 _LEVEL: dict[str, int] = {name: level for level, name in enumerate(_LEVELS)}
 
@@ -106,6 +109,8 @@ class FleetStatuses:
     axis_names: list[str]
     """Every axis name in the fleet, sorted."""
     places: dict[Group, _Places] = field(default_factory=dict)
+    searched: list[str] | None = field(default=None, repr=False, compare=False)
+    """Per machine, the text a search looks in (:meth:`search_texts`, made by the first)."""
 
     def by_serial(self) -> dict[str, Status]:
         """Every machine's status by serial."""
@@ -121,14 +126,28 @@ class FleetStatuses:
         if not search:
             return list(chosen)
         wanted = search.casefold()
-        return [
-            i
-            for i in chosen
-            if any(
-                wanted in (text or "").casefold()
-                for text in (self.serials[i], self.types[i], self.sites[i])
-            )
-        ]
+        if _APART in wanted:  # the texts are held joined by it: field by field
+            return [
+                i
+                for i in chosen
+                if any(
+                    wanted in (text or "").casefold()
+                    for text in (self.serials[i], self.types[i], self.sites[i])
+                )
+            ]
+        texts = self.search_texts()
+        return [i for i in chosen if wanted in texts[i]]
+
+    def search_texts(self) -> list[str]:
+        """Per machine: its serial, type and site, case-folded, joined by a character no
+        search holds (made by the first search: the statuses are cached per fleet
+        version, the grid's first view needs none)."""
+        if self.searched is None:
+            self.searched = [
+                _APART.join((serial.casefold(), kind.casefold(), (site or "").casefold()))
+                for serial, kind, site in zip(self.serials, self.types, self.sites, strict=True)
+            ]
+        return self.searched
 
     def axis_counts(self, machines: Sequence[int]) -> dict[Status, int]:
         """The axes of these machines per status."""
@@ -217,7 +236,7 @@ def fleet_statuses(store: Store) -> FleetStatuses:
     )
     with store.reading("read the fleet's statuses") as db:
         version = fleet_version(db)
-        rows = _raw(db, query)
+        rows = plain_rows(db, query)
     count = len(rows)
     machine_of_row = np.fromiter((r[0] for r in rows), dtype=np.int64, count=count)
     ids, first, inverse = np.unique(machine_of_row, return_index=True, return_inverse=True)
@@ -257,16 +276,6 @@ def fleet_statuses(store: Store) -> FleetStatuses:
     )
 
 
-def _raw(db: Connection, query: Select[Any]) -> list[tuple[Any, ...]]:
-    """The rows of ``query`` as the database driver's tuples, without a row object each (the
-    fleet's figures are many; their columns need no conversion)."""
-    result = db.execute(query)
-    try:
-        return list(result.cursor.fetchall())
-    finally:
-        result.close()
-
-
 def _fleet(
     rows: Sequence[tuple[Any, ...]], machine_of_row: NDArray[np.int64], limits: Limits
 ) -> tuple[dict[Group, _Places], NDArray[np.bool_]]:
@@ -276,10 +285,13 @@ def _fleet(
     :data:`FLEET_FACTOR` from the median. The tests of the judgement, on arrays."""
     places: dict[Group, _Places] = {}
     flagged = np.zeros(len(rows), dtype=bool)
+    if not rows:
+        return places, flagged
     index: dict[tuple[str, str, str], int] = {}
     codes = np.array([index.setdefault((r[2], r[4], r[5]), len(index)) for r in rows])
+    figures = list(zip(*rows, strict=True))[6 : 6 + len(CHARACTERISTICS)]  # the columns
     for j, c in enumerate(CHARACTERISTICS):
-        column = np.array([r[6 + j] for r in rows], dtype=np.float64)  # None: nan
+        column = np.array(figures[j], dtype=np.float64)  # None: nan
         for (machine_type, axis, unit), code in index.items():
             members = np.flatnonzero((codes == code) & np.isfinite(column))
             if members.size < 2:

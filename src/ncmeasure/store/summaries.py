@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from sqlalchemy import ColumnElement, Connection, case, delete, func, insert, select, update
 
@@ -174,6 +175,15 @@ def check_limit(limit: int) -> int:
     return limit
 
 
+def _contains(db: Connection, column: ColumnElement[Any], text: str) -> ColumnElement[bool]:
+    """``column`` contains ``text`` in any case. SQLite's ``LIKE`` ignores the case of
+    ASCII letters, the only ones its ``lower()`` folds: the same rows without two
+    ``lower()`` calls per row and column (a third of a search's time at 10,000 machines)."""
+    if db.dialect.name == "sqlite":
+        return column.contains(text, autoescape=True)
+    return column.icontains(text, autoescape=True)
+
+
 def machine_page(
     db: Connection,
     *,
@@ -200,9 +210,9 @@ def machine_page(
     where: list[ColumnElement[bool]] = [s.c.latest_id.is_not(None)]
     if search:
         where.append(
-            s.c.serial.icontains(search, autoescape=True)
-            | s.c.machine_type.icontains(search, autoescape=True)
-            | s.c.site.icontains(search, autoescape=True)
+            _contains(db, s.c.serial, search)
+            | _contains(db, s.c.machine_type, search)
+            | _contains(db, s.c.site, search)
         )
     if status is not None:
         if statuses is None:

@@ -40,7 +40,7 @@ def _modified_z(values: Sequence[float]) -> list[float]:
     return [0.0] * x.size
 
 
-def modified_z_against(value: float, reference: Sequence[float]) -> float:
+def modified_z_against(value: float, reference: Sequence[float] | NDArray[np.float64]) -> float:
     """The modified z-score of ``value`` against other values (not including it).
 
     0.6745·(value − median)/MAD of ``reference``, with the mean absolute deviation
