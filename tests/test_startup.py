@@ -411,8 +411,15 @@ CASES: list[tuple[tuple[str, ...], tuple[int, ...], set[str]]] = [
      {"pydantic", "numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
     (("init", "--controller", "linuxcnc"), (0,),
      {"pydantic", "numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
-    (("controllers",), (0,), {"numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
-    (("schema", "machine"), (0,), {"numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB}),
+    # the built-in dialects listed from their files, the schemas from theirs: no pydantic
+    (("controllers",), (0,),
+     {"pydantic", "numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
+    (("controllers", "--details"), (0,),
+     {"pydantic", "numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
+    (("schema", "machine"), (0,),
+     {"pydantic", "numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB}),
+    (("schema", "results"), (0,),
+     {"pydantic", "numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB}),
     (("check", "programs"), (0,), {"jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
     (("plan", "machine.toml"), (0,), {"scipy", "matplotlib", *STORE, *WEB, *LINKS}),
     # files: numpy and the recording
@@ -452,6 +459,108 @@ def test_a_command_imports_its_own_group_only(
     loaded = imported(*args, *store, cwd=files.folder, codes=codes)
     assert "ncmeasure" in loaded
     assert not loaded & forbidden, sorted(loaded & forbidden)
+
+
+@pytest.mark.parametrize(
+    ("args", "forbidden"),
+    [
+        # the programs and schedule.json: no machine file read, so not its models
+        (("check", "programs"), {"ncmeasure.config"}),
+        # a recording's own models, not the machine file's
+        (("export", "delivery-run", "-o", "x.csv"), {"ncmeasure.config"}),
+        (("export", "delivery-run", "-o", "x.mf4", "--format", "mdf4"), {"ncmeasure.config"}),
+    ],
+    ids=["check", "export csv", "export mdf4"],
+)
+def test_a_command_imports_no_models_it_does_not_use(
+    files: Files, args: tuple[str, ...], forbidden: set[str]
+) -> None:
+    loaded = imported_modules(*args, cwd=files.folder)
+    assert "ncmeasure.cli" in loaded
+    assert not loaded & forbidden, sorted(loaded & forbidden)
+
+
+def imported_modules(*args: str, cwd: Path) -> set[str]:
+    """The full names of the modules ``ncmeasure ARGS``, run in ``cwd``, has imported when
+    it ends (``importlib.import_module``'s too)."""
+    paths = os.environ.get("PYTHONPATH", "").split(os.pathsep)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(str(Path(p).resolve()) for p in paths if p)}
+    done = subprocess.run(
+        [sys.executable, "-c", MODULES_SCRIPT, *args],
+        capture_output=True, text=True, timeout=WAIT_S, cwd=cwd, env=env,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    return set(done.stderr.splitlines()[-1].split())
+
+
+def test_the_list_of_controllers_is_the_one_their_models_give(tmp_path: Path) -> None:
+    """``controllers`` reads a built-in dialect's file without its models, a user's own
+    through them: copies of the built-ins (a user's folder hides a built-in of the same
+    name) list the same, with and without ``--details``."""
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from ncmeasure.cli import app
+    from ncmeasure.resources import builtin_dir
+
+    for path in builtin_dir("controllers").glob("*.toml"):
+        shutil.copy(path, tmp_path / path.name)
+    runner = CliRunner()
+    for details in ([], ["--details"]):
+        builtin = runner.invoke(app, ["controllers", *details], env={"COLUMNS": "200"})
+        own = runner.invoke(app, ["controllers", *details, "--controllers-dir", str(tmp_path)],
+                            env={"COLUMNS": "200"})  # fmt: skip
+        assert builtin.exit_code == own.exit_code == 0, builtin.output + own.output
+        assert builtin.output == own.output
+    assert "program memory: 512 kB" in builtin.output  # --details: the memory shown
+
+
+def test_the_list_of_controllers_shows_what_the_models_hold() -> None:
+    """Field by field, a built-in dialect as the list reads it and as its models hold it
+    (the defaults of the models included: a file that leaves a field out)."""
+    from ncmeasure.cli.program import _listed
+    from ncmeasure.program import load_dialect
+    from ncmeasure.resources import available_dialects
+
+    dialects = available_dialects()
+    assert len(dialects) >= 5
+    for name, path in dialects.items():
+        dialect = load_dialect(name)
+        listed = _listed(name, path, ())
+        assert listed == (
+            dialect.title, dialect.names.main_file, dialect.names.sub_file,
+            dialect.subprograms, dialect.marker.scope, dialect.marker.mechanism,
+            dialect.options, dialect.memory.program_kb, dialect.memory.note,
+            dialect.left_out,
+        ), name  # fmt: skip
+        assert [type(v) for v in listed.options.values()] == [
+            type(v) for v in dialect.options.values()
+        ]
+        assert list(listed.left_out) == list(dialect.left_out)
+
+
+def test_each_schema_file_is_its_models_schema(update_golden: bool) -> None:
+    """``ncmeasure schema NAME`` prints the package's file of that format; each file is
+    what its model gives (``pytest --update-golden`` writes them again after a change of
+    the models)."""
+    import importlib
+    import json
+
+    import ncmeasure
+    from ncmeasure.cli.program import SCHEMAS, schema_text
+
+    folder = Path(ncmeasure.__file__).parent / "data" / "schemas"
+    for name, where in SCHEMAS.items():
+        module, attribute = where.split(":")
+        model = getattr(importlib.import_module(module), attribute)
+        expected = json.dumps(model.model_json_schema(), indent=2) + "\n"
+        if update_golden:
+            (folder / f"{name}.json").write_text(expected, encoding="utf-8")
+        assert schema_text(name) == expected, (
+            f"data/schemas/{name}.json is not the schema of {where}: "
+            "run pytest --update-golden tests/test_startup.py"
+        )
 
 
 def test_serve_starts_without_scipy_or_matplotlib(files: Files) -> None:
