@@ -625,3 +625,49 @@ def test_init_still_reads_and_checks_a_dialect_of_the_users_own(tmp_path: Path) 
                                     str(tmp_path)])  # fmt: skip
     assert done.exit_code == 0, done.output
     assert 'controller = "mine"' in done.output
+
+
+def test_the_command_line_imports_click_only_through_typer() -> None:
+    """A typer that carries its own copy of click (0.2x): the command line does not import
+    click itself (its import is a tenth of a command's start-up)."""
+    import importlib.util
+
+    if importlib.util.find_spec("typer._click") is None:
+        pytest.skip("this typer imports click itself")
+    loaded = imported("init")
+    assert "typer" in loaded
+    assert "click" not in loaded
+
+
+def test_a_value_typer_finds_wrong_is_its_error_at_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The quick conversion's own click error (typer's path checks) is typer's message as
+    it stands: no second conversion through typer's adapter (pydantic)."""
+    import typer
+    import typer.main
+
+    from ncmeasure.cli import _startup, app
+
+    error = _bad_parameter()
+
+    def wrong(*args: object, **kwargs: object) -> object:
+        raise error("no such thing")
+
+    monkeypatch.setattr(_startup, "_common_value", wrong)
+    root = typer.main.get_command(app)
+    ctx = typer.Context(root)
+    found = [(p, d) for _, p, d, _ in _typed_params(root) if d.annotation is Path]
+    assert found
+    param, _ = found[0]
+    runtime = param.get_runtime_param()
+    with pytest.raises(error, match="no such thing"):
+        runtime.coerce("x.toml", param=param, ctx=ctx)
+    assert runtime.built == []
+
+
+def _bad_parameter() -> type[Exception]:
+    """The BadParameter of the click typer converts with."""
+    try:
+        from typer._click.exceptions import BadParameter
+    except ImportError:  # a typer that imports click itself
+        from click import BadParameter
+    return BadParameter
