@@ -411,8 +411,15 @@ CASES: list[tuple[tuple[str, ...], tuple[int, ...], set[str]]] = [
      {"pydantic", "numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
     (("init", "--controller", "linuxcnc"), (0,),
      {"pydantic", "numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
-    (("controllers",), (0,), {"numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
-    (("schema", "machine"), (0,), {"numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB}),
+    # the built-in dialects listed from their files, the schemas from theirs: no pydantic
+    (("controllers",), (0,),
+     {"pydantic", "numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
+    (("controllers", "--details"), (0,),
+     {"pydantic", "numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
+    (("schema", "machine"), (0,),
+     {"pydantic", "numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB}),
+    (("schema", "results"), (0,),
+     {"pydantic", "numpy", "jinja2", "scipy", "matplotlib", *STORE, *WEB}),
     (("check", "programs"), (0,), {"jinja2", "scipy", "matplotlib", *STORE, *WEB, *LINKS}),
     (("plan", "machine.toml"), (0,), {"scipy", "matplotlib", *STORE, *WEB, *LINKS}),
     # files: numpy and the recording
@@ -453,6 +460,108 @@ def test_a_command_imports_its_own_group_only(
     loaded = imported(*args, *store, cwd=files.folder, codes=codes)
     assert "ncmeasure" in loaded
     assert not loaded & forbidden, sorted(loaded & forbidden)
+
+
+@pytest.mark.parametrize(
+    ("args", "forbidden"),
+    [
+        # the programs and schedule.json: no machine file read, so not its models
+        (("check", "programs"), {"ncmeasure.config"}),
+        # a recording's own models, not the machine file's
+        (("export", "delivery-run", "-o", "x.csv"), {"ncmeasure.config"}),
+        (("export", "delivery-run", "-o", "x.mf4", "--format", "mdf4"), {"ncmeasure.config"}),
+    ],
+    ids=["check", "export csv", "export mdf4"],
+)
+def test_a_command_imports_no_models_it_does_not_use(
+    files: Files, args: tuple[str, ...], forbidden: set[str]
+) -> None:
+    loaded = imported_modules(*args, cwd=files.folder)
+    assert "ncmeasure.cli" in loaded
+    assert not loaded & forbidden, sorted(loaded & forbidden)
+
+
+def imported_modules(*args: str, cwd: Path) -> set[str]:
+    """The full names of the modules ``ncmeasure ARGS``, run in ``cwd``, has imported when
+    it ends (``importlib.import_module``'s too)."""
+    paths = os.environ.get("PYTHONPATH", "").split(os.pathsep)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(str(Path(p).resolve()) for p in paths if p)}
+    done = subprocess.run(
+        [sys.executable, "-c", MODULES_SCRIPT, *args],
+        capture_output=True, text=True, timeout=WAIT_S, cwd=cwd, env=env,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    return set(done.stderr.splitlines()[-1].split())
+
+
+def test_the_list_of_controllers_is_the_one_their_models_give(tmp_path: Path) -> None:
+    """``controllers`` reads a built-in dialect's file without its models, a user's own
+    through them: copies of the built-ins (a user's folder hides a built-in of the same
+    name) list the same, with and without ``--details``."""
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from ncmeasure.cli import app
+    from ncmeasure.resources import builtin_dir
+
+    for path in builtin_dir("controllers").glob("*.toml"):
+        shutil.copy(path, tmp_path / path.name)
+    runner = CliRunner()
+    for details in ([], ["--details"]):
+        builtin = runner.invoke(app, ["controllers", *details], env={"COLUMNS": "200"})
+        own = runner.invoke(app, ["controllers", *details, "--controllers-dir", str(tmp_path)],
+                            env={"COLUMNS": "200"})  # fmt: skip
+        assert builtin.exit_code == own.exit_code == 0, builtin.output + own.output
+        assert builtin.output == own.output
+    assert "program memory: 512 kB" in builtin.output  # --details: the memory shown
+
+
+def test_the_list_of_controllers_shows_what_the_models_hold() -> None:
+    """Field by field, a built-in dialect as the list reads it and as its models hold it
+    (the defaults of the models included: a file that leaves a field out)."""
+    from ncmeasure.cli.program import _listed
+    from ncmeasure.program import load_dialect
+    from ncmeasure.resources import available_dialects
+
+    dialects = available_dialects()
+    assert len(dialects) >= 5
+    for name, path in dialects.items():
+        dialect = load_dialect(name)
+        listed = _listed(name, path, ())
+        assert listed == (
+            dialect.title, dialect.names.main_file, dialect.names.sub_file,
+            dialect.subprograms, dialect.marker.scope, dialect.marker.mechanism,
+            dialect.options, dialect.memory.program_kb, dialect.memory.note,
+            dialect.left_out,
+        ), name  # fmt: skip
+        assert [type(v) for v in listed.options.values()] == [
+            type(v) for v in dialect.options.values()
+        ]
+        assert list(listed.left_out) == list(dialect.left_out)
+
+
+def test_each_schema_file_is_its_models_schema(update_golden: bool) -> None:
+    """``ncmeasure schema NAME`` prints the package's file of that format; each file is
+    what its model gives (``pytest --update-golden`` writes them again after a change of
+    the models)."""
+    import importlib
+    import json
+
+    import ncmeasure
+    from ncmeasure.cli.program import SCHEMAS, schema_text
+
+    folder = Path(ncmeasure.__file__).parent / "data" / "schemas"
+    for name, where in SCHEMAS.items():
+        module, attribute = where.split(":")
+        model = getattr(importlib.import_module(module), attribute)
+        expected = json.dumps(model.model_json_schema(), indent=2) + "\n"
+        if update_golden:
+            (folder / f"{name}.json").write_text(expected, encoding="utf-8")
+        assert schema_text(name) == expected, (
+            f"data/schemas/{name}.json is not the schema of {where}: "
+            "run pytest --update-golden tests/test_startup.py"
+        )
 
 
 def test_serve_starts_without_scipy_or_matplotlib(files: Files) -> None:
@@ -517,3 +626,49 @@ def test_init_still_reads_and_checks_a_dialect_of_the_users_own(tmp_path: Path) 
                                     str(tmp_path)])  # fmt: skip
     assert done.exit_code == 0, done.output
     assert 'controller = "mine"' in done.output
+
+
+def test_the_command_line_imports_click_only_through_typer() -> None:
+    """A typer that carries its own copy of click (0.2x): the command line does not import
+    click itself (its import is a tenth of a command's start-up)."""
+    import importlib.util
+
+    if importlib.util.find_spec("typer._click") is None:
+        pytest.skip("this typer imports click itself")
+    loaded = imported("init")
+    assert "typer" in loaded
+    assert "click" not in loaded
+
+
+def test_a_value_typer_finds_wrong_is_its_error_at_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The quick conversion's own click error (typer's path checks) is typer's message as
+    it stands: no second conversion through typer's adapter (pydantic)."""
+    import typer
+    import typer.main
+
+    from ncmeasure.cli import _startup, app
+
+    error = _bad_parameter()
+
+    def wrong(*args: object, **kwargs: object) -> object:
+        raise error("no such thing")
+
+    monkeypatch.setattr(_startup, "_common_value", wrong)
+    root = typer.main.get_command(app)
+    ctx = typer.Context(root)
+    found = [(p, d) for _, p, d, _ in _typed_params(root) if d.annotation is Path]
+    assert found
+    param, _ = found[0]
+    runtime = param.get_runtime_param()
+    with pytest.raises(error, match="no such thing"):
+        runtime.coerce("x.toml", param=param, ctx=ctx)
+    assert runtime.built == []
+
+
+def _bad_parameter() -> type[Exception]:
+    """The BadParameter of the click typer converts with."""
+    try:
+        from typer._click.exceptions import BadParameter
+    except ImportError:  # a typer that imports click itself
+        from click import BadParameter
+    return BadParameter

@@ -33,7 +33,7 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from ncmeasure.errors import ConfigError
-from ncmeasure.formats.axis import BearingEnd, StatedMechanics
+from ncmeasure.formats.axis import AXIS_NAME_PATTERN, BearingEnd, StatedMechanics
 from ncmeasure.inputs import MAX_TOML_BYTES, format_validation_error, parse_toml, read_text
 
 __all__ = [
@@ -58,7 +58,6 @@ __all__ = [
 # Characters that would break out of a comment or a program name in one of
 # the dialects, or reach into the file system.
 _FORBIDDEN_TEXT = re.compile(r"[\x00-\x1f\x7f;()%$/\\*\"'{}\[\]]|\.\.")
-AXIS_NAME_PATTERN = r"^[A-Z][A-Z0-9]{0,7}$"
 PROGRAM_NAME_PATTERN = r"^[A-Za-z][A-Za-z0-9_]{0,23}$"
 
 # Physical ranges of the machine file's numbers. Positions: what controls accept

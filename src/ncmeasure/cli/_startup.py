@@ -162,7 +162,10 @@ def coerce_common_values_without_pydantic() -> None:
         runtime_param = _coercion.RuntimeParam
     except (ImportError, AttributeError):  # a typer without pydantic adapters, or other ones
         return
-    import click
+    try:  # the click typer converts with: its own copy (typer 0.2x) or click itself
+        from typer._click.exceptions import ClickException
+    except ImportError:  # pragma: no cover - a typer that imports click
+        from click import ClickException  # type: ignore[assignment]
 
     @dataclass(frozen=True)
     class Common(runtime_param):  # type: ignore[valid-type,misc]
@@ -174,7 +177,7 @@ def coerce_common_values_without_pydantic() -> None:
         def _coerce_value(self, value: Any, param: Any, ctx: Any) -> Any:
             try:
                 done = self._common(value, param, ctx)
-            except click.ClickException:
+            except ClickException:
                 raise  # the value is wrong: typer's own message (coerce_cli_path's checks)
             except Exception:  # a typer whose private parts differ: its own conversion
                 done = _NOT_COMMON

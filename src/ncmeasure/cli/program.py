@@ -2,8 +2,9 @@
 
 import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, NamedTuple
 
 import typer
 
@@ -43,31 +44,49 @@ def init(
     sys.stdout.write(example_machine(controller))
 
 
+SCHEMAS = {
+    "machine": "ncmeasure.config:MachineConfig",
+    "schedule": "ncmeasure.formats.schedule:Schedule",
+    "results": "ncmeasure.formats.results:Results",
+}
+"""The file formats ``ncmeasure schema`` describes, and the model of each."""
+
+
+def schema_text(name: str) -> str:
+    """The JSON Schema of the format ``name`` of :data:`SCHEMAS`, as the command prints it.
+
+    The package carries each schema as a file (``data/schemas/NAME.json``), written from
+    its model: the models of a format are most of the command's start-up, and a test
+    compares each file with its model's schema (``pytest --update-golden`` rewrites them).
+    """
+    from importlib import resources
+
+    return (
+        resources.files("ncmeasure")
+        .joinpath("data", "schemas", f"{name}.json")
+        .read_text(encoding="utf-8")
+    )
+
+
 @schema_app.command("machine")
 @handle_errors
 def schema_machine() -> None:
     """JSON Schema of the machine file (point your editor's TOML support at it)."""
-    from ncmeasure.config import MachineConfig
-
-    sys.stdout.write(json.dumps(MachineConfig.model_json_schema(), indent=2) + "\n")
+    sys.stdout.write(schema_text("machine"))
 
 
 @schema_app.command("schedule")
 @handle_errors
 def schema_schedule() -> None:
     """JSON Schema of schedule.json, the velocity file generate writes."""
-    from ncmeasure.formats.schedule import Schedule
-
-    sys.stdout.write(json.dumps(Schedule.model_json_schema(), indent=2) + "\n")
+    sys.stdout.write(schema_text("schedule"))
 
 
 @schema_app.command("results")
 @handle_errors
 def schema_results() -> None:
     """JSON Schema of results.json, what `ncmeasure analyze` writes."""
-    from ncmeasure.formats.results import Results
-
-    sys.stdout.write(json.dumps(Results.model_json_schema(), indent=2) + "\n")
+    sys.stdout.write(schema_text("results"))
 
 
 @app.command()
@@ -82,26 +101,91 @@ def controllers(
     """List the controller dialects ncmeasure can write programs for."""
     from rich.table import Table
 
-    from ncmeasure.program import available_dialects, load_dialect
+    from ncmeasure.resources import available_dialects
 
     table = Table("name", "controller", "files", "marker", show_lines=details)
-    for name in available_dialects(controllers_dir or ()):
-        dialect = load_dialect(name, controllers_dir or ())
-        files = f"{Path(dialect.names.main_file).suffix} / {Path(dialect.names.sub_file).suffix}"
+    for name, path in available_dialects(controllers_dir or ()).items():
+        dialect = _listed(name, path, controllers_dir or ())
+        files = f"{Path(dialect.main_file).suffix} / {Path(dialect.sub_file).suffix}"
         if not dialect.subprograms:
-            files = f"{Path(dialect.names.main_file).suffix} (one program)"
-        marker: str = dialect.marker.scope
+            files = f"{Path(dialect.main_file).suffix} (one program)"
+        marker: str = dialect.scope
         if details:
-            marker = f"{dialect.marker.scope}: {dialect.marker.mechanism}"
+            marker = f"{dialect.scope}: {dialect.mechanism}"
             if dialect.options:
                 marker += "\noptions: " + ", ".join(f"{k}={v}" for k, v in dialect.options.items())
-            marker += f"\nprogram memory: {dialect.memory.program_kb} kB"
-            if dialect.memory.note:
-                marker += f" ({dialect.memory.note})"
+            marker += f"\nprogram memory: {dialect.program_kb} kB"
+            if dialect.note:
+                marker += f" ({dialect.note})"
             if dialect.left_out:
                 marker += "\nleft out: " + "; ".join(dialect.left_out)
         table.add_row(name, dialect.title, files, marker)
     console().print(table)
+
+
+class _Listed(NamedTuple):
+    """What ``ncmeasure controllers`` shows of a dialect."""
+
+    title: str
+    main_file: str
+    sub_file: str
+    subprograms: bool
+    scope: str
+    mechanism: str
+    options: dict[str, int | bool]
+    program_kb: int
+    note: str
+    left_out: Sequence[str]
+
+
+# The defaults of the dialect's models (program/dialect.py) for what the list shows; a
+# test compares this list with the models' for every built-in dialect.
+_NAMES_DEFAULTS = {"main_file": "{name}.nc", "sub_file": "{name}.nc"}
+_MEMORY_DEFAULTS = {"program_kb": 2048, "note": ""}
+
+
+def _listed(name: str, path: Path, user_dirs: Sequence[Path]) -> _Listed:
+    """The dialect ``name`` (its file ``path``) as the list shows it.
+
+    A built-in definition is known valid (tests/test_startup.py loads each) and is read
+    as TOML: its pydantic models are most of the command's start-up. A definition of the
+    user's own is read and checked (its errors).
+    """
+    from ncmeasure.resources import builtin_dir
+
+    if path != builtin_dir("controllers") / f"{name}.toml":
+        from ncmeasure.program import load_dialect
+
+        dialect = load_dialect(name, user_dirs)
+        return _Listed(
+            dialect.title,
+            dialect.names.main_file,
+            dialect.names.sub_file,
+            dialect.subprograms,
+            dialect.marker.scope,
+            dialect.marker.mechanism,
+            dialect.options,
+            dialect.memory.program_kb,
+            dialect.memory.note,
+            dialect.left_out,
+        )
+    import tomllib
+
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    names = {**_NAMES_DEFAULTS, **data.get("names", {})}
+    memory = {**_MEMORY_DEFAULTS, **data.get("memory", {})}
+    return _Listed(
+        data["title"],
+        names["main_file"],
+        names["sub_file"],
+        data.get("subprograms", True),
+        data["marker"]["scope"],
+        data["marker"]["mechanism"],
+        data.get("options", {}),
+        memory["program_kb"],
+        memory["note"],
+        data.get("left_out", ()),
+    )
 
 
 def _print_plan(schedule: "Schedule") -> None:

@@ -16,7 +16,11 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-__all__ = ["AxisMechanics", "BearingEnd", "StatedMechanics"]
+__all__ = ["AXIS_NAME_PATTERN", "AxisMechanics", "BearingEnd", "StatedMechanics"]
+
+AXIS_NAME_PATTERN = r"^[A-Z][A-Z0-9]{0,7}$"
+"""An axis name: an upper-case letter, then up to 7 upper-case letters or digits. Here,
+not in the machine file's models: a recording's channels are named by it too."""
 
 BearingEnd = Literal["min", "max"]
 """The end of the travel that carries the ball screw's fixed bearing."""

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from ncmeasure.config import MachineConfig, config_hash, load_machine
 from ncmeasure.errors import ConfigError, ProgramCheckError, ProgramError
 from ncmeasure.formats.schedule import SCHEDULE_FILE, AxisSummary, Schedule, load_schedule
 from ncmeasure.program.dialect import (
@@ -35,6 +35,9 @@ from ncmeasure.program.reader import (
     Stop,
     read_programs,
 )
+
+if TYPE_CHECKING:  # the machine-file models: `check` reads no machine file
+    from ncmeasure.config import MachineConfig
 
 __all__ = [
     "CheckReport",
@@ -436,6 +439,8 @@ def programs_of(programs: Path, machine_file: Path) -> tuple[Schedule, MachineCo
         raise ProgramError(
             f"{programs}: {what}; name the folder `ncmeasure generate MACHINE -o FOLDER` wrote"
         )
+    from ncmeasure.config import config_hash, load_machine
+
     schedule = load_schedule(programs / SCHEDULE_FILE)
     config = load_machine(machine_file)
     found = config_hash(config)

@@ -20,14 +20,18 @@ import os
 import re
 import struct
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ncmeasure.config import AXIS_NAME_PATTERN, AxisConfig, MachineConfig
 from ncmeasure.errors import RecordingError
 from ncmeasure.files import replace_text
+from ncmeasure.formats.axis import AXIS_NAME_PATTERN
 from ncmeasure.formats.recording import RecordedAxis, RecordingMeta
 from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent
+
+if TYPE_CHECKING:  # the machine-file models: reading or exporting a recording needs none
+    from ncmeasure.config import AxisConfig, MachineConfig
 
 try:  # advisory locks tell a reader that a writer is still at work (POSIX only)
     import fcntl

@@ -13,12 +13,11 @@ import logging
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import IO, Any, Final
+from typing import IO, TYPE_CHECKING, Any, Final
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.recording import RecordingMeta, RecordingStatus
 from ncmeasure.recording.format import (
@@ -32,6 +31,9 @@ from ncmeasure.recording.reader import Recording
 from ncmeasure.recording.writer import RecordingWriter
 from ncmeasure.samples import Channel, SampleBlock
 from ncmeasure.validity import Implausible
+
+if TYPE_CHECKING:  # the machine-file models: reading a recording needs none
+    from ncmeasure.config import MachineConfig
 
 log = logging.getLogger(__name__)
 

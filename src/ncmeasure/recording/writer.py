@@ -20,17 +20,16 @@ import zlib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any, Literal, Self, get_args
+from typing import IO, TYPE_CHECKING, Any, Literal, Self, get_args
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import ValidationError
 
-from ncmeasure.config import MachineConfig, format_validation_error
 from ncmeasure.errors import LinkError, RecordingError
 from ncmeasure.formats.identity import iso_utc
 from ncmeasure.formats.recording import ChannelMeta, RecordedAxis, RecordingMeta, RecordingStatus
-from ncmeasure.inputs import parse_json, read_text
+from ncmeasure.inputs import format_validation_error, parse_json, read_text
 from ncmeasure.recording.format import (
     EVENTS_FILE,
     FRAME_HEADER,
@@ -50,6 +49,9 @@ from ncmeasure.recording.format import (
     write_meta,
 )
 from ncmeasure.samples import Channel, LinkEvent, SampleBlock
+
+if TYPE_CHECKING:  # the machine-file models: reading a recording needs none
+    from ncmeasure.config import MachineConfig
 
 try:  # advisory locks tell a reader that a writer is still at work (POSIX only)
     import fcntl

@@ -48,9 +48,8 @@ import logging
 import os
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
-from ncmeasure.config import MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.traces.canlog import import_can_log, is_can_log
@@ -70,6 +69,9 @@ from ncmeasure.traces.sinumerik_csv import import_sinumerik_csv
 from ncmeasure.traces.sinumerik_xml import import_sinumerik_xml
 from ncmeasure.traces.tncscope import import_tncscope
 from ncmeasure.traces.twincat_csv import import_twincat_csv
+
+if TYPE_CHECKING:  # the machine-file models: exporting a recording reads no machine file
+    from ncmeasure.config import MachineConfig
 
 __all__ = [
     "FORMATS",

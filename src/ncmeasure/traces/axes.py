@@ -13,13 +13,16 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Literal, TypeVar
+from typing import TYPE_CHECKING, Literal, TypeVar
 
-from ncmeasure.config import AXIS_NAME_PATTERN, MachineConfig
 from ncmeasure.errors import ConfigError, RecordingError
+from ncmeasure.formats.axis import AXIS_NAME_PATTERN
 from ncmeasure.recording import machine_axis
 from ncmeasure.samples import SIGNAL_UNITS, Channel
 from ncmeasure.traces.job import ImportJob
+
+if TYPE_CHECKING:  # the machine-file models: exporting a recording reads no machine file
+    from ncmeasure.config import MachineConfig
 
 __all__ = ["Candidate", "Mapped", "Needs", "plan_channels", "plan_sources", "resolve_axes"]
 

@@ -23,7 +23,6 @@ from typing import TYPE_CHECKING, Final
 
 from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.formats.recording import RecordingMeta
-from ncmeasure.links import make_link
 from ncmeasure.traces.job import ImportJob
 
 if TYPE_CHECKING:
@@ -91,6 +90,7 @@ def import_can_log(job: ImportJob) -> RecordingMeta:
             "--machine m.toml with [link] type = 'canopen' and a node_id per axis"
         )
 
+    from ncmeasure.links import make_link  # the links' settings models: a CAN log only
     from ncmeasure.links.canopen.link import CanOpenLink
 
     link = make_link(machine)

@@ -36,7 +36,7 @@ from array import array
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Final, Literal
+from typing import TYPE_CHECKING, Annotated, Final, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -51,9 +51,9 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
-from ncmeasure.config import MachineConfig, format_validation_error, read_toml
 from ncmeasure.errors import ConfigError, RecordingError
 from ncmeasure.formats.recording import RecordingMeta
+from ncmeasure.inputs import format_validation_error
 from ncmeasure.recording import channel_from_name, check_times
 from ncmeasure.samples import SIGNAL_UNITS, Channel
 from ncmeasure.traces.job import (
@@ -77,6 +77,9 @@ from ncmeasure.traces.text import (
     preamble_date,
     unit_factor,
 )
+
+if TYPE_CHECKING:  # the machine-file models: exporting a recording reads no machine file
+    from ncmeasure.config import MachineConfig
 
 __all__ = ["ChannelColumn", "ColumnMap", "TimeColumn", "import_columns", "load_column_map"]
 
@@ -229,6 +232,8 @@ def load_column_map(path: str | os.PathLike[str]) -> ColumnMap:
         ConfigError: The file is missing, is not TOML, or is not a valid
             column map; one ``MAP.toml: location: message`` line per problem.
     """
+    from ncmeasure.config import read_toml  # the machine file's models: an import only
+
     source = Path(path)
     data = read_toml(source, "a column map")
     try:

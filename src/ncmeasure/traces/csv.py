@@ -11,13 +11,12 @@ import datetime as dt
 import logging
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Final, TextIO
+from typing import TYPE_CHECKING, Final, TextIO
 
 import numpy as np
 import pydantic_core
 from numpy.typing import NDArray
 
-from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
 from ncmeasure.files import replace_binary
 from ncmeasure.formats.recording import RecordingMeta
@@ -26,6 +25,9 @@ from ncmeasure.recording.reader import Recording, RecordingHead, rows_of
 from ncmeasure.recording.sink import ImportSink, check_times
 from ncmeasure.samples import SIGNAL_UNITS, Channel
 from ncmeasure.traces.text import number_rows
+
+if TYPE_CHECKING:  # the machine-file models: `export` reads no machine file
+    from ncmeasure.config import MachineConfig
 
 log = logging.getLogger(__name__)
 

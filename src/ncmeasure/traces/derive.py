@@ -12,15 +12,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ncmeasure.config import MachineConfig
 from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.recording import ImportSink, Recording, channel_from_name
 from ncmeasure.samples import Channel
+
+if TYPE_CHECKING:  # the machine-file models: exporting a recording reads no machine file
+    from ncmeasure.config import MachineConfig
 
 __all__ = ["DerivingSink", "derive_velocity", "derived_line", "needs_velocity"]
 

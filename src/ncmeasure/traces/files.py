@@ -33,17 +33,19 @@ import shutil
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 
-from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.recording import ImportSink
 from ncmeasure.recording.reader import rows_of
 from ncmeasure.samples import Channel, LinkEvent
 from ncmeasure.traces.job import ProgressFn, TraceImport, check_target, order_channels
+
+if TYPE_CHECKING:  # the machine-file models: exporting a recording reads no machine file
+    from ncmeasure.config import MachineConfig
 
 __all__ = [
     "GAP_S",

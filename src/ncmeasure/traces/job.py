@@ -16,14 +16,16 @@ import logging
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ncmeasure.config import MachineConfig
 from ncmeasure.errors import RecordingError
 from ncmeasure.formats.recording import RecordingMeta
 from ncmeasure.recording import ImportSink, Recording
 from ncmeasure.samples import SIGNAL_UNITS, Channel
 from ncmeasure.traces.derive import DerivingSink, derived_line, needs_velocity
+
+if TYPE_CHECKING:  # the machine-file models: exporting a recording reads no machine file
+    from ncmeasure.config import MachineConfig
 
 __all__ = [
     "ImportJob",

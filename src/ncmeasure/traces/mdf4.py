@@ -13,13 +13,12 @@ import json
 import logging
 from pathlib import Path
 from types import ModuleType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import ValidationError
 
-from ncmeasure.config import MachineConfig
 from ncmeasure.errors import DependencyError, RecordingError
 from ncmeasure.files import replace_by_path
 from ncmeasure.formats.recording import FORMAT_NAME, EventRecord, RecordingStatus
@@ -34,6 +33,9 @@ from ncmeasure.recording.format import (
 from ncmeasure.recording.reader import Recording, RecordingHead, rows_of
 from ncmeasure.recording.sink import ImportSink, check_times
 from ncmeasure.samples import SIGNAL_UNITS, Channel, LinkEvent
+
+if TYPE_CHECKING:  # the machine-file models: exporting a recording reads no machine file
+    from ncmeasure.config import MachineConfig
 
 log = logging.getLogger(__name__)
 
