@@ -1086,3 +1086,49 @@ def test_frames_larger_than_a_chunk_are_checked_once_for_many_reads(tmp_path: Pa
     rows = np.concatenate([c.time_s for c in iter_chunks(directory, 64, problems=problems)])
     assert len(rows) == 1000
     assert problems and problems[0].startswith("frame 1 fails its checksum")
+
+
+def test_a_reading_reads_every_frame_once_and_gives_no_row_of_a_damaged_one(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Frames larger than a chunk: the first reading checks each frame on the bytes it
+    gives (one read of every payload byte, not a check and a second read); a later
+    reading skips the checks of the frames checked; a damaged frame still gives no row,
+    the rows before it all."""
+    channels = channels_for(("X",), ("current_a", "velocity_mm_min"))
+    directory = tmp_path / "run"
+    with RecordingWriter.create(directory, channels, nominal_period_s=0.001) as writer:
+        for first in range(0, 3000, 1000):
+            time_s = np.arange(first, first + 1000) * 0.001
+            writer.append(SampleBlock(time_s, np.full((1000, 2), float(first))))
+            writer.flush()
+    payload = 3000 * 8 * 3 + 3 * FRAME_HEADER.size  # the headers are read too
+    read = [0]
+    exactly = recording_reader._read_exactly
+
+    def counted(file: Any, target: memoryview) -> int:
+        got = exactly(file, target)
+        read[0] += got
+        return got
+
+    monkeypatch.setattr(recording_reader, "_read_exactly", counted)
+    whole = Recording.open(directory)
+    read[0] = 0
+    verified: set[int] = set()
+    chunks = list(iter_chunks(directory, 64, ("X_velocity_mm_min",), verified=verified))
+    assert read[0] == payload
+    assert np.array_equal(np.concatenate([c.time_s for c in chunks]), whole.time_s)
+    assert np.array_equal(np.concatenate([c.values[:, 0] for c in chunks]), whole.values[:, 1])
+    samples = directory / SAMPLES_FILE
+    offsets = frame_offsets(samples, 3)
+    assert verified == set(offsets)
+
+    data = bytearray(samples.read_bytes())
+    data[offsets[2] - 8] ^= 0x01  # the last row of frame 1
+    samples.write_bytes(bytes(data))
+    for rows in (64, 700, 5000):
+        problems: list[str] = []
+        given = list(iter_chunks(directory, rows, problems=problems))
+        assert np.array_equal(np.concatenate([c.time_s for c in given]), whole.time_s[:1000])
+        assert [c.first for c in given] == list(range(0, 1000, rows))
+        assert problems and problems[0].startswith("frame 1 fails its checksum")

@@ -156,7 +156,7 @@ class _FileReader:
         self.chunk_rows = rows
         self.progress = progress
         self.problems: list[str] = []
-        self.verified: set[int] = set()  # large frames checked once for all passes
+        self.verified: set[int] = set()  # frames checked once for all passes
         # Progress while reading: the pass and the share of its rows read so far.
         samples_bytes = (head.directory / SAMPLES_FILE).stat().st_size
         self.expected = max(1, samples_bytes // (8 * (1 + len(head.channels))))

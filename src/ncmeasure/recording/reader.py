@@ -10,7 +10,7 @@ import io
 import logging
 import os
 import zlib
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -205,19 +205,21 @@ def iter_chunks(
     The same rows as :meth:`Recording.open`, with the same checks (frame walk,
     sequence numbers, CRC of every frame): a damaged frame ends the rows there,
     and its problem is appended to ``problems``; no row of a damaged frame is
-    given. Memory is one chunk of ``rows`` rows (of every column) plus the
-    frame index, whatever the length of the recording and of its frames: a
-    frame larger than a chunk is checked in pieces first, then read again
-    chunk by chunk.
+    given. Memory is a chunk of ``rows`` rows (of the channels asked for),
+    the rows of one frame waiting for its checksum and the frame index,
+    whatever the length of the recording: a frame's rows fill chunks that are
+    given once its checksum holds (a frame beyond :data:`_WAITING_BYTES` is
+    checked in pieces first, then read again). Every row is read from the
+    file once per reading, :data:`_READ_ROWS` at a time.
 
     Args:
         directory: The recording directory.
         rows: Rows per chunk (the last one may hold fewer).
         channels: Channel names to return, in this order (default: all).
         problems: Receives what was wrong with the file, one sentence each.
-        verified: Byte offsets of large frames whose checksum was checked; a
+        verified: Byte offsets of the frames whose checksum was checked; a
             caller reading the same file several times passes the same set, so
-            each large frame is checked once (and read once more) in all.
+            each frame is checked once in all.
         first_row: Begin with the frame that holds this row: the frames
             before it are neither read nor checked (a caller that read the
             file before and wants only its later rows). The chunks keep their
@@ -243,26 +245,82 @@ def iter_chunks(
         size = os.fstat(file.fileno()).st_size
         frames = _walk_headers(file, size, row_bytes, found)
         chunks = _Chunker(rows, width, columns)
+        longest = max((f.rows for f in frames), default=0)
+        piece = np.empty(min(longest, _READ_ROWS) * row_bytes, dtype=np.uint8)
+        # A frame whose rows (of the channels read) fit this waits, read once, for its
+        # checksum; a longer one is checked in pieces first, then read again.
+        waiting = _WAITING_BYTES // (8 * (1 + len(columns)))
         for number, frame in enumerate(frames):
             if chunks.first + frame.rows <= first_row and not chunks.held:
                 chunks.first += frame.rows  # wholly before the rows wanted: not read
                 continue
-            pieces = _checked_frame(file, number, frame, size, rows, row_bytes, verified)
-            if isinstance(pieces, str):
-                found[:] = [pieces]
-                break
-            shrank = False
-            for piece in pieces:
-                if piece is None:
-                    shrank = True
+            checked = verified is not None and frame.offset in verified
+            if not checked and frame.rows > waiting:
+                crc = _frame_crc(file, frame, piece, row_bytes)
+                if crc != frame.crc:
+                    found[:] = [
+                        _torn(number, frame, size) if crc is None else _bad(number, frame, size)
+                    ]
                     break
-                yield from chunks.add(piece)
-            if shrank:
+                checked = True
+            problem = yield from _frame_rows(file, frame, piece, chunks, checked)
+            if problem == "torn":
                 found[:] = [_torn(number, frame, size)]
                 break
+            if problem == "bad":
+                found[:] = [_bad(number, frame, size)]
+                break
+            if verified is not None:
+                verified.add(frame.offset)
         last = chunks.rest()
         if last is not None:
             yield last
+
+
+_WAITING_BYTES = 64 << 20
+"""Largest frame (its rows of the channels read) read once and held until its checksum holds.
+
+No row of a damaged frame is given: a frame up to this size is read once,
+its rows gathered into chunks that wait for the frame's checksum; a longer
+one (a writer's frames hold at most :data:`~ncmeasure.recording.format.MAX_FRAME_ROWS`
+rows) is checked in pieces first, then read again, never held whole. The
+writer's frames of the benchmark's hour (137,500 rows of 13 columns) are about 14 MB."""
+
+
+def _frame_rows(
+    file: io.FileIO, frame: _Frame, piece: NDArray[np.uint8], chunks: _Chunker, checked: bool
+) -> Generator[RowChunk, None, str | None]:
+    """Read a frame's rows into ``chunks`` :data:`_READ_ROWS` at a time; the chunks now whole.
+
+    Those of a frame ``checked`` before are given as they fill; the others wait
+    until the frame's checksum holds and are dropped where it fails, the rows
+    before the frame kept for :meth:`_Chunker.rest`.
+
+    Returns:
+        None, or what ended the rows at this frame: "torn" (the file is
+        shorter than its frame) or "bad" (the checksum fails).
+    """
+    row_bytes = chunks.row_bytes
+    file.seek(frame.offset + FRAME_HEADER.size)
+    mark = chunks.mark()
+    crc = 0
+    for first in range(0, frame.rows, _READ_ROWS):
+        count = min(_READ_ROWS, frame.rows - first)
+        target = piece[: count * row_bytes]
+        if _read_exactly(file, target.data) < len(target):
+            if not checked:
+                chunks.undo(mark)
+            return "torn"
+        if not checked:
+            crc = zlib.crc32(target.data, crc)
+        chunks.fill(target.view(ROW_DTYPE).reshape(count, chunks.width))
+        if checked:
+            yield from chunks.take()
+    if not checked and crc != frame.crc:
+        chunks.undo(mark)
+        return "bad"
+    yield from chunks.take()
+    return None
 
 
 def _chunk_columns(path: Path, channels: tuple[str, ...] | None) -> tuple[list[int], int]:
@@ -286,44 +344,6 @@ def _torn(number: int, frame: _Frame, size: int) -> str:
     return f"torn tail: {size - frame.offset} bytes {where} ignored (file shrank)"
 
 
-def _checked_frame(
-    file: io.FileIO,
-    number: int,
-    frame: _Frame,
-    size: int,
-    rows: int,
-    row_bytes: int,
-    verified: set[int] | None,
-) -> Iterator[NDArray[np.uint8] | None] | str:
-    """The payload of a frame whose checksum holds, in pieces of at most ``rows`` rows.
-
-    Returns:
-        The pieces (None where the file turned out shorter while they were
-        read), or the problem that ends the rows at this frame.
-    """
-    start = frame.offset + FRAME_HEADER.size
-    if frame.rows <= rows:
-        # A small frame is read whole and checked before any of its rows is given.
-        payload = np.empty(frame.rows * row_bytes, dtype=np.uint8)
-        file.seek(start)
-        if _read_exactly(file, payload.data) < len(payload):
-            return _torn(number, frame, size)
-        if zlib.crc32(payload.data) != frame.crc:
-            return _bad(number, frame, size)
-        return iter([payload])
-    # A large frame is checked in pieces first, then read again piece by
-    # piece: never held whole, and no row of a damaged frame is given.
-    if verified is None or frame.offset not in verified:
-        checked = _frame_crc(file, start, frame.rows * row_bytes)
-        if checked is None:
-            return _torn(number, frame, size)
-        if checked != frame.crc:
-            return _bad(number, frame, size)
-        if verified is not None:
-            verified.add(frame.offset)
-    return _frame_pieces(file, start, frame.rows, rows, row_bytes)
-
-
 def _bad(number: int, frame: _Frame, size: int) -> str:
     """The problem of frame ``number`` whose checksum fails."""
     return (
@@ -333,98 +353,89 @@ def _bad(number: int, frame: _Frame, size: int) -> str:
 
 
 class _Chunker:
-    """Pieces of rows in, chunks of exactly ``rows`` rows (of the chosen columns) out."""
+    """Rows in, chunks of exactly ``rows`` rows (of the chosen columns) out.
+
+    Rows are spread into the arrays of the chunk they belong to as they come
+    (a piece of :data:`_READ_ROWS` rows, still in the processor's cache): the
+    chunk's values are held column by column (Fortran order), as
+    :meth:`Recording.open` holds a recording, so a channel of a chunk is one
+    contiguous run of memory that every pass reads without a copy. Chunks
+    filled wait in :meth:`take` until their rows may be given.
+    """
 
     def __init__(self, rows: int, width: int, columns: list[int]) -> None:
-        self._rows = rows
-        self._width = width
-        self._row_bytes = 8 * width
-        self._columns = columns
-        # Rows read, not yet given: the start of a chunk, in a buffer used again for
-        # every chunk (a chunk's arrays are copies), grown as far as a chunk needs.
-        self._buffer = np.empty(0, dtype=np.uint8)
-        self.held = 0  # rows in the buffer
-        self.first = 0  # the row of the whole recording the next chunk begins with
+        self.rows = rows
+        self.width = width
+        self.row_bytes = 8 * width
+        self.columns = columns
+        self.time_s = np.empty(0, dtype=np.float64)  # the chunk being filled
+        self.values = np.empty((0, len(columns)), dtype=np.float64, order="F")
+        self.held = 0  # rows in the chunk being filled
+        self.first = 0  # the row of the whole recording the chunk being filled begins with
+        self.whole: list[RowChunk] = []  # filled, not yet given
 
-    def _chunk(self, table: NDArray[np.float64]) -> RowChunk:
-        """The chunk of these rows (copies: ``table`` may be read into again).
-
-        Its values are held column by column (Fortran order), as
-        :meth:`Recording.open` holds a recording: a channel of a chunk is one
-        contiguous run of memory, which every pass reads without a copy.
-        """
-        values = np.empty((len(table), len(self._columns)), dtype=np.float64, order="F")
-        for k, column in enumerate(self._columns):
-            values[:, k] = table[:, column]
-        chunk = RowChunk(self.first, table[:, 0].copy(), values)
-        READ_COUNT.rows += len(table)
-        self.first += len(table)
-        return chunk
-
-    def add(self, piece: NDArray[np.uint8]) -> Iterator[RowChunk]:
-        """Take the rows of ``piece``; the chunks that are now whole."""
-        rows, width, row_bytes = self._rows, self._width, self._row_bytes
-        chunk_bytes = rows * row_bytes
-        at, size = 0, len(piece)
-        while at < size:
-            if not self.held and size - at >= chunk_bytes:
-                # A whole chunk in the piece: taken from it as it is.
-                table = piece[at : at + chunk_bytes].view(ROW_DTYPE).reshape(rows, width)
-                yield self._chunk(table)
-                at += chunk_bytes
-                continue
-            held_bytes = self.held * row_bytes
-            take = min(size - at, chunk_bytes - held_bytes)
-            if len(self._buffer) < held_bytes + take:
-                grown = np.empty(
-                    min(chunk_bytes, max(held_bytes + take, 2 * len(self._buffer))), np.uint8
-                )
-                grown[:held_bytes] = self._buffer[:held_bytes]
-                self._buffer = grown
-            self._buffer[held_bytes : held_bytes + take] = piece[at : at + take]
-            self.held += take // row_bytes
+    def fill(self, table: NDArray[np.float64]) -> None:
+        """Take the rows of ``table`` (rows of every column)."""
+        at, count = 0, len(table)
+        while at < count:
+            if not self.held:
+                self.time_s = np.empty(self.rows, dtype=np.float64)
+                self.values = np.empty((self.rows, len(self.columns)), np.float64, order="F")
+            take = min(count - at, self.rows - self.held)
+            rows = table[at : at + take]
+            into = slice(self.held, self.held + take)
+            self.time_s[into] = rows[:, 0]
+            for k, column in enumerate(self.columns):
+                self.values[into, k] = rows[:, column]
+            self.held += take
             at += take
-            if self.held == rows:
+            if self.held == self.rows:
+                self.whole.append(RowChunk(self.first, self.time_s, self.values))
+                self.first += self.rows
                 self.held = 0
-                yield self._chunk(self._buffer[:chunk_bytes].view(ROW_DTYPE).reshape(rows, width))
+
+    def take(self) -> list[RowChunk]:
+        """The chunks filled since the last call, now given."""
+        whole, self.whole = self.whole, []
+        for chunk in whole:
+            READ_COUNT.rows += len(chunk.time_s)
+        return whole
+
+    def mark(self) -> tuple[int, int, NDArray[np.float64], NDArray[np.float64]]:
+        """Where the chunks stand (with nothing waiting in :meth:`take`), for :meth:`undo`."""
+        return self.first, self.held, self.time_s, self.values
+
+    def undo(self, mark: tuple[int, int, NDArray[np.float64], NDArray[np.float64]]) -> None:
+        """Drop every row taken since ``mark``."""
+        self.first, self.held, self.time_s, self.values = mark
+        self.whole = []
 
     def rest(self) -> RowChunk | None:
         """The rows left over at the end, fewer than a chunk."""
         if not self.held:
             return None
         held, self.held = self.held, 0
-        table = self._buffer[: held * self._row_bytes].view(ROW_DTYPE).reshape(held, self._width)
-        return self._chunk(table)
+        READ_COUNT.rows += held
+        self.first += held
+        return RowChunk(self.first - held, self.time_s[:held], self.values[:held])
 
 
-def _frame_crc(file: io.FileIO, start: int, size: int) -> int | None:
-    """The CRC-32 of ``size`` bytes from ``start``, read in pieces (None: the file is shorter)."""
+def _frame_crc(
+    file: io.FileIO, frame: _Frame, piece: NDArray[np.uint8], row_bytes: int
+) -> int | None:
+    """The CRC-32 of a frame's payload, read into ``piece`` piece by piece (None: the file is
+    shorter)."""
     crc = 0
-    piece = bytearray(min(size, 8 << 20))
-    file.seek(start)
-    left = size
+    file.seek(frame.offset + FRAME_HEADER.size)
+    left = frame.rows * row_bytes
     while left:
-        view = memoryview(piece)[: min(left, len(piece))]
-        got = _read_exactly(file, view)
-        crc = zlib.crc32(view[:got], crc)
-        if got < len(view):
+        target = piece[: min(left, len(piece))]
+        got = _read_exactly(file, target.data)
+        crc = zlib.crc32(target[:got].data, crc)
+        if got < len(target):
             return None
         left -= got
     return crc
-
-
-def _frame_pieces(
-    file: io.FileIO, start: int, frame_rows: int, rows: int, row_bytes: int
-) -> Iterator[NDArray[np.uint8] | None]:
-    """A frame's payload ``rows`` rows at a time (None where the file turned out shorter)."""
-    file.seek(start)
-    for begin in range(0, frame_rows, rows):
-        count = min(rows, frame_rows - begin)
-        piece = np.empty(count * row_bytes, dtype=np.uint8)
-        if _read_exactly(file, piece.data) < len(piece):
-            yield None
-            return
-        yield piece
 
 
 def _read_events(path: Path, problems: list[str]) -> list[LinkEvent]:

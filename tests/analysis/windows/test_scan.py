@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ncmeasure.analysis.windows import scan as scan_module
 from ncmeasure.analysis.windows.scan import AxisStatistics, Rows, axes_statistics
 from ncmeasure.recording import Recording, RecordingWriter, iter_chunks
 from ncmeasure.samples import SampleBlock
@@ -115,3 +116,21 @@ def test_axes_read_together_equal_each_read_alone(recordings: list[Recording]) -
         assert together[axis].implausible.counts == alone.implausible.counts
         together[axis].implausible = alone.implausible = None
         assert together[axis] == alone
+
+
+def test_later_readings_check_only_the_chunks_holding_implausible_values(
+    recordings: list[Recording], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The first pass notes the chunks of a channel without an implausible value; the
+    later readings take those as they are (statistics the same: the test above)."""
+    checked: list[bool] = []
+    original = scan_module.implausible
+
+    def counted(values: np.ndarray, limit: float | None = None) -> np.ndarray:
+        bad = original(values, limit)
+        checked.append(bool(bad.any()))
+        return bad
+
+    monkeypatch.setattr(scan_module, "implausible", counted)
+    statistics(recordings[1], ("X", "Y"), 1000)
+    assert checked and all(checked)

@@ -85,6 +85,9 @@ class Rows:
     _every: dict[tuple[str, int], tuple[RowChunk, FloatArray]] = field(
         default_factory=dict, init=False, repr=False, compare=False
     )
+    _plain: set[tuple[str, int, int]] = field(
+        default_factory=set, init=False, repr=False, compare=False
+    )
 
     def clean(self, chunk: RowChunk, name: str) -> FloatArray:
         """A channel's values in a chunk, the implausible ones NaN (where checked).
@@ -94,7 +97,9 @@ class Rows:
         once (the arrays returned are never written to). Where the reading's
         chunks are ``kept`` (the same chunks on every pass), every chunk's
         channel is cleaned once for all passes: a view of the chunk's column
-        where nothing was left out, so that costs no memory.
+        where nothing was left out, so that costs no memory. A chunk the first
+        pass found nothing to leave out in (:meth:`note_plain`) is not checked
+        again on a later reading.
         """
         held = self._cleaned.get(name)
         if held is not None and held[0] is chunk:
@@ -104,7 +109,7 @@ class Rows:
             if known is not None and known[0] is chunk:
                 return known[1]
         values = chunk.values[:, self.column[name]]
-        if self.checked:
+        if self.checked and (name, chunk.first, len(chunk.time_s)) not in self._plain:
             bad = implausible(values, self.limits.get(name))
             if bad.any():
                 values = values.copy()
@@ -115,10 +120,15 @@ class Rows:
             self._every[name, chunk.first] = (chunk, cleaned)
         return cleaned
 
+    def note_plain(self, chunk: RowChunk, name: str) -> None:
+        """The chunk's channel holds no implausible value: a later reading takes it as it is."""
+        self._plain.add((name, chunk.first, len(chunk.time_s)))
+
     def forget(self) -> None:
         """Let go of the channels cleaned for every chunk (the passes are done)."""
         self._every.clear()
         self._cleaned.clear()
+        self._plain.clear()
 
 
 @dataclass
@@ -253,7 +263,10 @@ def _scan_task(
         for name in scan.channels:
             values = chunk.values[:, source.column[name]]
             if source.checked:
+                column = values
                 values = checkers[owner[name]].clean(name, chunk.time_s, values)
+                if values is column:
+                    source.note_plain(chunk, name)
             good = np.flatnonzero(np.isfinite(values))
             scan.finite[name] += len(good)
             if len(good):
