@@ -175,6 +175,17 @@ def test_linuxcnc_snippet_uses_only_documented_pins() -> None:
     assert max(int(n) for n in re.findall(r"personality=(\d+),(\d+)", text)[0]) <= 16
 
 
+_WAIT_FOR_THE_THREAD = """\
+# until the servo thread has given the current (not 0), at most 60 s
+for _ in $(seq 1200); do
+    value=$(halcmd getp ncm-x-current.out)
+    awk -v v="$value" 'BEGIN { exit !(v + 0 != 0) }' && exit 0
+    sleep 0.05
+done
+exit 1
+"""
+
+
 def _halrun(script: str, workdir: Path) -> subprocess.CompletedProcess[str]:
     env = dict(os.environ)
     if os.geteuid() == 0:
@@ -183,6 +194,7 @@ def _halrun(script: str, workdir: Path) -> subprocess.CompletedProcess[str]:
         env["RTAPI_UID"] = "65534"
         env["RTAPI_FIFO_PATH"] = str(workdir / ".rtapi_fifo")
         workdir.chmod(0o777)
+    (workdir / "wait.sh").write_text(_WAIT_FOR_THE_THREAD, encoding="utf-8")
     path = workdir / "test.hal"
     path.write_text(script, encoding="utf-8")
     return subprocess.run(
@@ -205,13 +217,14 @@ def test_linuxcnc_snippet_loads_in_halrun_and_interpolates() -> None:
     y = _settings(snippet, r"^setp ncm-x-friction\.y-val-(\d\d) (-?[\d.]+)$")
     velocity = (x["10"] + x["11"]) / 2
     expected = (y["10"] + y["11"]) / 2
+    assert expected != 0  # wait.sh waits for a current other than 0
     script = (
         "loadrt threads name1=servo-thread period1=1000000\n"
         + snippet
         + "unlinkp ncm-x-friction.in\n"
         + f"setp ncm-x-friction.in {velocity}\n"
         + "start\n"
-        + "loadusr -w sleep 0.2\n"
+        + "loadusr -w sh wait.sh\n"  # until the thread has run: no time on a busy PC
         + "stop\n"
         + "getp ncm-x-friction.out\n"
         + "getp ncm-x-current.out\n"
