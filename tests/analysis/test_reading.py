@@ -143,6 +143,15 @@ def _results(head: RecordingHead, schedule: Schedule | None) -> dict[str, object
     return data
 
 
+def _results_and_readings(
+    directory: Path, schedule: Schedule | None
+) -> tuple[dict[str, object], int]:
+    """:func:`_results` of the recording in ``directory``, and the readings it took."""
+    readings = READ_COUNT.readings
+    found = _results(RecordingHead.open(directory), schedule)
+    return found, READ_COUNT.readings - readings
+
+
 @pytest.mark.parametrize("damaged", [False, True], ids=["whole", "damaged"])
 def test_a_recording_that_fits_is_read_once(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, damaged: bool
@@ -184,14 +193,9 @@ def test_a_recording_read_per_pass_gathers_every_axis_slices_on_one_reading(
     recording, schedule = synthetic_recording(tmp_path / "rec", axes, with_marker=marker)
     monkeypatch.setattr(reading, "HOLD_BYTES", 0)  # read per pass, as a long recording
 
-    def analysed() -> tuple[dict[str, object], int]:
-        readings = READ_COUNT.readings
-        found = _results(RecordingHead.open(recording.directory), schedule)
-        return found, READ_COUNT.readings - readings
-
-    ahead, shared = analysed()
+    ahead, shared = _results_and_readings(recording.directory, schedule)
     monkeypatch.setattr(reading, "GATHER_AHEAD_BYTES", 0)  # one axis' slices at a time
-    alone, each = analysed()
+    alone, each = _results_and_readings(recording.directory, schedule)
     assert ahead == alone
     assert shared == each - 2  # one reading for three axes' slices, not three
 
@@ -214,14 +218,9 @@ def test_the_sweep_rides_the_statistics_readings(
     recording, schedule = synthetic_recording(tmp_path / "rec", axes, with_marker=marker)
     monkeypatch.setattr(reading, "HOLD_BYTES", 0)  # read per pass, as a long recording
 
-    def analysed() -> tuple[dict[str, object], int]:
-        readings = READ_COUNT.readings
-        found = _results(RecordingHead.open(recording.directory), schedule)
-        return found, READ_COUNT.readings - readings
-
-    riding, fewer = analysed()
+    riding, fewer = _results_and_readings(recording.directory, schedule)
     monkeypatch.setattr(reading, "early_sweep_task", _no_early_sweep)
-    alone, more = analysed()
+    alone, more = _results_and_readings(recording.directory, schedule)
     assert riding == alone
     assert fewer == more - 1  # the marker runs, command stretches and holes: no reading
 
