@@ -1060,16 +1060,22 @@ def test_chunks_from_a_row_on_begin_with_its_frame_and_read_none_before(
         assert np.array_equal(np.concatenate([c.values for c in chunks]), expected)
 
 
-def test_frames_larger_than_a_chunk_are_checked_once_for_many_reads(tmp_path: Path) -> None:
-    """A frame larger than a chunk is read in chunks, never whole; a damaged one gives no
-    row at all, wherever its damage; the frames checked once are not checked again."""
-    channels = channels_for(("X",), ("current_a",))
-    directory = tmp_path / "run"
+def _three_frames(directory: Path, quantities: tuple[str, ...]) -> Path:
+    """A recording of axis X with these quantities: three frames of 1,000 rows at 1 kHz,
+    every value of a frame its first row's index."""
+    channels = channels_for(("X",), quantities)
     with RecordingWriter.create(directory, channels, nominal_period_s=0.001) as writer:
         for first in range(0, 3000, 1000):
             time_s = np.arange(first, first + 1000) * 0.001
-            writer.append(SampleBlock(time_s, np.full((1000, 1), float(first))))
+            writer.append(SampleBlock(time_s, np.full((1000, len(quantities)), float(first))))
             writer.flush()
+    return directory
+
+
+def test_frames_larger_than_a_chunk_are_checked_once_for_many_reads(tmp_path: Path) -> None:
+    """A frame larger than a chunk is read in chunks, never whole; a damaged one gives no
+    row at all, wherever its damage; the frames checked once are not checked again."""
+    directory = _three_frames(tmp_path / "run", ("current_a",))
     samples = directory / SAMPLES_FILE
     offsets = frame_offsets(samples, 2)
     verified: set[int] = set()
@@ -1095,13 +1101,7 @@ def test_a_reading_reads_every_frame_once_and_gives_no_row_of_a_damaged_one(
     gives (one read of every payload byte, not a check and a second read); a later
     reading skips the checks of the frames checked; a damaged frame still gives no row,
     the rows before it all."""
-    channels = channels_for(("X",), ("current_a", "velocity_mm_min"))
-    directory = tmp_path / "run"
-    with RecordingWriter.create(directory, channels, nominal_period_s=0.001) as writer:
-        for first in range(0, 3000, 1000):
-            time_s = np.arange(first, first + 1000) * 0.001
-            writer.append(SampleBlock(time_s, np.full((1000, 2), float(first))))
-            writer.flush()
+    directory = _three_frames(tmp_path / "run", ("current_a", "velocity_mm_min"))
     payload = 3000 * 8 * 3 + 3 * FRAME_HEADER.size  # the headers are read too
     read = [0]
     exactly = recording_reader._read_exactly
