@@ -90,7 +90,7 @@ def test_nice_ticks() -> None:
 
 
 def test_the_line_has_the_colour_of_the_report_plots() -> None:
-    from ncmeasure.report.plots import PALETTE
+    from ncmeasure.report.colours import PALETTE
 
     line = _draw().findall(f"{SVG}g")[0].find(f"{SVG}polyline")
     assert line is not None and line.get("stroke") == PALETTE[0]

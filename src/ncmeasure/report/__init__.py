@@ -22,8 +22,9 @@ from ncmeasure.lazy import lazy_names
 
 if TYPE_CHECKING:
     from ncmeasure.report.bearings import BearingLayout, bearing_layout
+    from ncmeasure.report.colours import PALETTE
     from ncmeasure.report.friction_plots import plot_stribeck, plot_travel
-    from ncmeasure.report.plots import PALETTE, figure_png, plot_comparison, save_png
+    from ncmeasure.report.plots import figure_png, plot_comparison, save_png
     from ncmeasure.report.raw_plots import plot_raw_data
     from ncmeasure.report.traces import RawTraces
     from ncmeasure.report.windows import find_window_times, window_times
@@ -34,7 +35,7 @@ _LAZY = {
     "bearing_layout": "ncmeasure.report.bearings",
     "plot_stribeck": "ncmeasure.report.friction_plots",
     "plot_travel": "ncmeasure.report.friction_plots",
-    "PALETTE": "ncmeasure.report.plots",
+    "PALETTE": "ncmeasure.report.colours",
     "figure_png": "ncmeasure.report.plots",
     "plot_comparison": "ncmeasure.report.plots",
     "save_png": "ncmeasure.report.plots",

@@ -20,13 +20,12 @@ from matplotlib.ticker import FuncFormatter, LogFormatter, LogLocator
 
 from ncmeasure.formats.results import AxisResult, DirectionResult, NonlinearFit, VelocityProfile
 from ncmeasure.report.bearings import BearingLayout
+from ncmeasure.report.colours import INK, PALETTE
 from ncmeasure.report.curves import linear_curve, offset_is_significant, stribeck_curve
 from ncmeasure.report.plots import (
     EDGE_PT,
-    INK,
     LABEL_PAD_PT,
     LINE_EM,
-    PALETTE,
     TICK_PT,
     TITLE_PAD_PT,
     X_BAND_PT,

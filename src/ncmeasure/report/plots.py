@@ -48,6 +48,7 @@ from numpy.typing import NDArray
 
 from ncmeasure.files import write_whole
 from ncmeasure.formats.comparison import Comparison
+from ncmeasure.report.colours import CRITICAL, GOOD, GRID, INK, PALETTE, WARNING
 from ncmeasure.report.words import format_mm
 
 if TYPE_CHECKING:
@@ -72,9 +73,6 @@ DPI: Final = 110
 #: Width of every figure in inches.
 WIDTH_IN: Final = 9.6
 #: One colour per measuring position (and the raw-data signals); distinct on screen and paper.
-PALETTE: Final = ("#1f5fa8", "#e07b00", "#2e8b3e", "#c0392b", "#7b4fa3", "#8c6d31", "#d45fa0")
-INK: Final = "#222222"
-GRID: Final = "#d9d9d9"
 WINDOW_FILL: Final = "#9fd3a8"
 
 _RC: Final[dict[RcKeyType, Any]] = {
@@ -374,7 +372,7 @@ def save_png(figure: Figure, path: str | Path) -> bytes:
     return data
 
 
-_STATUS_COLOURS: Final = {"ok": "#ffffff", "warning": "#e07b00", "critical": "#c0392b"}
+_STATUS_COLOURS: Final = {"ok": "#ffffff", "warning": WARNING, "critical": CRITICAL}
 
 
 @styled
@@ -404,10 +402,10 @@ def plot_comparison(comparison: Comparison) -> Figure:
     critical = comparison.limits.critical_percent
     values = [g.median_deviation_percent for g in comparison.groups]
     reach = max([critical * 1.25, *(abs(v) * 1.1 for v in values)])
-    ax.axvspan(-warning, warning, color="#2e8b3e", alpha=0.08, linewidth=0)
+    ax.axvspan(-warning, warning, color=GOOD, alpha=0.08, linewidth=0)
     for sign in (-1, 1):
-        ax.axvspan(sign * warning, sign * critical, color="#e07b00", alpha=0.12, linewidth=0)
-        ax.axvspan(sign * critical, sign * reach, color="#c0392b", alpha=0.10, linewidth=0)
+        ax.axvspan(sign * warning, sign * critical, color=WARNING, alpha=0.12, linewidth=0)
+        ax.axvspan(sign * critical, sign * reach, color=CRITICAL, alpha=0.10, linewidth=0)
     ax.axvline(0, color="#555555", linewidth=0.9)
     rows = {key: index for index, key in enumerate(keys)}
     for number, label in enumerate(labels):
@@ -491,7 +489,7 @@ def plot_trend(
                 )
         base = values[baseline_index] if baseline_index is not None else None
         if base is not None and unit != "%" and base != 0:
-            for limit, colour in ((critical_percent, "#c0392b"), (warning_percent, "#e07b00")):
+            for limit, colour in ((critical_percent, CRITICAL), (warning_percent, WARNING)):
                 band = abs(base) * limit / 100.0
                 ax.axhspan(base - band, base + band, color=colour, alpha=0.07, lw=0)
                 for edge in (base - band, base + band):

@@ -19,11 +19,10 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
 
 from ncmeasure.recording import Recording
+from ncmeasure.report.colours import INK, PALETTE
 from ncmeasure.report.plots import (
     EDGE_PT,
-    INK,
     LINE_EM,
-    PALETTE,
     TICK_PT,
     TITLE_PAD_PT,
     WINDOW_FILL,

@@ -15,7 +15,9 @@ import math
 from collections.abc import Sequence
 from html import escape
 
-__all__ = ["nice_ticks", "trend_svg"]
+from ncmeasure.report.colours import CRITICAL, LINE, WARNING
+
+__all__ = ["date_label", "date_ticks", "nice_ticks", "number_text", "trend_svg"]
 
 _WIDTH = 760.0
 _PANEL = 150.0
@@ -24,9 +26,6 @@ _LEFT = 78.0
 _RIGHT = 16.0
 _TOP = 34.0
 _BOTTOM = 46.0
-_LINE = "#1f5fa8"
-"""The line colour of the report's plots (:data:`~ncmeasure.report.plots.PALETTE`, first)."""
-_BANDS = (("#c0392b", "critical"), ("#e07b00", "warning"))
 _DAY = 86400.0
 
 
@@ -43,23 +42,35 @@ def nice_ticks(low: float, high: float, count: int = 5) -> list[float]:
     return [round(k * step, 12) for k in range(first, last + 1)]
 
 
-def _number(value: float) -> str:
+def number_text(value: float) -> str:
+    """A tick's value as written at the axis."""
     return f"{value:.6g}"
 
 
-def _date_ticks(start: float, end: float) -> list[float]:
-    """Midnights (UTC) between two times (seconds), one every so many days, at most six."""
-    days = (end - start) / _DAY
-    step = next((s for s in (1, 2, 3, 7, 14, 30, 61, 91, 182, 365) if days / s <= 5), 0)
-    if step == 0:
-        step = 365 * math.ceil(days / 5 / 365)
-    first = math.ceil(start / _DAY / step) * step
-    ticks = []
-    day = first
-    while day * _DAY <= end:
-        ticks.append(day * _DAY)
-        day += step
-    return ticks
+def date_label(when: float) -> str:
+    """A date tick's label: the day (UTC) of a time in seconds."""
+    return dt.datetime.fromtimestamp(when, dt.UTC).strftime("%Y-%m-%d")
+
+
+def date_ticks(start: float, end: float, most: int = 6) -> list[float]:
+    """Midnights (UTC) between two times (seconds), one every so many days: the shortest
+    step that gives at most ``most`` of them."""
+
+    def every(step: int) -> list[float]:
+        day = math.ceil(start / _DAY / step) * step
+        ticks = []
+        while day * _DAY <= end:
+            ticks.append(day * _DAY)
+            day += step
+        return ticks
+
+    for step in (1, 2, 3, 7, 14, 30, 61, 91, 182, 365):
+        if (end - start) / _DAY / step <= most + 1 and len(found := every(step)) <= most:
+            return found
+    years = 1
+    while len(found := every(365 * years)) > most:
+        years += 1
+    return found
 
 
 def trend_svg(
@@ -109,7 +120,7 @@ def trend_svg(
         f'<text x="{_WIDTH / 2:g}" y="20" text-anchor="middle" font-size="14">'
         f"Axis {escape(axis)} over the machine&#x27;s life</text>",
     ]
-    x_ticks = _date_ticks(start, end)
+    x_ticks = date_ticks(start, end)
     for index, (title, unit, values) in enumerate(series):
         top = _TOP + index * (_PANEL + _GAP)
         bottom = top + _PANEL
@@ -140,7 +151,7 @@ def trend_svg(
             out.append(
                 f'<line x1="{_LEFT - 4:g}" x2="{_LEFT:g}" y1="{y:.1f}" y2="{y:.1f}" stroke="#444"/>'
                 f'<text x="{_LEFT - 6:g}" y="{y + 4:.1f}" text-anchor="end" fill="#444">'
-                f"{_number(tick)}</text>"
+                f"{number_text(tick)}</text>"
             )
         for tick in x_ticks:
             x = x_of(tick)
@@ -150,8 +161,8 @@ def trend_svg(
             )
         if banded and base is not None:
             for limit, colour in (
-                (critical_percent, _BANDS[0][0]),
-                (warning_percent, _BANDS[1][0]),
+                (critical_percent, CRITICAL),
+                (warning_percent, WARNING),
             ):
                 band = abs(base) * limit / 100.0
                 y_high, y_low = y_of(base + band), y_of(base - band)
@@ -173,10 +184,10 @@ def trend_svg(
         if known:
             points = " ".join(f"{x_of(s):.1f},{y_of(v):.1f}" for s, v in known)
             out.append(
-                f'<polyline points="{points}" fill="none" stroke="{_LINE}" stroke-width="1.4"/>'
+                f'<polyline points="{points}" fill="none" stroke="{LINE}" stroke-width="1.4"/>'
             )
             out.extend(
-                f'<circle cx="{x_of(s):.1f}" cy="{y_of(v):.1f}" r="3.5" fill="{_LINE}"/>'
+                f'<circle cx="{x_of(s):.1f}" cy="{y_of(v):.1f}" r="3.5" fill="{LINE}"/>'
                 for s, v in known
             )
         for at, label in enumerate(labels):
@@ -194,10 +205,9 @@ def trend_svg(
         )
     bottom = _TOP + panels * _PANEL + (panels - 1) * _GAP
     for tick in x_ticks:
-        label = dt.datetime.fromtimestamp(tick, dt.UTC).strftime("%Y-%m-%d")
         out.append(
             f'<text x="{x_of(tick):.1f}" y="{bottom + 16:g}" text-anchor="middle" '
-            f'fill="#444">{label}</text>'
+            f'fill="#444">{date_label(tick)}</text>'
         )
     out.append(
         f'<text x="{_LEFT + plot_width / 2:g}" y="{bottom + 36:g}" text-anchor="middle">'

@@ -326,7 +326,7 @@ def _trend_svg(
     """The axis' trend plot (cached); ``points``: the trend if already read."""
 
     def draw() -> str:
-        from ncmeasure.web.plots import trend_svg  # matplotlib: at the first plot, not at start
+        from ncmeasure.web.trend import trend_svg
 
         found = points if points is not None else ctx.store.trend(serial, axis)
         return trend_svg(serial, axis, found)
