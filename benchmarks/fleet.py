@@ -379,8 +379,14 @@ def _web(label: str, url: str, serial: str, rounds: int, figures: Figures) -> No
         "GET /?status=warning": "/?status=warning",
         "GET /machines/{serial}": f"/machines/{serial}",
         "GET /machines/{serial}/axes/X/trend.svg": f"/machines/{serial}/axes/X/trend.svg",
+        "GET /machines/{serial}/axes/X (its page)": f"/machines/{serial}/axes/X",
+        "GET /api/v1/machines/{serial}/measurements": f"/api/v1/machines/{serial}/measurements",
+        "GET /api/v1/machines/{serial}/axes/X/trend": f"/api/v1/machines/{serial}/axes/X/trend",
     }
     with TestClient(create_app(url), base_url="http://127.0.0.1") as client:
+        with open_store(url) as store:
+            latest = store.machine(serial)[1][-1].id
+        paths["GET /api/v1/measurements/{id}/results"] = f"/api/v1/measurements/{latest}/results"
         for name, path in paths.items():
             first = _request(client, path)
             warm = [_request(client, path) for _ in range(rounds)]
