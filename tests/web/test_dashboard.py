@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 from markupsafe import escape
 
+from ncmeasure.formats.results import AxisResult
 from ncmeasure.web import ServerInfo
 from tests.browser import pixels_like, screenshot
-from tests.web.conftest import SCRIPT_SITE, TOKEN, WAIT_S
+from tests.web.conftest import SCRIPT_SITE, TOKEN, WAIT_S, Fleet
 
 FAULT_BACKGROUND = "#f7cfcb"
 OK_BACKGROUND = "#cdebd5"
@@ -171,3 +172,46 @@ def test_chromium_renders_a_machine_page_with_its_plots(
 def test_without_the_token_chromium_gets_no_page(token_server: ServerInfo, tmp_path: Path) -> None:
     image = screenshot(token_server.url, tmp_path, 600)
     assert pixels_like(image, OK_BACKGROUND, 0.03) == 0  # a plain 401 line, no grid
+
+
+def test_an_axis_pages_curves_are_drawn_once_per_measurement(
+    fleet: Fleet, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A measurement's friction curves do not change: a measurement added to another
+    machine leaves them cached; the axis' own new measurement is drawn."""
+    from fastapi.testclient import TestClient
+
+    import ncmeasure.web.plots as plots
+    from ncmeasure.store import MeasurementInfo, open_store
+    from ncmeasure.web import create_app
+
+    copy = tmp_path / "fleet.db"
+    copy.write_bytes(Path(fleet.url.removeprefix("sqlite:///")).read_bytes())
+    url = f"sqlite:///{copy}"
+    drawn: list[str] = []
+    original = plots.curves_svg
+
+    def counted(salt: str, axis: str, result: AxisResult) -> str:
+        drawn.append(salt)
+        return original(salt, axis, result)
+
+    monkeypatch.setattr(plots, "curves_svg", counted)
+
+    def add(serial: str, when: str) -> int:
+        results = fleet.spare.model_copy(update={"created_utc": when})
+        with open_store(url, write=True) as store:
+            info = MeasurementInfo(serial=serial, label="service", measured_utc=when)
+            return store.add(results, info).measurement_id
+
+    with TestClient(create_app(url), base_url="http://127.0.0.1") as client:
+        first = client.get("/machines/M-100/axes/X")
+        assert first.status_code == 200 and first.text.count("<svg") == 3
+        assert len(drawn) == 1
+        assert client.get("/machines/M-100/axes/X").text == first.text
+        add("M-102", "2026-02-01T08:00:00Z")  # another machine: the store's version moves
+        assert client.get("/machines/M-100/axes/X").status_code == 200
+        assert len(drawn) == 1
+        newest = add("M-100", "2026-03-01T08:00:00Z")
+        page = client.get("/machines/M-100/axes/X").text
+        assert drawn == [drawn[0], f"M-100/{newest}"]
+        assert f"/api/v1/measurements/{newest}/results" in page

@@ -6,12 +6,15 @@ and cost tens of milliseconds each; they are cached under the store's
 *version* (the highest measurement and machine ids: every change adds a
 measurement, and nothing is deleted), so a measurement added by ``ncmeasure store
 add`` elsewhere shows on the next request. Reading it costs two index look-ups, not
-a count of the measurements.
+a count of the measurements. What depends on one stored measurement alone (the
+friction curves of its axes, some 0.3 s of matplotlib each) is kept across versions
+(:meth:`Context.of_measurement`): a stored measurement never changes.
 """
 
 from __future__ import annotations
 
 import threading
+from collections import OrderedDict
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
@@ -27,6 +30,8 @@ __all__ = ["Context", "Version", "context"]
 
 _T = TypeVar("_T")
 _CACHE_LIMIT = 512
+_KEPT_LIMIT = 128
+"""Figures of single measurements kept (about 0.2 MB each)."""
 
 Version = tuple[int, int]
 """The store's version: (highest measurement id, highest machine id)."""
@@ -39,6 +44,7 @@ class Context:
     store: Store
     _cache: dict[tuple[Version, Hashable], Any] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
+    _kept: OrderedDict[Hashable, Any] = field(default_factory=OrderedDict)
 
     def version(self) -> Version:
         """The store's version now; read it once per request, before reading the store."""
@@ -68,6 +74,23 @@ class Context:
             if stale or len(self._cache) >= _CACHE_LIMIT:
                 self._cache.clear()
             self._cache[(version, key)] = value
+        return value
+
+    def of_measurement(self, measurement_id: int, key: Hashable, compute: Callable[[], _T]) -> _T:
+        """``compute()`` of what depends on a stored measurement alone, remembered under
+        its id and ``key`` across versions of the store (a measurement is never changed
+        nor deleted), the most recently used :data:`_KEPT_LIMIT` of them."""
+        whole = (measurement_id, key)
+        with self._lock:
+            if whole in self._kept:
+                self._kept.move_to_end(whole)
+                found: _T = self._kept[whole]
+                return found
+        value = compute()
+        with self._lock:
+            self._kept[whole] = value
+            while len(self._kept) > _KEPT_LIMIT:
+                self._kept.popitem(last=False)
         return value
 
     def check(self, version: Version, serial: str) -> StoreCheck:

@@ -434,8 +434,9 @@ def axis_page(request: Request, ctx: Ctx, serial: str, axis: str) -> HTMLRespons
     from ncmeasure.web.plots import curves_svg, travel_svg
 
     salt = f"{serial}/{latest.measurement_id}"
-    curves = ctx.cached(version, ("curves", salt, axis), lambda: curves_svg(salt, axis, result))
-    travel = ctx.cached(version, ("travel", salt, axis), lambda: travel_svg(salt, axis, result))
+    kept = latest.measurement_id
+    curves = ctx.of_measurement(kept, ("curves", axis), lambda: curves_svg(salt, axis, result))
+    travel = ctx.of_measurement(kept, ("travel", axis), lambda: travel_svg(salt, axis, result))
     return html_page(
         request,
         "axis.html.j2",
