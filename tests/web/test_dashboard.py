@@ -181,7 +181,7 @@ def test_an_axis_pages_curves_are_drawn_once_per_measurement(
     machine leaves them cached; the axis' own new measurement is drawn."""
     from fastapi.testclient import TestClient
 
-    import ncmeasure.web.plots as plots
+    import ncmeasure.web.pages as pages
     from ncmeasure.store import MeasurementInfo, open_store
     from ncmeasure.web import create_app
 
@@ -189,13 +189,13 @@ def test_an_axis_pages_curves_are_drawn_once_per_measurement(
     copy.write_bytes(Path(fleet.url.removeprefix("sqlite:///")).read_bytes())
     url = f"sqlite:///{copy}"
     drawn: list[str] = []
-    original = plots.curves_svg
+    original = pages.curves_svg
 
-    def counted(salt: str, axis: str, result: AxisResult) -> str:
-        drawn.append(salt)
-        return original(salt, axis, result)
+    def counted(axis: str, result: AxisResult) -> str:
+        drawn.append(axis)
+        return original(axis, result)
 
-    monkeypatch.setattr(plots, "curves_svg", counted)
+    monkeypatch.setattr(pages, "curves_svg", counted)
 
     def add(serial: str, when: str) -> int:
         results = fleet.spare.model_copy(update={"created_utc": when})
@@ -213,5 +213,5 @@ def test_an_axis_pages_curves_are_drawn_once_per_measurement(
         assert len(drawn) == 1
         newest = add("M-100", "2026-03-01T08:00:00Z")
         page = client.get("/machines/M-100/axes/X").text
-        assert drawn == [drawn[0], f"M-100/{newest}"]
+        assert drawn == ["X", "X"]  # the new latest measurement's curves
         assert f"/api/v1/measurements/{newest}/results" in page

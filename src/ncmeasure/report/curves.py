@@ -21,9 +21,24 @@ from ncmeasure.analysis.friction.stribeck import (
     ROLLING_REFERENCE_MM_MIN,
     STRIBECK_PARAMETERS,
 )
-from ncmeasure.formats.results import LinearFit, NonlinearFit, OffsetResult, Point
+from ncmeasure.formats.results import (
+    AxisResult,
+    DirectionResult,
+    LinearFit,
+    NonlinearFit,
+    OffsetResult,
+    Point,
+)
 
-__all__ = ["linear_curve", "offset_is_significant", "stribeck_curve", "stribeck_magnitude"]
+__all__ = [
+    "drawn_model",
+    "linear_curve",
+    "offset_is_significant",
+    "speed_text",
+    "stribeck_curve",
+    "stribeck_magnitude",
+    "unit_label",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -128,3 +143,26 @@ def stribeck_curve(
         return values if values is not None else np.full_like(v, np.nan)
 
     return _in_sense(velocity_mm_min, magnitude, sign, points, offset)
+
+
+def unit_label(result: AxisResult) -> str:
+    """The friction axis' label of an axis' figures."""
+    if result.quantity == "torque_nm":
+        return "friction torque [Nm]"
+    return "friction as motor current [A]"
+
+
+def drawn_model(direction: DirectionResult) -> NonlinearFit | None:
+    """The nonlinear fit to draw: the extended model where identifiable, else Stribeck."""
+    for fit in (direction.extended, direction.stribeck):
+        if fit is not None and fit.identifiable:
+            return fit
+    return None
+
+
+def speed_text(value: float, sign: float) -> str:
+    """A speed as a tick label: ``10 000``, ``0.5``, with ``−`` on the negative side."""
+    if value <= 0:
+        return ""
+    text = f"{value:,.0f}".replace(",", " ") if value >= 1 else f"{value:g}"
+    return f"−{text}" if sign < 0 else text

@@ -18,10 +18,17 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FuncFormatter, LogFormatter, LogLocator
 
-from ncmeasure.formats.results import AxisResult, DirectionResult, NonlinearFit, VelocityProfile
+from ncmeasure.formats.results import AxisResult, DirectionResult, VelocityProfile
 from ncmeasure.report.bearings import BearingLayout
 from ncmeasure.report.colours import INK, PALETTE
-from ncmeasure.report.curves import linear_curve, offset_is_significant, stribeck_curve
+from ncmeasure.report.curves import (
+    drawn_model,
+    linear_curve,
+    offset_is_significant,
+    speed_text,
+    stribeck_curve,
+    unit_label,
+)
 from ncmeasure.report.plots import (
     EDGE_PT,
     LABEL_PAD_PT,
@@ -47,30 +54,8 @@ __all__ = ["plot_stribeck", "plot_travel"]
 _PROFILES = LinearSegmentedColormap.from_list("ncmeasure_profiles", ["#b9cfe8", "#0b2f5c"])
 
 
-def _unit_label(result: AxisResult) -> str:
-    if result.quantity == "torque_nm":
-        return "friction torque [Nm]"
-    return "friction as motor current [A]"
-
-
-def _drawn_model(direction: DirectionResult) -> NonlinearFit | None:
-    """The nonlinear fit to draw: the extended model where identifiable, else Stribeck."""
-    for fit in (direction.extended, direction.stribeck):
-        if fit is not None and fit.identifiable:
-            return fit
-    return None
-
-
-def _speed_text(value: float, sign: float) -> str:
-    """A speed as a tick label: ``10 000``, ``0.5``, with ``−`` on the negative side."""
-    if value <= 0:
-        return ""
-    text = f"{value:,.0f}".replace(",", " ") if value >= 1 else f"{value:g}"
-    return f"−{text}" if sign < 0 else text
-
-
 def _speed_tick(sign: float) -> FuncFormatter:
-    return FuncFormatter(lambda value, _position: _speed_text(value, sign))
+    return FuncFormatter(lambda value, _position: speed_text(value, sign))
 
 
 def _speed_ticks(axis: Axis, sign: float, low: float, high: float) -> None:
@@ -92,7 +77,7 @@ class _MinorSpeedTick(LogFormatter):
     """Labels of the minor ticks of a logarithmic speed axis, as plain numbers.
 
     Which minor ticks are labelled is matplotlib's choice (none over more than
-    a decade, some over less); the text is :func:`_speed_text`, not the
+    a decade, some over less); the text is :func:`~ncmeasure.report.curves.speed_text`, not the
     mathtext ``2×10^2`` of matplotlib's default, which needs math fonts.
     """
 
@@ -101,7 +86,7 @@ class _MinorSpeedTick(LogFormatter):
         self._sign = sign
 
     def __call__(self, x: float, pos: int | None = None) -> str:
-        return _speed_text(x, self._sign) if super().__call__(x, pos) else ""
+        return speed_text(x, self._sign) if super().__call__(x, pos) else ""
 
 
 def _error_bars(ax: Axes, x: FloatArray, y: FloatArray, error: FloatArray, colour: str) -> None:
@@ -187,7 +172,7 @@ def _draw_direction(
                 alpha=0.7,
                 zorder=2,
             )
-    model = _drawn_model(direction)
+    model = drawn_model(direction)
     if model is None or not points:
         return False
     grid = np.geomspace(abs(points[0].velocity_mm_min), abs(points[-1].velocity_mm_min), 160)
@@ -238,7 +223,7 @@ def plot_stribeck(axis: str, result: AxisResult) -> Figure:
     _style_speed_panels(panels, drawn, slowest, fastest, shown_offset)
     positive.tick_params(labelleft=False)
     positive.spines["left"].set_color("#aaaaaa")
-    negative.set_ylabel(_unit_label(result))
+    negative.set_ylabel(unit_label(result))
     low, high = negative.get_ylim()
     negative.set_ylim(min(low, 0.0), max(high, 0.0))
     figure.suptitle(
@@ -489,7 +474,7 @@ def plot_travel(axis: str, result: AxisResult, bearings: BearingLayout) -> Figur
         if isinstance(norm, LogNorm):
             _speed_ticks(bar.ax.yaxis, 1.0, slowest, fastest)
     ax.set_xlabel("measuring position (number: place along the travel)")
-    ax.set_ylabel(_unit_label(result))
+    ax.set_ylabel(unit_label(result))
     ax.set_title(
         plain_text(f"Axis {axis}: friction along the travel"),
         loc="left",

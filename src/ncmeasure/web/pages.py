@@ -33,6 +33,7 @@ from markupsafe import Markup
 
 from ncmeasure._version import __version__
 from ncmeasure.analysis.judgement.summary import axis_comparison, axis_headline
+from ncmeasure.report.bearings import bearing_layout
 from ncmeasure.report.words import format_date, format_number
 from ncmeasure.store import MeasurementSummary, TrendPoint
 from ncmeasure.store.check import StoreCheck
@@ -41,6 +42,7 @@ from ncmeasure.store.rows import CHARACTERISTICS
 from ncmeasure.store.statuses import fleet_statuses, judged_page
 from ncmeasure.store.summaries import DEFAULT_PAGE, MAX_PAGE
 from ncmeasure.web.context import Context, Version, context
+from ncmeasure.web.friction_svg import curves_svg, travel_svg
 
 __all__ = ["html_page", "router"]
 
@@ -431,12 +433,11 @@ def axis_page(request: Request, ctx: Ctx, serial: str, axis: str) -> HTMLRespons
     )
     verdict = axis_headline(result, against).verdict if against is not None else result.verdict
     status = check.axis_status.get(axis, "ok")
-    from ncmeasure.web.plots import curves_svg, travel_svg
-
-    salt = f"{serial}/{latest.measurement_id}"
     kept = latest.measurement_id
-    curves = ctx.of_measurement(kept, ("curves", axis), lambda: curves_svg(salt, axis, result))
-    travel = ctx.of_measurement(kept, ("travel", axis), lambda: travel_svg(salt, axis, result))
+    curves = ctx.of_measurement(kept, ("curves", axis), lambda: curves_svg(axis, result))
+    travel = ctx.of_measurement(
+        kept, ("travel", axis), lambda: travel_svg(axis, result, bearing_layout(axis, None, result))
+    )
     return html_page(
         request,
         "axis.html.j2",
@@ -453,6 +454,6 @@ def axis_page(request: Request, ctx: Ctx, serial: str, axis: str) -> HTMLRespons
         results_href=f"{root}/api/v1/measurements/{latest.measurement_id}/results",
         trend=_trend_svg(ctx, version, serial, axis, points),
         rows=_trend_rows(points),
-        curves=Markup(curves),  # matplotlib escapes all text in its SVG
+        curves=Markup(curves),  # the SVG's text is escaped
         travel=None if travel is None else Markup(travel),
     )

@@ -1,0 +1,526 @@
+"""An axis' friction figures on the dashboard, as SVG written directly, without matplotlib.
+
+The same two figures as the report's (:func:`~ncmeasure.report.plot_stribeck`,
+:func:`~ncmeasure.report.plot_travel`), drawn for a page:
+
+- **friction over velocity**: the negative direction on the left (velocity growing
+  to the left), the positive on the right, a logarithmic speed scale, a shared
+  friction scale; median ± standard deviation per velocity step, one colour per
+  position; the Coulomb + viscous fit dashed over the speeds it was fitted to (dotted
+  where extrapolated below them), the Stribeck (or extended) fit solid where it is
+  identifiable; the zero line, and the offset line where the offset is significant;
+- **friction along the travel**: one thin line per velocity (light: slow, dark: fast,
+  the scale at the right), the average over the velocities bold with the positions'
+  numbers, the fixed and loose bearing at the travel's ends.
+
+The curves are those of :mod:`ncmeasure.report.curves`. Drawn with matplotlib, an axis'
+page cost 0.25–0.3 s of CPU per measurement, and 0.5 s more for matplotlib's import on
+the first page of a server process. Text is text (the browser's font); no element
+has an id, so any number of figures can share a page.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from html import escape
+
+import numpy as np
+
+from ncmeasure.formats.results import AxisResult, DirectionResult
+from ncmeasure.report.bearings import BearingLayout
+from ncmeasure.report.colours import INK, PALETTE
+from ncmeasure.report.curves import (
+    drawn_model,
+    linear_curve,
+    offset_is_significant,
+    speed_text,
+    stribeck_curve,
+    unit_label,
+)
+from ncmeasure.report.trend_svg import nice_ticks, number_text
+from ncmeasure.report.words import format_mm
+
+__all__ = ["curves_svg", "travel_svg"]
+
+_WIDTH = 960.0
+_AXIS_GREY = "#888888"
+_TEXT = "#444444"
+_DASHED = "4 3"
+_DOTTED = "1 2"
+_SLOW, _FAST = (0xB9, 0xCF, 0xE8), (0x0B, 0x2F, 0x5C)
+"""The thin lines' colours at the slowest and the fastest velocity."""
+
+
+@dataclass(frozen=True)
+class _Panel:
+    """A plot area in pixels and the data range it shows (x logarithmic or linear)."""
+
+    left: float
+    top: float
+    width: float
+    height: float
+    x_low: float
+    x_high: float
+    y_low: float
+    y_high: float
+    x_log: bool = False
+    x_reversed: bool = False
+
+    def x(self, value: float) -> float:
+        low, high, v = self.x_low, self.x_high, value
+        if self.x_log:
+            low, high, v = math.log10(low), math.log10(high), math.log10(max(value, 1e-300))
+        share = (v - low) / (high - low)
+        return self.left + (1.0 - share if self.x_reversed else share) * self.width
+
+    def y(self, value: float) -> float:
+        share = (value - self.y_low) / (self.y_high - self.y_low)
+        return self.top + (1.0 - share) * self.height
+
+    @property
+    def bottom(self) -> float:
+        return self.top + self.height
+
+
+def _svg_head(height: float, title: str) -> list[str]:
+    return [
+        f'<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {_WIDTH:g} {height:g}" '
+        f'width="{_WIDTH:g}" height="{height:g}" role="img" font-family="sans-serif" '
+        f'font-size="11" style="max-width:100%;height:auto;background:#fff">',
+        f"<title>{escape(title)}</title>",
+        f'<text x="8" y="20" font-size="14" fill="{INK}">{escape(title)}</text>',
+    ]
+
+
+def _polyline(panel: _Panel, xs: Iterable[float], ys: Iterable[float], style: str) -> str:
+    """A line through the finite points (a gap where a value is not finite)."""
+    runs: list[list[str]] = [[]]
+    for x, y in zip(xs, ys, strict=True):
+        if math.isfinite(x) and math.isfinite(y) and (x > 0 or not panel.x_log):
+            runs[-1].append(f"{panel.x(x):.1f},{panel.y(y):.1f}")
+        elif runs[-1]:
+            runs.append([])
+    return "".join(
+        f'<polyline points="{" ".join(run)}" fill="none" {style}/>' for run in runs if len(run) > 1
+    )
+
+
+def _y_ticks(panel: _Panel, out: list[str], labels: bool) -> None:
+    for tick in nice_ticks(panel.y_low, panel.y_high):
+        y = panel.y(tick)
+        out.append(
+            f'<line x1="{panel.left:g}" x2="{panel.left + panel.width:g}" y1="{y:.1f}" '
+            f'y2="{y:.1f}" stroke="#d9d9d9" stroke-width="0.6"/>'
+        )
+        if labels:
+            out.append(
+                f'<text x="{panel.left - 5:g}" y="{y + 4:.1f}" text-anchor="end" '
+                f'fill="{_TEXT}">{number_text(tick)}</text>'
+            )
+
+
+def _frame(panel: _Panel) -> str:
+    return (
+        f'<path d="M{panel.left:g} {panel.top:g}V{panel.bottom:g}H{panel.left + panel.width:g}" '
+        f'fill="none" stroke="#555"/>'
+    )
+
+
+def _speed_ticks(low: float, high: float) -> tuple[list[float], list[float]]:
+    """Labelled and unlabelled ticks of a logarithmic speed scale: the decades, and 2
+    and 5 of each (labelled too over a decade and a half or less)."""
+    labelled: list[float] = []
+    minor: list[float] = []
+    for power in range(math.floor(math.log10(low)), math.ceil(math.log10(high)) + 1):
+        for m in (1.0, 2.0, 5.0):
+            value = m * 10.0**power
+            if low <= value <= high:
+                (labelled if m == 1.0 else minor).append(value)
+    if high <= low * 10**1.5 or len(labelled) < 2:
+        return sorted(labelled + minor), []
+    return labelled, minor
+
+
+def _direction_marks(
+    panel: _Panel,
+    direction: DirectionResult,
+    sign: float,
+    colour: str,
+    offset: float | None,
+    slowest: float,
+) -> tuple[list[str], bool]:
+    """Points with ± std bars, the linear fit and the nonlinear one of one direction."""
+    out: list[str] = []
+    points = sorted(
+        (p for p in direction.points if p.velocity_mm_min != 0),
+        key=lambda p: abs(p.velocity_mm_min),
+    )
+    model = drawn_model(direction)
+    stribeck = False
+    if model is not None and points:
+        grid = np.geomspace(abs(points[0].velocity_mm_min), abs(points[-1].velocity_mm_min), 80)
+        curve = stribeck_curve(model, sign * grid, sign, points, offset)
+        if curve is not None:
+            out.append(_polyline(panel, grid, curve, f'stroke="{colour}" stroke-width="1.9"'))
+            stribeck = True
+    fit = direction.fit
+    if fit is not None:
+        low, high = fit.velocity_range_mm_min
+        low, high = max(low, slowest), max(high, max(low, slowest))
+        inside = np.geomspace(low, high, 40)
+        out.append(
+            _polyline(
+                panel,
+                inside,
+                linear_curve(fit, sign * inside, sign, points, offset),
+                f'stroke="{colour}" stroke-width="1.3" stroke-dasharray="{_DASHED}"',
+            )
+        )
+        if low > slowest * 1.01:  # extrapolated below the fitted speeds: lighter
+            below = np.geomspace(slowest, low, 20)
+            out.append(
+                _polyline(
+                    panel,
+                    below,
+                    linear_curve(fit, sign * below, sign, points, offset),
+                    f'stroke="{colour}" stroke-width="1.1" stroke-dasharray="{_DOTTED}" '
+                    f'stroke-opacity="0.7"',
+                )
+            )
+    for p in points:
+        x, y = panel.x(abs(p.velocity_mm_min)), panel.y(p.median)
+        if math.isfinite(p.std):
+            y_low, y_high = panel.y(p.median - p.std), panel.y(p.median + p.std)
+            out.append(
+                f'<path d="M{x:.1f} {y_low:.1f}V{y_high:.1f}M{x - 2.5:.1f} {y_low:.1f}h5'
+                f'M{x - 2.5:.1f} {y_high:.1f}h5" stroke="{colour}" stroke-width="1"/>'
+            )
+        out.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="3" fill="{colour}"/>')
+    return out, stribeck
+
+
+def _curve_range(
+    result: AxisResult, offset: float | None, significant: bool
+) -> tuple[float, float]:
+    """The friction range of the velocity figure: every point's ± std and zero."""
+    values = [0.0]
+    for position in result.positions:
+        for direction in position.directions.values():
+            for p in direction.points if direction is not None else ():
+                spread = p.std if math.isfinite(p.std) else 0.0
+                values += [p.median - spread, p.median + spread]
+    if offset is not None and significant:
+        values.append(offset)
+    finite = [v for v in values if math.isfinite(v)]
+    low, high = min(finite), max(finite)
+    pad = (high - low) * 0.06 or 1.0
+    return low - pad, high + pad
+
+
+def curves_svg(axis: str, result: AxisResult) -> str:
+    """Friction over velocity for every position and direction of an axis, as ``<svg>``."""
+    offset = result.offset.value if result.offset is not None else None
+    significant = offset_is_significant(result.offset)
+    speeds = [
+        abs(p.velocity_mm_min)
+        for position in result.positions
+        for d in position.directions.values()
+        if d is not None
+        for p in d.points
+        if p.velocity_mm_min != 0
+    ]
+    slowest = min(speeds) if speeds else 10.0
+    fastest = max(speeds) if speeds else 10000.0
+    y_low, y_high = _curve_range(result, offset, significant)
+    legend_rows = math.ceil((len(result.positions) + 4) / 4)
+    top, left, gap, plot_h = 58.0, 70.0, 14.0, 290.0
+    height = top + plot_h + 42 + 18 * legend_rows + 10
+    width = (_WIDTH - left - 16 - gap) / 2
+    panels = {
+        side: _Panel(
+            left + k * (width + gap),
+            top,
+            width,
+            plot_h,
+            slowest / 1.4,
+            fastest * 1.4,
+            y_low,
+            y_high,
+            x_log=True,
+            x_reversed=side == "negative",
+        )
+        for k, side in enumerate(("negative", "positive"))
+    }
+    out = _svg_head(height, f"Axis {axis}: friction over velocity (Stribeck curves)")
+    labelled, minor = _speed_ticks(slowest / 1.4, fastest * 1.4)
+    shown_offset = offset if significant else None
+    drawn = {"negative": False, "positive": False}
+    any_stribeck = False
+    marks: dict[str, list[str]] = {"negative": [], "positive": []}
+    for index, position in enumerate(result.positions):
+        colour = PALETTE[index % len(PALETTE)]
+        for named, direction in position.directions.items():
+            if direction is None or named not in panels:
+                continue
+            sign = -1.0 if named == "negative" else 1.0
+            drawn[named] = drawn[named] or bool(direction.points)
+            found, stribeck = _direction_marks(
+                panels[named], direction, sign, colour, offset, slowest
+            )
+            marks[named] += found
+            any_stribeck = any_stribeck or stribeck
+    for side, panel in panels.items():
+        sign = -1.0 if side == "negative" else 1.0
+        out.append(
+            f'<g><text x="{panel.left + panel.width / 2:g}" y="{top - 8:g}" '
+            f'text-anchor="middle" fill="{_TEXT}">{side} direction</text>'
+        )
+        _y_ticks(panel, out, labels=side == "negative")
+        for tick in labelled + minor:
+            x = panel.x(tick)
+            size = 4 if tick in labelled else 2.5
+            out.append(
+                f'<line x1="{x:.1f}" x2="{x:.1f}" y1="{panel.bottom:g}" '
+                f'y2="{panel.bottom + size:g}" stroke="#444"/>'
+            )
+            if tick in labelled:
+                out.append(
+                    f'<text x="{x:.1f}" y="{panel.bottom + 16:g}" text-anchor="middle" '
+                    f'fill="{_TEXT}">{speed_text(tick, sign)}</text>'
+                )
+        zero = panel.y(0.0)
+        out.append(
+            f'<line x1="{panel.left:g}" x2="{panel.left + panel.width:g}" y1="{zero:.1f}" '
+            f'y2="{zero:.1f}" stroke="{_AXIS_GREY}" stroke-width="0.8"/>'
+        )
+        if shown_offset is not None:
+            y = panel.y(shown_offset)
+            out.append(
+                f'<line x1="{panel.left:g}" x2="{panel.left + panel.width:g}" y1="{y:.1f}" '
+                f'y2="{y:.1f}" stroke="#666" stroke-dasharray="6 2 1 2"/>'
+            )
+        out.append(_frame(panel))
+        out += marks[side]
+        if not drawn[side]:
+            out.append(
+                f'<text x="{panel.left + panel.width / 2:g}" y="{top + plot_h / 2:g}" '
+                f'text-anchor="middle" font-size="14" fill="{_AXIS_GREY}">not measured</text>'
+            )
+        out.append(
+            f'<text x="{panel.left + panel.width / 2:g}" y="{panel.bottom + 32:g}" '
+            f'text-anchor="middle" fill="{_TEXT}">velocity [mm/min], logarithmic</text></g>'
+        )
+    out.append(
+        f'<text transform="translate(16 {top + plot_h / 2:g}) rotate(-90)" '
+        f'text-anchor="middle" fill="{_TEXT}">{escape(unit_label(result))}</text>'
+    )
+    legend = [
+        (
+            f'<line x1="0" x2="18" y1="0" y2="0" stroke="{PALETTE[i % len(PALETTE)]}" '
+            f'stroke-width="1.9"/><circle cx="9" cy="0" r="3" fill="{PALETTE[i % len(PALETTE)]}"/>',
+            f"position {p.position_index + 1}: {format_mm(p.position_mm)} mm",
+        )
+        for i, p in enumerate(result.positions)
+    ]
+    legend.append((f'<circle cx="9" cy="0" r="3" fill="{INK}"/>', "median ± std"))
+    legend.append(
+        (
+            f'<line x1="0" x2="18" y1="0" y2="0" stroke="{INK}" stroke-width="1.3" '
+            f'stroke-dasharray="{_DASHED}"/>',
+            "Coulomb + viscous fit",
+        )
+    )
+    if any_stribeck:
+        legend.append(
+            (
+                f'<line x1="0" x2="18" y1="0" y2="0" stroke="{INK}" stroke-width="1.9"/>',
+                "Stribeck fit",
+            )
+        )
+    if shown_offset is not None:
+        legend.append(
+            (
+                '<line x1="0" x2="18" y1="0" y2="0" stroke="#666" stroke-dasharray="6 2 1 2"/>',
+                "offset",
+            )
+        )
+    out += _legend(legend, top + plot_h + 52, left, _WIDTH - left - 16)
+    out.append("</svg>")
+    return "\n".join(out)
+
+
+def _legend(entries: Sequence[tuple[str, str]], top: float, left: float, width: float) -> list[str]:
+    """Four entries to a row: a mark and its text."""
+    out: list[str] = []
+    column = width / 4
+    for k, (mark, text) in enumerate(entries):
+        x = left + (k % 4) * column
+        y = top + (k // 4) * 18
+        out.append(
+            f'<g transform="translate({x:.1f} {y:.1f})">{mark}'
+            f'<text x="24" y="4" fill="{INK}">{escape(text)}</text></g>'
+        )
+    return out
+
+
+def _shade(share: float) -> str:
+    """The colour of a thin line: light for the slowest velocity, dark for the fastest."""
+    share = min(1.0, max(0.0, share))
+    red, green, blue = (round(a + (b - a) * share) for a, b in zip(_SLOW, _FAST, strict=True))
+    return f"#{red:02x}{green:02x}{blue:02x}"
+
+
+def travel_svg(axis: str, result: AxisResult, bearings: BearingLayout) -> str | None:
+    """Friction along the travel: one thin line per velocity, the average bold, the
+    bearings at the travel's ends, as ``<svg>``; None without that analysis."""
+    dependency = result.position_dependency
+    if dependency is None or not dependency.identifiable:
+        return None
+    per_velocity = [p for p in dependency.profiles if p.velocity_mm_min is not None]
+    averages = [p for p in dependency.profiles if p.velocity_mm_min is None]
+    speeds = [abs(p.velocity_mm_min or 0.0) for p in per_velocity]
+    slowest, fastest = min(speeds, default=0.0), max(speeds, default=1.0)
+    logarithmic = slowest > 0 and fastest / slowest > 20
+
+    def share(speed: float) -> float:
+        if fastest <= slowest:
+            return 0.0
+        if logarithmic:
+            return math.log(speed / slowest) / math.log(fastest / slowest)
+        return (speed - slowest) / (fastest - slowest)
+
+    positions = [x for p in dependency.profiles for x in p.positions_mm]
+    low_mm, high_mm = min(positions, default=0.0), max(positions, default=1.0)
+    if bearings.travel_mm is not None:
+        low_mm, high_mm = min(low_mm, bearings.travel_mm[0]), max(high_mm, bearings.travel_mm[1])
+    pad = 0.04 * max(high_mm - low_mm, 1.0)
+    values = [abs(v) for p in dependency.profiles for v in p.values if math.isfinite(v)]
+    y_high = (max(values, default=1.0) or 1.0) * 1.08
+    top, left, plot_h = 62.0, 70.0, 250.0
+    right = 150.0 if per_velocity else 16.0
+    height = top + plot_h + 50
+    panel = _Panel(
+        left, top, _WIDTH - left - right, plot_h, low_mm - pad, high_mm + pad, 0.0, y_high
+    )
+    out = _svg_head(height, f"Axis {axis}: friction along the travel")
+    out.append("<g>")
+    _y_ticks(panel, out, labels=True)
+    out.append(_frame(panel))
+    suffix = "" if bearings.known else " (assumed)"
+    for end, what in ((bearings.fixed_end, "fixed"), (bearings.loose_end, "loose")):
+        where = bearings.end_mm(end)
+        if where is not None:
+            x = panel.x(where)
+            out.append(
+                f'<line x1="{x:.1f}" x2="{x:.1f}" y1="{top:g}" y2="{panel.bottom:g}" '
+                f'stroke="{INK}" stroke-width="2.2" stroke-opacity="0.55"/>'
+            )
+        else:  # the end of the plot
+            x = panel.left if end == "min" else panel.left + panel.width
+        anchor = "start" if end == "min" else "end"
+        out.append(
+            f'<text x="{x:.1f}" y="{top - 6:g}" text-anchor="{anchor}" font-weight="bold" '
+            f'fill="{INK}">{what} bearing{suffix}</text>'
+        )
+    for profile, speed in zip(per_velocity, speeds, strict=True):
+        colour = _shade(share(speed))
+        magnitudes = [abs(v) for v in profile.values]
+        out.append(
+            _polyline(
+                panel,
+                profile.positions_mm,
+                magnitudes,
+                f'stroke="{colour}" stroke-width="0.9" stroke-opacity="0.85"',
+            )
+        )
+        out.extend(
+            f'<circle cx="{panel.x(x):.1f}" cy="{panel.y(y):.1f}" r="1.6" fill="{colour}"/>'
+            for x, y in zip(profile.positions_mm, magnitudes, strict=True)
+            if math.isfinite(y)
+        )
+    numbered = {p.position_mm: p.position_index + 1 for p in result.positions}
+    for profile in averages:
+        magnitudes = [abs(v) for v in profile.values]
+        out.append(
+            _polyline(
+                panel, profile.positions_mm, magnitudes, f'stroke="{PALETTE[1]}" stroke-width="2.8"'
+            )
+        )
+        numbers = profile.position_numbers or [numbered.get(x, 0) for x in profile.positions_mm]
+        for number, x, y in zip(numbers, profile.positions_mm, magnitudes, strict=False):
+            if not math.isfinite(y):
+                continue
+            out.append(
+                f'<circle cx="{panel.x(x):.1f}" cy="{panel.y(y):.1f}" r="5" fill="{PALETTE[1]}"/>'
+                f'<text x="{panel.x(x):.1f}" y="{panel.y(y) - 10:.1f}" text-anchor="middle" '
+                f'font-weight="bold" fill="{INK}" stroke="#fff" stroke-width="3" '
+                f'paint-order="stroke">{number}</text>'
+            )
+    many = len(numbered) > 7
+    for x in sorted(numbered):
+        label = f"{numbered[x]}" if many else f"{numbered[x]}: {format_mm(x)} mm"
+        out.append(
+            f'<line x1="{panel.x(x):.1f}" x2="{panel.x(x):.1f}" y1="{panel.bottom:g}" '
+            f'y2="{panel.bottom + 4:g}" stroke="#444"/>'
+            f'<text x="{panel.x(x):.1f}" y="{panel.bottom + 16:g}" text-anchor="middle" '
+            f'fill="{_TEXT}">{escape(label)}</text>'
+        )
+    out.append(
+        f'<text x="{panel.left + panel.width / 2:g}" y="{panel.bottom + 36:g}" '
+        f'text-anchor="middle" fill="{_TEXT}">measuring position (number: place along the '
+        f"travel)</text>"
+        f'<text transform="translate(16 {top + plot_h / 2:g}) rotate(-90)" '
+        f'text-anchor="middle" fill="{_TEXT}">{escape(unit_label(result))}</text>'
+    )
+    if averages:
+        spread = averages[0].spread_percent
+        out.append(
+            f'<g transform="translate({panel.left + panel.width - 290:.1f} '
+            f'{panel.bottom - 14:.1f})"><line x1="0" x2="18" y1="0" y2="0" '
+            f'stroke="{PALETTE[1]}" stroke-width="2.8"/><circle cx="9" cy="0" r="5" '
+            f'fill="{PALETTE[1]}"/><text x="24" y="4" fill="{INK}">average over velocities '
+            f"(spread {spread:.0f} %)</text></g>"
+        )
+    out.append("</g>")
+    if per_velocity:
+        out += _velocity_scale(panel, slowest, fastest, logarithmic, share)
+    out.append("</svg>")
+    return "\n".join(out)
+
+
+def _velocity_scale(
+    panel: _Panel,
+    slowest: float,
+    fastest: float,
+    logarithmic: bool,
+    share: Callable[[float], float],
+) -> list[str]:
+    """The thin lines' colour scale at the right: 24 bands, slow at the bottom."""
+    left = panel.left + panel.width + 20
+    bands = 24
+    step = panel.height / bands
+    out = [
+        f'<rect x="{left:g}" y="{panel.top + (bands - 1 - k) * step:.1f}" width="14" '
+        f'height="{step + 0.5:.1f}" fill="{_shade((k + 0.5) / bands)}"/>'
+        for k in range(bands)
+    ]
+    if logarithmic:
+        ticks = [t for t in _speed_ticks(slowest, fastest)[0] if slowest <= t <= fastest]
+    else:
+        ticks = [t for t in nice_ticks(slowest, fastest) if slowest <= t <= fastest]
+    for tick in ticks or [slowest, fastest]:
+        y = panel.bottom - share(tick) * panel.height
+        out.append(
+            f'<line x1="{left + 14:g}" x2="{left + 18:g}" y1="{y:.1f}" y2="{y:.1f}" '
+            f'stroke="#444"/><text x="{left + 21:g}" y="{y + 4:.1f}" font-size="10" '
+            f'fill="{_TEXT}">{speed_text(tick, 1.0)}</text>'
+        )
+    middle = panel.top + panel.height / 2
+    out.append(
+        f'<text transform="translate({left + 76:g} {middle:g}) rotate(-90)" '
+        f'text-anchor="middle" font-size="10" fill="{_TEXT}">velocity of the thin lines '
+        f"[mm/min]</text>"
+    )
+    return out

@@ -1,0 +1,148 @@
+"""An axis' friction figures on the dashboard, written as SVG without matplotlib."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+from ncmeasure.formats.results import AxisResult, DirectionResult, Point
+from ncmeasure.report.bearings import bearing_layout
+from ncmeasure.report.colours import PALETTE
+from ncmeasure.web.friction_svg import curves_svg, travel_svg
+from tests.web.conftest import Fleet
+
+SVG = "{http://www.w3.org/2000/svg}"
+
+
+def _axis(fleet: Fleet, serial: str, axis: str) -> AxisResult:
+    return fleet.of(serial)[-1].results.axes[axis]
+
+
+def _points(direction: DirectionResult | None) -> list[Point]:
+    return list(direction.points) if direction is not None else []
+
+
+def _texts(svg: ET.Element) -> str:
+    return "".join(svg.itertext())
+
+
+def test_friction_over_velocity_has_every_point_in_its_positions_colour(fleet: Fleet) -> None:
+    result = _axis(fleet, "M-101", "Y")
+    svg = ET.fromstring(curves_svg("Y", result))  # well-formed XML
+    negative, positive = svg.findall(f"{SVG}g")[:2]
+    for panel, side in ((negative, "negative"), (positive, "positive")):
+        circles = [c.get("fill") for c in panel.findall(f"{SVG}circle")]
+        expected = [
+            PALETTE[i % len(PALETTE)]
+            for i, position in enumerate(result.positions)
+            for p in _points(position.directions[side])
+            if p.velocity_mm_min != 0
+        ]
+        assert circles == expected, side
+        # a bar of ± std per point, a dashed linear fit per position
+        assert len(panel.findall(f"{SVG}path")) == len(expected) + 1  # and the panel's frame
+        dashed = panel.findall(f"{SVG}polyline[@stroke-dasharray='4 3']")
+        assert len(dashed) == len(result.positions)
+    texts = _texts(svg)
+    assert "Axis Y: friction over velocity" in texts
+    assert "negative direction" in texts and "positive direction" in texts
+    assert "−1 000" in texts and "10 000" in texts  # the negative side's speeds signed
+    for position in result.positions:
+        assert f"position {position.position_index + 1}: " in texts
+    assert "friction as motor current [A]" in texts or "friction torque [Nm]" in texts
+    assert ' id="' not in curves_svg("Y", result)
+
+
+def test_points_sit_where_their_values_are(fleet: Fleet) -> None:
+    result = _axis(fleet, "M-100", "X")
+    svg = ET.fromstring(curves_svg("X", result))
+    positive = svg.findall(f"{SVG}g")[1]
+    points = sorted(
+        (p for p in result.positions[0].directions["positive"].points),  # type: ignore[union-attr]
+        key=lambda p: p.velocity_mm_min,
+    )
+    circles = positive.findall(f"{SVG}circle")[: len(points)]
+    xs = [float(c.get("cx", "nan")) for c in circles]
+    ys = [float(c.get("cy", "nan")) for c in circles]
+    assert xs == sorted(xs)  # faster: further right
+    # y grows downwards: the highest friction is the smallest y
+    highest = max(range(len(points)), key=lambda i: points[i].median)
+    assert ys[highest] == min(ys)
+
+
+def test_a_direction_not_measured_says_so(fleet: Fleet) -> None:
+    result = _axis(fleet, "M-100", "X")
+    one_sided = result.model_copy(
+        update={
+            "positions": [
+                p.model_copy(update={"directions": {**p.directions, "negative": None}})
+                for p in result.positions
+            ]
+        }
+    )
+    svg = ET.fromstring(curves_svg("X", one_sided))
+    negative = svg.findall(f"{SVG}g")[0]
+    assert "not measured" in _texts(negative)
+    assert negative.findall(f"{SVG}circle") == []
+
+
+def test_friction_along_the_travel(fleet: Fleet) -> None:
+    result = _axis(fleet, "M-101", "Y")
+    dependency = result.position_dependency
+    assert dependency is not None and dependency.identifiable
+    text = travel_svg("Y", result, bearing_layout("Y", None, result))
+    assert text is not None
+    svg = ET.fromstring(text)
+    texts = _texts(svg)
+    assert "Axis Y: friction along the travel" in texts
+    assert "fixed bearing" in texts and "loose bearing" in texts
+    profiles = [p for p in dependency.profiles if p.velocity_mm_min is not None]
+    thin = svg.findall(f".//{SVG}polyline[@stroke-width='0.9']")
+    assert len(thin) == len(profiles)
+    bold = svg.findall(f".//{SVG}polyline[@stroke-width='2.8']")
+    assert len(bold) == 1 and bold[0].get("stroke") == PALETTE[1]
+    # the slowest velocity's line light, the fastest dark
+    slow = min(range(len(profiles)), key=lambda i: abs(profiles[i].velocity_mm_min or 0))
+    fast = max(range(len(profiles)), key=lambda i: abs(profiles[i].velocity_mm_min or 0))
+
+    def lightness(colour: str | None) -> int:
+        assert colour is not None
+        return sum(int(colour[k : k + 2], 16) for k in (1, 3, 5))
+
+    assert lightness(thin[slow].get("stroke")) > lightness(thin[fast].get("stroke"))
+    numbers = [
+        t.text for t in svg.findall(f".//{SVG}text") if t.get("font-weight") == "bold" and t.text
+    ]
+    assert [n for n in numbers if n.isdigit()] == [
+        str(p.position_index + 1) for p in result.positions
+    ]
+    assert len(svg.findall(f"{SVG}rect")) == 24  # the velocity scale
+    assert ' id="' not in text
+
+
+def test_no_travel_figure_without_its_analysis(fleet: Fleet) -> None:
+    result = _axis(fleet, "M-100", "X")
+    plain = result.model_copy(update={"position_dependency": None})
+    assert travel_svg("X", plain, bearing_layout("X", None, plain)) is None
+
+
+def test_drawing_the_friction_figures_imports_no_matplotlib(fleet: Fleet, tmp_path: Path) -> None:
+    results = tmp_path / "results.json"
+    results.write_text(fleet.of("M-101")[-1].results.model_dump_json())
+    script = (
+        "import sys\n"
+        "from ncmeasure.formats.results import Results\n"
+        "from ncmeasure.report.bearings import bearing_layout\n"
+        "from ncmeasure.web.friction_svg import curves_svg, travel_svg\n"
+        f"axis = Results.model_validate_json(open({str(results)!r}).read()).axes['Y']\n"
+        "assert curves_svg('Y', axis).startswith('<svg')\n"
+        "assert travel_svg('Y', axis, bearing_layout('Y', None, axis)).startswith('<svg')\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'matplotlib'))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
