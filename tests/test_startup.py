@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import queue
+import re
 import signal
 import subprocess
 import sys
@@ -565,8 +566,11 @@ def test_each_schema_file_is_its_models_schema(update_golden: bool) -> None:
 
 
 def test_serve_starts_without_scipy_or_matplotlib(files: Files) -> None:
-    """``serve`` until it says where it serves: FastAPI and the store, no fit, no plot
-    (matplotlib comes with the first page that draws one)."""
+    """``serve`` until it says where it serves: FastAPI and the store, no fit, no plot;
+    and its pages, plots included, draw without matplotlib."""
+    import httpx
+
+    pages = ["/", "/machines/M1", "/machines/M1/axes/X", "/machines/M1/axes/X/trend.svg"]
     with tempfile.TemporaryFile("w+") as err:  # a pipe would fill up and block the server
         process = subprocess.Popen(
             [sys.executable, "-X", "importtime", "-m", "ncmeasure", "serve", "--store",
@@ -579,6 +583,13 @@ def test_serve_starts_without_scipy_or_matplotlib(files: Files) -> None:
         threading.Thread(target=lambda: lines.put(process.stdout.readline()), daemon=True).start()
         try:
             first = lines.get(timeout=WAIT_S)
+            err.seek(0)
+            started = _names(err.read())
+            at = re.search(r" at (http://\S+?)/? ", first)
+            codes = [
+                httpx.get(at.group(1) + page, timeout=WAIT_S).status_code
+                for page in (pages if at else [])
+            ]
         finally:
             process.send_signal(signal.SIGTERM)
             try:
@@ -589,8 +600,10 @@ def test_serve_starts_without_scipy_or_matplotlib(files: Files) -> None:
         err.seek(0)
         loaded = _names(err.read())
     assert first.startswith("serving "), first
-    assert {"fastapi", "sqlalchemy"} <= loaded
-    assert not loaded & {"scipy", "matplotlib", *LINKS}, sorted(loaded & {"scipy", "matplotlib"})
+    assert {"fastapi", "sqlalchemy"} <= started
+    assert not started & {"scipy", "matplotlib", *LINKS}, sorted(started & {"scipy", "matplotlib"})
+    assert codes == [200] * len(pages)
+    assert "matplotlib" not in loaded
 
 
 def test_init_takes_a_builtin_dialect_as_read_because_each_one_loads() -> None:

@@ -7,7 +7,7 @@ and cost tens of milliseconds each; they are cached under the store's
 measurement, and nothing is deleted), so a measurement added by ``ncmeasure store
 add`` elsewhere shows on the next request. Reading it costs two index look-ups, not
 a count of the measurements. What depends on one stored measurement alone (the
-friction curves of its axes, some 0.3 s of matplotlib each) is kept across versions
+friction figures of its axes) is kept across versions
 (:meth:`Context.of_measurement`): a stored measurement never changes.
 """
 
