@@ -332,3 +332,72 @@ def test_a_search_finds_what_each_text_holds() -> None:
     assert found("STRASSE") == ["AB-1"]  # case-folded
     assert found("1lathe") == [] and found("1\x00lathe") == []  # never across two texts
     assert found("ab-1") == ["AB-1"] and found("") == serials
+
+
+def _as_read_afresh(
+    store_url: str, previous: statuses.FleetStatuses, read: list[int]
+) -> statuses.FleetStatuses:
+    """The statuses read on from ``previous``, checked against reading them all afresh;
+    ``read`` keeps the rows of each read of the first alone."""
+    with open_store(store_url) as store:
+        read.clear()
+        on = fleet_statuses(store, previous)
+        reads = list(read)
+        afresh = fleet_statuses(store)
+    read[:] = reads
+    assert on.version == afresh.version
+    assert on.machine_ids.tolist() == afresh.machine_ids.tolist()
+    assert (on.serials, on.types, on.sites) == (afresh.serials, afresh.types, afresh.sites)
+    assert on.by_serial() == afresh.by_serial()
+    assert on.axis_names == afresh.axis_names
+
+    def per_axis(found: statuses.FleetStatuses) -> list[tuple[int, int]]:
+        return sorted(zip(found.axis_machine.tolist(), found.axis_levels.tolist(), strict=True))
+
+    assert per_axis(on) == per_axis(afresh)
+    assert on.places.keys() == afresh.places.keys()
+    for key, group in afresh.places.items():
+        mine = on.places[key]
+        assert mine.enough == group.enough
+        for name in ("ids", "values", "medians", "z"):
+            assert np.array_equal(getattr(mine, name), getattr(group, name)), (key, name)
+    assert on.outliers() == afresh.outliers()
+    return on
+
+
+def test_statuses_read_on_from_the_last_ones_are_those_read_afresh(
+    store_url: str, make_results: Make, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A server reads again only the machines whose latest measurement, baseline or site
+    changed: the statuses are those of reading every machine."""
+    _fill(store_url, make_results)
+    with open_store(store_url) as store:
+        fleet = fleet_statuses(store)
+    read: list[int] = []
+    plain = statuses.plain_rows
+
+    def counted(db: object, query: object) -> list[tuple[object, ...]]:
+        rows = plain(db, query)  # type: ignore[arg-type]
+        read.append(len(rows))
+        return rows
+
+    monkeypatch.setattr(statuses, "plain_rows", counted)
+    unchanged = _as_read_afresh(store_url, fleet, read)
+    assert read == [len(FLEET)]  # the machines' signatures, and no axis
+    changes = [
+        # a worn machine (a new latest), a new machine, a first service of a machine that
+        # had its delivery alone, and an older measurement that moves a machine to a hall
+        ("M20", "2031-06-01T08:00:00+00:00", 1.3, None, "service"),
+        ("M40", "2031-06-02T08:00:00+00:00", 1.0, None, "delivery"),
+        ("M25", "2031-06-03T08:00:00+00:00", 1.6, None, "service"),
+        ("M22", "2025-06-01T08:00:00+00:00", 1.0, "Hall 9", "service"),
+    ]
+    for serial, when, factor, site, label in changes:
+        with open_store(store_url, write=True) as store:
+            store.add(
+                make_results(when, factor), MeasurementInfo(serial=serial, label=label, site=site)
+            )
+        unchanged = _as_read_afresh(store_url, unchanged, read)
+        assert read[1:] == [len(make_results(when).axes)]  # that machine's axes alone
+    assert unchanged.by_serial()["M20"] == "critical"
+    assert unchanged.sites[unchanged.serials.index("M22")] == "Hall 9"

@@ -110,6 +110,8 @@ class FleetStatuses:
     """Every axis name in the fleet, sorted."""
     places: dict[Group, _Places] = field(default_factory=dict)
     searched: list[str] | None = field(default=None, repr=False, compare=False)
+    read: _Read | None = field(default=None, repr=False, compare=False)
+    """What was read, for the next reading (:func:`fleet_statuses`' ``previous``)."""
     """Per machine, the text a search looks in (:meth:`search_texts`, made by the first)."""
 
     def by_serial(self) -> dict[str, Status]:
@@ -204,9 +206,95 @@ class FleetStatuses:
         return found
 
 
-def fleet_statuses(store: Store) -> FleetStatuses:
+@dataclass
+class _Read:
+    """Every machine's latest axes as the statuses read them: one entry per axis row, as
+    arrays, kept with the statuses so that the next reading reads again only the machines
+    whose latest measurement, baseline or site changed (:func:`fleet_statuses`)."""
+
+    machines: dict[int, tuple[str, str, str | None, int, int]]
+    """Per machine id: serial, type, site, latest and baseline measurement id."""
+    machine: NDArray[np.int64]
+    """Per axis row: its machine's id."""
+    axes: list[str]
+    group: NDArray[np.intp]
+    """Per axis row: its (machine type, axis, unit) as a code of :attr:`groups`."""
+    groups: dict[tuple[str, str, str], int]
+    figures: NDArray[np.float64]
+    """Per axis row: the characteristics' values (NaN where not determined)."""
+    local: NDArray[np.int8]
+    """Per axis row: its status without the fleet."""
+
+    @classmethod
+    def empty(cls) -> _Read:
+        return cls(
+            machines={},
+            machine=np.zeros(0, dtype=np.int64),
+            axes=[],
+            group=np.zeros(0, dtype=np.intp),
+            groups={},
+            figures=np.zeros((0, len(CHARACTERISTICS))),
+            local=np.zeros(0, dtype=np.int8),
+        )
+
+    def signature(self, machine_id: int) -> tuple[int, int, str | None] | None:
+        found = self.machines.get(machine_id)
+        return None if found is None else (found[3], found[4], found[2])
+
+    def replaced(self, gone: set[int], rows: Sequence[tuple[Any, ...]], store: Store) -> _Read:
+        """These statuses without the machines ``gone``, with the axis ``rows`` (the
+        query's of :func:`fleet_statuses`) added; a row's missing status judged now."""
+        keep = ~np.isin(self.machine, np.fromiter(gone, dtype=np.int64, count=len(gone)))
+        machines = {i: m for i, m in self.machines.items() if i not in gone}
+        groups = dict(self.groups)
+        count = len(rows)
+        for r in rows:
+            machines[int(r[0])] = (r[1], r[2], r[3], int(r[4]), int(r[5]))
+        machine = np.fromiter((r[0] for r in rows), dtype=np.int64, count=count)
+        group = np.fromiter(
+            (groups.setdefault((r[2], r[6], r[7]), len(groups)) for r in rows),
+            dtype=np.intp,
+            count=count,
+        )
+        width = len(CHARACTERISTICS)
+        figures = np.array([r[8 : 8 + width] for r in rows], dtype=np.float64).reshape(
+            count, width
+        )  # None: NaN
+        local = np.array([_LEVEL.get(r[8 + width], -1) for r in rows], dtype=np.int8)
+        missing = np.flatnonzero(local < 0)
+        if missing.size:
+            judged = _judge_missing(store, sorted({int(machine[i]) for i in missing}))
+            for i in missing:
+                own = judged.get(int(machine[i]), {})
+                status = own.get(rows[int(i)][6])
+                # A writer that added a measurement between the two reads may have changed
+                # the machine's axes: its newest judgement's worst stands for the axis read
+                # before.
+                if status is None:
+                    local[i] = max((_LEVEL[other] for other in own.values()), default=0)
+                else:
+                    local[i] = _LEVEL[status]
+        kept_axes = [a for a, k in zip(self.axes, keep.tolist(), strict=True) if k]
+        return _Read(
+            machines=machines,
+            machine=np.concatenate((self.machine[keep], machine)),
+            axes=kept_axes + [r[6] for r in rows],
+            group=np.concatenate((self.group[keep], group)),
+            groups=groups,
+            figures=np.concatenate((self.figures[keep], figures)),
+            local=np.concatenate((self.local[keep], local)),
+        )
+
+
+def fleet_statuses(store: Store, previous: FleetStatuses | None = None) -> FleetStatuses:
     """Every machine's status with the default limits: the kept statuses without the fleet
     (judged now where missing) and the fleet's part for all at once.
+
+    Args:
+        store: The store.
+        previous: Statuses read before from the same store: only the machines whose
+            latest measurement, baseline or site changed since are read again (their
+            axes, figures and kept statuses); the fleet's part is judged again for all.
 
     Raises:
         StoreError: The database failed.
@@ -226,6 +314,8 @@ def fleet_statuses(store: Store) -> FleetStatuses:
             s.c.serial,
             s.c.machine_type,
             s.c.site,
+            s.c.latest_id,
+            s.c.baseline_id,
             a.c.axis,
             a.c.unit,
             *(a.c[c.name] for c in CHARACTERISTICS),
@@ -234,70 +324,79 @@ def fleet_statuses(store: Store) -> FleetStatuses:
         .join_from(s, a, a.c.measurement_id == s.c.latest_id)
         .outerjoin(st, kept)
     )
+    before = previous.read if previous is not None else None
     with store.reading("read the fleet's statuses") as db:
         version = fleet_version(db)
-        rows = plain_rows(db, query)
-    count = len(rows)
-    machine_of_row = np.fromiter((r[0] for r in rows), dtype=np.int64, count=count)
-    ids, first, inverse = np.unique(machine_of_row, return_index=True, return_inverse=True)
-    serials = [rows[i][1] for i in first]
-    by_serial = np.array(sorted(range(ids.size), key=serials.__getitem__), dtype=np.intp)
+        if before is None:
+            before = _Read.empty()
+            gone: set[int] = set()
+            rows = plain_rows(db, query)
+        else:
+            current = plain_rows(
+                db,
+                select(s.c.machine_id, s.c.latest_id, s.c.baseline_id, s.c.site).where(
+                    s.c.latest_id.is_not(None)
+                ),
+            )
+            now = {int(r[0]) for r in current}
+            changed = sorted(
+                int(r[0]) for r in current if before.signature(int(r[0])) != (r[1], r[2], r[3])
+            )
+            gone = set(changed) | (set(before.machines) - now)
+            rows = [
+                row
+                for start in range(0, len(changed), _CHUNK)
+                for row in plain_rows(
+                    db, query.where(s.c.machine_id.in_(changed[start : start + _CHUNK]))
+                )
+            ]
+    read = before.replaced(gone, rows, store)
+    ids, inverse = np.unique(read.machine, return_inverse=True)
+    info = [read.machines[int(i)] for i in ids]
+    by_serial = np.array(sorted(range(ids.size), key=lambda k: info[k][0]), dtype=np.intp)
     place = np.empty(ids.size, dtype=np.intp)
     place[by_serial] = np.arange(ids.size)
-    axis_machine = place[inverse] if count else np.zeros(0, dtype=np.intp)
-    local = np.array([_LEVEL.get(r[9], -1) for r in rows], dtype=np.int8)
-    missing = np.flatnonzero(local < 0)
-    if missing.size:
-        judged = _judge_missing(store, sorted({int(machine_of_row[i]) for i in missing}))
-        for i in missing:
-            own = judged.get(int(machine_of_row[i]), {})
-            status = own.get(rows[i][4])
-            # A writer that added a measurement between the two reads may have changed the
-            # machine's axes: its newest judgement's worst stands for the axis read before.
-            if status is None:
-                local[i] = max((_LEVEL[other] for other in own.values()), default=0)
-            else:
-                local[i] = _LEVEL[status]
-    places, flagged = _fleet(rows, machine_of_row, limits)
-    axis_levels = np.where(flagged, np.maximum(local, 1), local).astype(np.int8)
+    axis_machine = place[inverse] if read.machine.size else np.zeros(0, dtype=np.intp)
+    places, flagged = _fleet(read, limits)
+    axis_levels = np.where(flagged, np.maximum(read.local, 1), read.local).astype(np.int8)
     levels = np.zeros(ids.size, dtype=np.int8)
     np.maximum.at(levels, axis_machine, axis_levels)
     return FleetStatuses(
         version=version,
         machine_ids=ids[by_serial],
-        serials=[serials[i] for i in by_serial],
-        types=[rows[first[i]][2] for i in by_serial],
-        sites=[rows[first[i]][3] for i in by_serial],
+        serials=[info[i][0] for i in by_serial],
+        types=[info[i][1] for i in by_serial],
+        sites=[info[i][2] for i in by_serial],
         levels=levels,
         axis_machine=axis_machine,
         axis_levels=axis_levels,
-        axis_names=sorted({r[4] for r in rows}),
+        axis_names=sorted(set(read.axes)),
         places=places,
+        read=read,
     )
 
 
-def _fleet(
-    rows: Sequence[tuple[Any, ...]], machine_of_row: NDArray[np.int64], limits: Limits
-) -> tuple[dict[Group, _Places], NDArray[np.bool_]]:
+def _fleet(read: _Read, limits: Limits) -> tuple[dict[Group, _Places], NDArray[np.bool_]]:
     """Per group: every member's modified z-score against the others and their median; and
     per row, whether its fleet makes the axis a warning: an outlier
     (:func:`~ncmeasure.analysis.judgement.status.is_outlier`), or a level
     :data:`FLEET_FACTOR` from the median. The tests of the judgement, on arrays."""
     places: dict[Group, _Places] = {}
-    flagged = np.zeros(len(rows), dtype=bool)
-    if not rows:
+    flagged = np.zeros(read.machine.size, dtype=bool)
+    if not read.machine.size:
         return places, flagged
-    index: dict[tuple[str, str, str], int] = {}
-    codes = np.array([index.setdefault((r[2], r[4], r[5]), len(index)) for r in rows])
-    figures = list(zip(*rows, strict=True))[6 : 6 + len(CHARACTERISTICS)]  # the columns
+    present = np.unique(read.group)
     for j, c in enumerate(CHARACTERISTICS):
-        column = np.array(figures[j], dtype=np.float64)  # None: nan
-        for (machine_type, axis, unit), code in index.items():
-            members = np.flatnonzero((codes == code) & np.isfinite(column))
+        column = read.figures[:, j]
+        finite = np.isfinite(column)
+        for (machine_type, axis, unit), code in sorted(read.groups.items(), key=lambda g: g[1]):
+            if code not in present:
+                continue
+            members = np.flatnonzero((read.group == code) & finite)
             if members.size < 2:
                 continue
             x = column[members]
-            ids = machine_of_row[members]
+            ids = read.machine[members]
             enough = x.size - 1 >= limits.outlier_min_runs
             z, median = modified_z_leave_one_out(x)
             hit = np.zeros(x.size, dtype=bool)

@@ -25,6 +25,7 @@ from sqlalchemy import func, select
 from ncmeasure.store import Store
 from ncmeasure.store import schema as t
 from ncmeasure.store.check import StoreCheck, check_machine
+from ncmeasure.store.statuses import FleetStatuses, fleet_statuses
 
 __all__ = ["Context", "Version", "context"]
 
@@ -45,6 +46,7 @@ class Context:
     _cache: dict[tuple[Version, Hashable], Any] = field(default_factory=dict)
     _lock: threading.Lock = field(default_factory=threading.Lock)
     _kept: OrderedDict[Hashable, Any] = field(default_factory=OrderedDict)
+    _statuses: FleetStatuses | None = None
 
     def version(self) -> Version:
         """The store's version now; read it once per request, before reading the store."""
@@ -92,6 +94,19 @@ class Context:
             while len(self._kept) > _KEPT_LIMIT:
                 self._kept.popitem(last=False)
         return value
+
+    def statuses(self, version: Version) -> FleetStatuses:
+        """Every machine's status (:func:`~ncmeasure.store.statuses.fleet_statuses`),
+        cached for this version and read on from the last ones: after a change only the
+        machines it touched are read again."""
+
+        def read() -> FleetStatuses:
+            found = fleet_statuses(self.store, self._statuses)
+            with self._lock:
+                self._statuses = found
+            return found
+
+        return self.cached(version, "statuses", read)
 
     def check(self, version: Version, serial: str) -> StoreCheck:
         """:func:`~ncmeasure.store.check.check_machine`, cached for this version."""

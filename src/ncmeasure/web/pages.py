@@ -39,7 +39,7 @@ from ncmeasure.store import MeasurementSummary, TrendPoint
 from ncmeasure.store.check import StoreCheck
 from ncmeasure.store.overview import MachineOverview
 from ncmeasure.store.rows import CHARACTERISTICS
-from ncmeasure.store.statuses import fleet_statuses, judged_page
+from ncmeasure.store.statuses import judged_page
 from ncmeasure.store.summaries import DEFAULT_PAGE, MAX_PAGE
 from ncmeasure.web.context import Context, Version, context
 from ncmeasure.web.friction_svg import curves_svg, travel_svg
@@ -179,7 +179,7 @@ def fleet_page(
     the search) × every axis (columns)."""
     version = ctx.version()
     root = _root(request)
-    fleet = ctx.cached(version, "statuses", lambda: fleet_statuses(ctx.store))
+    fleet = ctx.statuses(version)
     axes = fleet.axis_names
     search = (q or "").strip() or None
     matching = fleet.matching(search, status)
