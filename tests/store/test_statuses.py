@@ -13,6 +13,7 @@ from sqlalchemy import func, select
 from ncmeasure.formats.results import Results
 from ncmeasure.store import MeasurementInfo, open_store, statuses
 from ncmeasure.store import schema as t
+from ncmeasure.store.check import StoreCheck
 from ncmeasure.store.overview import fleet_overview
 from ncmeasure.store.report import FleetReport, fleet_report, report_of
 from ncmeasure.store.statuses import fleet_statuses, judged_page
@@ -254,8 +255,14 @@ def test_the_checks_fleet_figures_are_the_plain_ones(store_url: str, make_result
     from ncmeasure.store.rows import rows_of_axis
 
     _fill(store_url, make_results)
+    with open_store(store_url, write=True) as store:  # a machine of another type: not fleet
+        store.add(
+            make_results("2031-01-01T08:00:00+00:00", 2.0),
+            MeasurementInfo(serial="N1", label="delivery", machine_type="another type"),
+        )
     limits = Limits()
     with open_store(store_url) as store:
+        fleet = fleet_statuses(store)
         latest: dict[str, dict[tuple[str, str], dict[str, float | None]]] = {}
         for serial in FLEET:  # each machine's latest axis rows, one machine at a time
             with store.reading("the latest rows") as db:
@@ -306,6 +313,19 @@ def test_the_checks_fleet_figures_are_the_plain_ones(store_url: str, make_result
             ]  # fmt: skip
             assert got == expected, serial
             assert check.fleet_machines == len(FLEET) - 1
+            # the same from the fleet's statuses (a dashboard that has read them)
+            assert _timeless(check_machine(store, serial, statuses=fleet)) == _timeless(check)
+        alone = check_machine(store, "N1", statuses=fleet)
+        assert alone.fleet == [] and alone.fleet_machines == 0
+        assert _timeless(alone) == _timeless(check_machine(store, "N1"))
+
+
+def _timeless(check: StoreCheck) -> dict[str, object]:
+    """The check without the time its comparison was made."""
+    found = check.model_dump()
+    if found["comparison"] is not None:
+        found["comparison"].pop("created_utc")
+    return found
 
 
 def test_a_search_finds_what_each_text_holds() -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
@@ -215,3 +216,40 @@ def test_an_axis_pages_curves_are_drawn_once_per_measurement(
         page = client.get("/machines/M-100/axes/X").text
         assert drawn == ["X", "X"]  # the new latest measurement's curves
         assert f"/api/v1/measurements/{newest}/results" in page
+
+
+def test_a_check_after_the_grid_is_the_stores_check(fleet: Fleet, tmp_path: Path) -> None:
+    """Once the grid has read the fleet's statuses, a check takes the other machines'
+    figures from them (read on after a change): the same check as the store's."""
+    from fastapi.testclient import TestClient
+
+    from ncmeasure.store import MeasurementInfo, open_store
+    from ncmeasure.store.check import check_machine
+    from ncmeasure.web import create_app
+
+    copy = tmp_path / "fleet.db"
+    copy.write_bytes(Path(fleet.url.removeprefix("sqlite:///")).read_bytes())
+    url = f"sqlite:///{copy}"
+
+    def timeless(found: dict[str, Any]) -> dict[str, Any]:
+        if found.get("comparison"):
+            found["comparison"].pop("created_utc")
+        return found
+
+    def same(client: Any, serial: str) -> None:
+        served = client.get(f"/api/v1/machines/{serial}/check")
+        assert served.status_code == 200
+        with open_store(url) as store:
+            expected = check_machine(store, serial).model_dump(mode="json")
+        assert timeless(served.json()) == timeless(expected)
+
+    with TestClient(create_app(url), base_url="http://127.0.0.1") as client:
+        assert client.get("/").status_code == 200
+        for serial in ("M-100", "M-101", "M-103"):
+            same(client, serial)
+        results = fleet.spare.model_copy(update={"created_utc": "2026-04-01T08:00:00Z"})
+        with open_store(url, write=True) as store:
+            store.add(results, MeasurementInfo(serial="M-102", label="service"))
+        assert client.get("/").status_code == 200
+        for serial in ("M-100", "M-102"):
+            same(client, serial)

@@ -22,7 +22,7 @@ import os
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -51,6 +51,9 @@ from ncmeasure.store.changes import (
 from ncmeasure.store.database import plain_columns
 from ncmeasure.store.records import MeasurementSummary, check_serial
 from ncmeasure.store.store import Store
+
+if TYPE_CHECKING:
+    from ncmeasure.store.statuses import FleetStatuses
 
 __all__ = [
     "FleetFigure",
@@ -165,17 +168,30 @@ def _fleet_values(
 
 
 def _fleet(
-    store: Store, machine_type_id: int, machine_id: int, latest: Results, limits: Limits
+    store: Store,
+    machine_type_id: int,
+    machine_id: int,
+    latest: Results,
+    limits: Limits,
+    statuses: FleetStatuses | None,
 ) -> tuple[list[FleetFigure], int]:
-    values = _fleet_values(store, machine_type_id, machine_id)
-    with store.reading("read the fleet") as db:
-        machines = db.execute(
-            select(func.count()).where(
-                t.machines.c.type_id == machine_type_id,
-                t.machines.c.id != machine_id,
-                t.machines.c.latest_measurement_id.is_not(None),
-            )
-        ).scalar_one()
+    kept = statuses.type_values(machine_id) if statuses is not None else None
+    if kept is not None:
+        values = {
+            key: {name: _Reference(x) for name, x in found.items()}
+            for key, found in kept[0].items()
+        }
+        machines = kept[1]
+    else:
+        values = _fleet_values(store, machine_type_id, machine_id)
+        with store.reading("read the fleet") as db:
+            machines = db.execute(
+                select(func.count()).where(
+                    t.machines.c.type_id == machine_type_id,
+                    t.machines.c.id != machine_id,
+                    t.machines.c.latest_measurement_id.is_not(None),
+                )
+            ).scalar_one()
     from ncmeasure.store.rows import rows_of_axis
 
     figures: list[FleetFigure] = []
@@ -206,8 +222,21 @@ def _fleet(
     return figures, int(machines)
 
 
-def check_machine(store: Store, serial: str, limits: Limits | None = None) -> StoreCheck:
+def check_machine(
+    store: Store,
+    serial: str,
+    limits: Limits | None = None,
+    statuses: FleetStatuses | None = None,
+) -> StoreCheck:
     """A machine's latest measurement against its baseline and its fleet.
+
+    Args:
+        store: The store.
+        serial: The machine.
+        limits: The limits (default: :class:`~ncmeasure.formats.comparison.Limits`).
+        statuses: The fleet's statuses as read for the store as it is now
+            (:func:`~ncmeasure.store.statuses.fleet_statuses`): the other machines'
+            figures are taken from them instead of read again.
 
     Raises:
         ConfigError: No such machine, or it has no measurement.
@@ -233,7 +262,9 @@ def check_machine(store: Store, serial: str, limits: Limits | None = None) -> St
         findings.extend(met.findings)
         if met.baseline_counts:
             base_figures = figures_of(base_results)
-    fleet, fleet_machines = _fleet(store, machine.type_id, machine.id, latest_results, limits)
+    fleet, fleet_machines = _fleet(
+        store, machine.type_id, machine.id, latest_results, limits, statuses
+    )
     if fleet_machines < limits.outlier_min_runs:
         findings.append(
             f"{fleet_machines} other machine(s) of type {summary.machine_type!r} in the store: "

@@ -174,6 +174,36 @@ class FleetStatuses:
                 )
         return found
 
+    def type_values(
+        self, machine_id: int
+    ) -> tuple[dict[tuple[str, str], dict[str, NDArray[np.float64]]], int] | None:
+        """The latest figures of the other machines of the machine's type (name and
+        configuration), as :func:`~ncmeasure.store.check.check_machine` compares with
+        them: per (axis, unit) and characteristic the finite values, sorted; and how many
+        machines they are. None when the machine is not among these statuses."""
+        read = self.read
+        if read is None or machine_id not in read.machines:
+            return None
+        own = read.machines[machine_id]
+        kind = (own[1], own[5])
+        others = [i for i, m in read.machines.items() if (m[1], m[5]) == kind and i != machine_id]
+        chosen = np.isin(read.machine, np.array(others, dtype=np.int64))
+        values: dict[tuple[str, str], dict[str, NDArray[np.float64]]] = {}
+        for (machine_type, axis, unit), code in read.groups.items():
+            if machine_type != kind[0]:
+                continue
+            members = chosen & (read.group == code)
+            if not members.any():
+                continue
+            found: dict[str, NDArray[np.float64]] = {}
+            for j, c in enumerate(CHARACTERISTICS):
+                x = read.figures[members, j]
+                x = x[np.isfinite(x)]
+                if x.size:
+                    found[c.name] = np.sort(x)
+            values[(axis, unit)] = found
+        return values, len(others)
+
     def outliers(self, limits: Limits | None = None) -> list[Outlier]:
         """Every outlier of the fleet (:func:`~ncmeasure.analysis.judgement.status.is_outlier`
         on the arrays), largest |modified z| first: those of
@@ -212,8 +242,9 @@ class _Read:
     arrays, kept with the statuses so that the next reading reads again only the machines
     whose latest measurement, baseline or site changed (:func:`fleet_statuses`)."""
 
-    machines: dict[int, tuple[str, str, str | None, int, int]]
-    """Per machine id: serial, type, site, latest and baseline measurement id."""
+    machines: dict[int, tuple[str, str, str | None, int, int, str]]
+    """Per machine id: serial, type, site, latest and baseline measurement id, and the
+    type's configuration hash."""
     machine: NDArray[np.int64]
     """Per axis row: its machine's id."""
     axes: list[str]
@@ -249,24 +280,24 @@ class _Read:
         groups = dict(self.groups)
         count = len(rows)
         for r in rows:
-            machines[int(r[0])] = (r[1], r[2], r[3], int(r[4]), int(r[5]))
+            machines[int(r[0])] = (r[1], r[2], r[3], int(r[4]), int(r[5]), r[6])
         machine = np.fromiter((r[0] for r in rows), dtype=np.int64, count=count)
         group = np.fromiter(
-            (groups.setdefault((r[2], r[6], r[7]), len(groups)) for r in rows),
+            (groups.setdefault((r[2], r[7], r[8]), len(groups)) for r in rows),
             dtype=np.intp,
             count=count,
         )
         width = len(CHARACTERISTICS)
-        figures = np.array([r[8 : 8 + width] for r in rows], dtype=np.float64).reshape(
+        figures = np.array([r[9 : 9 + width] for r in rows], dtype=np.float64).reshape(
             count, width
         )  # None: NaN
-        local = np.array([_LEVEL.get(r[8 + width], -1) for r in rows], dtype=np.int8)
+        local = np.array([_LEVEL.get(r[9 + width], -1) for r in rows], dtype=np.int8)
         missing = np.flatnonzero(local < 0)
         if missing.size:
             judged = _judge_missing(store, sorted({int(machine[i]) for i in missing}))
             for i in missing:
                 own = judged.get(int(machine[i]), {})
-                status = own.get(rows[int(i)][6])
+                status = own.get(rows[int(i)][7])
                 # A writer that added a measurement between the two reads may have changed
                 # the machine's axes: its newest judgement's worst stands for the axis read
                 # before.
@@ -278,7 +309,7 @@ class _Read:
         return _Read(
             machines=machines,
             machine=np.concatenate((self.machine[keep], machine)),
-            axes=kept_axes + [r[6] for r in rows],
+            axes=kept_axes + [r[7] for r in rows],
             group=np.concatenate((self.group[keep], group)),
             groups=groups,
             figures=np.concatenate((self.figures[keep], figures)),
@@ -316,6 +347,7 @@ def fleet_statuses(store: Store, previous: FleetStatuses | None = None) -> Fleet
             s.c.site,
             s.c.latest_id,
             s.c.baseline_id,
+            s.c.config_hash,
             a.c.axis,
             a.c.unit,
             *(a.c[c.name] for c in CHARACTERISTICS),

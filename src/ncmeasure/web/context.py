@@ -109,8 +109,15 @@ class Context:
         return self.cached(version, "statuses", read)
 
     def check(self, version: Version, serial: str) -> StoreCheck:
-        """:func:`~ncmeasure.store.check.check_machine`, cached for this version."""
-        return self.cached(version, ("check", serial), lambda: check_machine(self.store, serial))
+        """:func:`~ncmeasure.store.check.check_machine`, cached for this version; once the
+        fleet's statuses have been read (the grid), the other machines' figures come from
+        them, read on for this version, instead of from a read of the whole type."""
+
+        def checked() -> StoreCheck:
+            fleet = self.statuses(version) if self._statuses is not None else None
+            return check_machine(self.store, serial, statuses=fleet)
+
+        return self.cached(version, ("check", serial), checked)
 
 
 def context(request: Request) -> Context:
