@@ -20,6 +20,7 @@ page it shows (:func:`judged_page`); the statuses equal those of
 
 from __future__ import annotations
 
+import itertools
 import logging
 from collections import defaultdict
 from collections.abc import Sequence
@@ -185,8 +186,13 @@ class FleetStatuses:
         if read is None or machine_id not in read.machines:
             return None
         own = read.machines[machine_id]
-        kind = (own[1], own[5])
-        others = [i for i, m in read.machines.items() if (m[1], m[5]) == kind and i != machine_id]
+        kind = (own[2], own[6])
+        present = set(read.machine.tolist())
+        others = [
+            i
+            for i, m in read.machines.items()
+            if (m[2], m[6]) == kind and i != machine_id and i in present
+        ]
         chosen = np.isin(read.machine, np.array(others, dtype=np.int64))
         values: dict[tuple[str, str], dict[str, NDArray[np.float64]]] = {}
         for (machine_type, axis, unit), code in read.groups.items():
@@ -236,15 +242,18 @@ class FleetStatuses:
         return found
 
 
+_MachineRow = tuple[int, str, str, str | None, int, int, str]
+"""A machine as the statuses read it: id, serial, type, site, latest and baseline
+measurement id, the type's configuration hash."""
+
+
 @dataclass
 class _Read:
     """Every machine's latest axes as the statuses read them: one entry per axis row, as
     arrays, kept with the statuses so that the next reading reads again only the machines
-    whose latest measurement, baseline or site changed (:func:`fleet_statuses`)."""
+    whose row (latest measurement, baseline, site) changed (:func:`fleet_statuses`)."""
 
-    machines: dict[int, tuple[str, str, str | None, int, int, str]]
-    """Per machine id: serial, type, site, latest and baseline measurement id, and the
-    type's configuration hash."""
+    machines: dict[int, _MachineRow]
     machine: NDArray[np.int64]
     """Per axis row: its machine's id."""
     axes: list[str]
@@ -268,36 +277,38 @@ class _Read:
             local=np.zeros(0, dtype=np.int8),
         )
 
-    def signature(self, machine_id: int) -> tuple[int, int, str | None] | None:
-        found = self.machines.get(machine_id)
-        return None if found is None else (found[3], found[4], found[2])
-
-    def replaced(self, gone: set[int], rows: Sequence[tuple[Any, ...]], store: Store) -> _Read:
-        """These statuses without the machines ``gone``, with the axis ``rows`` (the
-        query's of :func:`fleet_statuses`) added; a row's missing status judged now."""
+    def replaced(
+        self,
+        machines: Sequence[_MachineRow],
+        gone: set[int],
+        rows: Sequence[tuple[Any, ...]],
+        store: Store,
+    ) -> _Read:
+        """These statuses with the machines as ``machines`` (all of them) say, the axes of
+        the machines ``gone`` replaced by the axis ``rows`` (machine id, axis, unit, the
+        characteristics, the kept status); a row's missing status judged now."""
+        known = {m[0]: m for m in machines}
+        rows = [r for r in rows if r[0] in known]  # a machine added between the two reads
         keep = ~np.isin(self.machine, np.fromiter(gone, dtype=np.int64, count=len(gone)))
-        machines = {i: m for i, m in self.machines.items() if i not in gone}
         groups = dict(self.groups)
         count = len(rows)
-        for r in rows:
-            machines[int(r[0])] = (r[1], r[2], r[3], int(r[4]), int(r[5]), r[6])
         machine = np.fromiter((r[0] for r in rows), dtype=np.int64, count=count)
         group = np.fromiter(
-            (groups.setdefault((r[2], r[7], r[8]), len(groups)) for r in rows),
+            (groups.setdefault((known[r[0]][2], r[1], r[2]), len(groups)) for r in rows),
             dtype=np.intp,
             count=count,
         )
         width = len(CHARACTERISTICS)
-        figures = np.array([r[9 : 9 + width] for r in rows], dtype=np.float64).reshape(
+        figures = np.array([r[3 : 3 + width] for r in rows], dtype=np.float64).reshape(
             count, width
         )  # None: NaN
-        local = np.array([_LEVEL.get(r[9 + width], -1) for r in rows], dtype=np.int8)
+        local = np.array([_LEVEL.get(r[3 + width], -1) for r in rows], dtype=np.int8)
         missing = np.flatnonzero(local < 0)
         if missing.size:
             judged = _judge_missing(store, sorted({int(machine[i]) for i in missing}))
             for i in missing:
                 own = judged.get(int(machine[i]), {})
-                status = own.get(rows[int(i)][7])
+                status = own.get(rows[int(i)][1])
                 # A writer that added a measurement between the two reads may have changed
                 # the machine's axes: its newest judgement's worst stands for the axis read
                 # before.
@@ -305,11 +316,11 @@ class _Read:
                     local[i] = max((_LEVEL[other] for other in own.values()), default=0)
                 else:
                     local[i] = _LEVEL[status]
-        kept_axes = [a for a, k in zip(self.axes, keep.tolist(), strict=True) if k]
+        kept_axes = list(itertools.compress(self.axes, keep.tolist()))
         return _Read(
-            machines=machines,
+            machines=known,
             machine=np.concatenate((self.machine[keep], machine)),
-            axes=kept_axes + [r[7] for r in rows],
+            axes=kept_axes + [r[1] for r in rows],
             group=np.concatenate((self.group[keep], group)),
             groups=groups,
             figures=np.concatenate((self.figures[keep], figures)),
@@ -339,15 +350,18 @@ def fleet_statuses(store: Store, previous: FleetStatuses | None = None) -> Fleet
         st.c.baseline_id == s.c.baseline_id,
         st.c.diagnosis_version == DIAGNOSIS_VERSION,
     )
-    query = (
+    machines_query = select(
+        s.c.machine_id,
+        s.c.serial,
+        s.c.machine_type,
+        s.c.site,
+        s.c.latest_id,
+        s.c.baseline_id,
+        s.c.config_hash,
+    ).where(s.c.latest_id.is_not(None))
+    axes_query = (
         select(
             s.c.machine_id,
-            s.c.serial,
-            s.c.machine_type,
-            s.c.site,
-            s.c.latest_id,
-            s.c.baseline_id,
-            s.c.config_hash,
             a.c.axis,
             a.c.unit,
             *(a.c[c.name] for c in CHARACTERISTICS),
@@ -359,33 +373,26 @@ def fleet_statuses(store: Store, previous: FleetStatuses | None = None) -> Fleet
     before = previous.read if previous is not None else None
     with store.reading("read the fleet's statuses") as db:
         version = fleet_version(db)
+        machines: list[_MachineRow] = plain_rows(db, machines_query)
         if before is None:
             before = _Read.empty()
             gone: set[int] = set()
-            rows = plain_rows(db, query)
+            rows = plain_rows(db, axes_query)
         else:
-            current = plain_rows(
-                db,
-                select(s.c.machine_id, s.c.latest_id, s.c.baseline_id, s.c.site).where(
-                    s.c.latest_id.is_not(None)
-                ),
-            )
-            now = {int(r[0]) for r in current}
-            changed = sorted(
-                int(r[0]) for r in current if before.signature(int(r[0])) != (r[1], r[2], r[3])
-            )
-            gone = set(changed) | (set(before.machines) - now)
+            changed = sorted({m[0] for m in set(machines) - set(before.machines.values())})
+            gone = set(changed) | (before.machines.keys() - {m[0] for m in machines})
             rows = [
                 row
                 for start in range(0, len(changed), _CHUNK)
                 for row in plain_rows(
-                    db, query.where(s.c.machine_id.in_(changed[start : start + _CHUNK]))
+                    db, axes_query.where(s.c.machine_id.in_(changed[start : start + _CHUNK]))
                 )
             ]
-    read = before.replaced(gone, rows, store)
+    read = before.replaced(machines, gone, rows, store)
     ids, inverse = np.unique(read.machine, return_inverse=True)
-    info = [read.machines[int(i)] for i in ids]
-    by_serial = np.array(sorted(range(ids.size), key=lambda k: info[k][0]), dtype=np.intp)
+    info = [read.machines[i] for i in ids.tolist()]
+    serials = [m[1] for m in info]
+    by_serial = np.array(sorted(range(ids.size), key=serials.__getitem__), dtype=np.intp)
     place = np.empty(ids.size, dtype=np.intp)
     place[by_serial] = np.arange(ids.size)
     axis_machine = place[inverse] if read.machine.size else np.zeros(0, dtype=np.intp)
@@ -396,9 +403,9 @@ def fleet_statuses(store: Store, previous: FleetStatuses | None = None) -> Fleet
     return FleetStatuses(
         version=version,
         machine_ids=ids[by_serial],
-        serials=[info[i][0] for i in by_serial],
-        types=[info[i][1] for i in by_serial],
-        sites=[info[i][2] for i in by_serial],
+        serials=[serials[i] for i in by_serial],
+        types=[info[i][2] for i in by_serial],
+        sites=[info[i][3] for i in by_serial],
         levels=levels,
         axis_machine=axis_machine,
         axis_levels=axis_levels,
