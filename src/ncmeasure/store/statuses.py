@@ -111,9 +111,9 @@ class FleetStatuses:
     """Every axis name in the fleet, sorted."""
     places: dict[Group, _Places] = field(default_factory=dict)
     searched: list[str] | None = field(default=None, repr=False, compare=False)
+    """Per machine, the text a search looks in (:meth:`search_texts`, made by the first)."""
     read: _Read | None = field(default=None, repr=False, compare=False)
     """What was read, for the next reading (:func:`fleet_statuses`' ``previous``)."""
-    """Per machine, the text a search looks in (:meth:`search_texts`, made by the first)."""
 
     def by_serial(self) -> dict[str, Status]:
         """Every machine's status by serial."""

@@ -32,7 +32,7 @@ __all__ = ["Context", "Version", "context"]
 _T = TypeVar("_T")
 _CACHE_LIMIT = 512
 _KEPT_LIMIT = 128
-"""Figures of single measurements kept (about 0.2 MB each)."""
+"""Figures of single measurements kept (some 50 kB each)."""
 
 Version = tuple[int, int]
 """The store's version: (highest measurement id, highest machine id)."""
