@@ -170,6 +170,21 @@ def test_chromium_renders_a_machine_page_with_its_plots(
     assert pixels_like(image, "#2e8b3e", 0.05) > 100
 
 
+def test_chromium_renders_an_axis_page_with_its_friction_figures(
+    token_server: ServerInfo, tmp_path: Path
+) -> None:
+    """The figures written as SVG show in a browser: the positions' colours of the
+    friction over velocity, the average's orange along the travel."""
+    from ncmeasure.report.colours import PALETTE
+
+    image = screenshot(f"{token_server.url}machines/M-101/axes/Y?token={TOKEN}", tmp_path, 2600)
+    assert image.std() > 0.05, "a blank page"
+    # the first position's blue and the second's orange (also the average along the
+    # travel): colours no other part of the dashboard draws (a machine's page has none)
+    for colour in PALETTE[:2]:
+        assert pixels_like(image, colour, 0.05) > 500, colour
+
+
 def test_without_the_token_chromium_gets_no_page(token_server: ServerInfo, tmp_path: Path) -> None:
     image = screenshot(token_server.url, tmp_path, 600)
     assert pixels_like(image, OK_BACKGROUND, 0.03) == 0  # a plain 401 line, no grid
