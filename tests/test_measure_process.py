@@ -9,9 +9,10 @@ command's process through :func:`ncmeasure.cli.measure.link_clock`: the recordin
 is the same however slow or busy the computer is.
 
 The series: the virtual machine's program is started three times, with a standstill
-between the starts; after the first run is stored the drives go away (the server
-process stops: a power cut, a cable pulled) and come back on the same port once the
-series has said that it cannot reach them. Three measurements are stored, each
+between the starts; after the first run is stored the drives go away (they drop every
+connection from a set simulated time in the standstill, then the server process stops:
+a power cut, a cable pulled) and come back on the same port once the series has said
+that it cannot reach them. Three measurements are stored, each
 complete, and the series log says what happened.
 """
 
@@ -36,6 +37,7 @@ from ncmeasure.measure import PRE_ROLL_S, SERIES_LOG, read_series_log
 from ncmeasure.recording import read_recording
 from ncmeasure.samples import SimulatedClock
 from ncmeasure.sim.machine import MachineRun, VirtualMachine, one_after_another
+from ncmeasure.sim.modbus_drive.faults import Fault
 from ncmeasure.virtual_run import serving, simulated_link
 from tests.test_measure import EXIT, _generated
 
@@ -43,6 +45,9 @@ LEAD_IN_S = 6.0
 PAUSE_S = 40.0
 """Standstill between two program starts of the series: longer than the link's outage
 (it gives up after 10 s without an answer) so the next start is not missed."""
+CUT_AFTER_S = 10.0
+"""The drives go dark this long (simulated time) after the first run's program ends: after
+the series has recorded that run (its recording ends within 5 s of the program's end)."""
 LEAD_OUT_S = 300.0
 BOUND_S = 900.0
 """The longest any wait of these tests may take (a safety net; nothing waits for it)."""
@@ -155,8 +160,15 @@ def test_a_series_survives_a_link_outage(tmp_path: Path) -> None:
     def lines(outcome: str) -> list[dict[str, str]]:
         return [r for r in read_series_log(log) if r["outcome"] == outcome] if log.exists() else []
 
-    drives: Any = serving(config, run, link, clock)
+    handles: list[Any] = []
+    drives: Any = serving(config, run, link, clock, servers=handles)
     port = drives.__enter__()["port"]
+    # The outage starts at a simulated time, not when this test sees the first run stored:
+    # from then on the drives drop every connection, so the series, polling for the next
+    # start as fast as the drives answer, cannot run past it (by 10 s, its give-up, per
+    # attempt) however long this test takes to stop them. The next start stays ahead.
+    cut_s = LEAD_IN_S + vm.program_duration_s + CUT_AFTER_S
+    handles[0].set_fault(Fault(disconnect=True, from_s=cut_s))
     try:
         argv = _argv(machine, programs, store, folder, port, "--series", "--runs", "3")
         with _process(argv, clock, tmp_path / "output.txt") as process:
