@@ -34,6 +34,7 @@ __all__ = [
     "drawn_model",
     "linear_curve",
     "offset_is_significant",
+    "speed_range",
     "speed_text",
     "stribeck_curve",
     "stribeck_magnitude",
@@ -158,6 +159,20 @@ def drawn_model(direction: DirectionResult) -> NonlinearFit | None:
         if fit is not None and fit.identifiable:
             return fit
     return None
+
+
+def speed_range(result: AxisResult) -> tuple[float, float]:
+    """The slowest and the fastest measured speed of an axis (|v| > 0; 10 and 10,000 mm/min
+    where none is): the span of its velocity figure."""
+    speeds = [
+        abs(p.velocity_mm_min)
+        for position in result.positions
+        for d in position.directions.values()
+        if d is not None
+        for p in d.points
+        if p.velocity_mm_min != 0
+    ]
+    return (min(speeds), max(speeds)) if speeds else (10.0, 10000.0)
 
 
 def speed_text(value: float, sign: float) -> str:

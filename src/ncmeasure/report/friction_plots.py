@@ -25,6 +25,7 @@ from ncmeasure.report.curves import (
     drawn_model,
     linear_curve,
     offset_is_significant,
+    speed_range,
     speed_text,
     stribeck_curve,
     unit_label,
@@ -207,16 +208,7 @@ def plot_stribeck(axis: str, result: AxisResult) -> Figure:
     positive = figure.add_axes((0.55, 0.2, 0.4, 0.7), sharey=negative)
     offset = result.offset.value if result.offset is not None else None
     significant = offset_is_significant(result.offset)
-    speeds = [
-        abs(p.velocity_mm_min)
-        for pos in result.positions
-        for d in pos.directions.values()
-        if d is not None
-        for p in d.points
-        if p.velocity_mm_min != 0
-    ]
-    slowest = min(speeds) if speeds else 10.0
-    fastest = max(speeds) if speeds else 10000.0
+    slowest, fastest = speed_range(result)
     panels = {"negative": (negative, -1.0), "positive": (positive, 1.0)}
     position_handles, drawn, any_stribeck = _draw_positions(panels, result, offset, slowest)
     shown_offset = offset if significant else None

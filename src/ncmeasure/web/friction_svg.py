@@ -35,6 +35,7 @@ from ncmeasure.report.curves import (
     drawn_model,
     linear_curve,
     offset_is_significant,
+    speed_range,
     speed_text,
     stribeck_curve,
     unit_label,
@@ -223,16 +224,7 @@ def curves_svg(axis: str, result: AxisResult) -> str:
     """Friction over velocity for every position and direction of an axis, as ``<svg>``."""
     offset = result.offset.value if result.offset is not None else None
     significant = offset_is_significant(result.offset)
-    speeds = [
-        abs(p.velocity_mm_min)
-        for position in result.positions
-        for d in position.directions.values()
-        if d is not None
-        for p in d.points
-        if p.velocity_mm_min != 0
-    ]
-    slowest = min(speeds) if speeds else 10.0
-    fastest = max(speeds) if speeds else 10000.0
+    slowest, fastest = speed_range(result)
     y_low, y_high = _curve_range(result, offset, significant)
     legend_rows = math.ceil((len(result.positions) + 4) / 4)
     top, left, gap, plot_h = 58.0, 70.0, 14.0, 290.0
