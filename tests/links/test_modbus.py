@@ -376,6 +376,32 @@ def test_in_lockstep_a_row_is_the_server_state_at_its_time_stamp() -> None:
     np.testing.assert_allclose(positions, 10.0 * times, atol=0.0005)  # the register's 1 µm
 
 
+def test_in_lockstep_the_polling_runs_at_most_max_ahead_of_the_reader() -> None:
+    """What the reader has not taken when it stops is simulated time gone: a series that
+    ends a run at its end must find the clock where the run ended, not far past the next
+    start, however long the reader was busy."""
+    clock = SimulatedClock()
+    with running_server({"X": 1}, source=TimeSource(), clock=clock) as handle:
+        link = ModbusLink.from_tables(
+            {"port": handle.port, "register_map": "generic", "poll_hz": 100},
+            [(axis("X"), {"unit_id": 1})],
+        )
+        link.use_clock(clock)
+        with link:
+            taken = read_rows(link, 10)[-1][0]  # the last row the reader took
+            # the reader busy: the polling fills what it may hold, then waits (bounded)
+            deadline = time.monotonic() + 60.0
+            ahead = -1.0
+            while time.monotonic() < deadline:
+                time.sleep(0.5)
+                if link.now_s() == ahead:
+                    break  # it stopped
+                ahead = link.now_s()
+            assert link.now_s() == ahead, "the polling never stopped for the reader"
+    # the rows it holds span MAX_AHEAD_S (a cycle more at most: the one being polled)
+    assert ModbusLink.MAX_AHEAD_S - 0.02 <= ahead - taken <= ModbusLink.MAX_AHEAD_S + 0.02
+
+
 # --- faults ------------------------------------------------------------------------------
 
 
