@@ -17,7 +17,7 @@ from html import escape
 
 from ncmeasure.report.colours import CRITICAL, LINE, WARNING
 
-__all__ = ["date_label", "date_ticks", "nice_ticks", "number_text", "trend_svg"]
+__all__ = ["date_label", "date_ticks", "nice_ticks", "number_text", "time_span", "trend_svg"]
 
 _WIDTH = 760.0
 _PANEL = 150.0
@@ -73,6 +73,16 @@ def date_ticks(start: float, end: float, most: int = 6) -> list[float]:
     return found
 
 
+def time_span(seconds: Sequence[float]) -> tuple[float, float]:
+    """The time a trend shows (seconds): its measurements with 5 % to spare, or a
+    fortnight around them when they fall within a day."""
+    start, end = min(seconds), max(seconds)
+    if end - start < _DAY:  # one day: a fortnight around it
+        return start - 7 * _DAY, end + 7 * _DAY
+    pad = (end - start) * 0.05
+    return start - pad, end + pad
+
+
 def trend_svg(
     axis: str,
     times: Sequence[dt.datetime],
@@ -99,12 +109,7 @@ def trend_svg(
         labels: A label per measurement (``delivery``, ``service``), written at its point.
     """
     seconds = [(t if t.tzinfo else t.replace(tzinfo=dt.UTC)).timestamp() for t in times]
-    start, end = min(seconds), max(seconds)
-    if end - start < _DAY:  # one day: a fortnight around it
-        start, end = start - 7 * _DAY, end + 7 * _DAY
-    else:
-        pad = (end - start) * 0.05
-        start, end = start - pad, end + pad
+    start, end = time_span(seconds)
     plot_width = _WIDTH - _LEFT - _RIGHT
     panels = max(1, len(series))
     height = _TOP + panels * _PANEL + (panels - 1) * _GAP + _BOTTOM

@@ -22,8 +22,7 @@ has an id, so any number of figures can share a page.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 from html import escape
 
 import numpy as np
@@ -40,49 +39,18 @@ from ncmeasure.report.curves import (
     stribeck_curve,
     unit_label,
 )
-from ncmeasure.report.trend_svg import nice_ticks, number_text
+from ncmeasure.report.trend_svg import nice_ticks
 from ncmeasure.report.words import format_mm
+from ncmeasure.web.svg import TEXT, Panel, frame, polyline, y_grid
 
 __all__ = ["curves_svg", "travel_svg"]
 
 _WIDTH = 960.0
 _AXIS_GREY = "#888888"
-_TEXT = "#444444"
 _DASHED = "4 3"
 _DOTTED = "1 2"
 _SLOW, _FAST = (0xB9, 0xCF, 0xE8), (0x0B, 0x2F, 0x5C)
 """The thin lines' colours at the slowest and the fastest velocity."""
-
-
-@dataclass(frozen=True)
-class _Panel:
-    """A plot area in pixels and the data range it shows (x logarithmic or linear)."""
-
-    left: float
-    top: float
-    width: float
-    height: float
-    x_low: float
-    x_high: float
-    y_low: float
-    y_high: float
-    x_log: bool = False
-    x_reversed: bool = False
-
-    def x(self, value: float) -> float:
-        low, high, v = self.x_low, self.x_high, value
-        if self.x_log:
-            low, high, v = math.log10(low), math.log10(high), math.log10(max(value, 1e-300))
-        share = (v - low) / (high - low)
-        return self.left + (1.0 - share if self.x_reversed else share) * self.width
-
-    def y(self, value: float) -> float:
-        share = (value - self.y_low) / (self.y_high - self.y_low)
-        return self.top + (1.0 - share) * self.height
-
-    @property
-    def bottom(self) -> float:
-        return self.top + self.height
 
 
 def _svg_head(height: float, title: str) -> list[str]:
@@ -93,40 +61,6 @@ def _svg_head(height: float, title: str) -> list[str]:
         f"<title>{escape(title)}</title>",
         f'<text x="8" y="20" font-size="14" fill="{INK}">{escape(title)}</text>',
     ]
-
-
-def _polyline(panel: _Panel, xs: Iterable[float], ys: Iterable[float], style: str) -> str:
-    """A line through the finite points (a gap where a value is not finite)."""
-    runs: list[list[str]] = [[]]
-    for x, y in zip(xs, ys, strict=True):
-        if math.isfinite(x) and math.isfinite(y) and (x > 0 or not panel.x_log):
-            runs[-1].append(f"{panel.x(x):.1f},{panel.y(y):.1f}")
-        elif runs[-1]:
-            runs.append([])
-    return "".join(
-        f'<polyline points="{" ".join(run)}" fill="none" {style}/>' for run in runs if len(run) > 1
-    )
-
-
-def _y_ticks(panel: _Panel, out: list[str], labels: bool) -> None:
-    for tick in nice_ticks(panel.y_low, panel.y_high):
-        y = panel.y(tick)
-        out.append(
-            f'<line x1="{panel.left:g}" x2="{panel.left + panel.width:g}" y1="{y:.1f}" '
-            f'y2="{y:.1f}" stroke="#d9d9d9" stroke-width="0.6"/>'
-        )
-        if labels:
-            out.append(
-                f'<text x="{panel.left - 5:g}" y="{y + 4:.1f}" text-anchor="end" '
-                f'fill="{_TEXT}">{number_text(tick)}</text>'
-            )
-
-
-def _frame(panel: _Panel) -> str:
-    return (
-        f'<path d="M{panel.left:g} {panel.top:g}V{panel.bottom:g}H{panel.left + panel.width:g}" '
-        f'fill="none" stroke="#555"/>'
-    )
 
 
 def _speed_ticks(low: float, high: float) -> tuple[list[float], list[float]]:
@@ -145,7 +79,7 @@ def _speed_ticks(low: float, high: float) -> tuple[list[float], list[float]]:
 
 
 def _direction_marks(
-    panel: _Panel,
+    panel: Panel,
     direction: DirectionResult,
     sign: float,
     colour: str,
@@ -164,7 +98,7 @@ def _direction_marks(
         grid = np.geomspace(abs(points[0].velocity_mm_min), abs(points[-1].velocity_mm_min), 80)
         curve = stribeck_curve(model, sign * grid, sign, points, offset)
         if curve is not None:
-            out.append(_polyline(panel, grid, curve, f'stroke="{colour}" stroke-width="1.9"'))
+            out.append(polyline(panel, grid, curve, f'stroke="{colour}" stroke-width="1.9"'))
             stribeck = True
     fit = direction.fit
     if fit is not None:
@@ -172,7 +106,7 @@ def _direction_marks(
         low, high = max(low, slowest), max(high, max(low, slowest))
         inside = np.geomspace(low, high, 40)
         out.append(
-            _polyline(
+            polyline(
                 panel,
                 inside,
                 linear_curve(fit, sign * inside, sign, points, offset),
@@ -182,7 +116,7 @@ def _direction_marks(
         if low > slowest * 1.01:  # extrapolated below the fitted speeds: lighter
             below = np.geomspace(slowest, low, 20)
             out.append(
-                _polyline(
+                polyline(
                     panel,
                     below,
                     linear_curve(fit, sign * below, sign, points, offset),
@@ -231,7 +165,7 @@ def curves_svg(axis: str, result: AxisResult) -> str:
     height = top + plot_h + 42 + 18 * legend_rows + 10
     width = (_WIDTH - left - 16 - gap) / 2
     panels = {
-        side: _Panel(
+        side: Panel(
             left + k * (width + gap),
             top,
             width,
@@ -267,9 +201,9 @@ def curves_svg(axis: str, result: AxisResult) -> str:
         sign = -1.0 if side == "negative" else 1.0
         out.append(
             f'<g><text x="{panel.left + panel.width / 2:g}" y="{top - 8:g}" '
-            f'text-anchor="middle" fill="{_TEXT}">{side} direction</text>'
+            f'text-anchor="middle" fill="{TEXT}">{side} direction</text>'
         )
-        _y_ticks(panel, out, labels=side == "negative")
+        out += y_grid(panel, labels=side == "negative")
         for tick in labelled + minor:
             x = panel.x(tick)
             size = 4 if tick in labelled else 2.5
@@ -280,7 +214,7 @@ def curves_svg(axis: str, result: AxisResult) -> str:
             if tick in labelled:
                 out.append(
                     f'<text x="{x:.1f}" y="{panel.bottom + 16:g}" text-anchor="middle" '
-                    f'fill="{_TEXT}">{speed_text(tick, sign)}</text>'
+                    f'fill="{TEXT}">{speed_text(tick, sign)}</text>'
                 )
         zero = panel.y(0.0)
         out.append(
@@ -293,7 +227,7 @@ def curves_svg(axis: str, result: AxisResult) -> str:
                 f'<line x1="{panel.left:g}" x2="{panel.left + panel.width:g}" y1="{y:.1f}" '
                 f'y2="{y:.1f}" stroke="#666" stroke-dasharray="6 2 1 2"/>'
             )
-        out.append(_frame(panel))
+        out.append(frame(panel))
         out += marks[side]
         if not drawn[side]:
             out.append(
@@ -302,11 +236,11 @@ def curves_svg(axis: str, result: AxisResult) -> str:
             )
         out.append(
             f'<text x="{panel.left + panel.width / 2:g}" y="{panel.bottom + 32:g}" '
-            f'text-anchor="middle" fill="{_TEXT}">velocity [mm/min], logarithmic</text></g>'
+            f'text-anchor="middle" fill="{TEXT}">velocity [mm/min], logarithmic</text></g>'
         )
     out.append(
         f'<text transform="translate(16 {top + plot_h / 2:g}) rotate(-90)" '
-        f'text-anchor="middle" fill="{_TEXT}">{escape(unit_label(result))}</text>'
+        f'text-anchor="middle" fill="{TEXT}">{escape(unit_label(result))}</text>'
     )
     legend = [
         (
@@ -393,13 +327,13 @@ def travel_svg(axis: str, result: AxisResult, bearings: BearingLayout) -> str | 
     top, left, plot_h = 62.0, 70.0, 250.0
     right = 150.0 if per_velocity else 16.0
     height = top + plot_h + 50
-    panel = _Panel(
+    panel = Panel(
         left, top, _WIDTH - left - right, plot_h, low_mm - pad, high_mm + pad, 0.0, y_high
     )
     out = _svg_head(height, f"Axis {axis}: friction along the travel")
     out.append("<g>")
-    _y_ticks(panel, out, labels=True)
-    out.append(_frame(panel))
+    out += y_grid(panel)
+    out.append(frame(panel))
     suffix = "" if bearings.known else " (assumed)"
     for end, what in ((bearings.fixed_end, "fixed"), (bearings.loose_end, "loose")):
         where = bearings.end_mm(end)
@@ -420,7 +354,7 @@ def travel_svg(axis: str, result: AxisResult, bearings: BearingLayout) -> str | 
         colour = _shade(share(speed))
         magnitudes = [abs(v) for v in profile.values]
         out.append(
-            _polyline(
+            polyline(
                 panel,
                 profile.positions_mm,
                 magnitudes,
@@ -436,7 +370,7 @@ def travel_svg(axis: str, result: AxisResult, bearings: BearingLayout) -> str | 
     for profile in averages:
         magnitudes = [abs(v) for v in profile.values]
         out.append(
-            _polyline(
+            polyline(
                 panel, profile.positions_mm, magnitudes, f'stroke="{PALETTE[1]}" stroke-width="2.8"'
             )
         )
@@ -457,14 +391,14 @@ def travel_svg(axis: str, result: AxisResult, bearings: BearingLayout) -> str | 
             f'<line x1="{panel.x(x):.1f}" x2="{panel.x(x):.1f}" y1="{panel.bottom:g}" '
             f'y2="{panel.bottom + 4:g}" stroke="#444"/>'
             f'<text x="{panel.x(x):.1f}" y="{panel.bottom + 16:g}" text-anchor="middle" '
-            f'fill="{_TEXT}">{escape(label)}</text>'
+            f'fill="{TEXT}">{escape(label)}</text>'
         )
     out.append(
         f'<text x="{panel.left + panel.width / 2:g}" y="{panel.bottom + 36:g}" '
-        f'text-anchor="middle" fill="{_TEXT}">measuring position (number: place along the '
+        f'text-anchor="middle" fill="{TEXT}">measuring position (number: place along the '
         f"travel)</text>"
         f'<text transform="translate(16 {top + plot_h / 2:g}) rotate(-90)" '
-        f'text-anchor="middle" fill="{_TEXT}">{escape(unit_label(result))}</text>'
+        f'text-anchor="middle" fill="{TEXT}">{escape(unit_label(result))}</text>'
     )
     if averages:
         spread = averages[0].spread_percent
@@ -483,7 +417,7 @@ def travel_svg(axis: str, result: AxisResult, bearings: BearingLayout) -> str | 
 
 
 def _velocity_scale(
-    panel: _Panel,
+    panel: Panel,
     slowest: float,
     fastest: float,
     logarithmic: bool,
@@ -507,12 +441,12 @@ def _velocity_scale(
         out.append(
             f'<line x1="{left + 14:g}" x2="{left + 18:g}" y1="{y:.1f}" y2="{y:.1f}" '
             f'stroke="#444"/><text x="{left + 21:g}" y="{y + 4:.1f}" font-size="10" '
-            f'fill="{_TEXT}">{speed_text(tick, 1.0)}</text>'
+            f'fill="{TEXT}">{speed_text(tick, 1.0)}</text>'
         )
     middle = panel.top + panel.height / 2
     out.append(
         f'<text transform="translate({left + 76:g} {middle:g}) rotate(-90)" '
-        f'text-anchor="middle" font-size="10" fill="{_TEXT}">velocity of the thin lines '
+        f'text-anchor="middle" font-size="10" fill="{TEXT}">velocity of the thin lines '
         f"[mm/min]</text>"
     )
     return out

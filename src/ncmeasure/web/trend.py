@@ -20,8 +20,9 @@ from collections.abc import Sequence
 from html import escape
 
 from ncmeasure.report.colours import VERDICT_COLOURS
-from ncmeasure.report.trend_svg import date_label, date_ticks, nice_ticks, number_text
+from ncmeasure.report.trend_svg import date_label, date_ticks, time_span
 from ncmeasure.store.records import TrendPoint
+from ncmeasure.web.svg import Panel, frame, polyline, y_grid
 
 __all__ = ["trend_svg"]
 
@@ -33,7 +34,6 @@ _LEFT = 58.0
 _RIGHT = 12.0
 _GAP = 66.0
 _LINE = "#8a8f98"
-_DAY = 86400.0
 _PANELS = (
     ("coulomb", "Coulomb friction [{unit}]"),
     ("viscous_per_m_min", "viscous friction [{unit} per m/min]"),
@@ -72,15 +72,9 @@ def trend_svg(serial: str, axis: str, points: Sequence[TrendPoint]) -> str:
     unit = points[-1].unit
     shown = [p for p in points if p.unit == unit]
     seconds = [_seconds(p.measured_utc) for p in shown]
-    start, end = min(seconds), max(seconds)
-    if end - start < _DAY:  # one day: a fortnight around it
-        start, end = start - 7 * _DAY, end + 7 * _DAY
-    else:
-        pad = (end - start) * 0.05
-        start, end = start - pad, end + pad
+    start, end = time_span(seconds)
     width = (_WIDTH - _LEFT - _RIGHT - (len(_PANELS) - 1) * _GAP) / len(_PANELS)
     bottom = _HEIGHT - _BOTTOM
-    tall = bottom - _TOP
     hidden = len(points) - len(shown)
     note = f" ({hidden} measurement(s) in another unit not drawn)" if hidden else ""
     title = f"Axis {axis} over the machine's life{note}"
@@ -102,49 +96,37 @@ def trend_svg(serial: str, axis: str, points: Sequence[TrendPoint]) -> str:
     ticks = date_ticks(start, end, most=3)
     for index, (name, label) in enumerate(_PANELS):
         left = _LEFT + index * (width + _GAP)
-
-        def x_of(when: float, left: float = left) -> float:
-            return left + (when - start) / (end - start) * width
-
         known = [
             (s, value, p.verdict)
             for s, p in zip(seconds, shown, strict=True)
             if (value := p.value(name)) is not None
         ]
         low, high = _span([v for _, v, _ in known], name in _FROM_ZERO)
-
-        def y_of(value: float, low: float = low, high: float = high) -> float:
-            return bottom - (value - low) / (high - low) * tall
-
+        panel = Panel(left, _TOP, width, bottom - _TOP, start, end, low, high)
         out.append(
             f'<g><text x="{left:g}" y="{_TOP - 10:g}" fill="#222">'
             f"{escape(label.format(unit=unit))}</text>"
         )
-        for tick in nice_ticks(low, high):
-            y = y_of(tick)
-            out.append(
-                f'<line x1="{left:g}" x2="{left + width:g}" y1="{y:.1f}" y2="{y:.1f}" '
-                f'stroke="#d9d9d9" stroke-width="0.6"/>'
-                f'<text x="{left - 5:g}" y="{y + 4:.1f}" text-anchor="end" fill="#444">'
-                f"{number_text(tick)}</text>"
-            )
+        out += y_grid(panel)
         for tick in ticks:
-            at = x_of(tick)
+            at = panel.x(tick)
             out.append(
                 f'<line x1="{at:.1f}" x2="{at:.1f}" y1="{bottom:g}" y2="{bottom + 4:g}" '
                 f'stroke="#444"/><text x="{at:.1f}" y="{bottom + 17:g}" text-anchor="middle" '
                 f'fill="#444">{date_label(tick)}</text>'
             )
-        out.append(
-            f'<path d="M{left:g} {_TOP:g}V{bottom:g}H{left + width:g}" fill="none" stroke="#555"/>'
-        )
+        out.append(frame(panel))
         if known:
-            line = " ".join(f"{x_of(s):.1f},{y_of(v):.1f}" for s, v, _ in known)
             out.append(
-                f'<polyline points="{line}" fill="none" stroke="{_LINE}" stroke-width="1.2"/>'
+                polyline(
+                    panel,
+                    [s for s, _, _ in known],
+                    [v for _, v, _ in known],
+                    f'stroke="{_LINE}" stroke-width="1.2"',
+                )
             )
             out.extend(
-                f'<circle cx="{x_of(s):.1f}" cy="{y_of(v):.1f}" r="4.5" '
+                f'<circle cx="{panel.x(s):.1f}" cy="{panel.y(v):.1f}" r="4.5" '
                 f'fill="{VERDICT_COLOURS.get(verdict, _LINE)}" stroke="#fff" '
                 f'stroke-width="0.6"/>'
                 for s, v, verdict in known
