@@ -329,3 +329,38 @@ def test_no_start_within_the_time_out(
     if series:
         outcomes = [row["outcome"] for row in read_series_log(tmp_path / "m" / SERIES_LOG)]
         assert outcomes == ["no start", "series ended"]
+
+
+@pytest.mark.parametrize("block_rows", [100, 10**9])
+def test_the_end_is_seen_whatever_follows_it_in_the_same_block(
+    tmp_path: Path, block_rows: int
+) -> None:
+    """A run, a short standstill at the parks, the next run: the first run's end is where
+    the standstill has lasted STILL_S, whether its rows come in small blocks or in one
+    (a link far behind its reader hands over seconds of rows at once)."""
+    machine, programs, _ = _generated(tmp_path, "canopen")
+    schedule = load_schedule(programs / "schedule.json")
+    vm = VirtualMachine.from_programs(
+        load_machine(machine), programs, lead_in_s=LEAD_IN_S, lead_out_s=3.0
+    )
+    channels, rows = vm.run().sample(0.01)
+    names = [c.name for c in channels]
+    period = float(rows.time_s[1] - rows.time_s[0])
+    again = rows.time_s + rows.time_s[-1] + period  # the next run, straight after
+    time_s = np.concatenate((rows.time_s, again))
+    values = np.concatenate((rows.values, rows.values))
+    watch = ProgramWatch(names, schedule, real_time=False)
+    kept, ended = [], None
+    for lo in range(0, len(time_s), block_rows):
+        block = SampleBlock(time_s[lo : lo + block_rows], values[lo : lo + block_rows])
+        part, ended = watch.pass_rows(block, None)
+        kept.append(part.time_s)
+        if ended:
+            break
+    assert ended == "program"
+    assert watch.windows_passed == watch.windows_total
+    last_s = float(np.concatenate(kept)[-1])
+    program_end_s = vm.lead_in_s + vm.program_duration_s
+    still_s = 1.0 + 1.0  # STILL_S at the parks, then POST_ROLL_S
+    assert program_end_s + still_s - 0.05 <= last_s <= program_end_s + still_s + 1.0
+    assert last_s < float(again[0])  # nothing of the next run

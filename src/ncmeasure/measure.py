@@ -455,32 +455,43 @@ class ProgramWatch:
         values = block.values[row:]
         for axis in self._axes:
             self._pass_windows(axis, time_s, values)
-        if self._end_s is not None:
+        if self._end_s is not None or not len(time_s):
             return
-        after_last = self.windows_passed >= self.windows_total or (
-            self.start_s is not None
-            and self._last_s is not None
-            and self._last_s - self.start_s >= (self._last_window_s - self.offset_s) * self.slowing
-        )
         # with a marker too: the program ends when every axis is back at its park and
-        # still after the last window (the run-out and the return follow the last fall)
+        # still for STILL_S after the last window (the run-out and the return follow the
+        # last fall). The first row at which that holds, not the block's last: a block
+        # may hold the end and, after it, the next run's first motion.
         still = np.ones(len(time_s), dtype=bool)
         for axis in self._axes:
             still &= np.abs(values[:, axis.velocity]) <= axis.threshold_mm_min
             still &= np.abs(values[:, axis.position] - axis.park_mm) <= PARK_TOLERANCE_MM
-        for i in range(len(time_s)):
-            if not still[i]:
-                self._still_since = None
-            elif self._still_since is None:
-                self._still_since = float(time_s[i])
-        if (
-            after_last
-            and self._still_since is not None
-            and self._last_s is not None
-            and self._last_s - self._still_since >= STILL_S
-        ):
+        rows = np.arange(len(time_s))
+        carried = self._still_since is not None
+        begins = still & ~np.concatenate(([carried], still[:-1]))
+        # per row, the row its still stretch began at (−1: carried in from before)
+        began = np.maximum.accumulate(np.where(begins, rows, -1))
+        since = np.where(
+            began >= 0,
+            time_s[np.maximum(began, 0)],
+            self._still_since if carried else np.nan,
+        )
+        ended = still & (time_s - since >= STILL_S) & (time_s >= self._after_last_s())
+        hits = np.flatnonzero(ended)
+        if hits.size:
+            self._still_since = float(since[hits[0]])
             self._end_s = self._still_since + STILL_S
             self.phase = "ending"
+        else:
+            self._still_since = float(since[-1]) if still[-1] else None
+
+    def _after_last_s(self) -> float:
+        """From when the end may come: the last window passed, or its time in the schedule
+        (slowed as measured) reached; infinity while neither is known."""
+        if self.windows_passed >= self.windows_total:
+            return -np.inf if self._last_passed_s is None else self._last_passed_s
+        if self.start_s is None:
+            return np.inf
+        return self.start_s + (self._last_window_s - self.offset_s) * self.slowing
 
     def _pass_windows(self, axis: _Axis, time_s: Any, values: Any) -> None:
         """Advance ``axis`` past the windows these rows complete."""
