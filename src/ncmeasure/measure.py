@@ -466,15 +466,11 @@ class ProgramWatch:
             still &= np.abs(values[:, axis.velocity]) <= axis.threshold_mm_min
             still &= np.abs(values[:, axis.position] - axis.park_mm) <= PARK_TOLERANCE_MM
         rows = np.arange(len(time_s))
-        carried = self._still_since is not None
-        begins = still & ~np.concatenate(([carried], still[:-1]))
+        carried = np.nan if self._still_since is None else self._still_since
+        begins = still & ~np.concatenate(([self._still_since is not None], still[:-1]))
         # per row, the row its still stretch began at (−1: carried in from before)
         began = np.maximum.accumulate(np.where(begins, rows, -1))
-        since = np.where(
-            began >= 0,
-            time_s[np.maximum(began, 0)],
-            self._still_since if carried else np.nan,
-        )
+        since = np.where(began >= 0, time_s[np.maximum(began, 0)], carried)
         ended = still & (time_s - since >= STILL_S) & (time_s >= self._after_last_s())
         hits = np.flatnonzero(ended)
         if hits.size:
