@@ -262,6 +262,10 @@ def _shifted(row: dict[str, object], table: str, shift: dict[str, int]) -> dict[
             out[name] = int(value) + shift[target or table]  # type: ignore[call-overload]
     machine_id = int(out["machine_id" if table == "machine_summaries" else "id"])  # type: ignore[call-overload]
     out["serial"] = f"HMX-{machine_id - 1:06d}"
+    if table == "machine_summaries":
+        from ncmeasure.store.summaries import search_text
+
+        out["search_text"] = search_text(out["serial"], out["machine_type"], out["site"])  # type: ignore[arg-type]
     return out
 
 

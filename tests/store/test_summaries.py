@@ -70,6 +70,36 @@ def test_pages_filters_and_the_rows_after_adding(store_url: str, make_results: M
         assert _summaries(store) == kept
 
 
+def test_a_search_folds_case_as_the_grid_does(store_url: str, make_results: Make) -> None:
+    """Sites as a German maker writes them: the lists' search finds what the grid's finds
+    (Python's case folding), on SQLite and on PostgreSQL of the C locale (whose ILIKE,
+    like SQLite's LIKE, folds ASCII letters only)."""
+    from ncmeasure.store.statuses import fleet_statuses
+
+    sites = ["Würzburg", "WÜRZBURG-SÜD", "Straße 5", "Ulm", None]
+    with open_store(store_url, write=True) as store:
+        for m, site in enumerate(sites):
+            store.add(
+                make_results(f"2026-0{m + 1}-01T08:00:00+00:00"),
+                MeasurementInfo(serial=f"M{m}", label="delivery", site=site),
+            )
+        grid = fleet_statuses(store)
+        for search in ["würzburg", "WÜRZBURG", "süd", "STRASSE", "ulm", "m3", "_", "%", "5"]:
+            listed = [m.serial for m in store.machine_page(search=search).machines]
+            found = sorted(grid.serials[i] for i in grid.matching(search))
+            assert listed == found, search
+        assert [m.serial for m in store.machine_page(search="WÜRZBURG").machines] == ["M0", "M1"]
+        assert [m.serial for m in store.machine_page(search="strasse").machines] == ["M2"]
+        assert store.machine_page(search="m0\x1fhmx").total == 0  # not across two fields
+        # a machine moved to another site is found there, and no longer where it was
+        store.add(
+            make_results("2026-09-01T08:00:00+00:00"),
+            MeasurementInfo(serial="M3", label="service", site="Schweinfurt"),
+        )
+        assert [m.serial for m in store.machine_page(search="SCHWEINFURT").machines] == ["M3"]
+        assert store.machine_page(search="ulm").total == 0
+
+
 def test_statuses_are_those_of_one_fleet(store_url: str, make_results: Make) -> None:
     with open_store(store_url, write=True) as store:
         _fill(store, make_results)

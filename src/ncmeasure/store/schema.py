@@ -20,8 +20,9 @@
     axis_changes    per pair and axis: the diagnosis of the change since the baseline
                     (its pattern along the travel, its cause, its spread and mean)
     machine_summaries per machine, what the lists show, kept current on adding: serial,
-                    type, site, measurements, the latest and the baseline measurement, and
-                    the status as of the fleet it was judged in (``fleet_version``)
+                    type, site, measurements, the latest and the baseline measurement,
+                    the status as of the fleet it was judged in (``fleet_version``), and
+                    the case-folded text a search looks in
     axis_statuses   per machine and axis: its status without the fleet (the verdict, the
                     change since the baseline, the sibling axes; default limits), for the
                     (latest, baseline) pair and diagnosis version it was judged for
@@ -300,6 +301,14 @@ machine_summaries = Table(
         String(64),
         doc="The fleet the status was judged in (ncmeasure.store.summaries.fleet_version); "
         "a status of another is not current.",
+    ),
+    Column(
+        "search_text",
+        Text,
+        nullable=False,
+        server_default="",
+        doc="Serial, type and site case-folded as Python folds them, joined by U+001F: what "
+        "a search looks in (ncmeasure.store.summaries.search_text).",
     ),
     Index("ix_machine_summaries_status_serial", "status", "serial"),
     Index("ix_machine_summaries_type_serial", "machine_type", "serial"),
