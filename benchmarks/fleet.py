@@ -200,7 +200,7 @@ def _replicate(url: str, block: int, machines: int) -> None:
         highest = {
             table.name: int(db.execute(select(func.max(table.c.id))).scalar_one() or 0)
             for table in t.metadata.sorted_tables
-            if "id" in table.c and table.name != "machine_types"
+            if "id" in table.c and table.name not in ("machine_types", "store_state")
         }
         named = [t.machines, t.machine_summaries]
         rows = {
@@ -209,7 +209,7 @@ def _replicate(url: str, block: int, machines: int) -> None:
         for copy in range(1, machines // block):
             shift = {name: copy * top for name, top in highest.items()}
             for table in t.metadata.sorted_tables:
-                if table.name == "machine_types" or table.name == "alembic_version":
+                if table.name in ("machine_types", "alembic_version", "store_state"):
                     continue
                 if table in named:
                     db.execute(
@@ -234,6 +234,8 @@ def _replicate(url: str, block: int, machines: int) -> None:
                 copied = select(*columns).where(own <= top)  # the block's rows alone
                 db.execute(insert(table).from_select(list(table.c.keys()), copied))
         _advance_sequences(db)
+        # the copies are adds the store did not count: a revision of its own
+        db.execute(t.store_state.update().values(revision=t.store_state.c.revision + 1))
 
 
 def _advance_sequences(db: object) -> None:

@@ -7,6 +7,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
 from sqlalchemy import func, select
 
 from ncmeasure.formats.results import Results, write_results
@@ -79,3 +80,51 @@ def test_eight_processes_add_concurrently(
     assert per_machine == {f"M{m}": 3 for m in range(PROCESSES)}
     assert latest_ok == PROCESSES  # every machine's latest is its 2028 measurement
     assert sum(out.count("already stored") for out in outputs) == PROCESSES  # each doubled once
+
+
+def test_a_commit_of_a_lower_id_after_a_higher_one_changes_the_version(
+    pg_url: str, make_results: Callable[..., Results], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two stations add at once: the first takes the lower measurement id but commits last.
+    A dashboard that read the store between the two commits must see the store change
+    again when the first commits (its version moves), not keep the page without it."""
+    import threading
+
+    import ncmeasure.store.store as store_module
+    from ncmeasure.store import MeasurementInfo
+    from ncmeasure.web.context import Context
+
+    inside, go_on = threading.Event(), threading.Event()
+    record = store_module.record_changes
+
+    def held(db, serials, *args, **kwargs):  # type: ignore[no-untyped-def]
+        if serials == ["SLOW"]:
+            inside.set()
+            assert go_on.wait(60)
+        return record(db, serials, *args, **kwargs)
+
+    monkeypatch.setattr(store_module, "record_changes", held)
+    with open_store(pg_url, write=True) as store:
+        store.add(make_results("2026-01-01T08:00:00+00:00"), MeasurementInfo(serial="FIRST"))
+        slow = threading.Thread(
+            target=store.add,
+            args=(make_results("2026-02-01T08:00:00+00:00"), MeasurementInfo(serial="SLOW")),
+        )
+        slow.start()
+        try:
+            assert inside.wait(60)  # SLOW holds its measurement id, not yet committed
+            store.add(make_results("2026-03-01T08:00:00+00:00"), MeasurementInfo(serial="FAST"))
+            ctx = Context(store)
+            between = ctx.version()
+            shown = ctx.cached(between, "serials", lambda: [m.serial for m in store.machines()])
+            assert shown == ["FAST", "FIRST"]
+        finally:
+            go_on.set()
+            slow.join(60)
+        after = ctx.version()
+        assert after != between
+        assert ctx.cached(after, "serials", lambda: [m.serial for m in store.machines()]) == [
+            "FAST",
+            "FIRST",
+            "SLOW",
+        ]

@@ -26,6 +26,8 @@
     axis_statuses   per machine and axis: its status without the fleet (the verdict, the
                     change since the baseline, the sibling axes; default limits), for the
                     (latest, baseline) pair and diagnosis version it was judged for
+    store_state     one row: the store's revision, one more with every transaction that
+                    adds measurements, in the order they commit
 
 The schema changes only through an Alembic revision (``migrations/versions``);
 ``tests/store/test_migrations.py`` proves the revisions build exactly these tables.
@@ -34,6 +36,7 @@ The schema changes only through an Alembic revision (``migrations/versions``);
 from __future__ import annotations
 
 from sqlalchemy import (
+    BigInteger,
     Boolean,
     Column,
     Float,
@@ -64,6 +67,7 @@ __all__ = [
     "measurements",
     "metadata",
     "points",
+    "store_state",
 ]
 
 metadata = MetaData(
@@ -327,5 +331,20 @@ axis_statuses = Table(
         String(16),
         nullable=False,
         doc="ok, warning or critical: the axis' status without its fleet, default limits.",
+    ),
+)
+
+store_state = Table(
+    "store_state",
+    metadata,
+    Column("id", Integer, primary_key=True, autoincrement=False, doc="1: the one row."),
+    Column(
+        "revision",
+        BigInteger,
+        nullable=False,
+        doc="One more with every transaction that adds measurements, counted as it commits "
+        "(the row is locked until then): a reader that saw one revision sees a change as "
+        "soon as any later add commits, whatever measurement ids it holds "
+        "(ncmeasure.store.summaries.store_revision).",
     ),
 )

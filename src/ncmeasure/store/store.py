@@ -35,6 +35,7 @@ from ncmeasure.store.rows import (
 from ncmeasure.store.summaries import (
     DEFAULT_PAGE,
     MachinePage,
+    count_revision,
     machine_page,
     update_summaries,
 )
@@ -129,6 +130,7 @@ class Store:
                 ids = machine_ids(db, serials)
                 update_summaries(db, ids)
                 keep_own_statuses(db, ids)  # no reader judges them again
+                count_revision(db)  # last: locked until the commit
             return added
 
     def refresh_changes(

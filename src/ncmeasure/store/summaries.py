@@ -41,12 +41,14 @@ __all__ = [
     "DEFAULT_PAGE",
     "MAX_PAGE",
     "MachinePage",
+    "count_revision",
     "fill_search_texts",
     "fleet_version",
     "keep_statuses",
     "machine_page",
     "search_text",
     "statuses_current",
+    "store_revision",
     "update_summaries",
 ]
 
@@ -150,13 +152,31 @@ def fill_search_texts(db: Connection, machine_ids: Sequence[int] | None = None) 
             )
 
 
+def store_revision(db: Connection) -> int:
+    """The store's revision: one more with every transaction that added measurements, in
+    the order they committed (:data:`~ncmeasure.store.schema.store_state`)."""
+    found = db.execute(select(t.store_state.c.revision).where(t.store_state.c.id == 1))
+    return int(found.scalar_one_or_none() or 0)
+
+
+def count_revision(db: Connection) -> None:
+    """One more revision, in an adding transaction, as its last statement: the row stays
+    locked until the commit, so a later add counts after this one has committed (on
+    PostgreSQL two adds may take their measurement ids in the other order)."""
+    db.execute(
+        update(t.store_state)
+        .where(t.store_state.c.id == 1)
+        .values(revision=t.store_state.c.revision + 1)
+    )
+
+
 def fleet_version(db: Connection) -> str:
-    """The fleet a status is judged in: every change adds a measurement (a higher id;
-    nothing is deleted), and the diagnosis of the changes has a version."""
+    """The fleet a status is judged in: every change adds measurements (a new
+    :func:`store_revision`; nothing is deleted), and the diagnosis of the changes has a
+    version."""
     from ncmeasure.store.changes import DIAGNOSIS_VERSION
 
-    highest = db.execute(select(func.max(t.measurements.c.id))).scalar_one()
-    return f"{int(highest or 0)}:{DIAGNOSIS_VERSION}"
+    return f"{store_revision(db)}:{DIAGNOSIS_VERSION}"
 
 
 def statuses_current(db: Connection, version: str | None = None) -> bool:

@@ -35,7 +35,8 @@ _KEPT_LIMIT = 128
 """Figures of single measurements kept (some 50 kB each)."""
 
 Version = tuple[int, int]
-"""The store's version: (highest measurement id, highest machine id)."""
+"""The store's version: (its revision, the highest machine id); the revision moves with
+every add as it commits (:func:`~ncmeasure.store.summaries.store_revision`)."""
 
 
 @dataclass
@@ -51,13 +52,15 @@ class Context:
     def version(self) -> Version:
         """The store's version now; read it once per request, before reading the store."""
         with self.store.reading("read the store's version") as db:
-            highest, machine = db.execute(
+            revision, machine = db.execute(
                 select(
-                    select(func.max(t.measurements.c.id)).scalar_subquery(),
+                    select(t.store_state.c.revision)
+                    .where(t.store_state.c.id == 1)
+                    .scalar_subquery(),
                     select(func.max(t.machines.c.id)).scalar_subquery(),
                 )
             ).one()
-        return int(highest or 0), int(machine or 0)
+        return int(revision or 0), int(machine or 0)
 
     def cached(self, version: Version, key: Hashable, compute: Callable[[], _T]) -> _T:
         """``compute()``, remembered under ``key`` for this version of the store.
