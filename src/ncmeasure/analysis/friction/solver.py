@@ -114,7 +114,7 @@ def bounded_least_squares(
         system = normal if every else normal[np.ix_(free, free)]
         minus_gradient = -gradient if every else -gradient[free]
         while True:
-            if nfev >= max_nfev:
+            if nfev >= max_nfev or not math.isfinite(damping):
                 break
             damped = system.copy()
             damped.flat[:: damped.shape[0] + 1] += damping * scale_free
@@ -152,6 +152,6 @@ def bounded_least_squares(
                 break
             damping *= growth
             growth *= 2.0
-        if nfev >= max_nfev and status == 0:
-            break
+        if status == 0 and (nfev >= max_nfev or not math.isfinite(damping)):
+            break  # out of evaluations, or no damping gives a step: status 0
     return LeastSquaresResult(x, cost, r, j, status, nfev, _active(x, lo, hi))
