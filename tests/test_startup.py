@@ -568,7 +568,7 @@ def test_each_schema_file_is_its_models_schema(update_golden: bool) -> None:
 def test_serve_starts_without_scipy_or_matplotlib(files: Files) -> None:
     """``serve`` until it says where it serves: FastAPI and the store, no fit, no plot;
     and its pages, plots included, draw without matplotlib."""
-    import httpx
+    import httpx2 as httpx
 
     pages = ["/", "/machines/M1", "/machines/M1/axes/X", "/machines/M1/axes/X/trend.svg"]
     with tempfile.TemporaryFile("w+") as err:  # a pipe would fill up and block the server
