@@ -180,14 +180,24 @@ def test_refresh_stores_what_is_missing_or_of_another_diagnosis_version(
     with open_store(store_url) as store:
         before = {m.serial: m.status for m in fleet_overview(store).machines}
     with open_store(store_url, write=True) as store:
+        revision = _revision(store)
         seen: list[tuple[int, int]] = []
         assert store.refresh_changes(progress=lambda d, n: seen.append((d, n))) == 2
         assert seen == [(2, 2)]
         assert len(_pairs(store)) == 3
+        assert _revision(store) == revision + 1  # a running dashboard reads it again
         assert store.refresh_changes() == 0  # nothing left
+        assert _revision(store) == revision + 1
         assert store.refresh_changes(every=True) == 3  # M4 has no pair
         assert {m.serial: m.status for m in fleet_overview(store).machines} == before
         assert before == {"M1": "warning", "M2": "warning", "M3": "critical", "M4": "critical"}
+
+
+def _revision(store: Store) -> int:
+    from ncmeasure.store.summaries import store_revision
+
+    with store.reading("the revision") as db:
+        return store_revision(db)
 
 
 def test_refresh_goes_in_batches(

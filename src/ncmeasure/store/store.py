@@ -167,8 +167,13 @@ class Store:
         done = 0
         for start in range(0, len(wanted), REFRESH_BATCH):
             with self.writing("store the changes since the baselines") as db:
-                for machine_id in wanted[start : start + REFRESH_BATCH]:
-                    done += refresh_machine(db, machine_id)
+                stored = sum(
+                    refresh_machine(db, machine_id)
+                    for machine_id in wanted[start : start + REFRESH_BATCH]
+                )
+                if stored:  # what the statuses and a running dashboard show changed
+                    count_revision(db)
+                done += stored
             if progress is not None:
                 progress(min(start + REFRESH_BATCH, len(wanted)), len(wanted))
         return done
