@@ -153,8 +153,8 @@ def fill_search_texts(db: Connection, machine_ids: Sequence[int] | None = None) 
 
 
 def store_revision(db: Connection) -> int:
-    """The store's revision: one more with every transaction that added measurements, in
-    the order they committed (:data:`~ncmeasure.store.schema.store_state`)."""
+    """The store's revision: one more with every transaction that added measurements or
+    stored changes, in the order they committed (:data:`~ncmeasure.store.schema.store_state`)."""
     found = db.execute(select(t.store_state.c.revision).where(t.store_state.c.id == 1))
     return int(found.scalar_one_or_none() or 0)
 
