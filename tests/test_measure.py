@@ -251,17 +251,25 @@ def test_a_slow_program_stretches_the_bound(tmp_path: Path) -> None:
     assert "override ≈ 50 %" in watch.bound_text
 
 
+def _sampled_run(
+    tmp_path: Path, lead_out_s: float
+) -> tuple[Any, VirtualMachine, list[str], SampleBlock]:
+    """The example machine's programs run on the virtual machine, sampled every 10 ms: the
+    schedule, the machine, the channels' names and the rows."""
+    machine, programs, _ = _generated(tmp_path, "canopen")
+    schedule = load_schedule(programs / "schedule.json")
+    vm = VirtualMachine.from_programs(
+        load_machine(machine), programs, lead_in_s=LEAD_IN_S, lead_out_s=lead_out_s
+    )
+    channels, rows = vm.run().sample(0.01)
+    return schedule, vm, [c.name for c in channels], rows
+
+
 def test_a_marker_that_never_rises_leaves_the_start_to_the_motion(tmp_path: Path) -> None:
     """The drives' marker input is recorded but not wired (or not set): the program runs
     all the same; after the schedule's time to the first window and a grace the first
     motion is the start, the windows pass by position and the end is seen."""
-    machine, programs, _ = _generated(tmp_path, "canopen")
-    schedule = load_schedule(programs / "schedule.json")
-    vm = VirtualMachine.from_programs(
-        load_machine(machine), programs, lead_in_s=LEAD_IN_S, lead_out_s=30.0
-    )
-    channels, rows = vm.run().sample(0.01)
-    names = [c.name for c in channels]
+    schedule, vm, names, rows = _sampled_run(tmp_path, lead_out_s=30.0)
     values = rows.values.copy()
     values[:, [i for i, n in enumerate(names) if n.endswith("_marker")]] = 0.0
     watch = ProgramWatch(names, schedule, real_time=False)
@@ -338,13 +346,7 @@ def test_the_end_is_seen_whatever_follows_it_in_the_same_block(
     """A run, a short standstill at the parks, the next run: the first run's end is where
     the standstill has lasted STILL_S, whether its rows come in small blocks or in one
     (a link far behind its reader hands over seconds of rows at once)."""
-    machine, programs, _ = _generated(tmp_path, "canopen")
-    schedule = load_schedule(programs / "schedule.json")
-    vm = VirtualMachine.from_programs(
-        load_machine(machine), programs, lead_in_s=LEAD_IN_S, lead_out_s=3.0
-    )
-    channels, rows = vm.run().sample(0.01)
-    names = [c.name for c in channels]
+    schedule, vm, names, rows = _sampled_run(tmp_path, lead_out_s=3.0)
     period = float(rows.time_s[1] - rows.time_s[0])
     again = rows.time_s + rows.time_s[-1] + period  # the next run, straight after
     time_s = np.concatenate((rows.time_s, again))
