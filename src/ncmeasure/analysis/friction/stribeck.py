@@ -18,14 +18,16 @@ import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ncmeasure.analysis.friction.linear import clean_points, covariance
-from ncmeasure.analysis.friction.solver import LeastSquaresResult, bounded_least_squares
 from ncmeasure.formats.results import NonlinearFit
+
+if TYPE_CHECKING:
+    from scipy import optimize
 
 __all__ = [
     "DELTA_BOUNDS",
@@ -289,20 +291,27 @@ def _least_squares(
     lower: Sequence[float],
     upper: Sequence[float],
     max_nfev: int = 1000,
-) -> LeastSquaresResult | None:
-    """One bounded run from ``x0`` (clipped inside the bounds); None when it fails.
+) -> optimize.OptimizeResult | None:
+    """One bounded ``trf`` run from ``x0`` (clipped inside the bounds); None when it fails.
 
-    :func:`~ncmeasure.analysis.friction.solver.bounded_least_squares`, not
-    scipy's ``least_squares``: the same minimum at a fraction of the cost for
-    these small problems. A run that stops at ``max_nfev`` is returned
-    (status 0): the caller decides.
+    A run that stops at ``max_nfev`` is returned (status 0): the caller decides.
     """
+    from scipy import optimize  # here: drawing a fitted curve needs no scipy
+
     x0 = np.clip(x0, np.add(lower, 1e-9), np.subtract(upper, 1e-9))
     try:
         with np.errstate(all="ignore"):
-            res = bounded_least_squares(fun, jac, x0, lower, upper, max_nfev)
+            res = optimize.least_squares(
+                fun,
+                x0,
+                jac=jac,
+                bounds=(lower, upper),
+                method="trf",
+                x_scale="jac",
+                max_nfev=max_nfev,
+            )
     except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
-        log.debug("least squares failed from %s: %s", x0, exc)
+        log.debug("least_squares failed from %s: %s", x0, exc)
         return None
     if res.status >= 0 and np.isfinite(res.cost) and np.all(np.isfinite(res.x)):
         return res
@@ -311,8 +320,8 @@ def _least_squares(
 
 def _solve_full(
     p: _Problem, starts: Sequence[FloatArray], max_nfev: int = 1000
-) -> tuple[list[LeastSquaresResult], bool]:
-    """Least squares on all parameters from every start.
+) -> tuple[list[optimize.OptimizeResult], bool]:
+    """``least_squares`` on all parameters from every start.
 
     Returns the converged runs, best (lowest cost) first, and whether a run
     stopped at ``max_nfev`` before converging.
@@ -339,14 +348,14 @@ def _solve_full(
     return found, any(r is not None and r.status == 0 for r in runs)
 
 
-def _solve_projected(p: _Problem, starts: Sequence[FloatArray]) -> list[LeastSquaresResult]:
+def _solve_projected(p: _Problem, starts: Sequence[FloatArray]) -> list[optimize.OptimizeResult]:
     """The best optimum of the projected problem, confirmed on all parameters.
 
     Every start is optimised in the nonlinear parameters only, the linear ones
     eliminated (:func:`_projection`: 2 or 3 parameters instead of 5 or 7). In
     a valley in which the linear parameters trade off against each other (b
     against f_w as k → 1) this takes some ten evaluations where the full
-    problem crawls for hundreds. The best of them starts a fit on
+    problem crawls for hundreds. The best of them starts ``least_squares`` on
     all parameters, which confirms it and says which parameters sit on a
     bound. Returns that run, or nothing.
     """
@@ -386,23 +395,15 @@ within 35 evaluations or crawls along a valley for 190 to 520.
 """
 
 
-def _solve(p: _Problem, starts: Sequence[FloatArray]) -> list[LeastSquaresResult]:
-    """Run least squares from every start; successful runs, best (lowest cost) first.
+def _solve(p: _Problem, starts: Sequence[FloatArray]) -> list[optimize.OptimizeResult]:
+    """Run least_squares from every start; successful runs, best (lowest cost) first.
 
     Each start is fitted on all parameters for at most
-    :data:`QUICK_EVALUATIONS` evaluations. For the Stribeck model, where every
-    run converges within them, that is the answer; where one does not (a
-    crawl along a valley), the projected fit (:func:`_solve_projected`) joins
-    the runs that converged, and the lowest cost wins. The extended model
-    always takes the projected fit too: a Levenberg–Marquardt run can come to
-    rest in the valley in which b and f_w trade off as k → 1 (its cost falls
-    by less than ``ftol`` per step there) instead of crawling on, so a crawl
-    is no sure sign of it.
+    :data:`QUICK_EVALUATIONS` evaluations. Where every run converges within
+    them, that is the answer. Where one does not (a crawl along a valley), the
+    projected fit (:func:`_solve_projected`) joins the runs that converged,
+    and the lowest cost wins.
     """
-    if p.extended:
-        projected = _solve_projected(p, starts)
-        if projected:
-            return projected
     found, unfinished = _solve_full(p, starts, QUICK_EVALUATIONS)
     if unfinished or not found:
         found = sorted([*found, *_solve_projected(p, starts)], key=lambda r: float(r.cost))
@@ -448,16 +449,14 @@ def fit_nonlinear(
     Starting values come from the data: the model is linear in T_C, T_S − T_C,
     b (and f_w) once v_S, δ (and k) are fixed, so a grid over v_S (23 values
     across the speed range) × δ (7) [× k (5)] is solved by linear least
-    squares, and the three best grid points with distinct v_S start a
-    bounded Levenberg–Marquardt fit
-    (:func:`~ncmeasure.analysis.friction.solver.bounded_least_squares`,
-    analytic Jacobian) on all parameters, each for at most
-    :data:`QUICK_EVALUATIONS` evaluations. For the extended model, and where
-    a Stribeck run does not converge within them (a crawl along a valley), the
-    same starts are also optimised with the linear parameters eliminated
-    (variable projection) and the best of these is confirmed on all
-    parameters. The lowest cost wins; a run that stops without converging
-    does not count.
+    squares, and the three best grid points with distinct v_S start
+    :func:`scipy.optimize.least_squares` (``trf``, analytic Jacobian) on all
+    parameters, each for at most :data:`QUICK_EVALUATIONS` evaluations. Where
+    one of them does not converge within them (a crawl along a valley in which
+    b and f_w trade off as k → 1), the same starts are also optimised with the
+    linear parameters eliminated (variable projection) and the best of these
+    is confirmed on all parameters. The lowest cost wins; a run that stops
+    without converging does not count.
 
     σ and χ²_red as in :func:`fit_linear`, with m the number of parameters.
     The covariance is s²(JᵀWJ)⁻¹ with J the Jacobian in the physical
@@ -517,7 +516,7 @@ def fit_nonlinear(
 def _judged(
     model: Literal["stribeck", "extended"],
     problem: _Problem,
-    best: LeastSquaresResult,
+    best: optimize.OptimizeResult,
     v: FloatArray,
     y: FloatArray,
     s: FloatArray | None,
