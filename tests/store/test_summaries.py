@@ -91,6 +91,7 @@ def test_a_search_folds_case_as_the_grid_does(store_url: str, make_results: Make
         assert [m.serial for m in store.machine_page(search="WÜRZBURG").machines] == ["M0", "M1"]
         assert [m.serial for m in store.machine_page(search="strasse").machines] == ["M2"]
         assert store.machine_page(search="m0\x1fhmx").total == 0  # not across two fields
+        assert store.machine_page(search="\x00").total == 0  # PostgreSQL's text holds none
         # a machine moved to another site is found there, and no longer where it was
         store.add(
             make_results("2026-09-01T08:00:00+00:00"),

@@ -27,7 +27,8 @@
                     change since the baseline, the sibling axes; default limits), for the
                     (latest, baseline) pair and diagnosis version it was judged for
     store_state     one row: the store's revision, one more with every transaction that
-                    adds measurements or stores changes, in the order they commit
+                    adds measurements or stores `store refresh`'s changes, in the order
+                    they commit
 
 The schema changes only through an Alembic revision (``migrations/versions``);
 ``tests/store/test_migrations.py`` proves the revisions build exactly these tables.
@@ -342,9 +343,9 @@ store_state = Table(
         "revision",
         BigInteger,
         nullable=False,
-        doc="One more with every transaction that adds measurements or stores changes, "
-        "counted as it commits (the row is locked until then): a reader that saw one "
-        "revision sees a change as soon as any later add commits, whatever measurement ids "
-        "it holds (ncmeasure.store.summaries.store_revision).",
+        doc="One more with every transaction that adds measurements or stores the changes "
+        "of store refresh, counted as it commits (the row is locked until then): a reader "
+        "that saw one revision sees a change as soon as any later add commits, whatever "
+        "measurement ids it holds (ncmeasure.store.summaries.store_revision).",
     ),
 )

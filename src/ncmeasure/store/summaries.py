@@ -240,7 +240,7 @@ def search_text(serial: str, machine_type: str, site: str | None) -> str:
 def _search(db: Connection, text: str) -> ColumnElement[bool]:
     """The machine's serial, type or site contains ``text`` in any case."""
     wanted = text.casefold()
-    if SEARCH_APART in wanted:  # no field holds it: no match across two fields either
+    if SEARCH_APART in wanted or "\x00" in wanted:  # no field holds them (no text can)
         return false()
     column = t.machine_summaries.c.search_text
     position = func.instr if db.dialect.name == "sqlite" else func.strpos

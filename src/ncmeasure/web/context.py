@@ -3,12 +3,13 @@
 The store's engine lives as long as the application (opened on startup,
 disposed on shutdown). Checks and plots are derived from the store's content
 and cost tens of milliseconds each; they are cached under the store's
-*version* (the highest measurement and machine ids: every change adds a
-measurement, and nothing is deleted), so a measurement added by ``ncmeasure store
-add`` elsewhere shows on the next request. Reading it costs two index look-ups, not
-a count of the measurements. What depends on one stored measurement alone (the
-friction figures of its axes) is kept across versions
-(:meth:`Context.of_measurement`): a stored measurement never changes.
+*version* (the store's revision, counted by every adding transaction as it
+commits, and the highest machine id), so a measurement added by ``ncmeasure store
+add`` elsewhere shows on the next request, whatever order two adds commit in.
+Reading it costs two index look-ups, not a count of the measurements. What
+depends on one stored measurement alone (the friction figures of its axes) is
+kept across versions (:meth:`Context.of_measurement`): a stored measurement never
+changes.
 """
 
 from __future__ import annotations
