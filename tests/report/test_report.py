@@ -43,7 +43,7 @@ from ncmeasure.report import (
     plot_travel,
     write_report,
 )
-from ncmeasure.report.curves import linear_curve
+from ncmeasure.report.curves import linear_curve, linear_spans
 from ncmeasure.report.words import CAUSE_TITLES, format_mm, format_number, format_with_error
 from tests.browser import pixels_like, screenshot
 from tests.report.example import (
@@ -569,6 +569,27 @@ def test_fit_lines_follow_the_points(example: Example) -> None:
                 line = linear_curve(found.fit, velocity, sign, fast, offset)
                 medians = np.array([p.median for p in fast])
                 assert np.max(np.abs(line - medians)) < 0.05
+
+
+def test_a_fit_line_spans_its_speeds_and_is_extrapolated_down_to_the_slowest(
+    example: Example,
+) -> None:
+    """Both back-ends draw a fit over these speeds: its own span from the slowest drawn
+    on, and, lighter, from the slowest up to where it was fitted."""
+    fit = next(
+        d.fit
+        for position in example.results.axes["X"].positions
+        for d in position.directions.values()
+        if d is not None and d.fit is not None
+    )
+    low, high = fit.velocity_range_mm_min
+    inside, below = linear_spans(fit, low / 10, 40)
+    assert (inside[0], inside[-1], inside.size) == pytest.approx((low, high, 40))
+    assert below is not None
+    assert (below[0], below[-1], below.size) == pytest.approx((low / 10, low, 20))
+    inside, below = linear_spans(fit, low * 2, 40)  # fitted below the figure's start
+    assert inside[0] == pytest.approx(low * 2) and inside[-1] == pytest.approx(high)
+    assert below is None
 
 
 def test_numbers_for_technicians() -> None:

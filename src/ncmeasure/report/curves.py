@@ -33,6 +33,7 @@ from ncmeasure.formats.results import (
 __all__ = [
     "drawn_model",
     "linear_curve",
+    "linear_spans",
     "offset_is_significant",
     "speed_range",
     "speed_text",
@@ -173,6 +174,20 @@ def speed_range(result: AxisResult) -> tuple[float, float]:
         if p.velocity_mm_min != 0
     ]
     return (min(speeds), max(speeds)) if speeds else (10.0, 10000.0)
+
+
+def linear_spans(
+    fit: LinearFit, slowest: float, count: int
+) -> tuple[FloatArray, FloatArray | None]:
+    """The speeds to draw a linear fit at, on a velocity figure that starts at ``slowest``:
+    ``count`` over the speeds it was fitted to (from ``slowest`` on), and ``count // 2``
+    from ``slowest`` up to them where it was fitted above the slowest speed (extrapolated:
+    drawn lighter), else None."""
+    low, high = fit.velocity_range_mm_min
+    low = max(low, slowest)
+    inside = np.geomspace(low, max(high, low), count)
+    below = np.geomspace(slowest, low, count // 2) if low > slowest * 1.01 else None
+    return inside, below
 
 
 def speed_text(value: float, sign: float) -> str:

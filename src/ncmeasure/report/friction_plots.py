@@ -24,6 +24,7 @@ from ncmeasure.report.colours import INK, PALETTE
 from ncmeasure.report.curves import (
     drawn_model,
     linear_curve,
+    linear_spans,
     offset_is_significant,
     speed_range,
     speed_text,
@@ -151,9 +152,7 @@ def _draw_direction(
         )
     fit = direction.fit
     if fit is not None:
-        low, high = fit.velocity_range_mm_min
-        low, high = max(low, slowest), max(high, low)
-        inside = np.geomspace(low, high, 80)
+        inside, below = linear_spans(fit, slowest, 80)
         ax.plot(
             inside,
             linear_curve(fit, sign * inside, sign, points, offset),
@@ -162,8 +161,7 @@ def _draw_direction(
             linewidth=1.3,
             zorder=2.5,
         )
-        if low > slowest * 1.01:  # extrapolated below the fitted speeds: lighter
-            below = np.geomspace(slowest, low, 40)
+        if below is not None:  # extrapolated below the fitted speeds: lighter
             ax.plot(
                 below,
                 linear_curve(fit, sign * below, sign, points, offset),

@@ -33,6 +33,7 @@ from ncmeasure.report.colours import INK, PALETTE
 from ncmeasure.report.curves import (
     drawn_model,
     linear_curve,
+    linear_spans,
     offset_is_significant,
     speed_range,
     speed_text,
@@ -102,9 +103,7 @@ def _direction_marks(
             stribeck = True
     fit = direction.fit
     if fit is not None:
-        low, high = fit.velocity_range_mm_min
-        low, high = max(low, slowest), max(high, max(low, slowest))
-        inside = np.geomspace(low, high, 40)
+        inside, below = linear_spans(fit, slowest, 40)
         out.append(
             polyline(
                 panel,
@@ -113,8 +112,7 @@ def _direction_marks(
                 f'stroke="{colour}" stroke-width="1.3" stroke-dasharray="{_DASHED}"',
             )
         )
-        if low > slowest * 1.01:  # extrapolated below the fitted speeds: lighter
-            below = np.geomspace(slowest, low, 20)
+        if below is not None:  # extrapolated below the fitted speeds: lighter
             out.append(
                 polyline(
                     panel,
