@@ -16,6 +16,8 @@ M-103     one measurement of axis X only; its site is   X ok, no Y
 from __future__ import annotations
 
 import queue
+import subprocess
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -35,6 +37,18 @@ WAIT_S = 30.0
 VELOCITIES = geometric_velocities(10.0, 15000.0, 8)
 SCRIPT_SITE = "<script>alert('site')</script> Hall 3"
 TOKEN = "test-token-0123456789-abcdefghij"
+
+
+def matplotlib_loaded_by(script: str) -> list[str]:
+    """The matplotlib modules a fresh interpreter has imported after running ``script``
+    (which must succeed): the dashboard's figures are drawn without it."""
+    done = subprocess.run(
+        [sys.executable, "-c", script + "\nimport sys\n"
+         "print(*sorted(m for m in sys.modules if m.split('.')[0] == 'matplotlib'))\n"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    return done.stdout.split()
 
 
 def analysed(directory: Path, y_coulomb: float | tuple[float, ...] | None, seed: int) -> Results:
