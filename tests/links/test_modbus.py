@@ -9,6 +9,7 @@ source's state quantised by the register map.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import socket
 import struct
@@ -357,14 +358,22 @@ class TimeSource:
         return AxisState(position_mm=10.0 * time_s, velocity_mm_min=600.0, current_a=1.0)
 
 
-def test_in_lockstep_a_row_is_the_server_state_at_its_time_stamp() -> None:
+@contextlib.contextmanager
+def time_stamped_link(poll_hz: float) -> Iterator[tuple[ModbusLink, SimulatedClock]]:
+    """A link to axis X in lockstep with a server whose position says its time
+    (:class:`TimeSource`), and their clock."""
     clock = SimulatedClock()
     with running_server({"X": 1}, source=TimeSource(), clock=clock) as handle:
         link = ModbusLink.from_tables(
-            {"port": handle.port, "register_map": "generic", "poll_hz": 50},
+            {"port": handle.port, "register_map": "generic", "poll_hz": poll_hz},
             [(axis("X"), {"unit_id": 1})],
         )
         link.use_clock(clock)
+        yield link, clock
+
+
+def test_in_lockstep_a_row_is_the_server_state_at_its_time_stamp() -> None:
+    with time_stamped_link(50) as (link, clock):
         assert link.describe()["clock"] == "simulated"
         with link:
             rows = read_rows(link, 400)
@@ -380,24 +389,17 @@ def test_in_lockstep_the_polling_runs_at_most_max_ahead_of_the_reader() -> None:
     """What the reader has not taken when it stops is simulated time gone: a series that
     ends a run at its end must find the clock where the run ended, not far past the next
     start, however long the reader was busy."""
-    clock = SimulatedClock()
-    with running_server({"X": 1}, source=TimeSource(), clock=clock) as handle:
-        link = ModbusLink.from_tables(
-            {"port": handle.port, "register_map": "generic", "poll_hz": 100},
-            [(axis("X"), {"unit_id": 1})],
-        )
-        link.use_clock(clock)
-        with link:
-            taken = read_rows(link, 10)[-1][0]  # the last row the reader took
-            # the reader busy: the polling fills what it may hold, then waits (bounded)
-            deadline = time.monotonic() + 60.0
-            ahead = -1.0
-            while time.monotonic() < deadline:
-                time.sleep(0.5)
-                if link.now_s() == ahead:
-                    break  # it stopped
-                ahead = link.now_s()
-            assert link.now_s() == ahead, "the polling never stopped for the reader"
+    with time_stamped_link(100) as (link, _), link:
+        taken = read_rows(link, 10)[-1][0]  # the last row the reader took
+        # the reader busy: the polling fills what it may hold, then waits (bounded)
+        deadline = time.monotonic() + 60.0
+        ahead = -1.0
+        while time.monotonic() < deadline:
+            time.sleep(0.5)
+            if link.now_s() == ahead:
+                break  # it stopped
+            ahead = link.now_s()
+        assert link.now_s() == ahead, "the polling never stopped for the reader"
     # the rows it holds span MAX_AHEAD_S (a cycle more at most: the one being polled)
     assert ModbusLink.MAX_AHEAD_S - 0.02 <= ahead - taken <= ModbusLink.MAX_AHEAD_S + 0.02
 
