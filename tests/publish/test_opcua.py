@@ -25,6 +25,7 @@ from ncmeasure.publish.opcua import NAMESPACE, OpcUaSettings, engineering_units,
 from ncmeasure.store import MeasurementInfo, open_store
 from tests.publish.broker import free_port
 from tests.publish.certificates import self_signed_rsa
+from tests.publish.conftest import SERVICE_FACTOR
 from tests.publish.opcua_client import subscribe_changes
 
 WAIT_S = 60.0
@@ -110,9 +111,10 @@ def test_the_client_reads_the_store_and_sees_a_change(
             ).read_value()
             assert spread_units.UnitId == 20529  # P1, percent
             change = await (await axis.get_child(f"{ns}:CoulombChange")).read_value()
-            assert change == pytest.approx(-25.0, abs=0.5)
+            assert change == pytest.approx(-24.0, abs=0.5)
             health = await axis.get_child(f"{ns}:DeviceHealth")
-            assert await health.read_value() in (1, 4)  # FAILURE or MAINTENANCE_REQUIRED
+            # −24 %: a warning; X's fault is its unchanged fingerprint, so no FAILURE
+            assert await health.read_value() == 4  # MAINTENANCE_REQUIRED
             health_type = await health.read_data_type()
             di = await client.get_namespace_index("http://opcfoundation.org/UA/DI/")
             assert health_type == ua.NodeId(6244, di)
@@ -133,14 +135,14 @@ def test_the_client_reads_the_store_and_sees_a_change(
 
             await asyncio.to_thread(add)
             newer = await asyncio.wait_for(changes.get(), WAIT_S)
-            assert newer == pytest.approx(latest.coulomb / 0.75 * 0.5, rel=0.02)
+            assert newer == pytest.approx(latest.coulomb / SERVICE_FACTOR * 0.5, rel=0.02)
             await subscription.delete()
 
     asyncio.run(scenario())
 
 
 def test_the_limits_judge_status_and_health(store_with_machine: str, tmp_path: Path) -> None:
-    """--warning/--critical as for store report: −25 % beyond a 20 % critical limit."""
+    """--warning/--critical as for store report: −24 % beyond a 20 % critical limit."""
     running = start(store_with_machine, tmp_path, Limits(warning_percent=10, critical_percent=20))
     server = next(running)
 

@@ -33,6 +33,7 @@ from ncmeasure.publish.opcua import NAMESPACE, PASSWORD_ENV, TrustList, load_tru
 from ncmeasure.store import open_store
 from tests.publish.broker import free_port
 from tests.publish.certificates import rsa_certificate
+from tests.publish.conftest import SERVICE_FACTOR
 from tests.publish.opcua_client import subscribe_changes
 
 WAIT_S = 60.0
@@ -170,7 +171,7 @@ def test_the_command_serves_the_store_and_notifies_a_change(
     assert first == pytest.approx(latest.coulomb)
     with open_store(store_with_machine) as store:
         assert changed == pytest.approx(store.trend("M17", "X")[-1].coulomb)
-    assert changed == pytest.approx(latest.coulomb / 0.75 * 0.5, rel=0.02)
+    assert changed == pytest.approx(latest.coulomb / SERVICE_FACTOR * 0.5, rel=0.02)
     assert code == 0, err
     assert out == "stopped\n" and "Traceback" not in err
 

@@ -1,8 +1,10 @@
-"""The raw-data figure read chunk by chunk: the same stretch, a bounded overview."""
+"""The raw-data figure: read chunk by chunk (the same stretch, a bounded overview), as SVG."""
 
 from __future__ import annotations
 
 import dataclasses
+import re
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +14,7 @@ import ncmeasure.report.traces as traces_module
 from ncmeasure.analysis.analyze import analyze
 from ncmeasure.recording import RecordingHead
 from ncmeasure.report import write_report
-from ncmeasure.report.raw_plots import OVERVIEW_BINS, RawTrace, plot_trace, raw_trace
+from ncmeasure.report.raw_svg import OVERVIEW_BINS, WINDOW_FILL, RawTrace, raw_trace, trace_svg
 from ncmeasure.report.traces import RawTraces, read_raw_traces
 from ncmeasure.sim.synthetic import SyntheticAxis, geometric_velocities, synthetic_recording
 
@@ -49,7 +51,7 @@ def test_traces_read_chunk_by_chunk_show_what_the_whole_recording_shows(
         velocity = recording.column(f"{axis}_velocity_mm_min")[inside]
         assert chunked.overview_velocity.max() == velocity.max()
         assert chunked.overview_velocity.min() == velocity.min()
-        plot_trace(chunked)
+        ET.fromstring(trace_svg(chunked))  # it draws
 
 
 def test_a_missing_channel_is_said(tmp_path: Path) -> None:
@@ -66,8 +68,8 @@ def test_the_report_of_a_recording_read_chunk_by_chunk(tmp_path: Path) -> None:
     results = analyze(head, schedule=schedule, window_times=windows)
     page = write_report(results, tmp_path / "r.html", recording=head, windows=windows)
     text = page.read_text()
-    assert (tmp_path / "r_plots" / "01_X_raw.png").is_file()
-    assert (tmp_path / "r_plots" / "02_Z_raw.png").is_file()
+    assert (tmp_path / "r_plots" / "01_X_raw.svg").is_file()
+    assert (tmp_path / "r_plots" / "02_Z_raw.svg").is_file()
     assert "found again" not in text and "not given" not in text
     unshaded = write_report(results, tmp_path / "u.html", recording=head).read_text()
     assert unshaded.count("the analysis&#39; windows were not given") == 2
@@ -118,8 +120,67 @@ def test_a_report_with_gathered_traces_reads_no_rows_and_draws_the_same(
     monkeypatch.setattr(traces_module, "iter_chunks", unread)
     given = write_report(results, tmp_path / "given.html", recording=head, windows=windows,
                          traces=gathered.found)  # fmt: skip
-    for name in ("01_X_raw.png", "02_Z_raw.png"):
+    for name in ("01_X_raw.svg", "02_Z_raw.svg"):
         assert (tmp_path / "given_plots" / name).read_bytes() == (
             tmp_path / "read_plots" / name
         ).read_bytes()
     assert given.read_text().replace("given_plots", "read_plots") == read.read_text()
+
+
+SVG = "{http://www.w3.org/2000/svg}"
+
+
+def _polyline_y(line: ET.Element) -> list[float]:
+    return [float(point.split(",")[1]) for point in (line.get("points") or "").split()]
+
+
+def test_the_figure_shades_the_windows_and_keeps_every_peak(tmp_path: Path) -> None:
+    recording, schedule = synthetic_recording(tmp_path / "rec", AXES[:1])
+    windows: dict[str, list[tuple[float, float]]] = {}
+    analyze(recording, schedule=schedule, window_times=windows)
+    trace = raw_trace(recording, "X", windows["X"], stretch_s=20.0)
+    text = trace_svg(trace)
+    svg = ET.fromstring(text)
+    assert ' id="' not in text
+    shades = [p for p in svg.iter(f"{SVG}path") if p.get("fill") == WINDOW_FILL]
+    assert len(shades) == 3  # the overview, the current, the velocity
+    overview_bands = len(re.findall("z", shades[0].get("d", "")))
+    assert overview_bands == sum(
+        1 for a, b in trace.windows if b >= trace.span[0] and a <= trace.span[1]
+    )
+    stretch_bands = len(re.findall("z", shades[1].get("d", "")))
+    start, end = trace.stretch
+    assert stretch_bands == sum(1 for a, b in trace.windows if b >= start and a <= end)
+    assert 0 < stretch_bands < overview_bands
+    # the stretch's lines: at most two points a bin, and the highest and lowest sample
+    # of the stretch where they are (its panel's y scale puts the range within 6 % pads)
+    lines = svg.findall(f"{SVG}polyline")
+    current = next(line for line in lines if line.get("stroke") == "#1f5fa8")
+    ys = _polyline_y(current)
+    assert len(ys) <= 2 * 1000
+    low, high = min(ys), max(ys)
+    panel_h = 150.0
+    assert (low - 152.0) == pytest.approx(panel_h * 0.06 / 1.12, abs=0.15)
+    assert (152.0 + panel_h - high) == pytest.approx(panel_h * 0.06 / 1.12, abs=0.15)
+    texts = "".join(svg.itertext())
+    assert "Axis X: raw data" in texts and f"stretch {start:.1f} – {end:.1f} s" in texts
+    for entry in ("motor current", "commanded velocity", "actual velocity", "windows used"):
+        assert entry in texts
+    box = svg.find(f"{SVG}rect[@fill='none']")
+    assert box is not None and float(box.get("width", "0")) > 0
+
+
+def test_a_figure_without_samples_or_a_command_says_so(tmp_path: Path) -> None:
+    recording, _ = synthetic_recording(tmp_path / "rec", AXES[:1])
+    trace = raw_trace(recording, "X")
+    bare = dataclasses.replace(trace, command=None)
+    texts = "".join(ET.fromstring(trace_svg(bare)).itertext())
+    assert "commanded velocity" not in texts and "actual velocity" in texts
+    empty = dataclasses.replace(trace, rows=0)
+    assert "the recording holds no samples" in trace_svg(empty)
+    gappy = dataclasses.replace(
+        trace, current=np.where(np.arange(len(trace.current)) % 500 == 7, np.nan, trace.current)
+    )
+    svg = ET.fromstring(trace_svg(gappy))
+    current = [line for line in svg.findall(f"{SVG}polyline") if line.get("stroke") == "#1f5fa8"]
+    assert len(current) > 1  # a gap where a sample is missing, not a line through it

@@ -1,4 +1,4 @@
-"""An axis' friction figures on the dashboard, written as SVG without matplotlib."""
+"""An axis' friction figures, the dashboard's and the report's: SVG without matplotlib."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 from ncmeasure.formats.results import AxisResult, DirectionResult, Point
 from ncmeasure.report.bearings import bearing_layout
 from ncmeasure.report.colours import PALETTE
-from ncmeasure.web.friction_svg import curves_svg, travel_svg
+from ncmeasure.report.friction_svg import curves_svg, travel_svg
 from tests.web.conftest import Fleet, matplotlib_loaded_by
 
 SVG = "{http://www.w3.org/2000/svg}"
@@ -132,7 +132,7 @@ def test_drawing_the_friction_figures_imports_no_matplotlib(fleet: Fleet, tmp_pa
     script = (
         "from ncmeasure.formats.results import Results\n"
         "from ncmeasure.report.bearings import bearing_layout\n"
-        "from ncmeasure.web.friction_svg import curves_svg, travel_svg\n"
+        "from ncmeasure.report.friction_svg import curves_svg, travel_svg\n"
         f"axis = Results.model_validate_json(open({str(results)!r}).read()).axes['Y']\n"
         "assert curves_svg('Y', axis).startswith('<svg')\n"
         "assert travel_svg('Y', axis, bearing_layout('Y', None, axis)).startswith('<svg')\n"

@@ -5,13 +5,13 @@
     from ncmeasure.report import write_report
     write_report(results, "report.html", recording=recording, windows=windows)
 
-writes ``report.html`` (plots embedded, inline CSS, no scripts or external
-resources; prints on A4) and the same plots as PNGs in ``report_plots/``.
+writes ``report.html`` (plots embedded as SVG, inline CSS, no scripts or external
+resources; prints on A4) and the same plots as SVG files in ``report_plots/``.
 For a recording read chunk by chunk, :class:`RawTraces` gathers the raw-data
 figures' data while the analysis reads it (``analyze(..., on_windows=
 traces.watch)``, then ``write_report(..., traces=traces.found)``), instead of
-the report reading it again. The ``plot_*`` functions return matplotlib
-figures on their own Agg canvas, for use elsewhere; :func:`save_png` writes one.
+the report reading it again. The ``*_svg`` functions return a figure as SVG text,
+for use elsewhere (no matplotlib is imported for them).
 """
 
 from __future__ import annotations
@@ -23,9 +23,9 @@ from ncmeasure.lazy import lazy_names
 if TYPE_CHECKING:
     from ncmeasure.report.bearings import BearingLayout, bearing_layout
     from ncmeasure.report.colours import PALETTE
-    from ncmeasure.report.friction_plots import plot_stribeck, plot_travel
-    from ncmeasure.report.plots import figure_png, plot_comparison, save_png
-    from ncmeasure.report.raw_plots import plot_raw_data
+    from ncmeasure.report.comparison_figure import comparison_svg
+    from ncmeasure.report.friction_svg import curves_svg, travel_svg
+    from ncmeasure.report.raw_svg import raw_data_svg
     from ncmeasure.report.traces import RawTraces
     from ncmeasure.report.windows import find_window_times, window_times
     from ncmeasure.report.write import ReportProgress, write_report
@@ -33,13 +33,11 @@ if TYPE_CHECKING:
 _LAZY = {
     "BearingLayout": "ncmeasure.report.bearings",
     "bearing_layout": "ncmeasure.report.bearings",
-    "plot_stribeck": "ncmeasure.report.friction_plots",
-    "plot_travel": "ncmeasure.report.friction_plots",
+    "curves_svg": "ncmeasure.report.friction_svg",
+    "travel_svg": "ncmeasure.report.friction_svg",
     "PALETTE": "ncmeasure.report.colours",
-    "figure_png": "ncmeasure.report.plots",
-    "plot_comparison": "ncmeasure.report.plots",
-    "save_png": "ncmeasure.report.plots",
-    "plot_raw_data": "ncmeasure.report.raw_plots",
+    "comparison_svg": "ncmeasure.report.comparison_figure",
+    "raw_data_svg": "ncmeasure.report.raw_svg",
     "RawTraces": "ncmeasure.report.traces",
     "find_window_times": "ncmeasure.report.windows",
     "window_times": "ncmeasure.report.windows",
@@ -47,7 +45,7 @@ _LAZY = {
     "write_report": "ncmeasure.report.write",
 }
 """The public names and their modules, imported on first use: a command that formats
-a number with :mod:`ncmeasure.report.words` imports no matplotlib."""
+a number with :mod:`ncmeasure.report.words` imports none of the report's figures."""
 
 
 __getattr__ = lazy_names(__name__, _LAZY, globals())
@@ -59,13 +57,11 @@ __all__ = [
     "RawTraces",
     "ReportProgress",
     "bearing_layout",
-    "figure_png",
+    "comparison_svg",
+    "curves_svg",
     "find_window_times",
-    "plot_comparison",
-    "plot_raw_data",
-    "plot_stribeck",
-    "plot_travel",
-    "save_png",
+    "raw_data_svg",
+    "travel_svg",
     "window_times",
     "write_report",
 ]

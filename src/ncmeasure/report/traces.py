@@ -1,10 +1,10 @@
 """The raw-data figures' data, bounded whatever the recording's length.
 
-For every axis, the :class:`~ncmeasure.report.raw_plots.RawTrace` that
-:func:`~ncmeasure.report.raw_plots.raw_trace` gives for a recording in memory,
+For every axis, the :class:`~ncmeasure.report.raw_svg.RawTrace` that
+:func:`~ncmeasure.report.raw_svg.raw_trace` gives for a recording in memory,
 from the rows chunk by chunk, keeping only what the figure shows: an
 overview of the velocity over the axis' measurement (the lowest and highest
-reading of each of :data:`~ncmeasure.report.raw_plots.OVERVIEW_BINS` equal
+reading of each of :data:`~ncmeasure.report.raw_svg.OVERVIEW_BINS` equal
 stretches of time, peaks kept) and the samples of the detailed stretch
 (about ``stretch_s`` seconds).
 
@@ -31,7 +31,7 @@ from ncmeasure.analysis.windows.streaming import Task, run_tasks
 from ncmeasure.analysis.windows.watch import AxisWindows, NamedChunk, Watch
 from ncmeasure.errors import RecordingError
 from ncmeasure.recording import Recording, RecordingHead, iter_chunks
-from ncmeasure.report.raw_plots import OVERVIEW_BINS, RawTrace, _stretch
+from ncmeasure.report.raw_svg import OVERVIEW_BINS, RawTrace, _stretch
 
 __all__ = ["RawTraces", "read_raw_traces"]
 

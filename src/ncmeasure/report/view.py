@@ -8,10 +8,11 @@ lays them out. Here also the words and the small cell builders the three share.
 
 from __future__ import annotations
 
-import base64
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
+
+from markupsafe import Markup, escape
 
 from ncmeasure.analysis.judgement.summary import Headline
 from ncmeasure.formats.results import AxisResult, ModelName, PositionResult
@@ -39,9 +40,9 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Figure:
-    """A plot for the page: PNG bytes, the file name beside the report, a caption."""
+    """A plot for the page: its SVG, the file name beside the report, a caption."""
 
-    png: bytes
+    svg: str
     filename: str
     alt: str
     caption: str
@@ -125,9 +126,9 @@ class Folded:
 
 @dataclass(frozen=True)
 class Image:
-    """An embedded plot."""
+    """An embedded plot: its SVG markup, ready for the page."""
 
-    src: str
+    svg: Markup
     alt: str
     caption: str
     filename: str
@@ -264,11 +265,20 @@ def numbered_position(index: int, position_mm: float) -> str:
     return f"{index + 1}:\u00a0{format_mm(position_mm)}\u00a0mm"
 
 
+_NAMESPACE: Final = ' xmlns="http://www.w3.org/2000/svg"'
+
+
 def embed_image(figure: Figure) -> Image:
-    """A figure embedded as a data URI."""
-    data = base64.b64encode(figure.png).decode("ascii")
+    """A figure to embed in the page: its SVG inline (the page names no address, not even
+    SVG's namespace, which HTML implies), named for screen readers by ``alt``.
+
+    The SVG is written by ncmeasure's own figures, every text in it escaped there; it
+    is the one piece of markup the page takes as it is.
+    """
+    svg = figure.svg.replace(_NAMESPACE, "", 1)  # HTML puts an <svg> in SVG's namespace
+    svg = svg.replace('role="img"', f'role="img" aria-label="{escape(figure.alt)}"', 1)
     return Image(
-        src=f"data:image/png;base64,{data}",
+        svg=Markup(svg),  # written by report.*_svg, every text escaped there
         alt=figure.alt,
         caption=figure.caption,
         filename=figure.filename,

@@ -1,8 +1,10 @@
 """write_report: results (+ recording, windows, comparison) -> one self-contained HTML file.
 
-The HTML file embeds every plot as a base64 PNG and its CSS inline, so it can be
-mailed, archived and printed on its own. The same PNGs are also written
-beside it, in ``<stem>_plots/``, for use in other documents.
+The HTML file holds every plot as SVG and its CSS inline, so it can be mailed,
+archived and printed on its own. The same figures are also written beside it, as SVG
+files in ``<stem>_plots/``, for use in other documents. The figures are written
+directly (:mod:`ncmeasure.report.friction_svg`, :mod:`ncmeasure.report.raw_svg`,
+:mod:`ncmeasure.report.comparison_figure`): no matplotlib.
 """
 
 from __future__ import annotations
@@ -16,7 +18,6 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from matplotlib.figure import Figure as MplFigure
 from pydantic import BaseModel
 
 from ncmeasure.errors import NcMeasureError, OutputError, RecordingError
@@ -25,10 +26,10 @@ from ncmeasure.formats.comparison import Comparison
 from ncmeasure.formats.results import Results
 from ncmeasure.recording import Recording, RecordingHead
 from ncmeasure.report.bearings import bearing_layout
-from ncmeasure.report.friction_plots import plot_stribeck, plot_travel
+from ncmeasure.report.comparison_figure import comparison_svg
+from ncmeasure.report.friction_svg import curves_svg, travel_svg
 from ncmeasure.report.page import render_page
-from ncmeasure.report.plots import plot_comparison, save_png, shared_renderers
-from ncmeasure.report.raw_plots import RawTrace, plot_trace, raw_trace
+from ncmeasure.report.raw_svg import RawTrace, raw_trace, trace_svg
 from ncmeasure.report.view import AxisSection, Figure
 from ncmeasure.report.windows import find_window_times
 
@@ -78,7 +79,7 @@ def write_report(
     on_progress: Callable[[ReportProgress], None] | None = None,
     traces: Mapping[str, RawTrace] | None = None,
 ) -> Path:
-    """Write the friction report as one self-contained HTML file, PNGs beside it.
+    """Write the friction report as one self-contained HTML file, its figures beside it.
 
     At the top the verdict per axis (ok / check / fault, why and what to do;
     with a comparison, combined with the axis' change against the reference)
@@ -115,9 +116,9 @@ def write_report(
         The path of the HTML file.
 
     Raises:
-        OutputError: The HTML file or a PNG cannot be written.
+        OutputError: The HTML file or a figure's file cannot be written.
     """
-    with _heap_frozen(), shared_renderers():
+    with _heap_frozen():
         return _write_report(
             results, Path(path), recording, windows, comparison, title, on_progress, traces
         )
@@ -127,7 +128,7 @@ def write_report(
 def _heap_frozen() -> Iterator[None]:
     """Keep the objects alive before the report out of the garbage collector's full passes.
 
-    Drawing makes hundreds of thousands of short-lived objects, and every so
+    Drawing makes many short-lived objects, and every so
     often the collector walks every object of the program: after an analysis,
     0.1 s and more each time, one to three times a report. Frozen
     (:func:`gc.freeze`), the objects that were there before are not walked;
@@ -169,9 +170,9 @@ def _write_report(
         if on_progress is not None:
             on_progress(ReportProgress(done, total, step))
 
-    def keep(figure: MplFigure, filename: str, alt: str, caption: str) -> Figure:
-        png = save_png(figure, plots_dir / filename)
-        return Figure(png=png, filename=f"{plots_dir.name}/{filename}", alt=alt, caption=caption)
+    def keep(svg: str, filename: str, alt: str, caption: str) -> Figure:
+        write_whole(plots_dir / filename, svg)
+        return Figure(svg=svg, filename=f"{plots_dir.name}/{filename}", alt=alt, caption=caption)
 
     raw: dict[str, RawTrace | RecordingError] = dict(traces or {})
     missing = [name for name in results.axes if name not in raw]
@@ -189,8 +190,8 @@ def _write_report(
             bearings=bearing_layout(name, recording, result),
         )
         section.stribeck = keep(
-            plot_stribeck(name, result),
-            f"{stem}_stribeck.png",
+            curves_svg(name, result),
+            f"{stem}_stribeck.svg",
             f"Friction over velocity of axis {name}",
             "Median friction per velocity step with ± one standard deviation, one colour "
             "per position; negative velocities on the left. Dashed: Coulomb + viscous fit "
@@ -200,10 +201,11 @@ def _write_report(
             "(Stribeck effect), are as visible as the fast ones.",
         )
         advance(f"axis {name}: Stribeck curves")
-        if result.position_dependency is not None and result.position_dependency.identifiable:
+        travel = travel_svg(name, result, section.bearings)
+        if travel is not None:
             section.travel = keep(
-                plot_travel(name, result, section.bearings),
-                f"{stem}_travel.png",
+                travel,
+                f"{stem}_travel.svg",
                 f"Friction along the travel of axis {name}",
                 "Friction magnitude at each measuring position: thin lines per velocity "
                 "(darker is faster), the bold line the average over all velocities. "
@@ -218,8 +220,8 @@ def _write_report(
     comparison_figure: Figure | None = None
     if isinstance(comparison, Comparison) and comparison.groups:
         comparison_figure = keep(
-            plot_comparison(comparison),
-            "comparison.png",
+            comparison_svg(comparison),
+            "comparison.svg",
             "Change of friction against the base run",
             "Median change of friction over the velocities, per axis, position and direction; "
             "one colour per compared run. Green band: within the warning limit; orange: "
@@ -247,7 +249,7 @@ def _raw_section(
     windows: Windows | None,
     traces: Mapping[str, RawTrace | RecordingError],
     settings: Mapping[str, object],
-    keep: Callable[[MplFigure, str, str, str], Figure],
+    keep: Callable[[str, str, str, str], Figure],
     stem: str,
 ) -> None:
     """Plot the raw data of an axis into its section, or say why there is none."""
@@ -264,7 +266,7 @@ def _raw_section(
         if isinstance(trace, RecordingError):
             section.raw_note = f"The recording has no raw data of this axis ({trace.message})."
             return
-        figure = plot_trace(trace)
+        figure = trace_svg(trace)
     else:
         if windows is not None and name in windows:
             cuts = [(float(a), float(b)) for a, b in windows[name]]
@@ -279,13 +281,13 @@ def _raw_section(
                 cuts = []
                 section.raw_note = f"No windows are shaded: {exc.message}"
         try:
-            figure = plot_trace(raw_trace(recording, name, cuts))
+            figure = trace_svg(raw_trace(recording, name, cuts))
         except RecordingError as exc:
             section.raw_note = f"The recording has no raw data of this axis ({exc.message})."
             return
     section.raw = keep(
         figure,
-        f"{stem}_raw.png",
+        f"{stem}_raw.svg",
         f"Raw motor current and velocity of axis {name}",
         "Top: the axis' whole measurement (velocity); the box marks the stretch shown "
         "below. Middle: motor current; bottom: velocity. Only the shaded windows, where "

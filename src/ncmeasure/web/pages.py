@@ -34,6 +34,7 @@ from markupsafe import Markup
 from ncmeasure._version import __version__
 from ncmeasure.analysis.judgement.summary import axis_comparison, axis_headline
 from ncmeasure.report.bearings import bearing_layout
+from ncmeasure.report.friction_svg import curves_svg, travel_svg
 from ncmeasure.report.words import format_date, format_number
 from ncmeasure.store import MeasurementSummary, TrendPoint
 from ncmeasure.store.check import StoreCheck
@@ -42,7 +43,6 @@ from ncmeasure.store.rows import CHARACTERISTICS
 from ncmeasure.store.statuses import judged_page
 from ncmeasure.store.summaries import DEFAULT_PAGE, MAX_PAGE
 from ncmeasure.web.context import Context, Version, context
-from ncmeasure.web.friction_svg import curves_svg, travel_svg
 
 __all__ = ["html_page", "router"]
 

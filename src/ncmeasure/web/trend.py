@@ -20,9 +20,9 @@ from collections.abc import Sequence
 from html import escape
 
 from ncmeasure.report.colours import VERDICT_COLOURS
+from ncmeasure.report.svg import Panel, frame, polyline, y_grid
 from ncmeasure.report.trend_svg import date_label, date_ticks, time_span
 from ncmeasure.store.records import TrendPoint
-from ncmeasure.web.svg import Panel, frame, polyline, y_grid
 
 __all__ = ["trend_svg"]
 

@@ -1,7 +1,6 @@
-"""An axis' friction figures on the dashboard, as SVG written directly, without matplotlib.
+"""An axis' friction figures, as SVG written directly, without matplotlib.
 
-The same two figures as the report's (:func:`~ncmeasure.report.plot_stribeck`,
-:func:`~ncmeasure.report.plot_travel`), drawn for a page:
+The report and the dashboard show the same two figures of an axis, from here:
 
 - **friction over velocity**: the negative direction on the left (velocity growing
   to the left), the positive on the right, a logarithmic speed scale, a shared
@@ -15,14 +14,13 @@ The same two figures as the report's (:func:`~ncmeasure.report.plot_stribeck`,
 
 The curves are those of :mod:`ncmeasure.report.curves`. Drawn with matplotlib, an axis'
 page cost 0.25–0.3 s of CPU per measurement, and 0.5 s more for matplotlib's import on
-the first page of a server process. Text is text (the browser's font); no element
-has an id, so any number of figures can share a page.
+the first page of a server process.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from html import escape
 
 import numpy as np
@@ -40,28 +38,17 @@ from ncmeasure.report.curves import (
     stribeck_curve,
     unit_label,
 )
+from ncmeasure.report.svg import TEXT, WIDTH, Panel, frame, legend, polyline, svg_head, y_grid
 from ncmeasure.report.trend_svg import nice_ticks
 from ncmeasure.report.words import format_mm
-from ncmeasure.web.svg import TEXT, Panel, frame, polyline, y_grid
 
 __all__ = ["curves_svg", "travel_svg"]
 
-_WIDTH = 960.0
 _AXIS_GREY = "#888888"
 _DASHED = "4 3"
 _DOTTED = "1 2"
 _SLOW, _FAST = (0xB9, 0xCF, 0xE8), (0x0B, 0x2F, 0x5C)
 """The thin lines' colours at the slowest and the fastest velocity."""
-
-
-def _svg_head(height: float, title: str) -> list[str]:
-    return [
-        f'<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {_WIDTH:g} {height:g}" '
-        f'width="{_WIDTH:g}" height="{height:g}" role="img" font-family="sans-serif" '
-        f'font-size="11" style="max-width:100%;height:auto;background:#fff">',
-        f"<title>{escape(title)}</title>",
-        f'<text x="8" y="20" font-size="14" fill="{INK}">{escape(title)}</text>',
-    ]
 
 
 def _speed_ticks(low: float, high: float) -> tuple[list[float], list[float]]:
@@ -161,7 +148,7 @@ def curves_svg(axis: str, result: AxisResult) -> str:
     legend_rows = math.ceil((len(result.positions) + 4) / 4)
     top, left, gap, plot_h = 58.0, 70.0, 14.0, 290.0
     height = top + plot_h + 42 + 18 * legend_rows + 10
-    width = (_WIDTH - left - 16 - gap) / 2
+    width = (WIDTH - left - 16 - gap) / 2
     panels = {
         side: Panel(
             left + k * (width + gap),
@@ -177,7 +164,7 @@ def curves_svg(axis: str, result: AxisResult) -> str:
         )
         for k, side in enumerate(("negative", "positive"))
     }
-    out = _svg_head(height, f"Axis {axis}: friction over velocity (Stribeck curves)")
+    out = svg_head(height, f"Axis {axis}: friction over velocity (Stribeck curves)")
     labelled, minor = _speed_ticks(slowest / 1.4, fastest * 1.4)
     shown_offset = offset if significant else None
     drawn = {"negative": False, "positive": False}
@@ -240,7 +227,7 @@ def curves_svg(axis: str, result: AxisResult) -> str:
         f'<text transform="translate(16 {top + plot_h / 2:g}) rotate(-90)" '
         f'text-anchor="middle" fill="{TEXT}">{escape(unit_label(result))}</text>'
     )
-    legend = [
+    entries = [
         (
             f'<line x1="0" x2="18" y1="0" y2="0" stroke="{PALETTE[i % len(PALETTE)]}" '
             f'stroke-width="1.9"/><circle cx="9" cy="0" r="3" fill="{PALETTE[i % len(PALETTE)]}"/>',
@@ -248,8 +235,8 @@ def curves_svg(axis: str, result: AxisResult) -> str:
         )
         for i, p in enumerate(result.positions)
     ]
-    legend.append((f'<circle cx="9" cy="0" r="3" fill="{INK}"/>', "median ± std"))
-    legend.append(
+    entries.append((f'<circle cx="9" cy="0" r="3" fill="{INK}"/>', "median ± std"))
+    entries.append(
         (
             f'<line x1="0" x2="18" y1="0" y2="0" stroke="{INK}" stroke-width="1.3" '
             f'stroke-dasharray="{_DASHED}"/>',
@@ -257,36 +244,22 @@ def curves_svg(axis: str, result: AxisResult) -> str:
         )
     )
     if any_stribeck:
-        legend.append(
+        entries.append(
             (
                 f'<line x1="0" x2="18" y1="0" y2="0" stroke="{INK}" stroke-width="1.9"/>',
                 "Stribeck fit",
             )
         )
     if shown_offset is not None:
-        legend.append(
+        entries.append(
             (
                 '<line x1="0" x2="18" y1="0" y2="0" stroke="#666" stroke-dasharray="6 2 1 2"/>',
                 "offset",
             )
         )
-    out += _legend(legend, top + plot_h + 52, left, _WIDTH - left - 16)
+    out += legend(entries, top + plot_h + 52, left, WIDTH - left - 16)
     out.append("</svg>")
     return "\n".join(out)
-
-
-def _legend(entries: Sequence[tuple[str, str]], top: float, left: float, width: float) -> list[str]:
-    """Four entries to a row: a mark and its text."""
-    out: list[str] = []
-    column = width / 4
-    for k, (mark, text) in enumerate(entries):
-        x = left + (k % 4) * column
-        y = top + (k // 4) * 18
-        out.append(
-            f'<g transform="translate({x:.1f} {y:.1f})">{mark}'
-            f'<text x="24" y="4" fill="{INK}">{escape(text)}</text></g>'
-        )
-    return out
 
 
 def _shade(share: float) -> str:
@@ -325,10 +298,8 @@ def travel_svg(axis: str, result: AxisResult, bearings: BearingLayout) -> str | 
     top, left, plot_h = 62.0, 70.0, 250.0
     right = 150.0 if per_velocity else 16.0
     height = top + plot_h + 50
-    panel = Panel(
-        left, top, _WIDTH - left - right, plot_h, low_mm - pad, high_mm + pad, 0.0, y_high
-    )
-    out = _svg_head(height, f"Axis {axis}: friction along the travel")
+    panel = Panel(left, top, WIDTH - left - right, plot_h, low_mm - pad, high_mm + pad, 0.0, y_high)
+    out = svg_head(height, f"Axis {axis}: friction along the travel")
     out.append("<g>")
     out += y_grid(panel)
     out.append(frame(panel))

@@ -1,19 +1,27 @@
-"""What the dashboard's SVG figures share: a panel's scales, its frame and grid, a line.
+"""What the SVG figures share: the head, a panel's scales, its frame and grid, a line, a legend.
 
-:mod:`ncmeasure.web.trend` and :mod:`ncmeasure.web.friction_svg` write their figures
-with these; the ticks and the numbers at them are the report's
-(:mod:`ncmeasure.report.trend_svg`).
+The report's figures (:mod:`ncmeasure.report.friction_svg`,
+:mod:`ncmeasure.report.raw_svg`, :mod:`ncmeasure.report.comparison_figure`) and the
+dashboard's (the same friction figures, :mod:`ncmeasure.web.trend`) are written with
+these; the ticks and the numbers at them are those of :mod:`ncmeasure.report.trend_svg`.
+Text is text (the viewer's sans-serif font); no element has an id, so any number of
+figures can share a page.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from html import escape
 
+from ncmeasure.report.colours import INK
 from ncmeasure.report.trend_svg import nice_ticks, number_text
 
-__all__ = ["TEXT", "Panel", "frame", "polyline", "y_grid"]
+__all__ = ["TEXT", "WIDTH", "Panel", "frame", "legend", "polyline", "svg_head", "y_grid"]
+
+WIDTH = 960.0
+"""The width of a figure in px (it shrinks to the page, keeping its proportions)."""
 
 TEXT = "#444444"
 """Tick labels and axis titles."""
@@ -86,3 +94,30 @@ def frame(panel: Panel) -> str:
         f'<path d="M{panel.left:g} {panel.top:g}V{panel.bottom:g}H{panel.left + panel.width:g}" '
         f'fill="none" stroke="#555"/>'
     )
+
+
+def svg_head(height: float, title: str) -> list[str]:
+    """A figure's opening tag, its title for screen readers and its title at the top left."""
+    return [
+        f'<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {WIDTH:g} {height:g}" '
+        f'width="{WIDTH:g}" height="{height:g}" role="img" font-family="sans-serif" '
+        f'font-size="11" style="max-width:100%;height:auto;background:#fff">',
+        f"<title>{escape(title)}</title>",
+        f'<text x="8" y="20" font-size="14" fill="{INK}">{escape(title)}</text>',
+    ]
+
+
+def legend(
+    entries: Sequence[tuple[str, str]], top: float, left: float, width: float, columns: int = 4
+) -> list[str]:
+    """``columns`` entries to a row: a mark (SVG, 18 px wide, centred on y = 0) and its text."""
+    out: list[str] = []
+    column = width / columns
+    for k, (mark, text) in enumerate(entries):
+        x = left + (k % columns) * column
+        y = top + (k // columns) * 18
+        out.append(
+            f'<g transform="translate({x:.1f} {y:.1f})">{mark}'
+            f'<text x="24" y="4" fill="{INK}">{escape(text)}</text></g>'
+        )
+    return out
