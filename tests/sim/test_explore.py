@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from ncmeasure.cli import app
@@ -73,3 +75,18 @@ def test_simulate_command(tmp_path: Path) -> None:
     assert "Traceback" not in result.stderr
     result = runner.invoke(app, ["simulate", str(machine), "--axis", "Q"])
     assert result.exit_code == 2 and "has axes X, Y, Z" in result.stderr
+
+
+def test_a_plot_without_matplotlib_names_the_extra(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """matplotlib is the extra ``plot``: without it, --plot says so before any work."""
+    machine = tmp_path / "m.toml"
+    machine.write_text(example_machine("linuxcnc"))
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib: ImportError
+    png = tmp_path / "s.png"
+    result = runner.invoke(app, ["simulate", str(machine), "--plot", str(png)])
+    assert result.exit_code != 0
+    assert "pip install 'ncmeasure[plot]'" in result.stderr and "--plot" in result.stderr
+    assert "Traceback" not in result.stderr and not png.exists()
+    assert result.stdout == ""  # no study was printed: the check came first

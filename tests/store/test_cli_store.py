@@ -84,6 +84,18 @@ def test_exit_codes_follow_compare(tmp_path: Path, files: dict[str, Path]) -> No
     assert code == 0 and png.read_bytes().startswith(b"\x89PNG")
 
 
+def test_a_trend_plot_without_matplotlib_names_the_extra(
+    tmp_path: Path, files: dict[str, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    store = f"sqlite:///{tmp_path / 'fleet.db'}"
+    assert run("store", "add", files["delivery"], "--serial", "M17", "--store", store)[0] == 0
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib: ImportError
+    png = tmp_path / "trend.png"
+    code, out, err = run("store", "trend", "M17", "--axis", "X", "--plot", png, "--store", store)
+    assert code != 0 and "pip install 'ncmeasure[plot]'" in err, err
+    assert "Traceback" not in err and not png.exists() and "M17" not in out
+
+
 def test_tables_are_whole_when_the_output_is_not_a_terminal(
     tmp_path: Path, files: dict[str, Path]
 ) -> None:

@@ -165,6 +165,23 @@ MAX_PRINTED_PROBLEMS = 50
 """Problems printed under an error; the rest are counted (the first ones say what is wrong)."""
 
 
+def need_matplotlib(option: str) -> None:
+    """Check, before any work, that the PNG ``option`` asks for can be drawn.
+
+    Raises:
+        DependencyError: matplotlib is missing; the message names the extra.
+    """
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError as exc:
+        from ncmeasure.errors import DependencyError
+
+        raise DependencyError(
+            f"{option} draws a PNG with matplotlib, which is missing "
+            "(pip install 'ncmeasure[plot]')"
+        ) from exc
+
+
 def report_error(error: NcMeasureError) -> None:
     """``error: message`` and one indented line per problem, on stderr (user text verbatim).
 

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from ncmeasure.cli._app import Outcome, app, console, handle_errors, progress_bar
+from ncmeasure.cli._app import Outcome, app, console, handle_errors, need_matplotlib, progress_bar
 from ncmeasure.cli._fleet import measurement_info, mqtt_target, open_store, publish_added
 from ncmeasure.cli._options import (
     CriticalOption,
@@ -354,7 +354,9 @@ def simulate_command(
         ),
     ] = None,
     axis: Annotated[str | None, typer.Option(help="Axis to study (default: the first).")] = None,
-    plot: Annotated[Path | None, typer.Option(help="Write contour plots (PNG).")] = None,
+    plot: Annotated[
+        Path | None, typer.Option(help="Write contour plots (PNG; extra: plot).")
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the study as JSON.")] = False,
 ) -> None:
     """The axis friction model alone: what does each assembly variation do along the travel?
@@ -367,6 +369,8 @@ def simulate_command(
     from ncmeasure.config import load_machine
     from ncmeasure.sim.explore import plot_study, study
 
+    if plot is not None:
+        need_matplotlib("--plot")
     config = load_machine(machine)
     names = [a.name for a in config.axes]
     if axis is not None and axis not in names:

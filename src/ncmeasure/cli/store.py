@@ -7,7 +7,15 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from ncmeasure.cli._app import Outcome, console, handle_errors, progress_bar, store_app, warn
+from ncmeasure.cli._app import (
+    Outcome,
+    console,
+    handle_errors,
+    need_matplotlib,
+    progress_bar,
+    store_app,
+    warn,
+)
 from ncmeasure.cli._fleet import measurement_info, mqtt_target, open_store, publish_added
 from ncmeasure.cli._options import (
     CriticalOption,
@@ -233,7 +241,8 @@ def store_trend_command(
     serial: SerialArgument,
     axis: Annotated[str, typer.Option(help="The axis, e.g. X.")],
     plot: Annotated[
-        Path | None, typer.Option(help="Also draw the trend with its limits as a PNG.")
+        Path | None,
+        typer.Option(help="Also draw the trend with its limits as a PNG (extra: plot)."),
     ] = None,
     warning: WarningOption = None,
     critical: CriticalOption = None,
@@ -249,6 +258,8 @@ def store_trend_command(
     from ncmeasure.analysis.judgement.summary import format_number
 
     chosen = limits(warning, critical)
+    if plot is not None:
+        need_matplotlib("--plot")
     with open_store(store, write=False) as fleet:
         points = fleet.trend(serial, axis)
     unit = points[0].unit
