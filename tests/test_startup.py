@@ -426,9 +426,12 @@ CASES: list[tuple[tuple[str, ...], tuple[int, ...], set[str]]] = [
     # files: numpy and the recording
     (("export", "delivery-run", "-o", "x.csv"), (0,),
      {"scipy", "matplotlib", "jinja2", *STORE, *WEB, *LINKS}),
-    # the analysis: scipy where a fit runs, matplotlib only for a report or a plot
+    # the analysis: scipy where a fit runs, matplotlib only for a PNG plot
     (("analyze", "delivery-run", "-o", "again.json"), (0,),
      {"matplotlib", "jinja2", *STORE, *WEB, *LINKS}),
+    # the report's figures are SVG written directly: no matplotlib
+    (("analyze", "delivery-run", "-o", "reported.json", "--report", "reported.html"), (0,),
+     {"matplotlib", *STORE, *WEB, *LINKS}),
     # quiet: no progress bar, so no rich
     (("analyze", "delivery-run", "-o", "quiet.json", "-q"), (0,),
      {"rich", "matplotlib", "jinja2", *STORE, *WEB, *LINKS}),

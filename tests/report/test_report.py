@@ -333,7 +333,7 @@ def test_escapes_names_from_files(example: Example, tmp_path: Path) -> None:
                 config_hash=None,
                 source="import:csv",
             ),
-            "axes": {"A$1<&>": x.model_copy(update={"position_dependency": dependency})},
+            "axes": {"A$1<&>\x01": x.model_copy(update={"position_dependency": dependency})},
             "settings": {"<i>": "</td>"},
         }
     )
@@ -347,6 +347,10 @@ def test_escapes_names_from_files(example: Example, tmp_path: Path) -> None:
     assert "Axis A$1&lt;&amp;&gt;" in page
     names = sorted(p.name for p in (tmp_path / "evil_plots").iterdir())
     assert names == ["01_A_1_stribeck.svg", "01_A_1_travel.svg"]
+    for name in names:  # XML, the control character shown as U+FFFD
+        figure = ET.fromstring((tmp_path / "evil_plots" / name).read_text(encoding="utf-8"))
+        assert "Axis A$1<&>\ufffd: friction" in "".join(figure.itertext())
+    assert 'aria-label="Friction over velocity of axis A$1&lt;&amp;&gt;\ufffd"' in page
     assert "No recording was given" in page
 
 
@@ -465,19 +469,47 @@ def test_the_comparison_figure_has_a_row_per_place_and_a_point_per_run(example: 
         assert np.sign(side) == np.sign(group.median_deviation_percent) or abs(side) < 0.1
 
 
+def test_the_comparison_figure_bands_and_ticks(example: Example) -> None:
+    """Left to right: critical, warning, within, warning, critical; the tick values grow to
+    the right, negative left of zero with a minus sign."""
+    svg = ET.fromstring(comparison_svg(example.comparison))
+    bands = sorted(
+        (float(r.get("x", "nan")), r.get("fill"))
+        for r in svg.findall(f"{_SVG}rect")
+        if r.get("fill-opacity")
+    )
+    assert [fill for _, fill in bands] == ["#c0392b", "#e07b00", "#2e8b3e", "#e07b00", "#c0392b"]
+    limits = example.comparison.limits
+    ticks = [
+        (float(t.get("x", "nan")), float((t.text or "").replace("\u2212", "-")))
+        for t in svg.findall(f"{_SVG}text")
+        if t.get("text-anchor") == "middle" and re.fullmatch(r"\u2212?\d+", t.text or "")
+    ]
+    assert len(ticks) >= 5 and [v for _, v in ticks] == sorted(v for _, v in ticks)
+    assert [x for x, _ in ticks] == sorted(x for x, _ in ticks)
+    zero = next(x for x, v in ticks if v == 0)
+    scale = (ticks[-1][0] - zero) / ticks[-1][1]
+    # the warning band starts where −warning % lies on that scale
+    assert bands[1][0] == pytest.approx(zero - scale * limits.critical_percent, abs=0.15)
+    assert bands[2][0] == pytest.approx(zero - scale * limits.warning_percent, abs=0.15)
+
+
 def test_the_comparison_figure_escapes_its_labels(example: Example) -> None:
     evil = example.comparison.model_copy(
         update={
-            "base": "<b>base</b>",
+            "base": "<b>base</b>\x1f",
             "groups": [
-                g.model_copy(update={"label": "<script>x</script>"})
+                g.model_copy(update={"label": "<script>x</script>\x00", "axis": "X<i>"})
                 for g in example.comparison.groups
             ],
         }
     )
     text = comparison_svg(evil)
-    assert "<script>" not in text and "<b>" not in text
-    ET.fromstring(text)
+    assert "<script>" not in text and "<b>" not in text and "<i>" not in text
+    svg = ET.fromstring(text)  # XML: the control characters shown as U+FFFD
+    texts = "".join(svg.itertext())
+    assert "Comparison with <b>base</b>\ufffd" in texts and "X<i> · 1: " in texts
+    assert "<script>x</script>\ufffd" in texts
 
 
 def test_the_trend_png_holds_the_pixels_savefig_draws() -> None:
@@ -743,7 +775,11 @@ def test_positions_are_numbered_alike(healthy: Results, tmp_path: Path) -> None:
     texts = list(ET.fromstring(travel).iter(f"{_SVG}text"))
     ticks = [t.text for t in texts if t.text and " mm" in t.text]
     assert ticks == ["1: 50 mm", "2: 375 mm", "3: 700 mm"]
-    numbers = [t.text for t in texts if t.get("font-weight") == "bold" and (t.text or "").isdigit()]
+    numbers = [
+        t.text
+        for t in texts
+        if t.get("font-weight") == "bold" and (t.text or "").isdigit() and t.get("fill") != "#fff"
+    ]
     assert numbers == ["1", "2", "3"]
 
 

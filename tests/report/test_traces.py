@@ -166,8 +166,38 @@ def test_the_figure_shades_the_windows_and_keeps_every_peak(tmp_path: Path) -> N
     assert "Axis X: raw data" in texts and f"stretch {start:.1f} – {end:.1f} s" in texts
     for entry in ("motor current", "commanded velocity", "actual velocity", "windows used"):
         assert entry in texts
+    # where: the panels span 78..944 px; the stretch's bands start at their windows' times,
+    # the overview's box at the stretch's
+    left, width = 78.0, 960.0 - 78.0 - 16.0
+    starts = [float(x) for x in re.findall(r"M([\d.]+) ", shades[1].get("d", ""))]
+    inside = sorted(a for a, b in trace.windows if b >= start and a <= end)
+    expected = [left + (max(a, start) - start) / (end - start) * width for a in inside]
+    assert starts == pytest.approx(expected, abs=0.06)
     box = svg.find(f"{SVG}rect[@fill='none']")
-    assert box is not None and float(box.get("width", "0")) > 0
+    assert box is not None
+    low, high = trace.span
+    assert float(box.get("x", "nan")) == pytest.approx(
+        left + (start - low) / (high - low) * width, abs=0.06
+    )
+    assert float(box.get("width", "nan")) == pytest.approx(
+        (end - start) / (high - low) * width, abs=0.1
+    )
+
+
+def test_the_figure_is_bounded_whatever_the_windows(tmp_path: Path) -> None:
+    """30,000 windows of a 4 h measurement: bands closer than half a pixel are one."""
+    recording, _ = synthetic_recording(tmp_path / "rec", AXES[:1])
+    trace = raw_trace(recording, "X")
+    span = (0.0, 4 * 3600.0)
+    starts = np.linspace(span[0], span[1] - 0.3, 30_000)
+    many = dataclasses.replace(
+        trace, span=span, windows=tuple((float(a), float(a) + 0.2) for a in starts)
+    )
+    text = trace_svg(many)
+    svg = ET.fromstring(text)
+    shades = [p for p in svg.iter(f"{SVG}path") if p.get("fill") == WINDOW_FILL]
+    assert len(re.findall("z", shades[0].get("d", ""))) <= (960 - 78 - 16) * 2
+    assert len(text) < 300_000
 
 
 def test_a_figure_without_samples_or_a_command_says_so(tmp_path: Path) -> None:
@@ -178,9 +208,16 @@ def test_a_figure_without_samples_or_a_command_says_so(tmp_path: Path) -> None:
     assert "commanded velocity" not in texts and "actual velocity" in texts
     empty = dataclasses.replace(trace, rows=0)
     assert "the recording holds no samples" in trace_svg(empty)
-    gappy = dataclasses.replace(
-        trace, current=np.where(np.arange(len(trace.current)) % 500 == 7, np.nan, trace.current)
-    )
+    # a lost stretch is a gap in the line; a lost sample beside a peak hides no peak
+    n = len(trace.current)
+    peak = int(np.argmax(trace.current))
+    lost = np.zeros(n, dtype=bool)
+    lost[n // 2 : n // 2 + n // 10] = True  # a tenth of the stretch: many whole bins
+    lost[peak - 1 if peak else peak + 1] = True
+    gappy = dataclasses.replace(trace, current=np.where(lost, np.nan, trace.current))
     svg = ET.fromstring(trace_svg(gappy))
     current = [line for line in svg.findall(f"{SVG}polyline") if line.get("stroke") == "#1f5fa8"]
-    assert len(current) > 1  # a gap where a sample is missing, not a line through it
+    assert len(current) == 2  # the line breaks where the stretch was lost
+    whole = ET.fromstring(trace_svg(trace))
+    (line,) = [e for e in whole.findall(f"{SVG}polyline") if e.get("stroke") == "#1f5fa8"]
+    assert min(y for c in current for y in _polyline_y(c)) == min(_polyline_y(line))

@@ -6,7 +6,8 @@ import datetime as dt
 import re
 import xml.etree.ElementTree as ET
 
-from ncmeasure.report.trend_svg import nice_ticks, trend_svg
+from ncmeasure.report.svg import nice_ticks
+from ncmeasure.report.trend_svg import trend_svg
 
 SVG = "{http://www.w3.org/2000/svg}"
 

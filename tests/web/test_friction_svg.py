@@ -70,6 +70,38 @@ def test_points_sit_where_their_values_are(fleet: Fleet) -> None:
     assert ys[highest] == min(ys)
 
 
+def test_the_negative_direction_grows_to_the_left(fleet: Fleet) -> None:
+    result = _axis(fleet, "M-100", "X")
+    svg = ET.fromstring(curves_svg("X", result))
+    negative = svg.findall(f"{SVG}g")[0]
+    points = sorted(
+        (p for p in result.positions[0].directions["negative"].points),  # type: ignore[union-attr]
+        key=lambda p: abs(p.velocity_mm_min),
+    )
+    circles = negative.findall(f"{SVG}circle")[: len(points)]
+    xs = [float(c.get("cx", "nan")) for c in circles]
+    assert xs == sorted(xs, reverse=True)  # faster: further left
+    labels = [
+        t.text or "" for t in negative.findall(f"{SVG}text") if t.get("text-anchor") == "middle"
+    ]
+    assert any(label.startswith("\u2212") for label in labels)  # the speeds signed
+
+
+def test_a_point_that_is_not_a_number_is_left_out(fleet: Fleet) -> None:
+    result = _axis(fleet, "M-100", "X")
+    position = result.positions[0]
+    direction = position.directions["positive"]
+    assert direction is not None
+    points = [direction.points[0].model_copy(update={"median": float("nan")})]
+    broken = direction.model_copy(update={"points": points + list(direction.points[1:])})
+    directions = {**position.directions, "positive": broken}
+    first = position.model_copy(update={"directions": directions})
+    odd = result.model_copy(update={"positions": [first, *result.positions[1:]]})
+    text = curves_svg("X", odd)
+    assert "nan" not in text
+    ET.fromstring(text)
+
+
 def test_a_direction_not_measured_says_so(fleet: Fleet) -> None:
     result = _axis(fleet, "M-100", "X")
     one_sided = result.model_copy(
@@ -111,12 +143,15 @@ def test_friction_along_the_travel(fleet: Fleet) -> None:
 
     assert lightness(thin[slow].get("stroke")) > lightness(thin[fast].get("stroke"))
     numbers = [
-        t.text for t in svg.findall(f".//{SVG}text") if t.get("font-weight") == "bold" and t.text
+        t.text
+        for t in svg.findall(f".//{SVG}text")
+        if t.get("font-weight") == "bold" and t.text and t.get("fill") != "#fff"  # not the halo
     ]
     assert [n for n in numbers if n.isdigit()] == [
         str(p.position_index + 1) for p in result.positions
     ]
-    assert len(svg.findall(f"{SVG}rect")) == 24  # the velocity scale
+    scale = [r for r in svg.findall(f"{SVG}rect") if r.get("fill") != "#ffffff"]  # background
+    assert len(scale) == 24  # the velocity scale
     assert ' id="' not in text
 
 

@@ -80,7 +80,8 @@ def test_levels_start_at_zero_and_the_newest_point_is_highest() -> None:
     # the viscous slope may be negative: its panel is not pinned at zero
     viscous = svg.findall(f"{SVG}g")[1]
     shown = [t.text for t in viscous.findall(f"{SVG}text") if t.get("text-anchor") == "end"]
-    assert float(shown[0] or "nan") < 0
+    assert shown[0] and shown[0].startswith("\u2212")  # a minus sign, not a hyphen
+    assert float(shown[0].replace("\u2212", "-")) < 0
 
 
 def test_one_measurement_and_the_date_ticks() -> None:

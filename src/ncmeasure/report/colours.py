@@ -1,8 +1,8 @@
 """The colours of ncmeasure's figures, in one place and without matplotlib.
 
-The matplotlib figures (:mod:`ncmeasure.report.plots`, the dashboard's curves) and the
-SVG written directly (:mod:`ncmeasure.report.trend_svg`, the dashboard's trend) draw
-with these, so a fault is the same red on every page.
+The figures (SVG written directly: the report's, the dashboard's, the fleet report's
+trends; and the trend PNG of :mod:`ncmeasure.report.plots`) draw with these, so a fault
+is the same red on every page.
 """
 
 from __future__ import annotations

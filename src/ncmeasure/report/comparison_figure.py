@@ -10,13 +10,22 @@ without colour on a grey print too (the rim, and the point's place in its band).
 from __future__ import annotations
 
 import math
-from html import escape
 from typing import Final
 
 from ncmeasure.formats.comparison import Comparison
 from ncmeasure.report.colours import CRITICAL, GOOD, GRID, PALETTE, WARNING
-from ncmeasure.report.svg import TEXT, WIDTH, Panel, frame, legend, svg_head
-from ncmeasure.report.trend_svg import nice_ticks, number_text
+from ncmeasure.report.svg import (
+    FONT_PX,
+    TEXT,
+    WIDTH,
+    Panel,
+    frame,
+    legend,
+    nice_ticks,
+    svg_head,
+    text,
+    tick_texts,
+)
 from ncmeasure.report.words import format_mm
 
 __all__ = ["comparison_svg"]
@@ -41,7 +50,12 @@ def comparison_svg(comparison: Comparison) -> str:
         if math.isfinite(g.median_deviation_percent)
     ]
     reach = max([critical * 1.25, *(abs(v) * 1.1 for v in values)])
-    left, right, top = 220.0, 16.0, 40.0
+    row_labels = {
+        key: f"{key[0]} · {key[1] + 1}: {format_mm(key[2])} mm · {key[3]}" for key in keys
+    }
+    # room for the longest row label (about 0.55 em a character), within a third of the width
+    widest = max((len(label) for label in row_labels.values()), default=10)
+    left, right, top = min(WIDTH / 3, max(120.0, 16 + 0.55 * FONT_PX * widest)), 16.0, 40.0
     panel = Panel(
         left, top, WIDTH - left - right, _ROW * max(len(keys), 1), -reach, reach, 0.0, 1.0
     )
@@ -62,13 +76,14 @@ def comparison_svg(comparison: Comparison) -> str:
             f'<rect x="{a:.1f}" y="{panel.top:g}" width="{b - a:.1f}" height="{panel.height:g}" '
             f'fill="{colour}" fill-opacity="{opacity:g}"/>'
         )
-    for tick in nice_ticks(-reach, reach, 9):
+    ticks = nice_ticks(-reach, reach, 9)
+    for tick, label in zip(ticks, tick_texts(ticks), strict=True):
         x = panel.x(tick)
         out.append(
             f'<line x1="{x:.1f}" x2="{x:.1f}" y1="{panel.top:g}" y2="{panel.bottom:g}" '
             f'stroke="{GRID}" stroke-width="0.6"/>'
             f'<text x="{x:.1f}" y="{panel.bottom + 16:g}" text-anchor="middle" '
-            f'fill="{TEXT}">{number_text(tick)}</text>'
+            f'fill="{TEXT}">{label}</text>'
         )
     zero = panel.x(0.0)
     out.append(
@@ -76,12 +91,11 @@ def comparison_svg(comparison: Comparison) -> str:
         f'stroke="#555555" stroke-width="0.9"/>'
     )
     rows = {key: index for index, key in enumerate(keys)}
-    for (axis, index, mm, direction), row in rows.items():
+    for key, row in rows.items():
         y = panel.top + (row + 0.5) * _ROW
-        text = f"{axis} · {index + 1}: {format_mm(mm)} mm · {direction}"
         out.append(
             f'<text x="{panel.left - 6:g}" y="{y + 4:.1f}" text-anchor="end" '
-            f'fill="{TEXT}">{escape(text)}</text>'
+            f'fill="{TEXT}">{text(row_labels[key])}</text>'
         )
     out.append(frame(panel))
     for number, label in enumerate(labels):
@@ -96,7 +110,7 @@ def comparison_svg(comparison: Comparison) -> str:
             out.append(
                 f'<circle cx="{panel.x(g.median_deviation_percent):.1f}" cy="{y:.1f}" r="5" '
                 f'fill="{colour}" stroke="{_STATUS_RIMS[g.status]}" stroke-width="1.6">'
-                f"<title>{escape(label)}: {g.median_deviation_percent:+.1f} % "
+                f"<title>{text(label)}: {g.median_deviation_percent:+.1f} % "
                 f"({g.status})</title></circle>"
             )
     out.append(

@@ -21,13 +21,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from html import escape
 
 import numpy as np
 
 from ncmeasure.formats.results import AxisResult, DirectionResult
 from ncmeasure.report.bearings import BearingLayout
-from ncmeasure.report.colours import INK, PALETTE
+from ncmeasure.report.colours import GRID, INK, PALETTE
 from ncmeasure.report.curves import (
     drawn_model,
     linear_curve,
@@ -38,8 +37,18 @@ from ncmeasure.report.curves import (
     stribeck_curve,
     unit_label,
 )
-from ncmeasure.report.svg import TEXT, WIDTH, Panel, frame, legend, polyline, svg_head, y_grid
-from ncmeasure.report.trend_svg import nice_ticks
+from ncmeasure.report.svg import (
+    TEXT,
+    WIDTH,
+    Panel,
+    frame,
+    legend,
+    nice_ticks,
+    polyline,
+    svg_head,
+    text,
+    y_grid,
+)
 from ncmeasure.report.words import format_mm
 
 __all__ = ["curves_svg", "travel_svg"]
@@ -77,7 +86,11 @@ def _direction_marks(
     """Points with ± std bars, the linear fit and the nonlinear one of one direction."""
     out: list[str] = []
     points = sorted(
-        (p for p in direction.points if p.velocity_mm_min != 0),
+        (
+            p
+            for p in direction.points
+            if p.velocity_mm_min != 0 and math.isfinite(p.velocity_mm_min + p.median)
+        ),
         key=lambda p: abs(p.velocity_mm_min),
     )
     model = drawn_model(direction)
@@ -191,6 +204,11 @@ def curves_svg(axis: str, result: AxisResult) -> str:
         out += y_grid(panel, labels=side == "negative")
         for tick in labelled + minor:
             x = panel.x(tick)
+            if tick in labelled:
+                out.append(
+                    f'<line x1="{x:.1f}" x2="{x:.1f}" y1="{panel.top:g}" y2="{panel.bottom:g}" '
+                    f'stroke="{GRID}" stroke-width="0.6"/>'
+                )
             size = 4 if tick in labelled else 2.5
             out.append(
                 f'<line x1="{x:.1f}" x2="{x:.1f}" y1="{panel.bottom:g}" '
@@ -225,7 +243,7 @@ def curves_svg(axis: str, result: AxisResult) -> str:
         )
     out.append(
         f'<text transform="translate(16 {top + plot_h / 2:g}) rotate(-90)" '
-        f'text-anchor="middle" fill="{TEXT}">{escape(unit_label(result))}</text>'
+        f'text-anchor="middle" fill="{TEXT}">{text(unit_label(result))}</text>'
     )
     entries = [
         (
@@ -288,7 +306,7 @@ def travel_svg(axis: str, result: AxisResult, bearings: BearingLayout) -> str | 
             return math.log(speed / slowest) / math.log(fastest / slowest)
         return (speed - slowest) / (fastest - slowest)
 
-    positions = [x for p in dependency.profiles for x in p.positions_mm]
+    positions = [x for p in dependency.profiles for x in p.positions_mm if math.isfinite(x)]
     low_mm, high_mm = min(positions, default=0.0), max(positions, default=1.0)
     if bearings.travel_mm is not None:
         low_mm, high_mm = min(low_mm, bearings.travel_mm[0]), max(high_mm, bearings.travel_mm[1])
@@ -333,9 +351,13 @@ def travel_svg(axis: str, result: AxisResult, bearings: BearingLayout) -> str | 
         out.extend(
             f'<circle cx="{panel.x(x):.1f}" cy="{panel.y(y):.1f}" r="1.6" fill="{colour}"/>'
             for x, y in zip(profile.positions_mm, magnitudes, strict=True)
-            if math.isfinite(y)
+            if math.isfinite(x + y)
         )
-    numbered = {p.position_mm: p.position_index + 1 for p in result.positions}
+    numbered = {
+        p.position_mm: p.position_index + 1
+        for p in result.positions
+        if math.isfinite(p.position_mm)
+    }
     for profile in averages:
         magnitudes = [abs(v) for v in profile.values]
         out.append(
@@ -345,13 +367,16 @@ def travel_svg(axis: str, result: AxisResult, bearings: BearingLayout) -> str | 
         )
         numbers = profile.position_numbers or [numbered.get(x, 0) for x in profile.positions_mm]
         for number, x, y in zip(numbers, profile.positions_mm, magnitudes, strict=False):
-            if not math.isfinite(y):
+            if not math.isfinite(x + y):
                 continue
             out.append(
                 f'<circle cx="{panel.x(x):.1f}" cy="{panel.y(y):.1f}" r="5" fill="{PALETTE[1]}"/>'
+                # a white halo below the number: a second text, not paint-order, which not
+                # every SVG program draws
                 f'<text x="{panel.x(x):.1f}" y="{panel.y(y) - 10:.1f}" text-anchor="middle" '
-                f'font-weight="bold" fill="{INK}" stroke="#fff" stroke-width="3" '
-                f'paint-order="stroke">{number}</text>'
+                f'font-weight="bold" fill="#fff" stroke="#fff" stroke-width="3">{number}</text>'
+                f'<text x="{panel.x(x):.1f}" y="{panel.y(y) - 10:.1f}" text-anchor="middle" '
+                f'font-weight="bold" fill="{INK}">{number}</text>'
             )
     many = len(numbered) > 7
     for x in sorted(numbered):
@@ -360,14 +385,14 @@ def travel_svg(axis: str, result: AxisResult, bearings: BearingLayout) -> str | 
             f'<line x1="{panel.x(x):.1f}" x2="{panel.x(x):.1f}" y1="{panel.bottom:g}" '
             f'y2="{panel.bottom + 4:g}" stroke="#444"/>'
             f'<text x="{panel.x(x):.1f}" y="{panel.bottom + 16:g}" text-anchor="middle" '
-            f'fill="{TEXT}">{escape(label)}</text>'
+            f'fill="{TEXT}">{text(label)}</text>'
         )
     out.append(
         f'<text x="{panel.left + panel.width / 2:g}" y="{panel.bottom + 36:g}" '
         f'text-anchor="middle" fill="{TEXT}">measuring position (number: place along the '
         f"travel)</text>"
         f'<text transform="translate(16 {top + plot_h / 2:g}) rotate(-90)" '
-        f'text-anchor="middle" fill="{TEXT}">{escape(unit_label(result))}</text>'
+        f'text-anchor="middle" fill="{TEXT}">{text(unit_label(result))}</text>'
     )
     if averages:
         spread = averages[0].spread_percent

@@ -9,15 +9,15 @@ windows on: current, then commanded and actual velocity. Only the shaded windows
 enter the friction values.
 
 Each line keeps the lowest and highest value of every bin about a pixel wide
-(:func:`_envelope`), so a peak of one sample still shows, and the figure stays a
-few hundred kB whatever the recording's length.
+(:func:`_envelope`), so a peak of one sample still shows; windows closer than half a
+pixel are shaded as one band. So the figure stays a few hundred kB, whatever the
+recording's length and its number of windows.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from html import escape
 from typing import Final
 
 import numpy as np
@@ -25,8 +25,18 @@ from numpy.typing import NDArray
 
 from ncmeasure.recording import Recording
 from ncmeasure.report.colours import INK, PALETTE
-from ncmeasure.report.svg import TEXT, WIDTH, Panel, frame, legend, svg_head, y_grid
-from ncmeasure.report.trend_svg import nice_ticks, number_text
+from ncmeasure.report.svg import (
+    TEXT,
+    WIDTH,
+    Panel,
+    frame,
+    legend,
+    nice_ticks,
+    svg_head,
+    text,
+    tick_texts,
+    y_grid,
+)
 
 __all__ = ["OVERVIEW_BINS", "WINDOW_FILL", "RawTrace", "raw_data_svg", "raw_trace", "trace_svg"]
 
@@ -40,15 +50,20 @@ per pixel of the panel)."""
 
 
 def _envelope(time_s: FloatArray, values: FloatArray, bins: int) -> tuple[FloatArray, FloatArray]:
-    """At most ``2·bins`` points that keep every peak: min and max of each bin, in order."""
+    """At most ``2·bins`` points that keep every peak: min and max of each bin, in order.
+
+    A sample that is not a number (lost) does not hide a bin's peaks; a bin of nothing
+    else stays not a number, a gap in the line.
+    """
     if len(time_s) <= 2 * bins:
         return time_s, values
     size = -(-len(time_s) // bins)  # ceil: the last bin is padded with the last sample
     pad = size * bins - len(time_s)
     blocks = np.pad(values, (0, pad), mode="edge").reshape(bins, size)
     times = np.pad(time_s, (0, pad), mode="edge").reshape(bins, size)
-    low_index = np.argmin(blocks, axis=1)
-    high_index = np.argmax(blocks, axis=1)
+    missing = np.isnan(blocks)
+    low_index = np.argmin(np.where(missing, np.inf, blocks), axis=1)
+    high_index = np.argmax(np.where(missing, -np.inf, blocks), axis=1)
     first = np.minimum(low_index, high_index)
     second = np.maximum(low_index, high_index)
     rows = np.arange(bins)
@@ -214,28 +229,36 @@ def _line(panel: Panel, time_s: FloatArray, values: FloatArray, style: str) -> s
 
 
 def _shade(panel: Panel, windows: Sequence[tuple[float, float]]) -> str:
-    """The windows inside the panel's time range as full-height bands, one path."""
+    """The windows inside the panel's time range as full-height bands, one path; windows
+    less than half a pixel apart are one band."""
     if not windows:
         return ""
     edges = np.asarray(windows, dtype=np.float64).reshape(-1, 2)
     edges = edges[(edges[:, 1] >= panel.x_low) & (edges[:, 0] <= panel.x_high)]
     if not len(edges):
         return ""
-    edges = np.clip(edges, panel.x_low, panel.x_high)
+    edges = np.clip(edges[np.argsort(edges[:, 0], kind="stable")], panel.x_low, panel.x_high)
     x = panel.left + (edges - panel.x_low) / (panel.x_high - panel.x_low) * panel.width
-    bands = "".join(
+    bands: list[list[float]] = []
+    for start, end in x:
+        if bands and start - bands[-1][1] < 0.5:
+            bands[-1][1] = max(bands[-1][1], end)
+        else:
+            bands.append([start, end])
+    path = "".join(
         f"M{a:.1f} {panel.top:g}h{max(b - a, 0.3):.1f}v{panel.height:g}h{-max(b - a, 0.3):.1f}z"
-        for a, b in x
+        for a, b in bands
     )
-    return f'<path d="{bands}" fill="{WINDOW_FILL}" fill-opacity="0.55"/>'
+    return f'<path d="{path}" fill="{WINDOW_FILL}" fill-opacity="0.55"/>'
 
 
 def _time_axis(panel: Panel, labels: bool) -> list[str]:
     """Ticks at round times under a panel, with their values."""
     out: list[str] = []
-    for tick in nice_ticks(panel.x_low, panel.x_high, 8):
-        if not panel.x_low <= tick <= panel.x_high:
-            continue
+    ticks = [
+        t for t in nice_ticks(panel.x_low, panel.x_high, 8) if panel.x_low <= t <= panel.x_high
+    ]
+    for tick, label in zip(ticks, tick_texts(ticks), strict=True):
         x = panel.x(tick)
         out.append(
             f'<line x1="{x:.1f}" x2="{x:.1f}" y1="{panel.bottom:g}" y2="{panel.bottom + 4:g}" '
@@ -244,15 +267,15 @@ def _time_axis(panel: Panel, labels: bool) -> list[str]:
         if labels:
             out.append(
                 f'<text x="{x:.1f}" y="{panel.bottom + 16:g}" text-anchor="middle" '
-                f'fill="{TEXT}">{number_text(tick)}</text>'
+                f'fill="{TEXT}">{label}</text>'
             )
     return out
 
 
-def _y_title(panel: Panel, text: str) -> str:
+def _y_title(panel: Panel, title: str) -> str:
     return (
         f'<text transform="translate(16 {panel.top + panel.height / 2:g}) rotate(-90)" '
-        f'text-anchor="middle" fill="{TEXT}">{escape(text)}</text>'
+        f'text-anchor="middle" fill="{TEXT}">{text(title)}</text>'
     )
 
 
@@ -319,7 +342,7 @@ def trace_svg(trace: RawTrace) -> str:
     )
     out.append(
         f'<text x="{left:g}" y="{top.top - 10:g}" fill="{INK}">'
-        f"stretch {start:.1f} – {end:.1f} s</text>"
+        f"stretch {start:.1f} – {end:.1f} s</text>".replace("-", "\u2212")
     )
     out.append(_shade(top, trace.windows))
     out += y_grid(top)

@@ -11,20 +11,77 @@ figures can share a page.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from html import escape
 
-from ncmeasure.report.colours import INK
-from ncmeasure.report.trend_svg import nice_ticks, number_text
+from ncmeasure.report.colours import GRID, INK
 
-__all__ = ["TEXT", "WIDTH", "Panel", "frame", "legend", "polyline", "svg_head", "y_grid"]
+__all__ = [
+    "TEXT",
+    "WIDTH",
+    "Panel",
+    "frame",
+    "legend",
+    "nice_ticks",
+    "number_text",
+    "polyline",
+    "svg_head",
+    "text",
+    "tick_texts",
+    "y_grid",
+]
 
 WIDTH = 960.0
 """The width of a figure in px (it shrinks to the page, keeping its proportions)."""
+FONT_PX = 12.0
+"""The figures' text size in px (at the page's 1056 px, about 13 px on screen)."""
 
 TEXT = "#444444"
 """Tick labels and axis titles."""
+
+_NOT_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]")
+"""Characters XML 1.0 does not allow in a document (HTML tolerates them, an SVG file not)."""
+
+
+def text(value: str) -> str:
+    """Text from a file (a name, a label) for an SVG element or attribute: escaped, and a
+    character XML does not allow shown as U+FFFD, so that every figure's file is XML."""
+    return escape(_NOT_XML.sub("\ufffd", value))
+
+
+def nice_ticks(low: float, high: float, count: int = 5) -> list[float]:
+    """Round values (1, 2, 2.5 or 5 × a power of ten apart) covering ``low`` to ``high``,
+    about ``count`` of them."""
+    if not (math.isfinite(low) and math.isfinite(high)) or high <= low:
+        return [low]
+    raw = (high - low) / max(1, count - 1)
+    power = 10.0 ** math.floor(math.log10(raw))
+    step = next(m * power for m in (1.0, 2.0, 2.5, 5.0, 10.0) if m * power >= raw)
+    first = math.ceil(low / step - 1e-9)
+    last = math.floor(high / step + 1e-9)
+    return [round(k * step, 12) for k in range(first, last + 1)]
+
+
+def number_text(value: float) -> str:
+    """A value as written at an axis: six significant digits, a minus sign (U+2212)."""
+    return f"{value:.6g}".replace("-", "\u2212")
+
+
+def tick_texts(ticks: Sequence[float]) -> list[str]:
+    """The labels of evenly spaced ticks (:func:`nice_ticks`): as many decimals as their
+    step needs and no exponent, so that neighbours differ (``1700000012.5``, not
+    ``1.7e+09``), with a minus sign (U+2212)."""
+    if len(ticks) < 2:
+        return [number_text(t) for t in ticks]
+    step = abs(ticks[1] - ticks[0])
+    if not math.isfinite(step) or step <= 0:
+        return [number_text(t) for t in ticks]
+    power = math.floor(math.log10(step) + 1e-9)
+    mantissa = step / 10.0**power
+    decimals = max(0, -power + (1 if abs(mantissa - 2.5) < 1e-6 else 0))
+    return [f"{t:.{decimals}f}".replace("-", "\u2212") for t in ticks]
 
 
 @dataclass(frozen=True)
@@ -71,19 +128,21 @@ def polyline(panel: Panel, xs: Iterable[float], ys: Iterable[float], style: str)
     )
 
 
-def y_grid(panel: Panel, labels: bool = True) -> list[str]:
-    """Grid lines across the panel at round values, with the values at the left."""
+def y_grid(panel: Panel, labels: bool = True, count: int = 7) -> list[str]:
+    """Grid lines across the panel at round values (about ``count``), the values at the
+    left."""
     out: list[str] = []
-    for tick in nice_ticks(panel.y_low, panel.y_high):
+    ticks = nice_ticks(panel.y_low, panel.y_high, count)
+    for tick, label in zip(ticks, tick_texts(ticks), strict=True):
         y = panel.y(tick)
         out.append(
             f'<line x1="{panel.left:g}" x2="{panel.left + panel.width:g}" y1="{y:.1f}" '
-            f'y2="{y:.1f}" stroke="#d9d9d9" stroke-width="0.6"/>'
+            f'y2="{y:.1f}" stroke="{GRID}" stroke-width="0.6"/>'
         )
         if labels:
             out.append(
                 f'<text x="{panel.left - 5:g}" y="{y + 4:.1f}" text-anchor="end" '
-                f'fill="{TEXT}">{number_text(tick)}</text>'
+                f'fill="{TEXT}">{label}</text>'
             )
     return out
 
@@ -97,13 +156,15 @@ def frame(panel: Panel) -> str:
 
 
 def svg_head(height: float, title: str) -> list[str]:
-    """A figure's opening tag, its title for screen readers and its title at the top left."""
+    """A figure's opening tag, its title for screen readers, a white background (for
+    programs that ignore the style) and its title at the top left."""
     return [
         f'<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {WIDTH:g} {height:g}" '
         f'width="{WIDTH:g}" height="{height:g}" role="img" font-family="sans-serif" '
-        f'font-size="11" style="max-width:100%;height:auto;background:#fff">',
-        f"<title>{escape(title)}</title>",
-        f'<text x="8" y="20" font-size="14" fill="{INK}">{escape(title)}</text>',
+        f'font-size="{FONT_PX:g}" style="max-width:100%;height:auto;background:#fff">',
+        f"<title>{text(title)}</title>",
+        f'<rect width="{WIDTH:g}" height="{height:g}" fill="#ffffff"/>',
+        f'<text x="8" y="20" font-size="15" fill="{INK}">{text(title)}</text>',
     ]
 
 
@@ -113,11 +174,11 @@ def legend(
     """``columns`` entries to a row: a mark (SVG, 18 px wide, centred on y = 0) and its text."""
     out: list[str] = []
     column = width / columns
-    for k, (mark, text) in enumerate(entries):
+    for k, (mark, label) in enumerate(entries):
         x = left + (k % columns) * column
         y = top + (k // columns) * 18
         out.append(
             f'<g transform="translate({x:.1f} {y:.1f})">{mark}'
-            f'<text x="24" y="4" fill="{INK}">{escape(text)}</text></g>'
+            f'<text x="24" y="4" fill="{INK}">{text(label)}</text></g>'
         )
     return out

@@ -13,11 +13,11 @@ from __future__ import annotations
 import datetime as dt
 import math
 from collections.abc import Sequence
-from html import escape
 
 from ncmeasure.report.colours import CRITICAL, LINE, WARNING
+from ncmeasure.report.svg import nice_ticks, number_text, text
 
-__all__ = ["date_label", "date_ticks", "nice_ticks", "number_text", "time_span", "trend_svg"]
+__all__ = ["date_label", "date_ticks", "time_span", "trend_svg"]
 
 _WIDTH = 760.0
 _PANEL = 150.0
@@ -27,24 +27,6 @@ _RIGHT = 16.0
 _TOP = 34.0
 _BOTTOM = 46.0
 _DAY = 86400.0
-
-
-def nice_ticks(low: float, high: float, count: int = 5) -> list[float]:
-    """Round values (1, 2, 2.5 or 5 × a power of ten apart) covering ``low`` to ``high``,
-    about ``count`` of them."""
-    if not (math.isfinite(low) and math.isfinite(high)) or high <= low:
-        return [low]
-    raw = (high - low) / max(1, count - 1)
-    power = 10.0 ** math.floor(math.log10(raw))
-    step = next(m * power for m in (1.0, 2.0, 2.5, 5.0, 10.0) if m * power >= raw)
-    first = math.ceil(low / step - 1e-9)
-    last = math.floor(high / step + 1e-9)
-    return [round(k * step, 12) for k in range(first, last + 1)]
-
-
-def number_text(value: float) -> str:
-    """A tick's value as written at the axis."""
-    return f"{value:.6g}"
 
 
 def date_label(when: float) -> str:
@@ -121,9 +103,9 @@ def trend_svg(
         f'<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {_WIDTH:g} {height:g}" '
         f'width="{_WIDTH:g}" height="{height:g}" role="img" font-family="sans-serif" '
         f'font-size="11" style="max-width:100%;height:auto;background:#fff">',
-        f"<title>Axis {escape(axis)} over the machine's life</title>",
+        f"<title>Axis {text(axis)} over the machine's life</title>",
         f'<text x="{_WIDTH / 2:g}" y="20" text-anchor="middle" font-size="14">'
-        f"Axis {escape(axis)} over the machine&#x27;s life</text>",
+        f"Axis {text(axis)} over the machine&#x27;s life</text>",
     ]
     x_ticks = date_ticks(start, end)
     for index, (title, unit, values) in enumerate(series):
@@ -200,13 +182,13 @@ def trend_svg(
             if label and value is not None:
                 out.append(
                     f'<text x="{x_of(seconds[at]) + 5:.1f}" y="{y_of(value) - 7:.1f}" '
-                    f'font-size="9" fill="#555">{escape(label)}</text>'
+                    f'font-size="9" fill="#555">{text(label)}</text>'
                 )
         middle = top + _PANEL / 2
         out.append(
             f'<text transform="translate(14 {middle:g}) rotate(-90)" text-anchor="middle">'
-            f"<tspan>{escape(title)}</tspan>"
-            f'<tspan x="0" dy="13">[{escape(unit)}]</tspan></text></g>'
+            f"<tspan>{text(title)}</tspan>"
+            f'<tspan x="0" dy="13">[{text(unit)}]</tspan></text></g>'
         )
     bottom = _TOP + panels * _PANEL + (panels - 1) * _GAP
     for tick in x_ticks:

@@ -12,11 +12,12 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from markupsafe import Markup, escape
+from markupsafe import Markup
 
 from ncmeasure.analysis.judgement.summary import Headline
 from ncmeasure.formats.results import AxisResult, ModelName, PositionResult
 from ncmeasure.report.bearings import BearingLayout
+from ncmeasure.report.svg import text
 from ncmeasure.report.words import format_mm
 
 __all__ = [
@@ -129,7 +130,6 @@ class Image:
     """An embedded plot: its SVG markup, ready for the page."""
 
     svg: Markup
-    alt: str
     caption: str
     filename: str
 
@@ -275,11 +275,12 @@ def embed_image(figure: Figure) -> Image:
     The SVG is written by ncmeasure's own figures, every text in it escaped there; it
     is the one piece of markup the page takes as it is.
     """
+    if not figure.svg.startswith("<svg "):
+        raise ValueError("not an SVG figure of ncmeasure's")
     svg = figure.svg.replace(_NAMESPACE, "", 1)  # HTML puts an <svg> in SVG's namespace
-    svg = svg.replace('role="img"', f'role="img" aria-label="{escape(figure.alt)}"', 1)
+    svg = f'<svg aria-label="{text(figure.alt)}" {svg.removeprefix("<svg ")}'
     return Image(
         svg=Markup(svg),  # written by report.*_svg, every text escaped there
-        alt=figure.alt,
         caption=figure.caption,
         filename=figure.filename,
     )

@@ -17,10 +17,9 @@ from __future__ import annotations
 
 import datetime as dt
 from collections.abc import Sequence
-from html import escape
 
 from ncmeasure.report.colours import VERDICT_COLOURS
-from ncmeasure.report.svg import Panel, frame, polyline, y_grid
+from ncmeasure.report.svg import Panel, frame, polyline, text, y_grid
 from ncmeasure.report.trend_svg import date_label, date_ticks, time_span
 from ncmeasure.store.records import TrendPoint
 
@@ -82,8 +81,8 @@ def trend_svg(serial: str, axis: str, points: Sequence[TrendPoint]) -> str:
         f'<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {_WIDTH:g} {_HEIGHT:g}" '
         f'width="{_WIDTH:g}" height="{_HEIGHT:g}" role="img" font-family="sans-serif" '
         f'font-size="11" style="max-width:100%;height:auto;background:#fff">',
-        f"<title>{escape(title)}: machine {escape(serial)}</title>",
-        f'<text x="8" y="18" font-size="13" fill="#222">{escape(title)}</text>',
+        f"<title>{text(title)}: machine {text(serial)}</title>",
+        f'<text x="8" y="18" font-size="13" fill="#222">{text(title)}</text>',
     ]
     levels = [level for level in VERDICT_COLOURS if any(p.verdict == level for p in shown)]
     x = _WIDTH - _RIGHT - sum(30 + 7.0 * len(level) for level in levels)  # right-aligned
@@ -105,7 +104,7 @@ def trend_svg(serial: str, axis: str, points: Sequence[TrendPoint]) -> str:
         panel = Panel(left, _TOP, width, bottom - _TOP, start, end, low, high)
         out.append(
             f'<g><text x="{left:g}" y="{_TOP - 10:g}" fill="#222">'
-            f"{escape(label.format(unit=unit))}</text>"
+            f"{text(label.format(unit=unit))}</text>"
         )
         out += y_grid(panel)
         for tick in ticks:
