@@ -53,15 +53,20 @@ def test_friction_over_velocity_has_every_point_in_its_positions_colour(fleet: F
     assert ' id="' not in curves_svg("Y", result)
 
 
+def _direction_circles(
+    result: AxisResult, svg: ET.Element, side: str
+) -> tuple[list[Point], list[ET.Element]]:
+    """The first position's points of one direction, slowest first, and their circles."""
+    panel = svg.findall(f"{SVG}g")[0 if side == "negative" else 1]
+    points = sorted(
+        _points(result.positions[0].directions[side]), key=lambda p: abs(p.velocity_mm_min)
+    )
+    return points, panel.findall(f"{SVG}circle")[: len(points)]
+
+
 def test_points_sit_where_their_values_are(fleet: Fleet) -> None:
     result = _axis(fleet, "M-100", "X")
-    svg = ET.fromstring(curves_svg("X", result))
-    positive = svg.findall(f"{SVG}g")[1]
-    points = sorted(
-        (p for p in result.positions[0].directions["positive"].points),  # type: ignore[union-attr]
-        key=lambda p: p.velocity_mm_min,
-    )
-    circles = positive.findall(f"{SVG}circle")[: len(points)]
+    points, circles = _direction_circles(result, ET.fromstring(curves_svg("X", result)), "positive")
     xs = [float(c.get("cx", "nan")) for c in circles]
     ys = [float(c.get("cy", "nan")) for c in circles]
     assert xs == sorted(xs)  # faster: further right
@@ -73,14 +78,10 @@ def test_points_sit_where_their_values_are(fleet: Fleet) -> None:
 def test_the_negative_direction_grows_to_the_left(fleet: Fleet) -> None:
     result = _axis(fleet, "M-100", "X")
     svg = ET.fromstring(curves_svg("X", result))
-    negative = svg.findall(f"{SVG}g")[0]
-    points = sorted(
-        (p for p in result.positions[0].directions["negative"].points),  # type: ignore[union-attr]
-        key=lambda p: abs(p.velocity_mm_min),
-    )
-    circles = negative.findall(f"{SVG}circle")[: len(points)]
+    _, circles = _direction_circles(result, svg, "negative")
     xs = [float(c.get("cx", "nan")) for c in circles]
     assert xs == sorted(xs, reverse=True)  # faster: further left
+    negative = svg.findall(f"{SVG}g")[0]
     labels = [
         t.text or "" for t in negative.findall(f"{SVG}text") if t.get("text-anchor") == "middle"
     ]

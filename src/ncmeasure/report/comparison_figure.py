@@ -13,7 +13,7 @@ import math
 from typing import Final
 
 from ncmeasure.formats.comparison import Comparison
-from ncmeasure.report.colours import CRITICAL, GOOD, GRID, PALETTE, WARNING
+from ncmeasure.report.colours import CRITICAL, GOOD, PALETTE, WARNING
 from ncmeasure.report.svg import (
     FONT_PX,
     TEXT,
@@ -21,10 +21,9 @@ from ncmeasure.report.svg import (
     Panel,
     frame,
     legend,
-    nice_ticks,
     svg_head,
     text,
-    tick_texts,
+    x_axis,
 )
 from ncmeasure.report.words import format_mm
 
@@ -76,15 +75,7 @@ def comparison_svg(comparison: Comparison) -> str:
             f'<rect x="{a:.1f}" y="{panel.top:g}" width="{b - a:.1f}" height="{panel.height:g}" '
             f'fill="{colour}" fill-opacity="{opacity:g}"/>'
         )
-    ticks = nice_ticks(-reach, reach, 9)
-    for tick, label in zip(ticks, tick_texts(ticks), strict=True):
-        x = panel.x(tick)
-        out.append(
-            f'<line x1="{x:.1f}" x2="{x:.1f}" y1="{panel.top:g}" y2="{panel.bottom:g}" '
-            f'stroke="{GRID}" stroke-width="0.6"/>'
-            f'<text x="{x:.1f}" y="{panel.bottom + 16:g}" text-anchor="middle" '
-            f'fill="{TEXT}">{label}</text>'
-        )
+    out += x_axis(panel, 9, grid=True)
     zero = panel.x(0.0)
     out.append(
         f'<line x1="{zero:.1f}" x2="{zero:.1f}" y1="{panel.top:g}" y2="{panel.bottom:g}" '

@@ -31,10 +31,9 @@ from ncmeasure.report.svg import (
     Panel,
     frame,
     legend,
-    nice_ticks,
     svg_head,
     text,
-    tick_texts,
+    x_axis,
     y_grid,
 )
 
@@ -252,26 +251,6 @@ def _shade(panel: Panel, windows: Sequence[tuple[float, float]]) -> str:
     return f'<path d="{path}" fill="{WINDOW_FILL}" fill-opacity="0.55"/>'
 
 
-def _time_axis(panel: Panel, labels: bool) -> list[str]:
-    """Ticks at round times under a panel, with their values."""
-    out: list[str] = []
-    ticks = [
-        t for t in nice_ticks(panel.x_low, panel.x_high, 8) if panel.x_low <= t <= panel.x_high
-    ]
-    for tick, label in zip(ticks, tick_texts(ticks), strict=True):
-        x = panel.x(tick)
-        out.append(
-            f'<line x1="{x:.1f}" x2="{x:.1f}" y1="{panel.bottom:g}" y2="{panel.bottom + 4:g}" '
-            f'stroke="#444"/>'
-        )
-        if labels:
-            out.append(
-                f'<text x="{x:.1f}" y="{panel.bottom + 16:g}" text-anchor="middle" '
-                f'fill="{TEXT}">{label}</text>'
-            )
-    return out
-
-
 def _y_title(panel: Panel, title: str) -> str:
     return (
         f'<text transform="translate(16 {panel.top + panel.height / 2:g}) rotate(-90)" '
@@ -335,7 +314,7 @@ def trace_svg(trace: RawTrace) -> str:
         f'height="{overview.height:g}" fill="none" stroke="{INK}" stroke-width="1.3"/>'
     )
     out.append(frame(overview))
-    out += _time_axis(overview, labels=True)
+    out += x_axis(overview, 8)
     out.append(
         f'<text transform="translate(16 {overview.top + overview.height / 2:g}) rotate(-90)" '
         f'text-anchor="middle" font-size="10" fill="{TEXT}">mm/min</text>'
@@ -348,7 +327,7 @@ def trace_svg(trace: RawTrace) -> str:
     out += y_grid(top)
     out.append(_line(top, t_i, current, f'stroke="{PALETTE[0]}" stroke-width="0.9"'))
     out.append(frame(top))
-    out += _time_axis(top, labels=False)
+    out += x_axis(top, 8, labels=False)
     out.append(_y_title(top, "current [A]"))
     out.append(_shade(bottom, trace.windows))
     out += y_grid(bottom)
@@ -362,7 +341,7 @@ def trace_svg(trace: RawTrace) -> str:
         )
     out.append(_line(bottom, t_v, velocity, f'stroke="{PALETTE[1]}" stroke-width="1.1"'))
     out.append(frame(bottom))
-    out += _time_axis(bottom, labels=True)
+    out += x_axis(bottom, 8)
     out.append(_y_title(bottom, "velocity [mm/min]"))
     out.append(
         f'<text x="{left + width / 2:g}" y="{bottom.bottom + 32:g}" text-anchor="middle" '

@@ -30,6 +30,7 @@ __all__ = [
     "svg_head",
     "text",
     "tick_texts",
+    "x_axis",
     "y_grid",
 ]
 
@@ -142,6 +143,33 @@ def y_grid(panel: Panel, labels: bool = True, count: int = 7) -> list[str]:
         if labels:
             out.append(
                 f'<text x="{panel.left - 5:g}" y="{y + 4:.1f}" text-anchor="end" '
+                f'fill="{TEXT}">{label}</text>'
+            )
+    return out
+
+
+def x_axis(panel: Panel, count: int, *, labels: bool = True, grid: bool = False) -> list[str]:
+    """Round values (about ``count``) along a linear x scale: a tick below the panel (or a
+    grid line across it) and the value under it."""
+    out: list[str] = []
+    ticks = [
+        t for t in nice_ticks(panel.x_low, panel.x_high, count) if panel.x_low <= t <= panel.x_high
+    ]
+    for tick, label in zip(ticks, tick_texts(ticks), strict=True):
+        x = panel.x(tick)
+        if grid:
+            out.append(
+                f'<line x1="{x:.1f}" x2="{x:.1f}" y1="{panel.top:g}" y2="{panel.bottom:g}" '
+                f'stroke="{GRID}" stroke-width="0.6"/>'
+            )
+        else:
+            out.append(
+                f'<line x1="{x:.1f}" x2="{x:.1f}" y1="{panel.bottom:g}" '
+                f'y2="{panel.bottom + 4:g}" stroke="#444"/>'
+            )
+        if labels:
+            out.append(
+                f'<text x="{x:.1f}" y="{panel.bottom + 16:g}" text-anchor="middle" '
                 f'fill="{TEXT}">{label}</text>'
             )
     return out
