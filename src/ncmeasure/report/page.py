@@ -7,9 +7,10 @@ Python (each axis' section in :mod:`~ncmeasure.report.axis_view`, the
 comparison in :mod:`~ncmeasure.report.comparison_view`); the template
 ``templates/report.html.j2`` only lays it out. Jinja's autoescape
 escapes every value, so names, evidence and warnings from files cannot
-inject markup; the only markup is the template's. The CSS is inline, the
-images are data URIs, there is no script: the file opens offline and prints
-as is.
+inject markup; the only markup is the template's and the figures' SVG, which
+:mod:`ncmeasure.report.svg` writes with every text escaped. The CSS and the
+figures are inline, there is no script: the file opens offline and prints as
+is.
 
 Reading order, for the person at the machine: the verdict per axis first
 (with a comparison, combined with it), the recording, the comparison, the
