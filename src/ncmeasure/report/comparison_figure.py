@@ -81,9 +81,8 @@ def comparison_svg(comparison: Comparison) -> str:
         f'<line x1="{zero:.1f}" x2="{zero:.1f}" y1="{panel.top:g}" y2="{panel.bottom:g}" '
         f'stroke="#555555" stroke-width="0.9"/>'
     )
-    rows = {key: index for index, key in enumerate(keys)}
-    for key, row in rows.items():
-        y = panel.top + (row + 0.5) * _ROW
+    row_y = {key: panel.top + (index + 0.5) * _ROW for index, key in enumerate(keys)}
+    for key, y in row_y.items():
         out.append(
             f'<text x="{panel.left - 6:g}" y="{y + 4:.1f}" text-anchor="end" '
             f'fill="{TEXT}">{text(row_labels[key])}</text>'
@@ -94,10 +93,7 @@ def comparison_svg(comparison: Comparison) -> str:
         for g in comparison.groups:
             if g.label != label or not math.isfinite(g.median_deviation_percent):
                 continue
-            y = (
-                panel.top
-                + (rows[(g.axis, g.position_index, g.position_mm, g.direction)] + 0.5) * _ROW
-            )
+            y = row_y[(g.axis, g.position_index, g.position_mm, g.direction)]
             out.append(
                 f'<circle cx="{panel.x(g.median_deviation_percent):.1f}" cy="{y:.1f}" r="5" '
                 f'fill="{colour}" stroke="{_STATUS_RIMS[g.status]}" stroke-width="1.6">'

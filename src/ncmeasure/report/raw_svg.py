@@ -31,6 +31,7 @@ from ncmeasure.report.svg import (
     Panel,
     frame,
     legend,
+    polyline,
     svg_head,
     text,
     x_axis,
@@ -213,20 +214,6 @@ def _range(*series: FloatArray | None) -> tuple[float, float]:
     return low - pad, high + pad
 
 
-def _line(panel: Panel, time_s: FloatArray, values: FloatArray, style: str) -> str:
-    """A line through the finite samples, a gap where one is not finite."""
-    x = panel.left + (time_s - panel.x_low) / (panel.x_high - panel.x_low) * panel.width
-    y = panel.top + (1.0 - (values - panel.y_low) / (panel.y_high - panel.y_low)) * panel.height
-    good = np.isfinite(x) & np.isfinite(y)
-    out: list[str] = []
-    for run in np.split(np.arange(len(x)), np.flatnonzero(~good)):
-        run = run[good[run]]
-        if len(run) > 1:
-            points = " ".join(f"{a:.1f},{b:.1f}" for a, b in zip(x[run], y[run], strict=True))
-            out.append(f'<polyline points="{points}" fill="none" {style}/>')
-    return "".join(out)
-
-
 def _shade(panel: Panel, windows: Sequence[tuple[float, float]]) -> str:
     """The windows inside the panel's time range as full-height bands, one path; windows
     less than half a pixel apart are one band."""
@@ -237,7 +224,7 @@ def _shade(panel: Panel, windows: Sequence[tuple[float, float]]) -> str:
     if not len(edges):
         return ""
     edges = np.clip(edges[np.argsort(edges[:, 0], kind="stable")], panel.x_low, panel.x_high)
-    x = panel.left + (edges - panel.x_low) / (panel.x_high - panel.x_low) * panel.width
+    x = panel.xs(edges)
     bands: list[list[float]] = []
     for start, end in x:
         if bands and start - bands[-1][1] < 0.5:
@@ -301,7 +288,7 @@ def trace_svg(trace: RawTrace) -> str:
     out.append(_shade(overview, trace.windows))
     out += y_grid(overview)
     out.append(
-        _line(
+        polyline(
             overview,
             trace.overview_time_s,
             trace.overview_velocity,
@@ -319,13 +306,11 @@ def trace_svg(trace: RawTrace) -> str:
         f'<text transform="translate(16 {overview.top + overview.height / 2:g}) rotate(-90)" '
         f'text-anchor="middle" font-size="10" fill="{TEXT}">mm/min</text>'
     )
-    out.append(
-        f'<text x="{left:g}" y="{top.top - 10:g}" fill="{INK}">'
-        f"stretch {start:.1f} – {end:.1f} s</text>".replace("-", "\u2212")
-    )
+    stretch = f"stretch {start:.1f} – {end:.1f} s".replace("-", "\u2212")
+    out.append(f'<text x="{left:g}" y="{top.top - 10:g}" fill="{INK}">{stretch}</text>')
     out.append(_shade(top, trace.windows))
     out += y_grid(top)
-    out.append(_line(top, t_i, current, f'stroke="{PALETTE[0]}" stroke-width="0.9"'))
+    out.append(polyline(top, t_i, current, f'stroke="{PALETTE[0]}" stroke-width="0.9"'))
     out.append(frame(top))
     out += x_axis(top, 8, labels=False)
     out.append(_y_title(top, "current [A]"))
@@ -333,13 +318,13 @@ def trace_svg(trace: RawTrace) -> str:
     out += y_grid(bottom)
     if command is not None:
         out.append(
-            _line(
+            polyline(
                 bottom,
                 *command,
                 'stroke="#777777" stroke-width="1.1" stroke-dasharray="4 2"',
             )
         )
-    out.append(_line(bottom, t_v, velocity, f'stroke="{PALETTE[1]}" stroke-width="1.1"'))
+    out.append(polyline(bottom, t_v, velocity, f'stroke="{PALETTE[1]}" stroke-width="1.1"'))
     out.append(frame(bottom))
     out += x_axis(bottom, 8)
     out.append(_y_title(bottom, "velocity [mm/min]"))

@@ -3,18 +3,22 @@
 The report's figures (:mod:`ncmeasure.report.friction_svg`,
 :mod:`ncmeasure.report.raw_svg`, :mod:`ncmeasure.report.comparison_figure`) and the
 dashboard's (the same friction figures, :mod:`ncmeasure.web.trend`) are written with
-these; the ticks and the numbers at them are those of :mod:`ncmeasure.report.trend_svg`.
-Text is text (the viewer's sans-serif font); no element has an id, so any number of
-figures can share a page.
+these; the fleet report's trends (:mod:`ncmeasure.report.trend_svg`) take their ticks,
+numbers and text from here. Text is text (the viewer's sans-serif font), every text
+from a file through :func:`text`; no element has an id, so any number of figures can
+share a page.
 """
 
 from __future__ import annotations
 
 import math
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from html import escape
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from ncmeasure.report.colours import GRID, INK
 
@@ -111,22 +115,42 @@ class Panel:
         share = (value - self.y_low) / (self.y_high - self.y_low)
         return self.top + (1.0 - share) * self.height
 
+    def xs(self, values: ArrayLike) -> NDArray[np.float64]:
+        """:meth:`x` of many values at once (not a number where a logarithmic scale
+        has no place for a value)."""
+        v = np.asarray(values, dtype=np.float64)
+        low, high = self.x_low, self.x_high
+        if self.x_log:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                v = np.where(v > 0, np.log10(v), np.nan)
+            low, high = math.log10(low), math.log10(high)
+        share = (v - low) / (high - low)
+        return self.left + (1.0 - share if self.x_reversed else share) * self.width
+
+    def ys(self, values: ArrayLike) -> NDArray[np.float64]:
+        """:meth:`y` of many values at once."""
+        share = (np.asarray(values, dtype=np.float64) - self.y_low) / (self.y_high - self.y_low)
+        return self.top + (1.0 - share) * self.height
+
     @property
     def bottom(self) -> float:
         return self.top + self.height
 
 
-def polyline(panel: Panel, xs: Iterable[float], ys: Iterable[float], style: str) -> str:
-    """A line through the finite points (a gap where a value is not finite)."""
-    runs: list[list[str]] = [[]]
-    for x, y in zip(xs, ys, strict=True):
-        if math.isfinite(x) and math.isfinite(y) and (x > 0 or not panel.x_log):
-            runs[-1].append(f"{panel.x(x):.1f},{panel.y(y):.1f}")
-        elif runs[-1]:
-            runs.append([])
-    return "".join(
-        f'<polyline points="{" ".join(run)}" fill="none" {style}/>' for run in runs if len(run) > 1
-    )
+def polyline(panel: Panel, xs: ArrayLike, ys: ArrayLike, style: str) -> str:
+    """A line through the finite points (a gap where a value is not finite, or where a
+    logarithmic scale has no place for it)."""
+    x, y = panel.xs(xs), panel.ys(ys)
+    if x.shape != y.shape:
+        raise ValueError(f"{x.size} x values for {y.size} y values")
+    good = np.isfinite(x) & np.isfinite(y)
+    out: list[str] = []
+    for run in np.split(np.arange(x.size), np.flatnonzero(~good)):
+        run = run[good[run]]
+        if len(run) > 1:
+            points = " ".join(f"{a:.1f},{b:.1f}" for a, b in zip(x[run], y[run], strict=True))
+            out.append(f'<polyline points="{points}" fill="none" {style}/>')
+    return "".join(out)
 
 
 def y_grid(panel: Panel, labels: bool = True, count: int = 7) -> list[str]:
